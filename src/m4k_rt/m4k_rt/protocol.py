@@ -1,0 +1,541 @@
+"""Datagram wire protocol between RT tasks and NRT processes (pure: no I/O).
+
+Every datagram is a 16-byte little-endian header ``<HBBIq`` (magic ``0x4B4D``, version, kind,
+sequence number, sender's CLOCK_MONOTONIC stamp in ns) followed by one fixed payload layout per
+kind; LASER_SCAN and TASK_STATS end with a counted array. The layouts are the table in
+``docs/internals.md``.
+
+Encoding writes into a caller-owned preallocated buffer with precompiled :class:`struct.Struct`
+objects, so an RT loop pays for one ``pack_into`` and allocates nothing but the argument tuple.
+Decoding validates everything a receiver must not trust (length, magic, version, kind, finite
+floats, ranges implied by the layout) and raises :class:`ProtocolError`, whose ``reason`` slug
+the receiver counts. No other exception escapes :func:`decode` for any input bytes.
+"""
+
+from array import array
+from enum import IntEnum
+import math
+import struct
+import sys
+from typing import Any, NamedTuple, Sequence
+
+MAGIC = 0x4B4D  # b'MK' on the wire
+VERSION = 1
+HEADER_FORMAT = '<HBBIq'
+HEADER_SIZE = 16
+MAX_DATAGRAM = 4096  # xddp's default max_datagram: every encodable datagram fits in it
+SEQ_MASK = 0xFFFFFFFF
+
+DAC_ZERO = 512
+DAC_MAX = 1023
+ENCODER_MAX = 4095
+SCAN_STAMP_MAX = 0xFFFFFF  # URG time stamps are 24-bit ms counters
+SCAN_ERROR_CODE_MAX = 19  # ranges (mm) below 20 are URG error codes, not distances
+
+ODOM_BRAKING = 0x1
+ODOM_GUARD = 0x2
+ODOM_MOTOR_STALE = 0x4
+ODOM_CLAMPED = 0x8
+
+SONAR_OK = 0
+SONAR_NO_ECHO = 1
+SONAR_TIMEOUT = 2
+SONAR_FAULT = 3
+
+LEVEL_OK = 0
+LEVEL_WARN = 1
+LEVEL_ERROR = 2
+LEVEL_STALE = 3
+
+NAME_SIZE = 16
+
+
+class Kind(IntEnum):
+    """Datagram kinds (the header's kind byte)."""
+
+    VELOCITY_CMD = 1
+    ODOMETRY = 2
+    WHEEL_CMD = 3
+    ENCODERS = 4
+    IMU = 5
+    SONAR = 6
+    LASER_SCAN = 7
+    LED = 8
+    TASK_STATS = 9
+    REQUEST = 10
+    RT_STATUS = 11
+    DEVICE_STATUS = 12
+
+
+class ProtocolError(ValueError):
+    """Reject a datagram (or fields to encode); ``reason`` is a short slug for counting.
+
+    Decode reasons: ``short`` (less than a header), ``magic``, ``version``, ``kind``,
+    ``length`` (wrong size for the kind or its count), ``nonfinite`` (NaN/inf float),
+    ``range`` (a value outside what the layout allows). Encode failures use ``encode``.
+    """
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class Header(NamedTuple):
+    """Decoded datagram header."""
+
+    kind: Kind
+    seq: int
+    stamp_ns: int
+
+
+class VelocityCmd(NamedTuple):
+    """Body velocity command (m/s, rad/s)."""
+
+    linear_x: float
+    angular_z: float
+
+
+class Odometry(NamedTuple):
+    """Odometry estimate; ``flags`` holds the ODOM_* bits."""
+
+    x: float
+    y: float
+    yaw: float
+    v: float
+    w: float
+    left_wheel: float
+    right_wheel: float
+    flags: int
+
+
+class WheelCmd(NamedTuple):
+    """Motor command as 10-bit DAC codes (512 = zero) and an enable bit."""
+
+    left_code: int
+    right_code: int
+    enable: int
+
+
+class Encoders(NamedTuple):
+    """Encoder reading: 12-bit raw values and unwrapped wheel angles (rad)."""
+
+    left_raw: int
+    right_raw: int
+    left_angle: float
+    right_angle: float
+    status: int
+
+
+class Imu(NamedTuple):
+    """IMU sample: orientation quaternion, angular velocity (rad/s), acceleration (m/s^2)."""
+
+    qx: float
+    qy: float
+    qz: float
+    qw: float
+    gx: float
+    gy: float
+    gz: float
+    ax: float
+    ay: float
+    az: float
+    status: int
+
+
+class Sonar(NamedTuple):
+    """Sonar range (m) and a SONAR_* status."""
+
+    range_m: float
+    status: int
+
+
+class LaserScan(NamedTuple):
+    """Laser scan geometry (rad, m, s), 24-bit device stamp (ms) and ranges (mm)."""
+
+    angle_min: float
+    angle_increment: float
+    range_min: float
+    range_max: float
+    scan_time: float
+    time_increment: float
+    device_stamp: int
+    ranges: tuple[int, ...]
+
+
+class Led(NamedTuple):
+    """LED colour, brightness and source (0 state, 1 bridge override)."""
+
+    r: int
+    g: int
+    b: int
+    brightness: int
+    source: int
+
+
+class TaskSample(NamedTuple):
+    """One cycle of an RT task: ideal release, start, end (ns) and timerfd expirations."""
+
+    t_rel: int
+    t_start: int
+    t_end: int
+    expirations: int
+
+
+class TaskStats(NamedTuple):
+    """A batch of per-cycle timing samples plus counters of one RT task."""
+
+    name: str
+    index: int
+    priority: int
+    cpu: int
+    period_ns: int
+    cycles: int
+    nvcsw: int
+    nivcsw: int
+    minflt: int
+    forbidden_calls: int
+    samples: tuple[TaskSample, ...]
+
+
+class Request(NamedTuple):
+    """Request to a device handler (e.g. sonar trigger, scan request)."""
+
+    request_id: int
+    arg: int
+
+
+class RtStatus(NamedTuple):
+    """RT process status: scheduling policy, hardening flags and task counts."""
+
+    policy: int
+    mem_locked: int
+    degraded: int
+    guard_active: int
+    flags: int
+    ntasks: int
+    cycles_min: int
+
+
+class DeviceStatus(NamedTuple):
+    """Device handler status: lifecycle state, LEVEL_* level, fault count, last error code."""
+
+    device: str
+    state: int
+    level: int
+    faults: int
+    last_error: int
+
+
+class _Spec(NamedTuple):
+    kind: Kind
+    payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
+    full: struct.Struct  # header + fixed payload, packed in one call
+    type: Any  # the payload NamedTuple class
+    floats: tuple[int, int]  # float fields are the contiguous slice [start, stop)
+    ranges: tuple[tuple[int, float, float], ...]  # (field index, lo, hi) inclusive
+    string: bool  # field 0 is a NUL-padded ASCII name
+    item: struct.Struct | None  # array element of variable kinds
+    max_items: int
+
+
+_I32_MAX = 2 ** 31 - 1
+
+
+def _spec(kind: Kind, fmt: str, cls: Any, floats: tuple[int, int] = (0, 0),
+          ranges: tuple[tuple[int, float, float], ...] = (), string: bool = False,
+          item: str | None = None) -> _Spec:
+    payload = struct.Struct('<' + fmt)
+    item_struct = struct.Struct('<' + item) if item else None
+    max_items = 0
+    if item_struct is not None:
+        max_items = (MAX_DATAGRAM - HEADER_SIZE - payload.size) // item_struct.size
+    return _Spec(kind, payload, struct.Struct(HEADER_FORMAT + fmt), cls, floats, ranges,
+                 string, item_struct, max_items)
+
+
+_SPECS: dict[int, _Spec] = {s.kind: s for s in (
+    _spec(Kind.VELOCITY_CMD, 'dd', VelocityCmd, (0, 2)),
+    _spec(Kind.ODOMETRY, 'dddddddI', Odometry, (0, 7)),
+    _spec(Kind.WHEEL_CMD, 'HHB', WheelCmd,
+          ranges=((0, 0, DAC_MAX), (1, 0, DAC_MAX), (2, 0, 1))),
+    _spec(Kind.ENCODERS, 'HHddB', Encoders, (2, 4),
+          ranges=((0, 0, ENCODER_MAX), (1, 0, ENCODER_MAX))),
+    _spec(Kind.IMU, '4d3d3dB', Imu, (0, 10)),
+    _spec(Kind.SONAR, 'fB', Sonar, (0, 1), ranges=((0, 0.0, math.inf), (1, 0, SONAR_FAULT))),
+    _spec(Kind.LASER_SCAN, 'ffffffIH', LaserScan, (0, 6),
+          ranges=((6, 0, SCAN_STAMP_MAX),), item='H'),
+    _spec(Kind.LED, 'BBBBB', Led, ranges=((4, 0, 1),)),
+    _spec(Kind.TASK_STATS, '16sBiiIIIIIIH', TaskStats, ranges=((3, -1, _I32_MAX),),
+          string=True, item='qqqI'),
+    _spec(Kind.REQUEST, 'II', Request),
+    _spec(Kind.RT_STATUS, 'BBBBIII', RtStatus,
+          ranges=((0, 0, 1), (1, 0, 1), (2, 0, 1), (3, 0, 1))),
+    _spec(Kind.DEVICE_STATUS, '16sBBII', DeviceStatus, ranges=((2, 0, LEVEL_STALE),),
+          string=True),
+)}
+
+_HEADER = struct.Struct(HEADER_FORMAT)
+_SCAN = _SPECS[Kind.LASER_SCAN]
+_STATS = _SPECS[Kind.TASK_STATS]
+TASK_STATS_SAMPLE = struct.Struct('<qqqI')  # same layout as _STATS.item
+MAX_SCAN_RANGES = _SCAN.max_items
+MAX_STATS_SAMPLES = _STATS.max_items
+_LITTLE_ENDIAN = sys.byteorder == 'little'
+_U16_CACHE: dict[int, struct.Struct] = {}
+_ENCODE_ERRORS = (struct.error, OverflowError, TypeError, ValueError)
+
+
+def _u16_array(count: int) -> struct.Struct:
+    # Scans have a fixed count per device, so this cache holds one or two entries.
+    s = _U16_CACHE.get(count)
+    if s is None:
+        if len(_U16_CACHE) > 16:
+            _U16_CACHE.clear()
+        s = _U16_CACHE[count] = struct.Struct('<%dH' % count)
+    return s
+
+
+def _spec_for(kind: int) -> _Spec:
+    spec = _SPECS.get(kind)
+    if spec is None:
+        raise ProtocolError('kind', 'unknown datagram kind {!r}'.format(kind))
+    return spec
+
+
+def encoded_size(kind: int, count: int = 0) -> int:
+    """Return the datagram size of ``kind`` with ``count`` array items (variable kinds)."""
+    spec = _spec_for(kind)
+    size = spec.full.size
+    if spec.item is not None:
+        size += count * spec.item.size
+    return size
+
+
+def _name_bytes(name: str | bytes) -> bytes:
+    # Struct's '16s' silently truncates: refuse names that would not decode back unchanged.
+    if isinstance(name, str):
+        try:
+            name = name.encode('ascii')
+        except UnicodeEncodeError:
+            raise ProtocolError('encode', 'name {!r} is not ASCII'.format(name)) from None
+    if not isinstance(name, bytes) or len(name) > NAME_SIZE or b'\x00' in name:
+        raise ProtocolError(
+            'encode', 'name {!r} must be ASCII, without NUL, at most {} bytes'.format(
+                name, NAME_SIZE))
+    return name
+
+
+def _check(spec: _Spec, values: Sequence[Any]) -> None:
+    start, stop = spec.floats
+    if start != stop and not all(map(math.isfinite, values[start:stop])):
+        for i in range(start, stop):
+            if not math.isfinite(values[i]):
+                raise ProtocolError('nonfinite', '{} field {!r} is not finite: {!r}'.format(
+                    spec.kind.name, spec.type._fields[i], values[i]))
+    for i, lo, hi in spec.ranges:
+        v = values[i]
+        if not lo <= v <= hi:
+            raise ProtocolError('range', '{} field {!r} = {!r} outside [{}, {}]'.format(
+                spec.kind.name, spec.type._fields[i], v, lo, hi))
+
+
+def _check_fields(spec: _Spec, fields: Sequence[Any]) -> None:
+    if len(fields) != len(spec.type._fields):
+        raise ProtocolError('encode', '{} takes {} fields {}, got {!r}'.format(
+            spec.kind.name, len(spec.type._fields), spec.type._fields, fields))
+    if spec.item is not None:
+        try:
+            len(fields[-1])
+        except TypeError:
+            raise ProtocolError('encode', '{} field {!r} must be a sequence, got {!r}'.format(
+                spec.kind.name, spec.type._fields[-1], fields[-1])) from None
+    try:
+        _check(spec, fields)
+    except TypeError as exc:
+        raise ProtocolError('encode', 'cannot check {} fields {!r}: {}'.format(
+            spec.kind.name, fields, exc)) from None
+
+
+def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, stamp_ns: int,
+                *fields: Any, check: bool = False) -> int:
+    """Encode one datagram into ``buf`` at ``offset`` and return the number of bytes written.
+
+    ``fields`` are the payload fields in table order; for LASER_SCAN and TASK_STATS the last
+    field is the ranges / samples sequence (the count is derived). ``seq`` is reduced modulo
+    2**32. Integer fields are checked by ``struct``; floats and layout ranges are only checked
+    with ``check=True`` (the receiver's :func:`decode` always checks them).
+    """
+    spec = _spec_for(kind)
+    if check:
+        _check_fields(spec, fields)
+    if spec.item is not None:
+        if spec is _SCAN:
+            return encode_scan_into(buf, offset, seq, stamp_ns, *fields)
+        return encode_task_stats_into(buf, offset, seq, stamp_ns, *fields)
+    if spec.string and fields:
+        fields = (_name_bytes(fields[0]),) + fields[1:]
+    try:
+        spec.full.pack_into(buf, offset, MAGIC, VERSION, kind, seq & SEQ_MASK, stamp_ns, *fields)
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode {} fields {!r}: {}'.format(
+            spec.kind.name, fields, exc)) from None
+    return spec.full.size
+
+
+def encode_scan_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
+                     angle_min: float, angle_increment: float, range_min: float,
+                     range_max: float, scan_time: float, time_increment: float,
+                     device_stamp: int, ranges_mm: Sequence[int] | array) -> int:
+    """Encode a LASER_SCAN datagram into ``buf`` and return the number of bytes written.
+
+    ``ranges_mm`` may be any sequence of ints; an ``array('H')`` is copied without unpacking.
+    """
+    count = len(ranges_mm)
+    if count > MAX_SCAN_RANGES:
+        raise ProtocolError('encode', 'scan has {} ranges, at most {} fit a datagram'.format(
+            count, MAX_SCAN_RANGES))
+    head = _SCAN.full
+    try:
+        head.pack_into(buf, offset, MAGIC, VERSION, Kind.LASER_SCAN, seq & SEQ_MASK, stamp_ns,
+                       angle_min, angle_increment, range_min, range_max, scan_time,
+                       time_increment, device_stamp, count)
+        start = offset + head.size
+        if isinstance(ranges_mm, array) and ranges_mm.typecode == 'H' and _LITTLE_ENDIAN:
+            memoryview(buf)[start:start + 2 * count] = memoryview(ranges_mm).cast('B')
+        else:
+            _u16_array(count).pack_into(buf, start, *ranges_mm)
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode LASER_SCAN: {}'.format(exc)) from None
+    return head.size + 2 * count
+
+
+def encode_task_stats_head_into(buf: bytearray | memoryview, offset: int, seq: int,
+                                stamp_ns: int, name: str | bytes, index: int, priority: int,
+                                cpu: int, period_ns: int, cycles: int, nvcsw: int, nivcsw: int,
+                                minflt: int, forbidden_calls: int, count: int) -> int:
+    """Encode the TASK_STATS header and fixed part for ``count`` samples; return its size.
+
+    The caller then writes sample ``i`` with ``TASK_STATS_SAMPLE.pack_into(buf, offset + size
+    + i * TASK_STATS_SAMPLE.size, t_rel, t_start, t_end, expirations)`` straight from its
+    ring buffers. Pass ``name`` as pre-encoded bytes in RT loops.
+    """
+    if not 0 <= count <= MAX_STATS_SAMPLES:
+        raise ProtocolError('encode', 'TASK_STATS count {!r} outside [0, {}]'.format(
+            count, MAX_STATS_SAMPLES))
+    full = _STATS.full
+    try:
+        full.pack_into(buf, offset, MAGIC, VERSION, Kind.TASK_STATS, seq & SEQ_MASK, stamp_ns,
+                       _name_bytes(name), index, priority, cpu, period_ns, cycles, nvcsw,
+                       nivcsw, minflt, forbidden_calls, count)
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode TASK_STATS: {}'.format(exc)) from None
+    return full.size
+
+
+def encode_task_stats_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
+                           name: str | bytes, index: int, priority: int, cpu: int,
+                           period_ns: int, cycles: int, nvcsw: int, nivcsw: int, minflt: int,
+                           forbidden_calls: int,
+                           samples: Sequence[Sequence[int]]) -> int:
+    """Encode a TASK_STATS batch with sample rows (t_rel, t_start, t_end, expirations)."""
+    size = encode_task_stats_head_into(buf, offset, seq, stamp_ns, name, index, priority, cpu,
+                                       period_ns, cycles, nvcsw, nivcsw, minflt,
+                                       forbidden_calls, len(samples))
+    pack = TASK_STATS_SAMPLE.pack_into
+    step = TASK_STATS_SAMPLE.size
+    pos = offset + size
+    try:
+        for row in samples:
+            pack(buf, pos, *row)
+            pos += step
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode TASK_STATS sample {!r}: {}'.format(
+            row, exc)) from None
+    return pos - offset
+
+
+def encode(kind: int, seq: int, stamp_ns: int, *fields: Any) -> bytes:
+    """Encode and fully validate one datagram into new bytes (convenience for NRT code)."""
+    spec = _spec_for(kind)
+    _check_fields(spec, fields)
+    count = len(fields[-1]) if spec.item is not None else 0
+    buf = bytearray(encoded_size(kind, count))
+    encode_into(buf, 0, kind, seq, stamp_ns, *fields)
+    return bytes(buf)
+
+
+def _decode_name(spec: _Spec, raw: bytes) -> str:
+    name = raw.rstrip(b'\x00')
+    if b'\x00' not in name:
+        try:
+            return name.decode('ascii')
+        except UnicodeDecodeError:
+            pass
+    raise ProtocolError('range', '{} name {!r} is not NUL-padded ASCII'.format(
+        spec.kind.name, raw))
+
+
+def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
+    """Validate and decode one datagram into its Header and payload NamedTuple."""
+    n = len(data)
+    if n < HEADER_SIZE:
+        raise ProtocolError('short', 'datagram of {} bytes is shorter than the {}-byte '
+                            'header'.format(n, HEADER_SIZE))
+    magic, version, kind, seq, stamp_ns = _HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise ProtocolError('magic', 'bad magic 0x{:04X}'.format(magic))
+    if version != VERSION:
+        raise ProtocolError('version', 'unsupported protocol version {!r}'.format(version))
+    spec = _SPECS.get(kind)
+    if spec is None:
+        raise ProtocolError('kind', 'unknown datagram kind {!r}'.format(kind))
+    fixed_end = spec.full.size
+    if spec.item is None:
+        if n != fixed_end:
+            raise ProtocolError('length', '{} datagram is {} bytes, expected {}'.format(
+                spec.kind.name, n, fixed_end))
+        values: Sequence[Any] = spec.payload.unpack_from(data, HEADER_SIZE)
+    else:
+        if n < fixed_end:
+            raise ProtocolError('length', '{} datagram is {} bytes, expected at least '
+                                '{}'.format(spec.kind.name, n, fixed_end))
+        values = spec.payload.unpack_from(data, HEADER_SIZE)
+        count = values[-1]
+        if count > spec.max_items:
+            raise ProtocolError('range', '{} count {} exceeds {}'.format(
+                spec.kind.name, count, spec.max_items))
+        expected = fixed_end + count * spec.item.size
+        if n != expected:
+            raise ProtocolError('length', '{} datagram with count {} is {} bytes, expected '
+                                '{}'.format(spec.kind.name, count, n, expected))
+        if spec is _SCAN:
+            items: tuple[Any, ...] = _u16_array(count).unpack_from(data, fixed_end)
+        else:
+            rows = spec.item.iter_unpack(memoryview(data)[fixed_end:n])
+            items = tuple(map(TaskSample._make, rows))
+        values = values[:-1] + (items,)
+    _check(spec, values)
+    if spec.string:
+        values = (_decode_name(spec, values[0]),) + values[1:]
+    return Header(spec.kind, seq, stamp_ns), spec.type._make(values)
+
+
+def next_seq(seq: int) -> int:
+    """Return the sequence number following ``seq`` (wraps at 2**32)."""
+    return (seq + 1) & SEQ_MASK
+
+
+def seq_newer(prev: int, cur: int) -> bool:
+    """Return True when ``cur`` is ahead of ``prev`` in wrap-around (serial number) order."""
+    d = (cur - prev) & SEQ_MASK
+    return 0 < d < 0x80000000
+
+
+def seq_gap(prev: int, cur: int) -> int:
+    """Return how many datagrams were lost between ``prev`` and ``cur`` (0 if consecutive).
+
+    A repeated or older number (sender restarted or reordering) returns 0: it is not a loss
+    and the receiver should simply resynchronise on ``cur``.
+    """
+    d = (cur - prev) & SEQ_MASK
+    return d - 1 if 0 < d < 0x80000000 else 0
