@@ -1,0 +1,371 @@
+"""The mode-switch analogue: what Xenomai's MSW counter and slackspot tell, for Python threads.
+
+On Xenomai an RT task that makes a Linux system call drops to secondary mode (MSW). A Python
+RT thread has no modes, but the same mistakes cost the same: blocking on something other than
+its timer, being preempted, faulting pages, or calling file/console I/O, imports, sleeps,
+subprocesses or socket creation from inside its loop. This module measures them per task:
+
+* :class:`ThreadRusage` -- ``getrusage(RUSAGE_THREAD)`` deltas since the loop started:
+  voluntary context switches beyond one per cycle (one is the timer wait), involuntary ones,
+  minor and major page faults;
+* :class:`SiteTable` + an audit hook (``sys.addaudithook``) and a console guard on
+  ``sys.stdout``/``sys.stderr`` -- forbidden calls made while the calling thread is flagged
+  "inside an RT loop", with the call site (file, line, function). The hook never raises and
+  allocates only when a forbidden call actually happens.
+
+It also carries two small datagram kinds that only the RT monitor sends and only NRT tools
+read (``stat`` port; see docs/internals.md): FORBIDDEN_SITE and TASK_HEALTH. They use the
+protocol header layout with kind ids outside ``protocol.Kind`` so the protocol module stays
+untouched.
+"""
+
+import dataclasses
+import io
+import os
+import resource
+import struct
+import sys
+import sysconfig
+import threading
+import time
+from typing import Callable, NamedTuple
+
+__all__ = [
+    'EVENT_CODES', 'ConsoleGuard', 'ExtraDatagramError', 'FORBIDDEN_SITE', 'ForbiddenSite',
+    'Site', 'SiteTable', 'TASK_HEALTH', 'TaskHealth', 'ThreadRusage', 'current_table',
+    'decode_extra', 'encode_health_into', 'encode_site_into', 'enter_rt', 'install',
+    'install_console_guard', 'leave_rt', 'uninstall_console_guard',
+]
+
+# Audit events an RT loop must not raise, with a small code for the wire. 'console' is not an
+# audit event: the console guard reports writes to sys.stdout/sys.stderr under that name.
+EVENT_CODES: dict[str, int] = {
+    'open': 1, 'import': 2, 'time.sleep': 3, 'subprocess.Popen': 4, 'os.system': 5,
+    'os.exec': 6, 'os.posix_spawn': 7, 'os.fork': 8, 'socket.__new__': 9, 'console': 10,
+    'os.listdir': 11, 'os.scandir': 12, 'os.remove': 13, 'os.rename': 14, 'os.mkdir': 15,
+    'socket.getaddrinfo': 16, 'shutil.copyfile': 17, 'os.truncate': 18, 'glob.glob': 19,
+}
+EVENT_NAMES: dict[int, str] = {v: k for k, v in EVENT_CODES.items()}
+
+_tls = threading.local()
+_installed = False
+_install_lock = threading.Lock()
+_THIS_FILE = __file__
+_STDLIB = sysconfig.get_paths()['stdlib'] + os.sep
+
+
+class Site(NamedTuple):
+    """One call site of a forbidden call."""
+
+    event: str
+    file: str
+    line: int
+    func: str
+    count: int
+
+
+class SiteTable:
+    """Per-task table of forbidden calls: total, per event, and the last N distinct sites.
+
+    Preallocated: recording a call at a known site only increments counters; a new site
+    overwrites the oldest slot once the table is full.
+    """
+
+    def __init__(self, capacity: int = 8) -> None:
+        """Preallocate ``capacity`` site slots."""
+        if capacity < 1:
+            raise ValueError('site capacity must be >= 1, got {!r}'.format(capacity))
+        self.capacity = capacity
+        self.total = 0
+        self.by_event = [0] * (max(EVENT_NAMES) + 1)
+        # Each slot: [event code, file, line, func, count]; code 0 = empty.
+        self._slots = [[0, '', 0, '', 0] for _ in range(capacity)]
+        self._next = 0
+        self.seq = 0  # bumped on every record, so a reader can tell the table changed
+
+    def record(self, code: int, file: str, line: int, func: str) -> None:
+        """Count one forbidden call at a site."""
+        self.total += 1
+        self.by_event[code] += 1
+        self.seq += 1
+        for slot in self._slots:
+            if slot[0] == code and slot[2] == line and slot[1] == file:
+                slot[4] += 1
+                return
+        slot = self._slots[self._next]
+        slot[0], slot[1], slot[2], slot[3], slot[4] = code, file, line, func, 1
+        self._next = (self._next + 1) % self.capacity
+
+    def sites(self) -> list[Site]:
+        """Return the recorded sites, oldest first."""
+        n = self.capacity
+        order = [self._slots[(self._next + i) % n] for i in range(n)]
+        return [Site(EVENT_NAMES[s[0]], s[1], s[2], s[3], s[4]) for s in order if s[0]]
+
+    def slot(self, i: int) -> list:
+        """Return raw slot ``i`` ([code, file, line, func, count]; code 0 = empty)."""
+        return self._slots[i]
+
+
+def enter_rt(table: SiteTable) -> None:
+    """Flag the calling thread as inside an RT loop; forbidden calls go to ``table``."""
+    _tls.table = table
+
+
+def leave_rt() -> None:
+    """Clear the calling thread's RT-loop flag."""
+    _tls.table = None
+
+
+def current_table() -> SiteTable | None:
+    """Return the calling thread's table when it is inside an RT loop, else None."""
+    return getattr(_tls, 'table', None)
+
+
+def _caller_site(frame: object) -> tuple[str, int, str]:
+    # Walk out of the standard library, frozen importlib and this module, so the site is the
+    # task code that made the call, not subprocess.py or socket.py.
+    f = frame
+    while f is not None:
+        fn = f.f_code.co_filename
+        if not (fn.startswith('<frozen') or fn == _THIS_FILE
+                or (fn.startswith(_STDLIB) and 'packages' + os.sep not in fn)):
+            return fn, f.f_lineno, f.f_code.co_name
+        f = f.f_back
+    return '?', 0, '?'
+
+
+def _audit_hook(event: str, args: tuple) -> None:
+    code = EVENT_CODES.get(event)
+    if code is None:
+        return
+    table = getattr(_tls, 'table', None)
+    if table is None:
+        return
+    try:
+        file, line, func = _caller_site(sys._getframe(1))
+        table.record(code, file, line, func)
+    except BaseException:  # noqa: B036 -- an audit hook that raises would break the call
+        pass
+
+
+def install() -> None:
+    """Install the audit hook (once per process; audit hooks cannot be removed).
+
+    Interpreters whose ``time.sleep`` raises no audit event (3.11) get a guarded
+    ``time.sleep`` instead; code that bound ``from time import sleep`` earlier escapes it.
+    """
+    global _installed
+    with _install_lock:
+        if _installed:
+            return
+        sys.addaudithook(_audit_hook)
+        _installed = True
+        probe = SiteTable(1)
+        prev = getattr(_tls, 'table', None)
+        _tls.table = probe
+        try:
+            time.sleep(0)
+        finally:
+            _tls.table = prev
+        if probe.total == 0:
+            time.sleep = _make_guarded_sleep(time.sleep)
+
+
+def _make_guarded_sleep(real_sleep: Callable[[float], None]) -> Callable[[float], None]:
+    def sleep(secs: float) -> None:
+        table = getattr(_tls, 'table', None)
+        if table is not None:
+            try:
+                file, line, func = _caller_site(sys._getframe(1))
+                table.record(EVENT_CODES['time.sleep'], file, line, func)
+            except BaseException:  # noqa: B036 -- never break the caller's sleep
+                pass
+        real_sleep(secs)
+    sleep.__doc__ = real_sleep.__doc__
+    return sleep
+
+
+class ConsoleGuard(io.TextIOBase):
+    """Wrap a text stream: writes from a thread inside an RT loop are recorded, then done."""
+
+    def __init__(self, stream: io.TextIOBase) -> None:
+        """Wrap ``stream``."""
+        self.wrapped = stream
+
+    def write(self, s: str) -> int:
+        """Record a write made inside an RT loop, then delegate."""
+        table = getattr(_tls, 'table', None)
+        if table is not None:
+            try:
+                file, line, func = _caller_site(sys._getframe(1))
+                table.record(EVENT_CODES['console'], file, line, func)
+            except BaseException:  # noqa: B036 -- never break the caller's write
+                pass
+        return self.wrapped.write(s)
+
+    def flush(self) -> None:
+        """Delegate."""
+        self.wrapped.flush()
+
+    def fileno(self) -> int:
+        """Delegate."""
+        return self.wrapped.fileno()
+
+    def isatty(self) -> bool:
+        """Delegate."""
+        return self.wrapped.isatty()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.wrapped, name)
+
+
+def install_console_guard() -> None:
+    """Wrap sys.stdout and sys.stderr in :class:`ConsoleGuard` (idempotent)."""
+    for name in ('stdout', 'stderr'):
+        stream = getattr(sys, name)
+        if stream is not None and not isinstance(stream, ConsoleGuard):
+            setattr(sys, name, ConsoleGuard(stream))
+
+
+def uninstall_console_guard() -> None:
+    """Put the original sys.stdout and sys.stderr back."""
+    for name in ('stdout', 'stderr'):
+        stream = getattr(sys, name)
+        if isinstance(stream, ConsoleGuard):
+            setattr(sys, name, stream.wrapped)
+
+
+@dataclasses.dataclass
+class ThreadRusage:
+    """Context-switch and page-fault counters of one task thread since its loop started."""
+
+    nvcsw: int = 0
+    nivcsw: int = 0
+    minflt: int = 0
+    majflt: int = 0
+    nvcsw_extra: int = 0  # voluntary switches beyond the one timer wait per cycle
+    _base: tuple[int, int, int, int] = (0, 0, 0, 0)
+
+    def start(self) -> None:
+        """Take the baseline; call from the task thread just before its loop."""
+        ru = resource.getrusage(resource.RUSAGE_THREAD)
+        self._base = (ru.ru_nvcsw, ru.ru_nivcsw, ru.ru_minflt, ru.ru_majflt)
+
+    def update(self, cycles: int) -> None:
+        """Refresh from the calling (task) thread; ``cycles`` waits were expected to block."""
+        ru = resource.getrusage(resource.RUSAGE_THREAD)
+        b = self._base
+        self.nvcsw = ru.ru_nvcsw - b[0]
+        self.nivcsw = ru.ru_nivcsw - b[1]
+        self.minflt = ru.ru_minflt - b[2]
+        self.majflt = ru.ru_majflt - b[3]
+        extra = self.nvcsw - cycles
+        self.nvcsw_extra = extra if extra > 0 else 0
+
+
+# --- extra datagram kinds (header layout of m4k_rt.protocol) ----------------------------------
+
+MAGIC = 0x4B4D
+VERSION = 1
+FORBIDDEN_SITE = 64
+TASK_HEALTH = 65
+_HEADER = struct.Struct('<HBBIq')
+_SITE = struct.Struct('<16sBBIII40s24s')
+_HEALTH = struct.Struct('<16sBIIIIIIBB')
+SITE_SIZE = _HEADER.size + _SITE.size
+HEALTH_SIZE = _HEADER.size + _HEALTH.size
+
+
+class ExtraDatagramError(ValueError):
+    """A FORBIDDEN_SITE / TASK_HEALTH datagram is malformed."""
+
+
+class ForbiddenSite(NamedTuple):
+    """Decoded FORBIDDEN_SITE: one call site of a task's forbidden calls."""
+
+    name: str
+    task_index: int
+    event: str
+    count: int
+    line: int
+    total: int
+    file: str
+    func: str
+
+
+class TaskHealth(NamedTuple):
+    """Decoded TASK_HEALTH: the per-task counters TASK_STATS does not carry."""
+
+    name: str
+    task_index: int
+    overruns: int
+    deadline_misses: int
+    body_errors: int
+    majflt: int
+    nvcsw_extra: int
+    lost_samples: int
+    fifo: int
+    priority: int
+
+
+def _b(s: str, n: int, tail: bool = False) -> bytes:
+    raw = s.encode('utf-8', 'replace')
+    return raw[-n:] if tail else raw[:n]
+
+
+def encode_site_into(buf: bytearray, offset: int, seq: int, stamp_ns: int, name: str,
+                     task_index: int, code: int, count: int, line: int, total: int, file: str,
+                     func: str) -> int:
+    """Write a FORBIDDEN_SITE datagram; the file keeps its tail (the file name) when long."""
+    _HEADER.pack_into(buf, offset, MAGIC, VERSION, FORBIDDEN_SITE, seq & 0xFFFFFFFF, stamp_ns)
+    _SITE.pack_into(buf, offset + _HEADER.size, _b(name, 16), task_index, code,
+                    min(count, 0xFFFFFFFF), line, min(total, 0xFFFFFFFF),
+                    _b(file, 40, tail=True), _b(func, 24))
+    return SITE_SIZE
+
+
+def encode_health_into(buf: bytearray, offset: int, seq: int, stamp_ns: int, name: str,
+                       task_index: int, overruns: int, deadline_misses: int, body_errors: int,
+                       majflt: int, nvcsw_extra: int, lost_samples: int, fifo: int,
+                       priority: int) -> int:
+    """Write a TASK_HEALTH datagram."""
+    m = 0xFFFFFFFF
+    _HEADER.pack_into(buf, offset, MAGIC, VERSION, TASK_HEALTH, seq & m, stamp_ns)
+    _HEALTH.pack_into(buf, offset + _HEADER.size, _b(name, 16), task_index, min(overruns, m),
+                      min(deadline_misses, m), min(body_errors, m), min(majflt, m),
+                      min(nvcsw_extra, m), min(lost_samples, m), fifo, priority)
+    return HEALTH_SIZE
+
+
+def extra_kind(data: bytes) -> int:
+    """Return the kind byte of a datagram with a valid header magic/version, else -1."""
+    if len(data) < _HEADER.size:
+        return -1
+    magic, version, kind, _, _ = _HEADER.unpack_from(data)
+    return kind if magic == MAGIC and version == VERSION else -1
+
+
+def decode_extra(data: bytes) -> tuple[int, int, ForbiddenSite | TaskHealth]:
+    """Decode a FORBIDDEN_SITE or TASK_HEALTH datagram into (seq, stamp_ns, payload)."""
+    kind = extra_kind(data)
+    if kind == FORBIDDEN_SITE:
+        body, size = _SITE, SITE_SIZE
+    elif kind == TASK_HEALTH:
+        body, size = _HEALTH, HEALTH_SIZE
+    else:
+        raise ExtraDatagramError('not a FORBIDDEN_SITE/TASK_HEALTH datagram (kind {!r})'.format(
+            kind))
+    if len(data) != size:
+        raise ExtraDatagramError('kind {} needs {} bytes, got {}'.format(kind, size, len(data)))
+    _, _, _, seq, stamp = _HEADER.unpack_from(data)
+    f = list(body.unpack_from(data, _HEADER.size))
+    f[0] = f[0].rstrip(b'\0').decode('utf-8', 'replace')
+    if kind == FORBIDDEN_SITE:
+        if f[2] not in EVENT_NAMES:
+            raise ExtraDatagramError('unknown forbidden event code {!r}'.format(f[2]))
+        f[2] = EVENT_NAMES[f[2]]
+        f[6] = f[6].rstrip(b'\0').decode('utf-8', 'replace')
+        f[7] = f[7].rstrip(b'\0').decode('utf-8', 'replace')
+        return seq, stamp, ForbiddenSite(*f)
+    return seq, stamp, TaskHealth(*f)
