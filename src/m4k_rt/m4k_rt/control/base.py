@@ -1,0 +1,225 @@
+"""The base controller: one actuator cycle of pure control logic.
+
+Per cycle the actuator task feeds the controller what arrived on its ports (``command``,
+``encoders``) and calls ``step`` with the time and the collision guard's cap; the controller
+leaves the wheel DAC codes, the enable bit, the ODOMETRY flags and the robot mode in its
+attributes. No sockets, no allocation beyond a few floats.
+
+Order inside ``step``:
+
+1. Motor supervision: no ENCODERS for ``motor_timeout`` -> *motor stale*: outputs zero and
+   disabled, limiters and PI reset, flag MOTOR_STALE. When encoders return the controller
+   *holds zero* until a command arrives that is newer than the recovery (the old command may
+   be from before the fault; the robot must not lurch off on it).
+2. Command supervision: no VELOCITY_CMD for ``cmd_vel_timeout`` (0 disables) -> the target
+   becomes zero and the limiter decelerates at its limit; flag BRAKING.
+3. Guard cap on the forward target (slow-down zone), speed limiters, then the guard's stop
+   applied after the limiters (a zero cap takes effect this cycle, bypassing the ramp).
+4. Inverse kinematics, wheel-speed saturation (keeping curvature), PI with feed-forward on the
+   measured wheel speeds, DAC codes. A zero command at standstill outputs code 512 and clears
+   the integrators, so encoder quantization cannot make the robot creep.
+"""
+
+from __future__ import annotations
+
+import math
+
+from m4k_rt.control.dac import DAC_ZERO, command_to_code
+from m4k_rt.control.diffdrive import DiffDrive
+from m4k_rt.control.limiter import SpeedLimiter
+from m4k_rt.control.odometry import Odometry
+from m4k_rt.control.params import AxisLimits, ControlParams
+from m4k_rt.control.pid import WheelSpeedPI
+
+FLAG_BRAKING = 1 << 0
+FLAG_GUARD = 1 << 1
+FLAG_MOTOR_STALE = 1 << 2
+FLAG_CLAMPED = 1 << 3
+
+MODE_IDLE = 0
+MODE_DRIVING = 1
+MODE_BRAKING = 2
+MODE_OBSTACLE = 3
+MODE_FAULT = 4
+MODE_NAMES = ('idle', 'driving', 'braking', 'obstacle', 'fault')
+
+# ENCODERS.status bits that make the angles untrustworthy (frame or jump error, either wheel);
+# the other bits (driver in safe mode, DAC write error) leave the angles valid.
+ENC_INVALID_MASK = 0x0F
+
+_MOVING_EPS = 1e-3   # m/s or rad/s below which the commanded base counts as stopped
+
+
+def _limiter(limits: AxisLimits) -> SpeedLimiter:
+    return SpeedLimiter(
+        max_velocity=limits.max_velocity,
+        max_acceleration=limits.max_acceleration,
+        max_deceleration=limits.max_deceleration,
+        max_jerk=math.inf if limits.max_jerk is None else limits.max_jerk)
+
+
+class BaseController:
+    """Velocity command + encoder feedback -> wheel DAC codes, odometry, flags and mode."""
+
+    def __init__(self, params: ControlParams, period: float) -> None:
+        if not (period > 0.0 and math.isfinite(period)):
+            raise ValueError(f'period must be a finite number > 0 s, got {period!r}')
+        self.params = params
+        self.period = float(period)
+        self.kin = DiffDrive(params.wheel_radius, params.track_width, params.gear_ratio)
+        self.linear = _limiter(params.linear)
+        self.angular = _limiter(params.angular)
+        self.wheel_limit = params.wheel_limit
+        pi = params.pi
+        self.pi_left = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
+                                    anti_windup=pi.anti_windup, kt=pi.kt)
+        self.pi_right = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
+                                     anti_windup=pi.anti_windup, kt=pi.kt)
+        self.odom = Odometry(params.wheel_radius, params.track_width,
+                             max_wheel_speed=params.full_scale_wheel_speed * 2.0)
+        self._alpha = params.speed_filter_alpha
+        self._cmd_timeout_ns = int(params.cmd_vel_timeout * 1e9)
+        self._motor_timeout_ns = int(params.motor_timeout * 1e9)
+        # inputs
+        self.cmd_linear = 0.0
+        self.cmd_angular = 0.0
+        self.cmd_rx_ns = 0          # 0: never received
+        self.enc_rx_ns = 0
+        self.commands = 0
+        self.encoder_samples = 0
+        self.encoder_faults = 0
+        # filtered wheel speed feedback
+        self.left_speed = 0.0
+        self.right_speed = 0.0
+        # outputs
+        self.v = 0.0                # limited body command, m/s
+        self.w = 0.0                # rad/s
+        self.left_setpoint = 0.0
+        self.right_setpoint = 0.0
+        self.left_code = DAC_ZERO
+        self.right_code = DAC_ZERO
+        self.enable = 0
+        self.flags = FLAG_MOTOR_STALE
+        self.mode = MODE_FAULT
+        self.motor_stale = True
+        self.hold_zero = True
+        self.braking = False
+        self._hold_since_ns = 0
+        self._last_step_ns = 0
+
+    def command(self, linear: float, angular: float, rx_ns: int) -> None:
+        """Take a fresh velocity command (already validated finite by the decoder)."""
+        self.cmd_linear = linear
+        self.cmd_angular = angular
+        self.cmd_rx_ns = rx_ns
+        self.commands += 1
+
+    def encoders(self, left_angle: float, right_angle: float, stamp_ns: int, rx_ns: int,
+                 status: int = 0) -> None:
+        """Take one ENCODERS sample (wheel angles in rad, unwrapped; driver stamp in ns).
+
+        A sample whose status flags invalid angles is counted and does not refresh the motor's
+        freshness, so a persistently failing encoder ends in *motor stale*.
+        """
+        if status & ENC_INVALID_MASK:
+            self.encoder_faults += 1
+            return
+        self.encoder_samples += 1
+        self.enc_rx_ns = rx_ns
+        if self.odom.update(left_angle, right_angle, stamp_ns):
+            a = self._alpha
+            self.left_speed += a * (self.odom.left_speed - self.left_speed)
+            self.right_speed += a * (self.odom.right_speed - self.right_speed)
+
+    def _stop_outputs(self, enable: int) -> None:
+        self.linear.reset(0.0)
+        self.angular.reset(0.0)
+        self.pi_left.reset()
+        self.pi_right.reset()
+        self.v = self.w = 0.0
+        self.left_setpoint = self.right_setpoint = 0.0
+        self.left_code = self.right_code = DAC_ZERO
+        self.enable = enable
+
+    def step(self, now_ns: int, forward_cap: float = math.inf,
+             guard_active: bool = False) -> None:
+        """Run one control cycle at ``now_ns`` with the guard's forward velocity cap."""
+        dt = (now_ns - self._last_step_ns) * 1e-9 if self._last_step_ns else self.period
+        if dt <= 0.0 or dt > 2.0 * self.period:
+            dt = self.period if dt <= 0.0 else 2.0 * self.period
+        self._last_step_ns = now_ns
+        flags = 0
+        # 1. motor supervision
+        stale = self.enc_rx_ns == 0 or now_ns - self.enc_rx_ns > self._motor_timeout_ns
+        if stale:
+            if not self.motor_stale:
+                self.odom.rebase()
+                self.left_speed = self.right_speed = 0.0
+            self.motor_stale = True
+            self.hold_zero = True
+            self.braking = False
+            self._stop_outputs(0)
+            self.flags = FLAG_MOTOR_STALE
+            self.mode = MODE_FAULT
+            return
+        if self.motor_stale:
+            self.motor_stale = False
+            self._hold_since_ns = now_ns
+        if self.hold_zero and self.cmd_rx_ns > self._hold_since_ns:
+            self.hold_zero = False
+        # 2. command supervision
+        cmd_stale = (self._cmd_timeout_ns > 0 and self.cmd_rx_ns != 0
+                     and now_ns - self.cmd_rx_ns > self._cmd_timeout_ns)
+        self.braking = cmd_stale
+        if self.hold_zero or cmd_stale or self.cmd_rx_ns == 0:
+            tv = tw = 0.0
+        else:
+            tv = self.cmd_linear
+            tw = self.cmd_angular
+        if cmd_stale:
+            flags |= FLAG_BRAKING
+        # 3. guard and limits
+        if tv > forward_cap:
+            tv = forward_cap
+            flags |= FLAG_GUARD
+        if guard_active:
+            flags |= FLAG_GUARD
+        v = self.linear.step(tv, dt)
+        w = self.angular.step(tw, dt)
+        # Ramping to zero is the point of braking, not a clamp of the operator's command.
+        clamped = not cmd_stale and (self.linear.clamped or self.angular.clamped)
+        if forward_cap <= 0.0 and v > 0.0:
+            v = 0.0
+            self.linear.override(0.0)
+            flags |= FLAG_GUARD
+        self.v = v
+        self.w = w
+        # 4. kinematics and wheel control
+        wl, wr = self.kin.inverse(v, w)
+        wl, wr, sat = self.kin.saturate(wl, wr, self.wheel_limit)
+        self.left_setpoint = wl
+        self.right_setpoint = wr
+        if (wl == 0.0 and wr == 0.0 and tv == 0.0 and tw == 0.0
+                and abs(self.odom.v) < _MOVING_EPS and abs(self.odom.w) < _MOVING_EPS):
+            self.pi_left.reset()
+            self.pi_right.reset()
+            self.left_code = self.right_code = DAC_ZERO
+        else:
+            ul = self.pi_left.update(wl, self.left_speed, dt)
+            ur = self.pi_right.update(wr, self.right_speed, dt)
+            sat = sat or self.pi_left.saturated or self.pi_right.saturated
+            self.left_code = command_to_code(ul)
+            self.right_code = command_to_code(ur)
+        self.enable = 1
+        if clamped or sat:
+            flags |= FLAG_CLAMPED
+        self.flags = flags
+        moving = abs(v) > _MOVING_EPS or abs(w) > _MOVING_EPS
+        if flags & FLAG_GUARD and (guard_active or forward_cap <= 0.0):
+            self.mode = MODE_OBSTACLE
+        elif cmd_stale and moving:
+            self.mode = MODE_BRAKING
+        elif moving:
+            self.mode = MODE_DRIVING
+        else:
+            self.mode = MODE_IDLE

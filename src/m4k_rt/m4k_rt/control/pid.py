@@ -1,0 +1,82 @@
+"""Wheel-speed PI controller with feed-forward and anti-windup (pure).
+
+Output is a normalized motor command in [-limit, limit] (``dac.command_to_code`` turns it into
+a DAC code). The feed-forward term ``kff * setpoint`` does most of the work (``kff`` is the
+inverse of the wheel speed that full-scale command produces); the PI part corrects for load,
+friction and model error.
+
+Anti-windup, selectable:
+
+* ``'clamping'`` (conditional integration): the integrator does not move while the output is
+  saturated and the error pushes further into saturation.
+* ``'back_calculation'``: the integrator is driven back by ``kt * (u_sat - u)`` so that it
+  tracks the saturated output; ``kt`` defaults to ``ki / kp`` (tracking time = Ti).
+"""
+
+from __future__ import annotations
+
+import math
+
+ANTI_WINDUP_MODES = ('clamping', 'back_calculation')
+
+
+class PidError(ValueError):
+    """Raised for invalid controller parameters."""
+
+
+class WheelSpeedPI:
+    """PI speed controller with feed-forward, output saturation and anti-windup."""
+
+    __slots__ = ('kp', 'ki', 'kff', 'kt', 'limit', 'anti_windup', 'integral', 'saturated',
+                 '_back_calc')
+
+    def __init__(self, kp: float, ki: float, kff: float = 0.0, *, limit: float = 1.0,
+                 anti_windup: str = 'clamping', kt: float | None = None) -> None:
+        for name, value in (('kp', kp), ('ki', ki), ('kff', kff)):
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0.0:
+                raise PidError(f'{name} must be a finite number >= 0, got {value!r}')
+        if not isinstance(limit, (int, float)) or not math.isfinite(limit) or limit <= 0.0:
+            raise PidError(f'limit must be a finite number > 0, got {limit!r}')
+        if anti_windup not in ANTI_WINDUP_MODES:
+            raise PidError(f'anti_windup must be one of {ANTI_WINDUP_MODES}, got {anti_windup!r}')
+        if kt is None:
+            kt = ki / kp if kp > 0.0 else 0.0
+        if not isinstance(kt, (int, float)) or not math.isfinite(kt) or kt < 0.0:
+            raise PidError(f'kt must be a finite number >= 0, got {kt!r}')
+        self.kp = float(kp)
+        self.ki = float(ki)
+        self.kff = float(kff)
+        self.kt = float(kt)
+        self.limit = float(limit)
+        self.anti_windup = anti_windup
+        self._back_calc = anti_windup == 'back_calculation'
+        self.integral = 0.0
+        self.saturated = False
+
+    def reset(self) -> None:
+        """Clear the integrator."""
+        self.integral = 0.0
+        self.saturated = False
+
+    def update(self, setpoint: float, measured: float, dt: float) -> float:
+        """Return the saturated command for one control period of ``dt`` seconds."""
+        error = setpoint - measured
+        base = self.kff * setpoint + self.kp * error
+        integral = self.integral + self.ki * error * dt
+        u = base + integral
+        lim = self.limit
+        if u > lim:
+            u_sat = lim
+        elif u < -lim:
+            u_sat = -lim
+        else:
+            u_sat = u
+        self.saturated = u_sat != u
+        if self.saturated:
+            if self._back_calc:
+                integral += self.kt * (u_sat - u) * dt
+            elif error * u > 0.0:
+                # Error drives further into saturation: freeze the integrator.
+                integral = self.integral
+        self.integral = integral
+        return u_sat

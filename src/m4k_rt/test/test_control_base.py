@@ -1,0 +1,216 @@
+import math
+
+from m4k_rt.control.base import (
+    FLAG_BRAKING,
+    FLAG_CLAMPED,
+    FLAG_GUARD,
+    FLAG_MOTOR_STALE,
+    MODE_BRAKING,
+    MODE_DRIVING,
+    MODE_FAULT,
+    MODE_IDLE,
+    MODE_OBSTACLE,
+    BaseController,
+)
+from m4k_rt.control.dac import code_to_command
+from m4k_rt.control.params import control_params
+import pytest
+
+MS = 1_000_000
+PERIOD_NS = 10 * MS
+
+
+class Plant:
+    """Wheels answering DAC codes with a first-order lag, encoders sampled each cycle."""
+
+    def __init__(self, full_scale: float, tau: float = 0.08) -> None:
+        self.full_scale = full_scale
+        self.tau = tau
+        self.speed = [0.0, 0.0]
+        self.angle = [0.0, 0.0]
+
+    def run(self, codes, dt: float, substeps: int = 10) -> None:
+        h = dt / substeps
+        for _ in range(substeps):
+            for i in (0, 1):
+                target = code_to_command(codes[i]) * self.full_scale
+                self.speed[i] += (target - self.speed[i]) * (h / self.tau)
+                self.angle[i] += self.speed[i] * h
+
+
+def make(**section):
+    p = control_params(section or None)
+    return BaseController(p, 0.01), p
+
+
+def drive(ctl, plant, cycles, t0, cmd=None, cmd_every=5, cap=math.inf, guard_active=False):
+    """Run the one-cycle pipeline: encoders of the previous command, command, step, plant."""
+    t = t0
+    for k in range(cycles):
+        t += PERIOD_NS
+        ctl.encoders(plant.angle[0], plant.angle[1], t, t)
+        if cmd is not None and k % cmd_every == 0:
+            ctl.command(cmd[0], cmd[1], t)
+        ctl.step(t, cap, guard_active)
+        plant.run((ctl.left_code, ctl.right_code), 0.01)
+    return t
+
+
+def test_starts_motor_stale_until_encoders_arrive():
+    ctl, _ = make()
+    ctl.command(0.25, 0.0, 5 * MS)
+    ctl.step(10 * MS)
+    assert ctl.flags & FLAG_MOTOR_STALE
+    assert ctl.mode == MODE_FAULT
+    assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 0)
+
+
+def test_fresh_command_drives_and_distance_matches_acceleration_limit():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)            # first encoders: baseline, motor alive
+    t = drive(ctl, plant, 400, t, cmd=(0.25, 0.0))
+    assert ctl.mode == MODE_DRIVING
+    assert ctl.v == pytest.approx(0.25)
+    assert ctl.odom.v == pytest.approx(0.25, abs=0.01)
+    # 4 s: ramp 0.25/0.37 s covering 0.0845 m, then 0.25 m/s -> 0.9155 m; the motor lag
+    # (tau 0.08 s * 0.25 m/s = 0.02 m) is made up by the PI's integral
+    t_ramp = 0.25 / 0.37
+    ideal = 0.5 * 0.37 * t_ramp ** 2 + 0.25 * (4.0 - t_ramp)
+    assert ctl.odom.x == pytest.approx(ideal, abs=0.015)
+    assert abs(ctl.odom.y) < 1e-9
+
+
+def test_accel_ramp_is_flagged_clamped_and_steady_state_is_not():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 10, t, cmd=(0.25, 0.0))
+    assert ctl.flags & FLAG_CLAMPED
+    drive(ctl, plant, 100, t, cmd=(0.25, 0.0))
+    assert not ctl.flags & FLAG_CLAMPED
+
+
+def test_stale_command_brakes_at_the_deceleration_limit():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 100, t, cmd=(0.25, 0.0), cmd_every=1)   # last command at t
+    last_cmd = t
+    # 0.5 s timeout: cycles at +10..+500 ms are still fresh
+    t = drive(ctl, plant, 50, t)
+    assert t - last_cmd == 500 * MS
+    assert not ctl.flags & FLAG_BRAKING
+    assert ctl.v == pytest.approx(0.25)
+    t = drive(ctl, plant, 1, t)
+    assert ctl.flags & FLAG_BRAKING
+    assert ctl.mode == MODE_BRAKING
+    assert ctl.v == pytest.approx(0.25 - 0.0037)
+    # 0.25 / 0.37 -> zero after 68 cycles of braking
+    t = drive(ctl, plant, 67, t)
+    assert ctl.v == pytest.approx(0.0, abs=1e-9)
+    t = drive(ctl, plant, 30, t)
+    assert ctl.mode == MODE_IDLE
+    assert ctl.flags & FLAG_BRAKING
+    assert (ctl.left_code, ctl.right_code) == (512, 512)
+    # a fresh command clears the brake
+    drive(ctl, plant, 1, t, cmd=(0.1, 0.0))
+    assert not ctl.flags & FLAG_BRAKING
+
+
+def test_zero_timeout_disables_the_brake():
+    ctl, p = make(cmd_vel_timeout=0.0)
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 1, t, cmd=(0.1, 0.0))
+    drive(ctl, plant, 300, t)
+    assert ctl.v == pytest.approx(0.1)
+    assert not ctl.flags & FLAG_BRAKING
+
+
+def test_guard_stop_limits_forward_within_the_same_cycle():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 100, t, cmd=(0.25, 0.0))
+    assert ctl.v == pytest.approx(0.25)
+    t = drive(ctl, plant, 1, t, cmd=(0.25, 0.0), cap=0.0, guard_active=True)
+    assert ctl.v == 0.0
+    assert ctl.flags & FLAG_GUARD
+    assert ctl.mode == MODE_OBSTACLE
+    # wheels commanded to brake (below zero code while still rolling forward), not forward
+    assert ctl.left_code < 512 and ctl.right_code < 512
+
+
+def test_guard_allows_rotation_and_reverse():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 200, t, cmd=(0.3, 1.0), cap=0.0, guard_active=True)
+    assert ctl.v == 0.0
+    assert ctl.w == pytest.approx(1.0)
+    assert ctl.odom.w == pytest.approx(1.0, abs=0.05)
+    drive(ctl, plant, 200, t, cmd=(-0.2, 0.0), cap=0.0, guard_active=True)
+    assert ctl.v == pytest.approx(-0.2)
+    assert ctl.odom.v == pytest.approx(-0.2, abs=0.01)
+
+
+def test_guard_slow_cap_ramps_with_the_limiter():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 100, t, cmd=(0.25, 0.0))
+    drive(ctl, plant, 1, t, cmd=(0.25, 0.0), cap=0.1)
+    assert ctl.v == pytest.approx(0.25 - 0.0037)   # decelerating toward the cap, not a jump
+    assert ctl.flags & FLAG_GUARD
+
+
+def test_motor_lost_outputs_stale_then_hold_zero_until_fresh_command():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 100, t, cmd=(0.25, 0.0), cmd_every=1)
+    # encoders stop; commands keep coming
+    for _ in range(11):
+        t += PERIOD_NS
+        ctl.command(0.25, 0.0, t)
+        ctl.step(t)
+    assert ctl.flags & FLAG_MOTOR_STALE
+    assert ctl.mode == MODE_FAULT
+    assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 0)
+    plant.speed = [0.0, 0.0]
+    # encoders return; the command stored from before the recovery must not restart motion
+    t = drive(ctl, plant, 20, t)
+    assert not ctl.flags & FLAG_MOTOR_STALE
+    assert ctl.hold_zero
+    assert ctl.v == 0.0
+    assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 1)
+    # a fresh command releases the hold
+    drive(ctl, plant, 10, t, cmd=(0.25, 0.0))
+    assert not ctl.hold_zero
+    assert ctl.v > 0.0
+
+
+def test_invalid_encoder_status_does_not_count_as_alive():
+    ctl, _ = make()
+    ctl.encoders(0.0, 0.0, 10 * MS, 10 * MS, status=0x01)
+    ctl.step(10 * MS)
+    assert ctl.motor_stale
+    assert ctl.encoder_faults == 1
+    ctl.encoders(0.0, 0.0, 20 * MS, 20 * MS, status=0x10)   # safe mode: angles still valid
+    ctl.step(20 * MS)
+    assert not ctl.motor_stale
+
+
+def test_turn_follows_the_commanded_arc():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    drive(ctl, plant, 600, t, cmd=(0.25, 0.5))
+    # steady state on a circle of radius v / w = 0.5 m
+    assert ctl.odom.v / ctl.odom.w == pytest.approx(0.5, rel=0.03)
+
+
+def test_bad_period_is_rejected():
+    with pytest.raises(ValueError, match='period'):
+        BaseController(control_params(None), 0.0)

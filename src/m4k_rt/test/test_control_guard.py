@@ -1,0 +1,84 @@
+import math
+
+from m4k_rt.control.guard import CollisionGuard, GuardError
+import pytest
+
+MS = 1_000_000
+INF = math.inf
+NOW = 10_000 * MS
+
+
+def guard(**kw):
+    kw.setdefault('stop_distance', 0.35)
+    kw.setdefault('release_margin', 0.05)
+    return CollisionGuard(**kw)
+
+
+def test_clear_path_does_not_limit():
+    g = guard()
+    assert g.evaluate(NOW, 2.0, 1.5, NOW - 5 * MS, 3.0, NOW - 50 * MS) == INF
+    assert not g.active
+
+
+def test_sonar_below_stop_distance_stops_forward():
+    g = guard()
+    assert g.evaluate(NOW, 2.0, 0.30, NOW, 3.0, NOW) == 0.0
+    assert g.active
+    assert g.activations == 1
+
+
+def test_laser_front_min_below_stop_distance_stops_forward():
+    g = guard()
+    assert g.evaluate(NOW, 2.0, INF, NOW, 0.2, NOW) == 0.0
+
+
+def test_hysteresis_releases_only_beyond_margin():
+    g = guard()
+    g.evaluate(NOW, 2.0, 0.30, NOW, INF, NOW)
+    assert g.evaluate(NOW, 2.0, 0.38, NOW, INF, NOW) == 0.0   # inside the margin: still stopped
+    assert g.active
+    assert g.evaluate(NOW, 2.0, 0.41, NOW, INF, NOW) == INF
+    assert not g.active
+    assert g.evaluate(NOW, 2.0, 0.36, NOW, INF, NOW) == INF   # above stop: stays released
+
+
+def test_slow_zone_scales_cap_linearly():
+    g = guard(slow_distance=0.85)
+    # halfway between 0.35 and 0.85 -> half of max velocity
+    assert g.evaluate(NOW, 2.0, 0.60, NOW, INF, NOW) == pytest.approx(1.0)
+    assert g.slowing
+    assert g.evaluate(NOW, 2.0, 0.90, NOW, INF, NOW) == INF
+
+
+def test_stale_sensor_stops_forward_with_stop_policy():
+    g = guard(sonar_timeout=0.2)
+    assert g.evaluate(NOW, 2.0, 3.0, NOW - 250 * MS, 3.0, NOW) == 0.0
+    assert g.sonar_stale and g.active
+    # never reported is stale too
+    g2 = guard()
+    assert g2.evaluate(NOW, 2.0, INF, 0, INF, NOW) == 0.0
+
+
+def test_stale_sensor_is_ignored_with_ignore_policy():
+    g = guard(stale_policy='ignore')
+    assert g.evaluate(NOW, 2.0, 0.1, NOW - 1000 * MS, 3.0, NOW) == INF
+    assert g.sonar_stale and not g.active
+    assert g.evaluate(NOW, 2.0, 0.1, 0, 0.1, 0) == INF
+
+
+def test_disabled_guard_and_unused_sensor():
+    assert guard(enabled=False).evaluate(NOW, 2.0, 0.0, NOW, 0.0, NOW) == INF
+    g = guard(use_sonar=False)
+    assert g.evaluate(NOW, 2.0, 0.0, 0, 2.0, NOW) == INF
+
+
+@pytest.mark.parametrize('kw,field', [
+    ({'stop_distance': -0.1}, 'stop_distance'),
+    ({'slow_distance': 0.2}, 'slow_distance'),
+    ({'sonar_timeout': 0.0}, 'sonar_timeout'),
+    ({'stale_policy': 'maybe'}, 'stale_policy'),
+    ({'release_margin': math.nan}, 'release_margin'),
+])
+def test_bad_parameters_are_rejected(kw, field):
+    with pytest.raises(GuardError, match=field):
+        guard(**kw)

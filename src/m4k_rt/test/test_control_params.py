@@ -1,0 +1,61 @@
+import math
+
+from m4k_rt.control.params import ControlConfigError, control_params
+import pytest
+
+
+def test_defaults_follow_table2():
+    p = control_params(None)
+    assert p.wheel_radius == 0.1016
+    assert p.gear_ratio == 12.0
+    assert p.linear.max_velocity == 2.0
+    assert p.linear.max_acceleration == 0.37
+    assert p.cmd_vel_timeout == 0.5
+    assert p.odom_every_n == 5
+    assert p.feed_forward == pytest.approx(1 / p.full_scale_wheel_speed)
+    assert p.wheel_limit == p.full_scale_wheel_speed
+
+
+def test_overrides_are_applied():
+    p = control_params({'track_width': 0.42, 'linear': {'max_acceleration': 0.5},
+                        'pi': {'anti_windup': 'back_calculation', 'kff': 0.05},
+                        'guard': {'stop_distance': 0.5, 'enabled': False}})
+    assert p.track_width == 0.42
+    assert p.linear.max_acceleration == 0.5
+    assert p.linear.max_velocity == 2.0
+    assert p.pi.anti_windup == 'back_calculation'
+    assert p.feed_forward == 0.05
+    assert p.guard.stop_distance == 0.5 and not p.guard.enabled
+
+
+@pytest.mark.parametrize('section,field,bad', [
+    ({'track_width': 0}, 'control.track_width', '0'),
+    ({'wheel_radius': 'big'}, 'control.wheel_radius', "'big'"),
+    ({'cmd_vel_timeout': -1}, 'control.cmd_vel_timeout', '-1'),
+    ({'odom_every_n': 2.5}, 'control.odom_every_n', '2.5'),
+    ({'linear': {'max_acceleration': math.inf}}, 'control.linear.max_acceleration', 'inf'),
+    ({'angular': {'max_velocity': -1}}, 'control.angular.max_velocity', '-1'),
+    ({'pi': {'anti_windup': 'off'}}, 'control.pi.anti_windup', "'off'"),
+    ({'guard': {'enabled': 'yes'}}, 'control.guard.enabled', "'yes'"),
+    ({'guard': {'slow_distance': 0.1}}, 'control.guard.slow_distance', '0.1'),
+    ({'guard': {'front_sector_deg': 300}}, 'control.guard.front_sector_deg', '300'),
+    ({'trackwidth': 0.4}, 'control.trackwidth', 'unknown'),
+    ({'speed_filter_alpha': 1.5}, 'control.speed_filter_alpha', '1.5'),
+])
+def test_bad_values_name_the_field_and_value(section, field, bad):
+    with pytest.raises(ControlConfigError) as info:
+        control_params(section)
+    assert info.value.field == field
+    assert field in str(info.value)
+    assert bad in str(info.value)
+
+
+def test_shipped_control_yaml_is_valid():
+    import pathlib
+
+    import yaml
+    path = pathlib.Path(__file__).resolve().parents[3] / 'config' / 'control.yaml'
+    data = yaml.safe_load(path.read_text())
+    p = control_params(data['control'])
+    assert p.odom_every_n == 5
+    assert p.linear.max_acceleration == 0.37

@@ -1,0 +1,73 @@
+from m4k_rt.control.pid import PidError, WheelSpeedPI
+import pytest
+
+DT = 0.01
+
+
+def test_feed_forward_alone_gives_the_open_loop_command():
+    pi = WheelSpeedPI(kp=0.0, ki=0.0, kff=1 / 20.0)
+    assert pi.update(10.0, 0.0, DT) == pytest.approx(0.5)
+
+
+def test_proportional_and_integral_hand_computed():
+    pi = WheelSpeedPI(kp=0.1, ki=2.0, kff=0.0)
+    # e = 1: p = 0.1, i = 2 * 1 * 0.01 = 0.02
+    assert pi.update(1.0, 0.0, DT) == pytest.approx(0.12)
+    assert pi.update(1.0, 0.0, DT) == pytest.approx(0.14)
+    assert pi.integral == pytest.approx(0.04)
+
+
+def _saturate_then_recover(mode: str) -> tuple[WheelSpeedPI, int]:
+    pi = WheelSpeedPI(kp=0.05, ki=5.0, kff=0.05, anti_windup=mode)
+    for _ in range(200):   # 2 s demanding 40 rad/s of a plant that can reach 20: saturated
+        assert pi.update(40.0, 20.0, DT) == 1.0
+    assert pi.saturated
+    # now the setpoint drops below what is measured: how many cycles until the output leaves 1?
+    for n in range(1, 1000):
+        if pi.update(10.0, 20.0, DT) < 1.0:
+            return pi, n
+    return pi, 1000
+
+
+def test_clamping_keeps_integrator_bounded_and_unsaturates_at_once():
+    pi, n = _saturate_then_recover('clamping')
+    assert n == 1
+
+
+def test_back_calculation_unwinds_fast():
+    pi, n = _saturate_then_recover('back_calculation')
+    assert n <= 2
+
+
+def test_without_anti_windup_the_same_case_would_stay_saturated_long():
+    # Reference: a plain PI (huge limit, then clipped by hand) keeps winding up.
+    pi = WheelSpeedPI(kp=0.05, ki=5.0, kff=0.05, limit=1e9)
+    for _ in range(200):
+        pi.update(40.0, 20.0, DT)
+    n = next(n for n in range(1, 10000) if min(pi.update(10.0, 20.0, DT), 1.0) < 1.0)
+    assert n > 100
+
+
+def test_integrator_still_works_when_error_pulls_out_of_saturation():
+    pi = WheelSpeedPI(kp=0.0, ki=1.0, kff=0.0, anti_windup='clamping')
+    pi.integral = 0.99
+    assert pi.update(5.0, 0.0, DT) == 1.0   # pushes further: frozen
+    assert pi.integral == 0.99
+    assert pi.update(-5.0, 0.0, DT) == pytest.approx(0.94)
+
+
+def test_reset_clears_integral():
+    pi = WheelSpeedPI(kp=0.1, ki=1.0)
+    pi.update(1.0, 0.0, DT)
+    pi.reset()
+    assert pi.integral == 0.0
+
+
+@pytest.mark.parametrize('kwargs,field', [
+    ({'kp': -1.0, 'ki': 0.0}, 'kp'), ({'kp': 1.0, 'ki': float('nan')}, 'ki'),
+    ({'kp': 1.0, 'ki': 1.0, 'limit': 0.0}, 'limit'),
+    ({'kp': 1.0, 'ki': 1.0, 'anti_windup': 'none'}, 'anti_windup'),
+])
+def test_bad_gains_are_rejected(kwargs, field):
+    with pytest.raises(PidError, match=field):
+        WheelSpeedPI(**kwargs)
