@@ -88,7 +88,13 @@ PARAM_COMMANDS = frozenset({'VV', 'PP', 'II'})
 
 
 class ScipError(ValueError):
-    """Base of every SCIP protocol error (bad bytes, bad sums, refused commands)."""
+    """Base of every SCIP protocol error (bad bytes, bad sums, refused commands).
+
+    ``echo`` is the echo line of the response the error was found in, when known (set by
+    :class:`ScipParser`), so a driver can tell which command's reply was lost.
+    """
+
+    echo: bytes | None = None
 
 
 class ScipFormatError(ScipError):
@@ -609,8 +615,10 @@ class ScipParser:
     def _overflow(self, out: list[Response | ScipError]) -> None:
         self._discarding = True
         self.format_errors += 1
-        out.append(ScipFormatError(f'{self._lines[0]!r} response exceeds {self.MAX_LINES} '
-                                   f'lines or has a line over {self.MAX_LINE} bytes'))
+        exc = ScipFormatError(f'{self._lines[0]!r} response exceeds {self.MAX_LINES} '
+                              f'lines or has a line over {self.MAX_LINE} bytes')
+        exc.echo = self._lines[0]
+        out.append(exc)
 
     def _on_line(self, line: bytes, out: list[Response | ScipError]) -> None:
         if not self._in_response:
@@ -641,7 +649,9 @@ class ScipParser:
             self.responses += 1
         except ScipChecksumError as exc:
             self.checksum_errors += 1
+            exc.echo = lines[0]
             out.append(exc)
         except ScipError as exc:
             self.format_errors += 1
+            exc.echo = lines[0]
             out.append(exc)
