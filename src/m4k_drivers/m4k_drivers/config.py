@@ -1,0 +1,170 @@
+"""Load and validate the driver host configuration (``config/devices.yaml``).
+
+Two sections::
+
+    devices:            # one entry per device kind (motor, imu, sonar, led, lrf)
+      imu:
+        backend: real   # a backend registered for the kind (see m4k_drivers.registry)
+        enabled: true   # optional, default true
+        xddp_port: 3    # optional, default from DEFAULT_PORTS
+        bus: 1          # backend fields, schema declared with the backend's registration
+    world:              # the simulated world (m4k_drivers.world.WorldConfig.from_dict)
+
+Every error is a :class:`ConfigError` whose message starts with the dotted field name.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+import os
+from pathlib import Path
+from typing import Any
+
+from m4k_drivers import registry
+from m4k_drivers.handler import DriverError
+from m4k_drivers.world import WorldConfig, WorldConfigError
+
+__all__ = ['DEFAULT_PORTS', 'ConfigError', 'DriverConfig', 'default_config_path', 'load',
+           'load_file', 'merge', 'validate']
+
+# XDDP ports of the driver-host peers (docs/internals.md, "Ports").
+DEFAULT_PORTS = {'motor': 2, 'imu': 3, 'led': 5, 'sonar': 7, 'lrf': 9}
+
+
+class ConfigError(DriverError, ValueError):
+    """Raise for a bad configuration; the message names the field."""
+
+
+@dataclass
+class DriverConfig:
+    """Validated driver-host configuration: device sections (defaults applied) and world."""
+
+    devices: dict[str, dict[str, Any]]
+    world: WorldConfig
+    world_raw: dict[str, Any]
+
+
+def default_config_path() -> Path:
+    """Return ``$M4K_DEVICES_CONFIG``, else the installed share dir copy, else the repo copy."""
+    env = os.environ.get('M4K_DEVICES_CONFIG')
+    if env:
+        return Path(env)
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        share = Path(get_package_share_directory('m4k_drivers')) / 'config' / 'devices.yaml'
+        if share.is_file():
+            return share
+    except Exception:  # noqa: BLE001 - ament index absent or package not installed
+        pass
+    return Path(__file__).resolve().parents[3] / 'config' / 'devices.yaml'
+
+
+def load_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read one YAML file into a mapping (ConfigError naming the path on failure)."""
+    import yaml
+    try:
+        with open(path, encoding='utf-8') as fh:
+            data = yaml.safe_load(fh)
+    except OSError as exc:
+        raise ConfigError(f'{path}: {exc.strerror} (errno {exc.errno})') from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{path}: invalid YAML: {exc}') from exc
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f'{path}: top level must be a mapping, got {type(data).__name__}')
+    return data
+
+
+def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """Return ``base`` deep-merged with ``over`` (mappings merge, other values replace)."""
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _check_type(value: Any, param: registry.Param, where: str) -> Any:
+    types = param.type if isinstance(param.type, tuple) else (param.type,)
+    if float in types and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, bool) and bool not in types:
+        ok = False
+    else:
+        ok = isinstance(value, types)
+    if not ok:
+        names = ' or '.join(t.__name__ for t in types)
+        raise ConfigError(f'{where}: expected {names}, got {value!r}')
+    return value
+
+
+def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
+    """Validate one device section and return it with defaults applied."""
+    if not isinstance(section, dict):
+        raise ConfigError(f'{where}: expected a mapping, got {section!r}')
+    if 'backend' not in section:
+        raise ConfigError(f'{where}.backend: missing; valid backends: '
+                          f'{", ".join(registry.backends(kind)) or "(none)"}')
+    backend = section['backend']
+    try:
+        spec = registry.get(kind, backend)
+    except registry.RegistryError as exc:
+        raise ConfigError(f'{where}.backend: {exc}') from None
+    out: dict[str, Any] = {'backend': backend,
+                           'enabled': section.get('enabled', True),
+                           'xddp_port': section.get('xddp_port', DEFAULT_PORTS.get(kind))}
+    if not isinstance(out['enabled'], bool):
+        raise ConfigError(f'{where}.enabled: expected bool, got {out["enabled"]!r}')
+    port = out['xddp_port']
+    if not (isinstance(port, str) and port) and not (
+            isinstance(port, int) and not isinstance(port, bool) and port >= 0):
+        raise ConfigError(f'{where}.xddp_port: expected a port number or label, got {port!r}')
+    unknown = sorted(set(section) - set(registry.COMMON_KEYS) - set(spec.params))
+    if unknown:
+        valid = sorted(set(registry.COMMON_KEYS) | set(spec.params))
+        raise ConfigError(f'{where}: unknown field(s) {unknown!r} for backend {backend!r}; '
+                          f'valid: {", ".join(valid)}')
+    for name, param in spec.params.items():
+        if name in section:
+            out[name] = _check_type(section[name], param, f'{where}.{name}')
+        elif param.required:
+            doc = f' ({param.doc})' if param.doc else ''
+            raise ConfigError(f'{where}.{name}: missing, required by backend {backend!r}{doc}')
+        else:
+            out[name] = copy.deepcopy(param.default)
+    return out
+
+
+def validate(doc: dict[str, Any]) -> DriverConfig:
+    """Validate a whole document with ``devices:`` and ``world:`` sections."""
+    unknown = sorted(set(doc) - {'devices', 'world'})
+    if unknown:
+        raise ConfigError(f'unknown top-level section(s) {unknown!r}; valid: devices, world')
+    devices = doc.get('devices') or {}
+    if not isinstance(devices, dict):
+        raise ConfigError(f'devices: expected a mapping of device sections, got {devices!r}')
+    out = {}
+    for kind, section in devices.items():
+        if kind not in registry.KIND_MODULES:
+            raise ConfigError(f'devices.{kind}: unknown device; valid: '
+                              f'{", ".join(registry.kinds())}')
+        out[kind] = validate_device(kind, section, f'devices.{kind}')
+    world_raw = doc.get('world') or {}
+    try:
+        world = WorldConfig.from_dict(world_raw)
+    except WorldConfigError as exc:
+        raise ConfigError(str(exc)) from None
+    return DriverConfig(out, world, world_raw)
+
+
+def load(path: str | os.PathLike[str] | None = None,
+         overrides: dict[str, Any] | None = None) -> DriverConfig:
+    """Load ``path`` (default :func:`default_config_path`), layer ``overrides``, validate."""
+    doc = load_file(path or default_config_path())
+    if overrides:
+        doc = merge(doc, overrides)
+    return validate(doc)

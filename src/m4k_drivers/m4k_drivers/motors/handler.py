@@ -1,0 +1,164 @@
+"""Motor handler: WHEEL_CMD codes -> two MCP4911 DACs; two AS5045 encoders -> ENCODERS.
+
+Thin: frames come from :mod:`m4k_drivers.motors.protocol`, bytes move through a
+:class:`~m4k_drivers.motors.real.MotorBus` (real spidev or simulated peers).  A watchdog makes
+the outputs safe (code 512 on both DACs) when no command arrived for ``watchdog_periods``
+actuator periods, until a fresh command comes (docs/internals.md, driver host watchdog).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable, NamedTuple
+
+from m4k_drivers.handler import DeviceHandler, DeviceIdentityError, DriverError
+from m4k_drivers.motors import protocol as p
+from m4k_drivers.motors.real import MotorBus
+
+__all__ = ['EncoderReading', 'MotorHandler', 'WheelCommand']
+
+
+class WheelCommand(NamedTuple):
+    """The WHEEL_CMD payload: DAC codes (512 = zero) and the enable flag."""
+
+    left_code: int
+    right_code: int
+    enable: int = 1
+
+
+class EncoderReading(NamedTuple):
+    """The ENCODERS payload plus the host's read time."""
+
+    left_raw: int
+    right_raw: int
+    left_angle: float
+    right_angle: float
+    status: int
+    t_ns: int
+
+
+_FRAME_BITS = (p.STATUS_LEFT_FRAME, p.STATUS_RIGHT_FRAME)
+_JUMP_BITS = (p.STATUS_LEFT_JUMP, p.STATUS_RIGHT_JUMP)
+
+
+class MotorHandler(DeviceHandler):
+    """Lifecycle handler for the two drive motors and their wheel encoders."""
+
+    kind = 'motor'
+
+    def __init__(self, opener: Callable[[], MotorBus], *, name: str = 'motor',
+                 period_s: float = 0.01, watchdog_periods: int = 10,
+                 max_wheel_rad_s: float = 30.0, lead_bits: int = 1,
+                 clock: Callable[[], int] = time.monotonic_ns, **kw: Any) -> None:
+        super().__init__(name, **kw)
+        self._opener = opener
+        self.bus: MotorBus | None = None
+        self.clock = clock
+        self.watchdog_ns = int(period_s * watchdog_periods * 1e9)
+        self.lead_bits = lead_bits
+        max_rate = max_wheel_rad_s / (2 * 3.141592653589793) * p.ENC_COUNTS
+        self.unwrap = (p.Unwrapper(max_rate), p.Unwrapper(max_rate))
+        self.codes = (p.DAC_ZERO, p.DAC_ZERO)
+        self.safe = True
+        self.last_cmd_ns: int | None = None
+        self.watchdog_trips = 0
+        self.write_error = False
+        self.last_raw = [0, 0]
+
+    # -- hooks ----------------------------------------------------------------------------
+    def on_configure(self) -> None:
+        """Open the four SPI endpoints, zero the DACs and check both encoders answer."""
+        self.bus = self._opener()
+        self._write_codes(p.DAC_ZERO, p.DAC_ZERO)
+        for side, port in enumerate(self.bus.encoders):
+            try:
+                frame = p.decode_encoder(port.transfer(bytes(p.ENC_READ_LEN)), self.lead_bits)
+            except p.EncoderFrameError as exc:
+                raise DeviceIdentityError(f'{port.path}: no valid AS5045 frame: {exc}') from exc
+            self.unwrap[side].reset()
+            self.unwrap[side].update(frame.raw, self.clock())
+            self.last_raw[side] = frame.raw
+
+    def on_activate(self) -> None:
+        """Accept commands; outputs stay at zero until the first one."""
+        self.make_safe()
+
+    def on_write(self, command: WheelCommand) -> None:
+        """Write both DACs (enable 0 -> code 512) and feed the watchdog."""
+        left, right, enable = command
+        for code in (left, right):
+            if isinstance(code, bool) or not isinstance(code, int) or not 0 <= code <= p.DAC_MAX:
+                raise p.DeviceProtocolError(f'WHEEL_CMD code must be 0..{p.DAC_MAX}, '
+                                            f'got {command!r}')
+        if not enable:
+            left = right = p.DAC_ZERO
+        self.last_cmd_ns = self.clock()
+        self._write_codes(left, right)
+        self.safe = not enable
+
+    def on_read(self) -> EncoderReading:
+        """Read both encoders (a bad frame sets its status bit, keeps the last angle)."""
+        assert self.bus is not None
+        self.poll_watchdog()
+        status = 0
+        for side, port in enumerate(self.bus.encoders):
+            data = port.transfer(bytes(p.ENC_READ_LEN))
+            t = self.clock()
+            try:
+                frame = p.decode_encoder(data, self.lead_bits)
+                self.unwrap[side].update(frame.raw, t)
+                self.last_raw[side] = frame.raw
+            except p.EncoderJumpError as exc:
+                self.record_fault(exc)
+                status |= _JUMP_BITS[side]
+            except p.EncoderFrameError as exc:
+                self.record_fault(exc)
+                status |= _FRAME_BITS[side]
+        if self.safe:
+            status |= p.STATUS_SAFE
+        if self.write_error:
+            status |= p.STATUS_WRITE_ERROR
+        return EncoderReading(self.last_raw[0], self.last_raw[1], self.unwrap[0].angle,
+                              self.unwrap[1].angle, status, self.clock())
+
+    def on_deactivate(self) -> None:
+        """Write code 512 to both DACs."""
+        self.make_safe()
+
+    def on_cleanup(self) -> None:
+        """Close the SPI endpoints."""
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+
+    # -- helpers --------------------------------------------------------------------------
+    def _write_codes(self, left: int, right: int) -> None:
+        assert self.bus is not None
+        try:
+            for port, code in zip(self.bus.dacs, (left, right), strict=True):
+                port.transfer(p.encode_dac(code))
+        except DriverError:
+            self.write_error = True
+            raise
+        self.write_error = False
+        self.codes = (left, right)
+
+    def make_safe(self) -> None:
+        """Write the zero code to both DACs (outputs active, so the amplifier sees 0 V)."""
+        if self.bus is not None:
+            self._write_codes(p.DAC_ZERO, p.DAC_ZERO)
+        self.safe = True
+
+    def poll_watchdog(self, now_ns: int | None = None) -> bool:
+        """Make outputs safe if the last command is older than the watchdog; True if tripped."""
+        if self.safe or self.last_cmd_ns is None:
+            return False
+        now = self.clock() if now_ns is None else now_ns
+        if now - self.last_cmd_ns <= self.watchdog_ns:
+            return False
+        self.watchdog_trips += 1
+        try:
+            self.make_safe()
+        except DriverError as exc:
+            self.record_fault(exc)
+        return True

@@ -1,0 +1,89 @@
+"""Motor transport on real spidev nodes (python-periphery), one node per chip select.
+
+The paper's RPi3 extends the SPI chip selects with GPIO so that two MCP4911 DACs and two
+AS5045 encoders each get their own ``/dev/spidevB.C`` node; the config names the four paths.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
+
+__all__ = ['MotorBus', 'SpiLike', 'SpiPort', 'open_real_bus']
+
+
+class SpiLike(Protocol):
+    """What the motor code needs from an SPI device: full-duplex transfer and close."""
+
+    def transfer(self, data: bytes) -> bytes:
+        """Clock ``data`` out and return the bytes clocked in."""
+
+    def close(self) -> None:
+        """Release the device."""
+
+
+class SpiPort:
+    """One spidev node: wraps periphery errors into DriverErrors naming the path."""
+
+    def __init__(self, dev: SpiLike, path: str) -> None:
+        self.dev = dev
+        self.path = path
+
+    def transfer(self, data: bytes) -> bytes:
+        """Do one full-duplex transfer; OSError -> DeviceIOError with path and errno."""
+        try:
+            return bytes(self.dev.transfer(data))
+        except OSError as exc:
+            raise wrap_os_error(exc, self.path, 'transfer') from exc
+
+    def close(self) -> None:
+        """Close the node, ignoring errors (cleanup must not raise)."""
+        try:
+            self.dev.close()
+        except OSError:
+            pass
+
+
+class MotorBus:
+    """The four SPI endpoints of the base: left/right DAC, left/right encoder."""
+
+    def __init__(self, left_dac: SpiPort, right_dac: SpiPort, left_enc: SpiPort,
+                 right_enc: SpiPort) -> None:
+        self.dacs = (left_dac, right_dac)
+        self.encoders = (left_enc, right_enc)
+
+    def close(self) -> None:
+        """Close every endpoint."""
+        for port in (*self.dacs, *self.encoders):
+            port.close()
+
+
+def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
+    """Open one spidev node, raising DeviceNotFoundError/DevicePermissionError naming it."""
+    from periphery import SPI
+    try:
+        return SpiPort(SPI(path, mode, speed_hz), path)
+    except OSError as exc:
+        raise wrap_os_error(exc, path) from exc
+    except (TypeError, ValueError) as exc:
+        raise DeviceIOError(f'{path}: bad SPI settings mode={mode!r} speed={speed_hz!r}: {exc}'
+                            ) from exc
+
+
+def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, *,
+                  dac_mode: int = 0, dac_speed_hz: int = 1_000_000, enc_mode: int = 2,
+                  enc_speed_hz: int = 500_000) -> MotorBus:
+    """Open the four spidev nodes (closing any already opened if one fails)."""
+    opened: list[SpiPort] = []
+    try:
+        for path, mode, speed in ((left_dac, dac_mode, dac_speed_hz),
+                                  (right_dac, dac_mode, dac_speed_hz),
+                                  (left_enc, enc_mode, enc_speed_hz),
+                                  (right_enc, enc_mode, enc_speed_hz)):
+            opened.append(open_spi(path, mode, speed))
+    except DriverError:
+        for port in opened:
+            port.close()
+        raise
+    return MotorBus(*opened)

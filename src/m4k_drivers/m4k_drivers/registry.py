@@ -1,0 +1,162 @@
+"""Backend registry: (device kind, backend name) -> factory building a device handler.
+
+Device packages register their backends at import time::
+
+    @register('imu', 'sim', params={'rate_hz': Param(float, 100.0)})
+    def _build(name: str, params: dict, ctx: BuildContext) -> DeviceHandler: ...
+
+``params`` is the schema of the device's config section (besides the common keys
+``backend``, ``enabled`` and ``xddp_port``); :mod:`m4k_drivers.config` validates against it,
+so a backend's accepted fields are declared once, next to its factory.  Kinds are imported
+lazily from :data:`KIND_MODULES`, so a missing optional package (e.g. the laser) only matters
+when a config actually asks for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import importlib
+import time
+from typing import TYPE_CHECKING, Any, Callable
+
+from m4k_drivers.handler import DriverError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from m4k_drivers.handler import DeviceHandler
+    from m4k_drivers.world import World
+
+__all__ = [
+    'COMMON_KEYS', 'KIND_MODULES', 'BackendSpec', 'BuildContext', 'Param', 'RegistryError',
+    'backends', 'create', 'get', 'kinds', 'register',
+]
+
+# Where each device kind registers its backends; imported on first use.
+KIND_MODULES: dict[str, str] = {
+    'motor': 'm4k_drivers.motors',
+    'imu': 'm4k_drivers.imu',
+    'sonar': 'm4k_drivers.sonar',
+    'led': 'm4k_drivers.led',
+    'lrf': 'm4k_drivers.lrf',
+}
+
+# Keys every device section may carry, whatever its backend.
+COMMON_KEYS = ('backend', 'enabled', 'xddp_port')
+
+
+class RegistryError(DriverError, KeyError):
+    """Raise for an unknown device kind or backend; the message lists the valid ones."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ''
+
+
+_REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Param:
+    """One config field of a backend: accepted type(s), default (omit = required), help."""
+
+    type: type | tuple[type, ...]
+    default: Any = _REQUIRED
+    doc: str = ''
+
+    @property
+    def required(self) -> bool:
+        """Return True when the field has no default."""
+        return self.default is _REQUIRED
+
+
+@dataclass(frozen=True)
+class BackendSpec:
+    """A registered backend: its kind, name, factory and config schema."""
+
+    kind: str
+    name: str
+    factory: Callable[[str, dict[str, Any], BuildContext], DeviceHandler]
+    params: dict[str, Param] = field(default_factory=dict)
+
+
+@dataclass
+class BuildContext:
+    """What factories may need besides their params: the shared sim world and the clock."""
+
+    world_config: dict[str, Any] | None = None
+    clock: Callable[[], int] = time.monotonic_ns
+    seed: int = 0
+    _world: World | None = None
+
+    @property
+    def world(self) -> World:
+        """Return the one simulated world shared by all sim devices (created on first use)."""
+        if self._world is None:
+            from m4k_drivers.world import World, WorldConfig
+            cfg = WorldConfig.from_dict(self.world_config or {})
+            self._world = World(cfg, clock=self.clock)
+        return self._world
+
+    @property
+    def has_world(self) -> bool:
+        """Return True once a sim device asked for the world."""
+        return self._world is not None
+
+
+_BACKENDS: dict[tuple[str, str], BackendSpec] = {}
+_LOAD_ERRORS: dict[str, str] = {}
+_LOADED: set[str] = set()
+
+
+def register(kind: str, name: str, params: dict[str, Param] | None = None,
+             ) -> Callable[[Callable[..., DeviceHandler]], Callable[..., DeviceHandler]]:
+    """Register ``factory(name, params, ctx) -> DeviceHandler`` for (kind, backend name)."""
+
+    def deco(factory: Callable[..., DeviceHandler]) -> Callable[..., DeviceHandler]:
+        _BACKENDS[(kind, name)] = BackendSpec(kind, name, factory, dict(params or {}))
+        return factory
+
+    return deco
+
+
+def _load(kind: str) -> None:
+    module = KIND_MODULES.get(kind)
+    if module is None or kind in _LOADED:
+        return
+    _LOADED.add(kind)
+    try:
+        importlib.import_module(module)
+    except ImportError as exc:
+        # An optional device package (the laser) may not be installed; remember why.
+        _LOAD_ERRORS[kind] = f'{module}: {exc}'
+
+
+def kinds() -> list[str]:
+    """Return the known device kinds."""
+    return sorted(KIND_MODULES)
+
+
+def backends(kind: str) -> list[str]:
+    """Return the backend names registered for ``kind`` (importing its package)."""
+    if kind not in KIND_MODULES:
+        raise RegistryError(f'unknown device kind {kind!r}; valid kinds: {", ".join(kinds())}')
+    _load(kind)
+    return sorted(n for k, n in _BACKENDS if k == kind)
+
+
+def get(kind: str, backend: str) -> BackendSpec:
+    """Return the spec of (kind, backend) or raise RegistryError listing the valid backends."""
+    valid = backends(kind)
+    spec = _BACKENDS.get((kind, backend))
+    if spec is None:
+        if not valid and kind in _LOAD_ERRORS:
+            raise RegistryError(f'device {kind!r} has no backends ({_LOAD_ERRORS[kind]})')
+        raise RegistryError(f'unknown backend {backend!r} for device {kind!r}; '
+                            f'valid backends: {", ".join(valid) or "(none)"}')
+    return spec
+
+
+def create(kind: str, section: dict[str, Any], ctx: BuildContext,
+           name: str | None = None) -> DeviceHandler:
+    """Build the handler for one validated device section (defaults already applied)."""
+    spec = get(kind, section['backend'])
+    params = {k: v for k, v in section.items() if k not in COMMON_KEYS}
+    return spec.factory(name or kind, params, ctx)

@@ -1,0 +1,382 @@
+"""The simulated world shared by every sim device of one driver host process.
+
+A room of panel walls (line segments) with a triangular obstacle about 1.5 m ahead of the start
+(the paper's Fig. 8), and the M4K base (Table 2): differential drive, wheel diameter 0.2032 m,
+gear 12:1, top speed 2 m/s, body 0.45 x 0.28 m.  The track width is not in the paper; we use
+**0.40 m** (wheel centre to wheel centre: a 0.28 m wide body carrying 5 cm wheels outside it
+plus clearance would be ~0.38-0.40 m).
+
+Dynamics, per fixed step (``step_s``, default 1 ms, so results do not depend on how often
+callers look): motor armature voltage -> first-order lag (``motor_tau_s``) -> motor speed,
+/ gear ratio -> wheel speed; the robot pose is integrated exactly along the arc for the mean
+wheel speeds of the step.  A step whose new footprint would touch a wall or an obstacle is not
+taken: the robot stops, the wheels stall, and ``collisions`` counts the contact onset.
+
+Time is advanced lazily to the caller's CLOCK_MONOTONIC (``advance_to``/``now``); every
+access is under one lock.  Noise streams come from :meth:`World.rng`, seeded from the world
+seed and the stream name, so a run is reproducible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+import math
+import threading
+import time
+from typing import Any, Callable, NamedTuple, Sequence
+import zlib
+
+import numpy as np
+
+__all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'World', 'WorldConfig',
+           'WorldConfigError']
+
+LEFT, RIGHT = 0, 1
+
+
+class WorldConfigError(ValueError):
+    """Raise for a bad ``world:`` section; the message names the field."""
+
+
+class Pose(NamedTuple):
+    """Planar pose in the world frame (x forward at start, y left, yaw CCW, REP-103)."""
+
+    x: float
+    y: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class RobotParams:
+    """Physical parameters of the M4K base (paper Table 2, track width our choice)."""
+
+    wheel_diameter_m: float = 0.2032
+    gear_ratio: float = 12.0
+    track_width_m: float = 0.40
+    length_m: float = 0.45
+    width_m: float = 0.28
+    top_speed_mps: float = 2.0
+    motor_tau_s: float = 0.08
+    supply_v: float = 24.0
+
+    @property
+    def wheel_radius_m(self) -> float:
+        """Return the wheel radius."""
+        return self.wheel_diameter_m / 2.0
+
+    @property
+    def max_wheel_rad_s(self) -> float:
+        """Return the wheel speed at full armature voltage (top speed)."""
+        return self.top_speed_mps / self.wheel_radius_m
+
+    @property
+    def max_motor_rad_s(self) -> float:
+        """Return the motor-shaft speed at full armature voltage."""
+        return self.max_wheel_rad_s * self.gear_ratio
+
+
+class RobotState(NamedTuple):
+    """A consistent snapshot of the simulated robot."""
+
+    t_ns: int
+    pose: Pose
+    v: float                 # body linear velocity, m/s
+    w: float                 # body yaw rate, rad/s
+    accel: float             # longitudinal acceleration over the last step, m/s^2
+    wheel_speed: tuple[float, float]   # rad/s, positive = forward
+    wheel_angle: tuple[float, float]   # rad, continuous
+    collisions: int
+    in_contact: bool
+
+
+def _rect(xmin: float, ymin: float, xmax: float, ymax: float) -> list[tuple[float, ...]]:
+    return [(xmin, ymin, xmax, ymin), (xmax, ymin, xmax, ymax),
+            (xmax, ymax, xmin, ymax), (xmin, ymax, xmin, ymin)]
+
+
+def _numbers(value: Any, n: int | None, where: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n):
+        want = f'a list of {n} numbers' if n else 'a list of numbers'
+        raise WorldConfigError(f'{where}: expected {want}, got {value!r}')
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise WorldConfigError(f'{where}: expected finite numbers, got {value!r}')
+        out.append(float(v))
+    return tuple(out)
+
+
+# Paper Fig. 8: a room of white panel boards, the robot at the start, a triangular obstacle
+# about 1.5 m ahead (its flat side faces the robot) and a goal 3 m ahead.
+DEFAULT_WALLS = tuple(_rect(-0.8, -1.5, 4.2, 1.5))
+DEFAULT_OBSTACLE = ((1.5, -0.25), (1.5, 0.25), (1.9, 0.0))
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Room walls (segments x1,y1,x2,y2), obstacle polygons, start pose, robot, seed."""
+
+    walls: tuple[tuple[float, ...], ...] = DEFAULT_WALLS
+    obstacles: tuple[tuple[tuple[float, float], ...], ...] = (DEFAULT_OBSTACLE,)
+    start: Pose = Pose(0.0, 0.0, 0.0)
+    robot: RobotParams = field(default_factory=RobotParams)
+    seed: int = 0
+    step_s: float = 0.001
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None, where: str = 'world') -> WorldConfig:
+        """Build from the YAML ``world:`` section, naming the bad field on error."""
+        data = dict(data or {})
+        unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s'}
+        if unknown:
+            raise WorldConfigError(f'{where}: unknown field(s) {sorted(unknown)!r}; valid: '
+                                   'walls, obstacles, start, robot, seed, step_s')
+        cfg = cls()
+        walls = data.get('walls')
+        if walls is not None:
+            if isinstance(walls, dict) and set(walls) == {'rectangle'}:
+                cfg = replace(cfg, walls=tuple(_rect(*_numbers(walls['rectangle'], 4,
+                                                               f'{where}.walls.rectangle'))))
+            elif isinstance(walls, list):
+                cfg = replace(cfg, walls=tuple(_numbers(s, 4, f'{where}.walls[{i}]')
+                                               for i, s in enumerate(walls)))
+            else:
+                raise WorldConfigError(f'{where}.walls: expected a list of [x1, y1, x2, y2] '
+                                       f'segments or {{rectangle: [xmin, ymin, xmax, ymax]}}, '
+                                       f'got {walls!r}')
+        if 'obstacles' in data:
+            obs = data['obstacles'] or []
+            if not isinstance(obs, list):
+                raise WorldConfigError(f'{where}.obstacles: expected a list of polygons, '
+                                       f'got {obs!r}')
+            polys = []
+            for i, poly in enumerate(obs):
+                if not isinstance(poly, list) or len(poly) < 3:
+                    raise WorldConfigError(f'{where}.obstacles[{i}]: expected a polygon of at '
+                                           f'least 3 [x, y] points, got {poly!r}')
+                polys.append(tuple(_numbers(p, 2, f'{where}.obstacles[{i}][{j}]')
+                                   for j, p in enumerate(poly)))
+            cfg = replace(cfg, obstacles=tuple(polys))
+        if 'start' in data:
+            cfg = replace(cfg, start=Pose(*_numbers(data['start'], 3, f'{where}.start')))
+        if 'robot' in data:
+            rob = data['robot']
+            names = {f.name for f in fields(RobotParams)}
+            if not isinstance(rob, dict) or set(rob) - names:
+                raise WorldConfigError(f'{where}.robot: expected a mapping with keys from '
+                                       f'{sorted(names)}, got {rob!r}')
+            vals = {k: _numbers([v], 1, f'{where}.robot.{k}')[0] for k, v in rob.items()}
+            for k, v in vals.items():
+                if v <= 0:
+                    raise WorldConfigError(f'{where}.robot.{k}: must be > 0, got {v!r}')
+            cfg = replace(cfg, robot=replace(cfg.robot, **vals))
+        if 'seed' in data:
+            if isinstance(data['seed'], bool) or not isinstance(data['seed'], int):
+                raise WorldConfigError(f'{where}.seed: expected an integer, got {data["seed"]!r}')
+            cfg = replace(cfg, seed=data['seed'])
+        if 'step_s' in data:
+            step = _numbers([data['step_s']], 1, f'{where}.step_s')[0]
+            if not 1e-5 <= step <= 0.05:
+                raise WorldConfigError(f'{where}.step_s: must be in [1e-5, 0.05] s, got {step!r}')
+            cfg = replace(cfg, step_s=step)
+        return cfg
+
+
+def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
+    return ax * by - ay * bx
+
+
+class World:
+    """Thread-safe simulated room + robot, advanced lazily to the caller's monotonic time."""
+
+    def __init__(self, config: WorldConfig | None = None, *,
+                 clock: Callable[[], int] = time.monotonic_ns, t0_ns: int | None = None) -> None:
+        self.config = config or WorldConfig()
+        self.robot = self.config.robot
+        self.clock = clock
+        self._lock = threading.RLock()
+        segs = [tuple(s) for s in self.config.walls]
+        for poly in self.config.obstacles:
+            segs += [(*poly[i], *poly[(i + 1) % len(poly)]) for i in range(len(poly))]
+        self._seg = np.array(segs, dtype=float).reshape(-1, 4)
+        self._step_ns = round(self.config.step_s * 1e9)
+        self._t_ns = clock() if t0_ns is None else t0_ns
+        self._pose = self.config.start
+        self._wheel_speed = [0.0, 0.0]
+        self._wheel_angle = [0.0, 0.0]
+        self._volts = [0.0, 0.0]
+        self._v = 0.0
+        self._w = 0.0
+        self._accel = 0.0
+        self.collisions = 0
+        self.in_contact = False
+        if self.collides(self._pose):
+            raise WorldConfigError(f'world.start: the robot footprint at {tuple(self._pose)!r} '
+                                   'overlaps a wall or an obstacle')
+
+    # -- randomness -----------------------------------------------------------------------
+    def rng(self, stream: str) -> np.random.Generator:
+        """Return a generator seeded from the world seed and ``stream`` (reproducible)."""
+        return np.random.default_rng([self.config.seed & 0xFFFFFFFF,
+                                      zlib.crc32(stream.encode())])
+
+    # -- time -----------------------------------------------------------------------------
+    @property
+    def t_ns(self) -> int:
+        """Return the simulated time (monotonic ns) up to which the world has been advanced."""
+        return self._t_ns
+
+    def now(self) -> int:
+        """Advance to the clock's current time and return it."""
+        t = self.clock()
+        self.advance_to(t)
+        return t
+
+    def advance_to(self, t_ns: int) -> None:
+        """Integrate the dynamics in fixed steps up to ``t_ns`` (earlier times are a no-op)."""
+        with self._lock:
+            while self._t_ns + self._step_ns <= t_ns:
+                self._step(self._step_ns * 1e-9)
+                self._t_ns += self._step_ns
+
+    # -- actuation ------------------------------------------------------------------------
+    def set_motor_voltage(self, side: int, volts: float) -> None:
+        """Set the armature voltage of one motor (clamped to the supply; NaN -> 0)."""
+        if side not in (LEFT, RIGHT):
+            raise ValueError(f'side must be LEFT (0) or RIGHT (1), got {side!r}')
+        sup = self.robot.supply_v
+        v = 0.0 if not math.isfinite(volts) else max(-sup, min(sup, float(volts)))
+        with self._lock:
+            self._volts[side] = v
+
+    def motor_voltage(self, side: int) -> float:
+        """Return the armature voltage last set for one motor."""
+        with self._lock:
+            return self._volts[side]
+
+    # -- dynamics -------------------------------------------------------------------------
+    def _step(self, dt: float) -> None:
+        rob = self.robot
+        decay = math.exp(-dt / rob.motor_tau_s)
+        old = self._wheel_speed
+        if old[0] == 0.0 and old[1] == 0.0 and self._volts[0] == 0.0 and self._volts[1] == 0.0:
+            self._accel = 0.0
+            return
+        new = []
+        for side in (LEFT, RIGHT):
+            target = self._volts[side] / rob.supply_v * rob.max_wheel_rad_s
+            w_new = target + (old[side] - target) * decay
+            new.append(0.0 if abs(w_new) < 1e-9 else w_new)
+        mean_l = 0.5 * (old[0] + new[0])
+        mean_r = 0.5 * (old[1] + new[1])
+        r = rob.wheel_radius_m
+        v = 0.5 * (mean_l + mean_r) * r
+        w = (mean_r - mean_l) * r / rob.track_width_m
+        x, y, th = self._pose
+        if abs(w) < 1e-12:
+            cand = Pose(x + v * dt * math.cos(th), y + v * dt * math.sin(th), th)
+        else:
+            th2 = th + w * dt
+            cand = Pose(x + v / w * (math.sin(th2) - math.sin(th)),
+                        y - v / w * (math.cos(th2) - math.cos(th)),
+                        math.atan2(math.sin(th2), math.cos(th2)))
+        v_old = self._v
+        if self.collides(cand):
+            if not self.in_contact:
+                self.collisions += 1
+            self.in_contact = True
+            self._wheel_speed = [0.0, 0.0]
+            self._v = self._w = 0.0
+        else:
+            self.in_contact = False
+            self._pose = cand
+            self._wheel_speed = new
+            self._wheel_angle[0] += mean_l * dt
+            self._wheel_angle[1] += mean_r * dt
+            self._v, self._w = v, w
+        self._accel = (self._v - v_old) / dt
+
+    def footprint(self, pose: Pose) -> np.ndarray:
+        """Return the 4 footprint corners (4x2) of the robot body at ``pose``."""
+        hl, hw = self.robot.length_m / 2.0, self.robot.width_m / 2.0
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        local = np.array([(hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw)])
+        return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
+
+    def collides(self, pose: Pose) -> bool:
+        """Return True when the footprint at ``pose`` touches a wall or obstacle."""
+        corners = self.footprint(pose)
+        edges = np.hstack([corners, np.roll(corners, -1, axis=0)])   # 4 x (x1,y1,x2,y2)
+        a = edges[:, None, :]
+        b = self._seg[None, :, :]
+        d1 = _cross(a[..., 2] - a[..., 0], a[..., 3] - a[..., 1],
+                    b[..., 0] - a[..., 0], b[..., 1] - a[..., 1])
+        d2 = _cross(a[..., 2] - a[..., 0], a[..., 3] - a[..., 1],
+                    b[..., 2] - a[..., 0], b[..., 3] - a[..., 1])
+        d3 = _cross(b[..., 2] - b[..., 0], b[..., 3] - b[..., 1],
+                    a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
+        d4 = _cross(b[..., 2] - b[..., 0], b[..., 3] - b[..., 1],
+                    a[..., 2] - b[..., 0], a[..., 3] - b[..., 1])
+        if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0)):
+            return True
+        # An obstacle entirely inside the footprint crosses no edge: test one of its vertices.
+        return any(self._inside(corners, poly[0]) for poly in self.config.obstacles)
+
+    @staticmethod
+    def _inside(convex: np.ndarray, p: Sequence[float]) -> bool:
+        sign = 0.0
+        for i in range(len(convex)):
+            x1, y1 = convex[i]
+            x2, y2 = convex[(i + 1) % len(convex)]
+            c = _cross(x2 - x1, y2 - y1, p[0] - x1, p[1] - y1)
+            if sign and c * sign < 0:
+                return False
+            sign = sign or c
+        return True
+
+    # -- sensing --------------------------------------------------------------------------
+    def state(self) -> RobotState:
+        """Return a snapshot of the robot at the world's current simulated time."""
+        with self._lock:
+            return RobotState(self._t_ns, self._pose, self._v, self._w, self._accel,
+                              (self._wheel_speed[0], self._wheel_speed[1]),
+                              (self._wheel_angle[0], self._wheel_angle[1]),
+                              self.collisions, self.in_contact)
+
+    def pose(self) -> Pose:
+        """Return the robot pose."""
+        with self._lock:
+            return self._pose
+
+    def sensor_pose(self, mount: Sequence[float]) -> Pose:
+        """Return the world pose of a sensor mounted at (x, y, yaw) in base_link."""
+        x, y, th = self.pose()
+        mx, my, myaw = mount
+        c, s = math.cos(th), math.sin(th)
+        return Pose(x + c * mx - s * my, y + s * mx + c * my, th + myaw)
+
+    def raycast_many(self, origin: Sequence[float], angles: Any,
+                     max_range: float) -> np.ndarray:
+        """Return the distance along each world-frame angle to the nearest surface (inf: none)."""
+        ang = np.atleast_1d(np.asarray(angles, dtype=float))
+        dx, dy = np.cos(ang)[:, None], np.sin(ang)[:, None]
+        px, py = self._seg[None, :, 0] - origin[0], self._seg[None, :, 1] - origin[1]
+        sx = self._seg[None, :, 2] - self._seg[None, :, 0]
+        sy = self._seg[None, :, 3] - self._seg[None, :, 1]
+        denom = _cross(dx, dy, sx, sy)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            t = _cross(px, py, sx, sy) / denom
+            u = _cross(px, py, dx, dy) / denom
+        hit = (np.abs(denom) > 1e-12) & (t >= 0.0) & (u >= 0.0) & (u <= 1.0) & (t <= max_range)
+        dist = np.where(hit, t, np.inf).min(axis=1)
+        return dist
+
+    def raycast(self, origin: Sequence[float], angle: float, max_range: float) -> float:
+        """Return the distance from ``origin`` along world ``angle`` to a surface (inf: none)."""
+        return float(self.raycast_many(origin, [angle], max_range)[0])
+
+    def cone_cast(self, origin: Sequence[float], angle: float, half_angle: float,
+                  max_range: float, rays: int = 9) -> float:
+        """Return the nearest surface inside a cone (a fan of ``rays`` rays), inf if none."""
+        fan = np.linspace(angle - half_angle, angle + half_angle, max(rays, 1))
+        return float(self.raycast_many(origin, fan, max_range).min())
