@@ -1,0 +1,299 @@
+"""Layered YAML configuration of the RT core: load, deep-merge, validate runtime/tasks/ports.
+
+Layers, later wins: ``m4k.yaml`` (required), ``devices.yaml`` and ``control.yaml`` (when
+present) from the config directory, then an optional user overlay. Mappings merge key by key;
+lists and scalars replace. Other top-level sections belong to other components and pass
+through untouched in :attr:`RtConfig.raw`.
+
+Validation errors are :class:`ConfigError` naming the field path and showing the bad value,
+e.g. ``tasks.led.priority: expected an int in 1..99, got 120``.
+"""
+
+import dataclasses
+import os
+import re
+from typing import Any, Callable, Mapping
+
+import yaml
+
+__all__ = [
+    'ConfigError', 'LAYERS', 'RtConfig', 'RuntimeConfig', 'TaskConfig', 'deep_merge',
+    'find_config_dir', 'load', 'load_layered', 'parse',
+]
+
+LAYERS = ('m4k.yaml', 'devices.yaml', 'control.yaml')
+_LABEL = re.compile(r'^[A-Za-z_][A-Za-z0-9_]{0,31}$')
+
+
+class ConfigError(ValueError):
+    """A configuration value is wrong; ``path`` names the field, ``value`` is what was found."""
+
+    def __init__(self, path: str, message: str, value: Any = None) -> None:
+        """Build 'path: message'."""
+        super().__init__('{}: {}'.format(path, message))
+        self.path = path
+        self.value = value
+
+
+@dataclasses.dataclass(frozen=True)
+class RuntimeConfig:
+    """The ``runtime`` section."""
+
+    runtime_dir: str | None = None
+    group: str | None = None
+    require_rt: bool = False
+    mlockall: bool = True
+    cpu_dma_latency: bool = True
+    switch_interval_s: float = 1e-4
+    stats_batch: int = 128
+    ring_capacity: int = 4096
+    start_delay_ms: float = 100.0
+    poolsz: int = 65536
+    max_datagram: int = 4096
+    max_ports: int = 32
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    """One entry of the ``tasks`` section."""
+
+    name: str
+    index: int
+    period_ns: int
+    priority: int
+    cpu: int | None
+    body: str
+    ports: tuple[str, ...]
+    enabled: bool = True
+    params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
+class RtConfig:
+    """Validated RT configuration plus the whole merged document."""
+
+    runtime: RuntimeConfig
+    tasks: tuple[TaskConfig, ...]      # enabled tasks, config order
+    ports: Mapping[str, int]           # label -> port number
+    raw: Mapping[str, Any]
+
+    def task(self, name: str) -> TaskConfig:
+        """Return the task called ``name`` (KeyError when not configured or disabled)."""
+        for t in self.tasks:
+            if t.name == name:
+                return t
+        raise KeyError(name)
+
+
+def find_config_dir() -> str:
+    """Return the config directory: $M4K_CONFIG_DIR, the ament share dir, or the repo's."""
+    env = os.environ.get('M4K_CONFIG_DIR')
+    if env:
+        return env
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        share = os.path.join(get_package_share_directory('m4k_rt'), 'config')
+        if os.path.isfile(os.path.join(share, LAYERS[0])):
+            return share
+    except Exception:  # noqa: BLE001 -- not installed through ament: use the source tree
+        pass
+    return os.path.normpath(os.path.join(os.path.dirname(__file__), '..', '..', '..', 'config'))
+
+
+def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """Return ``base`` updated by ``over``: mappings merge recursively, the rest replaces."""
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def _read_yaml(path: str) -> dict[str, Any]:
+    try:
+        with open(path, encoding='utf-8') as f:
+            doc = yaml.safe_load(f)
+    except OSError as exc:
+        raise ConfigError(path, 'cannot read: {} [errno {}]'.format(exc.strerror, exc.errno),
+                          path) from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, 'not valid YAML: {}'.format(
+            str(exc).replace('\n', ' '))) from exc
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise ConfigError(path, 'top level must be a mapping, got {!r}'.format(
+            type(doc).__name__), doc)
+    return doc
+
+
+def load_layered(overlay: str | None = None, config_dir: str | None = None) -> dict[str, Any]:
+    """Read and deep-merge the config layers; return the merged document (not validated)."""
+    d = config_dir or find_config_dir()
+    first = os.path.join(d, LAYERS[0])
+    merged = _read_yaml(first)
+    for name in LAYERS[1:]:
+        p = os.path.join(d, name)
+        if os.path.isfile(p):
+            merged = deep_merge(merged, _read_yaml(p))
+    if overlay:
+        merged = deep_merge(merged, _read_yaml(overlay))
+    return merged
+
+
+# --- validation -----------------------------------------------------------------------------
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v: Any) -> bool:
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)) and v == v
+
+
+def _mapping(v: Any, path: str) -> Mapping[str, Any]:
+    if not isinstance(v, Mapping):
+        raise ConfigError(path, 'expected a mapping, got {!r}'.format(v), v)
+    return v
+
+
+def _unknown(m: Mapping[str, Any], allowed: set[str], path: str) -> None:
+    for k in m:
+        if k not in allowed:
+            raise ConfigError('{}.{}'.format(path, k), 'unknown key (allowed: {})'.format(
+                ', '.join(sorted(allowed))), k)
+
+
+_RUNTIME_TYPES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    'runtime_dir': (lambda v: v is None or (isinstance(v, str) and v != ''),
+                    'a non-empty path or null'),
+    'group': (lambda v: v is None or (isinstance(v, str) and v != ''), 'a group name or null'),
+    'require_rt': (lambda v: isinstance(v, bool), 'true or false'),
+    'mlockall': (lambda v: isinstance(v, bool), 'true or false'),
+    'cpu_dma_latency': (lambda v: isinstance(v, bool), 'true or false'),
+    'switch_interval_s': (lambda v: _is_num(v) and 1e-6 <= v <= 1.0, 'seconds in 1e-6..1'),
+    'stats_batch': (lambda v: _is_int(v) and 1 <= v <= 4096, 'an int in 1..4096'),
+    'ring_capacity': (lambda v: _is_int(v) and 16 <= v <= 1 << 20, 'an int in 16..1048576'),
+    'start_delay_ms': (lambda v: _is_num(v) and 0 <= v <= 10000, 'ms in 0..10000'),
+    'poolsz': (lambda v: _is_int(v) and 4096 <= v <= 1 << 26, 'bytes in 4096..67108864'),
+    'max_datagram': (lambda v: _is_int(v) and 64 <= v <= 65536, 'bytes in 64..65536'),
+    'max_ports': (lambda v: _is_int(v) and 1 <= v <= 1024, 'an int in 1..1024'),
+}
+
+_TASK_KEYS = {'period_ms', 'priority', 'cpu', 'body', 'ports', 'enabled', 'params'}
+
+
+def _parse_runtime(m: Any) -> RuntimeConfig:
+    m = _mapping(m if m is not None else {}, 'runtime')
+    _unknown(m, set(_RUNTIME_TYPES), 'runtime')
+    for k, v in m.items():
+        ok, what = _RUNTIME_TYPES[k]
+        if not ok(v):
+            raise ConfigError('runtime.' + k, 'expected {}, got {!r}'.format(what, v), v)
+    vals = dict(m)
+    if 'switch_interval_s' in vals:
+        vals['switch_interval_s'] = float(vals['switch_interval_s'])
+    return RuntimeConfig(**vals)
+
+
+def _parse_ports(m: Any, max_ports: int) -> dict[str, int]:
+    m = _mapping(m, 'ports')
+    seen: dict[int, str] = {}
+    for label, port in m.items():
+        path = 'ports.{}'.format(label)
+        if not isinstance(label, str) or not _LABEL.match(label):
+            raise ConfigError(path, 'label must match {}, got {!r}'.format(
+                _LABEL.pattern, label), label)
+        if not _is_int(port) or not 0 <= port < max_ports:
+            raise ConfigError(path, 'expected a port number in 0..{}, got {!r}'.format(
+                max_ports - 1, port), port)
+        if port in seen:
+            raise ConfigError(path, 'duplicate port {!r} (also ports.{})'.format(
+                port, seen[port]), port)
+        seen[port] = label
+    return dict(m)
+
+
+def _parse_task(name: Any, m: Any, index: int, ports: Mapping[str, int],
+                body_exists: Callable[[str], bool] | None) -> TaskConfig:
+    path = 'tasks.{}'.format(name)
+    if not isinstance(name, str) or not name or len(name.encode()) > 16:
+        raise ConfigError(path, 'task name must be 1..16 bytes of text, got {!r}'.format(
+            name), name)
+    m = _mapping(m, path)
+    _unknown(m, _TASK_KEYS, path)
+    for key in ('period_ms', 'priority'):
+        if key not in m:
+            raise ConfigError('{}.{}'.format(path, key), 'missing')
+    period = m['period_ms']
+    if not _is_num(period) or period <= 0:
+        raise ConfigError(path + '.period_ms', 'expected a number of ms > 0, got {!r}'.format(
+            period), period)
+    prio = m['priority']
+    if not _is_int(prio) or not 1 <= prio <= 99:
+        raise ConfigError(path + '.priority', 'expected an int in 1..99, got {!r}'.format(
+            prio), prio)
+    cpu = m.get('cpu')
+    if cpu is not None and (not _is_int(cpu) or cpu < 0):
+        raise ConfigError(path + '.cpu', 'expected a CPU index >= 0 or null, got {!r}'.format(
+            cpu), cpu)
+    body = m.get('body', name)
+    if not isinstance(body, str) or not body:
+        raise ConfigError(path + '.body', 'expected a body name, got {!r}'.format(body), body)
+    if body_exists is not None and not body_exists(body):
+        raise ConfigError(path + '.body', 'unknown task body {!r}'.format(body), body)
+    labels = m.get('ports', [])
+    if not isinstance(labels, list) or not all(isinstance(x, str) for x in labels):
+        raise ConfigError(path + '.ports', 'expected a list of port labels, got {!r}'.format(
+            labels), labels)
+    for label in labels:
+        if label not in ports:
+            raise ConfigError(path + '.ports', 'unknown port label {!r}'.format(label), label)
+    enabled = m.get('enabled', True)
+    if not isinstance(enabled, bool):
+        raise ConfigError(path + '.enabled', 'expected true or false, got {!r}'.format(
+            enabled), enabled)
+    params = m.get('params', {}) or {}
+    _mapping(params, path + '.params')
+    return TaskConfig(name, index, int(round(period * 1_000_000)), prio, cpu, body,
+                      tuple(labels), enabled, dict(params))
+
+
+def parse(raw: Mapping[str, Any],
+          body_exists: Callable[[str], bool] | None = None) -> RtConfig:
+    """Validate the runtime/tasks/ports sections of a merged document into an RtConfig.
+
+    ``body_exists`` (when given) tells whether a task body name can be resolved.
+    """
+    raw = _mapping(raw, '<config>')
+    runtime = _parse_runtime(raw.get('runtime'))
+    if 'ports' not in raw:
+        raise ConfigError('ports', 'missing')
+    ports = _parse_ports(raw['ports'], runtime.max_ports)
+    if 'tasks' not in raw:
+        raise ConfigError('tasks', 'missing')
+    tasks_m = _mapping(raw['tasks'], 'tasks')
+    tasks = []
+    owner: dict[str, str] = {}
+    for name, m in tasks_m.items():
+        t = _parse_task(name, m, len(tasks), ports, body_exists)
+        if not t.enabled:
+            continue
+        for label in t.ports:
+            if label in owner:
+                raise ConfigError('tasks.{}.ports'.format(name), 'port {!r} already used by '
+                                  'task {!r} (one RT owner per port)'.format(
+                                      label, owner[label]), label)
+            owner[label] = name
+        tasks.append(t)
+    if not tasks:
+        raise ConfigError('tasks', 'no enabled task')
+    return RtConfig(runtime, tuple(tasks), ports, raw)
+
+
+def load(overlay: str | None = None, config_dir: str | None = None,
+         body_exists: Callable[[str], bool] | None = None) -> RtConfig:
+    """Load the layered configuration and validate it."""
+    return parse(load_layered(overlay, config_dir), body_exists)
