@@ -1,0 +1,35 @@
+"""Package m4k_drivers (ament_python): NRT device handlers, simulated world, driver host."""
+
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'm4k_drivers'
+here = os.path.dirname(os.path.abspath(__file__))
+config_files = sorted(
+    os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', '*.yaml')))
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    package_data={package_name: ['py.typed']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', config_files),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=False,
+    maintainer='m4k maintainers',
+    maintainer_email='maintainers@m4k-robotics.org',
+    description='m4k NRT device handlers (real and simulated) and the driver host',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'driver_host = m4k_drivers.host:main',
+            'baseline = m4k_drivers.baseline:main',
+        ],
+    },
+)

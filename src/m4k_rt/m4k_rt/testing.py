@@ -1,0 +1,175 @@
+"""Shared pytest fixtures for every m4k test suite (packages and workspace).
+
+Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. What it gives:
+
+* ROS isolation for the whole run: a random ``ROS_DOMAIN_ID`` unless one is set, and
+  localhost-only discovery, so test nodes never meet another machine's graph.
+* ``m4k_runtime_dir``: a fresh private XDDP runtime directory per test (``M4K_RUNTIME_DIR``).
+* ``procs``: starts subprocesses in their own process group and kills whatever is left.
+* An autouse leak check that fails any test leaving behind a child process, a Python thread
+  or a socket file descriptor -- the python-can habit of catching leaks where they happen.
+* The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from typing import Iterator
+
+import pytest
+
+__all__ = ['pytest_configure', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
+           'child_pids', 'socket_fds']
+
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
+
+_LEAK_GRACE_S = 3.0
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Register the m4k markers."""
+    config.addinivalue_line('markers', 'hardware: needs the real M4K hardware; CI skips it')
+    config.addinivalue_line(
+        'markers', 'allow_leaks(kinds): tolerate leftovers of the given kinds '
+        "('fds' for in-process DDS transports); state why in the test")
+
+
+def child_pids(pid: int | None = None) -> set[int]:
+    """Return the pids of live (non-zombie) processes whose parent is ``pid``."""
+    pid = os.getpid() if pid is None else pid
+    found = set()
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat', 'rb') as f:
+                stat = f.read()
+        except OSError:
+            continue
+        # The command name may contain spaces and parentheses: split after the last ')'.
+        fields = stat[stat.rfind(b')') + 2:].split()
+        if len(fields) > 1 and int(fields[1]) == pid and fields[0] != b'Z':
+            found.add(int(entry))
+    return found
+
+
+def socket_fds() -> set[tuple[int, str]]:
+    """Return (fd, target) for every open socket descriptor of this process."""
+    out = set()
+    for fd in os.listdir('/proc/self/fd'):
+        try:
+            target = os.readlink(f'/proc/self/fd/{fd}')
+        except OSError:
+            continue
+        if target.startswith('socket:'):
+            out.add((int(fd), target))
+    return out
+
+
+def _threads() -> set[tuple[int | None, str]]:
+    return {(t.ident, t.name) for t in threading.enumerate() if t.is_alive()}
+
+
+@pytest.fixture(autouse=True)
+def leak_check(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fail the test if it leaves a child process, a thread or a socket behind."""
+    marker = request.node.get_closest_marker('allow_leaks')
+    allowed = set(marker.args) if marker else set()
+    procs0, threads0, fds0 = child_pids(), _threads(), socket_fds()
+    yield
+    deadline = time.monotonic() + _LEAK_GRACE_S
+    while True:
+        new_procs = child_pids() - procs0
+        new_threads = _threads() - threads0
+        new_fds = set() if 'fds' in allowed else socket_fds() - fds0
+        if not (new_procs or new_threads or new_fds) or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    problems = []
+    if new_procs:
+        problems.append(f'child processes left running: {sorted(new_procs)}')
+        for pid in new_procs:  # do not let one leak cascade into every later test
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    if new_threads:
+        problems.append(f'threads left running: {sorted(n for _, n in new_threads)}')
+    if new_fds:
+        problems.append(f'sockets left open: {sorted(new_fds)}')
+    if problems:
+        pytest.fail('resource leak: ' + '; '.join(problems), pytrace=False)
+
+
+@pytest.fixture
+def m4k_runtime_dir(tmp_path_factory: pytest.TempPathFactory,
+                    monkeypatch: pytest.MonkeyPatch) -> str:
+    """Give the test a fresh private XDDP runtime directory (M4K_RUNTIME_DIR)."""
+    # Short path: Unix socket paths are limited to 108 bytes.
+    path = tmp_path_factory.mktemp('rt', numbered=True) / 'm4k'
+    monkeypatch.setenv('M4K_RUNTIME_DIR', str(path))
+    return str(path)
+
+
+class ProcessGroup:
+    """Start processes in their own session and make sure every one of them ends."""
+
+    def __init__(self) -> None:
+        self._procs: list[subprocess.Popen] = []
+
+    def start(self, argv: list[str], **kwargs) -> subprocess.Popen:
+        """Start ``argv`` (``python`` means this interpreter) in a new session."""
+        if argv and argv[0] == 'python':
+            argv = [sys.executable, *argv[1:]]
+        kwargs.setdefault('stdout', subprocess.PIPE)
+        kwargs.setdefault('stderr', subprocess.PIPE)
+        kwargs.setdefault('text', True)
+        proc = subprocess.Popen(argv, start_new_session=True, **kwargs)
+        self._procs.append(proc)
+        return proc
+
+    def stop(self, proc: subprocess.Popen, sig: int = signal.SIGTERM,
+             timeout: float = 10.0) -> int:
+        """Signal the process's group, wait, escalate to SIGKILL; return the exit code."""
+        if proc.poll() is None:
+            try:
+                os.killpg(proc.pid, sig)
+            except ProcessLookupError:
+                pass
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(5)
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)  # grandchildren, if any survived
+        except (ProcessLookupError, PermissionError):
+            pass
+        for stream in (proc.stdout, proc.stderr, proc.stdin):
+            if stream is not None:
+                stream.close()
+        return proc.returncode
+
+    def stop_all(self) -> None:
+        """Stop every process started through this group."""
+        for proc in reversed(self._procs):
+            self.stop(proc)
+        self._procs.clear()
+
+
+@pytest.fixture
+def procs() -> Iterator[ProcessGroup]:
+    """Start subprocesses that are guaranteed to be stopped after the test."""
+    group = ProcessGroup()
+    try:
+        yield group
+    finally:
+        group.stop_all()

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# `make test`: lint, colcon test of every package, the workspace tests in test/, one summary.
+# Exits non-zero on any failure, and when no test ran at all.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+source tools/env.sh
+# Isolation for everything that starts ROS nodes: a random domain, localhost-only discovery.
+export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-$(( (RANDOM % 100) + 1 ))}
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+export M4K_CI=1
+rc=0
+echo "== lint (ruff: 99 columns, single quotes, pep257) =="
+ruff check src test tools || rc=1
+
+echo "== colcon test (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, localhost discovery) =="
+rm -rf build/*/test_results
+colcon --log-base log test --event-handlers console_cohesion- status- \
+  --base-paths src --return-code-on-test-failure \
+  --pytest-args -q -p no:cacheprovider -m 'not hardware' || rc=1
+
+echo "== workspace tests (test/) =="
+mkdir -p build/workspace_test
+python -m pytest test -q -p no:cacheprovider -m 'not hardware' \
+  --junitxml=build/workspace_test/test_results/workspace/pytest.xml || rc=1
+
+echo "== summary =="
+colcon test-result --test-result-base build --verbose || rc=1
+total=$(colcon test-result --test-result-base build 2>/dev/null | sed -nE 's/^Summary: ([0-9]+) tests.*/\1/p')
+if [[ -z $total || $total -eq 0 ]]; then
+  echo 'm4k: no test ran -- failing' >&2
+  rc=1
+fi
+[[ $rc -eq 0 ]] && echo 'm4k: all tests passed' || echo 'm4k: TESTS FAILED' >&2
+exit $rc
