@@ -18,7 +18,7 @@ setup:
 $(BUILD_STAMP): $(SOURCES) tools/setup.sh requirements.txt colcon.meta
 	@tools/setup.sh
 	@echo 'm4k: colcon build' >&2
-	@$(ENV); colcon --log-base log build $(COLCON_FLAGS) --base-paths src \
+	@mkdir -p build; $(ENV); flock build/.m4k-build.lock colcon --log-base log build $(COLCON_FLAGS) --base-paths src \
 	  --cmake-args -DPython3_EXECUTABLE=$$VIRTUAL_ENV/bin/python3 >&2 \
 	  || { echo 'm4k: colcon build failed (see log/latest_build)' >&2; exit 1; }
 	@touch $(BUILD_STAMP)
