@@ -1,0 +1,39 @@
+"""IMU: WithRobot myAHRS+ on I2C; backends ``real`` (smbus2) and ``sim`` (register-level fake)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from m4k_drivers.imu.handler import ImuHandler
+from m4k_drivers.imu.protocol import ADDRESS, ImuSample
+from m4k_drivers.registry import BuildContext, Param, register
+
+__all__ = ['ImuHandler', 'ImuSample']
+
+_COMMON = {
+    'address': Param(int, ADDRESS, '7-bit I2C address'),
+    'rate_hz': Param(float, 100.0, 'sample rate when streaming, Hz (device max 100)'),
+    'stream': Param(bool, False, 'push samples at rate_hz instead of answering REQUESTs'),
+}
+
+
+@register('imu', 'real', params=_COMMON | {
+    'bus': Param((int, str), doc='I2C bus number (/dev/i2c-N) or device path'),
+})
+def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> ImuHandler:
+    from m4k_drivers.imu.real import open_real_i2c
+    return ImuHandler(lambda: open_real_i2c(params['bus'], params['address']), name=name)
+
+
+@register('imu', 'sim', params=_COMMON | {
+    'gyro_bias_sd': Param(float, 0.002, 'sd of the constant gyro bias per axis, rad/s'),
+})
+def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> ImuHandler:
+    from m4k_drivers.imu.real import I2cDevice
+    from m4k_drivers.imu.sim import FakeMyAhrsBus
+    world = ctx.world
+
+    def opener() -> I2cDevice:
+        bus = FakeMyAhrsBus(world, ADDRESS, gyro_bias_sd=params['gyro_bias_sd'])
+        return I2cDevice(bus, params['address'], 'sim:i2c')
+    return ImuHandler(opener, name=name)

@@ -1,0 +1,106 @@
+"""A register-level fake myAHRS+ on a fake SMBus, fed from the simulated world's motion.
+
+Same methods as ``smbus2.SMBus`` (read_byte_data, read_i2c_block_data, write_byte_data), so
+the real register decoding runs against it.  The registers refresh at the device's output
+rate (100 Hz): reads in between return the same sample, as on the real part.  Noise levels are
+the standard deviations the ``robotpilot/myahrs_driver`` authors measured on a myAHRS+
+(accel 0.0268 m/s^2, gyro 0.00243 rad/s, orientation 0.00214 rad); the calibrated gyro keeps
+a constant per-axis bias (``gyro_bias``, ROS frame) drawn once from the world seed (sd 0.002
+rad/s).  The robot drives on
+a flat floor: roll = pitch = 0; the heading reference is the world x axis.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+import os
+
+from m4k_drivers.imu import protocol as p
+from m4k_drivers.world import World
+
+__all__ = ['FakeMyAhrsBus']
+
+# Earth field in base_link at yaw 0 (uT): 25 horizontal towards world +x, 40 down.
+_EARTH_H_UT = 25.0
+_EARTH_DOWN_UT = 40.0
+
+
+class FakeMyAhrsBus:
+    """A fake SMBus with one myAHRS+ at ``address`` whose registers follow the world."""
+
+    def __init__(self, world: World, address: int = p.ADDRESS, rate_hz: float = 100.0,
+                 accel_sd: float = 0.026831, gyro_sd: float = 0.002428,
+                 orientation_sd: float = 0.002143, gyro_bias_sd: float = 0.002) -> None:
+        self.world = world
+        self.address = address
+        self.period_ns = int(1e9 / rate_hz)
+        self.accel_sd, self.gyro_sd, self.orientation_sd = accel_sd, gyro_sd, orientation_sd
+        self.rng = world.rng('imu')
+        self.gyro_bias = tuple(float(b) for b in self.rng.normal(0.0, gyro_bias_sd, 3))
+        self.regs = bytearray(p.REG_LAST + 1)
+        self.regs[p.REG_WHO_AM_I] = p.WHO_AM_I_VALUE
+        self.regs[p.REG_REV_MAJOR] = 1
+        self.regs[p.REG_REV_MINOR] = 6
+        self.regs[p.REG_STATUS] = p.STATUS_READY
+        self._tick = -1
+        self.closed = False
+        self.samples = 0
+
+    def _refresh(self) -> None:
+        now = self.world.now()
+        tick = now // self.period_ns
+        if tick == self._tick:
+            return
+        self._tick = tick
+        st = self.world.state()
+        n = self.rng.normal
+        yaw = st.pose.yaw + float(n(0.0, self.orientation_sd))
+        # ROS frame (x fwd, y left, z up) first, then to the board frame (y, z flipped).
+        g = (float(n(0.0, self.gyro_sd)) + self.gyro_bias[0],
+             float(n(0.0, self.gyro_sd)) + self.gyro_bias[1],
+             st.w + float(n(0.0, self.gyro_sd)) + self.gyro_bias[2])
+        a = (st.accel + float(n(0.0, self.accel_sd)),
+             st.v * st.w + float(n(0.0, self.accel_sd)),
+             p.GRAVITY + float(n(0.0, self.accel_sd)))
+        mag = (_EARTH_H_UT * math.cos(-st.pose.yaw), _EARTH_H_UT * math.sin(-st.pose.yaw),
+               -_EARTH_DOWN_UT)
+        q = (0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
+        dev = p.DeviceSample((a[0], -a[1], -a[2]), (g[0], -g[1], -g[2]),
+                             (round(mag[0] / 0.3), round(-mag[1] / 0.3), round(-mag[2] / 0.3)),
+                             25.0 + float(n(0.0, 0.05)), (0.0, 0.0, -yaw),
+                             (q[0], -q[1], -q[2], q[3]))
+        b1, b2 = p.encode_blocks(dev)
+        self.regs[p.BLOCK1:p.BLOCK1 + p.BLOCK1_LEN] = b1
+        self.regs[p.BLOCK2:p.BLOCK2 + p.BLOCK2_LEN] = b2
+        self.samples += 1
+
+    def _check(self, i2c_addr: int, register: int, length: int = 1) -> None:
+        if self.closed:
+            raise OSError(errno.EBADF, 'Bad file descriptor')
+        if i2c_addr != self.address:
+            # Nobody acknowledges a wrong address: the kernel reports EREMOTEIO.
+            raise OSError(errno.EREMOTEIO, os.strerror(errno.EREMOTEIO))
+        if register < 0 or register + length > len(self.regs) or not 1 <= length <= 32:
+            raise OSError(errno.EIO, f'register 0x{register:02x}+{length} out of range')
+
+    def read_byte_data(self, i2c_addr: int, register: int) -> int:
+        """Read one register."""
+        self._check(i2c_addr, register)
+        self._refresh()
+        return self.regs[register]
+
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int) -> list[int]:
+        """Read consecutive registers (auto-increment), at most 32 like SMBus."""
+        self._check(i2c_addr, register, length)
+        self._refresh()
+        return list(self.regs[register:register + length])
+
+    def write_byte_data(self, i2c_addr: int, register: int, value: int) -> None:
+        """Accept a write (the data registers are read-only and ignore it)."""
+        self._check(i2c_addr, register)
+
+    def close(self) -> None:
+        """Mark closed."""
+        self.closed = True
+

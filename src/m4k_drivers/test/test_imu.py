@@ -1,0 +1,180 @@
+import errno
+import math
+
+from m4k_drivers.handler import (
+    DeviceIdentityError,
+    DeviceIOError,
+    DeviceNotFoundError,
+    State,
+    Status,
+)
+from m4k_drivers.imu import protocol as p
+from m4k_drivers.imu.handler import ImuHandler
+from m4k_drivers.imu.real import I2cDevice, open_real_i2c
+from m4k_drivers.imu.sim import FakeMyAhrsBus
+from m4k_drivers.world import World
+import pytest
+
+# Hand-made registers 0x22..0x35: acc (2048, 0, -2048), gyro (0, 0, 1638), magnet
+# (100, -200, 300), temperature 4096 -- all int16 little-endian.
+BLOCK1 = bytes([0x00, 0x08, 0x00, 0x00, 0x00, 0xF8,
+                0x00, 0x00, 0x00, 0x00, 0x66, 0x06,
+                0x64, 0x00, 0x38, 0xFF, 0x2C, 0x01,
+                0x00, 0x10])
+# 0x36..0x43: roll 0, pitch 0, yaw 16384, quaternion (0, 0, 23170, 23170).
+BLOCK2 = bytes([0x00, 0x00, 0x00, 0x00, 0x00, 0x40,
+                0x00, 0x00, 0x00, 0x00, 0x82, 0x5A, 0x82, 0x5A])
+
+
+def test_register_map_addresses():
+    assert (p.ADDRESS, p.REG_WHO_AM_I, p.WHO_AM_I_VALUE, p.REG_STATUS) == (0x20, 0x01, 0xB1, 0x04)
+    assert (p.BLOCK1, p.BLOCK1_LEN, p.BLOCK2, p.BLOCK2_LEN) == (0x22, 20, 0x36, 14)
+    assert p.REG_C_GYRO_X == 0x28 and p.REG_TEMPERATURE == 0x34 and p.REG_QUATERNION_X == 0x3C
+
+
+def test_decode_hand_made_registers_scales():
+    s = p.decode_blocks(BLOCK1, BLOCK2)
+    g = 2048 * 16 / 32767 * 9.80665                         # 1.00003 g in m/s^2
+    assert s.accel == pytest.approx((g, 0.0, -g))
+    assert s.gyro[2] == pytest.approx(math.radians(1638 * 2000 / 32767))   # 99.98 dps
+    assert s.magnet == (100, -200, 300)
+    assert s.temperature == pytest.approx(4096 * 200 / 32767)              # 25.0 degC
+    assert s.euler[2] == pytest.approx(math.radians(16384 * 180 / 32767))  # 90.0 deg
+    assert s.quaternion == pytest.approx((0, 0, 23170 / 32767, 23170 / 32767))
+
+
+def test_to_ros_flips_y_and_z():
+    r = p.to_ros(p.decode_blocks(BLOCK1, BLOCK2))
+    g = 2048 * 16 / 32767 * 9.80665
+    assert r.linear_acceleration == pytest.approx((g, 0.0, g))     # REP-145: +g up at rest
+    assert r.angular_velocity[2] == pytest.approx(-math.radians(1638 * 2000 / 32767))
+    assert r.rpy[2] == pytest.approx(-math.radians(16384 * 180 / 32767))
+    qx, qy, qz, qw = r.orientation
+    assert (qx, qy) == (0.0, 0.0)
+    assert qz == pytest.approx(-math.sqrt(0.5)) and qw == pytest.approx(math.sqrt(0.5))
+    # the quaternion and the Euler yaw describe the same heading
+    assert 2 * math.atan2(qz, qw) == pytest.approx(r.rpy[2], abs=1e-3)
+    assert r.status == p.STATUS_OK
+
+
+def test_to_ros_flags_bad_quaternion_and_not_ready():
+    bad = BLOCK2[:6] + bytes(8)                       # quaternion all zero
+    assert p.to_ros(p.decode_blocks(BLOCK1, bad)).status == p.STATUS_BAD_QUATERNION
+    assert p.to_ros(p.decode_blocks(BLOCK1, BLOCK2), ready=False).status == p.STATUS_NOT_READY
+
+
+def test_decode_rejects_short_burst():
+    with pytest.raises(p.DeviceProtocolError, match='20 \\+ 14'):
+        p.decode_blocks(BLOCK1[:-1], BLOCK2)
+
+
+def test_encode_blocks_round_trips_hand_made_bytes():
+    assert p.encode_blocks(p.decode_blocks(BLOCK1, BLOCK2)) == (BLOCK1, BLOCK2)
+
+
+class RegBus:
+    """A plain register file with the smbus2 methods."""
+
+    def __init__(self, regs, address=0x20):
+        self.regs, self.address, self.closed = regs, address, False
+
+    def read_byte_data(self, a, r):
+        if a != self.address:
+            raise OSError(errno.EREMOTEIO, 'Remote I/O error')
+        return self.regs[r]
+
+    def read_i2c_block_data(self, a, r, n):
+        return [self.read_byte_data(a, r + i) for i in range(n)]
+
+    def write_byte_data(self, a, r, v):
+        self.regs[r] = v
+
+    def close(self):
+        self.closed = True
+
+
+def _regs(who=0xB1):
+    regs = bytearray(0x44)
+    regs[0x01], regs[0x04] = who, 0x80
+    regs[0x22:0x36] = BLOCK1
+    regs[0x36:0x44] = BLOCK2
+    return regs
+
+
+def test_handler_reads_sample_in_ros_frame():
+    bus = RegBus(_regs())
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'fake'))
+    h.configure()
+    h.activate()
+    r = h.read()
+    assert r.status == Status.OK
+    assert r.value.linear_acceleration[2] == pytest.approx(2048 * 16 / 32767 * 9.80665)
+    h.shutdown()
+    assert bus.closed and h.state == State.FINALIZED
+
+
+def test_configure_fails_with_wrong_who_am_i():
+    bus = RegBus(_regs(who=0x68))
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, '/dev/i2c-1'))
+    with pytest.raises(DeviceIdentityError, match=r'/dev/i2c-1@0x20: WHO_AM_I is 0x68, '
+                                                  r'expected 0xb1'):
+        h.configure()
+    assert h.state == State.ERROR and bus.closed
+
+
+def test_configure_wrong_address_is_io_error_naming_address():
+    bus = RegBus(_regs())
+    sleeps = []
+    h = ImuHandler(lambda: I2cDevice(bus, 0x21, '/dev/i2c-1'), sleep=sleeps.append)
+    with pytest.raises(DeviceIOError, match=r'/dev/i2c-1@0x21: read 0x01: .*errno 121'):
+        h.configure()
+    assert sleeps == [0.02, 0.04]                   # retried with exponential backoff
+
+
+def test_missing_i2c_bus_names_path():
+    with pytest.raises(DeviceNotFoundError, match=r'/dev/i2c-97: No such file or directory'):
+        open_real_i2c(97, 0x20)
+
+
+def test_sim_registers_follow_world_at_rest():
+    t = [0]
+    world = World(clock=lambda: t[0], t0_ns=0)
+    bus = FakeMyAhrsBus(world)
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'sim'))
+    h.configure()
+    h.activate()
+    before = bus.samples
+    az, yaws, gz = [], [], []
+    for _ in range(50):
+        t[0] += 10_000_000
+        s = h.read().value
+        az.append(s.linear_acceleration[2])
+        yaws.append(s.rpy[2])
+        gz.append(s.angular_velocity[2])
+    assert sum(az) / 50 == pytest.approx(9.80665, abs=0.02)
+    assert max(abs(y) for y in yaws) < 0.01
+    # gyro z = bias + noise: the mean of 50 is the bias within 4 sd + one 16-bit LSB
+    lsb = math.radians(2000 / 32767)
+    assert abs(bus.gyro_bias[2]) > 0
+    assert sum(gz) / 50 == pytest.approx(bus.gyro_bias[2], abs=4 * 0.002428 / 50 ** 0.5 + lsb)
+    assert bus.samples - before == 50                # one register refresh per 10 ms tick
+    h.shutdown()
+
+
+def test_sim_holds_sample_between_device_ticks():
+    t = [0]
+    world = World(clock=lambda: t[0], t0_ns=0)
+    bus = FakeMyAhrsBus(world)
+    a = bus.read_i2c_block_data(0x20, 0x22, 20)
+    t[0] += 3_000_000                              # same 10 ms tick
+    assert bus.read_i2c_block_data(0x20, 0x22, 20) == a
+    t[0] += 10_000_000
+    assert bus.read_i2c_block_data(0x20, 0x22, 20) != a
+
+
+@pytest.mark.hardware
+def test_real_myahrs_identifies():
+    h = ImuHandler(lambda: open_real_i2c(1, 0x20))
+    h.configure()
+    assert h.read().status == Status.OK
+    h.shutdown()
