@@ -2,10 +2,11 @@
 
 import time
 
-from m4k_msgs.msg import RtStatus, TaskTiming
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+
+from m4k_msgs.msg import RtStatus, TaskTiming
 
 
 @pytest.mark.allow_leaks('fds')  # FastDDS keeps its transport sockets for the process lifetime

@@ -21,6 +21,8 @@ setup(
         ('share/' + package_name + '/config', config_files),
     ],
     install_requires=['setuptools'],
+    extras_require={'test': ['pytest']},
+    tests_require=['pytest'],
     zip_safe=False,
     maintainer='m4k maintainers',
     maintainer_email='maintainers@m4k-robotics.org',
