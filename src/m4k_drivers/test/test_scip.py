@@ -3,9 +3,10 @@ from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from m4k_drivers.lrf import scip
 import numpy as np
 import pytest
+
+from m4k_drivers.lrf import scip
 
 DATA = Path(__file__).parent / 'data'
 

@@ -3,3 +3,5 @@
 Modules: ``scip`` (pure protocol), ``urg`` (pyserial driver), ``sim`` (SCIP 2.0 device on a pseudo
 terminal), ``handler`` (lifecycle adapter for the driver host, ``make_lrf``).
 """
+
+from m4k_drivers.lrf import handler as _handler  # noqa: F401  (registers backends 'real', 'sim')

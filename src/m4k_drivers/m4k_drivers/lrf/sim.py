@@ -19,6 +19,7 @@ stops), so unplugging never closes an fd under a running ``select``.
 
 from __future__ import annotations
 
+from collections import Counter
 import errno
 import math
 import os
@@ -123,6 +124,7 @@ class UrgSim:
         self._stray = bytearray()
         # counters
         self.commands = 0
+        self.command_codes: Counter[str] = Counter()     # e.g. {'SCIP2.0': 2, 'GD': 10}
         self.scans_sent = 0
         self.corrupted = 0
         self.stray_sent = 0
@@ -387,6 +389,8 @@ class UrgSim:
             del self._inbuf[:idx + 1]
             if line:
                 self.commands += 1
+                self.command_codes[line.decode('ascii', 'replace')[:7 if line.startswith(
+                    b'SCIP') else 2]] += 1
                 self._command(line)
 
     def _reply(self, echo: bytes, status: str, lines: Sequence[bytes] = (),
