@@ -22,7 +22,6 @@ setup(
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},
-    tests_require=['pytest'],
     zip_safe=False,
     maintainer='m4k maintainers',
     maintainer_email='maintainers@m4k-robotics.org',
