@@ -41,7 +41,7 @@ def sim(room, tmp_path):
 
 @pytest.fixture
 def driver(sim):
-    drv = UrgDriver(sim.path, timeout=0.5, error_limit=3, reconnect_delay=0.05)
+    drv = UrgDriver(sim.path, timeout=1.0, error_limit=3, reconnect_delay=0.05)
     yield drv
     drv.close()
 
