@@ -1,0 +1,146 @@
+"""US-100 transports: GPIO character device with kernel edge timestamps, or the IIO srf04 driver.
+
+Backend A (``gpio``): TRIG is an output line, ECHO an input line requesting both edges; the
+kernel timestamps each edge (CLOCK_MONOTONIC), so the pulse width does not depend on how fast
+this process wakes up.  Backend B (``iio``): the kernel ``srf04`` driver does the timing;
+reading ``in_distance_raw`` triggers a measurement, times ``in_distance_scale`` gives metres.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import time
+from typing import Any, Callable, Protocol
+
+from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
+from m4k_drivers.sonar import protocol as p
+
+__all__ = ['EdgeSonar', 'GpioLike', 'IioSonar', 'open_gpio_sonar']
+
+
+class GpioLike(Protocol):
+    """The python-periphery GPIO methods used here."""
+
+    def write(self, value: bool) -> None:
+        """Drive an output line."""
+
+    def poll(self, timeout: float | None = None) -> bool:
+        """Wait for an edge event."""
+
+    def read_event(self) -> Any:
+        """Return the next edge event (edge, timestamp)."""
+
+    def close(self) -> None:
+        """Release the line."""
+
+
+def _busy_wait(seconds: float) -> None:
+    # time.sleep(10e-6) may return early on some kernels' timer slack; spinning is certain.
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+class EdgeSonar:
+    """Pulse-mode measurement over a trigger line and an edge-timestamping echo line."""
+
+    def __init__(self, trigger: GpioLike, echo: GpioLike, where: str, *,
+                 trigger_s: float = 2 * p.TRIGGER_S,
+                 hold: Callable[[float], None] = _busy_wait,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        if trigger_s < p.TRIGGER_S:
+            raise ValueError(f'trigger pulse must be >= 10 us, got {trigger_s!r} s')
+        self.trigger, self.echo, self.where = trigger, echo, where
+        self.trigger_s = trigger_s
+        self._hold = hold
+        self._clock = clock
+
+    def edges(self, timeout_s: float = p.ECHO_TIMEOUT_S) -> list[p.Edge]:
+        """Trigger once and collect echo edges until a falling edge or the timeout."""
+        try:
+            while self.echo.poll(0.0):          # drop edges left from an earlier ping
+                self.echo.read_event()
+            self.trigger.write(True)
+            self._hold(self.trigger_s)
+            self.trigger.write(False)
+            deadline = self._clock() + int(timeout_s * 1e9)
+            out: list[p.Edge] = []
+            while True:
+                remaining = (deadline - self._clock()) * 1e-9
+                if remaining <= 0 or not self.echo.poll(remaining):
+                    return out
+                ev = self.echo.read_event()
+                out.append(p.Edge(ev.edge, ev.timestamp))
+                if ev.edge == 'falling' and any(e.edge == 'rising' for e in out):
+                    return out
+        except OSError as exc:
+            raise wrap_os_error(exc, self.where, 'ping') from exc
+
+    def measure(self, temp_c: float = 20.0, timeout_s: float = p.ECHO_TIMEOUT_S,
+                ) -> p.SonarReading:
+        """Ping once and convert the echo pulse to a reading."""
+        return p.pulse_to_range(p.edges_to_width(self.edges(timeout_s)), temp_c)
+
+    def close(self) -> None:
+        """Release both lines."""
+        for line in (self.trigger, self.echo):
+            try:
+                line.close()
+            except OSError:
+                pass
+
+
+def open_gpio_sonar(chip: str, trigger_line: int, echo_line: int) -> EdgeSonar:
+    """Request TRIG (out, low) and ECHO (in, both edges) on a gpiochip character device."""
+    from periphery import GPIO
+    try:
+        trigger = GPIO(chip, trigger_line, 'low')
+    except OSError as exc:
+        raise wrap_os_error(exc, f'{chip} line {trigger_line}') from exc
+    try:
+        echo = GPIO(chip, echo_line, 'in', edge='both')
+    except OSError as exc:
+        trigger.close()
+        raise wrap_os_error(exc, f'{chip} line {echo_line}') from exc
+    return EdgeSonar(trigger, echo, f'{chip} lines {trigger_line}/{echo_line}')
+
+
+class IioSonar:
+    """The kernel srf04 IIO driver: ``in_distance_raw`` * ``in_distance_scale`` = metres."""
+
+    def __init__(self, device_dir: str) -> None:
+        self.raw_path = os.path.join(device_dir, 'in_distance_raw')
+        scale_path = os.path.join(device_dir, 'in_distance_scale')
+        try:
+            with open(scale_path, encoding='ascii') as fh:
+                self.scale = float(fh.read().strip())
+            self.fd = os.open(self.raw_path, os.O_RDONLY)
+        except OSError as exc:
+            raise wrap_os_error(exc, exc.filename or device_dir) from exc
+        except ValueError as exc:
+            raise DeviceIOError(f'{scale_path}: not a number: {exc}') from exc
+
+    def measure(self, temp_c: float = 20.0, timeout_s: float = p.ECHO_TIMEOUT_S,
+                ) -> p.SonarReading:
+        """Read one distance (the driver triggers and times it; temp is its business)."""
+        try:
+            text = os.pread(self.fd, 32, 0)
+        except OSError as exc:
+            if exc.errno in (errno.ETIMEDOUT, errno.EIO):
+                return p.SonarReading(0.0, p.STATUS_TIMEOUT)
+            raise wrap_os_error(exc, self.raw_path, 'read') from exc
+        try:
+            rng = int(text.strip()) * self.scale
+        except ValueError as exc:
+            raise DriverError(f'{self.raw_path}: not an integer: {text!r}') from exc
+        if not p.MIN_RANGE_M <= rng <= p.MAX_RANGE_M:
+            return p.SonarReading(rng, p.STATUS_NO_ECHO)
+        return p.SonarReading(rng, p.STATUS_OK)
+
+    def close(self) -> None:
+        """Close the attribute file."""
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
