@@ -1,0 +1,771 @@
+"""Xenomai XDDP emulation over Unix-domain sockets: RT side and NRT side.
+
+The RT side binds port N (a listening socket ``<runtime_dir>/xddp<N>``, optionally labelled by
+a symlink ``label.<label>``) and never blocks: accept, send and receive are non-blocking, and a
+datagram that cannot be delivered (no peer, full queue, oversize) is dropped and counted. The
+NRT side opens a port by number or label, like ``open("/dev/rtpN")``, and gets blocking reads
+and writes with timeouts. At most one NRT peer is linked per port: on connect the RT side
+answers one handshake byte, 1 (linked) or 0 (busy, then closed). Either
+side may restart; the other one notices (EOF, EPIPE, ECONNRESET), counts it and re-links.
+
+Access control is the file system's, as for ``/dev/rtpN``: the runtime directory is 0700 (0770
+with a group) and refuses to be used when it is owned by someone else or is more open than
+configured; sockets are 0600 (0660).
+
+Message mode (``SOCK_SEQPACKET``) keeps datagram boundaries; stream mode (``SOCK_STREAM``)
+carries bytes. ``max_datagram`` is kept at most ``poolsz // 2`` so every send fits a single
+kernel buffer and is all-or-nothing in both modes.
+"""
+
+from dataclasses import asdict, dataclass
+import errno
+import grp
+import os
+import re
+import select
+import socket
+import stat
+import time
+from typing import Any
+
+DEFAULT_MAX_PORTS = 32
+DEFAULT_POOLSZ = 65536
+DEFAULT_MAX_DATAGRAM = 4096
+DEFAULT_HANDSHAKE_TIMEOUT = 5.0  # the RT side accepts when its task polls: one period at most
+HANDSHAKE_OK = b'\x01'
+HANDSHAKE_BUSY = b'\x00'
+MODES = {'message': socket.SOCK_SEQPACKET, 'stream': socket.SOCK_STREAM}
+
+_SEND_FLAGS = socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL
+_LABEL_RE = re.compile(r'[A-Za-z0-9_][A-Za-z0-9_.-]{0,31}\Z')
+_PEER_GONE = (errno.EPIPE, errno.ECONNRESET, errno.ENOTCONN, errno.ECONNREFUSED)
+_OPEN_RETRY_S = 0.02
+_NRT_BUFSZ = 65536
+
+
+class XddpError(OSError):
+    """Base error of the XDDP emulation; ``path`` names the socket or directory involved."""
+
+    def __init__(self, message: str, path: str | None = None, err: int | None = None) -> None:
+        super().__init__(message)
+        self.path = path
+        self.filename = path
+        self.errno = err
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class XddpBusyError(XddpError):
+    """The port is bound by another live process, or already has an NRT peer."""
+
+
+class XddpNotBoundError(XddpError):
+    """No RT socket is bound at the port (yet)."""
+
+
+class XddpPortError(XddpError):
+    """The port number, label or mode is invalid."""
+
+
+@dataclass(slots=True)
+class XddpCounters:
+    """Per-port event counters of the RT side."""
+
+    sent: int = 0
+    received: int = 0
+    dropped_no_peer: int = 0
+    dropped_full: int = 0
+    dropped_oversize: int = 0  # sends empty/above max_datagram, receives above the buffer
+    malformed: int = 0  # counted by the receiver via count_malformed()
+    peer_restarts: int = 0  # peers linked after the first one
+    peer_lost: int = 0  # peer EOF / EPIPE / ECONNRESET
+    busy_rejects: int = 0  # openers refused because a peer was linked
+
+    def as_dict(self) -> dict[str, int]:
+        """Return the counters as a plain dict."""
+        return asdict(self)
+
+
+def default_runtime_dir() -> str:
+    """Return the runtime directory: $M4K_RUNTIME_DIR, $XDG_RUNTIME_DIR/m4k, /run/m4k, /tmp."""
+    path = os.environ.get('M4K_RUNTIME_DIR')
+    if path:
+        return path
+    xdg = os.environ.get('XDG_RUNTIME_DIR')
+    if xdg:
+        return os.path.join(xdg, 'm4k')
+    if os.geteuid() == 0:
+        return '/run/m4k'
+    return '/tmp/m4k-{}'.format(os.getuid())
+
+
+def _gid(group: str | int | None) -> int | None:
+    if group is None:
+        return None
+    if isinstance(group, int) and not isinstance(group, bool):
+        return group
+    if isinstance(group, str):
+        try:
+            return grp.getgrnam(group).gr_gid
+        except KeyError:
+            pass
+    raise XddpError('unknown group {!r}'.format(group), None, errno.EINVAL)
+
+
+def ensure_runtime_dir(path: str | None = None, group: str | int | None = None) -> str:
+    """Create (0700, or 0770 + chgrp) or check the runtime directory and return its path.
+
+    Like ssh with ``~/.ssh``, refuse a directory that is a symlink, is owned by another user,
+    has another group than configured, or grants more than the configured permissions.
+    """
+    path = os.path.abspath(path or default_runtime_dir())
+    gid = _gid(group)
+    mode = 0o770 if gid is not None else 0o700
+    try:
+        try:
+            os.mkdir(path, mode)
+            created = True
+        except FileNotFoundError:
+            os.makedirs(os.path.dirname(path), 0o755, exist_ok=True)
+            os.mkdir(path, mode)
+            created = True
+        except FileExistsError:
+            created = False
+        if created:
+            if gid is not None:
+                os.chown(path, -1, gid)
+            os.chmod(path, mode)  # mkdir's mode went through the umask
+        st = os.lstat(path)
+    except OSError as exc:
+        raise XddpError('cannot create runtime directory {!r}: {}'.format(
+            path, exc.strerror), path, exc.errno) from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise XddpError('runtime directory {!r} is not a directory (symlinks are refused)'.format(
+            path), path, errno.ENOTDIR)
+    if st.st_uid != os.geteuid():
+        raise XddpError('runtime directory {!r} is owned by uid {}, not by uid {}: refusing to '
+                        'use it'.format(path, st.st_uid, os.geteuid()), path, errno.EPERM)
+    perm = st.st_mode & 0o777
+    if perm & ~mode:
+        raise XddpError('runtime directory {!r} has mode {:04o}, wider than {:04o}: refusing to '
+                        'use it (chmod {:o} it or remove it)'.format(path, perm, mode, mode),
+                        path, errno.EPERM)
+    if gid is not None and st.st_gid != gid:
+        raise XddpError('runtime directory {!r} has group {}, expected {}'.format(
+            path, st.st_gid, gid), path, errno.EPERM)
+    if perm != mode:
+        os.chmod(path, mode)  # narrower than configured (e.g. 0700 with a group): ours, widen
+    return path
+
+
+def _check_port(port: Any, max_ports: int) -> int:
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port < max_ports:
+        raise XddpPortError('port {!r} is not an integer in [0, {})'.format(port, max_ports),
+                            None, errno.EINVAL)
+    return port
+
+
+def _check_label(label: Any) -> str:
+    if not isinstance(label, str) or not _LABEL_RE.match(label):
+        raise XddpPortError('label {!r} must be 1-32 characters of [A-Za-z0-9_.-] not starting '
+                            'with . or -'.format(label), None, errno.EINVAL)
+    return label
+
+
+def port_path(port_or_label: int | str, runtime_dir: str | None = None,
+              max_ports: int = DEFAULT_MAX_PORTS) -> str:
+    """Return the socket path of a port number or the symlink path of a label."""
+    rd = runtime_dir or default_runtime_dir()
+    if isinstance(port_or_label, str):
+        return os.path.join(rd, 'label.' + _check_label(port_or_label))
+    return os.path.join(rd, 'xddp{}'.format(_check_port(port_or_label, max_ports)))
+
+
+def _socket_alive(path: str) -> bool:
+    # A datagram socket cannot connect to a stream/seqpacket listener (EPROTOTYPE) but finds
+    # out whether one is bound without creating a connection the live process would see.
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+    try:
+        probe.connect(path)
+    except OSError as exc:
+        return exc.errno not in (errno.ECONNREFUSED, errno.ENOENT)
+    finally:
+        probe.close()
+    return True
+
+
+class RtXddpSocket:
+    """RT side of one port: a non-blocking listener with at most one linked NRT peer."""
+
+    def __init__(self, port: int, label: str | None = None, *, mode: str = 'message',
+                 poolsz: int = DEFAULT_POOLSZ, max_datagram: int = DEFAULT_MAX_DATAGRAM,
+                 runtime_dir: str | None = None, max_ports: int = DEFAULT_MAX_PORTS,
+                 group: str | int | None = None) -> None:
+        if mode not in MODES:
+            raise XddpPortError('mode {!r} is not one of {}'.format(mode, sorted(MODES)),
+                                None, errno.EINVAL)
+        if isinstance(poolsz, bool) or not isinstance(poolsz, int) or poolsz < 1024:
+            raise XddpPortError('poolsz {!r} must be an int >= 1024'.format(poolsz),
+                                None, errno.EINVAL)
+        if (isinstance(max_datagram, bool) or not isinstance(max_datagram, int)
+                or not 1 <= max_datagram <= poolsz // 2):
+            raise XddpPortError('max_datagram {!r} must be in [1, poolsz // 2 = {}]'.format(
+                max_datagram, poolsz // 2), None, errno.EINVAL)
+        self.port = _check_port(port, max_ports)
+        self.label = None if label is None else _check_label(label)
+        self.mode = mode
+        self.poolsz = poolsz
+        self.max_datagram = max_datagram
+        self.counters = XddpCounters()
+        self._gid = _gid(group)
+        self.runtime_dir = ensure_runtime_dir(runtime_dir, group)
+        self.path = port_path(port, self.runtime_dir, max_ports)
+        self.label_path = None if label is None else port_path(label, self.runtime_dir)
+        self._recv_flags = socket.MSG_DONTWAIT | (
+            socket.MSG_TRUNC if mode == 'message' else 0)
+        self._rbuf = bytearray(max_datagram)
+        self._peer: socket.socket | None = None
+        self._ever_linked = False
+        self._inode: tuple[int, int] | None = None
+        self._listener = self._bind()
+        self._lfd = self._listener.fileno()
+        self._lpoll = select.poll()  # listener only: is an opener waiting?
+        self._lpoll.register(self._lfd, select.POLLIN)
+        self._poll = select.poll()  # listener + peer: anything to do at all?
+        self._poll.register(self._lfd, select.POLLIN)
+        self._ppoll = select.poll()  # peer only: hung up?
+        try:
+            self._link_label()
+        except BaseException:
+            self.close()
+            raise
+
+    def _bind(self) -> socket.socket:
+        path = self.path
+        try:
+            st = os.lstat(path)
+        except FileNotFoundError:
+            st = None
+        if st is not None:
+            if not stat.S_ISSOCK(st.st_mode):
+                raise XddpError('{!r} exists and is not a socket: refusing to replace it'.format(
+                    path), path, errno.EEXIST)
+            if _socket_alive(path):
+                raise XddpBusyError('port {} is already bound by a live process: {}'.format(
+                    self.port, path), path, errno.EADDRINUSE)
+            try:
+                os.unlink(path)  # stale: its RT process died without closing
+            except FileNotFoundError:
+                pass
+        sock = socket.socket(socket.AF_UNIX,
+                             MODES[self.mode] | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC)
+        try:
+            self._set_buffers(sock)
+            sock.bind(path)
+            if self._gid is not None:
+                os.chown(path, -1, self._gid)
+            os.chmod(path, 0o660 if self._gid is not None else 0o600)
+            st = os.stat(path)
+            self._inode = (st.st_dev, st.st_ino)
+            sock.listen(8)
+        except OSError as exc:
+            sock.close()
+            if self._inode is not None:
+                os.unlink(path)
+            raise XddpError('cannot bind port {} at {!r}: {}'.format(
+                self.port, path, exc.strerror or exc), path, exc.errno) from exc
+        return sock
+
+    def _link_label(self) -> None:
+        lpath = self.label_path
+        if lpath is None:
+            return
+        target = os.path.basename(self.path)
+        try:
+            current: str | None = os.readlink(lpath)
+        except FileNotFoundError:
+            current = None
+        except OSError as exc:
+            raise XddpError('label path {!r} exists and is not a symlink'.format(lpath),
+                            lpath, exc.errno) from exc
+        if current is not None and current != target and _socket_alive(
+                os.path.join(self.runtime_dir, current)):
+            raise XddpBusyError('label {!r} is used by live port {!r}: {}'.format(
+                self.label, current, lpath), lpath, errno.EADDRINUSE)
+        tmp = '{}.tmp{}'.format(lpath, os.getpid())
+        try:
+            os.symlink(target, tmp)
+            os.replace(tmp, lpath)  # atomic: openers never see a missing label
+        except OSError as exc:
+            raise XddpError('cannot create label {!r}: {}'.format(lpath, exc.strerror),
+                            lpath, exc.errno) from exc
+
+    def _set_buffers(self, sock: socket.socket) -> None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.poolsz)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.poolsz)
+
+    @property
+    def connected(self) -> bool:
+        """Return True while an NRT peer is linked."""
+        return self._peer is not None
+
+    def fileno(self) -> int:
+        """Return the linked peer's fd, else the listener's (for bounded waits)."""
+        peer = self._peer
+        return peer.fileno() if peer is not None else self._lfd
+
+    def poll_peer(self) -> bool:
+        """Accept a waiting opener (or refuse it when busy); return True when linked."""
+        if self._lpoll.poll(0):
+            self._accept_pending()
+        return self._peer is not None
+
+    def _accept_pending(self) -> None:
+        while True:
+            try:
+                conn, _ = self._listener.accept()
+            except OSError:  # nothing pending (EAGAIN), or EMFILE & co: retried next call
+                return
+            if self._peer is not None and self._ppoll.poll(0):
+                self._drop_peer()  # hung up: let the new opener replace it right away
+            if self._peer is not None:
+                try:
+                    conn.send(HANDSHAKE_BUSY, _SEND_FLAGS)
+                except OSError:
+                    pass
+                conn.close()
+                self.counters.busy_rejects += 1
+                continue
+            try:
+                conn.setblocking(False)
+                self._set_buffers(conn)
+                conn.send(HANDSHAKE_OK, _SEND_FLAGS)
+            except OSError:  # the opener is already gone
+                conn.close()
+                continue
+            self._peer = conn
+            fd = conn.fileno()
+            self._poll.register(fd, select.POLLIN)
+            self._ppoll.register(fd, select.POLLHUP)
+            if self._ever_linked:
+                self.counters.peer_restarts += 1
+            self._ever_linked = True
+
+    def _drop_peer(self, count: bool = True) -> None:
+        peer = self._peer
+        if peer is None:
+            return
+        self._peer = None
+        fd = peer.fileno()
+        self._poll.unregister(fd)
+        self._ppoll.unregister(fd)
+        peer.close()
+        if count:
+            self.counters.peer_lost += 1
+
+    def send(self, data: bytes | bytearray | memoryview) -> bool:
+        """Send one datagram without blocking; return False when it was dropped (counted)."""
+        n = len(data)
+        c = self.counters
+        if not 0 < n <= self.max_datagram:
+            c.dropped_oversize += 1
+            return False
+        peer = self._peer
+        if peer is None:
+            if self._lpoll.poll(0):
+                self._accept_pending()
+            peer = self._peer
+            if peer is None:
+                c.dropped_no_peer += 1
+                return False
+        try:
+            sent = peer.send(data, _SEND_FLAGS)
+        except BlockingIOError:
+            c.dropped_full += 1
+            return False
+        except OSError as exc:
+            if exc.errno == errno.EMSGSIZE:
+                c.dropped_oversize += 1
+                return False
+            self._drop_peer()
+            c.dropped_no_peer += 1
+            return False
+        if sent != n:  # cannot happen while max_datagram <= poolsz // 2; never count it sent
+            c.dropped_full += 1
+            return False
+        c.sent += 1
+        return True
+
+    def recv_into(self, buf: bytearray | memoryview) -> int:
+        """Receive one pending datagram into ``buf`` without blocking; return 0 if none.
+
+        Accepts a waiting opener first. A message-mode datagram larger than ``buf`` is
+        discarded and counted ``dropped_oversize``; in stream mode up to ``len(buf)`` bytes
+        are returned.
+        """
+        while True:
+            events = self._poll.poll(0)  # one syscall and no exception when idle
+            if not events:
+                return 0
+            for fd, _ in events:
+                if fd == self._lfd:
+                    self._accept_pending()
+                    break
+            peer = self._peer
+            if peer is None:
+                return 0
+            try:
+                n = peer.recv_into(buf, 0, self._recv_flags)
+            except BlockingIOError:
+                return 0
+            except OSError:  # ECONNRESET
+                self._drop_peer()
+                return 0
+            if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
+                self._drop_peer()
+                return 0
+            if n > len(buf):
+                self.counters.dropped_oversize += 1
+                continue
+            self.counters.received += 1
+            return n
+
+    def recv(self) -> bytes | None:
+        """Receive one pending datagram as bytes, or None (allocates: not for RT loops)."""
+        n = self.recv_into(self._rbuf)
+        return bytes(self._rbuf[:n]) if n else None
+
+    def count_malformed(self) -> None:
+        """Count a received datagram that failed to decode."""
+        self.counters.malformed += 1
+
+    def close(self) -> None:
+        """Close the peer and the listener; remove our socket file and label."""
+        self._drop_peer(count=False)
+        listener = self.__dict__.pop('_listener', None)
+        if listener is None:
+            return
+        listener.close()
+        ours = False
+        try:
+            st = os.lstat(self.path)
+            if (st.st_dev, st.st_ino) == self._inode:
+                os.unlink(self.path)
+                ours = True
+        except OSError:
+            pass
+        if ours and self.label_path is not None:
+            try:
+                if os.readlink(self.label_path) == os.path.basename(self.path):
+                    os.unlink(self.label_path)
+            except OSError:
+                pass
+
+    def __enter__(self) -> 'RtXddpSocket':
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return '<RtXddpSocket port={} label={!r} mode={} connected={}>'.format(
+            self.port, self.label, self.mode, self.connected)
+
+
+class NrtXddpEndpoint:
+    """NRT side of one port: blocking reads and writes with timeouts."""
+
+    def __init__(self, sock: socket.socket, path: str, mode: str) -> None:
+        self._sock: socket.socket | None = sock
+        self.path = path
+        self.mode = mode
+        self._buf = bytearray(_NRT_BUFSZ)
+        self._flags = socket.MSG_TRUNC if mode == 'message' else 0
+
+    def _live(self) -> socket.socket:
+        if self._sock is None:
+            raise XddpError('endpoint {!r} is closed'.format(self.path), self.path, errno.EBADF)
+        return self._sock
+
+    def read(self, timeout: float | None = None) -> bytes:
+        """Return the next datagram (message mode) or available bytes (stream mode).
+
+        Raise TimeoutError when nothing arrives within ``timeout`` seconds (None waits
+        forever) and BrokenPipeError when the RT side closed or died; never return b''.
+        """
+        sock = self._live()
+        sock.settimeout(timeout)
+        try:
+            n = sock.recv_into(self._buf, 0, self._flags)
+        except (TimeoutError, BlockingIOError):
+            raise TimeoutError(errno.ETIMEDOUT, 'nothing received on {} within {}s'.format(
+                self.path, timeout)) from None
+        except OSError as exc:
+            if exc.errno in _PEER_GONE:
+                raise BrokenPipeError(errno.EPIPE, 'RT side of {} is gone'.format(
+                    self.path)) from exc
+            raise
+        if n == 0:
+            raise BrokenPipeError(errno.EPIPE, 'RT side of {} closed'.format(self.path))
+        if n > len(self._buf):
+            raise XddpError('datagram of {} bytes on {} exceeds the {}-byte read buffer'.format(
+                n, self.path, len(self._buf)), self.path, errno.EMSGSIZE)
+        return bytes(self._buf[:n])
+
+    def write(self, data: bytes | bytearray | memoryview, timeout: float | None = None) -> None:
+        """Write one datagram; raise BrokenPipeError when the RT side is gone."""
+        if not len(data):
+            raise ValueError('cannot write an empty datagram to {}'.format(self.path))
+        sock = self._live()
+        sock.settimeout(timeout)
+        try:
+            sock.sendall(data, socket.MSG_NOSIGNAL)
+        except TimeoutError:
+            raise TimeoutError(errno.ETIMEDOUT, 'write to {} blocked for {}s'.format(
+                self.path, timeout)) from None
+        except OSError as exc:
+            if exc.errno in _PEER_GONE:
+                raise BrokenPipeError(errno.EPIPE, 'RT side of {} is gone'.format(
+                    self.path)) from exc
+            raise XddpError('cannot write {} bytes to {}: {}'.format(
+                len(data), self.path, exc.strerror), self.path, exc.errno) from exc
+
+    def fileno(self) -> int:
+        """Return the socket's fd (for selectors / poll)."""
+        return self._live().fileno()
+
+    @property
+    def closed(self) -> bool:
+        """Return True once closed."""
+        return self._sock is None
+
+    def close(self) -> None:
+        """Close the endpoint (the RT side sees EOF and counts a lost peer)."""
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            sock.close()
+
+    def __enter__(self) -> 'NrtXddpEndpoint':
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return '<NrtXddpEndpoint {} mode={}{}>'.format(
+            self.path, self.mode, ' closed' if self.closed else '')
+
+
+class _NotBoundYet(Exception):
+    def __init__(self, err: int, why: str) -> None:
+        super().__init__(why)
+        self.err = err
+
+
+def _connect(path: str, mode: str | None, timeout: float) -> tuple[socket.socket, str]:
+    for name in (mode,) if mode else ('message', 'stream'):
+        sock = socket.socket(socket.AF_UNIX, MODES[name] | socket.SOCK_CLOEXEC)
+        try:
+            sock.settimeout(timeout)
+            sock.connect(path)
+        except OSError as exc:
+            sock.close()
+            if exc.errno == errno.EPROTOTYPE and mode is None:
+                continue  # the RT side is in the other mode
+            if exc.errno in (errno.ENOENT, errno.ECONNREFUSED):
+                raise _NotBoundYet(exc.errno, exc.strerror or '') from None
+            if exc.errno == errno.EPROTOTYPE:
+                raise XddpPortError('{} is not bound in {} mode'.format(path, mode),
+                                    path, exc.errno) from None
+            raise XddpError('cannot connect to {}: {}'.format(path, exc.strerror or exc),
+                            path, exc.errno) from exc
+        return sock, name
+    raise XddpError('{} is neither a message nor a stream socket'.format(path), path,
+                    errno.EPROTOTYPE)
+
+
+def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
+                  runtime_dir: str | None = None, max_ports: int = DEFAULT_MAX_PORTS,
+                  mode: str | None = None,
+                  handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT) -> NrtXddpEndpoint:
+    """Open the NRT side of a port by number or label (like ``open('/dev/rtpN')``).
+
+    ``wait=0`` fails fast with XddpNotBoundError, ``None`` waits forever, a float waits that
+    many seconds for the RT side to bind. ``mode=None`` detects message or stream mode.
+    Raise XddpBusyError when another NRT peer is linked.
+    """
+    if mode is not None and mode not in MODES:
+        raise XddpPortError('mode {!r} is not one of {}'.format(mode, sorted(MODES)),
+                            None, errno.EINVAL)
+    path = port_path(port_or_label, runtime_dir, max_ports)
+    deadline = None if wait is None else time.monotonic() + wait
+    while True:
+        try:
+            sock, found_mode = _connect(path, mode, handshake_timeout)
+            try:
+                sock.settimeout(handshake_timeout)
+                answer = sock.recv(1)
+            except TimeoutError:
+                sock.close()
+                raise XddpError('RT side of {} did not accept within {}s'.format(
+                    path, handshake_timeout), path, errno.ETIMEDOUT) from None
+            except OSError as exc:
+                sock.close()
+                raise _NotBoundYet(exc.errno, 'reset during handshake') from None
+            if answer == HANDSHAKE_OK:
+                return NrtXddpEndpoint(sock, path, found_mode)
+            sock.close()
+            if answer == HANDSHAKE_BUSY:
+                raise XddpBusyError('port {!r} already has an NRT peer: {}'.format(
+                    port_or_label, path), path, errno.EBUSY)
+            raise _NotBoundYet(errno.ECONNRESET, 'closed during handshake')
+        except _NotBoundYet as exc:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                raise XddpNotBoundError('nothing bound at port {!r} ({}): {}'.format(
+                    port_or_label, path, exc), path, exc.err) from None
+            pause = _OPEN_RETRY_S if deadline is None else min(_OPEN_RETRY_S, deadline - now)
+            time.sleep(pause)
+
+
+class NrtLink:
+    """Auto re-linking NRT endpoint: reads/writes never raise on a missing or lost RT side."""
+
+    def __init__(self, port_or_label: int | str, runtime_dir: str | None = None, *,
+                 retry_interval: float = 0.5, max_ports: int = DEFAULT_MAX_PORTS,
+                 mode: str | None = None, write_timeout: float | None = 1.0,
+                 handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT) -> None:
+        port_path(port_or_label, runtime_dir, max_ports)  # validate now, not on first use
+        self.port_or_label = port_or_label
+        self.runtime_dir = runtime_dir
+        self.retry_interval = retry_interval
+        self.max_ports = max_ports
+        self.mode = mode
+        self.write_timeout = write_timeout
+        self.handshake_timeout = handshake_timeout
+        self.links = 0  # successful opens
+        self.relinks = 0  # opens after the first
+        self.lost = 0  # links that broke
+        self.last_error: Exception | None = None
+        self._ep: NrtXddpEndpoint | None = None
+        self._next_try = 0.0
+
+    @property
+    def linked(self) -> bool:
+        """Return True while linked to the RT side."""
+        return self._ep is not None
+
+    def _link(self) -> NrtXddpEndpoint | None:
+        ep = self._ep
+        if ep is not None:
+            return ep
+        now = time.monotonic()
+        if now < self._next_try:
+            return None
+        self._next_try = now + self.retry_interval
+        try:
+            ep = nrt_xddp_open(self.port_or_label, wait=0.0, runtime_dir=self.runtime_dir,
+                               max_ports=self.max_ports, mode=self.mode,
+                               handshake_timeout=self.handshake_timeout)
+        except OSError as exc:  # not bound, busy, permission: keep trying, keep the reason
+            self.last_error = exc
+            return None
+        self._ep = ep
+        if self.links:
+            self.relinks += 1
+        self.links += 1
+        return ep
+
+    def _unlink(self, exc: Exception) -> None:
+        self.last_error = exc
+        self.lost += 1
+        if self._ep is not None:
+            self._ep.close()
+        self._ep = None
+        self._next_try = 0.0  # the RT side may already be back: retry at once
+
+    def read(self, timeout: float | None = None) -> bytes | None:
+        """Return the next datagram, or None if none arrived (or no link) within ``timeout``."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            ep = self._link()
+            now = time.monotonic()
+            remaining = None if deadline is None else max(0.0, deadline - now)
+            if ep is not None:
+                try:
+                    return ep.read(remaining)
+                except TimeoutError:
+                    return None
+                except OSError as exc:  # BrokenPipeError and anything else: relink
+                    self._unlink(exc)
+                    continue
+            if remaining is not None and remaining <= 0.0:
+                return None
+            pause = max(0.0, self._next_try - now)
+            time.sleep(pause if remaining is None else min(pause, remaining))
+
+    def write(self, data: bytes | bytearray | memoryview) -> bool:
+        """Write one datagram; return False when not linked, lost or timed out."""
+        ep = self._link()
+        if ep is None:
+            return False
+        try:
+            ep.write(data, self.write_timeout)
+        except TimeoutError:
+            return False
+        except OSError as exc:
+            self._unlink(exc)
+            return False
+        return True
+
+    def fileno(self) -> int:
+        """Return the current endpoint's fd, or -1 when unlinked."""
+        return self._ep.fileno() if self._ep is not None else -1
+
+    def close(self) -> None:
+        """Close the current link."""
+        if self._ep is not None:
+            self._ep.close()
+            self._ep = None
+
+    def __enter__(self) -> 'NrtLink':
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def rt_xddp_bind(port: int, label: str | None = None, **kwargs: Any) -> RtXddpSocket:
+    """Bind the RT side of a port (paper-style alias of RtXddpSocket)."""
+    return RtXddpSocket(port, label, **kwargs)
+
+
+def rt_xddp_send(sock: RtXddpSocket, data: bytes | bytearray | memoryview) -> bool:
+    """Send one datagram without blocking (paper-style alias)."""
+    return sock.send(data)
+
+
+def rt_xddp_recv(sock: RtXddpSocket, buf: bytearray | memoryview) -> int:
+    """Receive one pending datagram into ``buf``; 0 if none (paper-style alias)."""
+    return sock.recv_into(buf)
+
+
+def rt_xddp_close(sock: RtXddpSocket) -> None:
+    """Close the RT side of a port (paper-style alias)."""
+    sock.close()
+
+
+def nrt_xddp_read(ep: NrtXddpEndpoint, timeout: float | None = None) -> bytes:
+    """Read one datagram (paper-style alias)."""
+    return ep.read(timeout)
+
+
+def nrt_xddp_write(ep: NrtXddpEndpoint, data: bytes | bytearray | memoryview) -> None:
+    """Write one datagram (paper-style alias)."""
+    ep.write(data)
+
+
+def nrt_xddp_close(ep: NrtXddpEndpoint) -> None:
+    """Close the NRT side (paper-style alias)."""
+    ep.close()
