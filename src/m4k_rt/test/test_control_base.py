@@ -1,6 +1,9 @@
 import math
 
+import pytest
+
 from m4k_rt.control.base import (
+    BaseController,
     FLAG_BRAKING,
     FLAG_CLAMPED,
     FLAG_GUARD,
@@ -10,11 +13,9 @@ from m4k_rt.control.base import (
     MODE_FAULT,
     MODE_IDLE,
     MODE_OBSTACLE,
-    BaseController,
 )
 from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
-import pytest
 
 MS = 1_000_000
 PERIOD_NS = 10 * MS
@@ -138,8 +139,8 @@ def test_guard_stop_limits_forward_within_the_same_cycle():
     assert ctl.v == 0.0
     assert ctl.flags & FLAG_GUARD
     assert ctl.mode == MODE_OBSTACLE
-    # wheels commanded to brake (below zero code while still rolling forward), not forward
-    assert ctl.left_code < 512 and ctl.right_code < 512
+    # zero setpoints: zero armature voltage (the amplifier brakes), never forward
+    assert (ctl.left_code, ctl.right_code) == (512, 512)
 
 
 def test_guard_allows_rotation_and_reverse():

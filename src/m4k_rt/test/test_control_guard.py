@@ -1,7 +1,8 @@
 import math
 
-from m4k_rt.control.guard import CollisionGuard, GuardError
 import pytest
+
+from m4k_rt.control.guard import CollisionGuard, GuardError
 
 MS = 1_000_000
 INF = math.inf
@@ -82,3 +83,27 @@ def test_disabled_guard_and_unused_sensor():
 def test_bad_parameters_are_rejected(kw, field):
     with pytest.raises(GuardError, match=field):
         guard(**kw)
+
+
+def test_front_sector_minimum_skips_error_codes_and_out_of_sector():
+    from m4k_rt.control.guard import FrontSector
+    sector = FrontSector(30.0)
+    inc = math.radians(1.0)
+    angle_min = math.radians(-120.0)
+    ranges = [3000] * 241               # -120 .. +120 deg in 1 deg steps
+    ranges[120 - 20] = 500              # -20 deg: outside the +-15 deg sector
+    ranges[120 + 10] = 7                # +10 deg: URG error code, not a distance
+    ranges[120 - 15] = 1200             # -15 deg: on the sector edge, counted
+    assert sector.window(angle_min, inc, 241) == (105, 135)
+    assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(1.2)
+    ranges[120] = 6000                  # beyond range_max: not a measurement
+    assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(1.2)
+
+
+def test_front_sector_with_no_valid_point_is_inf():
+    from m4k_rt.control.guard import FrontSector
+    sector = FrontSector(30.0)
+    assert sector.minimum(-2.0, 0.01, 0.02, 5.6, [1] * 401) == INF
+    assert sector.minimum(1.0, 0.01, 0.02, 5.6, [500] * 10) == INF   # sector not scanned
+    with pytest.raises(GuardError, match='front_sector_deg'):
+        FrontSector(0.0)

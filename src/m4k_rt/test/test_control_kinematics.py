@@ -1,8 +1,9 @@
 import math
 
+import pytest
+
 from m4k_rt.control.dac import code_to_command, command_to_code
 from m4k_rt.control.diffdrive import DiffDrive, KinematicsError
-import pytest
 
 R = 0.1016
 L = 0.40

@@ -1,7 +1,8 @@
 import math
 
-from m4k_rt.control.limiter import LimiterError, SpeedLimiter
 import pytest
+
+from m4k_rt.control.limiter import LimiterError, SpeedLimiter
 
 DT = 0.01
 

@@ -1,8 +1,9 @@
 import math
 
-from m4k_rt.control.diffdrive import DiffDrive
-from m4k_rt.control.odometry import Odometry, normalize_angle
 import pytest
+
+from m4k_rt.control.diffdrive import DiffDrive
+from m4k_rt.control.odometry import normalize_angle, Odometry
 
 R = 0.1016
 L = 0.40

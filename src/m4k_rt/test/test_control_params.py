@@ -1,7 +1,8 @@
 import math
 
-from m4k_rt.control.params import ControlConfigError, control_params
 import pytest
+
+from m4k_rt.control.params import control_params, ControlConfigError
 
 
 def test_defaults_follow_table2():

@@ -1,5 +1,6 @@
-from m4k_rt.control.pid import PidError, WheelSpeedPI
 import pytest
+
+from m4k_rt.control.pid import PidError, WheelSpeedPI
 
 DT = 0.01
 

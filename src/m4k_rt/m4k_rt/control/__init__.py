@@ -10,7 +10,7 @@ from m4k_rt.control.diffdrive import DiffDrive
 from m4k_rt.control.guard import CollisionGuard
 from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.odometry import Odometry
-from m4k_rt.control.params import ControlConfigError, ControlParams, control_params
+from m4k_rt.control.params import control_params, ControlConfigError, ControlParams
 from m4k_rt.control.pid import WheelSpeedPI
 
 __all__ = [

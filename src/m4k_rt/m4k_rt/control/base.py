@@ -16,15 +16,16 @@ Order inside ``step``:
 3. Guard cap on the forward target (slow-down zone), speed limiters, then the guard's stop
    applied after the limiters (a zero cap takes effect this cycle, bypassing the ramp).
 4. Inverse kinematics, wheel-speed saturation (keeping curvature), PI with feed-forward on the
-   measured wheel speeds, DAC codes. A zero command at standstill outputs code 512 and clears
-   the integrators, so encoder quantization cannot make the robot creep.
+   measured wheel speeds, DAC codes. Zero wheel setpoints output code 512 (zero armature
+   voltage: the amplifier brakes the motor down with its own lag) and clear the integrators,
+   so a residual integral or encoder quantization can never make a stopped robot creep.
 """
 
 from __future__ import annotations
 
 import math
 
-from m4k_rt.control.dac import DAC_ZERO, command_to_code
+from m4k_rt.control.dac import command_to_code, DAC_ZERO
 from m4k_rt.control.diffdrive import DiffDrive
 from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.odometry import Odometry
@@ -199,8 +200,7 @@ class BaseController:
         wl, wr, sat = self.kin.saturate(wl, wr, self.wheel_limit)
         self.left_setpoint = wl
         self.right_setpoint = wr
-        if (wl == 0.0 and wr == 0.0 and tv == 0.0 and tw == 0.0
-                and abs(self.odom.v) < _MOVING_EPS and abs(self.odom.w) < _MOVING_EPS):
+        if wl == 0.0 and wr == 0.0:
             self.pi_left.reset()
             self.pi_right.reset()
             self.left_code = self.right_code = DAC_ZERO

@@ -126,3 +126,52 @@ class CollisionGuard:
             return max_velocity * (frac if frac > 0.0 else 0.0)
         self.slowing = False
         return math.inf
+
+
+class FrontSector:
+    """Minimum range of a laser scan inside a sector centred straight ahead (angle 0).
+
+    Ranges are the LASER_SCAN's millimetres; values below 20 are URG error codes and values
+    outside [range_min, range_max] are not measurements -- both are skipped. A sector without a
+    single valid point reports ``math.inf`` (nothing seen). The index window is computed once
+    per scan geometry and cached, so a scan costs one short loop over the sector only.
+    """
+
+    __slots__ = ('half_width', '_key', '_i0', '_i1')
+
+    def __init__(self, width_deg: float) -> None:
+        if not (isinstance(width_deg, (int, float)) and 0.0 < width_deg <= 360.0):
+            raise GuardError(f'front_sector_deg must be in (0, 360], got {width_deg!r}')
+        self.half_width = math.radians(width_deg) / 2.0
+        self._key: tuple[float, float, int] | None = None
+        self._i0 = 0
+        self._i1 = -1
+
+    def window(self, angle_min: float, angle_increment: float, count: int) -> tuple[int, int]:
+        """Return the inclusive index range (i0, i1) of the sector (i1 < i0 when empty)."""
+        key = (angle_min, angle_increment, count)
+        if key != self._key:
+            self._key = key
+            if angle_increment <= 0.0 or count <= 0:
+                self._i0, self._i1 = 0, -1
+            else:
+                i0 = math.ceil((-self.half_width - angle_min) / angle_increment - 1e-9)
+                i1 = math.floor((self.half_width - angle_min) / angle_increment + 1e-9)
+                self._i0 = max(0, i0)
+                self._i1 = min(count - 1, i1)
+        return self._i0, self._i1
+
+    def minimum(self, angle_min: float, angle_increment: float, range_min: float,
+                range_max: float, ranges_mm: tuple[int, ...] | list[int]) -> float:
+        """Return the smallest valid range (m) in the sector, ``math.inf`` if none."""
+        i0, i1 = self.window(angle_min, angle_increment, len(ranges_mm))
+        lo = range_min * 1000.0
+        if lo < 20.0:
+            lo = 20.0
+        hi = range_max * 1000.0
+        best = math.inf
+        for i in range(i0, i1 + 1):
+            r = ranges_mm[i]
+            if lo <= r <= hi and r < best:
+                best = r
+        return best * 0.001 if best != math.inf else math.inf

@@ -1,0 +1,78 @@
+"""IMU task body (10 ms): request a sample from the imu handler, forward the latest to the bridge.
+
+Ports: ``imu`` (driver host: REQUEST out, IMU and DEVICE_STATUS in) and ``imu_out`` (bridge:
+IMU out). Same one-cycle pipeline as the actuator: each cycle first drains the reply to the
+previous cycle's REQUEST, forwards the newest valid IMU datagram unchanged (the handler's
+stamp is the measurement time), then sends this cycle's REQUEST. Samples older than the
+newest one in the same drain are skipped (counted in ``superseded``): the bridge wants the
+freshest orientation, not a backlog.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable, Mapping
+
+from m4k_rt.protocol import Kind
+from m4k_rt.tasks.portio import PortReader, PortWriter
+from m4k_rt.tasks.state import robot_state, RobotState
+
+__all__ = ['ImuBody', 'make_imu']
+
+_IMU = Kind.IMU
+_DEVICE_STATUS = Kind.DEVICE_STATUS
+_REQUEST = Kind.REQUEST
+
+
+class ImuBody:
+    """Per-cycle body of the IMU task."""
+
+    def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        self.state = state
+        self._dev_in = PortReader(dev_sock)
+        self._dev_out = PortWriter(dev_sock)
+        self._out = PortWriter(out_sock)
+        self._latest = bytearray(len(self._dev_in.buf))
+        self._latest_view = memoryview(self._latest)
+        self._clock = clock
+        self.cycles = 0
+        self.samples = 0
+        self.superseded = 0
+        self.unexpected = 0
+
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """Return a snapshot of the body's counters (NRT use)."""
+        return {'cycles': self.cycles, 'samples': self.samples, 'superseded': self.superseded,
+                'unexpected': self.unexpected, 'forwarded': self._out.sent,
+                'forward_dropped': self._out.dropped, 'requests': self._dev_out.sent}
+
+    def __call__(self, ctx: Any = None) -> None:
+        """Run one IMU cycle."""
+        now = ctx.t_start if ctx is not None else self._clock()
+        reader = self._dev_in
+        reader.start_cycle()
+        n = 0
+        while (got := reader.next()) is not None:
+            kind = got[0].kind
+            if kind == _IMU:
+                if n:
+                    self.superseded += 1
+                n = reader.length
+                self._latest_view[:n] = reader.view[:n]
+                self.samples += 1
+            elif kind == _DEVICE_STATUS:
+                self.state.imu_level = got[1].level
+            else:
+                self.unexpected += 1
+        if n:
+            self._out.forward(self._latest_view[:n])
+            self.state.imu_rx_ns = now
+        self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, 0)
+        self.cycles += 1
+
+
+def make_imu(task: Any, ports: Mapping[str, Any], shared: Any) -> ImuBody:
+    """Build the IMU body from its ``imu``/``imu_out`` ports."""
+    return ImuBody(ports['imu'], ports['imu_out'], robot_state(shared))

@@ -1,0 +1,82 @@
+"""LRF task body (200 ms): request a scan, forward it to the bridge, feed the guard.
+
+Ports: ``lrf`` (driver host: REQUEST out, LASER_SCAN and DEVICE_STATUS in) and ``lrf_out``
+(bridge: LASER_SCAN out). Pipeline like the other device tasks: each cycle drains the scan
+replying to the previous REQUEST (the URG-04LX takes 100 ms per scan, well inside the 200 ms
+period), forwards it unchanged (its stamp and device stamp are the measurement's), computes
+the minimum range of the front sector (``control.guard.front_sector_deg``) for the actuator's
+collision guard, then sends this cycle's REQUEST. A scan whose sector holds no valid point
+reports ``inf`` (nothing seen) but still refreshes ``laser_rx_ns``: the laser is alive.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable, Mapping
+
+from m4k_rt.control.guard import FrontSector
+from m4k_rt.control.params import control_params
+from m4k_rt.protocol import Kind
+from m4k_rt.tasks.actuator import control_section
+from m4k_rt.tasks.portio import PortReader, PortWriter
+from m4k_rt.tasks.state import robot_state, RobotState
+
+__all__ = ['LrfBody', 'make_lrf', 'SCAN_REQUEST']
+
+SCAN_REQUEST = 1   # REQUEST.arg asking the lrf handler for one scan
+_SCAN = Kind.LASER_SCAN
+_DEVICE_STATUS = Kind.DEVICE_STATUS
+_REQUEST = Kind.REQUEST
+
+
+class LrfBody:
+    """Per-cycle body of the LRF task."""
+
+    def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
+                 front_sector_deg: float = 30.0,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        self.state = state
+        self.sector = FrontSector(front_sector_deg)
+        self._dev_in = PortReader(dev_sock)
+        self._dev_out = PortWriter(dev_sock)
+        self._out = PortWriter(out_sock)
+        self._clock = clock
+        self.cycles = 0
+        self.scans = 0
+        self.unexpected = 0
+
+    @property
+    def counters(self) -> Mapping[str, int]:
+        """Return a snapshot of the body's counters (NRT use)."""
+        return {'cycles': self.cycles, 'scans': self.scans, 'unexpected': self.unexpected,
+                'forwarded': self._out.sent, 'forward_dropped': self._out.dropped,
+                'requests': self._dev_out.sent}
+
+    def __call__(self, ctx: Any = None) -> None:
+        """Run one LRF cycle."""
+        now = ctx.t_start if ctx is not None else self._clock()
+        state = self.state
+        reader = self._dev_in
+        reader.start_cycle()
+        while (got := reader.next()) is not None:
+            hdr, msg = got
+            if hdr.kind == _SCAN:
+                self._out.forward(reader.raw())
+                state.laser_front_min = self.sector.minimum(
+                    msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
+                    msg.ranges)
+                state.laser_rx_ns = now
+                self.scans += 1
+            elif hdr.kind == _DEVICE_STATUS:
+                state.lrf_level = msg.level
+            else:
+                self.unexpected += 1
+        self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, SCAN_REQUEST)
+        self.cycles += 1
+
+
+def make_lrf(task: Any, ports: Mapping[str, Any], shared: Any) -> LrfBody:
+    """Build the LRF body from its ``lrf``/``lrf_out`` ports and the guard's sector width."""
+    params = control_params(control_section(task, shared))
+    return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
+                   params.guard.front_sector_deg)

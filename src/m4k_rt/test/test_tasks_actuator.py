@@ -1,0 +1,174 @@
+import math
+from types import SimpleNamespace
+
+from fake_peers import ctx, FakeMotor, MS, Ports
+import pytest
+
+from m4k_rt import protocol as p
+from m4k_rt.control.base import MODE_DRIVING, MODE_FAULT, MODE_OBSTACLE
+from m4k_rt.control.params import control_params
+from m4k_rt.tasks.actuator import ActuatorBody, make_actuator
+from m4k_rt.tasks.state import RobotState
+
+PERIOD = 10 * MS
+
+
+@pytest.fixture
+def rig(m4k_runtime_dir):
+    ports = Ports(m4k_runtime_dir, 'cmd', 'motor')
+    yield ports
+    ports.close()
+
+
+def build(rig, **control):
+    control.setdefault('guard', {'enabled': False})
+    params = control_params(control)
+    state = RobotState()
+    body = ActuatorBody(rig.rt['cmd'], rig.rt['motor'], state, params, 0.01)
+    motor = FakeMotor(rig, params.full_scale_wheel_speed)
+    return body, motor, state
+
+
+def run(rig, body, motor, t, cycles, cmd=None, cmd_every=5, before_cycle=None):
+    """Simulate `cycles` actuator periods; the bridge sends `cmd` every `cmd_every` cycles."""
+    for k in range(cycles):
+        t += PERIOD
+        if cmd is not None and k % cmd_every == 0:
+            rig.write('cmd', p.Kind.VELOCITY_CMD, *cmd, stamp=t)
+        if before_cycle:
+            before_cycle(t)
+        body(ctx(t))
+        motor.serve(t + 2 * MS)       # the driver host answers within the period
+    return t
+
+
+def test_drives_the_distance_the_acceleration_limit_implies(rig):
+    body, motor, state = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    t = run(rig, body, motor, t, 400, cmd=(0.25, 0.0))
+    odoms = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY]
+    assert len(odoms) == 401 // 5
+    last = odoms[-1]
+    t_ramp = 0.25 / 0.37
+    ideal = 0.5 * 0.37 * t_ramp ** 2 + 0.25 * (4.0 - t_ramp)
+    assert last.x == pytest.approx(ideal, abs=0.02)
+    assert abs(last.y) < 1e-6
+    assert last.v == pytest.approx(0.25, abs=0.01)
+    assert last.flags == 0
+    # the simulated wheels really turned that far (odometry is not just integrating commands)
+    assert motor.angle[0] * 0.1016 == pytest.approx(last.x, abs=0.01)
+    assert state.mode == MODE_DRIVING
+    assert state.x == pytest.approx(last.x, abs=0.003)
+    # one WHEEL_CMD per cycle, each answered; the reply is consumed by the next cycle
+    assert len(motor.commands) == 401
+    assert body.counters['encoder_samples'] == 400
+
+
+def test_first_cycles_are_motor_stale_until_the_first_reply(rig):
+    body, motor, state = build(rig)
+    rig.write('cmd', p.Kind.VELOCITY_CMD, 0.25, 0.0)
+    body(ctx(PERIOD))
+    assert state.mode == MODE_FAULT
+    assert state.odom_flags & p.ODOM_MOTOR_STALE
+    motor.serve(PERIOD + MS)
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 0)
+    body(ctx(2 * PERIOD))
+    assert not state.odom_flags & p.ODOM_MOTOR_STALE
+
+
+def test_latest_command_of_a_cycle_wins_and_garbage_is_counted(rig):
+    body, motor, _ = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    rig.write('cmd', p.Kind.VELOCITY_CMD, 1.0, 0.0)
+    rig.nrt['cmd'].write(b'\x00garbage-not-a-datagram')
+    rig.write('cmd', p.Kind.VELOCITY_CMD, 0.3, -0.2)
+    rig.write('cmd', p.Kind.LED, 1, 2, 3, 4, 1)        # wrong kind for this port
+    t = run(rig, body, motor, t, 1)
+    assert (body.ctl.cmd_linear, body.ctl.cmd_angular) == (0.3, -0.2)
+    assert body.ctl.commands == 1
+    assert rig.rt['cmd'].counters.malformed == 1
+    assert body.unexpected == 1
+
+
+def test_nan_command_never_reaches_the_controller(rig):
+    body, motor, _ = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    import struct
+    bad = bytearray(p.encode(p.Kind.VELOCITY_CMD, 0, 0, 0.1, 0.0))
+    struct.pack_into('<d', bad, p.HEADER_SIZE, math.nan)
+    rig.nrt['cmd'].write(bytes(bad))
+    run(rig, body, motor, t, 1)
+    assert body.ctl.commands == 0
+    assert rig.rt['cmd'].counters.malformed == 1
+
+
+def test_stale_command_brakes_and_is_flagged(rig):
+    body, motor, _ = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    t = run(rig, body, motor, t, 150, cmd=(0.25, 0.0))   # last command 5 cycles before the end
+    rig.read_all('cmd')
+    t = run(rig, body, motor, t, 150)   # 1.5 s of silence: 0.5 s timeout + 0.68 s ramp + margin
+    odoms = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY]
+    braking = [o for o in odoms if o.flags & p.ODOM_BRAKING]
+    assert braking, 'brake flag never set'
+    assert not odoms[0].flags & p.ODOM_BRAKING
+    assert body.ctl.v == 0.0
+    assert odoms[-1].v == pytest.approx(0.0, abs=0.005)
+    codes = motor.commands[-1]
+    assert (codes.left_code, codes.right_code) == (512, 512)
+
+
+def test_guard_reading_stops_forward_within_one_cycle(rig):
+    body, motor, state = build(rig, guard={'enabled': True, 'use_laser': False})
+    sonar = {'range': 2.0}
+
+    def sonar_task(t):           # what the sonar task leaves in the shared state
+        state.sonar_range = sonar['range']
+        state.sonar_rx_ns = t - MS
+    t = run(rig, body, motor, 0, 1, before_cycle=sonar_task)
+    t = run(rig, body, motor, t, 150, cmd=(0.25, 0.0), before_cycle=sonar_task)
+    assert body.ctl.v == pytest.approx(0.25)
+    sonar['range'] = 0.3
+    t = run(rig, body, motor, t, 1, before_cycle=sonar_task)
+    assert body.ctl.v == 0.0
+    assert state.mode == MODE_OBSTACLE
+    last = motor.commands[-1]
+    assert last.left_code <= 512 and last.right_code <= 512   # not driving on
+    # rotation and reverse stay allowed
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.8), before_cycle=sonar_task)
+    assert body.ctl.v == 0.0 and body.ctl.w == pytest.approx(0.8)
+    t = run(rig, body, motor, t, 100, cmd=(-0.1, 0.0), before_cycle=sonar_task)
+    assert body.ctl.v == pytest.approx(-0.1)
+    odoms = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY]
+    assert any(o.flags & p.ODOM_GUARD for o in odoms)
+
+
+def test_motor_lost_marks_outputs_stale_and_holds_zero_after_return(rig):
+    body, motor, state = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.0))
+    motor.alive = False
+    t = run(rig, body, motor, t, 20, cmd=(0.25, 0.0))
+    assert state.mode == MODE_FAULT
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 0)
+    odoms = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY]
+    assert odoms[-1].flags & p.ODOM_MOTOR_STALE
+    motor.alive = True
+    t = run(rig, body, motor, t, 30)          # encoders back, no fresh command
+    assert not state.odom_flags & p.ODOM_MOTOR_STALE
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)
+    assert body.ctl.hold_zero
+    run(rig, body, motor, t, 30, cmd=(0.25, 0.0))
+    assert body.ctl.v > 0.0
+    assert state.mode == MODE_DRIVING
+
+
+def test_factory_reads_control_section_from_task_params(rig):
+    task = SimpleNamespace(name='actuator', period_ns=PERIOD,
+                           params={'control': {'odom_every_n': 2}})
+    shared = {}
+    body = make_actuator(task, rig.rt, shared)
+    assert body.params.odom_every_n == 2
+    assert shared['robot'] is body.state
+    body()                                     # no ctx: the body reads the clock itself
+    assert body.cycles == 1
