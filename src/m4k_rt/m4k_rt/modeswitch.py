@@ -32,7 +32,8 @@ from typing import Callable, NamedTuple
 
 __all__ = [
     'EVENT_CODES', 'ConsoleGuard', 'ExtraDatagramError', 'FORBIDDEN_SITE', 'ForbiddenSite',
-    'Site', 'SiteTable', 'TASK_HEALTH', 'TaskHealth', 'ThreadRusage', 'current_table',
+    'Site', 'SiteTable', 'TASK_HEALTH', 'TaskHealth', 'ThreadRusage', 'allow_file',
+    'current_table',
     'decode_extra', 'encode_health_into', 'encode_site_into', 'enter_rt', 'install',
     'install_console_guard', 'leave_rt', 'uninstall_console_guard',
 ]
@@ -52,6 +53,10 @@ _installed = False
 _install_lock = threading.Lock()
 _THIS_FILE = __file__
 _STDLIB = sysconfig.get_paths()['stdlib'] + os.sep
+# Sanctioned in-loop callers: the XDDP layer accepts a (re)connecting NRT peer without
+# blocking from inside the loop, which creates a socket object by design (like a Xenomai
+# XDDP port, whose peer may come and go while the RT task runs).
+_ALLOWED_FILES = {os.path.join(os.path.dirname(os.path.abspath(__file__)), 'xddp.py')}
 
 
 class Site(NamedTuple):
@@ -122,17 +127,30 @@ def current_table() -> SiteTable | None:
     return getattr(_tls, 'table', None)
 
 
-def _caller_site(frame: object) -> tuple[str, int, str]:
+def allow_file(path: str) -> None:
+    """Treat forbidden calls made directly from the source file ``path`` as sanctioned."""
+    _ALLOWED_FILES.add(os.path.abspath(path))
+
+
+def _caller_site(frame: object) -> tuple[str, int, str] | None:
     # Walk out of the standard library, frozen importlib and this module, so the site is the
-    # task code that made the call, not subprocess.py or socket.py.
+    # task code that made the call, not subprocess.py or socket.py. None: sanctioned caller.
     f = frame
     while f is not None:
         fn = f.f_code.co_filename
         if not (fn.startswith('<frozen') or fn == _THIS_FILE
                 or (fn.startswith(_STDLIB) and 'packages' + os.sep not in fn)):
+            if fn in _ALLOWED_FILES:
+                return None
             return fn, f.f_lineno, f.f_code.co_name
         f = f.f_back
     return '?', 0, '?'
+
+
+def _record(table: SiteTable, code: int, frame: object) -> None:
+    site = _caller_site(frame)
+    if site is not None:
+        table.record(code, *site)
 
 
 def _audit_hook(event: str, args: tuple) -> None:
@@ -143,8 +161,7 @@ def _audit_hook(event: str, args: tuple) -> None:
     if table is None:
         return
     try:
-        file, line, func = _caller_site(sys._getframe(1))
-        table.record(code, file, line, func)
+        _record(table, code, sys._getframe(1))
     except BaseException:  # noqa: B036 -- an audit hook that raises would break the call
         pass
 
@@ -177,8 +194,7 @@ def _make_guarded_sleep(real_sleep: Callable[[float], None]) -> Callable[[float]
         table = getattr(_tls, 'table', None)
         if table is not None:
             try:
-                file, line, func = _caller_site(sys._getframe(1))
-                table.record(EVENT_CODES['time.sleep'], file, line, func)
+                _record(table, EVENT_CODES['time.sleep'], sys._getframe(1))
             except BaseException:  # noqa: B036 -- never break the caller's sleep
                 pass
         real_sleep(secs)
@@ -198,8 +214,7 @@ class ConsoleGuard(io.TextIOBase):
         table = getattr(_tls, 'table', None)
         if table is not None:
             try:
-                file, line, func = _caller_site(sys._getframe(1))
-                table.record(EVENT_CODES['console'], file, line, func)
+                _record(table, EVENT_CODES['console'], sys._getframe(1))
             except BaseException:  # noqa: B036 -- never break the caller's write
                 pass
         return self.wrapped.write(s)

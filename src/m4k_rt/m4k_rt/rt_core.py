@@ -1,0 +1,355 @@
+"""The RT process: load config, harden, bind ports, build bodies, run the tasks until a signal.
+
+Start-up order matters: everything that allocates, imports, opens files or prints happens
+here, before the first task starts -- config, instance lock, hardening report (stderr), port
+binding, body factories, GC freeze, forbidden-call audit hook and console guard. Inside the
+loops the only way information leaves the process is the ``monitor`` task, which ships
+timing samples and counters as datagrams on the ``status`` port (the bridge) and the ``stat``
+port (``rt_stat``, opened on demand). No file I/O happens in the RT process after start-up.
+
+Exit codes: 0 clean stop, 1 runtime failure (hardening required but degraded, a port could
+not be bound, a body failed to build, a task did not stop), 2 configuration error or another
+stack owning the runtime directory.
+"""
+
+import argparse
+import dataclasses
+import fcntl
+import importlib
+import os
+import signal
+import sys
+import threading
+from typing import Any, Mapping, Sequence
+
+from m4k_rt import config, modeswitch, protocol, sched, tasks, timing
+from m4k_rt.task import RtTask
+from m4k_rt.tasks import register_body
+from m4k_rt.timerfd import monotonic_ns
+
+__all__ = ['InstanceLock', 'LockError', 'SharedState', 'StatsShipper', 'main', 'register_body']
+
+BODY_MODULES_ENV = 'M4K_BODY_MODULES'
+
+
+class LockError(RuntimeError):
+    """Another RT core owns the runtime directory."""
+
+
+class InstanceLock:
+    """An flock on ``<runtime_dir>/rt_core.lock`` holding the owner's pid."""
+
+    def __init__(self, runtime_dir: str) -> None:
+        """Take the lock or raise :class:`LockError` naming the owner's pid."""
+        self.path = os.path.join(runtime_dir, 'rt_core.lock')
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                pid = os.pread(fd, 32, 0).decode().strip() or '?'
+            finally:
+                os.close(fd)
+            raise LockError('another m4k stack owns {} (pid {})'.format(
+                runtime_dir, pid)) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, '{}\n'.format(os.getpid()).encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        """Drop the lock (idempotent)."""
+        if self._fd >= 0:
+            fd, self._fd = self._fd, -1
+            os.close(fd)
+
+
+@dataclasses.dataclass
+class SharedState:
+    """What body factories get besides their own config and ports."""
+
+    config: config.RtConfig
+    hardening: sched.Hardening
+    tasks: list[RtTask] = dataclasses.field(default_factory=list)
+    stop_event: threading.Event = dataclasses.field(default_factory=threading.Event)
+    guard_active: bool = False
+
+
+class StatsShipper:
+    """The monitor body: ship ring samples and counters of every task as datagrams.
+
+    Runs at the lowest RT priority. Samples since the previous batch go out as TASK_STATS
+    (chunked to ``batch`` samples and to the datagram limit), then TASK_HEALTH and
+    FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then RT_STATUS, which
+    closes a batch. Nothing is encoded when no port has a peer; cursors move on regardless.
+    """
+
+    def __init__(self, shared: SharedState, ports: Sequence[tuple[Any, bool]],
+                 batch: int = 128, max_datagram: int = 4096) -> None:
+        """Preallocate the datagram buffer; ``ports`` are (socket, extra) pairs."""
+        self.shared = shared
+        self.ports = list(ports)
+        per = (max_datagram - protocol.encoded_size(protocol.Kind.TASK_STATS, 0)) \
+            // protocol.TASK_STATS_SAMPLE.size
+        self.batch = max(1, min(batch, per, protocol.MAX_STATS_SAMPLES))
+        self._buf = bytearray(max(max_datagram, modeswitch.SITE_SIZE))
+        self._view = memoryview(self._buf)
+        self._cursors: list[int] = []
+        self._lost: list[int] = []
+        self._names: list[bytes] = []
+        self.seq = 0
+        self.batches = 0
+
+    def _prepare(self) -> None:
+        n = len(self.shared.tasks)
+        if len(self._cursors) != n:
+            self._cursors = [0] * n
+            self._lost = [0] * n
+            self._names = [t.name.encode() for t in self.shared.tasks]
+
+    def __call__(self, ctx: Any) -> None:
+        """Run one monitor cycle."""
+        self.ship()
+
+    def _send(self, size: int, extra_only: bool) -> None:
+        view = self._view[:size]
+        for sock, extra in self.ports:
+            if (extra or not extra_only) and sock.connected:
+                sock.send(view)
+        self.seq = (self.seq + 1) & 0xFFFFFFFF
+
+    def ship(self) -> None:
+        """Send one batch: samples since the last batch, counters, call sites, status."""
+        self._prepare()
+        linked = [sock.poll_peer() for sock, _ in self.ports]
+        extra_linked = any(ok and extra for ok, (_, extra) in zip(linked, self.ports,
+                                                                   strict=True))
+        now = monotonic_ns()
+        buf = self._buf
+        pack = protocol.TASK_STATS_SAMPLE.pack_into
+        step = protocol.TASK_STATS_SAMPLE.size
+        cycles_min = 0xFFFFFFFF
+        fifo_all = True
+        for i, t in enumerate(self.shared.tasks):
+            first, end, lost = t.ring.available(self._cursors[i])
+            self._lost[i] += lost
+            self._cursors[i] = end
+            fifo_all = fifo_all and t.fifo
+            if t.cycles < cycles_min:
+                cycles_min = t.cycles
+            if not any(linked):
+                continue
+            ru = t.rusage
+            cpu = -1 if t.cpu is None else t.cpu
+            ring = t.ring
+            while True:
+                count = min(self.batch, end - first)
+                size = protocol.encode_task_stats_head_into(
+                    buf, 0, self.seq, now, self._names[i], t.index, t.priority, cpu,
+                    t.period_ns, t.cycles & 0xFFFFFFFF, ru.nvcsw, ru.nivcsw, ru.minflt,
+                    t.sites.total, count)
+                for s in range(first, first + count):
+                    pack(buf, size, *ring.row(s))
+                    size += step
+                self._send(size, False)
+                first += count
+                if first >= end:
+                    break
+            if extra_linked:
+                size = modeswitch.encode_health_into(
+                    buf, 0, self.seq, now, t.name, t.index, t.overruns, t.deadline_misses,
+                    t.body_errors, ru.majflt, ru.nvcsw_extra, self._lost[i], int(t.fifo),
+                    t.priority)
+                self._send(size, True)
+                if t.sites.total:
+                    for site in t.sites.sites():
+                        size = modeswitch.encode_site_into(
+                            buf, 0, self.seq, now, t.name, t.index,
+                            modeswitch.EVENT_CODES[site.event], site.count, site.line,
+                            t.sites.total, site.file, site.func)
+                        self._send(size, True)
+        if any(linked):
+            h = self.shared.hardening
+            flags = (1 if h.gc_frozen else 0) | (2 if h.dma_latency_held else 0)
+            size = protocol.encode_into(
+                buf, 0, protocol.Kind.RT_STATUS, self.seq, now, 1 if fifo_all else 0,
+                int(h.mem_locked), int(h.degraded or not fifo_all),
+                int(self.shared.guard_active), flags, len(self.shared.tasks),
+                0 if cycles_min == 0xFFFFFFFF else cycles_min & 0xFFFFFFFF)
+            self._send(size, False)
+        self.batches += 1
+
+
+def make_monitor(task: config.TaskConfig, ports: Mapping[str, Any],
+                 shared: SharedState) -> StatsShipper:
+    """Build the monitor body: ``status`` gets stats and status, ``stat`` gets everything."""
+    rt = shared.config.runtime
+    pairs = [(ports[label], label != 'status') for label in task.ports]
+    return StatsShipper(shared, pairs, rt.stats_batch, rt.max_datagram)
+
+
+register_body('monitor', make_monitor)
+
+
+def _err(msg: str) -> None:
+    sys.stderr.write('rt_core: {}\n'.format(msg))
+    sys.stderr.flush()
+
+
+def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog='rt_core', description='m4k real-time core process.')
+    ap.add_argument('--config', metavar='FILE', help='user overlay YAML (merged last)')
+    ap.add_argument('--config-dir', metavar='DIR', help='config directory (default: found)')
+    ap.add_argument('--require-rt', action='store_true',
+                    help='exit 1 when SCHED_FIFO, mlockall or other hardening is not granted')
+    ap.add_argument('--tasks', metavar='A,B', help='run only these tasks (monitor always runs)')
+    ap.add_argument('--echo', action='store_true', help='use echo bodies for all but monitor')
+    ap.add_argument('--duration', type=float, metavar='S', help='stop after S seconds')
+    ap.add_argument('--body-module', action='append', default=[], metavar='MOD',
+                    help='import MOD first (it may call register_body); also $' +
+                    BODY_MODULES_ENV)
+    return ap.parse_args(argv)
+
+
+def _select(cfg: config.RtConfig, names: str | None,
+            echo: bool) -> list[config.TaskConfig]:
+    chosen = list(cfg.tasks)
+    if names:
+        wanted = [n.strip() for n in names.split(',') if n.strip()]
+        known = {t.name for t in cfg.tasks}
+        for n in wanted:
+            if n not in known:
+                raise config.ConfigError('--tasks', 'unknown task {!r} (configured: {})'.format(
+                    n, ', '.join(sorted(known))), n)
+        chosen = [t for t in cfg.tasks if t.name in wanted or t.body == 'monitor']
+    if echo:
+        chosen = [t if t.body == 'monitor' else dataclasses.replace(t, body='echo')
+                  for t in chosen]
+    return chosen
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the RT process; return the exit code."""
+    args = _parse_args(argv)
+    mods = list(args.body_module) + [m for m in os.environ.get(BODY_MODULES_ENV, '').split(',')
+                                     if m.strip()]
+    for mod in mods:
+        try:
+            importlib.import_module(mod.strip())
+        except Exception as exc:  # noqa: BLE001 -- report any plug-in failure as one line
+            _err('cannot import body module {!r}: {}'.format(mod, exc))
+            return 2
+    try:
+        cfg = config.load(args.config, args.config_dir, body_exists=tasks.body_exists)
+        chosen = _select(cfg, args.tasks, args.echo)
+    except config.ConfigError as exc:
+        _err('config error: {}'.format(exc))
+        return 2
+    rt = cfg.runtime
+    from m4k_rt import xddp  # bound here so a config error exits before any socket work
+    try:
+        runtime_dir = xddp.ensure_runtime_dir(rt.runtime_dir, rt.group)
+    except OSError as exc:
+        _err('cannot create runtime dir: {}'.format(exc))
+        return 1
+    try:
+        lock = InstanceLock(runtime_dir)
+    except LockError as exc:
+        _err(str(exc))
+        return 2
+    socks: list[Any] = []
+    try:
+        return _run(args, cfg, chosen, runtime_dir, socks)
+    finally:
+        for s in socks:
+            s.close()
+        lock.release()
+
+
+def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.TaskConfig],
+         runtime_dir: str, socks: list[Any]) -> int:
+    from m4k_rt import xddp
+    rt = cfg.runtime
+    hard = sched.harden(priority=max(t.priority for t in chosen), mlockall=rt.mlockall,
+                        cpu_dma_latency=rt.cpu_dma_latency,
+                        switch_interval_s=rt.switch_interval_s)
+    try:
+        for line in hard.lines():
+            _err(line)
+        if (args.require_rt or rt.require_rt) and hard.degraded:
+            _err('--require-rt: refusing to run degraded')
+            return 1
+        shared = SharedState(cfg, hard)
+        built: list[tuple[config.TaskConfig, Any]] = []
+        for t in chosen:
+            ports = {}
+            for label in t.ports:
+                try:
+                    s = xddp.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
+                                          max_datagram=rt.max_datagram, runtime_dir=runtime_dir,
+                                          max_ports=rt.max_ports, group=rt.group)
+                except OSError as exc:
+                    _err('cannot bind port {} ({!r}) for task {}: {}'.format(
+                        cfg.ports[label], label, t.name, exc))
+                    return 1
+                socks.append(s)
+                ports[label] = s
+            try:
+                body = tasks.get_factory(t.body)(t, ports, shared)
+            except Exception as exc:  # noqa: BLE001 -- one line naming the task, then exit
+                _err('task {}: body {!r} failed to build: {}: {}'.format(
+                    t.name, t.body, type(exc).__name__, exc))
+                return 1
+            built.append((t, body))
+        start = timing.first_release(monotonic_ns(), 1_000_000,
+                                     lead_ns=int(rt.start_delay_ms * 1e6))
+        for i, (t, body) in enumerate(built):
+            shared.tasks.append(RtTask(t.name, t.priority, t.period_ns, body, cpu=t.cpu,
+                                       start_ns=start, ring_capacity=rt.ring_capacity,
+                                       index=i))
+        return _serve(args, shared)
+    finally:
+        hard.close()
+
+
+def _serve(args: argparse.Namespace, shared: SharedState) -> int:
+    modeswitch.install()
+    modeswitch.install_console_guard()
+    shared.guard_active = True
+    sched.freeze_gc(shared.hardening)
+    stop = shared.stop_event
+    old = {sig: signal.signal(sig, lambda *_: stop.set())
+           for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        for t in shared.tasks:
+            t.start()
+        _err('running {} tasks: {}'.format(len(shared.tasks), ', '.join(
+            '{}({} ms, prio {}{})'.format(t.name, t.period_ns / 1e6, t.priority,
+                                          '' if t.fifo else ', NOT FIFO: ' + str(t.sched_error))
+            for t in shared.tasks)))
+        stop.wait(args.duration)
+    finally:
+        for t in shared.tasks:
+            t.stop()
+        stuck = [t.name for t in shared.tasks if not t.join(2.0 * t.period_ns / 1e9 + 1.0)]
+        for sig, h in old.items():
+            signal.signal(sig, h)
+        modeswitch.uninstall_console_guard()
+        sched.unfreeze_gc()
+    for t in shared.tasks:
+        if isinstance(t.body, StatsShipper):
+            t.body.ship()  # the tail of every ring, now that no task runs
+    for t in shared.tasks:
+        c = t.counters()
+        _err('task {name}: cycles {cycles} overruns {overruns} misses {deadline_misses} '
+             'body errors {body_errors} forbidden {forbidden_calls} csw vol+ {nvcsw_extra} '
+             'invol {nivcsw} pf {minflt}/{majflt}'.format(**c)
+             + ('' if not t.last_error else ' last error {!r} at {}'.format(
+                 t.last_error, t.last_error_site)))
+    if stuck:
+        _err('tasks did not stop in time: {}'.format(', '.join(stuck)))
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
