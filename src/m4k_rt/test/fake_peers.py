@@ -22,7 +22,43 @@ def ctx(t_ns: int) -> SimpleNamespace:
     return SimpleNamespace(t_start=t_ns)
 
 
-class Ports:
+class NrtPeers:
+    """NRT endpoints by label, opened against an RT side that runs elsewhere (rt_core)."""
+
+    def __init__(self, runtime_dir: str, *labels: str, wait: float = 10.0) -> None:
+        self.rt = {}
+        self.nrt = {}
+        try:
+            for label in labels:
+                self.nrt[label] = nrt_xddp_open(label, wait=wait, runtime_dir=runtime_dir)
+        except BaseException:
+            self.close()
+            raise
+
+    def read_all(self, label: str) -> list:
+        """Return every decoded datagram pending on the NRT side of ``label``."""
+        out = []
+        ep = self.nrt[label]
+        while True:
+            try:
+                data = ep.read(timeout=0.0)
+            except TimeoutError:
+                return out
+            out.append(p.decode(data))
+
+    def write(self, label: str, kind: int, *fields, seq: int = 0, stamp: int = 0) -> None:
+        """Encode and write one datagram from the NRT side of ``label``."""
+        self.nrt[label].write(p.encode(kind, seq, stamp, *fields))
+
+    def close(self) -> None:
+        """Close every endpoint and RT socket."""
+        for ep in self.nrt.values():
+            ep.close()
+        for sock in self.rt.values():
+            sock.close()
+
+
+class Ports(NrtPeers):
     """RT sockets bound by label, each linked to an NRT endpoint; closes all of them."""
 
     NUMBERS = {'cmd': 1, 'motor': 2, 'imu': 3, 'imu_out': 4, 'led': 5, 'led_in': 6,
@@ -59,27 +95,6 @@ class Ports:
             raise box['err']
         return box['ep']
 
-    def read_all(self, label: str) -> list:
-        """Return every decoded datagram pending on the NRT side of ``label``."""
-        out = []
-        ep = self.nrt[label]
-        while True:
-            try:
-                data = ep.read(timeout=0.0)
-            except TimeoutError:
-                return out
-            out.append(p.decode(data))
-
-    def write(self, label: str, kind: int, *fields, seq: int = 0, stamp: int = 0) -> None:
-        """Encode and write one datagram from the NRT side of ``label``."""
-        self.nrt[label].write(p.encode(kind, seq, stamp, *fields))
-
-    def close(self) -> None:
-        """Close every endpoint and RT socket."""
-        for ep in self.nrt.values():
-            ep.close()
-        for sock in self.rt.values():
-            sock.close()
 
 
 class FakeMotor:
