@@ -196,7 +196,11 @@ def _socket_alive(path: str) -> bool:
 
 
 class RtXddpSocket:
-    """RT side of one port: a non-blocking listener with at most one linked NRT peer."""
+    """RT side of one port: a non-blocking listener with at most one linked NRT peer.
+
+    Not thread-safe: one RT task owns a port. After close() it stays harmless (sends are
+    dropped and counted, receives return 0).
+    """
 
     def __init__(self, port: int, label: str | None = None, *, mode: str = 'message',
                  poolsz: int = DEFAULT_POOLSZ, max_datagram: int = DEFAULT_MAX_DATAGRAM,
@@ -304,6 +308,11 @@ class RtXddpSocket:
     def _set_buffers(self, sock: socket.socket) -> None:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.poolsz)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.poolsz)
+
+    @property
+    def closed(self) -> bool:
+        """Return True once closed."""
+        return self._lfd < 0
 
     @property
     def connected(self) -> bool:
@@ -446,6 +455,10 @@ class RtXddpSocket:
         listener = self.__dict__.pop('_listener', None)
         if listener is None:
             return
+        # Afterwards the pollers are empty: send() drops (no peer), recv_into() returns 0.
+        self._lpoll.unregister(self._lfd)
+        self._poll.unregister(self._lfd)
+        self._lfd = -1
         listener.close()
         ours = False
         try:

@@ -436,6 +436,16 @@ def test_send_without_peer_is_dropped_and_counted(rundir):
         assert rt.counters.malformed == 1
 
 
+def test_closed_rt_socket_stays_harmless(rundir):
+    rt = xddp.rt_xddp_bind(2)
+    ep = open_while_polling([rt], 2)
+    rt.close()
+    ep.close()
+    assert rt.closed and not rt.connected and rt.fileno() == -1
+    assert rt.send(b'late') is False and rt.counters.dropped_no_peer == 1
+    assert rt.recv_into(bytearray(16)) == 0 and not rt.poll_peer()
+
+
 def test_receiver_counts_malformed_datagrams(rundir):
     with xddp.rt_xddp_bind(1) as rt, open_while_polling([rt], 1) as ep:
         ep.write(b'garbage!' * 3)
