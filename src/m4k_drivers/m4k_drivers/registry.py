@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import importlib
 import time
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable, TYPE_CHECKING
 
 from m4k_drivers.handler import DriverError
 
@@ -79,11 +79,11 @@ class BackendSpec:
 
 @dataclass
 class BuildContext:
-    """What factories may need besides their params: the shared sim world and the clock."""
+    """What factories may need besides their params: the shared sim world, clock and sleep."""
 
     world_config: dict[str, Any] | None = None
     clock: Callable[[], int] = time.monotonic_ns
-    seed: int = 0
+    sleep: Callable[[float], None] = time.sleep      # waits on ``clock`` (sim sonar echoes)
     _world: World | None = None
 
     @property

@@ -344,7 +344,8 @@ class World:
                               self.collisions, self.in_contact)
 
     def pose(self) -> Pose:
-        """Return the robot pose."""
+        """Advance to the clock's present and return the robot pose."""
+        self.now()
         with self._lock:
             return self._pose
 

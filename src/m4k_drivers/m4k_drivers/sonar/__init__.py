@@ -51,6 +51,10 @@ def _build_iio(name: str, params: dict[str, Any], ctx: BuildContext) -> SonarHan
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> SonarHandler:
     from m4k_drivers.sonar.sim import open_sim_sonar
+    mount = params['mount']
+    if len(mount) != 3 or not all(isinstance(v, (int, float)) for v in mount):
+        raise ValueError(f'devices.{name}.mount: expected [x, y, yaw] numbers, got {mount!r}')
     world = ctx.world
     return _handler(name, params, lambda: open_sim_sonar(
-        world, params['mount'], noise_sd=params['noise_sd'], fov_deg=params['fov_deg']))
+        world, mount, noise_sd=params['noise_sd'], fov_deg=params['fov_deg'],
+        sleep=ctx.sleep))

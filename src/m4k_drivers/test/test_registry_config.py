@@ -1,0 +1,122 @@
+import pytest
+
+from m4k_drivers import config as dconfig
+from m4k_drivers import registry
+from m4k_drivers.handler import DeviceIOError, DeviceNotFoundError, retry, RetryPolicy, State
+from m4k_drivers.imu.handler import ImuHandler
+from m4k_drivers.motors.handler import MotorHandler
+
+
+def test_registry_lists_backends_per_kind():
+    assert registry.backends('motor') == ['real', 'sim']
+    assert registry.backends('imu') == ['real', 'sim']
+    assert registry.backends('sonar') == ['gpio', 'iio', 'real', 'sim']
+    assert registry.backends('led') == ['led_class', 'pwm', 'real', 'sim']
+
+
+def test_registry_unknown_backend_lists_valid_ones():
+    with pytest.raises(registry.RegistryError,
+                       match=r"unknown backend 'i2c' for device 'imu'; valid backends: "
+                             r'real, sim'):
+        registry.get('imu', 'i2c')
+    with pytest.raises(registry.RegistryError, match="unknown device kind 'gps'"):
+        registry.backends('gps')
+
+
+def test_create_builds_handler_for_mixed_backends():
+    cfg = dconfig.validate({'devices': {
+        'motor': {'backend': 'sim'},
+        'imu': {'backend': 'real', 'bus': 97},
+    }})
+    ctx = registry.BuildContext()
+    motor = registry.create('motor', cfg.devices['motor'], ctx)
+    imu = registry.create('imu', cfg.devices['imu'], ctx)
+    assert isinstance(motor, MotorHandler) and isinstance(imu, ImuHandler)
+    assert ctx.has_world            # the sim motor asked for the shared world
+    with pytest.raises(DeviceNotFoundError, match='/dev/i2c-97'):
+        imu.configure()
+    assert imu.state == State.ERROR
+    motor.configure()
+    motor.shutdown()
+
+
+@pytest.mark.parametrize('devices, match', [
+    ({'imu': {'backend': 'i2c'}},
+     r"devices\.imu\.backend: unknown backend 'i2c' for device 'imu'; valid backends: real, sim"),
+    ({'imu': {}}, r'devices\.imu\.backend: missing; valid backends: real, sim'),
+    ({'imu': {'backend': 'real'}}, r"devices\.imu\.bus: missing, required by backend 'real'"),
+    ({'motor': {'backend': 'real', 'left_dac': '/dev/spidev0.0'}},
+     r'devices\.motor\.right_dac: missing'),
+    ({'imu': {'backend': 'sim', 'address': '0x20'}},
+     r"devices\.imu\.address: expected int, got '0x20'"),
+    ({'motor': {'backend': 'sim', 'period_s': True}},
+     r'devices\.motor\.period_s: expected float, got True'),
+    ({'imu': {'backend': 'sim', 'enabled': 'yes'}}, r'devices\.imu\.enabled: expected bool'),
+    ({'imu': {'backend': 'sim', 'xddp_port': -1}}, r'devices\.imu\.xddp_port: expected a port'),
+    ({'imu': {'backend': 'sim', 'bsu': 1}},
+     r"devices\.imu: unknown field\(s\) \['bsu'\] for backend 'sim'"),
+    ({'gps': {'backend': 'sim'}}, r'devices\.gps: unknown device; valid: imu, led, lrf'),
+    ({'led': 'sim'}, r"devices\.led: expected a mapping, got 'sim'"),
+])
+def test_config_errors_name_the_field(devices, match):
+    with pytest.raises(dconfig.ConfigError, match=match):
+        dconfig.validate({'devices': devices})
+
+
+def test_config_world_error_is_config_error():
+    with pytest.raises(dconfig.ConfigError, match=r'world\.start'):
+        dconfig.validate({'world': {'start': 'home'}})
+
+
+def test_config_defaults_applied_and_int_promoted_to_float():
+    cfg = dconfig.validate({'devices': {'motor': {'backend': 'sim', 'period_s': 1}}})
+    m = cfg.devices['motor']
+    assert m['period_s'] == 1.0 and isinstance(m['period_s'], float)
+    assert m['watchdog_periods'] == 10 and m['xddp_port'] == 2 and m['enabled'] is True
+
+
+def test_repo_devices_yaml_is_valid():
+    cfg = dconfig.load(dconfig.default_config_path())
+    assert set(cfg.devices) >= {'motor', 'imu', 'sonar', 'led'}
+    assert cfg.world.robot.track_width_m == 0.40
+    assert cfg.world.obstacles[0][0] == (1.5, -0.25)
+
+
+def test_load_file_errors_name_path(tmp_path):
+    with pytest.raises(dconfig.ConfigError, match='nope.yaml: No such file'):
+        dconfig.load_file(tmp_path / 'nope.yaml')
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('- a\n- b\n')
+    with pytest.raises(dconfig.ConfigError, match='top level must be a mapping'):
+        dconfig.load_file(bad)
+
+
+def test_merge_layers_mappings_replace_scalars():
+    out = dconfig.merge({'devices': {'imu': {'backend': 'sim', 'rate_hz': 100}}},
+                        {'devices': {'imu': {'backend': 'real', 'bus': 1}}})
+    assert out == {'devices': {'imu': {'backend': 'real', 'rate_hz': 100, 'bus': 1}}}
+
+
+def test_retry_backs_off_exponentially_then_raises():
+    calls, sleeps = [], []
+
+    def flaky():
+        calls.append(1)
+        raise DeviceIOError('/dev/x: busy (errno 16)')
+
+    with pytest.raises(DeviceIOError):
+        retry(flaky, RetryPolicy(attempts=4, base_s=0.01, factor=2.0, max_s=0.03),
+              sleep=sleeps.append)
+    assert len(calls) == 4 and sleeps == [0.01, 0.02, 0.03]
+
+
+def test_retry_does_not_retry_missing_device():
+    calls = []
+
+    def missing():
+        calls.append(1)
+        raise DeviceNotFoundError('/dev/x: No such file or directory (errno 2)')
+
+    with pytest.raises(DeviceNotFoundError):
+        retry(missing, RetryPolicy(attempts=5), sleep=lambda s: None)
+    assert calls == [1]

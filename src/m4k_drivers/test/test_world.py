@@ -1,0 +1,154 @@
+import math
+
+import pytest
+
+from m4k_drivers import config as dconfig
+from m4k_drivers import registry
+from m4k_drivers.motors import protocol as mp
+from m4k_drivers.motors.handler import WheelCommand
+from m4k_drivers.world import LEFT, Pose, RIGHT, World, WorldConfig, WorldConfigError
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0
+
+    def __call__(self):
+        return self.t
+
+    def sleep(self, s):
+        self.t += int(s * 1e9)
+
+
+def test_default_world_matches_paper_layout():
+    w = World(t0_ns=0, clock=lambda: 0)
+    assert w.robot.track_width_m == 0.40
+    assert w.robot.max_wheel_rad_s == pytest.approx(2.0 / 0.1016)
+    # the triangle's flat face is 1.5 m ahead of the start
+    assert w.raycast((0.0, 0.0), 0.0, 10.0) == pytest.approx(1.5)
+    assert w.raycast((0.0, 0.0), math.pi, 10.0) == pytest.approx(0.8)
+    assert w.raycast((0.0, 0.0), math.pi / 2, 1.0) == math.inf        # wall at 1.5 > max
+
+
+def test_cone_cast_sees_obstacle_off_axis():
+    w = World(t0_ns=0, clock=lambda: 0)
+    # aim 20 deg left: the centre ray misses the 0.5 m wide face, a 30 deg cone still sees it
+    assert w.raycast((0.0, 0.0), math.radians(20), 1.55) == math.inf
+    assert w.cone_cast((0.0, 0.0), math.radians(20), math.radians(15), 1.6) < 1.6
+
+
+def test_spin_in_place_integrates_exact_arc():
+    t = Clock()
+    w = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
+    w.set_motor_voltage(LEFT, -6.0)
+    w.set_motor_voltage(RIGHT, 6.0)
+    t.t = 3_000_000_000
+    w.advance_to(t.t)
+    s = w.state()
+    assert abs(s.pose.x) < 1e-9 and abs(s.pose.y) < 1e-9
+    # steady wheel speed 6/24 of max: w = 2 * r * ws / track
+    ws = 0.25 * w.robot.max_wheel_rad_s
+    assert s.w == pytest.approx(2 * 0.1016 * ws / 0.40, rel=1e-3)
+    assert s.wheel_angle[LEFT] == pytest.approx(-s.wheel_angle[RIGHT])
+
+
+def test_drive_into_obstacle_stops_and_counts_collision():
+    t = Clock()
+    w = World(clock=t, t0_ns=0)
+    w.set_motor_voltage(LEFT, 6.0)
+    w.set_motor_voltage(RIGHT, 6.0)
+    t.t = 20_000_000_000
+    w.advance_to(t.t)
+    s = w.state()
+    assert s.in_contact and s.collisions == 1 and s.v == 0.0
+    # the front of the body (x + 0.225) stopped at the obstacle face at 1.5 m
+    assert 1.5 - 0.225 - 0.01 < s.pose.x < 1.5 - 0.225
+    w.set_motor_voltage(LEFT, -6.0)
+    w.set_motor_voltage(RIGHT, -6.0)
+    t.t += 1_000_000_000
+    w.advance_to(t.t)
+    assert not w.state().in_contact and w.state().collisions == 1
+
+
+def test_world_is_deterministic_for_a_seed():
+    a = World(WorldConfig(seed=7), t0_ns=0, clock=lambda: 0).rng('imu').normal(size=3)
+    b = World(WorldConfig(seed=7), t0_ns=0, clock=lambda: 0).rng('imu').normal(size=3)
+    c = World(WorldConfig(seed=8), t0_ns=0, clock=lambda: 0).rng('imu').normal(size=3)
+    assert list(a) == list(b) and list(a) != list(c)
+
+
+def test_start_inside_obstacle_is_a_config_error():
+    with pytest.raises(WorldConfigError, match='world.start'):
+        World(WorldConfig(start=Pose(1.6, 0.0, 0.0)), t0_ns=0, clock=lambda: 0)
+
+
+@pytest.mark.parametrize('section, match', [
+    ({'walls': {'rectangle': [0, 0, 1]}}, r'world\.walls\.rectangle: expected a list of 4'),
+    ({'walls': [[0, 0, 1, 'x']]}, r'world\.walls\[0\]: expected finite numbers'),
+    ({'obstacles': [[[0, 0], [1, 1]]]}, r'world\.obstacles\[0\]: expected a polygon'),
+    ({'start': [0, 0]}, r'world\.start: expected a list of 3'),
+    ({'robot': {'track_width_m': -1}}, r'world\.robot\.track_width_m: must be > 0'),
+    ({'robot': {'wheels': 3}}, r'world\.robot: expected a mapping with keys'),
+    ({'seed': 1.5}, r'world\.seed: expected an integer'),
+    ({'gravity': 9.8}, r"world: unknown field\(s\) \['gravity'\]"),
+])
+def test_world_config_errors_name_the_field(section, match):
+    with pytest.raises(WorldConfigError, match=match):
+        WorldConfig.from_dict(section)
+
+
+def test_drive_straight_one_metre_sensors_agree():
+    """Drive 1 m through DAC frames; encoders, IMU yaw, ray cast and sonar agree."""
+    clock = Clock()
+    doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'},
+                       'sonar': {'backend': 'sim'}},
+           'world': {'walls': {'rectangle': [-0.8, -1.5, 4.2, 1.5]}, 'obstacles': [],
+                     'seed': 3}}
+    cfg = dconfig.validate(doc)
+    ctx = registry.BuildContext(world_config=cfg.world_raw, clock=clock, sleep=clock.sleep)
+    motor = registry.create('motor', cfg.devices['motor'], ctx)
+    imu = registry.create('imu', cfg.devices['imu'], ctx)
+    sonar = registry.create('sonar', cfg.devices['sonar'], ctx)
+    for h in (motor, imu, sonar):
+        h.configure()
+        h.activate()
+    world = ctx.world
+    r = world.robot.wheel_radius_m
+    start = motor.read().value
+
+    def travelled(enc):
+        turned = (enc.left_angle - start.left_angle) + (enc.right_angle - start.right_angle)
+        return turned / 2 * r
+
+    code = mp.command_to_code(0.125)             # 0.25 m/s
+    dist = 0.0
+    for _ in range(1000):
+        clock.t += 10_000_000
+        motor.write(WheelCommand(code, code, 1))
+        enc = motor.read().value
+        dist = travelled(enc)
+        if dist >= 1.0:
+            break
+    for _ in range(60):                           # brake and settle (motor lag 80 ms)
+        clock.t += 10_000_000
+        motor.write(WheelCommand(512, 512, 1))
+        enc = motor.read().value
+    dist = travelled(enc)
+    pose = world.pose()
+    count_m = 2 * math.pi * r / 4096
+    # encoders vs true pose: 0.5 LSB noise per reading, floor quantisation -> within 3 counts
+    assert 1.0 <= dist < 1.05
+    assert pose.x == pytest.approx(dist, abs=3 * count_m)
+    # IMU yaw ~ 0: orientation noise sd 0.00214 rad (4 sd) plus one 16-bit LSB
+    yaw = imu.read().value.rpy[2]
+    assert abs(yaw) < 4 * 0.002143 + math.radians(180 / 32767)
+    # ray cast to the front wall from where the encoders say we are
+    ahead = world.raycast((pose.x, pose.y), yaw, 10.0)
+    assert ahead == pytest.approx(4.2 - dist, abs=3 * count_m + 4.2 * abs(yaw) ** 2)
+    # sonar (0.225 m ahead of base_link) through the edge-level sim: noise sd 3 mm
+    s = sonar.read().value
+    assert s.status == 0
+    assert s.range_m == pytest.approx(4.2 - dist - 0.225, abs=4 * 0.003 + 3 * count_m)
+    for h in (motor, imu, sonar):
+        h.shutdown()
+    assert world.motor_voltage(LEFT) == 0.0 and world.motor_voltage(RIGHT) == 0.0
