@@ -72,17 +72,22 @@ class TaskSeries:
             self.expirations.append(s.expirations)
             last = s.t_rel
 
-    def analyze(self) -> timing.TaskTiming:
-        """Return the timing analysis of the samples received so far."""
-        return timing.analyze(self.t_rel, self.t_start, self.t_end, self.expirations,
-                              self.period_ns or 1, self.name)
+    def analyze(self, skip: int = 0) -> timing.TaskTiming:
+        """Return the timing analysis of the samples received so far, minus the first ``skip``."""
+        return timing.analyze(self.t_rel[skip:], self.t_start[skip:], self.t_end[skip:],
+                              self.expirations[skip:], self.period_ns or 1, self.name)
 
 
 class Recorder:
     """Accumulate datagrams from the status/stat ports (or an in-process list)."""
 
-    def __init__(self) -> None:
-        """Start empty."""
+    def __init__(self, warmup_cycles: int = 0) -> None:
+        """Start empty; statistics leave out each task's first ``warmup_cycles`` samples.
+
+        The first cycle of a task runs code paths for the first time (and links its peers),
+        so its response time is start-up, not steady state; say so when you skip it.
+        """
+        self.warmup_cycles = warmup_cycles
         self.tasks: dict[str, TaskSeries] = {}
         self.rt_status: Any = None
         self.datagrams = 0
@@ -131,7 +136,7 @@ class Recorder:
 
     def summary(self) -> dict[str, Any]:
         """Return the JSON-able summary: per-task stats, counters, LL test and RTA."""
-        return summarize(self.tasks.values(), self.rt_status)
+        return summarize(self.tasks.values(), self.rt_status, self.warmup_cycles)
 
     def write(self, outdir: str) -> dict[str, str]:
         """Write table1.md, samples.csv and summary.json into ``outdir``; return the paths."""
@@ -161,13 +166,14 @@ def _stats_dict(s: timing.Stats, scale: float) -> dict[str, float | int | None]:
     return out
 
 
-def summarize(series: Iterable[TaskSeries], rt_status: Any = None) -> dict[str, Any]:
+def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
+              warmup_cycles: int = 0) -> dict[str, Any]:
     """Build the summary dict from task series (pure)."""
     tasks = []
     for t in sorted(series, key=lambda s: (-s.priority, s.name)):
-        if not t.t_rel:
+        if len(t.t_rel) <= warmup_cycles:
             continue
-        a = t.analyze()
+        a = t.analyze(warmup_cycles)
         h = t.health
         tasks.append({
             'name': t.name, 'index': t.index, 'priority': t.priority, 'cpu': t.cpu,
@@ -186,7 +192,7 @@ def summarize(series: Iterable[TaskSeries], rt_status: Any = None) -> dict[str, 
                  'count': s.count} for s in t.sites.values()],
             'wcrt_ns': None if math.isnan(a.wcrt_ns) else a.wcrt_ns,
         })
-    out: dict[str, Any] = {'tasks': tasks}
+    out: dict[str, Any] = {'tasks': tasks, 'warmup_cycles_skipped': warmup_cycles}
     measured = [t for t in tasks if t['wcrt_ns'] is not None and t['period_ms'] > 0]
     if measured:
         u = timing.utilization_test(

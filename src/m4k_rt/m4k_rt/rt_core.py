@@ -322,7 +322,7 @@ def _serve(args: argparse.Namespace, shared: SharedState) -> int:
     try:
         for t in shared.tasks:
             t.start()
-        _err('running {} tasks: {}'.format(len(shared.tasks), ', '.join(
+        _err('gc frozen and disabled; running {} tasks: {}'.format(len(shared.tasks), ', '.join(
             '{}({} ms, prio {}{})'.format(t.name, t.period_ns / 1e6, t.priority,
                                           '' if t.fifo else ', NOT FIFO: ' + str(t.sched_error))
             for t in shared.tasks)))

@@ -109,3 +109,12 @@ def test_record_link_reads_until_duration():
     rec = recorder.record_link(_FakeLink([_batch('lrf', 4, 70, 200 * MS, 0, 3)]), 0.05,
                                recorder.Recorder(), poll_s=0.01)
     assert len(rec.tasks['lrf'].t_rel) == 3
+
+
+def test_warmup_cycles_are_left_out_of_statistics_only():
+    rec = recorder.Recorder(warmup_cycles=1)
+    rec.feed(_batch('imu', 1, 85, 10 * MS, 0, 10, late=0))
+    t = rec.summary()['tasks'][0]
+    assert t['samples'] == 9 and t['deadline_misses'] == 0
+    assert len(rec.tasks['imu'].t_rel) == 10
+    assert rec.summary()['warmup_cycles_skipped'] == 1
