@@ -102,3 +102,10 @@ def test_guard_without_sensors_blocks_forward_but_allows_turning(procs, tmp_path
     assert abs(odoms[-1].x) < 0.01
     assert odoms[-1].w > 0.2
     procs.stop(proc)
+
+
+def test_bad_control_value_fails_start_up_naming_the_field(procs, tmp_path, m4k_runtime_dir):
+    proc = _start(procs, tmp_path, {'linear': {'max_acceleration': -0.37}}, 5)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode != 0
+    assert 'control.linear.max_acceleration: must be > 0, got -0.37' in err
