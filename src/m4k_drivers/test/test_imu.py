@@ -1,6 +1,8 @@
 import errno
 import math
 
+import pytest
+
 from m4k_drivers.handler import (
     DeviceIdentityError,
     DeviceIOError,
@@ -13,7 +15,6 @@ from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice, open_real_i2c
 from m4k_drivers.imu.sim import FakeMyAhrsBus
 from m4k_drivers.world import World
-import pytest
 
 # Hand-made registers 0x22..0x35: acc (2048, 0, -2048), gyro (0, 0, 1638), magnet
 # (100, -200, 300), temperature 4096 -- all int16 little-endian.

@@ -1,12 +1,13 @@
 import math
 
+import pytest
+
 from m4k_drivers.handler import DeviceNotFoundError, State, Status
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.real import open_real_bus
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig
-import pytest
 
 
 # -- MCP4911 frames (hand-computed: bit15 /A-B=0, bit14 BUF, bit13 /GA, bit12 /SHDN, D9..D0<<2)

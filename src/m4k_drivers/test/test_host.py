@@ -1,0 +1,176 @@
+import re
+import threading
+import time
+
+import pytest
+
+from m4k_drivers import config as dconfig
+from m4k_drivers import registry
+from m4k_drivers.handler import State
+from m4k_drivers.host import DeviceService, main
+from m4k_rt import protocol
+from m4k_rt.xddp import rt_xddp_bind
+
+CONFIG = str(dconfig.default_config_path())
+
+
+def _run(procs, *args, timeout=40):
+    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG, *args])
+    out, err = proc.communicate(timeout=timeout)
+    return proc.returncode, out, err
+
+
+def test_print_imu_sim_prints_plausible_values(procs):
+    rc, out, err = _run(procs, '--device', 'imu', '--print', '--count', '5', '--rate', '50')
+    assert rc == 0, err
+    lines = [ln for ln in out.splitlines() if ln.startswith('imu ')]
+    assert len(lines) == 5
+    for ln in lines:
+        az = float(re.search(r'acc=\([^,]+,[^,]+,([^)]+)\)', ln).group(1))
+        yaw = float(re.search(r'rpy=\([^,]+,[^,]+,([^)]+)\)', ln).group(1))
+        assert 9.6 < az < 10.0 and abs(yaw) < 1.0 and ln.endswith('status=0')
+
+
+def test_print_sonar_sim_sees_obstacle(procs):
+    rc, out, err = _run(procs, '--device', 'sonar', '--print', '--count', '3', '--rate', '20')
+    assert rc == 0, err
+    ranges = [float(m) for m in re.findall(r'sonar range=([\d.]+) m status=0 \(ok\)', out)]
+    # triangle face 1.5 m ahead, sensor 0.225 m ahead of base_link, noise sd 3 mm
+    assert len(ranges) == 3 and all(abs(r - 1.275) < 0.02 for r in ranges)
+
+
+def test_print_unknown_backend_exits_2_naming_field(procs):
+    rc, out, err = _run(procs, '--device', 'imu', '--backend', 'i2c', '--print')
+    assert rc == 2
+    assert "devices.imu.backend: unknown backend 'i2c' for device 'imu'; " \
+           'valid backends: real, sim' in err
+
+
+def test_print_missing_bus_exits_1_naming_path(procs):
+    rc, out, err = _run(procs, '--device', 'imu', '--bus', '97', '--print', '--count', '1')
+    assert rc == 1
+    assert '/dev/i2c-97: No such file or directory (errno 2)' in err
+
+
+def test_host_sigterm_exits_0(procs, m4k_runtime_dir):
+    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
+                        '--device', 'motor', '--device', 'led'])
+    deadline = time.monotonic() + 30
+    seen = ''
+    while time.monotonic() < deadline and 'serving' not in seen:
+        seen += proc.stderr.readline()
+    assert 'serving motor@2, led@5' in seen
+    assert procs.stop(proc) == 0
+
+
+def _recv(rt, kind, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        data = rt.recv()
+        if data is None:
+            time.sleep(0.002)
+            continue
+        hdr, msg = protocol.decode(data)
+        if hdr.kind == kind:
+            return msg
+    raise AssertionError(f'no {kind!r} within {timeout} s')
+
+
+def _wait_linked(rt, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not rt.poll_peer():
+        assert time.monotonic() < deadline, 'NRT side never linked'
+        time.sleep(0.01)
+
+
+def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir):
+    cfg = dconfig.validate({'devices': {'motor': {'backend': 'sim'}}})
+    ctx = registry.BuildContext()
+    handler = registry.create('motor', cfg.devices['motor'], ctx)
+    stop = threading.Event()
+    rt = rt_xddp_bind(2, runtime_dir=m4k_runtime_dir)
+    svc = DeviceService('motor', handler, cfg.devices['motor'], 2, stop, m4k_runtime_dir)
+    svc.start()
+    try:
+        _wait_linked(rt)
+        st = _recv(rt, protocol.Kind.DEVICE_STATUS)
+        assert st.device == 'motor'
+        rt.send(protocol.encode(protocol.Kind.WHEEL_CMD, 1, time.monotonic_ns(), 700, 700, 1))
+        enc = _recv(rt, protocol.Kind.ENCODERS)
+        assert 0 <= enc.left_raw < 4096 and enc.status & 0x10 == 0
+        assert handler.codes == (700, 700)
+        rt.send(b'garbage')
+        rt.send(protocol.encode(protocol.Kind.REQUEST, 2, 0, 1, 0))
+        deadline = time.monotonic() + 5
+        while svc.malformed < 1 or svc.unexpected < 1:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        # RT side goes away: motors safe at once, then the host relinks to a new RT side
+        rt.close()
+        deadline = time.monotonic() + 5
+        while handler.codes != (512, 512):
+            assert time.monotonic() < deadline, 'motors not made safe after RT loss'
+            time.sleep(0.01)
+        rt = rt_xddp_bind(2, runtime_dir=m4k_runtime_dir)
+        _wait_linked(rt, timeout=10)
+        rt.send(protocol.encode(protocol.Kind.WHEEL_CMD, 3, time.monotonic_ns(), 600, 600, 1))
+        _recv(rt, protocol.Kind.ENCODERS)
+        assert svc.link.relinks >= 1
+    finally:
+        stop.set()
+        svc.thread.join(5)
+        rt.close()
+    assert not svc.thread.is_alive()
+    assert handler.state == State.FINALIZED
+    assert ctx.world.motor_voltage(0) == 0.0 and ctx.world.motor_voltage(1) == 0.0
+
+
+def test_sensor_and_led_services_answer(m4k_runtime_dir):
+    kinds = (('sonar', 7), ('led', 5), ('imu', 3), ('lrf', 9))
+    cfg = dconfig.validate({'devices': {k: {'backend': 'sim'} for k, _ in kinds}})
+    ctx = registry.BuildContext()
+    stop = threading.Event()
+    rts = {k: rt_xddp_bind(p, runtime_dir=m4k_runtime_dir) for k, p in kinds}
+    handlers = {k: registry.create(k, cfg.devices[k], ctx) for k in rts}
+    svcs = [DeviceService(k, handlers[k], cfg.devices[k], rts[k].port, stop, m4k_runtime_dir)
+            for k in rts]
+    for s in svcs:
+        s.start()
+    try:
+        for rt in rts.values():
+            _wait_linked(rt)
+        rts['sonar'].send(protocol.encode(protocol.Kind.REQUEST, 1, 0, 1, 1))
+        sonar = _recv(rts['sonar'], protocol.Kind.SONAR)
+        assert sonar.status == 0 and abs(sonar.range_m - 1.275) < 0.02
+        rts['imu'].send(protocol.encode(protocol.Kind.REQUEST, 1, 0, 1, 0))
+        imu = _recv(rts['imu'], protocol.Kind.IMU)
+        assert 9.6 < imu.az < 10.0 and abs(imu.qw) > 0.99 and imu.status == 0
+        rts['lrf'].send(protocol.encode(protocol.Kind.REQUEST, 1, 0, 1, 0))
+        scan = _recv(rts['lrf'], protocol.Kind.LASER_SCAN, timeout=10)
+        front = scan.ranges[len(scan.ranges) // 2]
+        assert len(scan.ranges) > 600 and abs(front - 1500) < 60     # obstacle face, mm
+        sim_led = handlers['led'].out
+        rts['led'].send(protocol.encode(protocol.Kind.LED, 1, 0, 255, 128, 0, 200, 0))
+        deadline = time.monotonic() + 5
+        while sim_led.last != (255, 128, 0, 200):
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+    finally:
+        stop.set()
+        for s in svcs:
+            s.thread.join(5)
+        for rt in rts.values():
+            rt.close()
+    assert sim_led.last == (0, 0, 0, 0) and sim_led.closed     # deactivate turned it off
+
+
+def test_main_rejects_print_without_single_device(capsys):
+    assert main(['--config', CONFIG, '--print']) == 2
+    assert '--print needs exactly one enabled --device' in capsys.readouterr().err
+
+
+@pytest.mark.hardware
+def test_print_real_lrf(procs):
+    rc, out, err = _run(procs, '--device', 'lrf', '--port', '/dev/ttyACM0', '--print',
+                        '--count', '3')
+    assert rc == 0 and out.count('lrf seq=') == 3
