@@ -14,7 +14,7 @@ import threading
 from typing import Callable
 
 from m4k_rt import modeswitch, sched, timing
-from m4k_rt.timerfd import TimerFd, monotonic_ns
+from m4k_rt.timerfd import monotonic_ns, TimerFd
 
 __all__ = [
     'RtTask', 'TaskError', 'TaskStopped', 'current_task', 'pt_create_task_rt',
