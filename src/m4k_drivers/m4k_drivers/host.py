@@ -82,6 +82,7 @@ class DeviceService:
         self._retry_at = 0.0
         self._attempt = 0
         self._lost_seen = 0
+        self._links_seen = 0
         self._scan_buf = bytearray(4096)
         self.thread = threading.Thread(target=self.run, name=f'm4k-{kind}', daemon=True)
 
@@ -144,6 +145,9 @@ class DeviceService:
                 if self.link.lost != self._lost_seen:        # RT side went away
                     self._lost_seen = self.link.lost
                     self._on_link_lost()
+                if self.link.links != self._links_seen:      # (re)linked: say hello at once
+                    self._links_seen = self.link.links
+                    self._status_state = None
                 if data is not None:
                     self._dispatch(data)
                 if self.kind == 'motor' and self.handler.state == State.ACTIVE:
