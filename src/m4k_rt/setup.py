@@ -38,6 +38,11 @@ setup(
             'bringup = m4k_rt.tools.bringup:main',
             'bench = m4k_rt.tools.bench:main',
             'demo = m4k_rt.tools.demo:main',
+            'core_bench = m4k_rt.tools.core_bench:main',
+            'xddp_bench = m4k_rt.tools.xddp_bench:main',
+            'echo_peer = m4k_rt.tasks.echo:main',
+            'fuzz = m4k_rt.tools.fuzz:main',
+            'soak = m4k_rt.tools.soak:main',
         ],
     },
 )
