@@ -1,0 +1,248 @@
+"""RT timing and health -> m4k_msgs/RtStatus and diagnostic_msgs (pure: no rclpy, no sockets).
+
+The RT monitor task ships each task's per-cycle samples in TASK_STATS batches, plus RT_STATUS
+(and, when it forwards them, DEVICE_STATUS and the TASK_HEALTH extra kind). :class:`RtMonitor`
+keeps a sliding window of samples per task (``stats_window`` seconds of releases) and computes
+the paper's statistics with :func:`m4k_rt.timing.analyze` -- the same code the recorder and
+the benchmarks use -- then the Liu-Layland and response-time tests of :mod:`m4k_rt.timing`.
+
+Diagnostic levels follow REP-107: OK, WARN (deadline misses, overruns or forbidden calls in
+the window), ERROR (the task stopped cycling while the RT process is alive), STALE (nothing
+heard within ``stale_s``).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from typing import Any, Iterable, Mapping
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats
+from m4k_rt import modeswitch, protocol, timing
+
+__all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'level_byte', 'make_status', 'timing_stats']
+
+LEVELS = {protocol.LEVEL_OK: 'OK', protocol.LEVEL_WARN: 'WARN', protocol.LEVEL_ERROR: 'ERROR',
+          protocol.LEVEL_STALE: 'STALE'}
+_NS = 1e-9
+
+
+def level_byte(level: int) -> bytes:
+    """Return the DiagnosticStatus level byte for a protocol LEVEL_* value."""
+    return bytes((min(max(int(level), 0), 3),))
+
+
+def make_status(name: str, level: int, message: str, values: Mapping[str, Any],
+                hardware_id: str = 'm4k') -> DiagnosticStatus:
+    """Build a DiagnosticStatus with key-values rendered as text."""
+    st = DiagnosticStatus(name=name, level=level_byte(level), message=message,
+                          hardware_id=hardware_id)
+    st.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in values.items()]
+    return st
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return 'nan' if math.isnan(v) else '{:.6g}'.format(v)
+    return str(v)
+
+
+def timing_stats(s: timing.Stats) -> TimingStats:
+    """Convert nanosecond Stats into a TimingStats message in seconds (zeros when empty)."""
+    if s.n == 0:
+        return TimingStats()
+    return TimingStats(samples=s.n, avg=s.avg * _NS, std=s.std * _NS, min=s.min * _NS,
+                       max=s.max * _NS, p50=s.p50 * _NS, p99=s.p99 * _NS, p999=s.p999 * _NS)
+
+
+class TaskWindow:
+    """The last ``window_ns`` of releases of one task, plus its latest counters."""
+
+    def __init__(self, name: str, window_ns: int) -> None:
+        self.name = name
+        self.window_ns = window_ns
+        self.rows: collections.deque[tuple[int, int, int, int]] = collections.deque()
+        self.stats: protocol.TaskStats | None = None
+        self.health: modeswitch.TaskHealth | None = None
+        self.last_site = ''
+        self.rx_ns = 0               # CLOCK_MONOTONIC of the last batch (0 = never)
+        self.prev_cycles = -1
+        self.stalled = False         # cycles did not advance between two batches
+        self.duplicates = 0
+
+    def add(self, st: protocol.TaskStats, rx_ns: int) -> None:
+        """Append the new samples of a TASK_STATS batch and trim the window."""
+        if self.stats is not None:
+            self.stalled = st.cycles == self.stats.cycles and not st.samples
+            if st.cycles < self.stats.cycles:  # the RT process restarted: start afresh
+                self.rows.clear()
+        self.stats = st
+        self.rx_ns = rx_ns
+        last = self.rows[-1][0] if self.rows else None
+        for s in st.samples:
+            if last is not None and s.t_rel <= last:
+                self.duplicates += 1
+                continue
+            self.rows.append((s.t_rel, s.t_start, s.t_end, s.expirations))
+            last = s.t_rel
+        if self.rows:
+            oldest = self.rows[-1][0] - self.window_ns
+            while self.rows and self.rows[0][0] < oldest:
+                self.rows.popleft()
+
+    def analyze(self) -> timing.TaskTiming:
+        """Return the timing analysis of the window."""
+        period = self.stats.period_ns if self.stats is not None and self.stats.period_ns else 1
+        if not self.rows:
+            return timing.analyze([], [], [], [], period, self.name)
+        cols = list(zip(*self.rows, strict=True))
+        return timing.analyze(cols[0], cols[1], cols[2], cols[3], period, self.name)
+
+
+class RtMonitor:
+    """Accumulate what the RT process reports and turn it into ROS messages."""
+
+    def __init__(self, window_s: float = 10.0, stale_s: float = 3.0) -> None:
+        self.window_ns = int(window_s * 1e9)
+        self.stale_ns = int(stale_s * 1e9)
+        self.tasks: dict[str, TaskWindow] = {}
+        self.rt_status: protocol.RtStatus | None = None
+        self.rt_status_rx_ns = 0
+        self.devices: dict[str, tuple[protocol.DeviceStatus, int]] = {}
+
+    def set_window(self, window_s: float) -> None:
+        """Change the sliding window (takes effect with the next batch)."""
+        self.window_ns = int(window_s * 1e9)
+        for t in self.tasks.values():
+            t.window_ns = self.window_ns
+
+    def _task(self, name: str) -> TaskWindow:
+        t = self.tasks.get(name)
+        if t is None:
+            t = self.tasks[name] = TaskWindow(name, self.window_ns)
+        return t
+
+    def feed(self, kind: int, payload: Any, rx_ns: int) -> bool:
+        """Account one decoded datagram; return False when the kind is not one of ours."""
+        if kind == protocol.Kind.TASK_STATS:
+            self._task(payload.name).add(payload, rx_ns)
+        elif kind == protocol.Kind.RT_STATUS:
+            self.rt_status, self.rt_status_rx_ns = payload, rx_ns
+        elif kind == protocol.Kind.DEVICE_STATUS:
+            self.devices[payload.device] = (payload, rx_ns)
+        elif kind == modeswitch.TASK_HEALTH:
+            self._task(payload.name).health = payload
+        elif kind == modeswitch.FORBIDDEN_SITE:
+            self._task(payload.name).last_site = '{} at {}:{} in {}'.format(
+                payload.event, payload.file, payload.line, payload.func)
+        else:
+            return False
+        return True
+
+    def _ordered(self) -> list[TaskWindow]:
+        # Highest priority first, as RtStatus.tasks documents.
+        return sorted((t for t in self.tasks.values() if t.stats is not None),
+                      key=lambda t: (-t.stats.priority, t.stats.index))
+
+    def task_timing(self, t: TaskWindow) -> tuple[TaskTiming, timing.TaskTiming]:
+        """Return the TaskTiming message of one task and the analysis behind it."""
+        a = t.analyze()
+        st = t.stats
+        assert st is not None
+        period_s = st.period_ns * _NS
+        msg = TaskTiming(name=t.name, priority=st.priority, cpu=st.cpu, period=period_s,
+                         cycles=st.cycles)
+        msg.release_latency = timing_stats(a.latency)
+        msg.period_measured = timing_stats(a.period)
+        msg.jitter = timing_stats(a.jitter)
+        msg.response_time = timing_stats(a.response)
+        wcrt = a.wcrt_ns
+        msg.utilization = 0.0 if math.isnan(wcrt) or not st.period_ns else wcrt / st.period_ns
+        h = t.health
+        msg.overruns = h.overruns if h is not None else a.overruns
+        msg.deadline_misses = h.deadline_misses if h is not None else a.deadline_misses
+        msg.body_errors = h.body_errors if h is not None else 0
+        # Without TASK_HEALTH, approximate "voluntary switches beyond one per cycle".
+        msg.voluntary_switches = (h.nvcsw_extra if h is not None
+                                  else max(0, st.nvcsw - st.cycles))
+        msg.involuntary_switches = st.nivcsw
+        msg.page_faults = st.minflt + (h.majflt if h is not None else 0)
+        msg.forbidden_calls = st.forbidden_calls
+        msg.last_forbidden_call = t.last_site
+        return msg, a
+
+    def rt_status_msg(self, now_ns: int, link_age_s: float,
+                      guard_active: bool = False) -> RtStatus:
+        """Build RtStatus (without header and ports, which the node fills in)."""
+        msg = RtStatus()
+        rs = self.rt_status
+        if rs is not None:
+            msg.policy = rs.policy
+            msg.memory_locked = bool(rs.mem_locked)
+            msg.degraded = bool(rs.degraded)
+            if rs.degraded:
+                msg.degraded_reasons = ['RT hardening degraded (flags 0x{:x}); the rt_core '
+                                        'log names each failed step'.format(rs.flags)]
+            guard_active = guard_active or bool(rs.guard_active)
+        msg.collision_guard_active = guard_active
+        msg.rt_link_age = float(link_age_s)
+        tasks = []
+        rta_in = []
+        misses = 0
+        for t in self._ordered():
+            m, a = self.task_timing(t)
+            tasks.append(m)
+            misses += a.deadline_misses
+            if not math.isnan(a.wcrt_ns) and t.stats.period_ns:
+                rta_in.append(timing.RtaTask(t.name, a.wcrt_ns, t.stats.period_ns,
+                                             t.stats.priority))
+        msg.tasks = tasks
+        if rta_in:
+            u = timing.utilization_test([(r.name, r.wcet_ns, r.period_ns) for r in rta_in])
+            msg.total_utilization = u.total
+            msg.liu_layland_bound = u.bound
+            rta_ok = all(r.schedulable for r in timing.response_time_analysis(rta_in))
+            msg.schedulable = misses == 0 and (u.passes or rta_ok)
+        return msg
+
+    def task_statuses(self, now_ns: int, prefix: str = 'm4k_rt') -> list[DiagnosticStatus]:
+        """Return one DiagnosticStatus per RT task."""
+        out = []
+        for t in self._ordered():
+            m, a = self.task_timing(t)
+            st = t.stats
+            age = (now_ns - t.rx_ns) * _NS
+            values = {'period_s': m.period, 'priority': m.priority, 'cycles': m.cycles,
+                      'window_samples': a.cycles,
+                      'jitter_max_s': m.jitter.max, 'jitter_p99_s': m.jitter.p99,
+                      'latency_max_s': m.release_latency.max,
+                      'response_max_s': m.response_time.max, 'utilization': m.utilization,
+                      'overruns': m.overruns, 'deadline_misses': m.deadline_misses,
+                      'window_deadline_misses': a.deadline_misses,
+                      'forbidden_calls': m.forbidden_calls, 'last_report_age_s': age}
+            if age > self.stale_ns * _NS:
+                level, msg = protocol.LEVEL_STALE, 'no timing report for {:.1f} s'.format(age)
+            elif t.stalled:
+                level, msg = protocol.LEVEL_ERROR, 'task stopped cycling'
+            elif a.deadline_misses or a.overruns or st.forbidden_calls:
+                level = protocol.LEVEL_WARN
+                msg = '{} deadline misses, {} overruns in window, {} forbidden calls'.format(
+                    a.deadline_misses, a.overruns, st.forbidden_calls)
+            else:
+                level, msg = protocol.LEVEL_OK, 'running'
+            out.append(make_status('{}: task {}'.format(prefix, t.name), level, msg, values,
+                                   hardware_id='m4k_rt'))
+        return out
+
+    def device_levels(self, now_ns: int) -> Iterable[tuple[str, int, str, dict[str, Any]]]:
+        """Yield (device, level, message, values) from the DEVICE_STATUS reports."""
+        for name, (d, rx) in sorted(self.devices.items()):
+            age = (now_ns - rx) * _NS
+            level = d.level
+            if age > self.stale_ns * _NS:
+                level = protocol.LEVEL_STALE
+            yield name, level, 'reported {}'.format(LEVELS.get(d.level, d.level)), {
+                'state': d.state, 'faults': d.faults, 'last_error': d.last_error,
+                'report_age_s': age}

@@ -1,0 +1,564 @@
+"""The m4k ROS 2 bridge node (``m4k_bridge``): the only place of the stack that speaks ROS.
+
+It never runs control logic. Inbound, ``cmd_vel`` (Twist, or TwistStamped with
+``use_stamped_vel``) is checked (NaN/inf rejected, limits clamped, both counted) and forwarded
+as VELOCITY_CMD on the ``cmd`` port; ``led`` (ColorRGBA) becomes an LED override on ``led_in``.
+The bridge does not repeat commands: when cmd_vel stops, the RT actuator brakes after its own
+``control.cmd_vel_timeout``; the bridge's ``cmd_vel_timeout`` only labels the input idle in
+diagnostics. On shutdown it sends one zero command.
+
+Outbound, datagrams from the RT process become ``odom`` (+ ``tf`` when tf2_msgs exists),
+``imu``, ``scan``, ``sonar``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and,
+with the link and device health, ``diagnostics``. Port I/O runs in one thread per port
+(:mod:`m4k_rt.bridge.ports` explains why); the executor thread does all ROS work.
+
+The RT process may restart at any time: each port re-links by itself, the outage is logged
+once when it starts and once when it ends, with the gap, and counted in diagnostics.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import sys
+import time
+from typing import Any, Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterException,
+)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, LaserScan, Range
+from std_msgs.msg import ColorRGBA
+import yaml
+
+from m4k_msgs.msg import RtStatus, XddpPort
+from m4k_rt import modeswitch, protocol, xddp
+from m4k_rt.bridge import convert, params
+from m4k_rt.bridge.diagnostics import make_status, RtMonitor
+from m4k_rt.bridge.ports import PortPump
+
+try:  # not on PyPI: present with a full ROS install only
+    from tf2_msgs.msg import TFMessage
+except ImportError:  # pragma: no cover - depends on the installation
+    TFMessage = None
+
+__all__ = ['BridgeNode', 'main', 'param_files']
+
+_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+_LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_INBOX_MAX = 4096
+_WATCH_PERIOD_S = 0.25
+# Devices the bridge sees through their data ports: role -> (device, period expected [s]).
+_DEVICE_PORTS = {'imu_out': ('imu', 0.01), 'sonar_out': ('sonar', 0.03),
+                 'lrf_out': ('lrf', 0.2), 'led_in': ('led', 1.0), 'cmd': ('motor', 0.05)}
+_TYPES = {bool: ParameterType.PARAMETER_BOOL, float: ParameterType.PARAMETER_DOUBLE,
+          str: ParameterType.PARAMETER_STRING, list: ParameterType.PARAMETER_DOUBLE_ARRAY}
+
+
+def _descriptor(s: params.ParamSpec) -> ParameterDescriptor:
+    d = ParameterDescriptor(name=s.name, type=_TYPES[type(s.default)],
+                            description=s.description, read_only=s.read_only)
+    if isinstance(s.default, float) and s.lo is not None and s.hi is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(s.lo),
+                                                     to_value=float(s.hi), step=0.0)]
+    elif s.lo is not None:
+        d.additional_constraints = 'every element within [{}, {}]'.format(s.lo, s.hi)
+    return d
+
+
+class BridgeNode(Node):
+    """ROS 2 <-> XDDP bridge of the m4k RT process."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        """Declare and check parameters, open the ports, create publishers and timers.
+
+        Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad parameter.
+        """
+        super().__init__(params.NODE_NAME, **kwargs)
+        self._ready = False
+        self.p = self._declare()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+        p = self.p
+        self.counters = collections.Counter()
+        self._seq = 0
+        self._led_seq = 0
+        self._last_seq: dict[str, int] = {}
+        self._last_cmd_ns = 0
+        self._last_odom: protocol.Odometry | None = None
+        self._last_odom_ns = 0
+        self._led_shown: protocol.Led | None = None
+        self._monitor = RtMonitor(p['stats_window'], p['rt_stale_timeout'])
+        self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
+        self._rt_alive = False
+        self._outage_start_ns = time.monotonic_ns()
+        self._outages = 0
+        self._last_gap_s = 0.0
+        self._reported_errors: set[str] = set()
+
+        qos_sensor = qos_profile_sensor_data
+        self._odom_pub = self.create_publisher(Odometry, p.topic('odom'), _RELIABLE)
+        self._imu_pub = self.create_publisher(Imu, p.topic('imu'), qos_sensor)
+        self._scan_pub = self.create_publisher(LaserScan, p.topic('scan'), qos_sensor)
+        self._sonar_pub = self.create_publisher(Range, p.topic('sonar'), qos_sensor)
+        self._diag_pub = self.create_publisher(DiagnosticArray, p.topic('diagnostics'),
+                                               _RELIABLE)
+        self._rt_pub = self.create_publisher(RtStatus, p.topic('rt_status'), _RELIABLE)
+        self._tf_pub = None
+        if p['publish_tf']:
+            if TFMessage is None:
+                self.get_logger().info(
+                    'tf is off: tf2_msgs is not importable (it is not on PyPI; install '
+                    'ros-jazzy-tf2-msgs with a full ROS install). odom is still published.')
+            else:
+                self._tf_pub = self.create_publisher(TFMessage, 'tf', 100)
+                self._tf_static_pub = self.create_publisher(TFMessage, 'tf_static', _LATCHED)
+                self._publish_static_transforms()
+        if p['use_stamped_vel']:
+            self.create_subscription(TwistStamped, p.topic('cmd_vel'), self._on_twist_stamped,
+                                     10)
+        else:
+            self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, 10)
+        self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
+
+        self._wake = self.create_guard_condition(self._drain_inbox)
+        runtime_dir = p['runtime_dir'] or None
+        self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
+        self._pumps = {role: PortPump(role, p.port(role), self._deliver, runtime_dir,
+                                      p['relink_interval'])
+                       for role in params.PORT_ROLES}
+        self._diag_timer = self.create_timer(p['diagnostics_period'], self._publish_diagnostics)
+        self._rt_timer = self.create_timer(p['rt_status_period'], self._publish_rt_status)
+        self.create_timer(_WATCH_PERIOD_S, self._watch)
+        for pump in self._pumps.values():
+            pump.start()
+        self._closed = False
+        self._ready = True
+        self.get_logger().info('waiting for the RT process in {} (ports {})'.format(
+            self._runtime_dir, ', '.join(str(p.port(r)) for r in params.PORT_ROLES)))
+
+    # --- parameters ---------------------------------------------------------------------------
+
+    def _declare(self) -> params.BridgeParams:
+        values = {}
+        for s in params.SPECS:
+            try:
+                self.declare_parameter(s.name, s.default, _descriptor(s))
+            except InvalidParameterTypeException as exc:
+                raise params.ParamError(s.name, str(exc)) from None
+            except (InvalidParameterValueException, ParameterException) as exc:
+                raise params.ParamError(s.name, str(exc)) from None
+            values[s.name] = self.get_parameter(s.name).value
+        return params.from_values({k: list(v) if not isinstance(v, (str, bool, float, int))
+                                   else v for k, v in values.items()})
+
+    def _on_set_parameters(self, changes: list[Parameter]) -> SetParametersResult:
+        for prm in changes:
+            value = prm.value
+            if not isinstance(value, (str, bool, float, int)) and value is not None:
+                value = list(value)
+            reason = params.validate(prm.name, value)
+            if reason is not None:
+                return SetParametersResult(successful=False,
+                                           reason='{}: {}'.format(prm.name, reason))
+        if self._ready:
+            merged = dict(self.p.values)
+            merged.update((prm.name, prm.value if isinstance(prm.value, (str, bool, float))
+                           else list(prm.value)) for prm in changes)
+            try:
+                params.from_values(merged)
+            except params.ParamError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, changes: list[Parameter]) -> None:
+        if not self._ready:
+            return
+        merged = dict(self.p.values)
+        merged.update((prm.name, prm.value if isinstance(prm.value, (str, bool, float))
+                       else list(prm.value)) for prm in changes)
+        old = self.p
+        self.p = params.from_values(merged)
+        self._monitor.set_window(self.p['stats_window'])
+        self._monitor.stale_ns = int(self.p['rt_stale_timeout'] * 1e9)
+        if self.p['diagnostics_period'] != old['diagnostics_period']:
+            self._diag_timer.cancel()
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = self.create_timer(self.p['diagnostics_period'],
+                                                 self._publish_diagnostics)
+        if self.p['rt_status_period'] != old['rt_status_period']:
+            self._rt_timer.cancel()
+            self.destroy_timer(self._rt_timer)
+            self._rt_timer = self.create_timer(self.p['rt_status_period'],
+                                               self._publish_rt_status)
+
+    # --- inbound: ROS -> RT ---------------------------------------------------------------------
+
+    def _on_twist(self, msg: Twist) -> None:
+        self._command(msg.linear.x, msg.angular.z)
+
+    def _on_twist_stamped(self, msg: TwistStamped) -> None:
+        self._command(msg.twist.linear.x, msg.twist.angular.z)
+
+    def _command(self, linear_x: float, angular_z: float) -> None:
+        try:
+            v, w, clamped = convert.velocity_command(
+                linear_x, angular_z, self.p['max_linear_velocity'],
+                self.p['max_angular_velocity'])
+        except convert.NonFiniteCommand as exc:
+            self.counters['cmd_vel_rejected_nonfinite'] += 1
+            self.get_logger().warning('{}: rejected ({} so far)'.format(
+                exc, self.counters['cmd_vel_rejected_nonfinite']), throttle_duration_sec=1.0)
+            return
+        if clamped:
+            self.counters['cmd_vel_clamped'] += 1
+            self.get_logger().warning(
+                'cmd_vel ({:.3f}, {:.3f}) beyond the limits ({}, {}): clamped ({} so far)'.format(
+                    linear_x, angular_z, self.p['max_linear_velocity'],
+                    self.p['max_angular_velocity'], self.counters['cmd_vel_clamped']),
+                throttle_duration_sec=1.0)
+        self._send_velocity(v, w)
+        self.counters['cmd_vel_forwarded'] += 1
+        self._last_cmd_ns = time.monotonic_ns()
+
+    def _send_velocity(self, v: float, w: float) -> None:
+        self._pumps['cmd'].send(self._velocity_datagram(v, w))
+
+    def _velocity_datagram(self, v: float, w: float) -> bytes:
+        data = protocol.encode(protocol.Kind.VELOCITY_CMD, self._seq, time.monotonic_ns(), v, w)
+        self._seq = protocol.next_seq(self._seq)
+        return data
+
+    def _on_led(self, msg: ColorRGBA) -> None:
+        try:
+            fields = convert.led_command(msg.r, msg.g, msg.b, msg.a)
+        except convert.NonFiniteCommand as exc:
+            self.counters['led_rejected_nonfinite'] += 1
+            self.get_logger().warning('{}: rejected'.format(exc), throttle_duration_sec=1.0)
+            return
+        data = protocol.encode(protocol.Kind.LED, self._led_seq, time.monotonic_ns(), *fields)
+        self._led_seq = protocol.next_seq(self._led_seq)
+        self._pumps['led_in'].send(data)
+        self.counters['led_forwarded'] += 1
+
+    # --- outbound: RT -> ROS --------------------------------------------------------------------
+
+    def _deliver(self, role: str, data: bytes, rx_ns: int) -> None:
+        """Queue a datagram from a pump thread and wake the executor (thread-safe)."""
+        if len(self._inbox) >= _INBOX_MAX:
+            self.counters['inbox_overflow'] += 1
+            return
+        self._inbox.append((role, data, rx_ns))
+        try:
+            self._wake.trigger()
+        except Exception:  # noqa: BLE001 -- node being destroyed: the datagram is moot
+            pass
+
+    def _drain_inbox(self) -> None:
+        now_mono = time.monotonic_ns()
+        now_ros = self.get_clock().now().nanoseconds
+        while self._inbox:
+            role, data, rx_ns = self._inbox.popleft()
+            self._handle(role, data, rx_ns, now_mono, now_ros)
+
+    def _track_seq(self, role: str, seq: int) -> None:
+        prev = self._last_seq.get(role)
+        if prev is not None:
+            lost = protocol.seq_gap(prev, seq)
+            if lost:
+                self.counters['lost_' + role] += lost
+        self._last_seq[role] = seq
+
+    def _handle(self, role: str, data: bytes, rx_ns: int, now_mono: int, now_ros: int) -> None:
+        kind = modeswitch.extra_kind(data)
+        if kind in (modeswitch.TASK_HEALTH, modeswitch.FORBIDDEN_SITE):
+            try:
+                _, _, payload = modeswitch.decode_extra(data)
+            except modeswitch.ExtraDatagramError:
+                self.counters['malformed_' + role] += 1
+                return
+            self._monitor.feed(kind, payload, rx_ns)
+            return
+        try:
+            header, payload = protocol.decode(data)
+        except protocol.ProtocolError as exc:
+            self.counters['malformed_' + role] += 1
+            self.get_logger().warning('malformed datagram on port {!r}: {}'.format(role, exc),
+                                      throttle_duration_sec=5.0)
+            return
+        self._track_seq(role, header.seq)
+        stamp = convert.ros_stamp_ns(header.stamp_ns, now_mono, now_ros)
+        p = self.p
+        k = header.kind
+        if k == protocol.Kind.ODOMETRY:
+            self._last_odom, self._last_odom_ns = payload, rx_ns
+            self._odom_pub.publish(convert.odometry_msg(
+                payload, stamp, p['odom_frame'], p['base_frame'],
+                p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
+            if self._tf_pub is not None:
+                self._tf_pub.publish(TFMessage(transforms=[convert.odom_transform(
+                    payload, stamp, p['odom_frame'], p['base_frame'])]))
+        elif k == protocol.Kind.IMU:
+            msg = convert.imu_msg(payload, stamp, p['imu_frame'],
+                                  p['imu_orientation_covariance_diagonal'],
+                                  p['imu_angular_velocity_covariance_diagonal'],
+                                  p['imu_linear_acceleration_covariance_diagonal'])
+            if msg is None:
+                self.counters['imu_not_ready'] += 1
+            else:
+                self._imu_pub.publish(msg)
+        elif k == protocol.Kind.LASER_SCAN:
+            self._scan_pub.publish(convert.scan_msg(payload, stamp, p['laser_frame']))
+        elif k == protocol.Kind.SONAR:
+            if payload.status > protocol.SONAR_NO_ECHO:
+                self.counters['sonar_faults'] += 1
+            self._sonar_pub.publish(convert.sonar_msg(
+                payload, stamp, p['sonar_frame'], p['sonar_field_of_view'],
+                p['sonar_min_range'], p['sonar_max_range']))
+        elif k == protocol.Kind.LED:
+            self._led_shown = payload
+        elif not self._monitor.feed(k, payload, rx_ns):
+            self.counters['unexpected_' + role] += 1
+
+    def _publish_static_transforms(self) -> None:
+        p = self.p
+        stamp = self.get_clock().now().nanoseconds
+        self._tf_static_pub.publish(TFMessage(transforms=[
+            convert.static_transform(p['base_frame'], p[frame], p[pose], stamp)
+            for frame, pose in (('laser_frame', 'laser_pose'), ('imu_frame', 'imu_pose'),
+                                ('sonar_frame', 'sonar_pose'))]))
+
+    # --- health -------------------------------------------------------------------------------
+
+    def _rt_last_rx_ns(self) -> int:
+        return max(pump.last_rx_ns for pump in self._pumps.values())
+
+    def _watch(self) -> None:
+        """Log RT process outages once per transition, and pump thread failures."""
+        now = time.monotonic_ns()
+        last = self._rt_last_rx_ns()
+        fresh = last and now - last < self.p['rt_stale_timeout'] * 1e9
+        alive = any(pump.linked for pump in self._pumps.values()) and bool(fresh)
+        if alive and not self._rt_alive:
+            gap = (now - self._outage_start_ns) * 1e-9
+            if self._outages:
+                self._last_gap_s = gap
+                self.get_logger().warning(
+                    'RT process is back after a {:.1f} s gap (outage {}); ports re-linked'.format(
+                        gap, self._outages))
+            else:
+                self.get_logger().info('linked to the RT process after {:.1f} s'.format(gap))
+        elif self._rt_alive and not alive:
+            self._outages += 1
+            self._outage_start_ns = last or now
+            self.get_logger().warning(
+                'lost the RT process (no datagram for {} s, ports re-linking); odom, imu, scan '
+                'and sonar pause until it is back'.format(self.p['rt_stale_timeout']))
+        self._rt_alive = alive
+        for role, pump in self._pumps.items():
+            if pump.error is not None and role not in self._reported_errors:
+                self._reported_errors.add(role)
+                self.get_logger().error('port {!r} reader failed: {!r}'.format(role, pump.error))
+
+    def _ports(self) -> list[XddpPort]:
+        out = []
+        for role, pump in self._pumps.items():
+            port = params.parse_port(self.p['ports.' + role])
+            number = port if isinstance(port, int) else _label_number(self._runtime_dir, port)
+            out.append(XddpPort(
+                port=number, label='' if isinstance(port, int) else port, linked=pump.linked,
+                sent=pump.sent, received=pump.received, dropped_no_peer=pump.dropped_unlinked,
+                dropped_full=pump.dropped_overflow, dropped_oversize=0,
+                malformed=self.counters['malformed_' + role], peer_restarts=pump.lost))
+        return out
+
+    def _publish_rt_status(self) -> None:
+        now = time.monotonic_ns()
+        last = self._rt_last_rx_ns()
+        age = (now - last) * 1e-9 if last else float('inf')
+        guard = bool(self._last_odom is not None and self._last_odom.flags & protocol.ODOM_GUARD
+                     and now - self._last_odom_ns < 1e9)
+        msg = self._monitor.rt_status_msg(now, age, guard)
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.ports = self._ports()
+        self._rt_pub.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic_ns()
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = self._monitor.task_statuses(now)
+        arr.status.extend(self._device_statuses(now))
+        arr.status.append(self._link_status(now))
+        arr.status.append(self._cmd_status(now))
+        self._diag_pub.publish(arr)
+
+    def _device_statuses(self, now: int) -> list:
+        reported = {name: (level, msg, values)
+                    for name, level, msg, values in self._monitor.device_levels(now)}
+        out = []
+        for role, (device, period) in _DEVICE_PORTS.items():
+            pump = self._pumps[role]
+            age = (now - pump.last_rx_ns) * 1e-9 if pump.last_rx_ns else float('inf')
+            values: dict[str, Any] = {'port': self.p['ports.' + role], 'data_age_s': age,
+                                      'received': pump.received}
+            stale_after = max(10 * period, 1.0)
+            if not self._rt_alive or age > stale_after:
+                level, msg = protocol.LEVEL_STALE, 'no data for {:.1f} s'.format(age)
+            else:
+                level, msg = protocol.LEVEL_OK, 'data flowing'
+            if device == 'motor' and self._last_odom is not None and level == protocol.LEVEL_OK:
+                values['odom_flags'] = self._last_odom.flags
+                if self._last_odom.flags & protocol.ODOM_MOTOR_STALE:
+                    level, msg = protocol.LEVEL_ERROR, 'motor stale (no encoder feedback)'
+            if device == 'sonar':
+                values['faults'] = self.counters['sonar_faults']
+            if device == 'imu':
+                values['not_ready'] = self.counters['imu_not_ready']
+            if device == 'led' and self._led_shown is not None:
+                values['shown'] = tuple(self._led_shown)
+            rep = reported.pop(device, None)
+            if rep is not None:
+                values.update(rep[2])
+                if rep[0] > level and level != protocol.LEVEL_STALE:
+                    level, msg = rep[0], rep[1]
+            out.append(make_status('m4k_drivers: ' + device, level, msg, values,
+                                   hardware_id=device))
+        for name, (level, msg, values) in sorted(reported.items()):
+            out.append(make_status('m4k_drivers: ' + name, level, msg, values, hardware_id=name))
+        return out
+
+    def _link_status(self, now: int) -> Any:
+        last = self._rt_last_rx_ns()
+        values: dict[str, Any] = {
+            'runtime_dir': self._runtime_dir,
+            'linked_ports': sum(p.linked for p in self._pumps.values()),
+            'outages': self._outages, 'last_gap_s': self._last_gap_s,
+            'relinks': sum(max(p.links - 1, 0) for p in self._pumps.values()),
+            'last_datagram_age_s': (now - last) * 1e-9 if last else float('inf')}
+        for key in sorted(self.counters):
+            if key.startswith(('malformed_', 'lost_', 'unexpected_', 'inbox_')):
+                values[key] = self.counters[key]
+        if self._rt_alive:
+            level, msg = protocol.LEVEL_OK, 'linked'
+        elif self._outages:
+            level = protocol.LEVEL_STALE
+            msg = 'RT process lost {:.1f} s ago; re-linking'.format(
+                (now - self._outage_start_ns) * 1e-9)
+        else:
+            level = protocol.LEVEL_STALE
+            errs = {p.last_link_error for p in self._pumps.values() if p.last_link_error}
+            msg = 'waiting for the RT process' + (': ' + sorted(errs)[0] if errs else '')
+        return make_status('m4k_bridge: rt link', level, msg, values, hardware_id='m4k_rt')
+
+    def _cmd_status(self, now: int) -> Any:
+        c = self.counters
+        age = (now - self._last_cmd_ns) * 1e-9 if self._last_cmd_ns else float('inf')
+        values = {'forwarded': c['cmd_vel_forwarded'],
+                  'rejected_nonfinite': c['cmd_vel_rejected_nonfinite'],
+                  'clamped': c['cmd_vel_clamped'], 'last_cmd_age_s': age,
+                  'dropped_no_rt': self._pumps['cmd'].dropped_unlinked,
+                  'led_forwarded': c['led_forwarded'],
+                  'led_rejected_nonfinite': c['led_rejected_nonfinite']}
+        if c['cmd_vel_rejected_nonfinite'] or c['cmd_vel_clamped']:
+            level, msg = protocol.LEVEL_WARN, 'some commands rejected or clamped'
+        elif age > self.p['cmd_vel_timeout']:
+            level, msg = protocol.LEVEL_OK, 'idle (RT actuator brakes after its timeout)'
+        else:
+            level, msg = protocol.LEVEL_OK, 'commanded'
+        return make_status('m4k_bridge: cmd_vel', level, msg, values, hardware_id='m4k_bridge')
+
+    # --- shutdown -------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Stop the port threads; the last datagram on ``cmd`` is a zero velocity."""
+        if getattr(self, '_closed', True):
+            return
+        self._closed = True
+        for role, pump in self._pumps.items():
+            pump.close(final=self._velocity_datagram(0.0, 0.0) if role == 'cmd' else None)
+
+    def destroy_node(self) -> None:
+        """Close the ports, then destroy the node."""
+        self.close()
+        super().destroy_node()
+
+
+def _label_number(runtime_dir: str, label: str) -> int:
+    try:
+        target = os.readlink(os.path.join(runtime_dir, 'label.' + label))
+    except OSError:
+        return 0
+    digits = os.path.basename(target).removeprefix('xddp')
+    return int(digits) if digits.isdigit() else 0
+
+
+def param_files(argv: Sequence[str]) -> list[str]:
+    """Return the ``--params-file`` arguments of a ROS command line, in order."""
+    out = []
+    args = list(argv)
+    for i, a in enumerate(args[:-1]):
+        if a == '--params-file':
+            out.append(args[i + 1])
+    return out
+
+
+def _check_param_files(argv: Sequence[str]) -> None:
+    for path in param_files(argv):
+        try:
+            with open(path, encoding='utf-8') as f:
+                doc = yaml.safe_load(f)
+        except OSError as exc:
+            raise params.ParamError('--params-file', 'cannot read {!r}: {} [errno {}]'.format(
+                path, exc.strerror, exc.errno)) from None
+        except yaml.YAMLError as exc:
+            raise params.ParamError('--params-file', '{!r} is not valid YAML: {}'.format(
+                path, str(exc).replace('\n', ' '))) from None
+        try:
+            params.check_section(doc)
+        except params.ParamError as exc:
+            raise params.ParamError(exc.name, '{} (in {})'.format(exc.reason, path)) from None
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run the bridge node; exit code 2 on a bad parameter, naming it."""
+    argv = list(sys.argv if args is None else args)
+    rclpy.init(args=argv)
+    node = None
+    try:
+        try:
+            _check_param_files(argv)
+            node = BridgeNode()
+        except params.ParamError as exc:
+            sys.stderr.write('{}: {}\n'.format(params.NODE_NAME, exc))
+            sys.stderr.flush()
+            return 2
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,295 @@
+"""Parameters of the ``m4k_bridge`` node: one table of specs, pure validation (no rclpy).
+
+Every parameter is declared from :data:`SPECS` (name, default, unit-bearing description,
+range, read-only flag, extra check). ``config/bridge.yaml`` carries the same defaults under
+``m4k_bridge: ros__parameters:``; a test keeps the two in step. :func:`validate` is what the
+node's on-set-parameters callback and the start-up check both call, so a value is refused
+with the same reason whether it comes from a parameter file or ``ros2 param set``.
+
+Parameters that pick resources at start-up (runtime directory, ports, topic names, message
+type of ``cmd_vel``, static sensor poses) are read-only: changing them would need a restart.
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import math
+import re
+from typing import Any, Callable, Mapping
+
+__all__ = [
+    'BridgeParams', 'NODE_NAME', 'ParamError', 'ParamSpec', 'PORT_ROLES', 'SPECS',
+    'TOPIC_ROLES', 'check_section', 'from_values', 'parse_port', 'spec', 'validate',
+]
+
+NODE_NAME = 'm4k_bridge'
+PORT_ROLES = ('status', 'cmd', 'imu_out', 'led_in', 'sonar_out', 'lrf_out')
+TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 'rt_status')
+
+_TOPIC = re.compile(r'^~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
+_FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
+_LABEL = re.compile(r'^[A-Za-z0-9_][A-Za-z0-9_.-]{0,31}$')
+
+
+class ParamError(ValueError):
+    """A bridge parameter has a wrong value; ``name`` is the parameter, ``reason`` why."""
+
+    def __init__(self, name: str, reason: str) -> None:
+        super().__init__('parameter {!r}: {}'.format(name, reason))
+        self.name = name
+        self.reason = reason
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamSpec:
+    """How one parameter is declared and checked."""
+
+    name: str
+    default: Any
+    description: str
+    lo: float | None = None          # inclusive range for numbers (every element of arrays)
+    hi: float | None = None
+    read_only: bool = False
+    length: int | None = None        # required length of array parameters
+    check: Callable[[Any], str | None] | None = None   # extra check: reason or None
+
+
+def _topic(v: Any) -> str | None:
+    if not _TOPIC.match(v):
+        return 'not a valid ROS topic name: {!r}'.format(v)
+    return None
+
+
+def _frame(v: Any) -> str | None:
+    if not _FRAME.match(v):
+        return 'not a valid frame id (letters, digits, _ . / -; not empty): {!r}'.format(v)
+    return None
+
+
+def _port(v: Any) -> str | None:
+    if not (v.isdigit() or _LABEL.match(v)):
+        return 'expected an XDDP port label or number, got {!r}'.format(v)
+    return None
+
+
+def _runtime_dir(v: Any) -> str | None:
+    if v and not v.startswith('/'):
+        return "expected an absolute path or '' (default runtime directory), got {!r}".format(v)
+    return None
+
+
+_COV = 'variance, must be >= 0'
+SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec('runtime_dir', '', 'XDDP runtime directory holding the port sockets; empty: '
+              '$M4K_RUNTIME_DIR, $XDG_RUNTIME_DIR/m4k, /run/m4k as root, else /tmp/m4k-<uid>. '
+              'Must be the one the RT process uses, or no port ever links.',
+              read_only=True, check=_runtime_dir),
+    *(ParamSpec('ports.' + role, role, 'XDDP port label (or number) of the RT side for {!r}; '
+                'must match config/m4k.yaml ports.'.format(role), read_only=True, check=_port)
+      for role in PORT_ROLES),
+    *(ParamSpec('topics.' + role, role, 'Topic name for {}; relative so namespaces and '
+                'remaps apply.'.format(role), read_only=True, check=_topic)
+      for role in TOPIC_ROLES),
+    ParamSpec('use_stamped_vel', False, 'Subscribe cmd_vel as geometry_msgs/TwistStamped '
+              'instead of Twist (Nav2 and teleop publish Twist; ros2_controllers on Jazzy '
+              'TwistStamped). A publisher of the other type never matches.', read_only=True),
+    ParamSpec('cmd_vel_timeout', 0.5, 'Seconds after the last cmd_vel after which the input '
+              'is reported idle in diagnostics. The RT actuator brakes on its own '
+              'control.cmd_vel_timeout; the bridge never repeats or synthesizes commands. '
+              'Keep both equal.', lo=0.0, hi=60.0),
+    ParamSpec('max_linear_velocity', 2.0, 'Linear speed limit [m/s]; cmd_vel beyond it is '
+              'clamped and counted (the RT limiter applies its own limits as well).',
+              lo=0.0, hi=10.0),
+    ParamSpec('max_angular_velocity', 1.5, 'Angular speed limit [rad/s]; cmd_vel beyond it is '
+              'clamped and counted.', lo=0.0, hi=20.0),
+    ParamSpec('odom_frame', 'odom', 'Frame id of odometry (REP-105 odom).', check=_frame),
+    ParamSpec('base_frame', 'base_link', 'Child frame id of odometry (REP-105 base_link).',
+              check=_frame),
+    ParamSpec('imu_frame', 'imu_link', 'Frame id of imu messages (REP-145).', check=_frame),
+    ParamSpec('laser_frame', 'laser', 'Frame id of scan messages.', check=_frame),
+    ParamSpec('sonar_frame', 'sonar_link', 'Frame id of sonar messages.', check=_frame),
+    ParamSpec('publish_tf', True, 'Broadcast odom -> base_link on tf and the sensor frames on '
+              'tf_static (only possible when tf2_msgs is installed).'),
+    ParamSpec('odom_pose_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
+              'Diagonal of the odometry pose covariance (x, y, z [m^2], roll, pitch, yaw '
+              '[rad^2]); huge values mark the unobserved planar-robot axes. ' + _COV,
+              lo=0.0, hi=1.0e9, length=6),
+    ParamSpec('odom_twist_covariance_diagonal', [0.001, 1.0e+6, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
+              'Diagonal of the odometry twist covariance (vx, vy, vz [m^2/s^2], wx, wy, wz '
+              '[rad^2/s^2]). ' + _COV, lo=0.0, hi=1.0e9, length=6),
+    ParamSpec('imu_orientation_covariance_diagonal', [0.0003, 0.0003, 0.003],
+              'Diagonal of the imu orientation covariance [rad^2] (roll, pitch, yaw). ' + _COV,
+              lo=0.0, hi=1.0e9, length=3),
+    ParamSpec('imu_angular_velocity_covariance_diagonal', [0.0001, 0.0001, 0.0001],
+              'Diagonal of the imu angular velocity covariance [rad^2/s^2]. ' + _COV,
+              lo=0.0, hi=1.0e9, length=3),
+    ParamSpec('imu_linear_acceleration_covariance_diagonal', [0.01, 0.01, 0.01],
+              'Diagonal of the imu linear acceleration covariance [m^2/s^4]. ' + _COV,
+              lo=0.0, hi=1.0e9, length=3),
+    ParamSpec('laser_pose', [0.15, 0.0, 0.2, 0.0, 0.0, 0.0],
+              'Static pose of laser_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
+              lo=-10.0, hi=10.0, read_only=True, length=6),
+    ParamSpec('imu_pose', [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
+              'Static pose of imu_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
+              lo=-10.0, hi=10.0, read_only=True, length=6),
+    ParamSpec('sonar_pose', [0.22, 0.0, 0.1, 0.0, 0.0, 0.0],
+              'Static pose of sonar_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
+              lo=-10.0, hi=10.0, read_only=True, length=6),
+    ParamSpec('sonar_field_of_view', 0.2618, 'Sonar cone opening [rad] (US-100: about 15 deg).',
+              lo=0.01, hi=math.pi),
+    ParamSpec('sonar_min_range', 0.02, 'Sonar minimum range [m] (US-100: 2 cm).',
+              lo=0.0, hi=10.0),
+    ParamSpec('sonar_max_range', 4.5, 'Sonar maximum range [m] (US-100: 4.5 m); must exceed '
+              'sonar_min_range.', lo=0.01, hi=20.0),
+    ParamSpec('stats_window', 10.0, 'Sliding window of RT timing samples behind rt_status '
+              '[s].', lo=1.0, hi=600.0),
+    ParamSpec('rt_status_period', 1.0, 'Publication period of rt_status [s].',
+              lo=0.05, hi=60.0),
+    ParamSpec('diagnostics_period', 1.0, 'Publication period of diagnostics [s] (REP-107: 1 Hz).',
+              lo=0.05, hi=60.0),
+    ParamSpec('rt_stale_timeout', 3.0, 'Seconds without any datagram from the RT process '
+              'after which it is reported lost (diagnostics STALE, one log line).',
+              lo=0.1, hi=600.0),
+    ParamSpec('relink_interval', 0.5, 'Seconds between attempts to re-open a port whose RT '
+              'side is gone.', lo=0.01, hi=60.0, read_only=True),
+)
+
+_BY_NAME = {s.name: s for s in SPECS}
+
+
+def spec(name: str) -> ParamSpec:
+    """Return the spec of parameter ``name`` (KeyError when unknown)."""
+    return _BY_NAME[name]
+
+
+def _kind(v: Any) -> str:
+    if isinstance(v, bool):
+        return 'bool'
+    if isinstance(v, int):
+        return 'int'
+    if isinstance(v, float):
+        return 'double'
+    if isinstance(v, str):
+        return 'string'
+    if isinstance(v, (list, tuple, array.array)):
+        return 'double[]'
+    return type(v).__name__
+
+
+def validate(name: str, value: Any) -> str | None:
+    """Return why ``value`` is wrong for parameter ``name``, or None when it is fine."""
+    s = _BY_NAME.get(name)
+    if s is None:
+        return 'unknown parameter (known: {})'.format(', '.join(sorted(_BY_NAME)))
+    want = _kind(s.default)
+    got = _kind(value)
+    if want == 'double' and got == 'int':
+        # rclpy types parameters by their YAML spelling and refuses an integer for a double.
+        return 'expected a double, got the integer {!r} (write {!r})'.format(value, float(value))
+    if want != got:
+        return 'expected a {}, got {!r}'.format(want, value)
+    items = list(value) if want == 'double[]' else [value] if want == 'double' else []
+    if want == 'double[]':
+        if s.length is not None and len(items) != s.length:
+            return 'expected {} numbers, got {}: {!r}'.format(s.length, len(items), value)
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in items):
+            return 'expected numbers, got {!r}'.format(value)
+    for x in items:
+        if not math.isfinite(x):
+            return 'must be finite, got {!r}'.format(value)
+        if (s.lo is not None and x < s.lo) or (s.hi is not None and x > s.hi):
+            return 'must be within [{}, {}], got {!r}'.format(s.lo, s.hi, value)
+    if s.check is not None:
+        return s.check(value)
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class BridgeParams:
+    """Validated parameter values, in the shapes the node uses."""
+
+    values: Mapping[str, Any]
+
+    def __getitem__(self, name: str) -> Any:
+        """Return the value of parameter ``name``."""
+        return self.values[name]
+
+    def port(self, role: str) -> int | str:
+        """Return the port number or label for ``role``."""
+        return parse_port(self.values['ports.' + role])
+
+    def topic(self, role: str) -> str:
+        """Return the topic name for ``role``."""
+        return self.values['topics.' + role]
+
+
+def parse_port(value: str) -> int | str:
+    """Return a port given as a string: a number when all digits, else the label."""
+    return int(value) if value.isdigit() else value
+
+
+def _cross_check(values: Mapping[str, Any]) -> None:
+    lo, hi = values['sonar_min_range'], values['sonar_max_range']
+    if not hi > lo:
+        raise ParamError('sonar_max_range', 'must exceed sonar_min_range ({!r}), got {!r}'.format(
+            lo, hi))
+
+
+def from_values(values: Mapping[str, Any]) -> BridgeParams:
+    """Validate a complete name -> value mapping (defaults filled in) into BridgeParams."""
+    full = {s.name: s.default for s in SPECS}
+    full.update(values)
+    for name, value in full.items():
+        reason = validate(name, value)
+        if reason is not None:
+            raise ParamError(name, reason)
+    for s in SPECS:
+        if isinstance(s.default, float):
+            full[s.name] = float(full[s.name])
+        elif isinstance(s.default, list):
+            full[s.name] = [float(x) for x in full[s.name]]
+    _cross_check(full)
+    return BridgeParams(full)
+
+
+def _flatten(prefix: str, m: Mapping[str, Any], out: dict[str, Any]) -> None:
+    # ROS parameter files nest dotted names: {'ports': {'cmd': 'cmd'}} is 'ports.cmd'.
+    for k, v in m.items():
+        name = '{}.{}'.format(prefix, k) if prefix else str(k)
+        if isinstance(v, Mapping):
+            _flatten(name, v, out)
+        else:
+            out[name] = v
+
+
+def check_section(doc: Any, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Validate the parameters of ``node_name`` in a parsed ROS parameter file.
+
+    Looks at the ``<node_name>`` and ``/**`` sections (with or without a leading ``/``);
+    returns the flat name -> value mapping and raises ParamError naming the first bad one.
+    """
+    if doc is None:
+        return {}
+    if not isinstance(doc, Mapping):
+        raise ParamError('<file>', 'top level must be a mapping, got {!r}'.format(doc))
+    found: dict[str, Any] = {}
+    for key, section in doc.items():
+        if str(key).lstrip('/') not in (node_name, '**'):
+            continue
+        if not isinstance(section, Mapping) or not isinstance(
+                section.get('ros__parameters', {}), Mapping):
+            raise ParamError(str(key), "expected a mapping with 'ros__parameters', got {!r}"
+                             .format(section))
+        flat: dict[str, Any] = {}
+        _flatten('', section.get('ros__parameters') or {}, flat)
+        wildcard = str(key).lstrip('/') == '**'
+        # A wildcard section also feeds other nodes: only its names known here are ours.
+        found.update((k, v) for k, v in flat.items() if not wildcard or k in _BY_NAME)
+    for name, value in found.items():
+        if name == 'use_sim_time':
+            continue
+        reason = validate(name, value)
+        if reason is not None:
+            raise ParamError(name, reason)
+    return found
