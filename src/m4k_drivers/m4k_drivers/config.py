@@ -24,6 +24,7 @@ from typing import Any
 from m4k_drivers import registry
 from m4k_drivers.handler import DriverError
 from m4k_drivers.world import WorldConfig, WorldConfigError
+from m4k_rt.config import deep_merge as merge
 
 __all__ = ['DEFAULT_PORTS', 'ConfigError', 'DriverConfig', 'default_config_path', 'load',
            'load_file', 'merge', 'validate']
@@ -75,17 +76,6 @@ def load_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError(f'{path}: top level must be a mapping, got {type(data).__name__}')
     return data
-
-
-def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    """Return ``base`` deep-merged with ``over`` (mappings merge, other values replace)."""
-    out = copy.deepcopy(base)
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 def _check_type(value: Any, param: registry.Param, where: str) -> Any:
@@ -166,5 +156,5 @@ def load(path: str | os.PathLike[str] | None = None,
     """Load ``path`` (default :func:`default_config_path`), layer ``overrides``, validate."""
     doc = load_file(path or default_config_path())
     if overrides:
-        doc = merge(doc, overrides)
+        doc = merge(doc, overrides)      # m4k_rt.config.deep_merge: the stack's one layering
     return validate(doc)

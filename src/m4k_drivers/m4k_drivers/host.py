@@ -263,8 +263,8 @@ def format_reading(kind: str, value: Any) -> str:
                 f'angle=({value.left_angle:+.4f},{value.right_angle:+.4f}) rad '
                 f'status=0x{value.status:02x}')
     if kind == 'led':
-        from m4k_drivers.led.protocol import LedColor, to_hex
-        return f'led shown={to_hex(LedColor(*value))}'
+        from m4k_drivers.led.protocol import to_hex
+        return f'led shown={to_hex(value)}'
     if kind == 'lrf':
         ranges = [int(x) for x in value.ranges_mm]
         valid = [x for x in ranges if x >= 20]

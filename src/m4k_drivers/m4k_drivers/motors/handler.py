@@ -8,6 +8,7 @@ actuator periods, until a fresh command comes (docs/internals.md, driver host wa
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any, Callable, NamedTuple
 
@@ -56,7 +57,7 @@ class MotorHandler(DeviceHandler):
         self.clock = clock
         self.watchdog_ns = int(period_s * watchdog_periods * 1e9)
         self.lead_bits = lead_bits
-        max_rate = max_wheel_rad_s / (2 * 3.141592653589793) * p.ENC_COUNTS
+        max_rate = max_wheel_rad_s / (2 * math.pi) * p.ENC_COUNTS
         self.unwrap = (p.Unwrapper(max_rate), p.Unwrapper(max_rate))
         self.codes = (p.DAC_ZERO, p.DAC_ZERO)
         self.safe = True

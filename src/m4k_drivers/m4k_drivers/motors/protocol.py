@@ -36,6 +36,7 @@ import math
 from typing import NamedTuple
 
 from m4k_drivers.handler import DeviceProtocolError
+from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # WHEEL_CMD codes: 0..1023, 512 = zero
 
 __all__ = [
     'DAC_MAX', 'DAC_ZERO', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame', 'EncoderFrame',
@@ -46,8 +47,6 @@ __all__ = [
 ]
 
 DAC_BITS = 10
-DAC_MAX = (1 << DAC_BITS) - 1
-DAC_ZERO = 512
 DAC_SPAN = DAC_MAX - DAC_ZERO          # 511 codes from zero to full forward
 
 ENC_BITS = 12

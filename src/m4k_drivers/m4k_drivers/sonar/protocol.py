@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from typing import Iterable, NamedTuple
 
+from m4k_rt.protocol import SONAR_FAULT, SONAR_NO_ECHO, SONAR_OK, SONAR_TIMEOUT
+
 __all__ = ['ECHO_TIMEOUT_S', 'MAX_RANGE_M', 'MIN_RANGE_M', 'STATUS_FAULT', 'STATUS_NO_ECHO',
            'STATUS_OK', 'STATUS_TIMEOUT', 'TRIGGER_S', 'Edge', 'SonarReading', 'edges_to_width',
            'pulse_to_range', 'range_to_pulse', 'speed_of_sound']
@@ -21,10 +23,11 @@ MIN_RANGE_M = 0.02
 MAX_RANGE_M = 4.5
 ECHO_TIMEOUT_S = 0.06        # > the ~38 ms "no echo" pulse HC-SR04-style modules emit
 
-STATUS_OK = 0
-STATUS_NO_ECHO = 1           # no echo / out of range
-STATUS_TIMEOUT = 2           # no edges: sensor not answering
-STATUS_FAULT = 3             # edges inconsistent or transport error
+# The SONAR datagram's status codes (m4k_rt.protocol).
+STATUS_OK = SONAR_OK              # range valid
+STATUS_NO_ECHO = SONAR_NO_ECHO    # no echo / out of range
+STATUS_TIMEOUT = SONAR_TIMEOUT    # no edges: sensor not answering
+STATUS_FAULT = SONAR_FAULT        # edges inconsistent or transport error
 
 
 class Edge(NamedTuple):
