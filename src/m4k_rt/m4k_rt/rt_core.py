@@ -25,11 +25,13 @@ from typing import Any, Mapping, Sequence
 from m4k_rt import config, modeswitch, protocol, sched, tasks, timing
 from m4k_rt.task import RtTask
 from m4k_rt.tasks import register_body
+from m4k_rt.tasks.portio import PortReader
 from m4k_rt.timerfd import monotonic_ns
 
 __all__ = ['InstanceLock', 'LockError', 'SharedState', 'StatsShipper', 'main', 'register_body']
 
 BODY_MODULES_ENV = 'M4K_BODY_MODULES'
+DRAIN_MONITOR = 1024  # datagrams drained per monitor port and cycle (1 s, lowest priority)
 
 
 class LockError(RuntimeError):
@@ -98,6 +100,11 @@ class StatsShipper:
         self._names: list[bytes] = []
         self.seq = 0
         self.batches = 0
+        # The NRT side only reads these ports: what it writes is drained, counted and dropped
+        # (malformed on the socket, valid ones here), so it can neither fill the socket buffer
+        # unseen nor pass unnoticed.
+        self._readers = [PortReader(sock, 256) for sock, _ in self.ports]
+        self.unexpected = 0
 
     def _prepare(self) -> None:
         n = len(self.shared.tasks)
@@ -120,6 +127,11 @@ class StatsShipper:
     def ship(self) -> None:
         """Send one batch: samples since the last batch, counters, call sites, status."""
         self._prepare()
+        for r in self._readers:
+            r.start_cycle()
+            r.budget = DRAIN_MONITOR
+            while r.next() is not None:
+                self.unexpected += 1
         linked = [sock.poll_peer() for sock, _ in self.ports]
         extra_linked = any(ok and extra for ok, (_, extra) in zip(linked, self.ports,
                                                                    strict=True))

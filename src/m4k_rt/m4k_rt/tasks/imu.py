@@ -33,6 +33,7 @@ class ImuBody:
         self._dev_in = PortReader(dev_sock)
         self._dev_out = PortWriter(dev_sock)
         self._out = PortWriter(out_sock)
+        self._out_in = PortReader(out_sock, 256)
         self._latest = bytearray(len(self._dev_in.buf))
         self._latest_view = memoryview(self._latest)
         self._clock = clock
@@ -69,6 +70,12 @@ class ImuBody:
         if n:
             self._out.forward(self._latest_view[:n])
             self.state.imu_rx_ns = now
+        # The bridge only reads imu_out: drain what it writes anyway (counted, never used). This
+        # also links a (re)started bridge now rather than at the next datagram forwarded.
+        out_in = self._out_in
+        out_in.start_cycle()
+        while out_in.next() is not None:
+            self.unexpected += 1
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, 0)
         self.cycles += 1
 

@@ -40,6 +40,7 @@ class LrfBody:
         self._dev_in = PortReader(dev_sock)
         self._dev_out = PortWriter(dev_sock)
         self._out = PortWriter(out_sock)
+        self._out_in = PortReader(out_sock, 256)
         self._clock = clock
         self.cycles = 0
         self.scans = 0
@@ -71,6 +72,12 @@ class LrfBody:
                 state.lrf_level = msg.level
             else:
                 self.unexpected += 1
+        # The bridge only reads lrf_out: drain what it writes anyway (counted, never used). This
+        # also links a (re)started bridge now rather than at the next datagram forwarded.
+        out_in = self._out_in
+        out_in.start_cycle()
+        while out_in.next() is not None:
+            self.unexpected += 1
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, SCAN_REQUEST)
         self.cycles += 1
 

@@ -44,6 +44,7 @@ class SonarBody:
         self._dev_in = PortReader(dev_sock)
         self._dev_out = PortWriter(dev_sock)
         self._out = PortWriter(out_sock)
+        self._out_in = PortReader(out_sock, 256)
         self._clock = clock
         self.cycles = 0
         self.readings = 0
@@ -83,6 +84,12 @@ class SonarBody:
                 state.sonar_level = msg.level
             else:
                 self.unexpected += 1
+        # The bridge only reads sonar_out: drain what it writes anyway (counted, never used). This
+        # also links a (re)started bridge now rather than at the next datagram forwarded.
+        out_in = self._out_in
+        out_in.start_cycle()
+        while out_in.next() is not None:
+            self.unexpected += 1
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, TRIGGER)
         self.cycles += 1
 
