@@ -75,6 +75,12 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--condition-duration', type=float, default=None,
                     help='seconds per Fig. 10 / cyclictest condition (default {:g})'.format(
                         FULL['condition_s']))
+    ap.add_argument('--rtt-n', type=int, default=None,
+                    help='round trips per transport (default {:g}, quick {:g})'.format(
+                        FULL['rtt_n'], QUICK['rtt_n']))
+    ap.add_argument('--cmd-trials', type=int, default=None,
+                    help='cmd_vel latency trials (default {:g}, quick {:g})'.format(
+                        FULL['cmd_trials'], QUICK['cmd_trials']))
     ap.add_argument('--results', default='results', help='results root directory')
     ap.add_argument('--skip', default='', help='comma list of phases to skip: ' +
                     ', '.join(PHASES))
@@ -88,6 +94,12 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.plan = plan_durations(args.quick, args.duration, args.condition_duration)
     except ValueError as exc:
         ap.error(str(exc))
+    for key in ('rtt_n', 'cmd_trials'):
+        value = getattr(args, key)
+        if value is not None:
+            if value < 1:
+                ap.error('--{} must be >= 1, got {!r}'.format(key.replace('_', '-'), value))
+            args.plan[key] = value
     return args
 
 

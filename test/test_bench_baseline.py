@@ -1,0 +1,89 @@
+"""The plain-ROS baseline node: timing buffer, release arithmetic, and a real run over DDS."""
+
+import csv
+import sys
+import time
+
+from geometry_msgs.msg import Twist
+from nav_msgs.msg import Odometry
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+
+from m4k_drivers import baseline
+
+MS = 1_000_000
+
+
+def test_release_index_serves_the_latest_release_and_never_goes_back():
+    t0, p = 1_000 * MS, 10 * MS
+    assert baseline.release_index(t0 + 50_000, t0, p, -1) == 0
+    assert baseline.release_index(t0 + p + 1, t0, p, 0) == 1
+    assert baseline.release_index(t0 + 3 * p + 5, t0, p, 1) == 3      # two releases skipped
+    assert baseline.release_index(t0 + p - 10, t0, p, 1) == 2         # early wake: next one
+
+
+def test_timing_buffer_preallocates_counts_drops_and_writes_csv(tmp_path):
+    buf = baseline.TimingBuffer(2)
+    buf.record(1, 2, 3, 1)
+    buf.record(4, 5, 6, 2)
+    buf.record(7, 8, 9, 1)
+    assert buf.count == 2 and buf.dropped == 1
+    path = tmp_path / 'sub' / 't.csv'
+    assert buf.write_csv(str(path)) == 2
+    rows = list(csv.reader(path.open()))
+    assert rows == [['task', 't_rel_ns', 't_start_ns', 't_end_ns', 'expirations'],
+                    ['baseline', '1', '2', '3', '1'], ['baseline', '4', '5', '6', '2']]
+
+
+def test_timing_buffer_rejects_bad_capacity_and_unwritable_path(tmp_path):
+    with pytest.raises(ValueError, match='capacity must be an int >= 1, got 0'):
+        baseline.TimingBuffer(0)
+    (tmp_path / 'file').write_text('')
+    with pytest.raises(OSError, match='cannot write timing CSV'):
+        baseline.TimingBuffer(1).write_csv(str(tmp_path / 'file' / 'x.csv'))
+
+
+def test_baseline_rejects_negative_duration(procs):
+    p = procs.start(['python', '-c', 'import sys; from m4k_drivers.baseline import main; '
+                     'sys.exit(main())', '--duration', '-1'])
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 2
+    assert '--duration must be >= 0 s, got -1.0' in err
+
+
+@pytest.mark.allow_leaks('fds')  # FastDDS keeps its transport sockets for the process lifetime
+def test_baseline_drives_the_sim_robot_from_cmd_vel_and_times_every_callback(procs, tmp_path):
+    out = tmp_path / 'timing.csv'
+    p = procs.start([sys.executable, '-c', 'import sys; from m4k_drivers.baseline import main; '
+                     'sys.exit(main())', '--duration', '6', '--timing-csv', str(out)])
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    odom = []
+    try:
+        node = rclpy.create_node('baseline_test', context=ctx)
+        pub = node.create_publisher(Twist, 'cmd_vel', 10)
+        node.create_subscription(Odometry, 'odom', odom.append, 10)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        cmd = Twist()
+        cmd.linear.x = 0.25
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and p.poll() is None:
+            pub.publish(cmd)
+            ex.spin_once(timeout_sec=0.05)
+        ex.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 0, err
+    assert odom, 'no odom from the baseline node'
+    assert max(m.pose.pose.position.x for m in odom) > 0.02   # it moved forward
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) > 100                                     # ~600 callbacks in 6 s
+    rel = [int(r['t_rel_ns']) for r in rows]
+    assert all(b - a == 10 * MS * int(r['expirations'])
+               for a, b, r in zip(rel[:-1], rel[1:], rows[1:], strict=True))
+    assert all(int(r['t_end_ns']) >= int(r['t_start_ns']) for r in rows)
+    assert 'callbacks timed (0 dropped)' in err
