@@ -222,6 +222,7 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
         _stats_batch(rt, 'actuator', 0, 90, 10_000_000, c, 20, 1_000_000)
         _stats_batch(rt, 'lrf', 4, 70, 200_000_000, c, 20, 20_000_000)
         rt.send('status', protocol.Kind.RT_STATUS, 1, 1, 0, 1, 0, 2, c)
+        rt.send('cmd', protocol.Kind.ODOMETRY, 0, 0, 0, 0, 0, 0, 0, protocol.ODOM_GUARD)
         state['cycle'] = c + 20
 
     def ready():
@@ -241,7 +242,7 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
     assert m.total_utilization == pytest.approx(0.2)
     assert m.liu_layland_bound == pytest.approx(2 * (2 ** 0.5 - 1))
     assert m.schedulable and m.policy == RtStatus.POLICY_FIFO and m.memory_locked
-    assert m.collision_guard_active
+    assert m.collision_guard_active and not m.degraded
     assert {p.label for p in m.ports} == set(PORTS) and all(p.linked for p in m.ports)
     d = [d for d in diags if any(s.name == 'm4k_bridge: rt link' and s.level == b'\x00'
                                  for s in d.status)][-1]

@@ -22,11 +22,14 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats
 from m4k_rt import modeswitch, protocol, timing
 
-__all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'level_byte', 'make_status', 'timing_stats']
+__all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte', 'make_status',
+           'timing_stats']
 
 LEVELS = {protocol.LEVEL_OK: 'OK', protocol.LEVEL_WARN: 'WARN', protocol.LEVEL_ERROR: 'ERROR',
           protocol.LEVEL_STALE: 'STALE'}
 _NS = 1e-9
+RT_FLAG_GC_FROZEN = 0x1     # RT_STATUS.flags bits (rt_core's monitor)
+RT_FLAG_DMA_LATENCY = 0x2
 
 
 def level_byte(level: int) -> bytes:
@@ -55,6 +58,20 @@ def timing_stats(s: timing.Stats) -> TimingStats:
         return TimingStats()
     return TimingStats(samples=s.n, avg=s.avg * _NS, std=s.std * _NS, min=s.min * _NS,
                        max=s.max * _NS, p50=s.p50 * _NS, p99=s.p99 * _NS, p999=s.p999 * _NS)
+
+
+def degraded_reasons(rs: protocol.RtStatus) -> list[str]:
+    """Return what RT_STATUS says is missing from the RT hardening."""
+    out = []
+    if rs.policy != 1:
+        out.append('SCHED_FIFO not granted to every RT thread')
+    if not rs.mem_locked:
+        out.append('memory not locked (mlockall off or refused)')
+    if not rs.flags & RT_FLAG_GC_FROZEN:
+        out.append('garbage collector not frozen')
+    if not rs.flags & RT_FLAG_DMA_LATENCY:
+        out.append('/dev/cpu_dma_latency not held')
+    return out or ['RT hardening degraded (see the rt_core log)']
 
 
 class TaskWindow:
@@ -183,9 +200,9 @@ class RtMonitor:
             msg.memory_locked = bool(rs.mem_locked)
             msg.degraded = bool(rs.degraded)
             if rs.degraded:
-                msg.degraded_reasons = ['RT hardening degraded (flags 0x{:x}); the rt_core '
-                                        'log names each failed step'.format(rs.flags)]
-            guard_active = guard_active or bool(rs.guard_active)
+                msg.degraded_reasons = degraded_reasons(rs)
+        # RT_STATUS.guard_active is rt_core's forbidden-call audit guard, not the collision
+        # guard: that one comes from the ODOMETRY flags (the caller passes it in).
         msg.collision_guard_active = guard_active
         msg.rt_link_age = float(link_age_s)
         tasks = []

@@ -20,7 +20,8 @@ from typing import Any, Callable, Mapping
 
 __all__ = [
     'BridgeParams', 'NODE_NAME', 'ParamError', 'ParamSpec', 'PORT_ROLES', 'SPECS',
-    'TOPIC_ROLES', 'check_section', 'from_values', 'parse_port', 'spec', 'validate',
+    'TOPIC_ROLES', 'check_section', 'flatten_section', 'from_values', 'nest', 'parse_port',
+    'spec', 'validate',
 ]
 
 NODE_NAME = 'm4k_bridge'
@@ -127,13 +128,13 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec('imu_linear_acceleration_covariance_diagonal', [0.01, 0.01, 0.01],
               'Diagonal of the imu linear acceleration covariance [m^2/s^4]. ' + _COV,
               lo=0.0, hi=1.0e9, length=3),
-    ParamSpec('laser_pose', [0.15, 0.0, 0.2, 0.0, 0.0, 0.0],
+    ParamSpec('laser_pose', [0.0, 0.0, 0.2, 0.0, 0.0, 0.0],
               'Static pose of laser_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
               lo=-10.0, hi=10.0, read_only=True, length=6),
     ParamSpec('imu_pose', [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
               'Static pose of imu_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
               lo=-10.0, hi=10.0, read_only=True, length=6),
-    ParamSpec('sonar_pose', [0.22, 0.0, 0.1, 0.0, 0.0, 0.0],
+    ParamSpec('sonar_pose', [0.225, 0.0, 0.1, 0.0, 0.0, 0.0],
               'Static pose of sonar_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
               lo=-10.0, hi=10.0, read_only=True, length=6),
     ParamSpec('sonar_field_of_view', 0.2618, 'Sonar cone opening [rad] (US-100: about 15 deg).',
@@ -269,6 +270,30 @@ def check_section(doc: Any, node_name: str = NODE_NAME) -> dict[str, Any]:
     Looks at the ``<node_name>`` and ``/**`` sections (with or without a leading ``/``);
     returns the flat name -> value mapping and raises ParamError naming the first bad one.
     """
+    found = flatten_section(doc, node_name)
+    for name, value in found.items():
+        if name == 'use_sim_time':
+            continue
+        reason = validate(name, value)
+        if reason is not None:
+            raise ParamError(name, reason)
+    return found
+
+
+def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """Return dotted names as nested mappings, the layout of ROS parameter files."""
+    out: dict[str, Any] = {}
+    for name, value in flat.items():
+        *parents, leaf = name.split('.')
+        node = out
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return out
+
+
+def flatten_section(doc: Any, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Return the flat name -> value parameters of ``node_name`` in a parameter file."""
     if doc is None:
         return {}
     if not isinstance(doc, Mapping):
@@ -286,10 +311,4 @@ def check_section(doc: Any, node_name: str = NODE_NAME) -> dict[str, Any]:
         wildcard = str(key).lstrip('/') == '**'
         # A wildcard section also feeds other nodes: only its names known here are ours.
         found.update((k, v) for k, v in flat.items() if not wildcard or k in _BY_NAME)
-    for name, value in found.items():
-        if name == 'use_sim_time':
-            continue
-        reason = validate(name, value)
-        if reason is not None:
-            raise ParamError(name, reason)
     return found

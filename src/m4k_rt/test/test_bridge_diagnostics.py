@@ -1,0 +1,70 @@
+"""RT timing -> RtStatus / DiagnosticStatus aggregation of the bridge (pure, no rclpy)."""
+
+import pytest
+
+from m4k_rt import protocol
+from m4k_rt.bridge.diagnostics import degraded_reasons, RtMonitor, TaskWindow
+
+P = 10_000_000
+
+
+def _stats(first, n, cycles=None, response=1_000_000, name='actuator'):
+    samples = tuple(protocol.TaskSample(i * P, i * P + 20_000, i * P + 20_000 + response, 1)
+                    for i in range(first, first + n))
+    return protocol.TaskStats(name, 0, 90, -1, P, cycles if cycles is not None else first + n,
+                              0, 0, 0, 0, samples)
+
+
+def test_window_drops_duplicates_and_keeps_only_the_window():
+    w = TaskWindow('actuator', window_ns=50 * P)
+    w.add(_stats(0, 40), 1)
+    w.add(_stats(30, 40), 2)          # rows 30..39 repeated (same batch on two ports)
+    assert w.duplicates == 10
+    assert w.rows[0][0] == 19 * P and w.rows[-1][0] == 69 * P  # 50 periods kept
+    a = w.analyze()
+    assert a.cycles == 51 and a.response.max == pytest.approx(1_000_000)
+
+
+def test_window_restarts_when_the_rt_process_restarted():
+    w = TaskWindow('actuator', window_ns=10**12)
+    w.add(_stats(100, 10), 1)
+    w.add(_stats(0, 5), 2)            # cycles went backwards: a new RT process
+    assert len(w.rows) == 5 and w.rows[0][0] == 0
+
+
+def test_stalled_task_is_an_error_and_silent_task_is_stale():
+    m = RtMonitor(window_s=10.0, stale_s=1.0)
+    m.feed(protocol.Kind.TASK_STATS, _stats(0, 10), 0)
+    m.feed(protocol.Kind.TASK_STATS, _stats(10, 0, cycles=10), 0)
+    (st,) = m.task_statuses(now_ns=0)
+    assert st.level == b'\x02' and 'stopped' in st.message
+    (st,) = m.task_statuses(now_ns=2_000_000_000)
+    assert st.level == b'\x03'
+
+
+def test_deadline_misses_warn_and_make_the_set_unschedulable():
+    m = RtMonitor()
+    m.feed(protocol.Kind.TASK_STATS, _stats(0, 10, response=12_000_000), 0)
+    (st,) = m.task_statuses(now_ns=0)
+    assert st.level == b'\x01' and '10 deadline misses' in st.message
+    msg = m.rt_status_msg(0, 0.0)
+    assert msg.tasks[0].deadline_misses == 10 and not msg.schedulable
+    assert msg.total_utilization > 1.0
+
+
+def test_device_status_reports_pass_through_and_go_stale():
+    m = RtMonitor(stale_s=1.0)
+    m.feed(protocol.Kind.DEVICE_STATUS, protocol.DeviceStatus('lrf', 3, 1, 4, 6), 0)
+    (name, level, _, values), = m.device_levels(0)
+    assert (name, level, values['faults']) == ('lrf', 1, 4)
+    (_, level, _, _), = m.device_levels(5_000_000_000)
+    assert level == protocol.LEVEL_STALE
+
+
+def test_degraded_reasons_name_what_is_missing():
+    rs = protocol.RtStatus(0, 0, 1, 0, 0x2, 6, 100)
+    reasons = degraded_reasons(rs)
+    assert any('SCHED_FIFO' in r for r in reasons)
+    assert any('mlockall' in r for r in reasons)
+    assert any('garbage collector' in r for r in reasons)
+    assert not any('cpu_dma_latency' in r for r in reasons)
