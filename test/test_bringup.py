@@ -1,0 +1,236 @@
+"""bringup: pure helpers, configuration errors, single instance, supervision, ordered stop."""
+
+import ast
+import os
+import py_compile
+import re
+import signal
+import sys
+import time
+import types
+
+import pytest
+import yaml
+
+from m4k_rt.bridge import params as bridge_params
+from m4k_rt.testing import child_pids
+from m4k_rt.tools import bringup
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+LAUNCH = os.path.join(ROOT, 'src', 'm4k_rt', 'launch', 'm4k.launch.py')
+BASE_OVERLAY = {'runtime': {'mlockall': False, 'cpu_dma_latency': False,
+                            'start_delay_ms': 10}}
+
+
+def stack_env(runtime_dir):
+    """Return the environment for stack processes started from the source tree."""
+    env = dict(os.environ)
+    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
+    env['PYTHONPATH'] = os.pathsep.join(
+        src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
+    env['M4K_RUNTIME_DIR'] = runtime_dir
+    env['M4K_CONFIG_DIR'] = os.path.join(ROOT, 'config')
+    return env
+
+
+def write_overlay(tmp_path, extra=None, name='overlay.yaml'):
+    doc = dict(BASE_OVERLAY)
+    doc.update(extra or {})
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(doc))
+    return str(path)
+
+
+def start_bringup(procs, tmp_path, runtime_dir, overlay, tag='bringup', extra=()):
+    out = open(tmp_path / (tag + '.out'), 'w')
+    err = open(tmp_path / (tag + '.err'), 'w')
+    try:
+        return procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+                            overlay, '--status-interval', '1', *extra],
+                           env=stack_env(runtime_dir), stdout=out, stderr=err)
+    finally:
+        out.close()
+        err.close()
+
+
+def wait_for(predicate, timeout, what):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError('timed out after {} s waiting for {}'.format(timeout, what))
+
+
+def cmdline(pid):
+    try:
+        with open('/proc/{}/cmdline'.format(pid), 'rb') as f:
+            return f.read().replace(b'\0', b' ').decode()
+    except OSError:
+        return ''
+
+
+# --- pure helpers --------------------------------------------------------------------------------
+
+def test_restart_delay_doubles_and_is_capped():
+    assert bringup.restart_delay(0) == 0.0
+    assert [bringup.restart_delay(n) for n in (1, 2, 3, 4)] == [0.5, 1.0, 2.0, 4.0]
+    assert bringup.restart_delay(20) == 10.0
+
+
+def test_bridge_overlay_coerces_integers_and_adds_the_runtime_dir():
+    doc = {'m4k_bridge': {'ros__parameters': {'cmd_vel_timeout': 1, 'topics': {'odom': 'o'},
+                                              'imu_pose': [0, 0, 1, 0, 0, 0]}}}
+    out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
+    assert out['cmd_vel_timeout'] == 1.0 and isinstance(out['cmd_vel_timeout'], float)
+    assert out['topics'] == {'odom': 'o'} and out['runtime_dir'] == '/run/x'
+    assert all(isinstance(v, float) for v in out['imu_pose'])
+
+
+def test_bridge_overlay_names_a_bad_field():
+    doc = {'m4k_bridge': {'ros__parameters': {'max_linear_velocity': -3}}}
+    with pytest.raises(bridge_params.ParamError) as info:
+        bringup.bridge_overlay(doc, '/run/x')
+    assert info.value.name == 'max_linear_velocity'
+
+
+def test_resolve_command_falls_back_to_python_m():
+    spec = bringup.ChildSpec('x', 'no_such_pkg_m4k', 'x', 'm4k_rt.x', ('--a',))
+    assert bringup.resolve_command(spec) == [sys.executable, '-m', 'm4k_rt.x', '--a']
+
+
+def test_child_specs_pass_the_overlay_the_way_each_child_takes_it():
+    rt, host, bridge = bringup.child_specs('/o.yaml', '/tmp/p.yaml', '/c/bridge.yaml', '/run/m')
+    assert rt.args == ('--config', '/o.yaml')
+    assert host.args == ('--runtime-dir', '/run/m', '--overlay', '/o.yaml')
+    assert bridge.args[-4:] == ('--params-file', '/c/bridge.yaml', '--params-file',
+                                '/tmp/p.yaml')
+
+
+def _timing(samples, avg, jmax):
+    return types.SimpleNamespace(samples=samples, avg=avg, max=jmax)
+
+
+def test_format_status_shows_tasks_rates_jitter_guard_restarts():
+    task = types.SimpleNamespace(name='actuator', period_measured=_timing(10, 0.01, 0.01),
+                                 jitter=_timing(10, 0.0, 0.0004))
+    lrf = types.SimpleNamespace(name='lrf', period_measured=_timing(5, 0.2, 0.2),
+                                jitter=_timing(5, 0.0, 0.0021))
+    rt = types.SimpleNamespace(tasks=[task, lrf], collision_guard_active=True, rt_link_age=0.1)
+    line = bringup.format_status(rt, {'actuator': 0, 'lrf': 1}, 3, 75.0, ['bridge'])
+    assert line.startswith('m4k 1:15 | tasks 1/2 OK | act 100.0 lrf 5.0 Hz')
+    assert 'worst jitter 2.10 ms (lrf)' in line and 'guard ACTIVE' in line
+    assert 'restarts 3' in line and 'down: bridge' in line and '\n' not in line
+    assert 'waiting for rt_status' in bringup.format_status(None, {}, 0, 1.0)
+
+
+def test_lock_owner_sees_a_held_flock(tmp_path):
+    import fcntl
+    assert bringup.lock_owner(str(tmp_path)) is None
+    path = tmp_path / 'rt_core.lock'
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        os.write(fd, b'4242\n')
+        assert bringup.lock_owner(str(tmp_path)) is None   # file exists but nobody holds it
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        assert bringup.lock_owner(str(tmp_path)) == '4242'
+    finally:
+        os.close(fd)
+
+
+def test_launch_file_compiles_and_defines_the_entry_point(tmp_path):
+    py_compile.compile(LAUNCH, cfile=str(tmp_path / 'launch.pyc'), doraise=True)
+    with open(LAUNCH, encoding='utf-8') as f:
+        tree = ast.parse(f.read())
+    names = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+    assert 'generate_launch_description' in names
+    text = ast.unparse(tree)
+    for exe in ("'rt_core'", "'driver_host'", "'bridge'", "'bridge.yaml'"):
+        assert exe in text
+
+
+# --- processes ---------------------------------------------------------------------------------
+
+def test_bridge_with_a_bad_parameter_file_exits_2_naming_the_field(procs, tmp_path,
+                                                                     m4k_runtime_dir):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('m4k_bridge:\n  ros__parameters:\n    cmd_vel_timeout: -4.0\n')
+    p = procs.start(['python', '-m', 'm4k_rt.bridge.node', '--ros-args', '--params-file',
+                     str(bad)], env=stack_env(m4k_runtime_dir))
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 2, err
+    assert "parameter 'cmd_vel_timeout'" in err and 'within [0.0, 60.0]' in err
+
+
+def test_bridge_with_a_misspelt_parameter_exits_2(procs, tmp_path, m4k_runtime_dir):
+    bad = tmp_path / 'typo.yaml'
+    bad.write_text('m4k_bridge:\n  ros__parameters:\n    max_linear_velocty: 1.0\n')
+    p = procs.start(['python', '-m', 'm4k_rt.bridge.node', '--ros-args', '--params-file',
+                     str(bad)], env=stack_env(m4k_runtime_dir))
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 2 and 'max_linear_velocty' in err and 'unknown parameter' in err
+
+
+@pytest.mark.parametrize('extra, field', [
+    ({'m4k_bridge': {'ros__parameters': {'odom_frame': ''}}}, 'odom_frame'),
+    ({'tasks': {'led': {'priority': 120}}}, 'tasks.led.priority'),
+])
+def test_bringup_refuses_a_bad_overlay_naming_the_field(procs, tmp_path, m4k_runtime_dir,
+                                                         extra, field):
+    overlay = write_overlay(tmp_path, extra)
+    p = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay)
+    assert p.wait(30) == 2
+    err = (tmp_path / 'bringup.err').read_text()
+    assert field in err and 'config error' in err
+    assert 'starting' not in err  # refused before any child started
+
+
+def test_second_bringup_is_refused_and_first_stops_in_order_after_a_restart(
+        procs, tmp_path, m4k_runtime_dir):
+    overlay = write_overlay(tmp_path)
+    first = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay, 'first', ['--no-status'])
+    wait_for(lambda: bringup.lock_owner(m4k_runtime_dir) is not None, 30, 'rt_core lock')
+
+    second = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay, 'second')
+    assert second.wait(30) == 2
+    err2 = (tmp_path / 'second.err').read_text()
+    assert 'another m4k stack owns {}'.format(m4k_runtime_dir) in err2
+
+    # Supervision: a crashed driver host is restarted and the restart is reported.
+    def host_pid():
+        pids = [p for p in child_pids(first.pid) if 'm4k_drivers.host' in cmdline(p)]
+        return pids[0] if pids else None
+
+    wait_for(lambda: host_pid() is not None, 20, 'driver_host')
+    old = host_pid()
+    os.kill(old, signal.SIGKILL)
+    wait_for(lambda: host_pid() not in (None, old), 20, 'driver_host restart')
+    err1 = lambda: (tmp_path / 'first.err').read_text()  # noqa: E731
+    wait_for(lambda: 'driver_host restarted (restart 1)' in err1(), 10, 'restart report')
+    assert re.search(r'driver_host exited with code -9 after [\d.]+ s; restart 1', err1())
+
+    kids = child_pids(first.pid)
+    assert len(kids) == 3
+    first.send_signal(signal.SIGTERM)
+    assert first.wait(40) == 0
+    text = err1()
+    order = [text.index('bringup: {} stopped'.format(n))
+             for n in ('bridge', 'driver_host', 'rt_core')]
+    assert order == sorted(order), text[-2000:]
+    for pid in kids:
+        assert not os.path.exists('/proc/{}'.format(pid)) or 'Z' in open(
+            '/proc/{}/stat'.format(pid)).read().split(')')[-1][:3]
+    assert bringup.lock_owner(m4k_runtime_dir) is None
+
+
+def test_plain_status_lines_when_stdout_is_not_a_tty(procs, tmp_path, m4k_runtime_dir):
+    overlay = write_overlay(tmp_path)
+    p = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay)
+    out = lambda: (tmp_path / 'bringup.out').read_text()  # noqa: E731
+    wait_for(lambda: re.search(r'tasks \d/6 OK', out()), 40, 'a status line with 6 tasks')
+    p.send_signal(signal.SIGINT)
+    assert p.wait(40) == 0
+    lines = [ln for ln in out().splitlines() if 'tasks' in ln]
+    assert lines and '\r' not in out() and all(ln.startswith('m4k ') for ln in lines)
+    assert any(re.search(r'act \d+\.\d .* Hz \| worst jitter [\d.]+ ms', ln) for ln in lines)
+
