@@ -232,6 +232,7 @@ def test_bad_inputs_raise_specific_errors():
     ('w_samples', 1, 'w_samples: expected an integer >= 2, got 1'),
     ('clearance_ref', 0.01, 'clearance_ref: must be > margin'),
     ('recovery_w', 5.0, 'recovery_w: must be <= max_w'),
+    ('goal_brake', 1.5, 'goal_brake: must be <= 1, got 1.5'),
 ])
 def test_config_rejects_bad_values_naming_the_field(field, value, match):
     with pytest.raises(DwaConfigError, match=match):

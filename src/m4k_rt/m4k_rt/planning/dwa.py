@@ -17,10 +17,12 @@ Each control period (``dt``, 50 ms as the paper's local planner) :meth:`DwaPlann
    corners). Already inside the margin (after noise or a close pass), only arcs that do not go
    closer than now are admitted, so the robot can always back out of a tight spot. Stopping
    ``(0, 0)`` is therefore always admissible when it is inside the window.
-4. **Score** (lower is better): distance from the arc's end to the goal, heading error at the
-   end toward the goal (faded out near the goal), lack of clearance below ``clearance_ref``,
-   speed below ``max_v``, and change of turn rate (against dithering left/right).
-5. **Goal.** Within ``goal_tolerance`` (position only) the planner stops and latches
+4. **Score** (lower is better): the arc's closest approach to the goal, heading error at the
+   arc's end toward the goal (faded out near the goal), free path along the arc's curvature
+   (a fixed-length probe, so crawling at an obstacle does not look safe), lack of clearance
+   below ``clearance_ref``, speed below ``max_v``, and change of turn rate (against dithering).
+5. **Goal.** Arcs faster than braking at ``goal_brake * acc_v`` to the goal allows are not
+   admitted; within ``goal_tolerance`` (position only) the planner stops and latches
    ``GOAL_REACHED`` until a new goal is set.
 6. **Stuck / recovery.** When the robot moved less than ``stuck_distance`` in ``stuck_time``
    seconds, or the best admissible arc has been "stand still" for ``stuck_time``, the planner
@@ -97,7 +99,8 @@ class DwaConfig:
     clearance_weight: float = 1.2
     velocity_weight: float = 0.25
     smooth_weight: float = 0.05
-    goal_tolerance: float = 0.10    # m
+    goal_tolerance: float = 0.05    # m
+    goal_brake: float = 0.5         # fraction of acc_v planned for braking to the goal
     stuck_time: float = 4.0         # s
     stuck_distance: float = 0.04    # m
     recovery_w: float = 0.6         # rad/s
@@ -118,11 +121,13 @@ class DwaConfig:
                 raise DwaConfigError(f'{f.name}: must be >= 0, got {value!r}')
         for name in ('max_v', 'max_w', 'acc_v', 'acc_w', 'dt', 'window_time', 'horizon',
                      'sim_step', 'length', 'width', 'goal_tolerance', 'stuck_time',
-                     'recovery_w', 'probe_length', 'probe_step', 'probe_min_v'):
+                     'recovery_w', 'probe_length', 'probe_step', 'probe_min_v', 'goal_brake'):
             if getattr(self, name) <= 0.0:
                 raise DwaConfigError(f'{name}: must be > 0, got {getattr(self, name)!r}')
         if not -self.max_v <= self.min_v <= self.max_v:
             raise DwaConfigError(f'min_v: must be within [-max_v, max_v], got {self.min_v!r}')
+        if self.goal_brake > 1.0:
+            raise DwaConfigError(f'goal_brake: must be <= 1, got {self.goal_brake!r}')
         if self.sim_step > self.horizon:
             raise DwaConfigError(f'sim_step: must be <= horizon ({self.horizon!r}), got '
                                  f'{self.sim_step!r}')
@@ -392,12 +397,19 @@ class DwaPlanner:
         assert self.goal is not None
         targets = sample_window(dynamic_window(*start, cfg), cfg)
         arcs, cmin, ok = self._evaluate(pose, start, targets, pts)
+        # Brake for the goal: no faster than what stops within the remaining distance (aiming
+        # at half the tolerance), unless the window cannot slow down that much yet.
+        v_goal = math.sqrt(2.0 * cfg.goal_brake * cfg.acc_v
+                           * max(gd - 0.5 * cfg.goal_tolerance, 0.0))
+        ok &= targets[:, 0] <= max(v_goal, float(targets[:, 0].min())) + 1e-9
         n_ok = int(ok.sum())
         if n_ok == 0:
             return self._blocked(t, pose, start, pts, gd, len(targets))
         end = arcs[:, -1, :]
         gx, gy = self.goal
-        end_gd = np.hypot(gx - end[:, 0], gy - end[:, 1])
+        # Closest approach, not the end point: an end-point cost makes the robot creep up on
+        # the goal (speed ~ distance / horizon). The braking cap below does the slowing down.
+        end_gd = np.hypot(gx - arcs[:, :, 0], gy - arcs[:, :, 1]).min(axis=1)
         heading = np.abs(_wrap(np.arctan2(gy - end[:, 1], gx - end[:, 0]) - end[:, 2])) / np.pi
         # The bearing from an arc's end to a goal it reached is meaningless: fade it out.
         fade = min(1.0, gd / 0.5)
