@@ -144,3 +144,35 @@ def test_entry_argv_runs_module_main():
     argv = stack.entry_argv('m4k_rt.rt_core', '--tasks', 'actuator')
     assert argv[1] == '-c' and 'from m4k_rt.rt_core import main' in argv[2]
     assert argv[3:] == ['--tasks', 'actuator']
+
+
+def test_trim_warmup_drops_the_first_second_of_every_task_and_reports_it():
+    a = analysis.series_from_rows('actuator', 10 * MS, _rows(300, latency=50_000))
+    a.t_start[0] += 5 * MS                    # a start-up hiccup
+    b = analysis.series_from_rows('lrf', 200 * MS, _rows(10, period=200 * MS))
+    got = analysis.trim_warmup([a, b], 1_000 * MS)
+    assert got['cycles'] == {'actuator': 100, 'lrf': 5}
+    assert got['max_latency_us'] == pytest.approx(5050.0)
+    assert len(a.t_rel) == 200 and len(a.t_start) == 200 and len(a.expirations) == 200
+    assert a.t_rel[0] == 10**9 + 1_000 * MS
+    assert analysis.trim_warmup([], 1) == {'cycles': {}, 'max_latency_us': None}
+
+
+def test_interference_finds_cycles_released_while_another_task_ran():
+    act = analysis.series_from_rows('actuator', 10 * MS, _rows(100, latency=20_000))
+    # imu runs [rel - 5 us, rel + 300 us] on every 4th release: the actuator waits for it
+    rows = []
+    for k in range(0, 100, 4):
+        rel = 10**9 + k * 10 * MS
+        rows.append((rel, rel - 5_000, rel + 300_000, 1))
+        act.t_start[k] = rel + 310_000
+    imu = analysis.series_from_rows('imu', 10 * MS, rows)
+    led = analysis.series_from_rows('led', 20 * MS, [(10**9 + 5 * MS, 10**9 + 5 * MS,
+                                                       10**9 + 6 * MS, 1)])
+    got = analysis.interference({'actuator': act, 'imu': imu, 'led': led}, 'actuator')
+    assert got['cycles'] == 100
+    assert got['interfered_share'] == pytest.approx(0.25)
+    assert got['share_by_task'] == {'imu': 0.25, 'led': 0.0}
+    assert got['latency_p99_interfered_us'] == pytest.approx(310.0)
+    assert got['latency_p99_clean_us'] == pytest.approx(20.0)
+    assert analysis.interference({'imu': imu}, 'actuator') is None

@@ -108,7 +108,36 @@ def _conditions(summ: Mapping[str, Any]) -> list[str]:
                      'Period min (ms)', 'Jitter avg (us)', 'Jitter max (us)', 'Jitter std (us)',
                      'Jitter p50 (us)', 'Jitter p99 (us)', 'Jitter p99.9 (us)',
                      'Release p99 (us)', 'Overruns', 'Deadline misses'], rows)
-    return lines
+    warm = summ.get('warmup') or {}
+    parts = ['{} {} us'.format(CONDITION_LABELS.get(k, k), _f(v.get('max_latency_us')))
+             for k, v in warm.items() if isinstance(v, Mapping) and v.get('max_latency_us')]
+    if parts:
+        lines += ['', 'Start-up transient, excluded above: the first {} s of every run. Worst '
+                  'release latency in it: {}.'.format(_f(warm.get('seconds'), 0),
+                                                      '; '.join(parts))]
+    return lines + _interference(summ)
+
+
+def _interference(summ: Mapping[str, Any]) -> list[str]:
+    inter = summ.get('interference') or {}
+    rows = []
+    for cond, d in inter.items():
+        if not d:
+            continue
+        shares = ', '.join('{} {:.1f} %'.format(k, v * 100)
+                           for k, v in d['share_by_task'].items() if v > 0) or 'none'
+        rows.append([CONDITION_LABELS.get(cond, cond), d['cycles'],
+                     _f(d['interfered_share'] * 100, 2), shares,
+                     _f(d['latency_p99_interfered_us']), _f(d['latency_p99_clean_us']),
+                     _f(d['latency_p99_all_us'])])
+    if not rows:
+        return []
+    return ['', '### Interference inside the RT process', '',
+            'Actuator cycles whose release found another task of the same process running '
+            '(that task held the interpreter lock while the actuator waited), and the release '
+            'latency p99 of those cycles vs the others:', ''] + _table(
+        ['Condition', 'Cycles', 'Interfered (%)', 'By task', 'p99 interfered (us)',
+         'p99 clean (us)', 'p99 all (us)'], rows)
 
 
 def _cyclictest(summ: Mapping[str, Any]) -> list[str]:
