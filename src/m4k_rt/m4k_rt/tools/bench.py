@@ -250,6 +250,7 @@ class Bench:
         has_ct = tools.get('cyclictest') is not None
         has_stress = tools.get('stress-ng') is not None
         cond_s = plan['condition_s']
+        run_s = cond_s + WARMUP_S + 2.0    # what a run takes, start-up and wind-down included
         stress_cmd = ' '.join(['stress-ng', *system.STRESS_ARGS, '--timeout', '<run>s'])
         self.summ['stress_command'] = stress_cmd
         try:
@@ -258,13 +259,13 @@ class Bench:
                 if has_ct:
                     self._cyclictest('idle', cond_s)
             if 'table1' not in self.skip:
-                p.phase('Table 1: full stack, idle', plan['table1_s'])
+                p.phase('Table 1: full stack, idle', plan['table1_s'] + WARMUP_S + 2.0)
                 self._m4k('m4k_idle', plan['table1_s'], keep_table1=True)
             if 'alone' not in self.skip:
-                p.phase('actuator task alone, idle', cond_s)
+                p.phase('actuator task alone, idle', run_s)
                 self._m4k('m4k_alone', cond_s, tasks=ACTUATOR)
             if 'baseline_idle' not in self.skip:
-                p.phase('plain-ROS baseline, idle', cond_s)
+                p.phase('plain-ROS baseline, idle', run_s)
                 self._baseline('baseline_idle', cond_s)
             for phase, label, fn in (
                     ('cyclictest_stress', 'cyclictest under stress-ng',
@@ -275,7 +276,7 @@ class Bench:
                      lambda: self._baseline('baseline_stress', cond_s))):
                 if phase in self.skip:
                     continue
-                p.phase(label, cond_s)
+                p.phase(label, run_s)
                 if not has_stress:
                     self.summ['skipped'][phase] = 'stress-ng missing'
                     continue
