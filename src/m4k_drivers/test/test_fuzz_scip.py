@@ -154,6 +154,7 @@ def atheris_main() -> None:  # pragma: no cover -- run by hand
         payload = fdp.ConsumeBytes(fdp.remaining_bytes())
         prefix = VALID[:fdp.ConsumeIntInRange(0, 40)] if cuts else b''
         check_stream(_chunked(prefix + payload, cuts))
+    atheris.instrument_all()  # coverage feedback from the already imported scip module
     atheris.Setup(sys.argv, one)
     atheris.Fuzz()
 
