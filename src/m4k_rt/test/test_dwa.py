@@ -184,6 +184,18 @@ def test_commands_respect_the_dynamic_window(pose, vel):
         CFG.acc_v * CFG.window_time + 1e-9
 
 
+def test_an_odometry_velocity_spike_does_not_move_the_window():
+    # Seen on the stack: one odom sample of 1.33 m/s, 6.3 rad/s during a 0.25 m/s cruise.
+    planner = DwaPlanner()
+    planner.set_goal(10.0, 0.0)
+    wall = segment_points([(0.0, 0.6, 10.0, 0.6)])       # a wall along the left side
+    for i in range(3):
+        planner.plan(i * CFG.dt, (i * 0.0125, 0.0, 0.0), (0.25, 0.0), wall)
+    plan = planner.plan(3 * CFG.dt, (0.0375, 0.0, 0.0), (1.33, 6.3), wall)
+    assert plan.state is State.MOVING
+    assert plan.v == pytest.approx(0.25) and abs(plan.w) < CFG.acc_w * CFG.window_time
+
+
 def test_dynamic_window_is_bounded_by_limits_and_acceleration():
     assert dynamic_window(0.0, 0.0, CFG) == pytest.approx(
         (0.0, CFG.acc_v * CFG.window_time, -CFG.acc_w * CFG.window_time,

@@ -2,28 +2,26 @@
 
 Each control period (``dt``, 50 ms as the paper's local planner) :meth:`DwaPlanner.plan`:
 
-1. **Dynamic window.** Velocities reachable within one period from the current one under the
-   acceleration limits, intersected with the velocity limits. The "current" velocity is the
-   last command, pulled to within ``lag_s`` of acceleration of the measured one: the measured
-   velocity lags the command by the actuator's ramp and the motor time constant, so centring on
-   it alone would make the planner accelerate at a fraction of the limit; centring on the
-   command alone would let it run away from a robot that a wall or the RT collision guard is
-   holding back.
-2. **Arcs.** ``v_samples`` x ``w_samples`` constant-velocity arcs over ``horizon`` seconds,
-   sampled every ``sim_step``.
+1. **Dynamic window.** Target velocities reachable within ``window_time`` from the measured
+   velocity under the acceleration limits, intersected with the velocity limits; the measured
+   velocity is the median of the last three odometry samples (odometry velocity spikes).
+2. **Arcs.** ``v_samples`` x ``w_samples`` targets; each arc ramps from the measured velocity to
+   its target at the acceleration limits (as the RT actuator's speed limiter does), then holds
+   it, over ``horizon`` seconds, sampled every ``sim_step`` -- the ``base_local_planner``
+   trajectory model of the paper's navigation stack. The target is what gets commanded.
 3. **Admissibility.** The robot footprint (``length`` x ``width``, centred on ``base_link``) is
    checked against the obstacle points at every sample: an arc is rejected when any point
    comes closer than ``margin`` to the footprint (the footprint inflated by ``margin``, rounded
    corners). Already inside the margin (after noise or a close pass), only arcs that do not go
-   closer than now are admitted, so the robot can always back out of a tight spot. Stopping
-   ``(0, 0)`` is therefore always admissible when it is inside the window.
+   closer than now are admitted, so the robot can always back out of a tight spot.
 4. **Score** (lower is better): the arc's closest approach to the goal, heading error at the
    arc's end toward the goal (faded out near the goal), free path along the arc's curvature
    (a fixed-length probe, so crawling at an obstacle does not look safe), lack of clearance
    below ``clearance_ref``, speed below ``max_v``, and change of turn rate (against dithering).
-5. **Goal.** Arcs faster than braking at ``goal_brake * acc_v`` to the goal allows are not
-   admitted; within ``goal_tolerance`` (position only) the planner stops and latches
-   ``GOAL_REACHED`` until a new goal is set.
+5. **Goal.** Arcs faster than braking at ``goal_brake * acc_v`` to the goal allows (after
+   ``latency`` seconds at the current speed) are not admitted; within ``goal_tolerance``
+   (position only) the planner stops and latches ``GOAL_REACHED`` until a new goal is set --
+   at half the tolerance, or anywhere inside it when the best arc is to stop.
 6. **Stuck / recovery.** When the robot moved less than ``stuck_distance`` in ``stuck_time``
    seconds, or the best admissible arc has been "stand still" for ``stuck_time``, the planner
    rotates in place (``recovery_w``) away from the side with more nearby obstacle points, each
@@ -101,6 +99,7 @@ class DwaConfig:
     smooth_weight: float = 0.05
     goal_tolerance: float = 0.05    # m
     goal_brake: float = 0.5         # fraction of acc_v planned for braking to the goal
+    latency: float = 0.2            # s from command to motion (period, ramp, motor, odometry)
     stuck_time: float = 4.0         # s
     stuck_distance: float = 0.04    # m
     recovery_w: float = 0.6         # rad/s
@@ -288,6 +287,7 @@ class DwaPlanner:
         self.cfg = config or DwaConfig()
         self.goal: tuple[float, float] | None = None
         self.recoveries = 0
+        self._vel_hist: deque[tuple[float, float]] = deque(maxlen=3)
         self._reset_motion()
 
     def _reset_motion(self) -> None:
@@ -324,6 +324,7 @@ class DwaPlanner:
             raise DwaInputError(f'velocity: expected (v, w), got {velocity!r}') from None
         if not (math.isfinite(v0) and math.isfinite(w0) and math.isfinite(t)):
             raise DwaInputError(f'time/velocity: expected finite values, got {(t, v0, w0)!r}')
+        v0, w0 = self._filter_velocity(v0, w0)
         try:
             pts = np.asarray(points, dtype=float).reshape(-1, 2)
         except ValueError:
@@ -334,7 +335,9 @@ class DwaPlanner:
         if self.goal is None:
             return self._hold(State.IDLE, math.nan, here)
         gd = math.hypot(self.goal[0] - x, self.goal[1] - y)
-        if self.state is State.GOAL_REACHED or gd <= cfg.goal_tolerance:
+        # Arrive at half the tolerance (the braking aims there), so the robot's residual motion
+        # and odometry noise stay well inside the tolerance; see also the latch in _dwa.
+        if self.state is State.GOAL_REACHED or gd <= 0.5 * cfg.goal_tolerance:
             self.state = State.GOAL_REACHED
             return self._hold(State.GOAL_REACHED, gd, here)
         # Keep only the points an arc or a probe could come near: the cost is C x N x P.
@@ -350,6 +353,23 @@ class DwaPlanner:
             if out is not None:
                 return out
         return self._dwa(t, here, (v0, w0), pts, gd)
+
+    def _filter_velocity(self, v: float, w: float) -> tuple[float, float]:
+        """Return the median of the last three measured velocities, clamped to what is possible.
+
+        Odometry velocity is a difference quotient: one late or early encoder sample makes a
+        one-sample spike (seen: 1.3 m/s at a 0.25 m/s cruise). Fed raw into the window it moves
+        the window off the real velocity, and every arc it admits may collide.
+        """
+        cfg = self.cfg
+        self._vel_hist.append((v, w))
+        vs = sorted(h[0] for h in self._vel_hist)
+        ws = sorted(h[1] for h in self._vel_hist)
+        v, w = vs[len(vs) // 2], ws[len(ws) // 2]
+        dv, dw = cfg.acc_v * cfg.window_time, cfg.acc_w * cfg.window_time
+        v = min(max(v, min(cfg.min_v, 0.0) - dv), cfg.max_v + dv)
+        w = min(max(w, -cfg.max_w - dw), cfg.max_w + dw)
+        return v, w
 
     def _hold(self, state: State, gd: float, here: tuple[float, float, float]) -> Plan:
         self._last_w = 0.0
@@ -400,7 +420,8 @@ class DwaPlanner:
         # Brake for the goal: no faster than what stops within the remaining distance (aiming
         # at half the tolerance), unless the window cannot slow down that much yet.
         v_goal = math.sqrt(2.0 * cfg.goal_brake * cfg.acc_v
-                           * max(gd - 0.5 * cfg.goal_tolerance, 0.0))
+                           * max(gd - 0.5 * cfg.goal_tolerance - abs(start[0]) * cfg.latency,
+                                 0.0))
         ok &= targets[:, 0] <= max(v_goal, float(targets[:, 0].min())) + 1e-9
         n_ok = int(ok.sum())
         if n_ok == 0:
@@ -425,6 +446,11 @@ class DwaPlanner:
         cost = np.where(ok, cost, np.inf)
         best = int(np.argmin(cost))
         v, w = float(targets[best, 0]), float(targets[best, 1])
+        if gd <= cfg.goal_tolerance and v < 0.5 * cfg.acc_v * cfg.dt:
+            # Inside the tolerance and choosing to stop (e.g. the goal is beside the robot):
+            # that is arrival, not a reason to creep about.
+            self.state = State.GOAL_REACHED
+            return self._hold(State.GOAL_REACHED, gd, pose)
         # Stuck: standing (almost) still by choice, or not getting anywhere while commanding.
         if abs(v) < 1e-3 and abs(w) < 0.05:
             self._idle_since = t if self._idle_since is None else self._idle_since

@@ -73,6 +73,7 @@ _DWA_DOC = {
     'velocity_weight': 'cost weight: speed below max_v',
     'smooth_weight': 'cost weight: change of turn rate',
     'goal_tolerance': 'm, position tolerance at the goal',
+    'latency': 's from command to motion, used when braking for the goal; low: overshoot',
     'goal_brake': 'fraction of acc_v planned for braking to the goal (0..1]; high: overshoot',
     'stuck_time': 's without progress (or standing still) before the rotate recovery',
     'stuck_distance': 'm of motion within stuck_time that counts as progress',
