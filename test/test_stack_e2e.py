@@ -1,0 +1,232 @@
+"""The whole stack end to end: bringup (rt_core + driver_host sim + bridge) seen through ROS.
+
+The test process is a plain ROS 2 user: it publishes cmd_vel / led and subscribes to what the
+bridge publishes. The simulated room is config/devices.yaml's (paper Fig. 8); the overlay moves
+the start to y = 0.9 m so the straight path ahead is free up to the wall at x = 4.2 m and the
+collision guard (obstacle at x = 1.5 m, |y| <= 0.25 m) stays out of the way.
+"""
+
+import math
+import os
+import signal
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Odometry
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Imu, LaserScan, Range
+from test_bringup import start_bringup, write_overlay
+import yaml
+
+from m4k_msgs.msg import RtStatus
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+START = [0.0, 0.9, 0.0]
+WALL_X = 4.2                 # devices.yaml world.walls.rectangle xmax
+SONAR_X = 0.225              # devices.yaml devices.sonar.mount x (laser mount: 0, 0)
+# Odometry speed at rest is encoder quantization noise: one 12-bit count per 10 ms on one
+# wheel is 2 pi / 4096 / 0.01 * 0.1016 / 2 = 0.008 m/s of body speed.
+STILL = 0.02
+pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
+
+
+def _control():
+    with open(os.path.join(ROOT, 'config', 'control.yaml'), encoding='utf-8') as f:
+        return yaml.safe_load(f)['control']
+
+
+class RosUser:
+    """A test node in its own Context: publishers, collected messages, spinning helpers."""
+
+    def __init__(self):
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('stack_e2e_user', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.got = {}
+        for name, typ, qos in (('odom', Odometry, 10), ('imu', Imu, qos_profile_sensor_data),
+                               ('scan', LaserScan, qos_profile_sensor_data),
+                               ('sonar', Range, qos_profile_sensor_data),
+                               ('diagnostics', DiagnosticArray, 10),
+                               ('rt_status', RtStatus, 10)):
+            box = self.got[name] = []
+            self.node.create_subscription(typ, name, box.append, qos)
+
+    def spin_for(self, seconds, each=None, period=None):
+        """Spin ``seconds``; call ``each`` every ``period`` seconds (e.g. publish at 20 Hz)."""
+        end = time.monotonic() + seconds
+        next_call = time.monotonic()
+        while time.monotonic() < end:
+            if each is not None and time.monotonic() >= next_call:
+                each()
+                next_call += period
+            self.executor.spin_once(timeout_sec=0.005 if each is not None else 0.05)
+
+    def spin_until(self, predicate, timeout, what, each=None, period=0.05):
+        end = time.monotonic() + timeout
+        next_call = time.monotonic()
+        while time.monotonic() < end:
+            if each is not None and time.monotonic() >= next_call:
+                each()
+                next_call += period
+            self.executor.spin_once(timeout_sec=0.01)
+            if predicate():
+                return
+        raise AssertionError('timed out after {} s waiting for {}'.format(timeout, what))
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def stack(procs, tmp_path, m4k_runtime_dir, request):
+    extra = {'world': {'start': START}}
+    extra.update(getattr(request, 'param', {}))
+    overlay = write_overlay(tmp_path, extra)
+    proc = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay, extra=['--no-status'])
+    user = RosUser()
+    try:
+        # Ready = odometry flows (RT process, driver host and bridge all linked).
+        user.spin_until(lambda: user.got['odom'] or proc.poll() is not None, 40, 'odom')
+        assert proc.poll() is None, (tmp_path / 'bringup.err').read_text()[-3000:]
+        yield user, proc, tmp_path
+    finally:
+        user.close()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(40)
+
+
+def _x(user):
+    return user.got['odom'][-1].pose.pose.position.x
+
+
+def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout(stack):
+    user, _, _ = stack
+    ctl = _control()
+    v = 0.25
+    acc = ctl['linear']['max_acceleration']
+    dec = ctl['linear']['max_deceleration'] or acc
+    timeout = ctl['cmd_vel_timeout']
+    x0 = _x(user)
+    y0 = user.got['odom'][-1].pose.pose.position.y
+    pub = user.node.create_publisher(Twist, 'cmd_vel', 10)
+    cmd = Twist()
+    cmd.linear.x = v
+    sent = []
+
+    def publish():
+        pub.publish(cmd)
+        sent.append(time.monotonic())
+
+    user.spin_for(4.0, each=publish, period=0.05)
+    last = sent[-1]
+    # Stop publishing while moving: the RT actuator keeps the command for cmd_vel_timeout,
+    # then brakes at the deceleration limit.
+    user.spin_until(lambda: abs(user.got['odom'][-1].twist.twist.linear.x) < STILL, 10,
+                    'speed 0')
+    stopped_after = time.monotonic() - last
+    assert stopped_after <= timeout + v / dec + 1.0, stopped_after
+    x_stop = _x(user)
+    user.spin_for(0.5)
+    assert abs(user.got['odom'][-1].twist.twist.linear.x) < STILL
+    assert abs(_x(user) - x_stop) < 0.005   # stopped, not creeping
+    # Trapezoid: ramp up at acc, hold v until the last command + timeout, ramp down at dec.
+    hold = (last - sent[0]) + timeout
+    expected = v * hold - v * v / (2 * acc) + v * v / (2 * dec)
+    end = user.got['odom'][-1].pose.pose.position
+    travelled = math.hypot(end.x - x0, end.y - y0)
+    assert travelled == pytest.approx(expected, rel=0.05), (travelled, expected)
+    # Roughly straight (the simulated wheels are noisy, so no tight heading bound here).
+    assert abs(end.y - y0) < 0.2 * travelled
+    odom = user.got['odom'][-1]
+    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
+
+
+def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
+    user, _, _ = stack
+
+    def ready():
+        g = user.got
+        return (g['imu'] and g['scan'] and g['sonar'] and
+                any(len(m.tasks) == 6 and all(t.cycles for t in m.tasks)
+                    for m in g['rt_status']) and
+                any(sum(s.name.startswith('m4k_rt: task') for s in d.status) == 6
+                    for d in g['diagnostics']))
+
+    user.spin_until(ready, 20, 'imu, scan, sonar, rt_status, diagnostics')
+    imu = user.got['imu'][-1]
+    assert imu.header.frame_id == 'imu_link'
+    assert imu.linear_acceleration.z == pytest.approx(9.81, abs=0.5)   # level, at rest
+    q = imu.orientation
+    assert math.isclose(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2, 1.0, abs_tol=1e-3)
+
+    scan = user.got['scan'][-1]
+    assert scan.header.frame_id == 'laser'
+    assert len(scan.ranges) > 600 and scan.range_max == pytest.approx(5.6, abs=0.05)
+    ahead = round((0.0 - scan.angle_min) / scan.angle_increment)
+    assert scan.ranges[ahead] == pytest.approx(WALL_X - START[0], abs=0.1)
+
+    sonar = user.got['sonar'][-1]
+    assert sonar.radiation_type == Range.ULTRASOUND and sonar.header.frame_id == 'sonar_link'
+    assert sonar.range == pytest.approx(WALL_X - SONAR_X, abs=0.15)
+
+    rt = next(m for m in reversed(user.got['rt_status']) if len(m.tasks) == 6)
+    assert [t.name for t in rt.tasks][:2] == ['actuator', 'imu']     # priority order
+    act = rt.tasks[0]
+    assert act.period == pytest.approx(0.01) and act.response_time.samples > 10
+    assert 0 < act.response_time.max < act.period   # a plausible response time
+    assert rt.liu_layland_bound == pytest.approx(6 * (2 ** (1 / 6) - 1))
+    assert rt.total_utilization > 0 and rt.rt_link_age < 3.0
+    assert len(rt.ports) == 6 and all(p.linked for p in rt.ports)
+
+    diag = next(d for d in reversed(user.got['diagnostics'])
+                if sum(s.name.startswith('m4k_rt: task') for s in d.status) == 6)
+    names = {s.name: s for s in diag.status}
+    for device in ('imu', 'sonar', 'lrf', 'motor'):
+        assert 'm4k_drivers: ' + device in names
+    assert names['m4k_bridge: rt link'].level == b'\x00'
+    keys = {kv.key for kv in names['m4k_rt: task actuator'].values}
+    assert {'jitter_max_s', 'deadline_misses', 'cycles'} <= keys
+
+
+@pytest.mark.parametrize('stack', [{'m4k_bridge': {'ros__parameters': {
+    'use_stamped_vel': True}}}], indirect=True)
+def test_twist_stamped_mode_drives_too(stack):
+    user, _, _ = stack
+    x0 = _x(user)
+    pub = user.node.create_publisher(TwistStamped, 'cmd_vel', 10)
+    msg = TwistStamped()
+    msg.twist.linear.x = 0.25
+    user.spin_for(1.5, each=lambda: pub.publish(msg), period=0.05)
+    user.spin_until(lambda: _x(user) - x0 > 0.15, 5, 'the robot to move')
+
+
+def test_nan_cmd_vel_is_rejected_and_the_robot_does_not_move(stack):
+    user, _, tmp_path = stack
+    x0 = _x(user)
+    pub = user.node.create_publisher(Twist, 'cmd_vel', 10)
+    bad = Twist()
+    bad.linear.x = math.nan
+
+    def rejected():
+        for d in reversed(user.got['diagnostics']):
+            for s in d.status:
+                if s.name == 'm4k_bridge: cmd_vel':
+                    return int({kv.key: kv.value for kv in s.values}['rejected_nonfinite'])
+        return 0
+
+    user.spin_until(lambda: rejected() >= 10, 15, 'rejected NaN commands in diagnostics',
+                    each=lambda: pub.publish(bad), period=0.05)
+    user.spin_for(0.5)
+    assert abs(_x(user) - x0) < 0.005
+    speeds = [o.twist.twist.linear.x for o in user.got['odom'][-20:]]
+    assert abs(sum(speeds) / len(speeds)) < STILL / 2, speeds   # only quantization noise
+    assert 'non-finite' in (tmp_path / 'bringup.err').read_text()
