@@ -3,8 +3,9 @@
 ``LrfHandler`` (a :class:`m4k_drivers.handler.DeviceHandler`): configure() opens the port and runs
 the SCIP connect sequence, activate() starts the MD stream (``mode: stream``, default) or does
 nothing (``mode: poll``: each read() sends one GD), read() returns :class:`LrfReading`
-(the latest scan, ``fresh`` when it was not returned before), deactivate() stops the stream,
-cleanup() closes the port.
+(stream mode: the next scan not returned before, waiting up to 1.5 scan times, else a
+counted UrgTimeoutError -- never the same scan twice; ``fresh`` marks a new scan),
+deactivate() stops the stream, cleanup() closes the port.
 
 Backends (registered for kind ``lrf``): ``real`` opens ``port`` (e.g. ``/dev/ttyACM0``);
 ``sim`` starts a :class:`m4k_drivers.lrf.sim.UrgSim` pty device on the shared world and connects
@@ -86,11 +87,16 @@ class LrfHandler(DeviceHandler):
         if self.mode == 'poll':
             scan = self.driver.get_scan()
         else:
-            scan = self.driver.latest()
-            if scan is None:      # just activated: wait once for the first scan
-                scan = self.driver.wait_scan(0, self.driver.timeout)
+            # Only a scan not returned before: handing out the last one again would let the
+            # host send stale ranges under a new stamp (e.g. while the laser is unplugged).
+            # A live URG delivers one every scan_time, so waiting 1.5 of them is enough.
+            g = self.driver.geometry
+            first = self._last_seq == 0
+            wait = self.driver.timeout if first or g is None else 1.5 * g.scan_time
+            scan = self.driver.wait_scan(self._last_seq, wait)
             if scan is None:
-                raise UrgTimeoutError(f'lrf: no scan from {self.driver.port!r} yet')
+                raise UrgTimeoutError(f'lrf: no new scan from {self.driver.port!r} within '
+                                      f'{wait:.2f} s')
         return self._reading(scan)
 
     def _reading(self, scan: UrgScan) -> LrfReading:
