@@ -1,0 +1,212 @@
+"""Device faults through the driver host's DeviceService: counted, diagnosed, recovered.
+
+Each test runs one real DeviceService (the driver host's per-device thread, sim backend) against
+an RT side played by the test over a real XDDP port, then injects a fault at the transport
+boundary: an RT process that hangs or dies (motor watchdog), encoder frame errors and jumps,
+a sonar that never answers, a laser unplugged and replugged, bad checksums and line noise.
+Nothing stale may be sent as fresh; every fault must show up in the counters and in
+DEVICE_STATUS; the device must recover without a restart.
+"""
+
+import threading
+import time
+
+import pytest
+
+from m4k_drivers import config as dconfig
+from m4k_drivers import registry
+from m4k_drivers.handler import State
+from m4k_drivers.host import DeviceService, load_raw_config
+from m4k_drivers.motors import protocol as mp
+from m4k_rt import protocol, xddp
+
+K = protocol.Kind
+PORTS = {'motor': 2, 'imu': 3, 'sonar': 7, 'lrf': 9}
+
+
+class Rig:
+    """One DeviceService and the test's RT side of its port."""
+
+    def __init__(self, kind: str, runtime_dir: str, **overrides):
+        raw = load_raw_config()
+        devices = {kind: dict(raw['devices'][kind], **overrides)}
+        cfg = dconfig.validate({'devices': devices, 'world': raw.get('world') or {}})
+        self.ctx = registry.BuildContext(world_config=cfg.world_raw)
+        self.handler = registry.create(kind, cfg.devices[kind], self.ctx)
+        self.rt = xddp.rt_xddp_bind(PORTS[kind], kind, runtime_dir=runtime_dir)
+        self.stop = threading.Event()
+        self.runtime_dir = runtime_dir
+        self.svc = DeviceService(kind, self.handler, cfg.devices[kind], kind, self.stop,
+                                 runtime_dir)
+        self.buf = bytearray(8192)
+        self.seq = 0
+        self.svc.start()
+
+    def send(self, kind, *fields):
+        self.seq += 1
+        return self.rt.send(protocol.encode(kind, self.seq, time.monotonic_ns(), *fields))
+
+    def drain(self):
+        out = []
+        while True:
+            n = self.rt.recv_into(self.buf)
+            if not n:
+                return out
+            out.append(protocol.decode(bytes(self.buf[:n])))
+
+    def run(self, seconds, kind=None, fields=(), period=0.01):
+        """Act as the RT task for ``seconds``: send one datagram per period, collect replies."""
+        got = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if kind is not None:
+                self.send(kind, *fields)
+            time.sleep(period)
+            got += self.drain()
+        return got
+
+    def until(self, pred, kind=None, fields=(), timeout=5.0, period=0.01):
+        """Like run(), but until ``pred()`` holds (a noisy VM delays the host's thread)."""
+        got = []
+        end = time.monotonic() + timeout
+        while not pred():
+            assert time.monotonic() < end, 'condition not reached within {} s'.format(timeout)
+            got += self.run(period, kind, fields, period)
+        return got
+
+    def wait_linked(self, timeout=10.0):
+        end = time.monotonic() + timeout
+        while not self.rt.poll_peer():
+            assert time.monotonic() < end, 'driver host did not link'
+            time.sleep(0.01)
+
+    def rebind(self):
+        self.rt.close()
+        self.rt = xddp.rt_xddp_bind(self.rt.port, self.rt.label, runtime_dir=self.runtime_dir)
+
+    def close(self):
+        self.stop.set()
+        self.svc.thread.join(10.0)
+        self.rt.close()
+
+
+@pytest.fixture
+def rig(m4k_runtime_dir):
+    made = []
+
+    def make(kind, **overrides):
+        r = Rig(kind, m4k_runtime_dir, **overrides)
+        made.append(r)
+        r.wait_linked()
+        return r
+    yield make
+    for r in made:
+        r.close()
+
+
+def _of(kind, items):
+    return [m for h, m in items if h.kind == kind]
+
+
+def test_motor_watchdog_on_rt_hang_safe_on_rt_loss_and_resume_only_on_fresh_command(rig):
+    r = rig('motor')
+    h = r.handler
+    drive = (700, 300, 1)
+    got = r.until(lambda: h.codes == (700, 300), K.WHEEL_CMD, drive)
+    got += r.run(0.2, K.WHEEL_CMD, drive)
+    assert h.codes == (700, 300) and not h.safe
+    assert len(_of(K.ENCODERS, got)) > 5
+    # RT process hangs (no WHEEL_CMD, link still up): watchdog -> outputs safe.
+    r.until(lambda: h.safe)
+    assert h.codes == (mp.DAC_ZERO, mp.DAC_ZERO) and h.watchdog_trips == 1
+    # It stays safe without a fresh command, and a fresh command drives again.
+    r.run(0.2)
+    assert h.codes == (mp.DAC_ZERO, mp.DAC_ZERO)
+    r.until(lambda: h.codes == (700, 300), K.WHEEL_CMD, drive)
+    # RT process dies (socket gone): outputs safe at once, relink to the restarted RT side.
+    lost0 = r.svc.link.lost
+    r.rt.close()
+    end = time.monotonic() + 5.0
+    while r.svc.link.lost == lost0 and time.monotonic() < end:
+        time.sleep(0.01)
+    assert r.svc.link.lost == lost0 + 1
+    time.sleep(0.05)
+    assert h.safe and h.codes == (mp.DAC_ZERO, mp.DAC_ZERO)
+    r.rt = xddp.rt_xddp_bind(2, 'motor', runtime_dir=r.runtime_dir)
+    t0 = time.monotonic()
+    r.wait_linked()
+    relink_s = time.monotonic() - t0
+    got = r.run(0.3)
+    status = _of(K.DEVICE_STATUS, got)
+    assert status and status[0].state == State.ACTIVE, 'hello DEVICE_STATUS after relink'
+    assert h.codes == (mp.DAC_ZERO, mp.DAC_ZERO)
+    r.until(lambda: h.codes == (700, 300), K.WHEEL_CMD, drive)
+    assert r.svc.link.relinks >= 1
+    print('motor relink after RT restart: {:.3f} s'.format(relink_s))
+
+
+def test_encoder_frame_errors_and_jumps_are_flagged_never_fresh_angles(rig):
+    r = rig('motor')
+    enc = r.handler.bus.encoders[0].dev
+    r.run(0.1, K.WHEEL_CMD, (512, 512, 1))
+    faults0 = r.handler.faults
+    enc.fault = {'ocf': False}          # left encoder frame invalid (offset compensation)
+    bad = _of(K.ENCODERS, r.run(0.1, K.WHEEL_CMD, (512, 512, 1)))
+    enc.fault = None
+    assert bad and all(m.status & mp.STATUS_LEFT_FRAME for m in bad)
+    assert len({m.left_angle for m in bad}) == 1, 'a bad frame must not move the angle'
+    real_raw = enc.raw
+    enc.raw = lambda: (real_raw() + 2048) % mp.ENC_COUNTS   # half a turn in 10 ms: a jump
+    jumped = _of(K.ENCODERS, r.run(0.05, K.WHEEL_CMD, (512, 512, 1)))
+    enc.raw = real_raw
+    assert jumped and jumped[0].status & mp.STATUS_LEFT_JUMP
+    assert jumped[0].left_angle == bad[-1].left_angle
+    assert r.handler.faults - faults0 >= len(bad) + 1
+    after = r.run(1.2, K.WHEEL_CMD, (512, 512, 1))
+    ok = _of(K.ENCODERS, after)
+    assert ok and ok[-1].status & 0x0F == 0, 'recovered without a restart'
+    levels = [m.level for m in _of(K.DEVICE_STATUS, after)]
+    assert levels and levels[-1] == protocol.LEVEL_WARN
+    assert _of(K.DEVICE_STATUS, after)[-1].faults == r.handler.faults
+
+
+def test_sonar_that_never_answers_reports_faults_not_ranges(rig):
+    r = rig('sonar')
+    trig = r.handler.dev.trigger
+    good = _of(K.SONAR, r.run(0.3, K.REQUEST, (0, 1), period=0.03))
+    assert good and all(m.status in (protocol.SONAR_OK, protocol.SONAR_NO_ECHO) for m in good)
+    trig.dead = True
+    dead = _of(K.SONAR, r.run(0.5, K.REQUEST, (0, 1), period=0.03))
+    trig.dead = False
+    assert dead and all(m.status in (protocol.SONAR_TIMEOUT, protocol.SONAR_FAULT) for m in dead)
+    assert r.handler.timeouts + r.handler.faults > 0
+    back = _of(K.SONAR, r.run(0.3, K.REQUEST, (0, 1), period=0.03))
+    assert back and back[-1].status in (protocol.SONAR_OK, protocol.SONAR_NO_ECHO)
+
+
+def test_laser_unplug_replug_checksums_and_noise_no_stale_scan_sent_as_fresh(rig):
+    r = rig('lrf')
+    sim = r.handler.sim
+    scans = _of(K.LASER_SCAN, r.run(0.6, K.REQUEST, (0, 1), period=0.1))
+    assert len(scans) >= 3
+    # Bad sums and line noise: those scans are dropped by the driver, later ones go through.
+    sim.corrupt_next_checksums(2)
+    sim.inject_stray(b'\x00garbage\xff\n\nGD00\n')
+    noisy = _of(K.LASER_SCAN, r.run(1.0, K.REQUEST, (0, 1), period=0.1))
+    assert noisy
+    stamps = [m.device_stamp for m in scans + noisy]
+    assert len(set(stamps)) == len(stamps), 'every scan sent must be a new device scan'
+    # Unplugged: not one LASER_SCAN may go out (the last scan is stale), faults counted.
+    faults0 = r.handler.faults
+    sim.unplug()
+    time.sleep(0.15)
+    r.drain()
+    gone = r.run(1.5, K.REQUEST, (0, 1), period=0.1)
+    assert _of(K.LASER_SCAN, gone) == [], [m.device_stamp for m in _of(K.LASER_SCAN, gone)]
+    assert r.handler.faults > faults0
+    status = _of(K.DEVICE_STATUS, gone)
+    assert status and status[-1].level >= protocol.LEVEL_WARN
+    sim.replug()
+    back = _of(K.LASER_SCAN, r.run(4.0, K.REQUEST, (0, 1), period=0.1))
+    assert back, 'scans resume after replug without restarting the host'
+    assert all(m.device_stamp not in stamps for m in back)
