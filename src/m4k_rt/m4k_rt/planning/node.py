@@ -11,9 +11,9 @@ points using the odometry pose at the scan's stamp and the laser's mounting pose
 
 The measured velocity handed to the planner is the rate of change of the odometry pose
 between messages (the twist's 10 ms encoder quotient spikes); the twist is used for the first
-message only. Fail-safe: no odometry within ``odom_timeout`` or no scan within ``scan_timeout`` -> zero
-command. The goal (odom frame) comes from ``goal_x`` / ``goal_y`` (NaN: none) and may be
-changed at run time with ``ros2 param set``. Every ``dwa.*`` parameter is a
+message only. Fail-safe: no odometry within ``odom_timeout`` or no scan within
+``scan_timeout`` -> zero command. The goal (odom frame) comes from ``goal_x`` / ``goal_y``
+(NaN: none) and may be changed at run time with ``ros2 param set``. Every ``dwa.*`` parameter is a
 :class:`m4k_rt.planning.dwa.DwaConfig` field; a bad one stops the node with exit code 2 and a
 message naming it. Run: ``python -m m4k_rt.planning.node --ros-args -p goal_x:=3.0``.
 """
