@@ -74,6 +74,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--config', metavar='FILE', help='user overlay YAML (as for bringup)')
     ap.add_argument('--results', default='results', metavar='DIR',
                     help='parent directory of demo-<UTC>/ (default: ./results)')
+    ap.add_argument('--python-m', action='store_true',
+                    help='run the stack with python -m (source tree) instead of the installed '
+                         'executables')
     return ap
 
 
@@ -123,9 +126,11 @@ class _Child:
             return ''
 
 
-def _bringup_argv(overlay: str | None) -> list[str]:
-    exe = shutil.which('bringup')
+def _bringup_argv(overlay: str | None, python_m: bool) -> list[str]:
+    exe = None if python_m else shutil.which('bringup')
     argv = [exe] if exe else [sys.executable, '-m', 'm4k_rt.tools.bringup']
+    if python_m:
+        argv.append('--python-m')
     return argv + (['--config', overlay] if overlay else [])
 
 
@@ -509,8 +514,8 @@ def main(argv: Sequence[str] | None = None) -> int:
          f'discovery {env["ROS_AUTOMATIC_DISCOVERY_RANGE"]}, runtime dir '
          f'{env["M4K_RUNTIME_DIR"]}')
     rec = Recorder()
-    stack = _Child('bringup', _bringup_argv(args.config), os.path.join(out_dir, 'bringup.log'),
-                   env)
+    stack = _Child('bringup', _bringup_argv(args.config, args.python_m),
+                   os.path.join(out_dir, 'bringup.log'), env)
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         timed_out, rc = _drive(rec, stack, env, args, mount, out_dir)
