@@ -1,0 +1,246 @@
+"""End to end: kill -9 the stack's processes during a drive; feed the stack bad cmd_vel.
+
+The whole stack runs under ``bringup`` (rt_core + driver_host + bridge, simulated devices);
+this test is a ROS client driving it through ``cmd_vel`` and watching ``odom`` and
+``diagnostics``, and reads the RT tasks' cycle counters from the monitor's ``stat`` port.
+
+Faults: kill -9 the driver host, the bridge, both, and rt_core, while driving. Expected
+(Xenomai XDDP / ros2_control / diff_drive_controller semantics): rt_core keeps running and
+its cycle counters never restart; bringup restarts the victim with backoff and reports it; the
+restarted process re-links; driving resumes only on a fresh command; with rt_core gone the
+driver host's watchdog/link-loss makes the motors safe, so the robot stops, and a restarted
+rt_core picks up. Bad input: NaN/inf cmd_vel rejected and counted, huge values clamped,
+-0.0 accepted as zero, a wrong message type on the topic ignored. Measured times are printed
+(run with -s), not asserted: the VM is noisy.
+"""
+
+import math
+import os
+import signal
+import subprocess
+import threading
+import time
+
+import pytest
+import yaml
+
+from m4k_rt import recorder, xddp
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+rclpy = pytest.importorskip('rclpy')
+
+
+def _env(runtime_dir):
+    env = dict(os.environ)
+    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
+    env['PYTHONPATH'] = os.pathsep.join(
+        src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
+    env['M4K_RUNTIME_DIR'] = runtime_dir
+    env['M4K_CONFIG_DIR'] = os.path.join(ROOT, 'config')
+    return env
+
+
+def _children(pid):
+    out = {}
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open('/proc/{}/stat'.format(entry), 'rb') as f:
+                st = f.read()
+            with open('/proc/{}/cmdline'.format(entry), 'rb') as f:
+                cmd = f.read().replace(b'\0', b' ').decode()
+        except OSError:
+            continue
+        fields = st[st.rfind(b')') + 2:].split()
+        if int(fields[1]) != pid or fields[0] == b'Z':
+            continue
+        for name, mod in (('rt_core', 'm4k_rt.rt_core'), ('driver_host', 'm4k_drivers.host'),
+                          ('bridge', 'm4k_rt.bridge')):
+            if mod in cmd:
+                out[name] = int(entry)
+    return out
+
+
+class Probe:
+    """A ROS client of the stack plus a reader of the RT cycle counters (stat port)."""
+
+    def __init__(self, runtime_dir):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import Twist
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import String
+        self.Twist = Twist
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx)
+        self.node = rclpy.create_node('m4k_fault_probe', context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.cmd = self.node.create_publisher(Twist, 'cmd_vel', 10)
+        # Another participant: one participant may not use two types on one topic.
+        self.ctx2 = rclpy.Context()
+        rclpy.init(context=self.ctx2)
+        self.node2 = rclpy.create_node('m4k_fault_probe_wrong_type', context=self.ctx2)
+        self.wrong = self.node2.create_publisher(String, 'cmd_vel', 10)
+        self.odom = None
+        self.odom_count = 0
+        self.cmd_diag = {}
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
+        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
+        self.rec = recorder.Recorder()
+        self.stat = xddp.NrtLink('stat', runtime_dir, retry_interval=0.1)
+        self.cycles_seen = []
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._read_stat, daemon=True)
+        self._t.start()
+
+    def _on_odom(self, msg):
+        self.odom = msg
+        self.odom_count += 1
+
+    def _on_diag(self, msg):
+        for s in msg.status:
+            if s.name.endswith('cmd_vel'):
+                self.cmd_diag = {kv.key: kv.value for kv in s.values}
+
+    def _read_stat(self):
+        while not self._stop.is_set():
+            data = self.stat.read(0.2)
+            if data:
+                self.rec.feed(data)
+                t = self.rec.tasks.get('actuator')
+                if t is not None and (not self.cycles_seen or self.cycles_seen[-1] != t.cycles):
+                    self.cycles_seen.append(t.cycles)
+
+    @property
+    def v(self):
+        return self.odom.twist.twist.linear.x if self.odom else math.nan
+
+    @property
+    def x(self):
+        return self.odom.pose.pose.position.x if self.odom else math.nan
+
+    def pump(self, seconds, lin=None, ang=0.0):
+        """Spin for ``seconds``, publishing cmd_vel at 20 Hz when ``lin`` is given."""
+        end = time.monotonic() + seconds
+        nxt = 0.0
+        while time.monotonic() < end:
+            if lin is not None and time.monotonic() >= nxt:
+                self.cmd.publish(self.Twist(linear=_vec(lin), angular=_vec(0.0, 0.0, ang)))
+                nxt = time.monotonic() + 0.05
+            self.ex.spin_once(timeout_sec=0.01)
+
+    def until(self, pred, timeout, what, lin=None):
+        """Pump until ``pred()``; return the seconds it took."""
+        t0 = time.monotonic()
+        while not pred():
+            assert time.monotonic() - t0 < timeout, 'timed out after {} s: {}'.format(
+                timeout, what)
+            self.pump(0.05, lin)
+        return time.monotonic() - t0
+
+    def close(self):
+        self._stop.set()
+        self._t.join(2.0)
+        self.stat.close()
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self.node2.destroy_node()
+        rclpy.try_shutdown(context=self.ctx)
+        rclpy.try_shutdown(context=self.ctx2)
+
+
+def _vec(x=0.0, y=0.0, z=0.0):
+    from geometry_msgs.msg import Vector3
+    return Vector3(x=float(x), y=float(y), z=float(z))
+
+
+@pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
+    overlay = tmp_path / 'overlay.yaml'
+    overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
+                                                   'start_delay_ms': 10}}))
+    log = open(tmp_path / 'bringup.log', 'w')
+    try:
+        bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+                          str(overlay), '--status-interval', '1'], env=_env(m4k_runtime_dir),
+                         stdout=log, stderr=subprocess.STDOUT)
+    finally:
+        log.close()
+    probe = Probe(m4k_runtime_dir)
+    times = {}
+    try:
+        times['start'] = probe.until(lambda: probe.odom is not None, 60, 'first odom')
+        kids = _children(bu.pid)
+        assert set(kids) == {'rt_core', 'driver_host', 'bridge'}, kids
+        rt_pid = kids['rt_core']
+
+        # --- bad input on cmd_vel ------------------------------------------------------------
+        from std_msgs.msg import String
+        for bad in (math.nan, math.inf, -math.inf):
+            probe.cmd.publish(probe.Twist(linear=_vec(bad)))
+            probe.cmd.publish(probe.Twist(linear=_vec(0.1), angular=_vec(0, 0, bad)))
+        probe.wrong.publish(String(data='forward!'))   # wrong type: never delivered
+        probe.until(lambda: int(probe.cmd_diag.get('rejected_nonfinite', 0)) >= 6, 10,
+                    'NaN/inf cmd_vel rejected and counted')
+        probe.pump(0.5)
+        assert abs(probe.v) < 0.02, 'a rejected command moved the robot'
+        probe.until(lambda: int(probe.cmd_diag.get('clamped', 0)) > 0, 10,
+                    'huge cmd_vel clamped and counted', lin=1e300)
+        probe.until(lambda: abs(probe.v) < 0.02, 15, 'stop on -0.0', lin=-0.0)
+
+        # --- drive, then kill -9 the driver host -------------------------------------------
+        probe.until(lambda: probe.v > 0.1, 20, 'driving at 0.25 m/s', lin=0.25)
+        c0 = probe.cycles_seen[-1]
+        for name in ('driver_host', 'bridge'):
+            kids = _children(bu.pid)
+            old = kids[name]
+            os.kill(old, signal.SIGKILL)
+            t0 = time.monotonic()
+            probe.until(lambda n=name, o=old: _children(bu.pid).get(n, o) != o, 30,
+                        name + ' restarted by bringup', lin=0.25)
+            times[name + '_restart'] = time.monotonic() - t0
+            n0 = probe.odom_count
+            probe.until(lambda n=n0: probe.v > 0.1 and probe.odom_count > n + 5, 30,
+                        'driving again after ' + name, lin=0.25)
+            times[name + '_driving_again'] = time.monotonic() - t0
+            assert _children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
+
+        # --- bridge gone: the RT actuator brakes on its own; no lurch on restart ---------------
+        kids = _children(bu.pid)
+        x0 = probe.x
+        os.kill(kids['bridge'], signal.SIGKILL)
+        os.kill(kids['driver_host'], signal.SIGKILL)       # both at once
+        n0 = probe.odom_count
+        probe.until(lambda: probe.odom_count > n0 + 5, 60, 'odom from the restarted bridge')
+        probe.pump(1.0)   # no cmd_vel: the restarted processes must not drive on an old one
+        assert abs(probe.v) < 0.02, 'robot moving without a fresh command: v={}'.format(probe.v)
+        # 0.25 m/s, 0.5 s timeout, 0.37 m/s^2 ramp: <= 0.125 + 0.084 m, plus odom delay.
+        assert probe.x - x0 < 0.45, 'braked too late: {:.3f} m'.format(probe.x - x0)
+        probe.until(lambda: probe.v > 0.1, 30, 'driving on a fresh command', lin=0.25)
+
+        # --- kill -9 rt_core: the robot stops, a restarted rt_core picks up --------------------
+        seen = probe.cycles_seen
+        assert seen[-1] > c0 and all(b > a for a, b in zip(seen, seen[1:], strict=False)), \
+            'RT cycle counters restarted or stopped: {}'.format(seen)
+        os.kill(rt_pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        probe.until(lambda: _children(bu.pid).get('rt_core', rt_pid) != rt_pid, 30,
+                    'rt_core restarted by bringup', lin=0.25)
+        times['rt_core_restart'] = time.monotonic() - t0
+        n0 = probe.odom_count
+        probe.until(lambda: probe.v > 0.1 and probe.odom_count > n0 + 5, 30,
+                    'driving after rt_core restart', lin=0.25)
+        times['rt_core_driving_again'] = time.monotonic() - t0
+        probe.until(lambda: abs(probe.v) < 0.02, 15, 'brake after the last command')
+    finally:
+        probe.close()
+    bu.send_signal(signal.SIGINT)
+    bu.wait(40)
+    text = (tmp_path / 'bringup.log').read_text()
+    assert bu.returncode == 0, text[-3000:]
+    for name in ('driver_host', 'bridge', 'rt_core'):
+        assert 'bringup: {} restarted'.format(name) in text, text[-3000:]
+    assert 'RT side gone' in text or 'relinking' in text
+    print('fault e2e times (s):', {k: round(v, 2) for k, v in times.items()})
