@@ -341,31 +341,39 @@ def _plots(out_dir: str, geom: WorldGeometry, world: np.ndarray, odom: np.ndarra
 
 
 def _report(summary: dict[str, Any]) -> str:
-    ok = 'PASS' if summary['passed'] else 'FAIL'
     s = summary
-    return f"""# m4k demo -- the paper's navigation experiment (section 4, Figs. 8-9), simulated
-
-Result: **{ok}** -- goal {'reached' if s['goal_reached'] else 'NOT reached'} within
-{s['goal_tolerance_m']} m, final error {s['final_error_m']:.3f} m, minimum footprint clearance
-{s['min_clearance_m']:.3f} m, contacts {s['contacts']}, {s['duration_s']:.1f} s of driving.
-
-* Stack: `bringup` (rt_core RT tasks, driver_host with simulated devices, ROS bridge); the
-  DWA local planner (`m4k_rt.planning`) publishes `cmd_vel` at 20 Hz, max
-  {s['max_v_mps']} m/s, from `scan` and `odom` only.
-* Goal {s['goal_odom']} (odom frame) -- the paper's 3 m ahead past the triangular obstacle.
-* Mean measured centre velocity {s['mean_v_mps']:.3f} m/s; peak {s['peak_v_pose_rate_mps']:.3f}
-  m/s from the odometry poses, {s['peak_v_mps']:.3f} m/s in the odometry twist
-  ({s['odom_twist_outliers']} twist samples beyond twice the top speed: one-sample spikes of
-  the 10 ms encoder differencing; the poses stay smooth);
-  largest lateral detour |y| {s['max_abs_y_m']:.2f} m; planner recoveries seen:
-  {s['recovery_episodes']}.
-* Contacts and clearance: {s['contacts_source']}.
-* The trajectory is the bridge's `odom` (encoder odometry, as the paper's Fig. 9a); the
-  reference is the planner's `cmd_vel`, the measured velocity the odometry's centre velocity.
-
-Files: `fig9a_trajectory.png`, `fig9b_velocity.png`, `trajectory.csv`, `summary.json`,
-`bringup.log`, `planner.log`.
-"""
+    verdict = 'PASS' if s['passed'] else 'FAIL'
+    reached = 'reached' if s['goal_reached'] else 'NOT reached'
+    return '\n'.join([
+        "# m4k demo -- the paper's navigation experiment (section 4, Figs. 8-9), simulated",
+        '',
+        f"Result: **{verdict}** -- goal {reached} (tolerance {s['goal_tolerance_m']} m).",
+        '',
+        '| quantity | value |',
+        '|---|---|',
+        f"| final position error | {s['final_error_m']:.3f} m |",
+        f"| minimum footprint clearance | {s['min_clearance_m']} m |",
+        f"| contacts | {s['contacts']} |",
+        f"| driving time | {s['duration_s']:.1f} s |",
+        f"| mean centre velocity (odometry poses) | {s['mean_v_mps']:.3f} m/s |",
+        f"| largest lateral detour abs(y) | {s['max_abs_y_m']:.2f} m |",
+        f"| planner recoveries | {s['recovery_episodes']} |",
+        '',
+        '* Stack: `bringup` (rt_core RT tasks, driver_host with simulated devices, ROS bridge);',
+        '  the DWA local planner (`m4k_rt.planning`) publishes `cmd_vel` at 20 Hz, at most',
+        f"  {s['max_v_mps']} m/s, from `scan` and `odom` only; goal {s['goal_odom']} in the odom",
+        "  frame -- the paper's 3 m ahead, past the triangular obstacle.",
+        "* Fig. 9(a): the bridge's `odom` (encoder odometry, as in the paper) in the room, with",
+        '  the footprint about once a second. Fig. 9(b): the reference (`cmd_vel`) against the',
+        '  measured centre velocity: the odometry twist (10 ms encoder differences; '
+        f"{s['odom_twist_outliers']}",
+        f"  samples beyond twice the top speed, peak {s['peak_v_mps']:.2f} m/s) and the rate of",
+        f"  the odometry poses over 50 ms (peak {s['peak_v_pose_rate_mps']:.3f} m/s).",
+        f"* Contacts and clearance: {s['contacts_source']}.",
+        '',
+        'Files: `fig9a_trajectory.png`, `fig9b_velocity.png`, `trajectory.csv`, `summary.json`,',
+        '`bringup.log`, `planner.log`.',
+        ''])
 
 
 def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], tolerance: float,
