@@ -110,3 +110,11 @@ def test_fig10_writes_a_png(tmp_path):
     path = plots.fig10(periods, 10 * MS, str(tmp_path / 'f.png'))
     data = (tmp_path / 'f.png').read_bytes()
     assert path.endswith('f.png') and data[:8] == b'\x89PNG\r\n\x1a\n' and len(data) > 10_000
+
+
+def test_busy_note_only_when_load_exceeds_half_the_cpus():
+    from m4k_rt.tools.benchlib import system
+    assert system.busy_note({'loadavg': '0.50 0.4 0.3 1/100 5', 'cpus_online': 2}) is None
+    note = system.busy_note({'loadavg': '3.25 2.0 1.0 1/100 5', 'cpus_online': 2})
+    assert '1-min load average 3.25 on 2 CPUs' in note
+    assert system.busy_note({'loadavg': None}) is None

@@ -243,6 +243,9 @@ class Bench:
         p.phase('set-up: tools and machine')
         tools = system.ensure_tools(self.progress.log, install=not self.args.no_install)
         self.summ['machine'] = system.machine_info()
+        busy = system.busy_note(self.summ['machine'])
+        if busy:
+            self._note(busy)
         self.summ['tools'] = tools
         self.has_host = stack.module_available('m4k_drivers.host')
         if not self.has_host:

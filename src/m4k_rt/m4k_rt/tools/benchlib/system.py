@@ -19,8 +19,8 @@ import sys
 import time
 from typing import Any, Callable
 
-__all__ = ['STRESS_ARGS', 'Stress', 'TOOL_PACKAGES', 'ensure_tools', 'machine_info',
-           'proc_cpu_seconds']
+__all__ = ['STRESS_ARGS', 'Stress', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
+           'machine_info', 'proc_cpu_seconds']
 
 # tool -> Debian package
 TOOL_PACKAGES = {'cyclictest': 'rt-tests', 'stress-ng': 'stress-ng'}
@@ -171,3 +171,18 @@ def machine_info() -> dict[str, Any]:
         'os': (_read('/etc/debian_version') and 'Debian ' + (_read('/etc/debian_version') or ''))
         or platform.platform(),
     }
+
+
+def busy_note(info: dict[str, Any]) -> str | None:
+    """Return a warning when the 1-minute load average already exceeds half the CPUs."""
+    try:
+        load1 = float(str(info.get('loadavg', '')).split()[0])
+    except (IndexError, ValueError):
+        return None
+    cpus = info.get('cpus_online') or 1
+    if load1 <= 0.5 * cpus:
+        return None
+    return ('the machine was busy before the bench started (1-min load average {:.2f} on {} '
+            'CPUs): the "idle" conditions ran next to that other work, so absolute numbers '
+            'are worse than on a quiet machine; the ratios compare runs made side by side '
+            'under the same background'.format(load1, cpus))
