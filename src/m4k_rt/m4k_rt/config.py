@@ -66,6 +66,7 @@ class TaskConfig:
     ports: tuple[str, ...]
     enabled: bool = True
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    offset_ns: int = 0   # release phase within the period (see config/m4k.yaml, offset_ms)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,7 +183,8 @@ _RUNTIME_TYPES: dict[str, tuple[Callable[[Any], bool], str]] = {
     'max_ports': (lambda v: _is_int(v) and 1 <= v <= 1024, 'an int in 1..1024'),
 }
 
-_TASK_KEYS = {'period_ms', 'priority', 'cpu', 'body', 'ports', 'enabled', 'params'}
+_TASK_KEYS = {'period_ms', 'offset_ms', 'priority', 'cpu', 'body', 'ports', 'enabled',
+              'params'}
 
 
 def _parse_runtime(m: Any) -> RuntimeConfig:
@@ -231,6 +233,10 @@ def _parse_task(name: Any, m: Any, index: int, ports: Mapping[str, int],
     if not _is_num(period) or period <= 0:
         raise ConfigError(path + '.period_ms', 'expected a number of ms > 0, got {!r}'.format(
             period), period)
+    offset = m.get('offset_ms', 0)
+    if not _is_num(offset) or not 0 <= offset < period:
+        raise ConfigError(path + '.offset_ms', 'expected ms in 0..period_ms ({!r}), '
+                          'got {!r}'.format(period, offset), offset)
     prio = m['priority']
     if not _is_int(prio) or not 1 <= prio <= 99:
         raise ConfigError(path + '.priority', 'expected an int in 1..99, got {!r}'.format(
@@ -258,7 +264,7 @@ def _parse_task(name: Any, m: Any, index: int, ports: Mapping[str, int],
     params = m.get('params', {}) or {}
     _mapping(params, path + '.params')
     return TaskConfig(name, index, int(round(period * 1_000_000)), prio, cpu, body,
-                      tuple(labels), enabled, dict(params))
+                      tuple(labels), enabled, dict(params), int(round(offset * 1_000_000)))
 
 
 def parse(raw: Mapping[str, Any],

@@ -316,8 +316,8 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
                                      lead_ns=int(rt.start_delay_ms * 1e6))
         for i, (t, body) in enumerate(built):
             shared.tasks.append(RtTask(t.name, t.priority, t.period_ns, body, cpu=t.cpu,
-                                       start_ns=start, ring_capacity=rt.ring_capacity,
-                                       index=i))
+                                       start_ns=start + t.offset_ns,
+                                       ring_capacity=rt.ring_capacity, index=i))
         return _serve(args, shared)
     finally:
         hard.close()

@@ -118,3 +118,22 @@ def test_broken_yaml_names_the_file(tmp_path):
         config.load(str(p), config_dir=REPO_CONFIG)
     with pytest.raises(config.ConfigError, match='cannot read'):
         config.load(str(tmp_path / 'missing.yaml'), config_dir=REPO_CONFIG)
+
+
+def test_offset_outside_the_period_is_rejected(tmp_path):
+    assert _bad(tmp_path, {'tasks': {'led': {'offset_ms': 20}}}) == (
+        'tasks.led.offset_ms: expected ms in 0..period_ms (20), got 20')
+
+
+def test_default_offsets_never_release_a_task_with_the_actuator():
+    # The phasing argument of config/m4k.yaml: no release of another task coincides with an
+    # actuator release over the hyperperiod (checked on a 1 ms grid, which the offsets use).
+    cfg = config.load(config_dir=REPO_CONFIG)
+    act = cfg.task('actuator')
+    hyper = 1_000_000_000  # 1 s: a common multiple of every default period
+    act_releases = {act.offset_ns + k * act.period_ns for k in range(hyper // act.period_ns)}
+    for t in cfg.tasks:
+        if t.name == 'actuator':
+            continue
+        mine = {t.offset_ns + k * t.period_ns for k in range(hyper // t.period_ns)}
+        assert not mine & act_releases, t.name
