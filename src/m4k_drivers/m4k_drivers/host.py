@@ -91,10 +91,12 @@ class DeviceService:
         """Start the service thread."""
         self.thread.start()
 
-    def _send(self, kind: int, *fields: Any) -> bool:
+    def _send(self, kind: int, *fields: Any, stamp_ns: int | None = None) -> bool:
+        """Send one datagram, stamped with the sample time when known, else now."""
         from m4k_rt import protocol
         self.seq = (self.seq + 1) & 0xFFFFFFFF
-        return self.link.write(protocol.encode(kind, self.seq, time.monotonic_ns(), *fields))
+        stamp = time.monotonic_ns() if stamp_ns is None else stamp_ns
+        return self.link.write(protocol.encode(kind, self.seq, stamp, *fields))
 
     def _send_status(self, force: bool = False) -> None:
         from m4k_rt import protocol
@@ -199,7 +201,7 @@ class DeviceService:
         if r.status == Status.OK:
             v = r.value
             self._send(protocol.Kind.ENCODERS, v.left_raw, v.right_raw, v.left_angle,
-                       v.right_angle, v.status)
+                       v.right_angle, v.status, stamp_ns=v.t_ns)
 
     def _serve_imu(self, msg: Any) -> None:
         from m4k_rt import protocol

@@ -102,9 +102,11 @@ class MotorHandler(DeviceHandler):
         assert self.bus is not None
         self.poll_watchdog()
         status = 0
+        t_sum = 0
         for side, port in enumerate(self.bus.encoders):
             data = port.transfer(bytes(p.ENC_READ_LEN))
             t = self.clock()
+            t_sum += t
             try:
                 frame = p.decode_encoder(data, self.lead_bits)
                 self.unwrap[side].update(frame.raw, t)
@@ -119,8 +121,11 @@ class MotorHandler(DeviceHandler):
             status |= p.STATUS_SAFE
         if self.write_error:
             status |= p.STATUS_WRITE_ERROR
+        # The sample time is when the wheels were read (the mean of the two transfers), not
+        # when the reading is sent: the RT odometry divides angle steps by stamp steps, and a
+        # send delayed by a busy interpreter would otherwise show up as a speed spike.
         return EncoderReading(self.last_raw[0], self.last_raw[1], self.unwrap[0].angle,
-                              self.unwrap[1].angle, status, self.clock())
+                              self.unwrap[1].angle, status, t_sum // len(self.bus.encoders))
 
     def on_deactivate(self) -> None:
         """Write code 512 to both DACs."""

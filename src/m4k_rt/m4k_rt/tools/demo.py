@@ -18,8 +18,11 @@ driver host, so the demo measures the footprint's clearance along the recorded t
 against the room geometry of the same ``world:`` configuration
 (:mod:`m4k_rt.planning.evaluate`); ``summary.json`` names the source.
 
-ROS isolation: the user's ``ROS_DOMAIN_ID`` is kept; ``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults
-to ``LOCALHOST`` when unset, so the demo's robot does not talk to the network. The XDDP runtime
+ROS isolation: the user's ``ROS_DOMAIN_ID`` is kept when set; when unset, the demo picks a
+random domain (printed, so ``ROS_DOMAIN_ID=N`` lets you watch it) -- another robot or node on
+the default domain publishing ``odom`` would otherwise steer the planner.
+``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults to ``LOCALHOST`` when unset, so the demo's robot does
+not talk to the network. The XDDP runtime
 directory is a fresh temporary one unless ``M4K_RUNTIME_DIR`` is set, so the demo can run next
 to another stack. Exit code: 0 when the goal was reached within tolerance without contact, 1
 otherwise, 2 on a configuration error or when the stack does not come up.
@@ -33,6 +36,7 @@ import datetime
 import json
 import math
 import os
+import random
 import shutil
 import signal
 import subprocess
@@ -511,6 +515,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _log('the demo needs the simulated laser (devices.lrf.backend: sim)')
         return 2
     out_dir = _results_dir(args.results)
+    if not os.environ.get('ROS_DOMAIN_ID'):
+        os.environ['ROS_DOMAIN_ID'] = str(random.randint(1, 100))
     env = dict(os.environ)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -518,7 +524,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not env.get('M4K_RUNTIME_DIR'):
         tmp_runtime = tempfile.mkdtemp(prefix='m4k-demo-')
         env['M4K_RUNTIME_DIR'] = tmp_runtime
-    _log(f'results in {out_dir}; ROS_DOMAIN_ID={env.get("ROS_DOMAIN_ID", "0 (default)")}, '
+    _log(f'results in {out_dir}; ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}, '
          f'discovery {env["ROS_AUTOMATIC_DISCOVERY_RANGE"]}, runtime dir '
          f'{env["M4K_RUNTIME_DIR"]}')
     rec = Recorder()
