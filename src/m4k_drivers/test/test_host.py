@@ -174,3 +174,36 @@ def test_print_real_lrf(procs):
     rc, out, err = _run(procs, '--device', 'lrf', '--port', '/dev/ttyACM0', '--print',
                         '--count', '3')
     assert rc == 0 and out.count('lrf seq=') == 3
+
+
+def test_world_report_tracks_ground_truth_and_counts_a_collision(procs, m4k_runtime_dir,
+                                                                 tmp_path):
+    import json
+    report = tmp_path / 'world.json'
+    rt = rt_xddp_bind(2, 'motor')
+    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
+                        '--device', 'motor', '--world-report', str(report)])
+    try:
+        _wait_linked(rt, timeout=30)
+        buf = bytearray(64)
+        seq = 0
+        deadline = time.monotonic() + 30
+        doc = {}
+        while time.monotonic() < deadline:
+            seq += 1  # full forward on both wheels: straight into the triangle 1.5 m ahead
+            n = protocol.encode_into(buf, 0, protocol.Kind.WHEEL_CMD, seq, time.monotonic_ns(),
+                                     1023, 1023, 1)
+            rt.send(bytes(buf[:n]))
+            while rt.recv() is not None:
+                pass
+            time.sleep(0.02)
+            if report.exists():
+                doc = json.loads(report.read_text())
+                if doc['collisions'] >= 1:
+                    break
+        assert doc.get('collisions', 0) >= 1, doc
+        assert doc['in_contact'] is True
+        assert 1.0 < doc['pose'][0] < 1.6, doc  # stopped by the obstacle's face at x = 1.5 m
+    finally:
+        procs.stop(proc)
+        rt.close()
