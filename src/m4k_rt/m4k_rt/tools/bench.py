@@ -84,6 +84,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--cmd-trials', type=int, default=None,
                     help='cmd_vel latency trials (default {:g}, quick {:g})'.format(
                         FULL['cmd_trials'], QUICK['cmd_trials']))
+    ap.add_argument('--rt-config', default=None, metavar='FILE',
+                    help='config overlay for rt_core in every m4k run (e.g. CPU pinning)')
     ap.add_argument('--results', default='results', help='results root directory')
     ap.add_argument('--skip', default='', help='comma list of phases to skip: ' +
                     ', '.join(PHASES))
@@ -158,7 +160,10 @@ class Bench:
                     'mode': 'quick' if args.quick else 'full',
                     'table1_s': self.plan['table1_s'], 'condition_s': self.plan['condition_s'],
                     'reproduce': 'make bench' + (' QUICK=1' if args.quick else '') + (
-                        ' DURATION={:g}'.format(args.duration) if args.duration else ''),
+                        ' DURATION={:g}'.format(args.duration) if args.duration else '')
+                    if not args.rt_config else 'bench {}--rt-config {}'.format(
+                        '--quick ' if args.quick else '', args.rt_config),
+                    'rt_config': args.rt_config,
                     'results_dir': self.outdir},
             'conditions': {}, 'cyclictest': {}, 'skipped': {}, 'notes': [], 'files': [],
             'warmup': {'seconds': WARMUP_S},
@@ -176,7 +181,7 @@ class Bench:
              keep_table1: bool = False) -> None:
         run = stack.run_m4k(seconds + WARMUP_S, self._rundir(cond), self.logs, cond,
                             tasks=tasks, driver_host=self.has_host, env=self.env,
-                            progress=self.progress.update)
+                            progress=self.progress.update, rt_config=self.args.rt_config)
         for e in run.errors:
             self._note('{}: {}'.format(cond, e))
         self.summ['warmup'][cond] = analysis.trim_warmup(run.recorder.tasks.values(),

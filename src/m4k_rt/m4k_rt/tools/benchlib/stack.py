@@ -126,7 +126,8 @@ class M4kRun:
 def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
             tasks: str | None = None, driver_host: bool = True,
             progress: Callable[[str], None] | None = None,
-            env: dict[str, str] | None = None, start_timeout_s: float = 30.0) -> M4kRun:
+            env: dict[str, str] | None = None, start_timeout_s: float = 30.0,
+            rt_config: str | None = None) -> M4kRun:
     """Run rt_core (+ driver_host) for ``duration_s`` of task time, recording the status port.
 
     The CPU window starts when the first TASK_STATS batch arrives (tasks running, imports
@@ -136,6 +137,8 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     xddp.ensure_runtime_dir(runtime_dir)
     rt_args = ['--tasks', tasks] if tasks else []
+    if rt_config:
+        rt_args += ['--config', rt_config]
     rt = Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args), log_dir, env)
     host = None
     if driver_host:
