@@ -19,10 +19,11 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu, LaserScan, Range
-from test_bringup import start_bringup, write_overlay
+from test_bringup import cmdline, start_bringup, write_overlay
 import yaml
 
 from m4k_msgs.msg import RtStatus
+from m4k_rt.testing import child_pids
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 START = [0.0, 0.9, 0.0]
@@ -79,6 +80,33 @@ class RosUser:
                 return
         raise AssertionError('timed out after {} s waiting for {}'.format(timeout, what))
 
+    def wait_still(self, timeout, window=0.3, tol=0.002):
+        """Wait until odom's position stays within ``tol`` for ``window`` s; return since when.
+
+        Position, not the odom speed: the speed is differenced from 12-bit encoders and
+        carries quantization noise (and rare spikes) even at rest.
+        """
+        odom = self.got['odom']
+        state = {'ref': None, 'since': None}
+
+        def still():
+            p = odom[-1].pose.pose.position
+            now = time.monotonic()
+            ref = state['ref']
+            if ref is None or math.hypot(p.x - ref[0], p.y - ref[1]) > tol:
+                state['ref'], state['since'] = (p.x, p.y), now
+                return False
+            return now - state['since'] >= window
+
+        self.spin_until(still, timeout, 'the robot to stand still')
+        return state['since']
+
+    def publisher(self, typ, topic):
+        """Create a publisher and wait until the bridge's subscription matched it."""
+        pub = self.node.create_publisher(typ, topic, 10)
+        self.spin_until(lambda: pub.get_subscription_count() > 0, 20, topic + ' matched')
+        return pub
+
     def close(self):
         self.executor.shutdown()
         self.node.destroy_node()
@@ -117,7 +145,7 @@ def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout
     timeout = ctl['cmd_vel_timeout']
     x0 = _x(user)
     y0 = user.got['odom'][-1].pose.pose.position.y
-    pub = user.node.create_publisher(Twist, 'cmd_vel', 10)
+    pub = user.publisher(Twist, 'cmd_vel')
     cmd = Twist()
     cmd.linear.x = v
     sent = []
@@ -130,13 +158,13 @@ def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout
     last = sent[-1]
     # Stop publishing while moving: the RT actuator keeps the command for cmd_vel_timeout,
     # then brakes at the deceleration limit.
-    user.spin_until(lambda: abs(user.got['odom'][-1].twist.twist.linear.x) < STILL, 10,
-                    'speed 0')
-    stopped_after = time.monotonic() - last
+    still_since = user.wait_still(10)
+    stopped_after = still_since - last
     assert stopped_after <= timeout + v / dec + 1.0, stopped_after
     x_stop = _x(user)
     user.spin_for(0.5)
-    assert abs(user.got['odom'][-1].twist.twist.linear.x) < STILL
+    speeds = [o.twist.twist.linear.x for o in user.got['odom'][-10:]]
+    assert abs(sum(speeds) / len(speeds)) < STILL, speeds
     assert abs(_x(user) - x_stop) < 0.005   # stopped, not creeping
     # Trapezoid: ramp up at acc, hold v until the last command + timeout, ramp down at dec.
     hold = (last - sent[0]) + timeout
@@ -202,7 +230,7 @@ def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
 def test_twist_stamped_mode_drives_too(stack):
     user, _, _ = stack
     x0 = _x(user)
-    pub = user.node.create_publisher(TwistStamped, 'cmd_vel', 10)
+    pub = user.publisher(TwistStamped, 'cmd_vel')
     msg = TwistStamped()
     msg.twist.linear.x = 0.25
     user.spin_for(1.5, each=lambda: pub.publish(msg), period=0.05)
@@ -212,7 +240,7 @@ def test_twist_stamped_mode_drives_too(stack):
 def test_nan_cmd_vel_is_rejected_and_the_robot_does_not_move(stack):
     user, _, tmp_path = stack
     x0 = _x(user)
-    pub = user.node.create_publisher(Twist, 'cmd_vel', 10)
+    pub = user.publisher(Twist, 'cmd_vel')
     bad = Twist()
     bad.linear.x = math.nan
 
@@ -230,3 +258,43 @@ def test_nan_cmd_vel_is_rejected_and_the_robot_does_not_move(stack):
     speeds = [o.twist.twist.linear.x for o in user.got['odom'][-20:]]
     assert abs(sum(speeds) / len(speeds)) < STILL / 2, speeds   # only quantization noise
     assert 'non-finite' in (tmp_path / 'bringup.err').read_text()
+
+
+def test_bridge_survives_an_rt_core_restart_and_reports_the_gap(stack):
+    user, proc, tmp_path = stack
+    err = (lambda: (tmp_path / 'bringup.err').read_text())  # noqa: E731
+
+    def pid_of(module):
+        pids = [p for p in child_pids(proc.pid) if module in cmdline(p)]
+        return pids[0] if pids else None
+
+    user.spin_until(lambda: 'linked to the RT process' in err(), 15, 'the bridge linked')
+    core = pid_of('m4k_rt.rt_core')
+    assert core is not None
+    os.kill(core, signal.SIGKILL)
+    try:
+        user.spin_until(lambda: 'lost the RT process' in err(), 15, 'the outage log line')
+    except AssertionError:
+        raise AssertionError(err()[-4000:]) from None
+    user.got['odom'].clear()
+    user.spin_until(lambda: user.got['odom'] and 'RT process is back after' in err(), 30,
+                    'odom again after the rt_core restart')
+    assert err().count('lost the RT process') == 1          # logged once per outage
+
+    def link():
+        for d in reversed(user.got['diagnostics']):
+            for s in d.status:
+                if s.name == 'm4k_bridge: rt link':
+                    return s
+        return None
+
+    user.got['diagnostics'].clear()
+    user.spin_until(lambda: link() is not None and link().level == b'\x00', 10, 'link OK')
+    values = {kv.key: kv.value for kv in link().values}
+    assert values['outages'] == '1' and float(values['last_gap_s']) > 0
+
+    # The reverse: the bridge restarts while the RT process keeps running.
+    os.kill(pid_of('m4k_rt.bridge.node'), signal.SIGKILL)
+    user.spin_until(lambda: 'bridge restarted' in err(), 15, 'the bridge restart')
+    user.got['odom'].clear()
+    user.spin_until(lambda: user.got['odom'], 30, 'odom from the restarted bridge')

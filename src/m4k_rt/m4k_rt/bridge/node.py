@@ -109,6 +109,9 @@ class BridgeNode(Node):
         self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
         self._rt_alive = False
         self._outage_start_ns = time.monotonic_ns()
+        self._outage_seen_ns = 0
+        self._last_rx_seen = 0
+        self._lost_seen = 0
         self._outages = 0
         self._last_gap_s = 0.0
         self._reported_errors: set[str] = set()
@@ -351,13 +354,30 @@ class BridgeNode(Node):
         return max(pump.last_rx_ns for pump in self._pumps.values())
 
     def _watch(self) -> None:
-        """Log RT process outages once per transition, and pump thread failures."""
+        """Log RT process outages once per transition, and pump thread failures.
+
+        An outage starts when a port's link breaks (the RT side closed or died: XDDP reports
+        it at once, even if the RT process is back before the next check) or when nothing
+        arrived for ``rt_stale_timeout``; it ends with the first datagram after that.
+        """
         now = time.monotonic_ns()
         last = self._rt_last_rx_ns()
-        fresh = last and now - last < self.p['rt_stale_timeout'] * 1e9
-        alive = any(pump.linked for pump in self._pumps.values()) and bool(fresh)
-        if alive and not self._rt_alive:
-            gap = (now - self._outage_start_ns) * 1e-9
+        lost = sum(pump.lost for pump in self._pumps.values())
+        broke, self._lost_seen = lost > self._lost_seen, lost
+        linked = any(pump.linked for pump in self._pumps.values())
+        fresh = bool(last) and now - last < self.p['rt_stale_timeout'] * 1e9
+        if self._rt_alive and (broke or not fresh):
+            self._rt_alive = False
+            self._outages += 1
+            self._outage_start_ns = self._last_rx_seen or now
+            self._outage_seen_ns = now
+            self.get_logger().warning(
+                'lost the RT process ({}); ports re-linking, odom, imu, scan and sonar pause '
+                'until it is back'.format('link broken' if broke else 'no datagram for {} s'
+                                          .format(self.p['rt_stale_timeout'])))
+        elif not self._rt_alive and linked and fresh and last > self._outage_seen_ns:
+            self._rt_alive = True
+            gap = (last - self._outage_start_ns) * 1e-9
             if self._outages:
                 self._last_gap_s = gap
                 self.get_logger().warning(
@@ -365,13 +385,7 @@ class BridgeNode(Node):
                         gap, self._outages))
             else:
                 self.get_logger().info('linked to the RT process after {:.1f} s'.format(gap))
-        elif self._rt_alive and not alive:
-            self._outages += 1
-            self._outage_start_ns = last or now
-            self.get_logger().warning(
-                'lost the RT process (no datagram for {} s, ports re-linking); odom, imu, scan '
-                'and sonar pause until it is back'.format(self.p['rt_stale_timeout']))
-        self._rt_alive = alive
+        self._last_rx_seen = last
         for role, pump in self._pumps.items():
             if pump.error is not None and role not in self._reported_errors:
                 self._reported_errors.add(role)
