@@ -6,10 +6,10 @@ import struct
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from m4k_rt.protocol import Header, Kind, ProtocolError
 import pytest
 
 from m4k_rt import protocol as p
+from m4k_rt.protocol import Header, Kind, ProtocolError
 
 U8 = st.integers(0, 0xFF)
 U16 = st.integers(0, 0xFFFF)
