@@ -217,6 +217,8 @@ def test_second_bringup_is_refused_and_first_stops_in_order_after_a_restart(
     order = [text.index('bringup: {} stopped'.format(n))
              for n in ('bridge', 'driver_host', 'rt_core')]
     assert order == sorted(order), text[-2000:]
+    for name in ('bridge', 'driver_host', 'rt_core'):   # each one shut down cleanly
+        assert 'bringup: {} stopped (exit code 0)'.format(name) in text, text[-3000:]
     for pid in kids:
         assert not os.path.exists('/proc/{}'.format(pid)) or 'Z' in open(
             '/proc/{}/stat'.format(pid)).read().split(')')[-1][:3]
@@ -230,6 +232,8 @@ def test_plain_status_lines_when_stdout_is_not_a_tty(procs, tmp_path, m4k_runtim
     wait_for(lambda: re.search(r'tasks \d/6 OK', out()), 40, 'a status line with 6 tasks')
     p.send_signal(signal.SIGINT)
     assert p.wait(40) == 0
+    err = (tmp_path / 'bringup.err').read_text()
+    assert 'bringup: bridge stopped (exit code 0)' in err, err[-3000:]
     lines = [ln for ln in out().splitlines() if 'tasks' in ln]
     assert lines and '\r' not in out() and all(ln.startswith('m4k ') for ln in lines)
     assert any(re.search(r'act \d+\.\d .* Hz \| worst jitter [\d.]+ ms', ln) for ln in lines)

@@ -22,7 +22,7 @@ import collections
 import os
 import sys
 import time
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
@@ -141,14 +141,16 @@ class BridgeNode(Node):
             self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, 10)
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
-        self._wake = self.create_guard_condition(self._drain_inbox)
+        self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
         runtime_dir = p['runtime_dir'] or None
         self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
         self._pumps = {role: PortPump(role, p.port(role), self._deliver, runtime_dir,
                                       p['relink_interval'])
                        for role in params.PORT_ROLES}
-        self._diag_timer = self.create_timer(p['diagnostics_period'], self._publish_diagnostics)
-        self._rt_timer = self.create_timer(p['rt_status_period'], self._publish_rt_status)
+        self._diag_timer = self.create_timer(p['diagnostics_period'],
+                                             self._unless_shut_down(self._publish_diagnostics))
+        self._rt_timer = self.create_timer(p['rt_status_period'],
+                                           self._unless_shut_down(self._publish_rt_status))
         self.create_timer(_WATCH_PERIOD_S, self._watch)
         for pump in self._pumps.values():
             pump.start()
@@ -156,6 +158,23 @@ class BridgeNode(Node):
         self._ready = True
         self.get_logger().info('waiting for the RT process in {} (ports {})'.format(
             self._runtime_dir, ', '.join(str(p.port(r)) for r in params.PORT_ROLES)))
+
+    def _unless_shut_down(self, fn: Callable[[], None]) -> Callable[[], None]:
+        """Wrap a callback: once SIGINT/SIGTERM shut the context down, publishing fails.
+
+        The signal may land while a callback runs; its RCLError ('context is invalid') is
+        then the expected end of the node, not a crash.
+        """
+        def call() -> None:
+            if not self.context.ok():
+                return
+            try:
+                fn()
+            except Exception:
+                if self.context.ok():
+                    raise
+
+        return call
 
     # --- parameters ---------------------------------------------------------------------------
 
@@ -204,13 +223,13 @@ class BridgeNode(Node):
         if self.p['diagnostics_period'] != old['diagnostics_period']:
             self._diag_timer.cancel()
             self.destroy_timer(self._diag_timer)
-            self._diag_timer = self.create_timer(self.p['diagnostics_period'],
-                                                 self._publish_diagnostics)
+            self._diag_timer = self.create_timer(
+                self.p['diagnostics_period'], self._unless_shut_down(self._publish_diagnostics))
         if self.p['rt_status_period'] != old['rt_status_period']:
             self._rt_timer.cancel()
             self.destroy_timer(self._rt_timer)
-            self._rt_timer = self.create_timer(self.p['rt_status_period'],
-                                               self._publish_rt_status)
+            self._rt_timer = self.create_timer(
+                self.p['rt_status_period'], self._unless_shut_down(self._publish_rt_status))
 
     # --- inbound: ROS -> RT ---------------------------------------------------------------------
 
