@@ -3,6 +3,8 @@
 #   make test                         lint + colcon test of every package + workspace tests
 #   make bench [QUICK=1]              the paper's evidence (Table 1, utilization, Fig. 10)
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
+#   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
+#   make fuzz [COUNT=100000]          random and mutated datagrams at every XDDP port
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
 ENV := source tools/env.sh
@@ -39,6 +41,12 @@ bench: build
 
 demo: build
 	@$(ENV); demo
+
+soak: build
+	@$(ENV); soak $(if $(DURATION),--duration $(DURATION),)
+
+fuzz: build
+	@$(ENV); fuzz --count $(or $(COUNT),100000)
 
 clean:
 	rm -rf build install log
