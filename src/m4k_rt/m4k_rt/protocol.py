@@ -42,6 +42,12 @@ SONAR_NO_ECHO = 1
 SONAR_TIMEOUT = 2
 SONAR_FAULT = 3
 
+# RT_STATUS.flags bits (set by rt_core's monitor task).
+RT_FLAG_GC_FROZEN = 0x1      # gc frozen and disabled in the RT process
+RT_FLAG_DMA_LATENCY = 0x2    # /dev/cpu_dma_latency held at 0 us
+RT_FLAG_GUARD_VALID = 0x4    # an actuator runs: guard_active is its collision guard's state
+RT_FLAG_AUDIT = 0x8          # the forbidden-call audit hook is installed
+
 LEVEL_OK = 0
 LEVEL_WARN = 1
 LEVEL_ERROR = 2
@@ -205,7 +211,11 @@ class Request(NamedTuple):
 
 
 class RtStatus(NamedTuple):
-    """RT process status: scheduling policy, hardening flags and task counts."""
+    """RT process status: scheduling policy, hardening, collision guard and task counts.
+
+    ``guard_active`` is the actuator's collision guard (limiting forward velocity now); it is
+    meaningful only when ``flags`` has RT_FLAG_GUARD_VALID (no actuator: always 0).
+    """
 
     policy: int
     mem_locked: int

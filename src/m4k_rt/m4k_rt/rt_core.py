@@ -73,7 +73,8 @@ class SharedState:
     hardening: sched.Hardening
     tasks: list[RtTask] = dataclasses.field(default_factory=list)
     stop_event: threading.Event = dataclasses.field(default_factory=threading.Event)
-    guard_active: bool = False
+    audit_installed: bool = False    # the forbidden-call audit hook (RT_STATUS flags bit)
+    robot: Any = None                # tasks.state.RobotState, set by the first robot body
 
 
 class StatsShipper:
@@ -105,6 +106,7 @@ class StatsShipper:
         # unseen nor pass unnoticed.
         self._readers = [PortReader(sock, 256) for sock, _ in self.ports]
         self.unexpected = 0
+        self._robot: Any = None
 
     def _prepare(self) -> None:
         n = len(self.shared.tasks)
@@ -112,6 +114,8 @@ class StatsShipper:
             self._cursors = [0] * n
             self._lost = [0] * n
             self._names = [t.name.encode() for t in self.shared.tasks]
+        if self._robot is None:
+            self._robot = self.shared.robot
 
     def __call__(self, ctx: Any) -> None:
         """Run one monitor cycle."""
@@ -181,11 +185,20 @@ class StatsShipper:
                         self._send(size, True)
         if any(linked):
             h = self.shared.hardening
-            flags = (1 if h.gc_frozen else 0) | (2 if h.dma_latency_held else 0)
+            flags = ((protocol.RT_FLAG_GC_FROZEN if h.gc_frozen else 0)
+                     | (protocol.RT_FLAG_DMA_LATENCY if h.dma_latency_held else 0)
+                     | (protocol.RT_FLAG_AUDIT if self.shared.audit_installed else 0))
+            # The collision guard state is the actuator's (its single-writer RobotState
+            # field); without an actuator that has run a cycle there is none to report.
+            robot = self._robot
+            guard = 0
+            if robot is not None and robot.actuator_cycles:
+                flags |= protocol.RT_FLAG_GUARD_VALID
+                guard = 1 if robot.guard_active else 0
             size = protocol.encode_into(
                 buf, 0, protocol.Kind.RT_STATUS, self.seq, now, 1 if fifo_all else 0,
-                int(h.mem_locked), int(h.degraded or not fifo_all),
-                int(self.shared.guard_active), flags, len(self.shared.tasks),
+                int(h.mem_locked), int(h.degraded or not fifo_all), guard, flags,
+                len(self.shared.tasks),
                 0 if cycles_min == 0xFFFFFFFF else cycles_min & 0xFFFFFFFF)
             self._send(size, False)
         self.batches += 1
@@ -326,7 +339,7 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
 def _serve(args: argparse.Namespace, shared: SharedState) -> int:
     modeswitch.install()
     modeswitch.install_console_guard()
-    shared.guard_active = True
+    shared.audit_installed = True
     sched.freeze_gc(shared.hardening)
     stop = shared.stop_event
     old = {sig: signal.signal(sig, lambda *_: stop.set())

@@ -68,3 +68,31 @@ def test_degraded_reasons_name_what_is_missing():
     assert any('mlockall' in r for r in reasons)
     assert any('garbage collector' in r for r in reasons)
     assert not any('cpu_dma_latency' in r for r in reasons)
+
+
+def test_collision_guard_comes_from_rt_status_when_it_carries_it():
+    m = RtMonitor(stale_s=1.0)
+    valid = protocol.RT_FLAG_GUARD_VALID
+    m.feed(protocol.Kind.RT_STATUS, protocol.RtStatus(1, 1, 0, 1, valid, 6, 100), 0)
+    assert m.collision_guard(0) is True
+    assert m.rt_status_msg(0, 0.0, guard_fallback=False).collision_guard_active
+    m.feed(protocol.Kind.RT_STATUS, protocol.RtStatus(1, 1, 0, 0, valid, 6, 100), 0)
+    assert not m.rt_status_msg(0, 0.0, guard_fallback=True).collision_guard_active
+
+
+@pytest.mark.parametrize('flags, rx_ns', [
+    (protocol.RT_FLAG_AUDIT, 0),                         # old RT: guard_active = audit flag
+    (protocol.RT_FLAG_GUARD_VALID, -2_000_000_000),       # RT_STATUS older than stale_s
+])
+def test_collision_guard_falls_back_when_rt_status_is_old(flags, rx_ns):
+    m = RtMonitor(stale_s=1.0)
+    m.feed(protocol.Kind.RT_STATUS, protocol.RtStatus(1, 1, 0, 1, flags, 6, 100), rx_ns)
+    assert m.collision_guard(0) is None
+    assert not m.rt_status_msg(0, 0.0, guard_fallback=False).collision_guard_active
+    assert m.rt_status_msg(0, 0.0, guard_fallback=True).collision_guard_active
+
+
+def test_collision_guard_without_rt_status_is_the_fallback():
+    m = RtMonitor()
+    assert m.collision_guard(0) is None
+    assert m.rt_status_msg(0, 0.0, guard_fallback=True).collision_guard_active

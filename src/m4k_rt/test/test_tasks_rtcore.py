@@ -16,11 +16,11 @@ from m4k_rt.timerfd import monotonic_ns
 SRC = os.path.join(os.path.dirname(__file__), '..')
 
 
-def _start(procs, tmp_path, control, duration):
+def _start(procs, tmp_path, control, duration, extra=None):
     overlay = tmp_path / 'overlay.yaml'
-    overlay.write_text(yaml.safe_dump({
+    overlay.write_text(yaml.safe_dump(dict({
         'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10},
-        'control': control}))
+        'control': control}, **(extra or {}))))
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(
         [os.path.abspath(SRC)] + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
@@ -109,3 +109,55 @@ def test_bad_control_value_fails_start_up_naming_the_field(procs, tmp_path, m4k_
     _, err = proc.communicate(timeout=30)
     assert proc.returncode != 0
     assert 'control.linear.max_acceleration: must be > 0, got -0.37' in err
+
+
+def _status_until(link, predicate, timeout, what, each=None):
+    """Collect `status` datagrams (calling `each` every 20 ms) until `predicate(got)`."""
+    got = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if each is not None:
+            each()
+        select.select([link.nrt['status'].fileno()], [], [], 0.02)
+        got += link.read_all('status')
+        if predicate(got):
+            return got
+    raise AssertionError('timed out after {} s waiting for {}; got kinds {}'.format(
+        timeout, what, sorted({h.kind.name for h, _ in got})))
+
+
+def _rt_status(got):
+    return [m for h, m in got if h.kind == p.Kind.RT_STATUS]
+
+
+def _start_fast(procs, tmp_path, control, monitor_params=None):
+    """Start rt_core with a 5 Hz monitor so the status tests take a few seconds."""
+    monitor = {'period_ms': 200, 'params': dict(monitor_params or {})}
+    return _start(procs, tmp_path, control, 30, {'tasks': {'monitor': monitor}})
+
+
+def test_rt_status_guard_follows_an_obstacle_reading(procs, tmp_path, peers):
+    proc = _start_fast(procs, tmp_path, {'guard': {'use_laser': False}})
+    link = peers('status', 'sonar')
+
+    def sonar(range_m):
+        def write():
+            link.write('sonar', p.Kind.SONAR, range_m, p.SONAR_OK)
+            link.read_all('sonar')          # the task's triggers, not needed here
+        return write
+
+    def guard_is(value):
+        def check(got):
+            rs = _rt_status(got)
+            return bool(rs) and rs[-1].flags & p.RT_FLAG_GUARD_VALID and \
+                rs[-1].guard_active == value
+        return check
+
+    # free ahead -> not limiting (and the forbidden-call audit is reported as a flag)
+    got = _status_until(link, guard_is(0), 10, 'guard off with 3 m free', sonar(3.0))
+    assert _rt_status(got)[-1].flags & p.RT_FLAG_AUDIT
+    # an obstacle inside stop_distance (0.35 m) -> the collision guard is active
+    _status_until(link, guard_is(1), 5, 'guard on with an obstacle at 0.1 m', sonar(0.1))
+    # cleared beyond stop_distance + release_margin -> released again
+    _status_until(link, guard_is(0), 5, 'guard released at 1 m', sonar(1.0))
+    procs.stop(proc)

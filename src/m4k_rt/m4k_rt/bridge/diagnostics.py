@@ -28,8 +28,6 @@ __all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte'
 LEVELS = {protocol.LEVEL_OK: 'OK', protocol.LEVEL_WARN: 'WARN', protocol.LEVEL_ERROR: 'ERROR',
           protocol.LEVEL_STALE: 'STALE'}
 _NS = 1e-9
-RT_FLAG_GC_FROZEN = 0x1     # RT_STATUS.flags bits (rt_core's monitor)
-RT_FLAG_DMA_LATENCY = 0x2
 
 
 def level_byte(level: int) -> bytes:
@@ -67,9 +65,9 @@ def degraded_reasons(rs: protocol.RtStatus) -> list[str]:
         out.append('SCHED_FIFO not granted to every RT thread')
     if not rs.mem_locked:
         out.append('memory not locked (mlockall off or refused)')
-    if not rs.flags & RT_FLAG_GC_FROZEN:
+    if not rs.flags & protocol.RT_FLAG_GC_FROZEN:
         out.append('garbage collector not frozen')
-    if not rs.flags & RT_FLAG_DMA_LATENCY:
+    if not rs.flags & protocol.RT_FLAG_DMA_LATENCY:
         out.append('/dev/cpu_dma_latency not held')
     return out or ['RT hardening degraded (see the rt_core log)']
 
@@ -190,9 +188,27 @@ class RtMonitor:
         msg.last_forbidden_call = t.last_site
         return msg, a
 
+    def collision_guard(self, now_ns: int) -> bool | None:
+        """Return the RT collision guard state from a fresh RT_STATUS, else None.
+
+        None means "unknown here": no RT_STATUS yet, the last one is older than the stale
+        timeout, or it comes from an RT process without an actuator (or from an older one
+        whose ``guard_active`` was the forbidden-call audit flag): RT_FLAG_GUARD_VALID clear.
+        """
+        rs = self.rt_status
+        if (rs is None or not rs.flags & protocol.RT_FLAG_GUARD_VALID
+                or now_ns - self.rt_status_rx_ns > self.stale_ns):
+            return None
+        return bool(rs.guard_active)
+
     def rt_status_msg(self, now_ns: int, link_age_s: float,
-                      guard_active: bool = False) -> RtStatus:
-        """Build RtStatus (without header and ports, which the node fills in)."""
+                      guard_fallback: bool = False) -> RtStatus:
+        """Build RtStatus (without header and ports, which the node fills in).
+
+        ``collision_guard_active`` comes from RT_STATUS (see :meth:`collision_guard`);
+        ``guard_fallback`` (the caller's inference from ODOMETRY flags) is used only when
+        RT_STATUS does not tell.
+        """
         msg = RtStatus()
         rs = self.rt_status
         if rs is not None:
@@ -201,9 +217,8 @@ class RtMonitor:
             msg.degraded = bool(rs.degraded)
             if rs.degraded:
                 msg.degraded_reasons = degraded_reasons(rs)
-        # RT_STATUS.guard_active is rt_core's forbidden-call audit guard, not the collision
-        # guard: that one comes from the ODOMETRY flags (the caller passes it in).
-        msg.collision_guard_active = guard_active
+        guard = self.collision_guard(now_ns)
+        msg.collision_guard_active = guard_fallback if guard is None else guard
         msg.rt_link_age = float(link_age_s)
         tasks = []
         rta_in = []

@@ -426,9 +426,10 @@ class BridgeNode(Node):
         now = time.monotonic_ns()
         last = self._rt_last_rx_ns()
         age = (now - last) * 1e-9 if last else float('inf')
+        # Fallback for an RT process whose RT_STATUS does not carry the collision guard.
         guard = bool(self._last_odom is not None and self._last_odom.flags & protocol.ODOM_GUARD
                      and now - self._last_odom_ns < 1e9)
-        msg = self._monitor.rt_status_msg(now, age, guard)
+        msg = self._monitor.rt_status_msg(now, age, guard_fallback=guard)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.ports = self._ports()
         self._rt_pub.publish(msg)
