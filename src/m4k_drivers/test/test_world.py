@@ -152,3 +152,28 @@ def test_drive_straight_one_metre_sensors_agree():
     for h in (motor, imu, sonar):
         h.shutdown()
     assert world.motor_voltage(LEFT) == 0.0 and world.motor_voltage(RIGHT) == 0.0
+
+
+def test_wheel_angle_between_steps_is_the_angle_at_that_time():
+    # 1 ms steps: at 2.5 ms the stepped state is from 2 ms; a read at 2.5 ms must not see it.
+    t = Clock()
+    w = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
+    fine = World(WorldConfig(obstacles=(), step_s=1e-5), clock=t, t0_ns=0)
+    for world in (w, fine):
+        world.set_motor_voltage(LEFT, 12.0)
+        world.set_motor_voltage(RIGHT, 12.0)
+    t.t = 200_000_000
+    fine.advance_to(t.t)
+    base, fine_base = w.wheel_angle_at(LEFT), fine.state().wheel_angle[LEFT]
+    t.t = 200_500_000
+    fine.advance_to(t.t)
+    angle = w.wheel_angle_at(LEFT)
+    stepped = w.state()
+    assert stepped.t_ns == 200_000_000 and stepped.wheel_angle[LEFT] == base
+    # It moved on over the 0.5 ms (about 4.6e-3 rad at 9 rad/s), as a world stepped 100x
+    # finer did over the same 0.5 ms (the speed changes by 3 % per ms, hence 1 %).
+    assert angle - base == pytest.approx(fine.state().wheel_angle[LEFT] - fine_base, rel=0.01)
+    assert angle - base > 4e-3
+    assert w.wheel_angle_at(RIGHT, 200_500_000) == pytest.approx(w.wheel_angle_at(LEFT))
+    with pytest.raises(ValueError, match='side must be'):
+        w.wheel_angle_at(2)

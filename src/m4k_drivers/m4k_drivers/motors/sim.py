@@ -68,8 +68,7 @@ class SimEncoder:
 
     def raw(self) -> int:
         """Return the current 12-bit reading with noise."""
-        self.world.now()
-        angle = self.world.state().wheel_angle[self.side]
+        angle = self.world.wheel_angle_at(self.side)   # the angle at the read time
         counts = angle / (2.0 * math.pi) * p.ENC_COUNTS
         if self.noise_lsb:
             counts += float(self.rng.normal(0.0, self.noise_lsb))
