@@ -16,6 +16,7 @@ import argparse
 import dataclasses
 import fcntl
 import importlib
+import math
 import os
 import signal
 import sys
@@ -26,12 +27,18 @@ from m4k_rt import config, modeswitch, protocol, sched, tasks, timing
 from m4k_rt.task import RtTask
 from m4k_rt.tasks import register_body
 from m4k_rt.tasks.portio import PortReader
+from m4k_rt.tasks.state import DEVICE_SLOTS
 from m4k_rt.timerfd import monotonic_ns
 
 __all__ = ['InstanceLock', 'LockError', 'SharedState', 'StatsShipper', 'main', 'register_body']
 
 BODY_MODULES_ENV = 'M4K_BODY_MODULES'
 DRAIN_MONITOR = 1024  # datagrams drained per monitor port and cycle (1 s, lowest priority)
+DEVICE_STALE_S = 3.0  # a device's last DEVICE_STATUS older than this is forwarded as STALE
+# Which monitor ports a datagram goes to.
+_TO_ALL = 0
+_TO_STAT = 1      # only ports flagged extra (``stat``)
+_TO_STATUS = 2    # only the others (``status``: the bridge)
 
 
 class LockError(RuntimeError):
@@ -82,15 +89,23 @@ class StatsShipper:
 
     Runs at the lowest RT priority. Samples since the previous batch go out as TASK_STATS
     (chunked to ``batch`` samples and to the datagram limit), then TASK_HEALTH and
-    FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then RT_STATUS, which
-    closes a batch. Nothing is encoded when no port has a peer; cursors move on regardless.
+    FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then -- on the other ports
+    (``status``) -- one DEVICE_STATUS per device that ever reported (its last report, level
+    STALE when older than ``device_stale_ns``, stamped with its arrival time), then RT_STATUS,
+    which closes a batch. Nothing is encoded when no port has a peer; cursors move on
+    regardless.
     """
 
     def __init__(self, shared: SharedState, ports: Sequence[tuple[Any, bool]],
-                 batch: int = 128, max_datagram: int = 4096) -> None:
+                 batch: int = 128, max_datagram: int = 4096,
+                 device_stale_ns: int = int(DEVICE_STALE_S * 1e9)) -> None:
         """Preallocate the datagram buffer; ``ports`` are (socket, extra) pairs."""
         self.shared = shared
         self.ports = list(ports)
+        self.device_stale_ns = device_stale_ns
+        # (device name as bytes, RobotState attribute of its report, attribute of its arrival)
+        self._devices = [(name.encode(), status, rx)
+                         for name, (status, rx) in DEVICE_SLOTS.items()]
         per = (max_datagram - protocol.encoded_size(protocol.Kind.TASK_STATS, 0)) \
             // protocol.TASK_STATS_SAMPLE.size
         self.batch = max(1, min(batch, per, protocol.MAX_STATS_SAMPLES))
@@ -121,12 +136,28 @@ class StatsShipper:
         """Run one monitor cycle."""
         self.ship()
 
-    def _send(self, size: int, extra_only: bool) -> None:
+    def _send(self, size: int, to: int) -> None:
         view = self._view[:size]
         for sock, extra in self.ports:
-            if (extra or not extra_only) and sock.connected:
+            if sock.connected and (to == _TO_ALL or extra == (to == _TO_STAT)):
                 sock.send(view)
         self.seq = (self.seq + 1) & 0xFFFFFFFF
+
+    def _ship_devices(self, now: int) -> None:
+        """Forward each device's last DEVICE_STATUS (STALE when too old) on ``status``."""
+        robot = self._robot
+        if robot is None:
+            return
+        buf = self._buf
+        for name, status_attr, rx_attr in self._devices:
+            rx = getattr(robot, rx_attr)   # written after the report: non-zero -> report set
+            if not rx:
+                continue                   # never reported: the bridge uses its data fallback
+            d = getattr(robot, status_attr)
+            level = d.level if now - rx <= self.device_stale_ns else protocol.LEVEL_STALE
+            size = protocol.encode_into(buf, 0, protocol.Kind.DEVICE_STATUS, self.seq, rx,
+                                        name, d.state, level, d.faults, d.last_error)
+            self._send(size, _TO_STATUS)
 
     def ship(self) -> None:
         """Send one batch: samples since the last batch, counters, call sites, status."""
@@ -139,6 +170,8 @@ class StatsShipper:
         linked = [sock.poll_peer() for sock, _ in self.ports]
         extra_linked = any(ok and extra for ok, (_, extra) in zip(linked, self.ports,
                                                                    strict=True))
+        status_linked = any(ok and not extra for ok, (_, extra) in zip(linked, self.ports,
+                                                                       strict=True))
         now = monotonic_ns()
         buf = self._buf
         pack = protocol.TASK_STATS_SAMPLE.pack_into
@@ -166,7 +199,7 @@ class StatsShipper:
                 for s in range(first, first + count):
                     pack(buf, size, *ring.row(s))
                     size += step
-                self._send(size, False)
+                self._send(size, _TO_ALL)
                 first += count
                 if first >= end:
                     break
@@ -175,14 +208,16 @@ class StatsShipper:
                     buf, 0, self.seq, now, t.name, t.index, t.overruns, t.deadline_misses,
                     t.body_errors, ru.majflt, ru.nvcsw_extra, self._lost[i], int(t.fifo),
                     t.priority)
-                self._send(size, True)
+                self._send(size, _TO_STAT)
                 if t.sites.total:
                     for site in t.sites.sites():
                         size = modeswitch.encode_site_into(
                             buf, 0, self.seq, now, t.name, t.index,
                             modeswitch.EVENT_CODES[site.event], site.count, site.line,
                             t.sites.total, site.file, site.func)
-                        self._send(size, True)
+                        self._send(size, _TO_STAT)
+        if status_linked:
+            self._ship_devices(now)
         if any(linked):
             h = self.shared.hardening
             flags = ((protocol.RT_FLAG_GC_FROZEN if h.gc_frozen else 0)
@@ -200,16 +235,25 @@ class StatsShipper:
                 int(h.mem_locked), int(h.degraded or not fifo_all), guard, flags,
                 len(self.shared.tasks),
                 0 if cycles_min == 0xFFFFFFFF else cycles_min & 0xFFFFFFFF)
-            self._send(size, False)
+            self._send(size, _TO_ALL)
         self.batches += 1
 
 
 def make_monitor(task: config.TaskConfig, ports: Mapping[str, Any],
                  shared: SharedState) -> StatsShipper:
-    """Build the monitor body: ``status`` gets stats and status, ``stat`` gets everything."""
+    """Build the monitor body: ``status`` gets stats, devices and status; ``stat`` stats.
+
+    ``params.device_stale_s`` (default 3 s): a device whose last DEVICE_STATUS is older is
+    forwarded with level STALE.
+    """
     rt = shared.config.runtime
+    stale = (task.params or {}).get('device_stale_s', DEVICE_STALE_S)
+    if (isinstance(stale, bool) or not isinstance(stale, (int, float))
+            or not math.isfinite(stale) or stale <= 0):
+        raise ValueError('tasks.{}.params.device_stale_s: must be a number > 0 (seconds), '
+                         'got {!r}'.format(task.name, stale))
     pairs = [(ports[label], label != 'status') for label in task.ports]
-    return StatsShipper(shared, pairs, rt.stats_batch, rt.max_datagram)
+    return StatsShipper(shared, pairs, rt.stats_batch, rt.max_datagram, int(stale * 1e9))
 
 
 register_body('monitor', make_monitor)

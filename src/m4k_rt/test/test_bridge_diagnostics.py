@@ -3,7 +3,7 @@
 import pytest
 
 from m4k_rt import protocol
-from m4k_rt.bridge.diagnostics import degraded_reasons, RtMonitor, TaskWindow
+from m4k_rt.bridge.diagnostics import degraded_reasons, make_status, RtMonitor, TaskWindow
 
 P = 10_000_000
 
@@ -57,8 +57,32 @@ def test_device_status_reports_pass_through_and_go_stale():
     m.feed(protocol.Kind.DEVICE_STATUS, protocol.DeviceStatus('lrf', 3, 1, 4, 6), 0)
     (name, level, _, values), = m.device_levels(0)
     assert (name, level, values['faults']) == ('lrf', 1, 4)
-    (_, level, _, _), = m.device_levels(5_000_000_000)
-    assert level == protocol.LEVEL_STALE
+    (_, level, msg, _), = m.device_levels(5_000_000_000)
+    assert level == protocol.LEVEL_STALE and 'RT process' in msg
+
+
+@pytest.mark.parametrize('level, text', [
+    (protocol.LEVEL_OK, 'OK'), (protocol.LEVEL_WARN, 'WARN'), (protocol.LEVEL_ERROR, 'ERROR'),
+    (protocol.LEVEL_STALE, 'silent')])
+def test_device_levels_map_rep107_and_name_state_and_error(level, text):
+    m = RtMonitor(stale_s=1.0)
+    rx = 10_000_000_000
+    m.feed(protocol.Kind.DEVICE_STATUS, protocol.DeviceStatus('motor', 3, level, 2, 4), rx,
+           stamp_ns=rx - 1_500_000_000)           # the RT side got the report 1.5 s earlier
+    (name, got, msg, values), = m.device_levels(rx + 500_000_000)
+    assert name == 'motor' and got == level and text in msg
+    assert values['state'] == 'active' and values['last_error'] == 'io'
+    assert values['faults'] == 2 and values['age_s'] == pytest.approx(2.0)
+    st = make_status('m4k_drivers: motor', got, msg, values)
+    assert st.level == bytes((level,))
+    assert {kv.key for kv in st.values} == {'state', 'faults', 'last_error', 'age_s'}
+
+
+def test_unknown_device_codes_are_shown_as_numbers():
+    m = RtMonitor()
+    m.feed(protocol.Kind.DEVICE_STATUS, protocol.DeviceStatus('x', 77, 0, 0, 99), 0)
+    (_, _, _, values), = m.device_levels(0)
+    assert (values['state'], values['last_error']) == ('77', '99')
 
 
 def test_degraded_reasons_name_what_is_missing():

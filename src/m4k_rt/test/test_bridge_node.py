@@ -43,8 +43,9 @@ class FakeRt:
     def linked(self):
         return all(s.connected for s in self.socks.values())
 
-    def send(self, label, kind, *fields, seq=0):
-        return self.socks[label].send(protocol.encode(kind, seq, time.monotonic_ns(), *fields))
+    def send(self, label, kind, *fields, seq=0, stamp=None):
+        stamp = time.monotonic_ns() if stamp is None else stamp
+        return self.socks[label].send(protocol.encode(kind, seq, stamp, *fields))
 
     def recv_all(self, label):
         out = []
@@ -251,6 +252,44 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
     assert {kv.key: kv.value for kv in task.values}['priority'] == '90'
     link = next(s for s in d.status if s.name == 'm4k_bridge: rt link')
     assert link.level == b'\x00'
+
+
+def _statuses(diag):
+    return {s.name: (s.level, s.message, {kv.key: kv.value for kv in s.values})
+            for s in diag.status}
+
+
+def test_device_status_from_the_monitor_drives_device_diagnostics(harness):
+    diags = harness.collect(DiagnosticArray, 'diagnostics')
+    rt = harness.rt
+
+    def feed():
+        now = time.monotonic_ns()
+        # as the RT monitor forwards them: stamped with when the RT task got the report
+        rt.send('status', protocol.Kind.DEVICE_STATUS, 'lrf', 5, protocol.LEVEL_ERROR, 7, 4,
+                stamp=now - 2_000_000_000)
+        rt.send('status', protocol.Kind.DEVICE_STATUS, 'imu', 3, protocol.LEVEL_STALE, 0, 0,
+                stamp=now - 4_000_000_000)
+        rt.send('sonar_out', protocol.Kind.SONAR, 1.4, protocol.SONAR_OK)
+
+    def ready():
+        return any('m4k_drivers: lrf' in st and st['m4k_drivers: lrf'][2].get('source') ==
+                   'device_status' and st['m4k_bridge: rt link'][0] == b'\x00'
+                   for st in map(_statuses, diags))
+
+    assert harness.spin_until(ready, each=feed)
+    st = [x for x in map(_statuses, diags) if 'm4k_drivers: lrf' in x and
+          x['m4k_drivers: lrf'][2].get('source') == 'device_status'][-1]
+    level, msg, values = st['m4k_drivers: lrf']
+    assert level == b'\x02' and 'io' in msg
+    assert (values['state'], values['faults'], values['last_error']) == ('error', '7', 'io')
+    assert 2.0 <= float(values['age_s']) < 10.0
+    level, msg, values = st['m4k_drivers: imu']
+    assert level == b'\x03' and values['state'] == 'active'
+    assert float(values['age_s']) >= 4.0
+    # no DEVICE_STATUS for the sonar: judged by data arrival, as before
+    level, _, values = st['m4k_drivers: sonar']
+    assert level == b'\x00' and values['source'] == 'data_arrival'
 
 
 def test_rt_restart_is_survived_and_reported(harness):

@@ -12,7 +12,7 @@ from m4k_rt.tasks.imu import ImuBody
 from m4k_rt.tasks.led import LedBody
 from m4k_rt.tasks.lrf import LrfBody, SCAN_REQUEST
 from m4k_rt.tasks.sonar import SonarBody, TRIGGER
-from m4k_rt.tasks.state import RobotState
+from m4k_rt.tasks.state import DEVICE_SLOTS, RobotState
 
 IMU_FIELDS = (0.0, 0.0, 0.0, 1.0, 0.01, 0.02, 0.03, 0.1, 0.2, 9.81, 0)
 
@@ -194,3 +194,30 @@ def test_sonar_reading_stops_the_actuator_on_its_next_cycle(ports):
     # (10 ms later) already limits forward velocity to zero
     assert stopped_at == obstacle_reply_at + 1
     assert state.guard_active
+
+
+@pytest.mark.parametrize('device, ports_, make', [
+    ('motor', ('cmd', 'motor'),
+     lambda r, s: ActuatorBody(r.rt['cmd'], r.rt['motor'], s, control_params(None), 0.01)),
+    ('imu', ('imu', 'imu_out'), lambda r, s: ImuBody(r.rt['imu'], r.rt['imu_out'], s)),
+    ('led', ('led', 'led_in'), lambda r, s: LedBody(r.rt['led'], r.rt['led_in'], s)),
+    ('sonar', ('sonar', 'sonar_out'),
+     lambda r, s: SonarBody(r.rt['sonar'], r.rt['sonar_out'], s)),
+    ('lrf', ('lrf', 'lrf_out'), lambda r, s: LrfBody(r.rt['lrf'], r.rt['lrf_out'], s)),
+])
+def test_device_task_keeps_the_last_device_status_and_when_it_arrived(ports, device, ports_,
+                                                                      make):
+    rig = ports(*ports_)
+    state = RobotState()
+    body = make(rig, state)
+    status_attr, rx_attr = DEVICE_SLOTS[device]
+    body(ctx(10 * MS))
+    assert getattr(state, status_attr) is None and getattr(state, rx_attr) == 0
+    dev_port = ports_[1] if device == 'motor' else ports_[0]
+    rig.write(dev_port, p.Kind.DEVICE_STATUS, device, 3, p.LEVEL_WARN, 1, 4)
+    rig.write(dev_port, p.Kind.DEVICE_STATUS, device, 5, p.LEVEL_ERROR, 2, 6)
+    body(ctx(20 * MS))
+    assert getattr(state, status_attr) == p.DeviceStatus(device, 5, p.LEVEL_ERROR, 2, 6)
+    assert getattr(state, rx_attr) == 20 * MS
+    body(ctx(30 * MS))                               # nothing new: kept, arrival unchanged
+    assert getattr(state, status_attr).faults == 2 and getattr(state, rx_attr) == 20 * MS

@@ -161,3 +161,48 @@ def test_rt_status_guard_follows_an_obstacle_reading(procs, tmp_path, peers):
     # cleared beyond stop_distance + release_margin -> released again
     _status_until(link, guard_is(0), 5, 'guard released at 1 m', sonar(1.0))
     procs.stop(proc)
+
+
+def test_monitor_forwards_each_device_status_and_marks_a_silent_one_stale(procs, tmp_path,
+                                                                         peers):
+    proc = _start_fast(procs, tmp_path, {}, {'device_stale_s': 1.0})
+    link = peers('status', 'motor', 'imu')
+    t0 = monotonic_ns()
+    link.write('imu', p.Kind.DEVICE_STATUS, 'imu', 3, p.LEVEL_OK, 0, 0)   # once, then silent
+
+    def motor_reports():                     # every cycle of the test loop (20 ms)
+        link.write('motor', p.Kind.DEVICE_STATUS, 'motor', 3, p.LEVEL_WARN, 2, 4)
+        link.read_all('motor')
+        link.read_all('imu')
+
+    def devices(got):
+        return [(h, m) for h, m in got if h.kind == p.Kind.DEVICE_STATUS]
+
+    def seen(device, level):
+        return lambda got: any(m.device == device and m.level == level
+                               for _, m in devices(got))
+
+    got = _status_until(link, seen('imu', p.LEVEL_OK), 10, 'imu OK forwarded', motor_reports)
+    got += _status_until(link, seen('imu', p.LEVEL_STALE), 5, 'imu STALE after 1 s',
+                         motor_reports)
+    got += _status_until(link, seen('motor', p.LEVEL_WARN), 5, 'motor WARN', motor_reports)
+    procs.stop(proc)
+    motor = [(h, m) for h, m in devices(got) if m.device == 'motor']
+    assert motor[-1][1] == p.DeviceStatus('motor', 3, p.LEVEL_WARN, 2, 4)
+    # stamped with when the RT task received the report, on the same monotonic clock
+    assert all(t0 <= h.stamp_ns <= monotonic_ns() for h, _ in devices(got))
+    imu = [(h, m) for h, m in devices(got) if m.device == 'imu']
+    assert len({h.stamp_ns for h, _ in imu}) == 1        # one report, forwarded each cycle
+    # devices that never reported are not forwarded (the bridge judges them by data arrival)
+    assert {m.device for _, m in devices(got)} == {'motor', 'imu'}
+    # the batch order: device reports come before the RT_STATUS closing the batch
+    kinds = [h.kind for h, _ in got]
+    last = len(kinds) - 1 - kinds[::-1].index(p.Kind.RT_STATUS)
+    assert p.Kind.DEVICE_STATUS in kinds[:last]
+
+
+def test_monitor_rejects_a_bad_device_stale_time(procs, tmp_path, m4k_runtime_dir):
+    proc = _start_fast(procs, tmp_path, {}, {'device_stale_s': -1})
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1
+    assert 'tasks.monitor.params.device_stale_s: must be a number > 0' in err

@@ -1,10 +1,11 @@
 """RT timing and health -> m4k_msgs/RtStatus and diagnostic_msgs (pure: no rclpy, no sockets).
 
-The RT monitor task ships each task's per-cycle samples in TASK_STATS batches, plus RT_STATUS
-(and, when it forwards them, DEVICE_STATUS and the TASK_HEALTH extra kind). :class:`RtMonitor`
-keeps a sliding window of samples per task (``stats_window`` seconds of releases) and computes
-the paper's statistics with :func:`m4k_rt.timing.analyze` -- the same code the recorder and
-the benchmarks use -- then the Liu-Layland and response-time tests of :mod:`m4k_rt.timing`.
+The RT monitor task ships each task's per-cycle samples in TASK_STATS batches, plus RT_STATUS,
+the last DEVICE_STATUS of each device (and, on ``stat``, the TASK_HEALTH extra kind).
+:class:`RtMonitor` keeps a sliding window of samples per task (``stats_window`` seconds of
+releases) and computes the paper's statistics with :func:`m4k_rt.timing.analyze` -- the same
+code the recorder and the benchmarks use -- then the Liu-Layland and response-time tests of
+:mod:`m4k_rt.timing`.
 
 Diagnostic levels follow REP-107: OK, WARN (deadline misses, overruns or forbidden calls in
 the window), ERROR (the task stopped cycling while the RT process is alive), STALE (nothing
@@ -27,6 +28,11 @@ __all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte'
 
 LEVELS = {protocol.LEVEL_OK: 'OK', protocol.LEVEL_WARN: 'WARN', protocol.LEVEL_ERROR: 'ERROR',
           protocol.LEVEL_STALE: 'STALE'}
+# DEVICE_STATUS.state and .last_error codes (m4k_drivers.handler State / ErrorCode; named here
+# because m4k_rt must not import m4k_drivers).
+DEVICE_STATES = {1: 'unconfigured', 2: 'inactive', 3: 'active', 4: 'finalized', 5: 'error'}
+DEVICE_ERRORS = {0: 'none', 1: 'other', 2: 'not found', 3: 'permission', 4: 'io',
+                 5: 'identity', 6: 'protocol', 7: 'lifecycle', 8: 'watchdog'}
 _NS = 1e-9
 
 
@@ -125,7 +131,8 @@ class RtMonitor:
         self.tasks: dict[str, TaskWindow] = {}
         self.rt_status: protocol.RtStatus | None = None
         self.rt_status_rx_ns = 0
-        self.devices: dict[str, tuple[protocol.DeviceStatus, int]] = {}
+        # device -> (last DEVICE_STATUS, bridge rx ns, RT arrival ns = its header stamp)
+        self.devices: dict[str, tuple[protocol.DeviceStatus, int, int]] = {}
 
     def set_window(self, window_s: float) -> None:
         """Change the sliding window (takes effect with the next batch)."""
@@ -139,14 +146,19 @@ class RtMonitor:
             t = self.tasks[name] = TaskWindow(name, self.window_ns)
         return t
 
-    def feed(self, kind: int, payload: Any, rx_ns: int) -> bool:
-        """Account one decoded datagram; return False when the kind is not one of ours."""
+    def feed(self, kind: int, payload: Any, rx_ns: int, stamp_ns: int | None = None) -> bool:
+        """Account one decoded datagram; return False when the kind is not one of ours.
+
+        ``stamp_ns`` is the datagram's header stamp (CLOCK_MONOTONIC, same host); for
+        DEVICE_STATUS the monitor sets it to when the RT device task received the report.
+        """
         if kind == protocol.Kind.TASK_STATS:
             self._task(payload.name).add(payload, rx_ns)
         elif kind == protocol.Kind.RT_STATUS:
             self.rt_status, self.rt_status_rx_ns = payload, rx_ns
         elif kind == protocol.Kind.DEVICE_STATUS:
-            self.devices[payload.device] = (payload, rx_ns)
+            self.devices[payload.device] = (payload, rx_ns,
+                                            rx_ns if stamp_ns is None else stamp_ns)
         elif kind == modeswitch.TASK_HEALTH:
             self._task(payload.name).health = payload
         elif kind == modeswitch.FORBIDDEN_SITE:
@@ -269,12 +281,27 @@ class RtMonitor:
         return out
 
     def device_levels(self, now_ns: int) -> Iterable[tuple[str, int, str, dict[str, Any]]]:
-        """Yield (device, level, message, values) from the DEVICE_STATUS reports."""
-        for name, (d, rx) in sorted(self.devices.items()):
-            age = (now_ns - rx) * _NS
-            level = d.level
-            if age > self.stale_ns * _NS:
+        """Yield (device, level, message, values) from the forwarded DEVICE_STATUS reports.
+
+        The level is the report's (REP-107: 0 OK, 1 WARN, 2 ERROR, 3 STALE -- the RT monitor
+        already sends STALE when the driver host stopped reporting); STALE as well when the
+        monitor itself stopped forwarding (nothing within ``stale_s``). Values: ``state`` and
+        ``last_error`` by name, ``faults``, ``age_s`` (since the RT side got the report).
+        """
+        for name, (d, rx, stamp) in sorted(self.devices.items()):
+            age = max(now_ns - stamp, 0) * _NS
+            values = {'state': DEVICE_STATES.get(d.state, str(d.state)), 'faults': d.faults,
+                      'last_error': DEVICE_ERRORS.get(d.last_error, str(d.last_error)),
+                      'age_s': age}
+            if now_ns - rx > self.stale_ns:
                 level = protocol.LEVEL_STALE
-            yield name, level, 'reported {}'.format(LEVELS.get(d.level, d.level)), {
-                'state': d.state, 'faults': d.faults, 'last_error': d.last_error,
-                'report_age_s': age}
+                msg = 'no device report from the RT process for {:.1f} s'.format(
+                    (now_ns - rx) * _NS)
+            elif d.level == protocol.LEVEL_STALE:
+                level, msg = d.level, 'driver silent for {:.1f} s'.format(age)
+            else:
+                level = d.level
+                msg = '{} ({})'.format(LEVELS.get(level, level), values['state'])
+                if d.last_error:
+                    msg += ', last error: {}'.format(values['last_error'])
+            yield name, level, msg, values

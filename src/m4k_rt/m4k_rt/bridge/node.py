@@ -356,7 +356,7 @@ class BridgeNode(Node):
                 p['sonar_min_range'], p['sonar_max_range']))
         elif k == protocol.Kind.LED:
             self._led_shown = payload
-        elif not self._monitor.feed(k, payload, rx_ns):
+        elif not self._monitor.feed(k, payload, rx_ns, header.stamp_ns):
             self.counters['unexpected_' + role] += 1
 
     def _publish_static_transforms(self) -> None:
@@ -445,6 +445,13 @@ class BridgeNode(Node):
         self._diag_pub.publish(arr)
 
     def _device_statuses(self, now: int) -> list:
+        """Return one DiagnosticStatus per device.
+
+        From the device's DEVICE_STATUS forwarded by the RT monitor when there is one (level
+        and state, faults, last_error, age_s from the report); only a device that never
+        reported falls back to judging by data arrival on its port. Either way the motor is
+        ERROR while the actuator flags it stale (no encoder feedback reaches the RT side).
+        """
         reported = {name: (level, msg, values)
                     for name, level, msg, values in self._monitor.device_levels(now)}
         out = []
@@ -453,29 +460,33 @@ class BridgeNode(Node):
             age = (now - pump.last_rx_ns) * 1e-9 if pump.last_rx_ns else float('inf')
             values: dict[str, Any] = {'port': self.p['ports.' + role], 'data_age_s': age,
                                       'received': pump.received}
-            stale_after = max(10 * period, 1.0)
-            if not self._rt_alive or age > stale_after:
-                level, msg = protocol.LEVEL_STALE, 'no data for {:.1f} s'.format(age)
+            rep = reported.pop(device, None)
+            if rep is not None:
+                level, msg = rep[0], rep[1]
+                values.update(rep[2])
+                values['source'] = 'device_status'
             else:
-                level, msg = protocol.LEVEL_OK, 'data flowing'
-            if device == 'motor' and self._last_odom is not None and level == protocol.LEVEL_OK:
+                stale_after = max(10 * period, 1.0)
+                if not self._rt_alive or age > stale_after:
+                    level, msg = protocol.LEVEL_STALE, 'no data for {:.1f} s'.format(age)
+                else:
+                    level, msg = protocol.LEVEL_OK, 'data flowing'
+                values['source'] = 'data_arrival'
+            if device == 'motor' and self._last_odom is not None and self._rt_alive:
                 values['odom_flags'] = self._last_odom.flags
-                if self._last_odom.flags & protocol.ODOM_MOTOR_STALE:
+                if (self._last_odom.flags & protocol.ODOM_MOTOR_STALE
+                        and level < protocol.LEVEL_ERROR):
                     level, msg = protocol.LEVEL_ERROR, 'motor stale (no encoder feedback)'
             if device == 'sonar':
-                values['faults'] = self.counters['sonar_faults']
+                values['range_faults'] = self.counters['sonar_faults']
             if device == 'imu':
                 values['not_ready'] = self.counters['imu_not_ready']
             if device == 'led' and self._led_shown is not None:
                 values['shown'] = tuple(self._led_shown)
-            rep = reported.pop(device, None)
-            if rep is not None:
-                values.update(rep[2])
-                if rep[0] > level and level != protocol.LEVEL_STALE:
-                    level, msg = rep[0], rep[1]
             out.append(make_status('m4k_drivers: ' + device, level, msg, values,
                                    hardware_id=device))
         for name, (level, msg, values) in sorted(reported.items()):
+            values['source'] = 'device_status'
             out.append(make_status('m4k_drivers: ' + name, level, msg, values, hardware_id=name))
         return out
 

@@ -64,7 +64,10 @@ class ImuBody:
                 self._latest_view[:n] = reader.view[:n]
                 self.samples += 1
             elif kind == _DEVICE_STATUS:
-                self.state.imu_level = got[1].level
+                state = self.state
+                state.imu_level = got[1].level
+                state.imu_status = got[1]
+                state.imu_status_rx_ns = now
             else:
                 self.unexpected += 1
         if n:

@@ -111,7 +111,10 @@ class LedBody:
         reader.start_cycle()
         while (got := reader.next()) is not None:
             if got[0].kind == _DEVICE_STATUS:
-                self.state.led_level = got[1].level
+                state = self.state
+                state.led_level = got[1].level
+                state.led_status = got[1]
+                state.led_status_rx_ns = now
             else:
                 self.unexpected += 1
         override = self.override

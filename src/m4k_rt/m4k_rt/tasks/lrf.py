@@ -70,6 +70,8 @@ class LrfBody:
                 self.scans += 1
             elif hdr.kind == _DEVICE_STATUS:
                 state.lrf_level = msg.level
+                state.lrf_status = msg
+                state.lrf_status_rx_ns = now
             else:
                 self.unexpected += 1
         # The bridge only reads lrf_out: drain what it writes anyway (counted, never used). This

@@ -82,6 +82,8 @@ class SonarBody:
                 self._out.forward(reader.raw())
             elif hdr.kind == _DEVICE_STATUS:
                 state.sonar_level = msg.level
+                state.sonar_device = msg
+                state.sonar_device_rx_ns = now
             else:
                 self.unexpected += 1
         # The bridge only reads sonar_out: drain what it writes anyway (counted, never used). This

@@ -11,15 +11,22 @@ value and a neighbouring field; nothing here needs a multi-field snapshot).
 Ownership (writer -> fields):
 
 * actuator: ``mode``, ``odom_flags``, ``v``, ``w``, ``x``, ``y``, ``yaw``, ``guard_active``,
-  ``motor_level``, ``actuator_cycles``
-* sonar:    ``sonar_range``, ``sonar_status``, ``sonar_rx_ns``, ``sonar_level``
-* lrf:      ``laser_front_min``, ``laser_rx_ns``, ``lrf_level``
-* imu:      ``imu_rx_ns``, ``imu_level``
-* led:      ``led_override``, ``led_level``
+  ``motor_level``, ``motor_status``, ``motor_status_rx_ns``, ``actuator_cycles``
+* sonar:    ``sonar_range``, ``sonar_status``, ``sonar_rx_ns``, ``sonar_level``,
+  ``sonar_device``, ``sonar_device_rx_ns``
+* lrf:      ``laser_front_min``, ``laser_rx_ns``, ``lrf_level``, ``lrf_status``,
+  ``lrf_status_rx_ns``
+* imu:      ``imu_rx_ns``, ``imu_level``, ``imu_status``, ``imu_status_rx_ns``
+* led:      ``led_override``, ``led_level``, ``led_status``, ``led_status_rx_ns``
 
 Times are CLOCK_MONOTONIC ns of the *receiving* task's cycle start (0 = never), so freshness
 is judged on the RT process's own clock. ``*_level`` fields hold the device's last
-DEVICE_STATUS level (protocol.LEVEL_*).
+DEVICE_STATUS level (protocol.LEVEL_*). The last DEVICE_STATUS itself (the decoded
+``protocol.DeviceStatus``: storing the reference allocates nothing beyond the decode, and one
+reference store is atomic, so a reader never sees fields of two reports) is kept per device in
+the attribute named by :data:`DEVICE_SLOTS` with the time it arrived; the monitor task
+forwards them to the bridge. (The sonar's slot is ``sonar_device``: ``sonar_status`` is the
+SONAR datagram's status byte.)
 """
 
 from __future__ import annotations
@@ -28,8 +35,18 @@ import math
 from typing import Any
 
 from m4k_rt.control.base import MODE_FAULT
+from m4k_rt.protocol import DeviceStatus
 
-__all__ = ['RobotState', 'robot_state']
+__all__ = ['DEVICE_SLOTS', 'RobotState', 'robot_state']
+
+# device -> (attribute holding its last DeviceStatus or None, attribute holding its arrival ns)
+DEVICE_SLOTS = {
+    'motor': ('motor_status', 'motor_status_rx_ns'),
+    'imu': ('imu_status', 'imu_status_rx_ns'),
+    'led': ('led_status', 'led_status_rx_ns'),
+    'sonar': ('sonar_device', 'sonar_device_rx_ns'),
+    'lrf': ('lrf_status', 'lrf_status_rx_ns'),
+}
 
 
 class RobotState:
@@ -42,6 +59,9 @@ class RobotState:
         'laser_front_min', 'laser_rx_ns', 'lrf_level',
         'imu_rx_ns', 'imu_level',
         'led_override', 'led_level',
+        'motor_status', 'motor_status_rx_ns', 'imu_status', 'imu_status_rx_ns',
+        'led_status', 'led_status_rx_ns', 'sonar_device', 'sonar_device_rx_ns',
+        'lrf_status', 'lrf_status_rx_ns',
     )
 
     def __init__(self) -> None:
@@ -71,6 +91,17 @@ class RobotState:
         # led
         self.led_override = False
         self.led_level = 0
+        # last DEVICE_STATUS per device and its arrival (writer: the device's task)
+        self.motor_status: DeviceStatus | None = None
+        self.motor_status_rx_ns = 0
+        self.imu_status: DeviceStatus | None = None
+        self.imu_status_rx_ns = 0
+        self.led_status: DeviceStatus | None = None
+        self.led_status_rx_ns = 0
+        self.sonar_device: DeviceStatus | None = None
+        self.sonar_device_rx_ns = 0
+        self.lrf_status: DeviceStatus | None = None
+        self.lrf_status_rx_ns = 0
 
     def worst_device_level(self) -> int:
         """Return the highest DEVICE_STATUS level any device reported."""
