@@ -183,7 +183,10 @@ def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
             'latency_us': _stats_dict(a.latency, _US),
             'response_us': _stats_dict(a.response, _US),
             'overruns': a.overruns, 'deadline_misses': a.deadline_misses,
-            'nvcsw': t.nvcsw, 'nvcsw_extra': h.nvcsw_extra if h else None,
+            # Without TASK_HEALTH (it travels on `stat` only), the same rule from TASK_STATS's
+            # cumulative counters: voluntary switches beyond the one timer wait per cycle.
+            'nvcsw': t.nvcsw,
+            'nvcsw_extra': h.nvcsw_extra if h else max(0, t.nvcsw - t.cycles),
             'nivcsw': t.nivcsw, 'minflt': t.minflt, 'majflt': h.majflt if h else None,
             'body_errors': h.body_errors if h else None, 'fifo': bool(h.fifo) if h else None,
             'forbidden_calls': t.forbidden_calls,

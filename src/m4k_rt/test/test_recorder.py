@@ -118,3 +118,17 @@ def test_warmup_cycles_are_left_out_of_statistics_only():
     assert t['samples'] == 9 and t['deadline_misses'] == 0
     assert len(rec.tasks['imu'].t_rel) == 10
     assert rec.summary()['warmup_cycles_skipped'] == 1
+
+
+def test_extra_voluntary_switches_come_from_task_stats_without_health():
+    # TASK_HEALTH travels on the `stat` port only; a recorder on `status` still gets the
+    # mode-switch analogue from TASK_STATS's cumulative counters (one wait per cycle is normal).
+    buf = bytearray(protocol.MAX_DATAGRAM)
+    samples = [(10**9 + i * 20 * MS, 10**9 + i * 20 * MS + 1000, 10**9 + i * 20 * MS + 9000, 1)
+               for i in range(40)]
+    size = protocol.encode_task_stats_into(buf, 0, 0, 0, 'led', 2, 80, -1, 20 * MS, 40, 52, 0,
+                                           0, 0, samples)
+    rec = recorder.Recorder()
+    rec.feed_all([bytes(buf[:size])])
+    (led,) = rec.summary()['tasks']
+    assert led['nvcsw_extra'] == 12
