@@ -417,28 +417,58 @@ class RtXddpSocket:
             events = self._poll.poll(0)  # one syscall and no exception when idle
             if not events:
                 return 0
-            for fd, _ in events:
-                if fd == self._lfd:
-                    self._accept_pending()
-                    break
-            peer = self._peer
-            if peer is None:
+            n = self._take(buf, events)
+            if n >= 0:
+                return n
+
+    def recv_wait_into(self, buf: bytearray | memoryview, timeout_ms: float) -> int:
+        """Receive one datagram, waiting at most ``timeout_ms`` (the task's budget); 0 if none.
+
+        For a request/response exchange inside one cycle: a single blocking ``poll`` bounded by
+        the budget, then the receive -- no extra ``poll(0)`` on the way.
+        """
+        deadline = time.monotonic_ns() + int(timeout_ms * 1e6)
+        wait_ms = timeout_ms
+        while True:
+            events = self._poll.poll(wait_ms)
+            if not events:
                 return 0
-            try:
-                n = peer.recv_into(buf, 0, self._recv_flags)
-            except BlockingIOError:
-                return 0
-            except OSError:  # ECONNRESET
-                self._drop_peer()
-                return 0
-            if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
-                self._drop_peer()
-                return 0
-            if n > len(buf):
-                self.counters.dropped_oversize += 1
-                continue
-            self.counters.received += 1
-            return n
+            n = self._take(buf, events)
+            if n > 0:
+                return n
+            # Woken by a new opener, an oversize drop or a peer that left: wait out the rest.
+            wait_ms = (deadline - time.monotonic_ns()) / 1e6
+            if wait_ms <= 0:
+                return self.recv_into(buf)
+
+    def _take(self, buf: bytearray | memoryview, events: list[tuple[int, int]]) -> int:
+        """Handle ready ``events``: accept an opener, receive one datagram.
+
+        Return its length, 0 when nothing was received, -1 when an oversize datagram was
+        discarded (the caller may look again).
+        """
+        for fd, _ in events:
+            if fd == self._lfd:
+                self._accept_pending()
+                break
+        peer = self._peer
+        if peer is None:
+            return 0
+        try:
+            n = peer.recv_into(buf, 0, self._recv_flags)
+        except BlockingIOError:
+            return 0
+        except OSError:  # ECONNRESET
+            self._drop_peer()
+            return 0
+        if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
+            self._drop_peer()
+            return 0
+        if n > len(buf):
+            self.counters.dropped_oversize += 1
+            return -1
+        self.counters.received += 1
+        return n
 
     def recv(self) -> bytes | None:
         """Receive one pending datagram as bytes, or None (allocates: not for RT loops)."""

@@ -9,7 +9,6 @@ difference is the emulation's own cost. Timing is reported, never asserted: this
 
 import argparse
 import os
-import select
 import socket
 import subprocess
 import sys
@@ -109,20 +108,14 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int) -> tuple[list[
 
         def body() -> list[int]:
             buf = bytearray(rt.max_datagram)
-            poller = select.poll()
-            poller.register(rt.fileno(), select.POLLIN)
             clock = time.monotonic_ns
             samples = []
             for i in range(n + _WARMUP):
                 t0 = clock()
                 if not rt.send(_PAYLOAD):
                     raise RuntimeError('XDDP send dropped: {}'.format(rt.counters.as_dict()))
-                while True:
-                    if not poller.poll(_REPLY_TIMEOUT_MS):
-                        raise RuntimeError('no XDDP echo within {} ms'.format(
-                            _REPLY_TIMEOUT_MS))
-                    if rt.recv_into(buf):
-                        break
+                if not rt.recv_wait_into(buf, _REPLY_TIMEOUT_MS):
+                    raise RuntimeError('no XDDP echo within {} ms'.format(_REPLY_TIMEOUT_MS))
                 t1 = clock()
                 if i >= _WARMUP:
                     samples.append(t1 - t0)
