@@ -19,6 +19,8 @@ from m4k_rt.control.params import control_params
 
 MS = 1_000_000
 PERIOD_NS = 10 * MS
+R_WHEEL = 0.1016
+COUNT = 2 * math.pi / 4096          # one 12-bit encoder count, rad
 
 
 class Plant:
@@ -215,3 +217,59 @@ def test_turn_follows_the_commanded_arc():
 def test_bad_period_is_rejected():
     with pytest.raises(ValueError, match='period'):
         BaseController(control_params(None), 0.0)
+
+
+def _cruise(ctl, plant, seq):
+    """Drive at 0.25 m/s for 2 s with sequence-numbered ENCODERS; return (t, next seq)."""
+    t = 0
+    for _ in range(200):
+        t += PERIOD_NS
+        ctl.encoders(plant.angle[0], plant.angle[1], t, t, 0, seq)
+        seq += 1
+        ctl.command(0.25, 0.0, t)
+        ctl.step(t)
+        plant.run((ctl.left_code, ctl.right_code), 0.01)
+    return t, seq
+
+
+@pytest.mark.parametrize('restart', [False, True])
+def test_motor_stale_keeps_the_motion_of_a_stalled_driver_unless_it_restarted(restart):
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t, seq = _cruise(ctl, plant, 100)
+    codes = (ctl.left_code, ctl.right_code)
+    x_before = ctl.odom.x
+    # The driver stalls 150 ms: no ENCODERS, its DACs keep the last codes, the robot rolls on.
+    for _ in range(15):
+        t += PERIOD_NS
+        ctl.step(t)
+        plant.run(codes, 0.01)
+    assert ctl.motor_stale
+    rolled = 0.5 * R_WHEEL * (plant.angle[0] + plant.angle[1]) - x_before
+    assert rolled > 0.03
+    t += PERIOD_NS
+    # A restarted driver numbers from 1 and its unwrapped angles have a new origin.
+    if restart:
+        ctl.encoders(1.0, 1.0, t, t, 0, 1)
+        ctl.encoders(1.0, 1.0, t + PERIOD_NS, t + PERIOD_NS, 0, 2)
+        assert ctl.odom.x == pytest.approx(x_before)       # re-baselined, no teleport
+    else:
+        ctl.encoders(plant.angle[0], plant.angle[1], t, t, 0, seq + 3)
+        assert ctl.odom.x == pytest.approx(x_before + rolled, abs=1e-9)   # gap integrated
+
+
+def test_back_to_back_replies_after_a_stall_do_not_kick_the_integrators():
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t, seq = _cruise(ctl, plant, 1)
+    before = (ctl.pi_left.integral, ctl.pi_right.integral)
+    # Two replies 60 us apart, the left encoder one count further (quantization): the old
+    # single difference read 25.6 rad/s there and added ki * 23 rad/s * 10 ms = 0.09 to the
+    # left integral (0.18 m/s of wheel speed).
+    t += PERIOD_NS
+    ctl.encoders(plant.angle[0], plant.angle[1], t, t, 0, seq)
+    ctl.encoders(plant.angle[0] + COUNT, plant.angle[1], t + 60_000, t, 0, seq + 1)
+    ctl.step(t)
+    assert ctl.left_speed == pytest.approx(plant.speed[0], abs=0.2)
+    assert abs(ctl.pi_left.integral - before[0]) < 0.002
+    assert abs(ctl.pi_right.integral - before[1]) < 0.002

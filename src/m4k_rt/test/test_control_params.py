@@ -13,6 +13,7 @@ def test_defaults_follow_table2():
     assert p.linear.max_acceleration == 0.37
     assert p.cmd_vel_timeout == 0.5
     assert p.odom_every_n == 5
+    assert (p.odom_velocity_window, p.speed_feedback_window) == (5, 2)
     assert p.feed_forward == pytest.approx(1 / p.full_scale_wheel_speed)
     assert p.wheel_limit == p.full_scale_wheel_speed
 
@@ -42,6 +43,9 @@ def test_overrides_are_applied():
     ({'guard': {'front_sector_deg': 300}}, 'control.guard.front_sector_deg', '300'),
     ({'trackwidth': 0.4}, 'control.trackwidth', 'unknown'),
     ({'speed_filter_alpha': 1.5}, 'control.speed_filter_alpha', '1.5'),
+    ({'odom_velocity_window': 0}, 'control.odom_velocity_window', '0'),
+    ({'odom_velocity_window': 2.0}, 'control.odom_velocity_window', '2.0'),
+    ({'speed_feedback_window': 101}, 'control.speed_feedback_window', '101'),
 ])
 def test_bad_values_name_the_field_and_value(section, field, bad):
     with pytest.raises(ControlConfigError) as info:
@@ -59,4 +63,5 @@ def test_shipped_control_yaml_is_valid():
     data = yaml.safe_load(path.read_text())
     p = control_params(data['control'])
     assert p.odom_every_n == 5
+    assert (p.odom_velocity_window, p.speed_feedback_window) == (5, 2)
     assert p.linear.max_acceleration == 0.37

@@ -6,8 +6,15 @@ samples the wheels are assumed to turn at constant speed, so the robot moves on 
 turns by ``dth`` has length ``ds * sinc(dth/2)`` and points along ``yaw + dth/2`` -- written
 that way the formula is exact and has no 0/0 for straight motion.
 
-Wheel speeds are the angle differences over the difference of the encoder timestamps (the
-driver's CLOCK_MONOTONIC stamps), so a late or early delivery does not distort them.
+Speeds are angle differences over stamp differences (the driver's CLOCK_MONOTONIC stamps, so a
+late or early delivery does not distort them), taken over a *baseline* of several samples from a
+small preallocated ring (:class:`AngleHistory`), not as a mean of one-sample derivatives: one
+count of a 12-bit wheel encoder is 1.53 mrad, i.e. 0.15 rad/s (0.016 m/s of wheel rim) over a
+10 ms difference but only 0.03 rad/s over 50 ms. The same difference over a longer baseline is
+exactly the mean speed over that span, so nothing is lost but the high-frequency noise (and
+half the window in delay). A baseline is also never shorter than ``min_baseline`` unless the
+ring holds nothing older: after a driver stall its queued replies come back to back, stamped
+microseconds apart, and one count over 60 us would read as 25 rad/s.
 """
 
 from __future__ import annotations
@@ -34,26 +41,120 @@ def normalize_angle(a: float) -> float:
     return a
 
 
+class AngleHistory:
+    """Fixed-capacity ring of the latest (stamp, left angle, right angle) samples (no allocation).
+
+    :meth:`rates` leaves its result in ``left_rate``, ``right_rate`` (rad/s) and
+    ``baseline_ns``, so an RT loop reads floats instead of receiving a new tuple.
+    """
+
+    __slots__ = ('capacity', 'count', 'left_rate', 'right_rate', 'baseline_ns', '_head', '_t',
+                 '_l', '_r')
+
+    def __init__(self, capacity: int) -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 2:
+            raise ValueError(f'capacity must be an integer >= 2, got {capacity!r}')
+        self.capacity = capacity
+        self._t = [0] * capacity
+        self._l = [0.0] * capacity
+        self._r = [0.0] * capacity
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget every sample (the next one is a new start; rates go to zero)."""
+        self.count = 0
+        self._head = -1
+        self.left_rate = self.right_rate = 0.0
+        self.baseline_ns = 0
+
+    def push(self, stamp_ns: int, left: float, right: float) -> None:
+        """Append one sample, overwriting the oldest when full."""
+        h = self._head + 1
+        if h == self.capacity:
+            h = 0
+        self._head = h
+        self._t[h] = stamp_ns
+        self._l[h] = left
+        self._r[h] = right
+        if self.count < self.capacity:
+            self.count += 1
+
+    def rates(self, window: int, min_baseline_ns: int = 1) -> bool:
+        """Set the wheel rates over the last ``window`` intervals; False if there is no interval.
+
+        The older end is the sample ``window`` samples back (or the oldest held), moved further
+        back while the baseline is shorter than ``min_baseline_ns`` and older samples exist.
+        """
+        n = self.count
+        if n < 2:
+            return False
+        cap = self.capacity
+        h = self._head
+        t_new = self._t[h]
+        back = window if window < n else n - 1
+        j = h - back
+        if j < 0:
+            j += cap
+        while t_new - self._t[j] < min_baseline_ns and back < n - 1:
+            back += 1
+            j = j - 1 if j else cap - 1
+        dt_ns = t_new - self._t[j]
+        if dt_ns <= 0:
+            return False
+        inv = 1e9 / dt_ns
+        self.left_rate = (self._l[h] - self._l[j]) * inv
+        self.right_rate = (self._r[h] - self._r[j]) * inv
+        self.baseline_ns = dt_ns
+        return True
+
+
 class Odometry:
     """Integrate the planar pose and estimate wheel and body speeds from wheel angles.
 
     ``max_wheel_speed`` (rad/s) bounds a plausible step: a step larger than it allows over the
     sample interval (plus a margin) is a jump -- a driver restart or a glitch -- and only
     re-baselines the angles; it is counted in ``jumps`` instead of being integrated.
+
+    ``left_speed``, ``right_speed`` (rad/s) and the body twist ``v`` (m/s), ``w`` (rad/s) are
+    taken over ``velocity_window`` sample intervals (1 = the single latest difference, the old
+    behaviour), with a baseline of at least half the window's nominal span when
+    ``sample_period`` (s) is given. The pose is integrated from every sample regardless.
+    ``history`` (default ``velocity_window + 16``) is the ring's capacity: other users (the
+    wheel-speed feedback) may ask it for their own window, and the 16 spare samples let the
+    minimum baseline reach past a burst of back-to-back replies.
     """
 
-    __slots__ = ('wheel_radius', 'track_width', 'max_wheel_speed', 'x', 'y', 'yaw', 'v', 'w',
-                 'left_speed', 'right_speed', 'samples', 'jumps', 'bad_intervals',
-                 '_left', '_right', '_stamp_ns', '_have')
+    __slots__ = ('wheel_radius', 'track_width', 'max_wheel_speed', 'velocity_window',
+                 'min_baseline_ns', 'history', 'x', 'y', 'yaw', 'v', 'w', 'left_speed',
+                 'right_speed', 'samples', 'jumps', 'bad_intervals', '_left', '_right',
+                 '_stamp_ns', '_have')
 
     def __init__(self, wheel_radius: float, track_width: float,
-                 max_wheel_speed: float = math.inf) -> None:
+                 max_wheel_speed: float = math.inf, *, velocity_window: int = 1,
+                 sample_period: float | None = None, history: int | None = None) -> None:
         if not (wheel_radius > 0.0 and math.isfinite(wheel_radius)):
             raise ValueError(f'wheel_radius must be a finite number > 0, got {wheel_radius!r}')
         if not (track_width > 0.0 and math.isfinite(track_width)):
             raise ValueError(f'track_width must be a finite number > 0, got {track_width!r}')
         if not max_wheel_speed > 0.0:
             raise ValueError(f'max_wheel_speed must be > 0, got {max_wheel_speed!r}')
+        if (isinstance(velocity_window, bool) or not isinstance(velocity_window, int)
+                or velocity_window < 1):
+            raise ValueError(f'velocity_window must be an integer >= 1 sample, '
+                             f'got {velocity_window!r}')
+        if sample_period is not None and not (sample_period > 0.0
+                                              and math.isfinite(sample_period)):
+            raise ValueError(f'sample_period must be a finite number > 0 s or None, '
+                             f'got {sample_period!r}')
+        if history is None:
+            history = velocity_window + 16
+        if isinstance(history, bool) or not isinstance(history, int) or history <= velocity_window:
+            raise ValueError(f'history must be an integer > velocity_window '
+                             f'({velocity_window}), got {history!r}')
+        self.velocity_window = velocity_window
+        self.min_baseline_ns = (max(1, int(0.5 * velocity_window * sample_period * 1e9))
+                                if sample_period is not None else 1)
+        self.history = AngleHistory(history)
         self.wheel_radius = float(wheel_radius)
         self.track_width = float(track_width)
         self.max_wheel_speed = float(max_wheel_speed)
@@ -71,11 +172,13 @@ class Odometry:
         self._left = self._right = 0.0
         self._stamp_ns = 0
         self._have = False
+        self.history.clear()
 
     def rebase(self) -> None:
         """Take the next sample as a new baseline, keeping the pose (speeds go to zero)."""
         self._have = False
         self.v = self.w = self.left_speed = self.right_speed = 0.0
+        self.history.clear()
 
     def update(self, left_angle: float, right_angle: float, stamp_ns: int) -> bool:
         """Integrate one encoder sample; return True when the pose or speeds changed."""
@@ -85,6 +188,7 @@ class Odometry:
             self._right = right_angle
             self._stamp_ns = stamp_ns
             self._have = True
+            self.history.push(stamp_ns, left_angle, right_angle)
             return False
         dt = (stamp_ns - self._stamp_ns) * _NS
         dl = left_angle - self._left
@@ -95,10 +199,13 @@ class Odometry:
             return False
         bound = self.max_wheel_speed * dt * 1.5 + 0.05
         if abs(dl) > bound or abs(dr) > bound:
+            # The angles' origin moved: speeds across the jump would be meaningless too.
             self.jumps += 1
             self._left = left_angle
             self._right = right_angle
             self._stamp_ns = stamp_ns
+            self.history.clear()
+            self.history.push(stamp_ns, left_angle, right_angle)
             return False
         self._left = left_angle
         self._right = right_angle
@@ -112,9 +219,13 @@ class Odometry:
         self.x += chord * math.cos(heading)
         self.y += chord * math.sin(heading)
         self.yaw = normalize_angle(self.yaw + dth)
-        inv = 1.0 / dt
-        self.left_speed = dl * inv
-        self.right_speed = dr * inv
-        self.v = ds * inv
-        self.w = dth * inv
+        hist = self.history
+        hist.push(stamp_ns, left_angle, right_angle)
+        if hist.rates(self.velocity_window, self.min_baseline_ns):
+            wl = hist.left_rate
+            wr = hist.right_rate
+            self.left_speed = wl
+            self.right_speed = wr
+            self.v = 0.5 * r * (wl + wr)
+            self.w = r * (wr - wl) / self.track_width
         return True

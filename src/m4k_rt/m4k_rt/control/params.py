@@ -15,6 +15,9 @@ from typing import Any, Mapping
 from m4k_rt.control.guard import STALE_POLICIES
 from m4k_rt.control.pid import ANTI_WINDUP_MODES
 
+# Longest speed window in samples (1 s at the 10 ms actuator period): the ring is preallocated.
+MAX_SPEED_WINDOW = 100
+
 
 class ControlConfigError(ValueError):
     """A control parameter is missing, of the wrong type or out of range; ``field`` names it."""
@@ -73,6 +76,8 @@ class ControlParams:
     cmd_vel_timeout: float = 0.5            # s; 0 disables the stale-command brake
     motor_timeout: float = 0.1              # s without ENCODERS -> motor stale
     odom_every_n: int = 5
+    odom_velocity_window: int = 5           # samples the published twist is differenced over
+    speed_feedback_window: int = 2          # samples the PI's wheel speeds are differenced over
     speed_filter_alpha: float = 1.0         # EMA weight of a new wheel-speed sample; 1 = off
     linear: AxisLimits = field(default_factory=AxisLimits)
     angular: AxisLimits = field(default_factory=lambda: AxisLimits(1.5, 1.85, None, None))
@@ -197,12 +202,19 @@ def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> 
         cmd_vel_timeout=num('cmd_vel_timeout', minimum=0.0),
         motor_timeout=num('motor_timeout', positive=True),
         odom_every_n=num('odom_every_n', minimum=1, integer=True),
+        odom_velocity_window=num('odom_velocity_window', minimum=1, integer=True),
+        speed_feedback_window=num('speed_feedback_window', minimum=1, integer=True),
         speed_filter_alpha=num('speed_filter_alpha', positive=True),
         linear=_axis(f'{path}.linear', d.get('linear'), base.linear),
         angular=_axis(f'{path}.angular', d.get('angular'), base.angular),
         pi=pi,
         guard=guard,
     )
+    for name in ('odom_velocity_window', 'speed_feedback_window'):
+        if getattr(params, name) > MAX_SPEED_WINDOW:
+            raise ControlConfigError(f'{path}.{name}',
+                                     f'must be <= {MAX_SPEED_WINDOW} samples, '
+                                     f'got {getattr(params, name)!r}')
     if params.speed_filter_alpha > 1.0:
         raise ControlConfigError(f'{path}.speed_filter_alpha',
                                  f'must be in (0, 1], got {params.speed_filter_alpha!r}')

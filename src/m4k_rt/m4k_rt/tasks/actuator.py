@@ -100,7 +100,8 @@ class ActuatorBody:
         while (got := reader.next()) is not None:
             hdr, msg = got
             if hdr.kind == _ENCODERS:
-                ctl.encoders(msg.left_angle, msg.right_angle, hdr.stamp_ns, now, msg.status)
+                ctl.encoders(msg.left_angle, msg.right_angle, hdr.stamp_ns, now, msg.status,
+                             hdr.seq)
             elif hdr.kind == _DEVICE_STATUS:
                 state.motor_level = msg.level
                 state.motor_status = msg
