@@ -245,6 +245,7 @@ def test_motor_stale_keeps_the_motion_of_a_stalled_driver_unless_it_restarted(re
         ctl.step(t)
         plant.run(codes, 0.01)
     assert ctl.motor_stale
+    assert (ctl.odom.v, ctl.odom.w) == (0.0, 0.0)          # unknown speed: not the last one
     rolled = 0.5 * R_WHEEL * (plant.angle[0] + plant.angle[1]) - x_before
     assert rolled > 0.03
     t += PERIOD_NS

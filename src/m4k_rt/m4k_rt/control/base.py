@@ -195,8 +195,10 @@ class BaseController:
         stale = self.enc_rx_ns == 0 or now_ns - self.enc_rx_ns > self._motor_timeout_ns
         if stale:
             if not self.motor_stale:
-                # The pose stays; whether the next sample continues it is decided when it
-                # comes (``encoders``). The PI restarts from rest either way.
+                # The pose and the baseline stay; whether the next sample continues them is
+                # decided when it comes (``encoders``). No speed is known meanwhile, and the
+                # PI restarts from rest either way.
+                self.odom.zero_speeds()
                 self.left_speed = self.right_speed = 0.0
             self.motor_stale = True
             self.hold_zero = True

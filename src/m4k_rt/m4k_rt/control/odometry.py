@@ -174,6 +174,14 @@ class Odometry:
         self._have = False
         self.history.clear()
 
+    def zero_speeds(self) -> None:
+        """Report zero speeds (no fresh samples: the speed is unknown) but keep the baseline.
+
+        The next sample is still differenced against the last one, so the motion made while
+        no samples came is integrated, not lost.
+        """
+        self.v = self.w = self.left_speed = self.right_speed = 0.0
+
     def rebase(self) -> None:
         """Take the next sample as a new baseline, keeping the pose (speeds go to zero)."""
         self._have = False

@@ -242,8 +242,8 @@ def _reference_at(cmd: np.ndarray, times: np.ndarray) -> np.ndarray:
 def pose_rate(odom: np.ndarray) -> np.ndarray:
     """Return the centre velocity from successive odometry poses and their stamps (m/s).
 
-    The same encoder odometry, differentiated over the 50 ms between ODOMETRY messages rather
-    than over one 10 ms encoder interval: far less sensitive to encoder-sample timing.
+    The same encoder odometry, differentiated over the 50 ms between ODOMETRY messages (as
+    seen by a ROS user), beside the RT side's own windowed twist.
     """
     v = np.zeros(len(odom))
     if len(odom) < 2:
@@ -277,7 +277,7 @@ def _write_csv(path: str, odom: np.ndarray, world: np.ndarray, ref: np.ndarray,
 
 def _plots(out_dir: str, geom: WorldGeometry, world: np.ndarray, odom: np.ndarray,
            cmd: np.ndarray, v_pose: np.ndarray, goal_w: Sequence[float], tolerance: float,
-           max_v: float) -> list[str]:
+           max_v: float, twist_ms: float) -> list[str]:
     import matplotlib
     matplotlib.use('Agg')
     from matplotlib.patches import Circle, Polygon
@@ -322,7 +322,7 @@ def _plots(out_dir: str, geom: WorldGeometry, world: np.ndarray, odom: np.ndarra
                 label='reference (DWA cmd_vel, 50 ms)')
     if len(odom):
         ax.plot(odom[:, 0], odom[:, 4], ':', color='tab:blue', lw=2,
-                label='M4K (odometry twist, encoder speeds over 10 ms)')
+                label=f'M4K (odometry twist, encoder speeds over {twist_ms:g} ms)')
         ax.plot(odom[:, 0], v_pose, '-', color='tab:cyan', lw=1, alpha=0.9,
                 label='M4K (odometry pose rate over 50 ms)')
         # Keep the axis on the experiment; say how many samples lie beyond it.
@@ -370,15 +370,34 @@ def _report(summary: dict[str, Any]) -> str:
         "  frame -- the paper's 3 m ahead, past the triangular obstacle.",
         "* Fig. 9(a): the bridge's `odom` (encoder odometry, as in the paper) in the room, with",
         '  the footprint about once a second. Fig. 9(b): the reference (`cmd_vel`) against the',
-        '  measured centre velocity: the odometry twist (10 ms encoder differences; '
-        f"{s['odom_twist_outliers']}",
+        '  measured centre velocity: the odometry twist (encoder differences over '
+        f"{s['odom_twist_window_ms']:g} ms; {s['odom_twist_outliers']}",
         f"  samples beyond twice the top speed, peak {s['peak_v_mps']:.2f} m/s) and the rate of",
         f"  the odometry poses over 50 ms (peak {s['peak_v_pose_rate_mps']:.3f} m/s).",
         f"* Contacts and clearance: {s['contacts_source']}.",
+        f"* Odometry vs the simulator's true final pose: {_truth_line(s)}.",
         '',
         'Files: `fig9a_trajectory.png`, `fig9b_velocity.png`, `trajectory.csv`, `summary.json`,',
         '`bringup.log`, `planner.log`.',
         ''])
+
+
+def _truth_line(s: dict[str, Any]) -> str:
+    if s.get('odom_vs_truth_m') is None:
+        return 'no world report'
+    return (f"{s['odom_vs_truth_m'] * 1000:.1f} mm apart, heading "
+            f"{s['odom_vs_truth_yaw_deg']:+.2f} deg")
+
+
+def _odom_vs_truth(odom_final_world: np.ndarray,
+                   truth: dict[str, Any] | None) -> tuple[float | None, float | None]:
+    """Return the distance (m) and heading difference (deg) of odometry from the true pose."""
+    if truth is None:
+        return None, None
+    tx, ty, tyaw = (float(v) for v in truth['pose'])
+    ox, oy, oyaw = (float(v) for v in odom_final_world)
+    dyaw = math.atan2(math.sin(oyaw - tyaw), math.cos(oyaw - tyaw))
+    return math.hypot(ox - tx, oy - ty), math.degrees(dyaw)
 
 
 def _world_truth(path: str) -> dict[str, Any] | None:
@@ -401,6 +420,8 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
     goal_w = odom_to_world(np.array([[goal[0], goal[1], 0.0]]), geom.start)[0, :2]
     final = odom[-1] if len(odom) else np.zeros(7)
     v_pose = pose_rate(odom)
+    period_ms = float(((raw.get('tasks') or {}).get('actuator') or {}).get('period_ms', 10))
+    twist_ms = period_ms * int((raw.get('control') or {}).get('odom_velocity_window', 1))
     err = float(math.hypot(goal[0] - final[1], goal[1] - final[2]))
     n_contacts = contacts(clear)
     truth = _world_truth(os.path.join(out_dir, WORLD_REPORT))
@@ -420,6 +441,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
         'contacts': n_contacts,
         'contacts_source': source,
         'true_final_pose_world': [round(float(v), 4) for v in truth['pose']] if truth else None,
+        'final_pose_world_odom': [round(float(v), 4) for v in world[-1]] if len(world) else None,
         'odom_contacts': contacts(clear),
         'duration_s': round(float(final[0]), 2),
         'timed_out': timed_out,
@@ -431,6 +453,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
         if np.any(v_pose > REST_V) else 0.0,
         'peak_v_mps': round(float(odom[:, 4].max()), 4) if len(odom) else 0.0,
         'peak_v_pose_rate_mps': round(float(v_pose.max()), 4) if len(odom) else 0.0,
+        'odom_twist_window_ms': twist_ms,
         'odom_twist_outliers': int(np.count_nonzero(np.abs(odom[:, 4]) > 2.0 * max_v)),
         'max_abs_y_m': round(float(np.abs(odom[:, 2]).max()), 4) if len(odom) else 0.0,
         'recovery_episodes': sum(1 for _, s in rec.states if s == 'recovering'),
@@ -438,10 +461,13 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
         'cmd_samples': len(cmd),
         'planner_states': [[round(t, 2), s] for t, s in rec.states],
     }
+    gap, dyaw = _odom_vs_truth(world[-1], truth) if len(world) else (None, None)
+    summary['odom_vs_truth_m'] = None if gap is None else round(gap, 4)
+    summary['odom_vs_truth_yaw_deg'] = None if dyaw is None else round(dyaw, 3)
     summary['passed'] = bool(summary['goal_reached'] and n_contacts == 0)
     _write_csv(os.path.join(out_dir, 'trajectory.csv'), odom, world, ref, clear, v_pose)
     summary['figures'] = [os.path.basename(p) for p in _plots(
-        out_dir, geom, world, odom, cmd, v_pose, goal_w, tolerance, max_v)]
+        out_dir, geom, world, odom, cmd, v_pose, goal_w, tolerance, max_v, twist_ms)]
     with open(os.path.join(out_dir, 'summary.json'), 'w', encoding='utf-8') as f:
         json.dump(summary, f, indent=2)
         f.write('\n')
@@ -569,7 +595,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = _analyse(rec, raw, args.goal, args.tolerance, args.max_v, out_dir, timed_out)
     _log(f"{'PASS' if summary['passed'] else 'FAIL'}: goal reached {summary['goal_reached']}, "
          f"final error {summary['final_error_m']:.3f} m, min clearance "
-         f"{summary['min_clearance_m']} m, contacts {summary['contacts']}, "
+         f"{summary['min_clearance_m']} m, contacts {summary['contacts']}, odometry vs truth "
+         f"{_truth_line(summary)}, peak velocity {summary['peak_v_mps']:.3f} m/s (twist), "
+         f"{summary['peak_v_pose_rate_mps']:.3f} m/s (pose rate), "
          f"{summary['duration_s']:.1f} s -> {out_dir}")
     if rc:
         return rc
