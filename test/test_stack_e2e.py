@@ -132,6 +132,19 @@ def stack(procs, tmp_path, m4k_runtime_dir, request):
             proc.wait(40)
 
 
+RT_PORTS = {'status': 0, 'cmd': 1, 'motor': 2, 'imu': 3, 'imu_out': 4, 'led': 5, 'led_in': 6,
+            'sonar': 7, 'sonar_out': 8, 'lrf': 9, 'lrf_out': 10, 'stat': 11}
+
+
+def _full_diagnostics(d):
+    """Tell whether a DiagnosticArray has all 6 tasks and every device from DEVICE_STATUS."""
+    tasks = sum(s.name.startswith('m4k_rt: task') for s in d.status)
+    devices = sum(s.name.startswith('m4k_drivers: ') and any(
+        kv.key == 'source' and kv.value == 'device_status' for kv in s.values)
+        for s in d.status)
+    return tasks == 6 and devices == 5
+
+
 def _x(user):
     return user.got['odom'][-1].pose.pose.position.x
 
@@ -184,10 +197,9 @@ def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
     def ready():
         g = user.got
         return (g['imu'] and g['scan'] and g['sonar'] and
-                any(len(m.tasks) == 6 and all(t.cycles for t in m.tasks)
-                    for m in g['rt_status']) and
-                any(sum(s.name.startswith('m4k_rt: task') for s in d.status) == 6
-                    for d in g['diagnostics']))
+                any(len(m.tasks) == 6 and all(t.cycles for t in m.tasks) and
+                    len(m.ports) == len(RT_PORTS) for m in g['rt_status']) and
+                any(_full_diagnostics(d) for d in g['diagnostics']))
 
     user.spin_until(ready, 20, 'imu, scan, sonar, rt_status, diagnostics')
     imu = user.got['imu'][-1]
@@ -206,20 +218,33 @@ def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
     assert sonar.radiation_type == Range.ULTRASOUND and sonar.header.frame_id == 'sonar_link'
     assert sonar.range == pytest.approx(WALL_X - SONAR_X, abs=0.15)
 
-    rt = next(m for m in reversed(user.got['rt_status']) if len(m.tasks) == 6)
+    rt = next(m for m in reversed(user.got['rt_status'])
+              if len(m.tasks) == 6 and len(m.ports) == len(RT_PORTS))
     assert [t.name for t in rt.tasks][:2] == ['actuator', 'imu']     # priority order
     act = rt.tasks[0]
     assert act.period == pytest.approx(0.01) and act.response_time.samples > 10
     assert 0 < act.response_time.max < act.period   # a plausible response time
     assert rt.liu_layland_bound == pytest.approx(6 * (2 ** (1 / 6) - 1))
     assert rt.total_utilization > 0 and rt.rt_link_age < 3.0
-    assert len(rt.ports) == 6 and all(p.linked for p in rt.ports)
+    # RT-side counters of every port of the RT process (PORT_STATS), not the bridge's
+    ports = {p.label: p for p in rt.ports}
+    assert ports.keys() == RT_PORTS.keys()
+    assert all(ports[label].port == n for label, n in RT_PORTS.items())
+    assert all(p.linked for label, p in ports.items() if label != 'stat')  # rt_stat: on demand
+    motor = ports['motor']          # WHEEL_CMD out, ENCODERS + DEVICE_STATUS in, every 10 ms
+    assert motor.sent > 100 and motor.received > 100 and motor.malformed == 0
+    assert ports['status'].sent > 0 and ports['imu_out'].sent > 100
+    assert ports['cmd'].received == 0                            # nobody commanded yet
 
-    diag = next(d for d in reversed(user.got['diagnostics'])
-                if sum(s.name.startswith('m4k_rt: task') for s in d.status) == 6)
+    diag = next(d for d in reversed(user.got['diagnostics']) if _full_diagnostics(d))
     names = {s.name: s for s in diag.status}
-    for device in ('imu', 'sonar', 'lrf', 'motor'):
-        assert 'm4k_drivers: ' + device in names
+    for device in ('imu', 'sonar', 'lrf', 'motor', 'led'):
+        st = names['m4k_drivers: ' + device]
+        values = {kv.key: kv.value for kv in st.values}
+        # from the driver's DEVICE_STATUS as forwarded by the RT monitor
+        assert values['source'] == 'device_status', (device, values)
+        assert (st.level, values['state'], values['last_error']) == (b'\x00', 'active', 'none')
+        assert {'faults', 'age_s'} <= values.keys() and 0 <= float(values['age_s']) < 5.0
     assert names['m4k_bridge: rt link'].level == b'\x00'
     keys = {kv.key for kv in names['m4k_rt: task actuator'].values}
     assert {'jitter_max_s', 'deadline_misses', 'cycles'} <= keys

@@ -54,6 +54,7 @@ LEVEL_ERROR = 2
 LEVEL_STALE = 3
 
 NAME_SIZE = 16
+LABEL_SIZE = 32  # PORT_STATS labels: XDDP labels are at most 32 characters
 
 
 class Kind(IntEnum):
@@ -71,6 +72,7 @@ class Kind(IntEnum):
     REQUEST = 10
     RT_STATUS = 11
     DEVICE_STATUS = 12
+    PORT_STATS = 13
 
 
 class ProtocolError(ValueError):
@@ -236,6 +238,21 @@ class DeviceStatus(NamedTuple):
     last_error: int
 
 
+class PortStats(NamedTuple):
+    """Counters of one XDDP port as seen by the RT side (``xddp.XddpCounters``)."""
+
+    label: str
+    port: int
+    linked: int
+    sent: int
+    received: int
+    dropped_no_peer: int
+    dropped_full: int
+    dropped_oversize: int
+    malformed: int
+    peer_restarts: int
+
+
 class _Spec(NamedTuple):
     kind: Kind
     payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
@@ -243,7 +260,7 @@ class _Spec(NamedTuple):
     type: Any  # the payload NamedTuple class
     floats: tuple[int, int]  # float fields are the contiguous slice [start, stop)
     ranges: tuple[tuple[int, float, float], ...]  # (field index, lo, hi) inclusive
-    string: bool  # field 0 is a NUL-padded ASCII name
+    string: int  # > 0: field 0 is a NUL-padded ASCII name of at most this many bytes
     item: struct.Struct | None  # array element of variable kinds
     max_items: int
 
@@ -252,7 +269,7 @@ _I32_MAX = 2 ** 31 - 1
 
 
 def _spec(kind: Kind, fmt: str, cls: Any, floats: tuple[int, int] = (0, 0),
-          ranges: tuple[tuple[int, float, float], ...] = (), string: bool = False,
+          ranges: tuple[tuple[int, float, float], ...] = (), string: int = 0,
           item: str | None = None) -> _Spec:
     payload = struct.Struct('<' + fmt)
     item_struct = struct.Struct('<' + item) if item else None
@@ -276,12 +293,14 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
           ranges=((6, 0, SCAN_STAMP_MAX),), item='H'),
     _spec(Kind.LED, 'BBBBB', Led, ranges=((4, 0, 1),)),
     _spec(Kind.TASK_STATS, '16sBiiIIIIIIH', TaskStats, ranges=((3, -1, _I32_MAX),),
-          string=True, item='qqqI'),
+          string=NAME_SIZE, item='qqqI'),
     _spec(Kind.REQUEST, 'II', Request),
     _spec(Kind.RT_STATUS, 'BBBBIII', RtStatus,
           ranges=((0, 0, 1), (1, 0, 1), (2, 0, 1), (3, 0, 1))),
     _spec(Kind.DEVICE_STATUS, '16sBBII', DeviceStatus, ranges=((2, 0, LEVEL_STALE),),
-          string=True),
+          string=NAME_SIZE),
+    _spec(Kind.PORT_STATS, '32sHBQQQQQQQ', PortStats, ranges=((2, 0, 1),),
+          string=LABEL_SIZE),
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)
@@ -321,17 +340,17 @@ def encoded_size(kind: int, count: int = 0) -> int:
     return size
 
 
-def _name_bytes(name: str | bytes) -> bytes:
+def _name_bytes(name: str | bytes, size: int = NAME_SIZE) -> bytes:
     # Struct's '16s' silently truncates: refuse names that would not decode back unchanged.
     if isinstance(name, str):
         try:
             name = name.encode('ascii')
         except UnicodeEncodeError:
             raise ProtocolError('encode', 'name {!r} is not ASCII'.format(name)) from None
-    if not isinstance(name, bytes) or len(name) > NAME_SIZE or b'\x00' in name:
+    if not isinstance(name, bytes) or len(name) > size or b'\x00' in name:
         raise ProtocolError(
             'encode', 'name {!r} must be ASCII, without NUL, at most {} bytes'.format(
-                name, NAME_SIZE))
+                name, size))
     return name
 
 
@@ -383,7 +402,7 @@ def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, s
             return encode_scan_into(buf, offset, seq, stamp_ns, *fields)
         return encode_task_stats_into(buf, offset, seq, stamp_ns, *fields)
     if spec.string and fields:
-        fields = (_name_bytes(fields[0]),) + fields[1:]
+        fields = (_name_bytes(fields[0], spec.string),) + fields[1:]
     try:
         spec.full.pack_into(buf, offset, MAGIC, VERSION, kind, seq & SEQ_MASK, stamp_ns, *fields)
     except _ENCODE_ERRORS as exc:

@@ -82,6 +82,7 @@ class SharedState:
     stop_event: threading.Event = dataclasses.field(default_factory=threading.Event)
     audit_installed: bool = False    # the forbidden-call audit hook (RT_STATUS flags bit)
     robot: Any = None                # tasks.state.RobotState, set by the first robot body
+    ports: dict[str, Any] = dataclasses.field(default_factory=dict)  # label -> RtXddpSocket
 
 
 class StatsShipper:
@@ -91,9 +92,10 @@ class StatsShipper:
     (chunked to ``batch`` samples and to the datagram limit), then TASK_HEALTH and
     FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then -- on the other ports
     (``status``) -- one DEVICE_STATUS per device that ever reported (its last report, level
-    STALE when older than ``device_stale_ns``, stamped with its arrival time), then RT_STATUS,
-    which closes a batch. Nothing is encoded when no port has a peer; cursors move on
-    regardless.
+    STALE when older than ``device_stale_ns``, stamped with its arrival time) and one
+    PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then
+    RT_STATUS, which closes a batch. Nothing is encoded when no port has a peer; cursors move
+    on regardless.
     """
 
     def __init__(self, shared: SharedState, ports: Sequence[tuple[Any, bool]],
@@ -122,6 +124,7 @@ class StatsShipper:
         self._readers = [PortReader(sock, 256) for sock, _ in self.ports]
         self.unexpected = 0
         self._robot: Any = None
+        self._port_rows: list[tuple[bytes, int, Any]] = []   # (label, port, socket)
 
     def _prepare(self) -> None:
         n = len(self.shared.tasks)
@@ -131,6 +134,10 @@ class StatsShipper:
             self._names = [t.name.encode() for t in self.shared.tasks]
         if self._robot is None:
             self._robot = self.shared.robot
+        if len(self._port_rows) != len(self.shared.ports):
+            self._port_rows = sorted(((label.encode(), sock.port, sock)
+                                      for label, sock in self.shared.ports.items()),
+                                     key=lambda row: row[1])
 
     def __call__(self, ctx: Any) -> None:
         """Run one monitor cycle."""
@@ -157,6 +164,18 @@ class StatsShipper:
             level = d.level if now - rx <= self.device_stale_ns else protocol.LEVEL_STALE
             size = protocol.encode_into(buf, 0, protocol.Kind.DEVICE_STATUS, self.seq, rx,
                                         name, d.state, level, d.faults, d.last_error)
+            self._send(size, _TO_STATUS)
+
+    def _ship_ports(self, now: int) -> None:
+        """Send every port's RT-side counters as one PORT_STATS each on ``status``."""
+        buf = self._buf
+        kind = protocol.Kind.PORT_STATS
+        for label, port, sock in self._port_rows:
+            c = sock.counters
+            size = protocol.encode_into(
+                buf, 0, kind, self.seq, now, label, port, 1 if sock.connected else 0, c.sent,
+                c.received, c.dropped_no_peer, c.dropped_full, c.dropped_oversize, c.malformed,
+                c.peer_restarts)
             self._send(size, _TO_STATUS)
 
     def ship(self) -> None:
@@ -218,6 +237,7 @@ class StatsShipper:
                         self._send(size, _TO_STAT)
         if status_linked:
             self._ship_devices(now)
+            self._ship_ports(now)
         if any(linked):
             h = self.shared.hardening
             flags = ((protocol.RT_FLAG_GC_FROZEN if h.gc_frozen else 0)
@@ -362,6 +382,7 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
                     return 1
                 socks.append(s)
                 ports[label] = s
+                shared.ports[label] = s
             try:
                 body = tasks.get_factory(t.body)(t, ports, shared)
             except Exception as exc:  # noqa: BLE001 -- one line naming the task, then exit

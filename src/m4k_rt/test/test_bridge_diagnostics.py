@@ -120,3 +120,31 @@ def test_collision_guard_without_rt_status_is_the_fallback():
     m = RtMonitor()
     assert m.collision_guard(0) is None
     assert m.rt_status_msg(0, 0.0, guard_fallback=True).collision_guard_active
+
+
+def _port(label, port, linked=1, malformed=0):
+    return protocol.PortStats(label, port, linked, 10, 20, 1, 2, 3, malformed, 4)
+
+
+def test_port_stats_become_xddp_ports_in_port_order():
+    m = RtMonitor(stale_s=1.0)
+    assert m.port_msgs(0) == []
+    m.feed(protocol.Kind.PORT_STATS, _port('cmd', 1, malformed=5), 0)
+    m.feed(protocol.Kind.PORT_STATS, _port('status', 0), 0)
+    m.feed(protocol.Kind.PORT_STATS, _port('stat', 11, linked=0), 0)
+    ports = m.port_msgs(0)
+    assert [(x.port, x.label, x.linked) for x in ports] == [
+        (0, 'status', True), (1, 'cmd', True), (11, 'stat', False)]
+    cmd = ports[1]
+    assert (cmd.sent, cmd.received, cmd.dropped_no_peer, cmd.dropped_full,
+            cmd.dropped_oversize, cmd.malformed, cmd.peer_restarts) == (10, 20, 1, 2, 3, 5, 4)
+
+
+def test_port_stats_of_a_gone_rt_process_are_kept_unlinked_and_old_ports_dropped():
+    m = RtMonitor(stale_s=1.0)
+    m.feed(protocol.Kind.PORT_STATS, _port('old', 20), 0)
+    m.feed(protocol.Kind.PORT_STATS, _port('cmd', 1), 5_000_000_000)   # a new RT process
+    ports = m.port_msgs(5_000_000_000)
+    assert [(x.port, x.linked) for x in ports] == [(1, True)]
+    ports = m.port_msgs(9_000_000_000)                                  # now it is gone too
+    assert [(x.port, x.linked, x.sent) for x in ports] == [(1, False, 10)]

@@ -222,6 +222,8 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
         c = state['cycle']
         _stats_batch(rt, 'actuator', 0, 90, 10_000_000, c, 20, 1_000_000)
         _stats_batch(rt, 'lrf', 4, 70, 200_000_000, c, 20, 20_000_000)
+        rt.send('status', protocol.Kind.PORT_STATS, 'cmd', 1, 1, c, 2 * c, 0, 1, 0, 3, 1)
+        rt.send('status', protocol.Kind.PORT_STATS, 'status', 0, 1, c, 0, 0, 0, 0, 0, 0)
         rt.send('status', protocol.Kind.RT_STATUS, 1, 1, 0, 1, 0, 2, c)
         rt.send('cmd', protocol.Kind.ODOMETRY, 0, 0, 0, 0, 0, 0, 0, protocol.ODOM_GUARD)
         state['cycle'] = c + 20
@@ -244,7 +246,11 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
     assert m.liu_layland_bound == pytest.approx(2 * (2 ** 0.5 - 1))
     assert m.schedulable and m.policy == RtStatus.POLICY_FIFO and m.memory_locked
     assert m.collision_guard_active and not m.degraded
-    assert {p.label for p in m.ports} == set(PORTS) and all(p.linked for p in m.ports)
+    # the RT side's counters from PORT_STATS, by port number (not the bridge's own)
+    assert [(p.port, p.label) for p in m.ports] == [(0, 'status'), (1, 'cmd')]
+    cmd = m.ports[1]
+    assert cmd.linked and cmd.received == 2 * cmd.sent and cmd.malformed == 3
+    assert (cmd.dropped_full, cmd.peer_restarts) == (1, 1)
     d = [d for d in diags if any(s.name == 'm4k_bridge: rt link' and s.level == b'\x00'
                                  for s in d.status)][-1]
     task = next(s for s in d.status if s.name == 'm4k_rt: task actuator')

@@ -19,7 +19,9 @@ I64 = st.integers(-2 ** 63, 2 ** 63 - 1)
 F64 = st.floats(allow_nan=False, allow_infinity=False)
 F32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 BIT = st.integers(0, 1)
+U64 = st.integers(0, 2 ** 64 - 1)
 NAME = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=16)
+LABEL = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=32)
 
 FIELDS = {
     Kind.VELOCITY_CMD: st.tuples(F64, F64),
@@ -38,6 +40,7 @@ FIELDS = {
     Kind.REQUEST: st.tuples(U32, U32),
     Kind.RT_STATUS: st.tuples(BIT, BIT, BIT, BIT, U32, U32, U32),
     Kind.DEVICE_STATUS: st.tuples(NAME, U8, st.integers(0, 3), U32, U32),
+    Kind.PORT_STATS: st.tuples(LABEL, U16, BIT, *[U64] * 7),
 }
 
 PAYLOAD_TYPES = {
@@ -45,6 +48,7 @@ PAYLOAD_TYPES = {
     Kind.ENCODERS: p.Encoders, Kind.IMU: p.Imu, Kind.SONAR: p.Sonar,
     Kind.LASER_SCAN: p.LaserScan, Kind.LED: p.Led, Kind.TASK_STATS: p.TaskStats,
     Kind.REQUEST: p.Request, Kind.RT_STATUS: p.RtStatus, Kind.DEVICE_STATUS: p.DeviceStatus,
+    Kind.PORT_STATS: p.PortStats,
 }
 
 # One hand-picked valid payload per kind (used by example tests and mutation fuzzing).
@@ -63,6 +67,7 @@ EXAMPLES = {
     Kind.REQUEST: (7, 42),
     Kind.RT_STATUS: (1, 1, 0, 1, 0, 6, 100),
     Kind.DEVICE_STATUS: ('imu', 3, p.LEVEL_WARN, 2, 121),
+    Kind.PORT_STATS: ('cmd', 1, 1, 5000, 1000, 3, 2, 1, 4, 1),
 }
 
 
@@ -113,8 +118,26 @@ def test_task_stats_bytes_are_exact():
         '0900000000000000' '0a00000000000000' '0b00000000000000' '01000000')
 
 
+def test_port_stats_bytes_are_exact():
+    data = p.encode(Kind.PORT_STATS, 0, 0, 'cmd', 0x0102, 1, 1, 2, 3, 4, 5, 6, 2 ** 64 - 1)
+    assert data == bytes.fromhex(
+        '4d4b010d' '00000000' '0000000000000000'
+        '636d64' + '00' * 29 + '0201' '01'                       # label, port, linked
+        '0100000000000000' '0200000000000000' '0300000000000000' '0400000000000000'
+        '0500000000000000' '0600000000000000' 'ffffffffffffffff')
+
+
+def test_port_stats_label_holds_any_xddp_label():
+    label = 'a' * 32                                  # XDDP labels are 1..32 characters
+    data = p.encode(Kind.PORT_STATS, 0, 0, label, 7, 0, 0, 0, 0, 0, 0, 0, 0)
+    assert p.decode(data)[1].label == label
+    with pytest.raises(ProtocolError):
+        p.encode(Kind.PORT_STATS, 0, 0, label + 'b', 7, 0, 0, 0, 0, 0, 0, 0, 0)
+
+
 def test_encoded_size_matches_layouts():
     assert p.encoded_size(Kind.VELOCITY_CMD) == 32
+    assert p.encoded_size(Kind.PORT_STATS) == 16 + 32 + 2 + 1 + 7 * 8
     assert p.encoded_size(Kind.IMU) == 16 + 80 + 1
     assert p.encoded_size(Kind.LASER_SCAN, 683) == 16 + 30 + 2 * 683
     assert p.encoded_size(Kind.TASK_STATS, 2) == 16 + 51 + 2 * 28
@@ -202,7 +225,7 @@ def test_bad_magic_version_and_kind_are_rejected():
     assert _reason(b'KM' + good[2:]) == 'magic'
     assert _reason(good[:2] + b'\x02' + good[3:]) == 'version'
     assert _reason(good[:3] + b'\x00' + good[4:]) == 'kind'
-    assert _reason(good[:3] + b'\x0d' + good[4:]) == 'kind'
+    assert _reason(good[:3] + b'\x0e' + good[4:]) == 'kind'
 
 
 @pytest.mark.parametrize('kind', [k for k in Kind if k not in (Kind.LASER_SCAN, Kind.TASK_STATS)])
@@ -258,6 +281,7 @@ def test_float_fields_cover_every_float_in_the_layouts():
     (Kind.RT_STATUS, 0, 2), (Kind.RT_STATUS, 1, 2), (Kind.RT_STATUS, 2, 3),
     (Kind.RT_STATUS, 3, 255),
     (Kind.DEVICE_STATUS, 2, 4),
+    (Kind.PORT_STATS, 2, 2),
 ])
 def test_value_outside_layout_range_is_rejected(kind, index, value):
     fields = list(EXAMPLES[kind])
@@ -275,6 +299,11 @@ def test_names_must_be_nul_padded_ascii(raw_name):
     good = p.encode(Kind.DEVICE_STATUS, 0, 0, *EXAMPLES[Kind.DEVICE_STATUS])
     bad = good[:16] + raw_name.ljust(16, b'\x00') + good[32:]
     assert _reason(bad) == 'range'
+
+
+def test_port_stats_label_must_be_nul_padded_ascii():
+    good = p.encode(Kind.PORT_STATS, 0, 0, *EXAMPLES[Kind.PORT_STATS])
+    assert _reason(good[:16] + b'c\xffd'.ljust(32, b'\x00') + good[48:]) == 'range'
 
 
 def test_full_length_name_round_trips():
@@ -341,7 +370,7 @@ def test_arbitrary_bytes_raise_only_protocol_error(data):
 
 
 @settings(max_examples=400, deadline=None)
-@given(st.sampled_from(list(Kind) + [0, 13, 255]), st.binary(max_size=600))
+@given(st.sampled_from(list(Kind) + [0, 14, 255]), st.binary(max_size=600))
 def test_arbitrary_payload_after_valid_header_raises_only_protocol_error(kind, body):
     _decode_or_protocol_error(struct.pack('<HBBIq', p.MAGIC, p.VERSION, kind, 0, 0) + body)
 

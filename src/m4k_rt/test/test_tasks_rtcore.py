@@ -206,3 +206,30 @@ def test_monitor_rejects_a_bad_device_stale_time(procs, tmp_path, m4k_runtime_di
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 1
     assert 'tasks.monitor.params.device_stale_s: must be a number > 0' in err
+
+
+def test_monitor_ships_rt_side_port_counters_with_a_malformed_datagram(procs, tmp_path,
+                                                                       peers):
+    proc = _start_fast(procs, tmp_path, {})
+    link = peers('status', 'cmd')
+    link.nrt['cmd'].write(b'MK-not-a-datagram')          # the actuator counts it malformed
+
+    def stats(got):
+        return {m.port: m for h, m in got if h.kind == p.Kind.PORT_STATS}
+
+    def cmd_malformed(got):
+        s = stats(got)
+        return 1 in s and s[1].malformed == 1 and s[1].received >= 1
+
+    got = _status_until(link, cmd_malformed, 10, 'PORT_STATS of cmd with malformed 1')
+    procs.stop(proc)
+    ports = stats(got)
+    # every port of the RT process, with its label, as the RT side sees it
+    assert {(n, m.label) for n, m in ports.items()} == {
+        (0, 'status'), (1, 'cmd'), (2, 'motor'), (3, 'imu'), (4, 'imu_out'), (5, 'led'),
+        (6, 'led_in'), (7, 'sonar'), (8, 'sonar_out'), (9, 'lrf'), (10, 'lrf_out'),
+        (11, 'stat')}
+    assert ports[0].linked and ports[0].sent > 0          # the monitor's own port
+    assert ports[1].linked and ports[1].malformed == 1
+    assert not ports[2].linked and ports[2].dropped_no_peer > 0   # WHEEL_CMD, no driver
+    assert all(m.malformed == 0 for n, m in ports.items() if n != 1)

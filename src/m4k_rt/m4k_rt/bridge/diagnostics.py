@@ -20,7 +20,7 @@ from typing import Any, Iterable, Mapping
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
-from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats
+from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats, XddpPort
 from m4k_rt import modeswitch, protocol, timing
 
 __all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte', 'make_status',
@@ -133,6 +133,7 @@ class RtMonitor:
         self.rt_status_rx_ns = 0
         # device -> (last DEVICE_STATUS, bridge rx ns, RT arrival ns = its header stamp)
         self.devices: dict[str, tuple[protocol.DeviceStatus, int, int]] = {}
+        self.ports: dict[int, tuple[protocol.PortStats, int]] = {}  # port -> (stats, rx ns)
 
     def set_window(self, window_s: float) -> None:
         """Change the sliding window (takes effect with the next batch)."""
@@ -159,6 +160,8 @@ class RtMonitor:
         elif kind == protocol.Kind.DEVICE_STATUS:
             self.devices[payload.device] = (payload, rx_ns,
                                             rx_ns if stamp_ns is None else stamp_ns)
+        elif kind == protocol.Kind.PORT_STATS:
+            self.ports[payload.port] = (payload, rx_ns)
         elif kind == modeswitch.TASK_HEALTH:
             self._task(payload.name).health = payload
         elif kind == modeswitch.FORBIDDEN_SITE:
@@ -305,3 +308,27 @@ class RtMonitor:
                 if d.last_error:
                     msg += ', last error: {}'.format(values['last_error'])
             yield name, level, msg, values
+
+    def port_msgs(self, now_ns: int) -> list[XddpPort]:
+        """Return the RT side's per-port counters (PORT_STATS) as XddpPort, by port number.
+
+        A port not reported within ``stale_s`` of the newest report belonged to an earlier
+        RT process and is dropped; when every report is stale (the RT process is gone) the
+        last counters stay, with ``linked`` false. Ports above 255 do not fit the message.
+        """
+        if not self.ports:
+            return []
+        newest = max(rx for _, rx in self.ports.values())
+        for port in [n for n, (_, rx) in self.ports.items() if newest - rx > self.stale_ns]:
+            del self.ports[port]
+        fresh = now_ns - newest <= self.stale_ns
+        out = []
+        for port, (ps, _) in sorted(self.ports.items()):
+            if port > 255:
+                continue
+            out.append(XddpPort(
+                port=port, label=ps.label, linked=fresh and bool(ps.linked), sent=ps.sent,
+                received=ps.received, dropped_no_peer=ps.dropped_no_peer,
+                dropped_full=ps.dropped_full, dropped_oversize=ps.dropped_oversize,
+                malformed=ps.malformed, peer_restarts=ps.peer_restarts))
+        return out

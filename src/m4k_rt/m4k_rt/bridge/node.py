@@ -19,7 +19,6 @@ once when it starts and once when it ends, with the gap, and counted in diagnost
 from __future__ import annotations
 
 import collections
-import os
 import sys
 import time
 from typing import Any, Callable, Sequence
@@ -47,7 +46,7 @@ from sensor_msgs.msg import Imu, LaserScan, Range
 from std_msgs.msg import ColorRGBA
 import yaml
 
-from m4k_msgs.msg import RtStatus, XddpPort
+from m4k_msgs.msg import RtStatus
 from m4k_rt import modeswitch, protocol, xddp
 from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
@@ -410,18 +409,6 @@ class BridgeNode(Node):
                 self._reported_errors.add(role)
                 self.get_logger().error('port {!r} reader failed: {!r}'.format(role, pump.error))
 
-    def _ports(self) -> list[XddpPort]:
-        out = []
-        for role, pump in self._pumps.items():
-            port = params.parse_port(self.p['ports.' + role])
-            number = port if isinstance(port, int) else _label_number(self._runtime_dir, port)
-            out.append(XddpPort(
-                port=number, label='' if isinstance(port, int) else port, linked=pump.linked,
-                sent=pump.sent, received=pump.received, dropped_no_peer=pump.dropped_unlinked,
-                dropped_full=pump.dropped_overflow, dropped_oversize=0,
-                malformed=self.counters['malformed_' + role], peer_restarts=pump.lost))
-        return out
-
     def _publish_rt_status(self) -> None:
         now = time.monotonic_ns()
         last = self._rt_last_rx_ns()
@@ -431,7 +418,7 @@ class BridgeNode(Node):
                      and now - self._last_odom_ns < 1e9)
         msg = self._monitor.rt_status_msg(now, age, guard_fallback=guard)
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.ports = self._ports()
+        msg.ports = self._monitor.port_msgs(now)   # the RT side's counters (PORT_STATS)
         self._rt_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
@@ -497,6 +484,11 @@ class BridgeNode(Node):
             'linked_ports': sum(p.linked for p in self._pumps.values()),
             'outages': self._outages, 'last_gap_s': self._last_gap_s,
             'relinks': sum(max(p.links - 1, 0) for p in self._pumps.values()),
+            # the bridge's own side of the links (RtStatus.ports holds the RT side's)
+            'bridge_sent': sum(p.sent for p in self._pumps.values()),
+            'bridge_received': sum(p.received for p in self._pumps.values()),
+            'bridge_dropped_unlinked': sum(p.dropped_unlinked for p in self._pumps.values()),
+            'bridge_dropped_overflow': sum(p.dropped_overflow for p in self._pumps.values()),
             'last_datagram_age_s': (now - last) * 1e-9 if last else float('inf')}
         for key in sorted(self.counters):
             if key.startswith(('malformed_', 'lost_', 'unexpected_', 'inbox_')):
@@ -544,15 +536,6 @@ class BridgeNode(Node):
         """Close the ports, then destroy the node."""
         self.close()
         super().destroy_node()
-
-
-def _label_number(runtime_dir: str, label: str) -> int:
-    try:
-        target = os.readlink(os.path.join(runtime_dir, 'label.' + label))
-    except OSError:
-        return 0
-    digits = os.path.basename(target).removeprefix('xddp')
-    return int(digits) if digits.isdigit() else 0
 
 
 def param_files(argv: Sequence[str]) -> list[str]:

@@ -108,6 +108,8 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return tuple(rng.randint(0, 1) for _ in range(4)) + (u(rng, 32), u(rng, 32), u(rng, 32))
     if kind == K.DEVICE_STATUS:
         return ('dev', u(rng, 8), rng.randint(0, 3), u(rng, 32), u(rng, 32))
+    if kind == K.PORT_STATS:
+        return ('port', u(rng, 16), rng.randint(0, 1)) + tuple(u(rng, 64) for _ in range(7))
     raise ValueError('no field generator for kind {!r}'.format(kind))
 
 
