@@ -23,6 +23,8 @@ from test_bringup import cmdline, start_bringup, write_overlay
 import yaml
 
 from m4k_msgs.msg import RtStatus
+from m4k_rt.control.limiter import SpeedLimiter
+from m4k_rt.control.params import control_params
 from m4k_rt.testing import child_pids
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -149,45 +151,112 @@ def _x(user):
     return user.got['odom'][-1].pose.pose.position.x
 
 
+def _stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def _rt_profile_distance(arrivals_ns, v, params, period_s=0.01):
+    """Return the distance the RT actuator should drive for commands arriving at these times.
+
+    The actuator's command handling, replayed: the target is ``v`` while the newest command
+    is at most ``cmd_vel_timeout`` old, else 0 (braking), through the same speed limiter
+    (acceleration and deceleration limits) every period, integrated until it is back at rest.
+    A gap in the delivered commands longer than the timeout (a starved publisher or bridge)
+    therefore brakes the model exactly as it brakes the robot.
+    """
+    lin = params.linear
+    limiter = SpeedLimiter(max_velocity=lin.max_velocity, max_acceleration=lin.max_acceleration,
+                           max_deceleration=lin.max_deceleration)
+    timeout_ns = params.cmd_vel_timeout * 1e9
+    step_ns = round(period_s * 1e9)
+    t, i, dist = arrivals_ns[0], 0, 0.0
+    while True:
+        while i + 1 < len(arrivals_ns) and arrivals_ns[i + 1] <= t:
+            i += 1
+        target = v if t - arrivals_ns[i] <= timeout_ns else 0.0
+        speed = limiter.step(target, period_s)
+        dist += speed * period_s
+        t += step_ns
+        if target == 0.0 and speed == 0.0 and i == len(arrivals_ns) - 1:
+            return dist
+
+
+def _bridge_cmd_value(user, key):
+    """Return a value of the bridge's latest cmd_vel diagnostics (0 before there is one)."""
+    for d in reversed(user.got['diagnostics']):
+        for st in d.status:
+            if st.name == 'm4k_bridge: cmd_vel':
+                return float({kv.key: kv.value for kv in st.values}[key])
+    return 0
+
+
+def _still_since_stamp(odom, tol=0.002):
+    """Return the odom stamp (RT time on the ROS clock) since which the robot has stood still."""
+    end = odom[-1].pose.pose.position
+    first = odom[-1]
+    for msg in reversed(odom):
+        p = msg.pose.pose.position
+        if math.hypot(p.x - end.x, p.y - end.y) > tol:
+            break
+        first = msg
+    return _stamp_ns(first)
+
+
 def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout(stack):
     user, _, _ = stack
-    ctl = _control()
+    params = control_params(_control())
     v = 0.25
-    acc = ctl['linear']['max_acceleration']
-    dec = ctl['linear']['max_deceleration'] or acc
-    timeout = ctl['cmd_vel_timeout']
+    dec = params.linear.max_deceleration or params.linear.max_acceleration
+    timeout = params.cmd_vel_timeout
     x0 = _x(user)
     y0 = user.got['odom'][-1].pose.pose.position.y
     pub = user.publisher(Twist, 'cmd_vel')
+    # The expected drive comes from the commands as DDS delivered them (a subscriber next to
+    # the bridge's), not from this process's publishing loop: on a loaded machine either may be
+    # starved, and the RT actuator acts on what arrives, when it arrives.
+    delivered = []
+    clock = user.node.get_clock()
     cmd = Twist()
+
+    def on_cmd(msg):
+        if msg.linear.x == v:
+            delivered.append(clock.now().nanoseconds)
+
+    user.node.create_subscription(Twist, 'cmd_vel', on_cmd, 100)
+    user.spin_until(lambda: pub.get_subscription_count() >= 2, 20, 'cmd_vel matched twice')
+    # Warm the path up with zero commands until the bridge reports forwarding them: a matched
+    # publisher does not mean the bridge's reader has matched it yet, and the first samples
+    # of a fresh DDS link can reach the bridge hundreds of ms late (seen: the drive started
+    # 0.15 s late, 4 % short) -- a latency of discovery, not of the control under test.
+    user.spin_until(lambda: _bridge_cmd_value(user, 'forwarded') > 0, 20,
+                    'the bridge forwarding cmd_vel', each=lambda: pub.publish(cmd), period=0.05)
     cmd.linear.x = v
-    sent = []
-
-    def publish():
-        pub.publish(cmd)
-        sent.append(time.monotonic())
-
-    user.spin_for(4.0, each=publish, period=0.05)
-    last = sent[-1]
+    user.spin_for(4.0, each=lambda: pub.publish(cmd), period=0.05)
     # Stop publishing while moving: the RT actuator keeps the command for cmd_vel_timeout,
     # then brakes at the deceleration limit.
-    still_since = user.wait_still(10)
-    stopped_after = still_since - last
+    user.wait_still(10)
+    assert len(delivered) > 40, len(delivered)
+    # When it stopped, on the RT's clock (odom stamps), after the last delivered command.
+    stopped_after = (_still_since_stamp(user.got['odom']) - delivered[-1]) * 1e-9
     assert stopped_after <= timeout + v / dec + 1.0, stopped_after
     x_stop = _x(user)
     user.spin_for(0.5)
     speeds = [o.twist.twist.linear.x for o in user.got['odom'][-10:]]
     assert abs(sum(speeds) / len(speeds)) < STILL, speeds
     assert abs(_x(user) - x_stop) < 0.005   # stopped, not creeping
-    # Trapezoid: ramp up at acc, hold v until the last command + timeout, ramp down at dec.
-    hold = (last - sent[0]) + timeout
-    expected = v * hold - v * v / (2 * acc) + v * v / (2 * dec)
+    # Ramp up at the acceleration limit, hold v while commands keep arriving (plus the
+    # timeout), ramp down at the deceleration limit: the control must achieve that within 5 %.
+    expected = _rt_profile_distance(delivered, v, params)
     end = user.got['odom'][-1].pose.pose.position
     travelled = math.hypot(end.x - x0, end.y - y0)
     assert travelled == pytest.approx(expected, rel=0.05), (travelled, expected)
-    # Roughly straight (the simulated wheels are noisy, so no tight heading bound here).
+    # Straight: the wheels are driven alike. Before the speed feedback had a minimum baseline,
+    # one burst of queued encoder replies could turn the robot by up to 7 degrees.
     assert abs(end.y - y0) < 0.2 * travelled
     odom = user.got['odom'][-1]
+    q = odom.pose.pose.orientation
+    yaw = math.atan2(2.0 * q.w * q.z, 1.0 - 2.0 * q.z * q.z)
+    assert abs(yaw) < math.radians(3.0), math.degrees(yaw)   # odom frame: starts at 0
     assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
 
 
