@@ -31,8 +31,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 START = [0.0, 0.9, 0.0]
 WALL_X = 4.2                 # devices.yaml world.walls.rectangle xmax
 SONAR_X = 0.225              # devices.yaml devices.sonar.mount x (laser mount: 0, 0)
-# Odometry speed at rest is encoder quantization noise: one 12-bit count per 10 ms on one
-# wheel is 2 pi / 4096 / 0.01 * 0.1016 / 2 = 0.008 m/s of body speed.
+# Odometry speed at rest is encoder quantization noise: one 12-bit count on one wheel over the
+# 50 ms twist window (control.odom_velocity_window) is 2 pi / 4096 / 0.05 * 0.1016 / 2 =
+# 0.0016 m/s of body speed (0.008 m/s over a single 10 ms difference).
 STILL = 0.02
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 
