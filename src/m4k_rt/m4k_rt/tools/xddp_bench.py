@@ -36,11 +36,14 @@ def _percentiles(samples_ns: list[int]) -> dict[str, float]:
             'min_us': s[0] / 1000.0}
 
 
-def _spawn(*args: str) -> subprocess.Popen:
+def _spawn(*args: str, cpu: int | None = None) -> subprocess.Popen:
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(filter(None, [_PKG_ROOT, env.get('PYTHONPATH')]))
-    return subprocess.Popen([sys.executable, '-m', 'm4k_rt.tools.xddp_bench', *args],
+    proc = subprocess.Popen([sys.executable, '-m', 'm4k_rt.tools.xddp_bench', *args],
                             env=env, stdout=subprocess.PIPE, text=True)
+    if cpu is not None:
+        os.sched_setaffinity(proc.pid, {cpu})
+    return proc
 
 
 def _echo_xddp(port: int, runtime_dir: str) -> None:
@@ -71,11 +74,14 @@ def _echo_raw(path: str) -> None:
         sock.close()
 
 
-def _in_rt_thread(body: Callable[[], list[int]], priority: int) -> tuple[list[int], bool]:
-    """Run ``body`` in a thread at SCHED_FIFO ``priority`` if permitted."""
+def _in_rt_thread(body: Callable[[], list[int]], priority: int,
+                  cpu: int | None = None) -> tuple[list[int], bool]:
+    """Run ``body`` in a thread at SCHED_FIFO ``priority`` if permitted, pinned to ``cpu``."""
     out: dict[str, object] = {}
 
     def run() -> None:
+        if cpu is not None:
+            os.sched_setaffinity(0, {cpu})
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
             out['fifo'] = True
@@ -94,9 +100,10 @@ def _in_rt_thread(body: Callable[[], list[int]], priority: int) -> tuple[list[in
     return out['samples'], bool(out['fifo'])  # type: ignore[return-value]
 
 
-def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int) -> tuple[list[int], bool]:
+def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
+              cpu: int | None) -> tuple[list[int], bool]:
     rt = xddp.rt_xddp_bind(port, runtime_dir=runtime_dir)
-    peer = _spawn('--echo-xddp', str(port), '--runtime-dir', runtime_dir)
+    peer = _spawn('--echo-xddp', str(port), '--runtime-dir', runtime_dir, cpu=cpu)
     try:
         deadline = time.monotonic() + 30.0
         while not rt.poll_peer():
@@ -121,7 +128,7 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int) -> tuple[list[
                     samples.append(t1 - t0)
             return samples
 
-        return _in_rt_thread(body, priority)
+        return _in_rt_thread(body, priority, cpu)
     finally:
         rt.close()
         try:
@@ -133,7 +140,8 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int) -> tuple[list[
             peer.stdout.close()
 
 
-def _raw_rtt(n: int, runtime_dir: str, priority: int) -> tuple[list[int], bool]:
+def _raw_rtt(n: int, runtime_dir: str, priority: int,
+             cpu: int | None) -> tuple[list[int], bool]:
     path = os.path.join(runtime_dir, 'bench-raw.sock')
     if os.path.exists(path):
         os.unlink(path)
@@ -142,7 +150,7 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int) -> tuple[list[int], bool]:
     try:
         listener.bind(path)
         listener.listen(1)
-        peer = _spawn('--echo-raw', path)
+        peer = _spawn('--echo-raw', path, cpu=cpu)
         listener.settimeout(30.0)
         conn, _ = listener.accept()
         conn.settimeout(None)
@@ -163,7 +171,7 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int) -> tuple[list[int], bool]:
             return samples
 
         try:
-            return _in_rt_thread(body, priority)
+            return _in_rt_thread(body, priority, cpu)
         finally:
             conn.close()
     finally:
@@ -180,16 +188,27 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int) -> tuple[list[int], bool]:
                 peer.stdout.close()
 
 
-def run_rtt(n: int, runtime_dir: str | None, *, port: int = 31, priority: int = 80) -> dict:
-    """Measure ``n`` XDDP and raw SEQPACKET round trips; return µs percentiles for both."""
+def run_rtt(n: int, runtime_dir: str | None, *, port: int = 31, priority: int = 80,
+            cpu: int | None = -1) -> dict:
+    """Measure ``n`` XDDP and raw SEQPACKET round trips; return µs percentiles for both.
+
+    Both transports run with the measuring thread and the echo peer pinned to the same CPU
+    (``cpu=-1``: the last one; ``None``: no pinning). Unpinned, the result depends on whether
+    the scheduler puts the two on one CPU (a context switch each way) or on two (a
+    cross-CPU wake-up each way, tens of microseconds on a VM), and the ratio measures that
+    placement instead of the transports.
+    """
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError('n must be a positive int, got {!r}'.format(n))
     runtime_dir = xddp.ensure_runtime_dir(runtime_dir)
-    xddp_samples, fifo = _xddp_rtt(n, runtime_dir, port, priority)
-    raw_samples, _ = _raw_rtt(n, runtime_dir, priority)
+    if cpu == -1:
+        cpu = max(os.sched_getaffinity(0))
+    xddp_samples, fifo = _xddp_rtt(n, runtime_dir, port, priority, cpu)
+    raw_samples, _ = _raw_rtt(n, runtime_dir, priority, cpu)
     xs = _percentiles(xddp_samples)
     rs = _percentiles(raw_samples)
     return {'xddp': xs, 'raw': rs, 'sched_fifo': fifo, 'payload_bytes': len(_PAYLOAD),
+            'cpu': cpu,
             'p50_ratio': xs['p50_us'] / rs['p50_us'] if rs['p50_us'] else float('nan')}
 
 
@@ -200,6 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--runtime-dir', default=None,
                         help='runtime directory (default: a fresh temporary one)')
     parser.add_argument('--port', type=int, default=31, help='XDDP port to use')
+    parser.add_argument('--cpu', type=int, default=-1,
+                        help='CPU for the measuring thread and the echo peer (-1: the last '
+                        'one; -2: no pinning)')
     parser.add_argument('--echo-xddp', type=int, metavar='PORT', help=argparse.SUPPRESS)
     parser.add_argument('--echo-raw', metavar='PATH', help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -210,9 +232,10 @@ def main(argv: list[str] | None = None) -> int:
         _echo_raw(args.echo_raw)
         return 0
     with tempfile.TemporaryDirectory(prefix='m4kb') as tmp:
-        result = run_rtt(args.n, args.runtime_dir or os.path.join(tmp, 'rt'), port=args.port)
-    print('round trip of a {}-byte datagram, n={}, RT thread SCHED_FIFO: {}'.format(
-        result['payload_bytes'], args.n, result['sched_fifo']))
+        result = run_rtt(args.n, args.runtime_dir or os.path.join(tmp, 'rt'), port=args.port,
+                         cpu=None if args.cpu == -2 else args.cpu)
+    print('round trip of a {}-byte datagram, n={}, RT thread SCHED_FIFO: {}, CPU: {}'.format(
+        result['payload_bytes'], args.n, result['sched_fifo'], result['cpu']))
     print('{:<10}{:>10}{:>10}{:>10}{:>10}'.format('transport', 'min us', 'p50 us', 'p99 us',
                                                   'max us'))
     for name in ('xddp', 'raw'):
