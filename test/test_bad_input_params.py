@@ -10,8 +10,7 @@ import subprocess
 import sys
 
 import pytest
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from wsenv import stack_env
 
 RT_CASES = [
     ('tasks: {actuator: {period_ms: fast}}',
@@ -38,17 +37,8 @@ HOST_CASES = [
 ]
 
 
-def _env(runtime_dir):
-    env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir,
-               M4K_CONFIG_DIR=os.path.join(ROOT, 'config'))
-    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
-    env['PYTHONPATH'] = os.pathsep.join(
-        src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
-    return env
-
-
 def _run(argv, runtime_dir):
-    return subprocess.run([sys.executable, *argv], env=_env(runtime_dir), capture_output=True,
+    return subprocess.run([sys.executable, *argv], env=stack_env(runtime_dir), capture_output=True,
                           text=True, timeout=60)
 
 

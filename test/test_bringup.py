@@ -10,27 +10,16 @@ import time
 import types
 
 import pytest
+from wsenv import ROOT, stack_env
 import yaml
 
 from m4k_rt.bridge import params as bridge_params
 from m4k_rt.testing import child_pids
 from m4k_rt.tools import bringup
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LAUNCH = os.path.join(ROOT, 'src', 'm4k_rt', 'launch', 'm4k.launch.py')
 BASE_OVERLAY = {'runtime': {'mlockall': False, 'cpu_dma_latency': False,
                             'start_delay_ms': 10}}
-
-
-def stack_env(runtime_dir):
-    """Return the environment for stack processes started from the source tree."""
-    env = dict(os.environ)
-    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
-    env['PYTHONPATH'] = os.pathsep.join(
-        src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
-    env['M4K_RUNTIME_DIR'] = runtime_dir
-    env['M4K_CONFIG_DIR'] = os.path.join(ROOT, 'config')
-    return env
 
 
 def write_overlay(tmp_path, extra=None, name='overlay.yaml'):

@@ -12,7 +12,8 @@ import os
 import sys
 
 import pytest
-from test_bringup import stack_env, write_overlay
+from test_bringup import write_overlay
+from wsenv import stack_env
 
 pytestmark = pytest.mark.allow_leaks('fds')
 

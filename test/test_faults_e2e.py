@@ -22,22 +22,12 @@ import threading
 import time
 
 import pytest
+from wsenv import stack_env
 import yaml
 
 from m4k_rt import recorder, xddp
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 rclpy = pytest.importorskip('rclpy')
-
-
-def _env(runtime_dir):
-    env = dict(os.environ)
-    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
-    env['PYTHONPATH'] = os.pathsep.join(
-        src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
-    env['M4K_RUNTIME_DIR'] = runtime_dir
-    env['M4K_CONFIG_DIR'] = os.path.join(ROOT, 'config')
-    return env
 
 
 def _children(pid):
@@ -164,7 +154,7 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
     log = open(tmp_path / 'bringup.log', 'w')
     try:
         bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
-                          str(overlay), '--status-interval', '1'], env=_env(m4k_runtime_dir),
+                          str(overlay), '--status-interval', '1'], env=stack_env(m4k_runtime_dir),
                          stdout=log, stderr=subprocess.STDOUT)
     finally:
         log.close()

@@ -11,6 +11,7 @@ import signal
 import time
 
 import pytest
+from wsenv import stack_env
 import yaml
 
 from m4k_drivers.motors import protocol as motor_protocol
@@ -18,19 +19,8 @@ from m4k_rt import protocol as p
 from m4k_rt.control import dac
 from m4k_rt.xddp import nrt_xddp_open
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 OBSTACLE_X = 1.5          # flat face of the triangle (config/devices.yaml world.obstacles)
 BODY_FRONT = 0.225        # half the 45 cm body: the sonar's mount
-
-
-def _env(runtime_dir):
-    env = dict(os.environ)
-    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
-    env['PYTHONPATH'] = os.pathsep.join(
-        src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
-    env['M4K_RUNTIME_DIR'] = runtime_dir
-    env['M4K_CONFIG_DIR'] = os.path.join(ROOT, 'config')
-    return env
 
 
 def _drain(ep):
@@ -47,7 +37,7 @@ def stack(procs, tmp_path, m4k_runtime_dir):
     overlay = tmp_path / 'overlay.yaml'
     overlay.write_text(yaml.safe_dump({
         'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10}}))
-    env = _env(m4k_runtime_dir)
+    env = stack_env(m4k_runtime_dir)
     host = procs.start(['python', '-m', 'm4k_drivers.host'], env=env)
     core = procs.start(['python', '-m', 'm4k_rt.rt_core', '--config', str(overlay),
                         '--duration', '60'], env=env)
