@@ -60,6 +60,19 @@ class PortReader:
         """Return the bytes of the last valid datagram (valid until the next ``next``)."""
         return self.view[:self.length]
 
+    def discard(self) -> int:
+        """Drain this cycle's budget of datagrams nobody should send here; return how many.
+
+        For a port the RT side only writes (``imu_out``, ``sonar_out``, ``lrf_out``): what a
+        peer writes anyway is counted, never used, and draining also links a (re)started peer
+        now rather than at the next datagram forwarded.
+        """
+        self.start_cycle()
+        n = 0
+        while self.next() is not None:
+            n += 1
+        return n
+
 
 class PortWriter:
     """Encode and send datagrams on one RT XDDP socket."""
