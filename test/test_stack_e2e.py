@@ -264,11 +264,17 @@ def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout
 def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
     user, _, _ = stack
 
+    def complete(m):
+        # Six tasks cycling, every port listed, and over a second of motor exchange behind it
+        # (the counters below are checked on such a status, whenever it arrives).
+        motor = [p for p in m.ports if p.label == 'motor']
+        return (len(m.tasks) == 6 and all(t.cycles for t in m.tasks) and
+                len(m.ports) == len(RT_PORTS) and motor and motor[0].sent > 100)
+
     def ready():
         g = user.got
         return (g['imu'] and g['scan'] and g['sonar'] and
-                any(len(m.tasks) == 6 and all(t.cycles for t in m.tasks) and
-                    len(m.ports) == len(RT_PORTS) for m in g['rt_status']) and
+                any(complete(m) for m in g['rt_status']) and
                 any(_full_diagnostics(d) for d in g['diagnostics']))
 
     user.spin_until(ready, 20, 'imu, scan, sonar, rt_status, diagnostics')
@@ -288,8 +294,7 @@ def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
     assert sonar.radiation_type == Range.ULTRASOUND and sonar.header.frame_id == 'sonar_link'
     assert sonar.range == pytest.approx(WALL_X - SONAR_X, abs=0.15)
 
-    rt = next(m for m in reversed(user.got['rt_status'])
-              if len(m.tasks) == 6 and len(m.ports) == len(RT_PORTS))
+    rt = next(m for m in reversed(user.got['rt_status']) if complete(m))
     assert [t.name for t in rt.tasks][:2] == ['actuator', 'imu']     # priority order
     act = rt.tasks[0]
     assert act.period == pytest.approx(0.01) and act.response_time.samples > 10
