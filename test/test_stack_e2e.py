@@ -267,9 +267,10 @@ def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):
     def complete(m):
         # Six tasks cycling, every port listed, and over a second of motor exchange behind it
         # (the counters below are checked on such a status, whenever it arrives).
-        motor = [p for p in m.ports if p.label == 'motor']
+        by = {p.label: p for p in m.ports}
         return (len(m.tasks) == 6 and all(t.cycles for t in m.tasks) and
-                len(m.ports) == len(RT_PORTS) and motor and motor[0].sent > 100)
+                by.keys() == RT_PORTS.keys() and by['motor'].sent > 100 and
+                by['motor'].received > 100 and by['imu_out'].sent > 100)
 
     def ready():
         g = user.got
