@@ -26,30 +26,9 @@ from wsenv import stack_env
 import yaml
 
 from m4k_rt import recorder, xddp
+from m4k_rt.tools.soak import children
 
 rclpy = pytest.importorskip('rclpy')
-
-
-def _children(pid):
-    out = {}
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open('/proc/{}/stat'.format(entry), 'rb') as f:
-                st = f.read()
-            with open('/proc/{}/cmdline'.format(entry), 'rb') as f:
-                cmd = f.read().replace(b'\0', b' ').decode()
-        except OSError:
-            continue
-        fields = st[st.rfind(b')') + 2:].split()
-        if int(fields[1]) != pid or fields[0] == b'Z':
-            continue
-        for name, mod in (('rt_core', 'm4k_rt.rt_core'), ('driver_host', 'm4k_drivers.host'),
-                          ('bridge', 'm4k_rt.bridge')):
-            if mod in cmd:
-                out[name] = int(entry)
-    return out
 
 
 class Probe:
@@ -162,7 +141,7 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
     times = {}
     try:
         times['start'] = probe.until(lambda: probe.odom is not None, 60, 'first odom')
-        kids = _children(bu.pid)
+        kids = children(bu.pid)
         assert set(kids) == {'rt_core', 'driver_host', 'bridge'}, kids
         rt_pid = kids['rt_core']
 
@@ -184,21 +163,21 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
         probe.until(lambda: probe.v > 0.1, 20, 'driving at 0.25 m/s', lin=0.25)
         c0 = probe.cycles_seen[-1]
         for name in ('driver_host', 'bridge'):
-            kids = _children(bu.pid)
+            kids = children(bu.pid)
             old = kids[name]
             os.kill(old, signal.SIGKILL)
             t0 = time.monotonic()
-            probe.until(lambda n=name, o=old: _children(bu.pid).get(n, o) != o, 30,
+            probe.until(lambda n=name, o=old: children(bu.pid).get(n, o) != o, 30,
                         name + ' restarted by bringup', lin=0.25)
             times[name + '_restart'] = time.monotonic() - t0
             n0 = probe.odom_count
             probe.until(lambda n=n0: probe.v > 0.1 and probe.odom_count > n + 5, 30,
                         'driving again after ' + name, lin=0.25)
             times[name + '_driving_again'] = time.monotonic() - t0
-            assert _children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
+            assert children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
 
         # --- bridge gone: the RT actuator brakes on its own; no lurch on restart ---------------
-        kids = _children(bu.pid)
+        kids = children(bu.pid)
         x0 = probe.x
         os.kill(kids['bridge'], signal.SIGKILL)
         os.kill(kids['driver_host'], signal.SIGKILL)       # both at once
@@ -216,7 +195,7 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
             'RT cycle counters restarted or stopped: {}'.format(seen)
         os.kill(rt_pid, signal.SIGKILL)
         t0 = time.monotonic()
-        probe.until(lambda: _children(bu.pid).get('rt_core', rt_pid) != rt_pid, 30,
+        probe.until(lambda: children(bu.pid).get('rt_core', rt_pid) != rt_pid, 30,
                     'rt_core restarted by bringup', lin=0.25)
         times['rt_core_restart'] = time.monotonic() - t0
         n0 = probe.odom_count

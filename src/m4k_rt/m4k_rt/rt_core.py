@@ -46,11 +46,15 @@ class LockError(RuntimeError):
 
 
 class InstanceLock:
-    """An flock on ``<runtime_dir>/rt_core.lock`` holding the owner's pid."""
+    """An flock on ``<runtime_dir>/<owner>.lock`` holding the owner's pid.
 
-    def __init__(self, runtime_dir: str) -> None:
+    rt_core takes ``rt_core.lock``; bringup takes ``bringup.lock`` first, which closes the race
+    between two stacks starting at once.
+    """
+
+    def __init__(self, runtime_dir: str, owner: str = 'rt_core') -> None:
         """Take the lock or raise :class:`LockError` naming the owner's pid."""
-        self.path = os.path.join(runtime_dir, 'rt_core.lock')
+        self.path = os.path.join(runtime_dir, owner + '.lock')
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -59,8 +63,8 @@ class InstanceLock:
                 pid = os.pread(fd, 32, 0).decode().strip() or '?'
             finally:
                 os.close(fd)
-            raise LockError('another m4k stack owns {} (pid {})'.format(
-                runtime_dir, pid)) from None
+            raise LockError('another m4k stack owns {} ({}pid {})'.format(
+                runtime_dir, '' if owner == 'rt_core' else owner + ' ', pid)) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, '{}\n'.format(os.getpid()).encode(), 0)
         self._fd = fd

@@ -43,6 +43,7 @@ import yaml
 
 from m4k_rt import config
 from m4k_rt.bridge import params as bridge_params
+from m4k_rt.rt_core import InstanceLock
 
 __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
            'lock_owner', 'main', 'resolve_command', 'restart_delay']
@@ -133,31 +134,6 @@ def lock_owner(runtime_dir: str, name: str = 'rt_core.lock') -> str | None:
         return None
     finally:
         os.close(fd)
-
-
-class InstanceLock:
-    """bringup's own flock (``<runtime_dir>/bringup.lock``): closes the start-up race."""
-
-    def __init__(self, runtime_dir: str) -> None:
-        """Take the lock or raise RuntimeError naming the owner's pid."""
-        self.path = os.path.join(runtime_dir, 'bringup.lock')
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            pid = os.pread(fd, 32, 0).decode(errors='replace').strip() or '?'
-            os.close(fd)
-            raise RuntimeError('another m4k stack owns {} (bringup pid {})'.format(
-                runtime_dir, pid)) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, '{}\n'.format(os.getpid()).encode(), 0)
-        self._fd = fd
-
-    def release(self) -> None:
-        """Drop the lock (idempotent)."""
-        if self._fd >= 0:
-            os.close(self._fd)
-            self._fd = -1
 
 
 class Console:
@@ -489,7 +465,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             runtime_dir, owner))
         return CONFIG_ERROR
     try:
-        lock = InstanceLock(runtime_dir)
+        lock = InstanceLock(runtime_dir, 'bringup')
     except RuntimeError as exc:
         _err('{}; stop it first'.format(exc))
         return CONFIG_ERROR
