@@ -14,7 +14,7 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.protocol import Kind
-from m4k_rt.tasks.portio import PortReader, PortWriter
+from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
 __all__ = ['ImuBody', 'make_imu']
@@ -24,23 +24,16 @@ _DEVICE_STATUS = Kind.DEVICE_STATUS
 _REQUEST = Kind.REQUEST
 
 
-class ImuBody:
+class ImuBody(DeviceTaskBody):
     """Per-cycle body of the IMU task."""
 
     def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
-        self.state = state
-        self._dev_in = PortReader(dev_sock)
-        self._dev_out = PortWriter(dev_sock)
-        self._out = PortWriter(out_sock)
-        self._out_in = PortReader(out_sock, 256)
+        super().__init__(dev_sock, out_sock, state, clock)
         self._latest = bytearray(len(self._dev_in.buf))
         self._latest_view = memoryview(self._latest)
-        self._clock = clock
-        self.cycles = 0
         self.samples = 0
         self.superseded = 0
-        self.unexpected = 0
 
     @property
     def counters(self) -> Mapping[str, int]:

@@ -18,7 +18,7 @@ from m4k_rt.control.guard import FrontSector
 from m4k_rt.control.params import control_params
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.actuator import control_section
-from m4k_rt.tasks.portio import PortReader, PortWriter
+from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
 __all__ = ['LrfBody', 'make_lrf', 'SCAN_REQUEST']
@@ -29,22 +29,15 @@ _DEVICE_STATUS = Kind.DEVICE_STATUS
 _REQUEST = Kind.REQUEST
 
 
-class LrfBody:
+class LrfBody(DeviceTaskBody):
     """Per-cycle body of the LRF task."""
 
     def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
                  front_sector_deg: float = 30.0,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
-        self.state = state
+        super().__init__(dev_sock, out_sock, state, clock)
         self.sector = FrontSector(front_sector_deg)
-        self._dev_in = PortReader(dev_sock)
-        self._dev_out = PortWriter(dev_sock)
-        self._out = PortWriter(out_sock)
-        self._out_in = PortReader(out_sock, 256)
-        self._clock = clock
-        self.cycles = 0
         self.scans = 0
-        self.unexpected = 0
 
     @property
     def counters(self) -> Mapping[str, int]:

@@ -9,11 +9,12 @@ number. Nothing here blocks or allocates more than the decoded NamedTuple and a 
 
 from __future__ import annotations
 
-from typing import Any
+import time
+from typing import Any, Callable
 
 from m4k_rt.protocol import decode, encode_into, MAX_DATAGRAM, ProtocolError, SEQ_MASK
 
-__all__ = ['DRAIN_MAX', 'PortReader', 'PortWriter']
+__all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
 
 # Upper bound of datagrams one body reads from one port per cycle: a flooding peer costs a
 # bounded amount of CPU; the rest waits for the next cycle (or overflows the socket buffer).
@@ -108,3 +109,23 @@ class PortWriter:
         else:
             self.dropped += 1
         return ok
+
+
+class DeviceTaskBody:
+    """The ports and counters the imu, sonar and lrf bodies share.
+
+    Each talks to its device handler on one port (requests out, replies and DEVICE_STATUS in)
+    and forwards readings to the bridge on another, which it only writes (``discard`` drains
+    what the bridge sends there anyway).
+    """
+
+    def __init__(self, dev_sock: Any, out_sock: Any, state: Any,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        self.state = state
+        self._dev_in = PortReader(dev_sock)
+        self._dev_out = PortWriter(dev_sock)
+        self._out = PortWriter(out_sock)
+        self._out_in = PortReader(out_sock, 256)
+        self._clock = clock
+        self.cycles = 0
+        self.unexpected = 0

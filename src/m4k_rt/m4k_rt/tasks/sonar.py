@@ -23,7 +23,7 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.protocol import Kind, SONAR_NO_ECHO, SONAR_OK
-from m4k_rt.tasks.portio import PortReader, PortWriter
+from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
 __all__ = ['SonarBody', 'make_sonar', 'TRIGGER']
@@ -35,21 +35,14 @@ _REQUEST = Kind.REQUEST
 _INF = math.inf
 
 
-class SonarBody:
+class SonarBody(DeviceTaskBody):
     """Per-cycle body of the sonar task."""
 
     def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
-        self.state = state
-        self._dev_in = PortReader(dev_sock)
-        self._dev_out = PortWriter(dev_sock)
-        self._out = PortWriter(out_sock)
-        self._out_in = PortReader(out_sock, 256)
-        self._clock = clock
-        self.cycles = 0
+        super().__init__(dev_sock, out_sock, state, clock)
         self.readings = 0
         self.failed = 0
-        self.unexpected = 0
 
     @property
     def counters(self) -> Mapping[str, int]:
