@@ -3,6 +3,7 @@
 import configparser
 import os
 import re
+import shutil
 import subprocess
 import xml.etree.ElementTree as ET
 
@@ -62,3 +63,21 @@ def test_second_setup_run_does_nothing():
                          text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout == '' and out.stderr == ''
+
+
+@pytest.mark.parametrize('missing,package', [('cmake', 'cmake'), ('g++', 'g++')])
+def test_setup_names_the_package_of_a_missing_prerequisite(tmp_path, missing, package):
+    # A PATH with everything the setup script needs except one prerequisite.
+    bin_dir = tmp_path / 'bin'
+    bin_dir.mkdir()
+    for tool in ('bash', 'dirname', 'cmake', 'gcc', 'g++', 'make', 'python3.11', 'python3.12',
+                 'sha256sum', 'cut', 'cat', 'grep', 'sed'):
+        found = shutil.which(tool)
+        if found and tool != missing:
+            os.symlink(found, bin_dir / tool)
+    out = subprocess.run(['bash', os.path.join(ROOT, 'tools', 'setup.sh')], capture_output=True,
+                         text=True, timeout=60, env={'PATH': str(bin_dir), 'HOME': str(tmp_path),
+                                                     'M4K_USE_WHEELS': '1'})
+    assert out.returncode == 1
+    assert out.stderr.strip() == (
+        f"m4k setup: error: '{missing}' not found -- install it: sudo apt-get install {package}")
