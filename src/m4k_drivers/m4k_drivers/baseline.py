@@ -234,11 +234,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     import signal
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.task import Future
     from rclpy.utilities import remove_ros_args
 
     from m4k_rt import config as rtconfig
+    from m4k_rt.bridge.shutdown import spin_until_shutdown
     from m4k_rt.control import control_params
 
     args_all = sys.argv if argv is None else ['baseline', *argv]
@@ -259,8 +260,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         # A future nobody completes: spin until the duration is up (or forever).
-        executor.spin_until_future_complete(Future(), timeout_sec=args.duration or None)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(lambda: executor.spin_until_future_complete(
+            Future(), timeout_sec=args.duration or None), node.context)
+    except KeyboardInterrupt:  # before the node spins
         pass
     finally:
         motor.shutdown()

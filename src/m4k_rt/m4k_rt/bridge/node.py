@@ -38,7 +38,6 @@ from rclpy.exceptions import (
     InvalidParameterValueException,
     ParameterException,
 )
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
@@ -51,6 +50,7 @@ from m4k_rt import modeswitch, protocol, xddp
 from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
 from m4k_rt.bridge.ports import PortPump
+from m4k_rt.bridge.shutdown import spin_until_shutdown
 
 try:  # not on PyPI: present with a full ROS install only
     from tf2_msgs.msg import TFMessage
@@ -578,8 +578,8 @@ def main(args: Sequence[str] | None = None) -> int:
             sys.stderr.write('{}: {}\n'.format(params.NODE_NAME, exc))
             sys.stderr.flush()
             return 2
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(lambda: rclpy.spin(node), node.context)
+    except KeyboardInterrupt:  # before the node spins
         pass
     finally:
         if node is not None:

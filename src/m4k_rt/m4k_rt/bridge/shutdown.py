@@ -1,0 +1,27 @@
+"""End a node's spin quietly on Ctrl-C, SIGTERM or an external shutdown (rclpy, NRT only)."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException
+
+__all__ = ['spin_until_shutdown']
+
+
+def spin_until_shutdown(spin: Callable[[], object], context: Context) -> None:
+    """Run ``spin`` until the process is told to stop; re-raise anything else.
+
+    rclpy's signal handler shuts the context down asynchronously. When that lands while the
+    executor is building its wait set, Jazzy raises an ``RCLError`` ("the given context is not
+    valid") instead of ``ExternalShutdownException`` -- a shutdown all the same, so it ends the
+    spin like one. Any error while the context is still valid is a real failure and propagates.
+    """
+    try:
+        spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:  # noqa: BLE001 -- RCLError is in a private module; judged by the context
+        if context.ok():
+            raise
