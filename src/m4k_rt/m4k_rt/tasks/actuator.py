@@ -103,9 +103,7 @@ class ActuatorBody:
                 ctl.encoders(msg.left_angle, msg.right_angle, hdr.stamp_ns, now, msg.status,
                              hdr.seq)
             elif hdr.kind == _DEVICE_STATUS:
-                state.motor_level = msg.level
-                state.motor_status = msg
-                state.motor_status_rx_ns = now
+                state.record_device_status('motor', msg, now)
             else:
                 self.unexpected += 1
         # 2. latest velocity command

@@ -57,10 +57,7 @@ class ImuBody(DeviceTaskBody):
                 self._latest_view[:n] = reader.view[:n]
                 self.samples += 1
             elif kind == _DEVICE_STATUS:
-                state = self.state
-                state.imu_level = got[1].level
-                state.imu_status = got[1]
-                state.imu_status_rx_ns = now
+                self.state.record_device_status('imu', got[1], now)
             else:
                 self.unexpected += 1
         if n:

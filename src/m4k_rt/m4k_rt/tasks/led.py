@@ -111,10 +111,7 @@ class LedBody:
         reader.start_cycle()
         while (got := reader.next()) is not None:
             if got[0].kind == _DEVICE_STATUS:
-                state = self.state
-                state.led_level = got[1].level
-                state.led_status = got[1]
-                state.led_status_rx_ns = now
+                self.state.record_device_status('led', got[1], now)
             else:
                 self.unexpected += 1
         override = self.override

@@ -62,9 +62,7 @@ class LrfBody(DeviceTaskBody):
                 state.laser_rx_ns = now
                 self.scans += 1
             elif hdr.kind == _DEVICE_STATUS:
-                state.lrf_level = msg.level
-                state.lrf_status = msg
-                state.lrf_status_rx_ns = now
+                state.record_device_status('lrf', msg, now)
             else:
                 self.unexpected += 1
         self.unexpected += self._out_in.discard()   # the bridge only reads this port

@@ -74,9 +74,7 @@ class SonarBody(DeviceTaskBody):
                     self.failed += 1
                 self._out.forward(reader.raw())
             elif hdr.kind == _DEVICE_STATUS:
-                state.sonar_level = msg.level
-                state.sonar_device = msg
-                state.sonar_device_rx_ns = now
+                state.record_device_status('sonar', msg, now)
             else:
                 self.unexpected += 1
         self.unexpected += self._out_in.discard()   # the bridge only reads this port

@@ -103,6 +103,17 @@ class RobotState:
         self.lrf_status: DeviceStatus | None = None
         self.lrf_status_rx_ns = 0
 
+    def record_device_status(self, device: str, msg: DeviceStatus, now_ns: int) -> None:
+        """Keep ``device``'s latest DEVICE_STATUS (called only by that device's own task).
+
+        Runs when a report arrives (about once a second per device), not every cycle. The
+        arrival time is stored last, like every ``*_rx_ns`` here.
+        """
+        status_attr, rx_attr = DEVICE_SLOTS[device]
+        setattr(self, device + '_level', msg.level)
+        setattr(self, status_attr, msg)
+        setattr(self, rx_attr, now_ns)
+
     def worst_device_level(self) -> int:
         """Return the highest DEVICE_STATUS level any device reported."""
         return max(self.motor_level, self.sonar_level, self.lrf_level, self.imu_level,
