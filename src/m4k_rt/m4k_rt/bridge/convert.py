@@ -71,24 +71,24 @@ def quaternion_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float,
             cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
+def _diagonal_covariance(diagonal: Sequence[float], n: int) -> list[float]:
+    """Return a row-major n x n covariance with ``diagonal`` (n variances) on its diagonal."""
+    if len(diagonal) != n:
+        raise ValueError('{0}x{0} covariance needs {0} variances, got {1!r}'.format(n, diagonal))
+    out = [0.0] * (n * n)
+    for i, v in enumerate(diagonal):
+        out[i * (n + 1)] = float(v)
+    return out
+
+
 def covariance6(diagonal: Sequence[float]) -> list[float]:
     """Return a row-major 6x6 covariance with ``diagonal`` (6 variances) on its diagonal."""
-    if len(diagonal) != 6:
-        raise ValueError('6x6 covariance needs 6 variances, got {!r}'.format(diagonal))
-    out = [0.0] * 36
-    for i, v in enumerate(diagonal):
-        out[i * 7] = float(v)
-    return out
+    return _diagonal_covariance(diagonal, 6)
 
 
 def covariance3(diagonal: Sequence[float]) -> list[float]:
     """Return a row-major 3x3 covariance with ``diagonal`` (3 variances) on its diagonal."""
-    if len(diagonal) != 3:
-        raise ValueError('3x3 covariance needs 3 variances, got {!r}'.format(diagonal))
-    out = [0.0] * 9
-    for i, v in enumerate(diagonal):
-        out[i * 4] = float(v)
-    return out
+    return _diagonal_covariance(diagonal, 3)
 
 
 def odometry_msg(odom: protocol.Odometry, stamp_ns: int, frame_id: str, child_frame_id: str,
