@@ -69,11 +69,11 @@ def test_restart_delay_doubles_and_is_capped():
 
 def test_bridge_overlay_coerces_integers_and_adds_the_runtime_dir():
     doc = {'m4k_bridge': {'ros__parameters': {'cmd_vel_timeout': 1, 'topics': {'odom': 'o'},
-                                              'imu_pose': [0, 0, 1, 0, 0, 0]}}}
+                                              'odom_pose_covariance_diagonal': [0, 0, 1, 0, 0, 0]}}}
     out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
     assert out['cmd_vel_timeout'] == 1.0 and isinstance(out['cmd_vel_timeout'], float)
     assert out['topics'] == {'odom': 'o'} and out['runtime_dir'] == '/run/x'
-    assert all(isinstance(v, float) for v in out['imu_pose'])
+    assert all(isinstance(v, float) for v in out['odom_pose_covariance_diagonal'])
 
 
 def test_bridge_overlay_names_a_bad_field():

@@ -35,6 +35,7 @@ from typing import Any, TextIO
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
+from m4k_rt import description, rosargs
 
 __all__ = ['DeviceService', 'format_reading', 'load_raw_config', 'main']
 
@@ -377,11 +378,14 @@ class WorldReporter:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the driver host (see the module docstring); return the exit code."""
-    args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+    args = rosargs.parse_args(_parser(), argv)
+    level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
+    if level is None:
+        level = logging.DEBUG if args.verbose else logging.INFO
+    logging.basicConfig(level=level,
                         format='%(asctime)s %(name)s %(levelname)s: %(message)s')
     try:
-        raw = load_raw_config(args.config, args.overlay)
+        raw = description.fill_sim_mounts(load_raw_config(args.config, args.overlay))
         devices = _apply_overrides(raw.get('devices') or {}, args)
         cfg = dconfig.validate({'devices': devices, 'world': raw.get('world') or {}})
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:

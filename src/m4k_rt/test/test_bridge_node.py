@@ -178,7 +178,7 @@ def test_datagrams_become_odom_imu_scan_and_sonar(harness):
     rt = harness.rt
 
     def feed():
-        rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0, 2.4, 2.5, 0)
+        rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0, 2.4, 2.5, 7.0, 7.5, 0)
         rt.send('imu_out', protocol.Kind.IMU, 0, 0, 0, 1, 0, 0, 0.05, 0, 0, 9.81, 0)
         rt.send('lrf_out', protocol.Kind.LASER_SCAN, -2.09, 0.00614, 0.02, 5.6, 0.1, 1e-4, 7,
                 (1500,) * 10 + (0,))
@@ -225,7 +225,7 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
         rt.send('status', protocol.Kind.PORT_STATS, 'cmd', 1, 1, c, 2 * c, 0, 1, 0, 3, 1)
         rt.send('status', protocol.Kind.PORT_STATS, 'status', 0, 1, c, 0, 0, 0, 0, 0, 0)
         rt.send('status', protocol.Kind.RT_STATUS, 1, 1, 0, 1, 0, 2, c)
-        rt.send('cmd', protocol.Kind.ODOMETRY, 0, 0, 0, 0, 0, 0, 0, protocol.ODOM_GUARD)
+        rt.send('cmd', protocol.Kind.ODOMETRY, 0, 0, 0, 0, 0, 0, 0, 0, 0, protocol.ODOM_GUARD)
         state['cycle'] = c + 20
 
     def ready():
@@ -302,7 +302,7 @@ def test_rt_restart_is_survived_and_reported(harness):
     odom = harness.collect(Odometry, 'odom')
     rt = harness.rt
     def feed():
-        return (rt.send('cmd', protocol.Kind.ODOMETRY, 1.0, 0, 0, 0, 0, 0, 0, 0))
+        return (rt.send('cmd', protocol.Kind.ODOMETRY, 1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
     assert harness.spin_until(lambda: harness.bridge._rt_alive, each=feed)
     harness.bridge.set_parameters([Parameter('rt_stale_timeout', value=0.3)])
     rt.close()
@@ -343,7 +343,8 @@ def test_stamped_mode_drives_too(m4k_runtime_dir):
 
 
 @pytest.mark.parametrize('name, value', [
-    ('cmd_vel_timeout', -2.0), ('odom_frame', ''), ('laser_pose', [1.0, 2.0])])
+    ('cmd_vel_timeout', -2.0), ('odom_frame', ''), ('odom_pose_covariance_diagonal', [1.0, 2.0]),
+    ('robot_description', '<robot name="x"><link name="base_link"/></robot>')])
 def test_configure_fails_with_bad_parameter(m4k_runtime_dir, name, value):
     context = rclpy.context.Context()
     rclpy.init(context=context)

@@ -33,6 +33,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from m4k_rt import rosargs
 from m4k_rt.tools.benchlib import analysis, plots, report, stack, system
 from m4k_rt.tools.benchlib import progress as progress_mod
 
@@ -91,7 +92,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                     ', '.join(PHASES))
     ap.add_argument('--no-install', action='store_true',
                     help='do not apt-get install missing rt-tests / stress-ng')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     unknown = sorted(set(filter(None, args.skip.split(','))) - set(PHASES))
     if unknown:
         ap.error('--skip: unknown phase(s) {!r}; valid: {}'.format(unknown, ', '.join(PHASES)))

@@ -32,7 +32,7 @@ import threading
 import time
 from typing import Any, Sequence
 
-from m4k_rt import config, recorder, xddp
+from m4k_rt import config, recorder, rosargs, xddp
 from m4k_rt.tools import core_bench
 from m4k_rt.tools.benchlib import stack, system
 
@@ -156,7 +156,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--no-stress', action='store_true', help='do not run stress-ng')
     ap.add_argument('--config', default=None, help='user overlay YAML for the stack')
     ap.add_argument('--results', default='results', help='results root directory')
-    return ap.parse_args(argv)
+    return rosargs.parse_args(ap, argv)
 
 
 def _log(msg: str) -> None:
