@@ -1,52 +1,136 @@
-"""Launch the m4k stack with ros2 launch (needs a full ROS 2 install: launch is not on PyPI).
+"""Launch the m4k stack with ros2 launch (needs launch/launch_ros: a full ROS 2 install).
 
     ros2 launch m4k_rt m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
+        [sim:=auto|true|false] [robot_state_publisher:=false|true] [bridge_params:=FILE]
 
-Starts rt_core, driver_host and the bridge (node m4k_bridge) with the configuration installed
-in share/m4k_rt/config. ``config`` is the same user overlay as ``bringup --config``: rt_core
-gets it as ``--config``, driver_host as ``--overlay``; bridge parameters in it are NOT
-extracted here -- pass them as a ROS parameter file with ``bridge_params:=FILE``. For
-supervision with restarts and the live status line use ``bringup`` instead.
+Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
+``bridge_overlay``) from the same layered configuration and overlay: rt_core, driver_host, the
+bridge (node m4k_bridge, parameters: share/m4k_rt/config/bridge.yaml, then those derived from
+the configuration -- runtime directory, robot description, sensor frames -- and the overlay's
+``m4k_bridge:`` section, then ``bridge_params``), and the simulated robot (``sim_robot``) when
+that executable exists and ``sim`` is on.
+
+``sim``: ``auto`` (default) simulates when the configuration has any ``backend: sim`` device;
+``true`` requires such devices; ``false`` refuses a configuration that still has simulated
+devices (give ``config:=`` an overlay with the real backends) -- so a real robot never runs with
+a simulated sensor by mistake.
+
+``robot_state_publisher:=true`` starts robot_state_publisher (a full ROS install has it) with
+the same URDF, and turns the bridge's own static transforms off (``publish_robot_state``), so
+no transform has two publishers. For supervision with restarts and the live status line use
+``bringup`` instead.
 """
 
 import os
 
-from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+_TRUE = ('true', '1', 'yes', 'on')
+_FALSE = ('false', '0', 'no', 'off')
+
+
+def _flag(context, name, allow_auto=False):
+    """Return True/False (or None for 'auto') of a boolean launch argument."""
+    value = LaunchConfiguration(name).perform(context).strip().lower()
+    if value in _TRUE:
+        return True
+    if value in _FALSE:
+        return False
+    if allow_auto and value == 'auto':
+        return None
+    raise RuntimeError('{}:={!r}: expected true or false{}'.format(
+        name, value, ' or auto' if allow_auto else ''))
+
+
+def _installed(package, executable):
+    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    try:
+        prefix = get_package_prefix(package)
+    except PackageNotFoundError:
+        return False
+    return os.access(os.path.join(prefix, 'lib', package, executable), os.X_OK)
+
 
 def _nodes(context, *args, **kwargs):
-    """Build the three actions once the launch arguments are known."""
-    share = get_package_share_directory('m4k_rt')
-    overlay = LaunchConfiguration('config').perform(context)
-    bridge_params = LaunchConfiguration('bridge_params').perform(context)
-    namespace = LaunchConfiguration('namespace').perform(context)
-    rt_args = ['--config', overlay] if overlay else []
-    host_args = ['--overlay', overlay] if overlay else []
-    params = [os.path.join(share, 'config', 'bridge.yaml')]
-    if bridge_params:
-        params.append(bridge_params)
-    return [
-        Node(package='m4k_rt', executable='rt_core', name='rt_core', arguments=rt_args,
-             output='screen', respawn=True, respawn_delay=1.0),
-        Node(package='m4k_drivers', executable='driver_host', name='driver_host',
-             arguments=host_args, output='screen', respawn=True, respawn_delay=1.0),
-        Node(package='m4k_rt', executable='bridge', name='m4k_bridge', namespace=namespace,
-             parameters=params, output='screen', respawn=True, respawn_delay=1.0),
-    ]
+    """Build the actions once the launch arguments are known (bringup's plan, as ROS nodes)."""
+    from m4k_rt import config, xddp
+    from m4k_rt.bridge import params as bridge_params
+    from m4k_rt.tools import bringup
+
+    arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
+    overlay = os.path.abspath(arg('config')) if arg('config') else None
+    namespace = arg('namespace')
+    sim = _flag(context, 'sim', allow_auto=True)
+    with_rsp = _flag(context, 'robot_state_publisher')
+
+    cfg = config.load(overlay)                       # ConfigError names the field
+    doc = config.load_layered(overlay)
+    simulated = sorted(k for k, s in (doc.get('devices') or {}).items()
+                       if isinstance(s, dict) and s.get('backend') == 'sim'
+                       and s.get('enabled', True))
+    if sim is False and simulated:
+        raise RuntimeError('sim:=false but devices {} are simulated (backend: sim); give '
+                           'config:= an overlay with their real backends'.format(simulated))
+    if sim is True and not simulated:
+        raise RuntimeError('sim:=true but no device has backend: sim in the configuration')
+    runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
+    bridge_doc = bringup.bridge_overlay(doc, runtime_dir)
+    bridge_values = bridge_params.flatten_section(bridge_doc)
+    if with_rsp:
+        bridge_values['publish_robot_state'] = False
+    bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
+    specs = bringup.child_specs(overlay, '', bridge_yaml, runtime_dir)
+    env = {'M4K_RUNTIME_DIR': runtime_dir, 'PYTHONUNBUFFERED': '1'}
+    actions = []
+    if simulated and _installed('m4k_drivers', 'sim_robot') and not any(
+            s.executable == 'sim_robot' for s in specs):
+        # The simulated robot as its own process (m4k_drivers' sim_robot): the world outlives
+        # a driver-host restart, as the real robot would.
+        actions.append(Node(package='m4k_drivers', executable='sim_robot', name='sim_robot',
+                            arguments=['--runtime-dir', runtime_dir]
+                            + (['--overlay', overlay] if overlay else []),
+                            additional_env=env, output='screen'))
+    for spec in specs:
+        if spec.executable == 'bridge':
+            params = [bridge_yaml, bridge_values]
+            if arg('bridge_params'):
+                params.append(os.path.abspath(arg('bridge_params')))
+            actions.append(Node(package=spec.package, executable=spec.executable,
+                                name=bridge_params.NODE_NAME, namespace=namespace,
+                                parameters=params, additional_env=env, output='screen',
+                                respawn=True, respawn_delay=1.0))
+        else:
+            actions.append(Node(package=spec.package, executable=spec.executable,
+                                name=spec.name, arguments=list(spec.args), additional_env=env,
+                                output='screen', respawn=spec.executable != 'sim_robot',
+                                respawn_delay=1.0))
+    if with_rsp:
+        if not _installed('robot_state_publisher', 'robot_state_publisher'):
+            raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
+                               'installed (a full ROS install has it; without it the bridge '
+                               'publishes the transforms itself)')
+        actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
+                            namespace=namespace, output='screen', parameters=[
+                                {'robot_description': bridge_values['robot_description']}]))
+    return actions
 
 
 def generate_launch_description():
     """Return the launch description of the m4k stack."""
     return LaunchDescription([
         DeclareLaunchArgument('config', default_value='',
-                              description='user overlay YAML for rt_core and driver_host'),
+                              description='user overlay YAML, as bringup --config'),
         DeclareLaunchArgument('bridge_params', default_value='',
-                              description='extra ROS parameter file for m4k_bridge'),
+                              description='extra ROS parameter file for m4k_bridge (last)'),
         DeclareLaunchArgument('namespace', default_value='',
                               description='ROS namespace of the bridge topics'),
+        DeclareLaunchArgument('sim', default_value='auto',
+                              description='auto | true | false: start the simulated robot'),
+        DeclareLaunchArgument('robot_state_publisher', default_value='false',
+                              description='start robot_state_publisher (full ROS install) '
+                              'instead of the bridge publishing the static transforms'),
         OpaqueFunction(function=_nodes),
     ])
