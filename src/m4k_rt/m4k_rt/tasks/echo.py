@@ -122,6 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     peer = EchoPeer(labels, args.runtime_dir).start()
+    sys.stderr.write('echo peer: serving {}\n'.format(', '.join(map(str, labels))))
+    sys.stderr.flush()
     try:
         while not done.wait(0.5):
             pass
