@@ -10,9 +10,10 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import Imu, LaserScan, Range
-from std_msgs.msg import ColorRGBA
+from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, JointState, LaserScan, Range
+from std_msgs.msg import ColorRGBA, String
+from tf2_msgs.msg import TFMessage
 
 from m4k_msgs.msg import RtStatus
 from m4k_rt import protocol, xddp
@@ -360,3 +361,43 @@ def test_param_files_are_found_on_the_command_line():
     argv = ['bridge', '--ros-args', '--params-file', 'a.yaml', '-p', 'x:=1',
             '--params-file', 'b.yaml']
     assert param_files(argv) == ['a.yaml', 'b.yaml']
+
+
+# --- robot state: joint_states, tf, tf_static, robot_description (m4k_rt.bridge.tf) ----------
+
+_LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@pytest.mark.parametrize('publish_tf, robot_state', [(True, True), (False, True),
+                                                      (True, False)])
+def test_tf_switches_select_who_publishes_which_transform(m4k_runtime_dir, publish_tf,
+                                                          robot_state):
+    h = Harness(m4k_runtime_dir, [Parameter('publish_tf', value=publish_tf),
+                                  Parameter('publish_robot_state', value=robot_state)])
+    try:
+        tf = h.collect(TFMessage, 'tf', 100)
+        static = h.collect(TFMessage, 'tf_static', _LATCHED)
+        joints = h.collect(JointState, 'joint_states')
+        desc = h.collect(String, 'robot_description', _LATCHED)
+        assert h.spin_until(h.rt.linked)
+        feed = lambda: h.rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0,  # noqa
+                                 2.4, 2.5, math.pi, -1.0, 0)
+        assert h.spin_until(lambda: joints and desc and (tf or not (publish_tf or robot_state))
+                            and (static or not robot_state), each=feed)
+        js = joints[-1]
+        assert list(js.name) == ['left_wheel_joint', 'right_wheel_joint']
+        assert list(js.position) == [math.pi, -1.0] and list(js.velocity) == [2.4, 2.5]
+        pairs = {(t.header.frame_id, t.child_frame_id): t for m in tf for t in m.transforms}
+        assert (('odom', 'base_link') in pairs) == publish_tf
+        assert (('base_link', 'left_wheel_link') in pairs) == robot_state
+        if robot_state:   # half a turn about the axle (y): quaternion (0, 1, 0, 0)
+            q = pairs[('base_link', 'left_wheel_link')].transform.rotation
+            assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 1.0, 0.0, 0.0), abs=1e-9)
+            assert {t.child_frame_id for m in static for t in m.transforms} == {
+                'laser', 'imu_link', 'sonar_link', 'front_caster_link', 'rear_caster_link'}
+        else:
+            assert not h.peer.get_publishers_info_by_topic('tf_static')
+        assert '<robot name="m4k">' in desc[-1].data
+    finally:
+        h.close()
