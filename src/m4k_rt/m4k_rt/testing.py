@@ -8,7 +8,8 @@ Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. Wha
 * ``procs``: starts subprocesses in their own process group and kills whatever is left.
 * An autouse leak check that fails any test leaving behind a child process, a Python thread
   or a socket file descriptor -- the python-can habit of catching leaks where they happen.
-* The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
+* The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``),
+  and ``ros2cli`` for tests that need launch or ros2cli (skipped, with the reason, without).
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ _LEAK_GRACE_S = 3.0
 def pytest_configure(config: pytest.Config) -> None:
     """Register the m4k markers."""
     config.addinivalue_line('markers', 'hardware: needs the real M4K hardware; CI skips it')
+    config.addinivalue_line(
+        'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
+        'install or the ros-verify environment); skipped with the reason elsewhere')
     config.addinivalue_line(
         'markers', 'allow_leaks(kinds): tolerate leftovers of the given kinds '
         "('fds' for in-process DDS transports); state why in the test")
