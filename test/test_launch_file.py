@@ -89,8 +89,9 @@ def test_robot_state_publisher_takes_over_the_static_transforms(monkeypatch, m4k
 @pytest.mark.skipif(shutil.which('ros2') is None or 'tools/bin' in (shutil.which('ros2') or ''),
                     reason='needs the real ros2cli (ros2 launch)')
 def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_dir):
-    import rclpy
     from nav_msgs.msg import Odometry
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
     log = open(tmp_path / 'launch.log', 'w')
     proc = procs.start(['ros2', 'launch', 'm4k_rt', 'm4k.launch.py'],
                        env=dict(stack_env(m4k_runtime_dir)), stdout=log, stderr=log)
@@ -98,14 +99,17 @@ def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_d
     context = rclpy.context.Context()
     rclpy.init(context=context)
     node = rclpy.create_node('launch_probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
     got = []
     node.create_subscription(Odometry, 'odom', got.append, 10)
     try:
         end = time.monotonic() + 60
         while not got and time.monotonic() < end and proc.poll() is None:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
         assert got, (tmp_path / 'launch.log').read_text()[-3000:]
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
     proc.send_signal(signal.SIGINT)
