@@ -41,10 +41,16 @@ def robot(procs, tmp_path, m4k_runtime_dir):
                            ('joint_states', JointState, 10)):
         box = user.got[name] = []
         n.create_subscription(typ, name, box.append, qos)
+    topics = ('odom', 'scan', 'imu', 'sonar', 'tf', 'tf_static', 'robot_description',
+              'joint_states')
     try:
-        user.spin_until(lambda: all(user.got[k] for k in (
-            'odom', 'scan', 'imu', 'sonar', 'tf', 'tf_static', 'robot_description',
-            'joint_states')) or proc.poll() is not None, 60, 'every topic')
+        try:
+            user.spin_until(lambda: all(user.got[k] for k in topics)
+                            or proc.poll() is not None, 60, 'every topic')
+        except AssertionError:
+            missing = [k for k in topics if not user.got[k]]
+            raise AssertionError('no message on {}: {}'.format(
+                missing, (tmp_path / 'bringup.err').read_text()[-3000:])) from None
         assert proc.poll() is None, (tmp_path / 'bringup.err').read_text()[-3000:]
         yield user, proc
     finally:
