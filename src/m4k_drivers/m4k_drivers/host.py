@@ -47,7 +47,11 @@ BRINGUP_BACKOFF = RetryPolicy(attempts=1_000_000, base_s=0.5, factor=2.0, max_s=
 
 
 def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict[str, Any]:
-    """Return the merged config document: ``path`` alone, or m4k_rt's layered files."""
+    """Return the merged config document: ``path`` alone, or m4k_rt's layered files.
+
+    Simulated sensors without a ``mount`` of their own take it from the robot section
+    (``robot.sensors``, config/robot.yaml): the same pose the URDF and tf_static publish.
+    """
     if path:
         raw = dconfig.load_file(path)
     else:
@@ -56,10 +60,10 @@ def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict
         except ImportError:
             raw = dconfig.load_file(dconfig.default_config_path())
         else:
-            return load_layered(overlay)
+            return description.fill_sim_mounts(load_layered(overlay))
     if overlay:
         raw = dconfig.merge(raw, dconfig.load_file(overlay))
-    return raw
+    return description.fill_sim_mounts(raw)
 
 
 class DeviceService:
@@ -385,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=level,
                         format='%(asctime)s %(name)s %(levelname)s: %(message)s')
     try:
-        raw = description.fill_sim_mounts(load_raw_config(args.config, args.overlay))
+        raw = load_raw_config(args.config, args.overlay)
         devices = _apply_overrides(raw.get('devices') or {}, args)
         cfg = dconfig.validate({'devices': devices, 'world': raw.get('world') or {}})
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:

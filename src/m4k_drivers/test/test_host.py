@@ -207,3 +207,14 @@ def test_world_report_tracks_ground_truth_and_counts_a_collision(procs, m4k_runt
     finally:
         procs.stop(proc)
         rt.close()
+
+
+def test_simulated_sensors_are_mounted_where_the_robot_description_says(tmp_path):
+    from m4k_drivers.host import load_raw_config
+    overlay = tmp_path / 'moved.yaml'
+    overlay.write_text('robot:\n  sensors:\n    laser:\n      frame: laser\n'
+                       '      pose: [0.12, -0.03, 0.3, 0.0, 0.0, 0.5]\n')
+    raw = load_raw_config(None, str(overlay))
+    assert raw['devices']['lrf']['mount'] == pytest.approx([0.12, -0.03, 0.5])
+    sonar = raw['robot']['sensors']['sonar']['pose']
+    assert raw['devices']['sonar']['mount'] == pytest.approx([sonar[0], sonar[1], sonar[5]])
