@@ -239,7 +239,8 @@ class DeviceService:
         self.seq = (self.seq + 1) & 0xFFFFFFFF
         try:
             n = protocol.encode_scan_into(
-                self._scan_buf, 0, self.seq, time.monotonic_ns(), g.angle_min,
+                # Stamped at acquisition (the sensor's clock mapped onto ours), not now.
+                self._scan_buf, 0, self.seq, r.value.stamp_ns, g.angle_min,
                 g.angle_increment, g.range_min, g.range_max, g.scan_time, g.time_increment,
                 r.value.device_stamp, [int(x) for x in r.value.ranges_mm])
         except protocol.ProtocolError as exc:

@@ -111,6 +111,9 @@ def test_geometry_follows_requested_steps_and_cluster():
     assert geo.angle_min == 0.0
     assert geo.angle_increment == pytest.approx(3 * 2 * math.pi / 1024)
     assert geo.angle_max == pytest.approx(9 * 2 * math.pi / 1024)
+    # SCIP geometry: 1024 steps per 100 ms revolution; one value every 3 steps.
+    assert geo.time_increment == pytest.approx(0.1 / 1024 * 3)
+    assert spec.geometry().time_increment == pytest.approx(0.1 / 1024)
 
 
 def test_geometry_outside_measurable_steps_is_rejected():

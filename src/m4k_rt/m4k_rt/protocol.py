@@ -32,6 +32,29 @@ ENCODER_MAX = 4095
 SCAN_STAMP_MAX = 0xFFFFFF  # URG time stamps are 24-bit ms counters
 SCAN_ERROR_CODE_MAX = 19  # ranges (mm) below 20 are URG error codes, not distances
 
+# The one table of URG range error codes (LASER_SCAN ranges below 20 mm), from Hokuyo's
+# "Communication Protocol Specification For SCIP2.0" (C-42-03320B), Table 3 "ERROR CODES
+# (URG-04LX, UBG-04LX-F01, UHG-08LX)"; 3..5 are not in the table. The driver names them in
+# logs (m4k_drivers.lrf.scip) and the bridge maps them (m4k_rt.bridge.convert).
+SCAN_ERROR_CODES: dict[int, str] = {
+    0: 'detected object is possibly at 22 m',
+    1: 'reflected light has low intensity',
+    2: 'reflected light has low intensity',
+    3: 'undocumented error',
+    4: 'undocumented error',
+    5: 'undocumented error',
+    6: 'others',
+    7: 'distance data on the preceding and succeeding steps have errors',
+    8: 'intensity difference of two waves',
+    9: 'the same step had an error in the last two scans',
+    **dict.fromkeys(range(10, 18), 'others'),
+    18: 'error reading due to a strongly reflective object',
+    19: 'non-measurable step',
+}
+# Codes Table 3 documents as "no object within the measurable range": only 0 (the object, if
+# any, is beyond the 5.6 m range). REP-117 +inf; every other code is an invalid reading (NaN).
+SCAN_FAR_CODES = frozenset((0,))
+
 ODOM_BRAKING = 0x1
 ODOM_GUARD = 0x2
 ODOM_MOTOR_STALE = 0x4
