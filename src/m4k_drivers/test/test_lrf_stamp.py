@@ -71,11 +71,12 @@ def test_scans_are_stamped_before_they_arrive_across_the_24bit_wrap():
                 scans.append(scan)
         finally:
             drv.close()
-    assert any(b.device_stamp < a.device_stamp for a, b in zip(scans, scans[1:]))   # wrapped
+    pairs = list(zip(scans, scans[1:], strict=False))
+    assert any(b.device_stamp < a.device_stamp for a, b in pairs)   # the 24-bit counter wrapped
     for s in scans:
         assert 0 < s.stamp_ns <= s.host_stamp_ns <= time.monotonic_ns()
     # Stamps advance with the sensor's clock across the wrap (50 ms apart, +-10 ms of USB).
-    for a, b in zip(scans[4:], scans[5:]):
+    for a, b in zip(scans[4:], scans[5:], strict=False):
         assert (b.stamp_ns - a.stamp_ns) == pytest.approx((b.stamp_ms - a.stamp_ms) * 1e6,
                                                           abs=10e6)
 

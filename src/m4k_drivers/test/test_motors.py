@@ -238,6 +238,11 @@ class _Spi:
         pass
 
 
+def _ports(log):
+    from m4k_drivers.motors.real import SpiPort
+    return [SpiPort(_Spi(log, n), n) for n in ('left_dac', 'right_dac', 'left_enc', 'right_enc')]
+
+
 class _Ldac:
     def __init__(self, log):
         self.log = log
@@ -250,10 +255,9 @@ class _Ldac:
 
 
 def test_driven_ldac_pulses_once_after_both_dac_words():
-    from m4k_drivers.motors.real import MotorBus, SpiPort
+    from m4k_drivers.motors.real import MotorBus
     log = []
-    bus = MotorBus(*(SpiPort(_Spi(log, n), n) for n in ('left_dac', 'right_dac', 'left_enc', 'right_enc')),
-                   ldac=_Ldac(log))
+    bus = MotorBus(*_ports(log), ldac=_Ldac(log))
     h = MotorHandler(lambda: bus, clock=Clock())
     h.configure()
     h.activate()
@@ -266,9 +270,9 @@ def test_driven_ldac_pulses_once_after_both_dac_words():
 
 
 def test_tied_low_ldac_needs_no_pulse():
-    from m4k_drivers.motors.real import MotorBus, SpiPort
+    from m4k_drivers.motors.real import MotorBus
     log = []
-    bus = MotorBus(*(SpiPort(_Spi(log, n), n) for n in ('left_dac', 'right_dac', 'left_enc', 'right_enc')))
+    bus = MotorBus(*_ports(log))
     bus.latch()
     assert log == [] and bus.latches == 0
 

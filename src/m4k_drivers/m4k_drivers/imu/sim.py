@@ -103,7 +103,7 @@ class FakeMyAhrsBus:
         return list(self.regs[register:register + length])
 
     def i2c_rdwr(self, *messages: Any) -> None:
-        """Combined transaction (I2C_RDWR): a pointer write then reads, auto-incrementing.
+        """Run a combined transaction (I2C_RDWR): a pointer write, then auto-incrementing reads.
 
         The registers are refreshed once, at the START: one transaction sees one update.
         """

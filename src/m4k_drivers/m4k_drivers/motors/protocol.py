@@ -58,7 +58,8 @@ from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # WHEEL_CMD codes: 0..1023, 512 =
 
 __all__ = [
     'DAC_MAX', 'DAC_ZERO', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame', 'EncoderFrame',
-    'EncoderFieldWarning', 'EncoderFrameError', 'EncoderJumpError', 'Unwrapper', 'code_to_command', 'code_to_volts',
+    'EncoderFieldWarning', 'EncoderFrameError', 'EncoderJumpError', 'Unwrapper',
+    'code_to_command', 'code_to_volts',
     'command_to_code', 'decode_dac', 'decode_encoder', 'encode_dac', 'encode_encoder',
     'DAC_TRIM_MAX', 'LEAD_BITS_MAX', 'check_lead_bits', 'check_sign_pair', 'check_trim_pair',
     'check_zero_pair', 'mag_out_of_range', 'trim_dac_code', 'wheel_raw',
