@@ -67,6 +67,7 @@ class MotorHandler(DeviceHandler):
         self._opener = opener
         self.bus: MotorBus | None = None
         self.clock = clock
+        self.period_s = period_s
         self.watchdog_ns = int(period_s * watchdog_periods * 1e9)
         self.lead_bits = lead_bits
         max_rate = max_wheel_rad_s / (2 * math.pi) * p.ENC_COUNTS
