@@ -283,8 +283,9 @@ def format_reading(kind: str, value: Any) -> str:
 
 
 def run_print(kind: str, handler: DeviceHandler, count: int, rate_hz: float,
-              stop: threading.Event, out: TextIO = sys.stdout) -> int:
-    """Bring one device up and print ``count`` readings (0 = until stopped)."""
+              stop: threading.Event, out: TextIO | None = None) -> int:
+    """Bring one device up and print ``count`` readings (0 = until stopped) to ``out``."""
+    out = out if out is not None else sys.stdout      # looked up now, not at import
     try:
         handler.configure()
         handler.activate()

@@ -8,7 +8,7 @@ import pytest
 from m4k_drivers import host
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler
-from m4k_drivers.motors.jog import JOG_MAX_DURATION_S, JOG_MAX_SPEED, JogError, check_jog, run_jog
+from m4k_drivers.motors.jog import check_jog, JOG_MAX_DURATION_S, JOG_MAX_SPEED, JogError, run_jog
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig
 
