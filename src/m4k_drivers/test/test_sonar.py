@@ -176,7 +176,7 @@ class _Clocks:
         return self.mono + self.offset
 
 
-def _edge_sonar(clocks, width_ns, stamp_clock, step_ns=0):
+def _edge_sonar(clocks, width_ns, stamp_clock, step_ns=0, line_clock='unknown'):
     trig, echo = _Line(), _Line()
 
     def fire(value):
@@ -192,7 +192,7 @@ def _edge_sonar(clocks, width_ns, stamp_clock, step_ns=0):
 
     trig.on_write = fire
     return EdgeSonar(trig, echo, 'fake', hold=lambda s: None, clock=clocks.monotonic,
-                     realtime=clocks.realtime)
+                     realtime=clocks.realtime, line_clock=line_clock)
 
 
 @pytest.mark.parametrize('stamp_clock', ['monotonic', 'realtime'])
@@ -214,10 +214,18 @@ def test_realtime_edges_across_a_wall_clock_step_are_discarded():
 
 
 def test_monotonic_edges_are_immune_to_a_wall_clock_step():
-    sonar = _edge_sonar(_Clocks(), 5_830_000, 'monotonic', step_ns=2_000_000_000)
+    sonar = _edge_sonar(_Clocks(), 5_830_000, 'monotonic', step_ns=2_000_000_000,
+                        line_clock='monotonic')
     r = sonar.measure()
     assert r.status == p.STATUS_OK and r.range_m == pytest.approx(1.0, abs=0.002)
     assert sonar.clock_steps == 0
+
+
+def test_unknown_line_clock_near_boot_discards_across_a_step():
+    # No RTC: the wall clock starts near the monotonic one, so the stamps cannot tell which
+    # clock they are; a step across the pulse still discards the reading.
+    sonar = _edge_sonar(_Clocks(offset_ns=3_000_000), 5_830_000, 'realtime', step_ns=-2_000_000)
+    assert sonar.measure().status == p.STATUS_FAULT and sonar.clock_steps == 1
 
 
 def test_request_monotonic_edges_reports_failure_without_cdev():

@@ -53,6 +53,7 @@ SCAN_ERROR_CODES: dict[int, str] = {
 }
 # Codes Table 3 documents as "no object within the measurable range": only 0 (the object, if
 # any, is beyond the 5.6 m range). REP-117 +inf; every other code is an invalid reading (NaN).
+# No code means "too close" (REP-117 -inf): ranges below DMIN (20 mm) are the codes themselves.
 SCAN_FAR_CODES = frozenset((0,))
 
 ODOM_BRAKING = 0x1

@@ -6,12 +6,14 @@ up.  Which clock: GPIO cdev v2 stamps edges with CLOCK_MONOTONIC unless the requ
 ``GPIO_V2_LINE_FLAG_EVENT_CLOCK_REALTIME`` -- and python-periphery 2.4 always sets it
 (``gpio_cdev2.py``).  A wall-clock step (NTP on a board without RTC) between the two edges
 would then stretch or shrink the pulse.  So :func:`open_gpio_sonar` reconfigures the echo line
-with ``GPIO_V2_LINE_SET_CONFIG_IOCTL`` without that flag (monotonic edges), and
-:class:`EdgeSonar` checks every pulse anyway: it classifies the edge clock by comparing the
-stamps with both clocks, and for realtime stamps discards the reading when the
-realtime-minus-monotonic offset changed across the pulse (status FAULT, counted in
-``clock_steps``).  Backend B (``iio``): the kernel ``srf04`` driver does the timing;
-reading ``in_distance_raw`` triggers a measurement, times ``in_distance_scale`` gives metres.
+with ``GPIO_V2_LINE_SET_CONFIG_IOCTL`` without that flag (monotonic edges).  Unless that
+succeeded (``line_clock == 'monotonic'``), :class:`EdgeSonar` discards every reading across
+which the realtime-minus-monotonic offset changed (status FAULT, counted in ``clock_steps``).
+It does not trust a guess of the stamps' clock for that: on a board without RTC the wall clock
+starts near the monotonic one, exactly when NTP is about to step it.
+
+Backend B (``iio``): the kernel ``srf04`` driver does the timing; reading ``in_distance_raw``
+triggers a measurement, times ``in_distance_scale`` gives metres.
 """
 
 from __future__ import annotations
@@ -62,7 +64,8 @@ class EdgeSonar:
                  trigger_s: float = 2 * p.TRIGGER_S,
                  hold: Callable[[float], None] = _busy_wait,
                  clock: Callable[[], int] = time.monotonic_ns,
-                 realtime: Callable[[], int] = time.time_ns) -> None:
+                 realtime: Callable[[], int] = time.time_ns,
+                 line_clock: str = 'unknown') -> None:
         if trigger_s < p.TRIGGER_S:
             raise ValueError(f'trigger pulse must be >= 10 us, got {trigger_s!r} s')
         self.trigger, self.echo, self.where = trigger, echo, where
@@ -71,7 +74,8 @@ class EdgeSonar:
         self._clock = clock
         self._realtime = realtime
         self.clock_steps = 0          # pulses discarded because the wall clock stepped
-        self.edge_clock = 'unknown'   # 'monotonic' or 'realtime', from the last pulse
+        self.line_clock = line_clock  # 'monotonic' once the edge clock was requested as such
+        self.edge_clock = 'unknown'   # diagnostics: the clock the last stamps looked like
 
     def _offset(self) -> int:
         """Return CLOCK_REALTIME - CLOCK_MONOTONIC (ns), read as tightly as Python can."""
@@ -114,7 +118,8 @@ class EdgeSonar:
             ts = edges[-1].timestamp
             self.edge_clock = ('monotonic' if abs(now_mono - ts) <= abs(now_real - ts)
                                else 'realtime')
-            if self.edge_clock == 'realtime' and abs(off1 - off0) > CLOCK_STEP_TOLERANCE_NS:
+            stepped = abs(off1 - off0) > CLOCK_STEP_TOLERANCE_NS
+            if stepped and self.line_clock != 'monotonic':
                 self.clock_steps += 1
                 return p.SonarReading(0.0, p.STATUS_FAULT)
         return p.pulse_to_range(p.edges_to_width(edges), temp_c)
@@ -164,7 +169,7 @@ def open_gpio_sonar(chip: str, trigger_line: int, echo_line: int) -> EdgeSonar:
         trigger.close()
         raise wrap_os_error(exc, f'{chip} line {echo_line}') from exc
     sonar = EdgeSonar(trigger, echo, f'{chip} lines {trigger_line}/{echo_line}')
-    sonar.edge_clock = 'monotonic' if request_monotonic_edges(echo) else 'unknown'
+    sonar.line_clock = 'monotonic' if request_monotonic_edges(echo) else 'unknown'
     return sonar
 
 
