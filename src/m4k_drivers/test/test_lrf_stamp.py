@@ -86,13 +86,13 @@ def test_connect_leaves_time_adjust_mode_with_tm2():
     room = RectRoom(-2.0, -1.5, 2.0, 1.5)
     with UrgSim(room, scan_period=0.05) as dev:
         # A previous client switched the sensor to SCIP 2.0 and into time-adjust mode.
-        with serial.Serial(dev.path, timeout=1.0) as raw:
+        with serial.Serial(dev.path, timeout=3.0) as raw:
             for cmd in (b'SCIP2.0\n', b'TM0\n'):
                 raw.write(cmd)
                 reply = raw.read_until(b'\n\n')
                 assert reply.startswith(cmd.rstrip(b'\n')), reply
         assert dev.time_adjust
-        drv = UrgDriver(dev.path, timeout=0.5)
+        drv = UrgDriver(dev.path, timeout=3.0)       # generous: the machine may be loaded
         try:
             drv.open()               # QT -> 0E, TM2 -> 00, QT, VV, PP, II, BM
             assert not dev.time_adjust
