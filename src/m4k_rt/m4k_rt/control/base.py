@@ -319,4 +319,6 @@ class BaseController:
 
     def _estop_flags(self) -> int:
         estop = self.estop
-        return (FLAG_E_STOP if estop.engaged else 0) | (FLAG_HOLD if estop.holding and not estop.engaged else 0)
+        if estop.engaged:
+            return FLAG_E_STOP
+        return FLAG_HOLD if estop.holding else 0
