@@ -43,6 +43,7 @@ setup(
             'echo_peer = m4k_rt.tasks.echo:main',
             'fuzz = m4k_rt.tools.fuzz:main',
             'soak = m4k_rt.tools.soak:main',
+            'record = m4k_rt.bag.record:main',
         ],
     },
 )
