@@ -49,7 +49,7 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
             hashes[ch.topic] = ch.metadata.get('topic_type_hash', '')
             schema = summary.schemas[ch.schema_id]
             assert schema.encoding == 'ros2msg' and ch.message_encoding == 'cdr'
-        for schema, channel, message, ros_msg in reader.iter_decoded_messages(
+        for schema, channel, _, ros_msg in reader.iter_decoded_messages(
                 topics=['/odom', '/scan', '/imu']):
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             decoded[channel.topic] = (schema, ros_msg)

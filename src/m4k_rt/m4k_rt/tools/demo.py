@@ -577,7 +577,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     env['M4K_WORLD_REPORT'] = os.path.join(out_dir, WORLD_REPORT)
     rec = Recorder()
     bag = _Child('record', [sys.executable, '-m', 'm4k_rt.bag.record', '-o',
-                            os.path.join(out_dir, 'bag')], os.path.join(out_dir, 'record.log'), env)
+                            os.path.join(out_dir, 'bag')],
+                 os.path.join(out_dir, 'record.log'), env)
     stack = _Child('bringup', _bringup_argv(args.config, args.python_m),
                    os.path.join(out_dir, 'bringup.log'), env)
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
