@@ -65,6 +65,11 @@ __all__ = ['BridgeNode', 'main', 'param_files']
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# cmd_vel is taken best effort: a reliable reader makes a reliable writer (Nav2, teleop) keep
+# and re-send the samples it could not deliver, so after a network outage the robot would get
+# a burst of commands from before the outage and drive on them. A velocity stream needs the
+# newest sample or none; the RT actuator brakes when none comes (control.cmd_vel_timeout).
+_CMD_VEL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 _INBOX_MAX = 4096
 _WATCH_PERIOD_S = 0.25
 # Devices the bridge sees through their data ports: role -> (device, period expected [s]).
@@ -139,9 +144,9 @@ class BridgeNode(Node):
         self._init_safety()
         if p['use_stamped_vel']:
             self.create_subscription(TwistStamped, p.topic('cmd_vel'), self._on_twist_stamped,
-                                     10)
+                                     _CMD_VEL_QOS)
         else:
-            self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, 10)
+            self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, _CMD_VEL_QOS)
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
