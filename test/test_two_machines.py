@@ -24,7 +24,7 @@ import subprocess
 import time
 
 import pytest
-from test_bringup import start_bringup, write_overlay
+from test_bringup import write_overlay
 from test_estop_e2e import _actuator_period_s, _dist, _motor_tau_s, AT_REST, STILL_M, Truth
 from test_stack_e2e import _control, START
 from wsenv import ROOT
