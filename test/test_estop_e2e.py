@@ -11,17 +11,20 @@ bound shows the robot at rest and every later one at the same place.
 
 import math
 import os
+import signal
 import time
 
 from geometry_msgs.msg import Twist, TwistStamped
 import pytest
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
+from test_bringup import cmdline
 from test_stack_e2e import _control, stack  # noqa: F401 -- the stack fixture
 from wsenv import ground_truth, ROOT
 import yaml
 
 from m4k_rt.control.params import control_params
+from m4k_rt.testing import child_pids
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 
@@ -117,6 +120,21 @@ def test_e_stop_stops_within_its_bound_ignores_commands_and_needs_a_fresh_one(
     assert travelled <= allowed, (travelled, allowed)
     user.spin_until(lambda: user.got['rt_status'] and user.got['rt_status'][-1].e_stop_active,
                     5, 'rt_status to show the e-stop latched')
+
+    # the latch lives in the RT actuator: the bridge dies, bringup starts a new one (which was
+    # never asked to stop), commands flow through it -- the robot stays stopped
+    bridge = [pid for pid in child_pids(proc.pid) if 'm4k_rt.bridge.node' in cmdline(pid)]
+    assert len(bridge) == 1
+    os.kill(bridge[0], signal.SIGKILL)
+    user.spin_until(lambda: any('m4k_rt.bridge.node' in cmdline(pid) and pid != bridge[0]
+                                for pid in child_pids(proc.pid)), 30, 'a new bridge', each=send)
+    n_status = len(user.got['rt_status'])
+    user.spin_until(lambda: len(user.got['rt_status']) > n_status + 1
+                    and user.got['rt_status'][-1].e_stop_active, 30,
+                    'the new bridge to report the latch still engaged', each=send)
+    rest = truth.latest()
+    _spin_collect(user, truth, 1.6, each=send)
+    assert _dist(truth.latest(), rest) < STILL_M
 
     # release just after the last command of the latch: neither it (still younger than
     # cmd_vel_timeout at the release) nor a re-sent copy of it (stamped before the release)
