@@ -3,7 +3,8 @@
 Runs ``demo`` from the source tree (bringup --python-m, the DWA planner node, the recorder) in
 a private runtime directory and ROS domain, bounded by a 60 s driving timeout, then checks
 what it wrote: the goal reached within tolerance without contact, a trajectory that went
-around the triangular obstacle, both figures, the CSV, the latest-run link and the run's MCAP recording.
+around the triangular obstacle, both figures, the CSV, the latest-run link and the run's
+MCAP recording.
 """
 
 import csv
