@@ -118,6 +118,9 @@ def test_e_stop_stops_within_its_bound_ignores_commands_and_needs_a_fresh_one(
     allowed = (V * (t_stop - before['t_ns']) * 1e-9 + V * V / (2 * decel)
                + V * (2 * period + slack))
     assert travelled <= allowed, (travelled, allowed)
+    print('stopped: travelled {:.3f} m of {:.3f} m allowed; at rest by the first report '
+          '{:.2f} s after the event (bound {:.2f} s)'.format(
+              travelled, allowed, (after[0]['t_ns'] - t_stop) * 1e-9, bound_s))
     user.spin_until(lambda: user.got['rt_status'] and user.got['rt_status'][-1].e_stop_active,
                     5, 'rt_status to show the e-stop latched')
 

@@ -184,6 +184,9 @@ def test_cut_link_stops_the_robot_and_restoring_it_does_not_restart_it(
         allowed = (V * (t_cut - before['t_ns']) * 1e-9 + V * params.cmd_vel_timeout
                    + V * V / (2 * a) + V * (2 * period + slack))
         assert travelled <= allowed, (travelled, allowed)
+        print('stopped: travelled {:.3f} m of {:.3f} m allowed; at rest by the first report '
+              '{:.2f} s after the event (bound {:.2f} s)'.format(
+                  travelled, allowed, (after[0]['t_ns'] - t_cut) * 1e-9, bound_s))
         # the laptop stops commanding, then the link comes back: nothing may move the robot
         _say(control, 'off')
         sent = _status(status)[1]
