@@ -55,7 +55,7 @@ WARMUP_S = 1.0
 RATES_HZ = (100, 250, 500, 1000)
 PUBLISH_DIR = os.path.join('docs', 'results', 'bench')
 
-FULL = {'rounds': 5, 'condition_s': 20.0, 'floor_s': 10.0, 'scaling_s': 10.0, 'rtt_n': 2000,
+FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 10.0, 'rtt_n': 2000,
         'cmd_trials': 60}
 QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt_n': 500,
          'cmd_trials': 10}
