@@ -73,6 +73,7 @@ def test_report_has_every_section_and_values():
         assert heading in text, heading
     assert '7777.0' in text and '4321.0' in text and 'PROBE METHOD' in text
     assert '| 0 | m4k full stack, idle | response | 20000.0 | 15000.0 | host |' in text
+    assert '| 1 | rt_core (degraded, not an m4k run) full stack, idle |' in text
     assert '**degraded: not SCHED_FIFO**' in text
     assert 'Left out of the m4k ratios (RT hardening not obtained): round 1 m4k_idle' in text
     # release p99 / concurrent ct p99, idle: 42/30 = 1.40 in round 0; round 1 left out

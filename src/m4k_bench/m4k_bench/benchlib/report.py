@@ -87,6 +87,15 @@ def _ratios(summ: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _label(key: str, cond: Mapping[str, Any]) -> str:
+    """Return the condition's label; a run without RT hardening is never called m4k."""
+    label = CONDITION_LABELS[key]
+    hard = cond.get('hardening')
+    if hard is not None and not hard.get('ok'):
+        label = label.replace('m4k', 'rt_core (degraded, not an m4k run)')
+    return label
+
+
 def _per_round(summ: Mapping[str, Any]) -> list[str]:
     rows = []
     for r in summ.get('rounds', []):
@@ -100,7 +109,7 @@ def _per_round(summ: Mapping[str, Any]) -> list[str]:
             rows.append([r['round'], 'cyclictest alone, stress-ng', _f(ct_s.get('p50')),
                          _f(ct_s.get('p99')), _f(ct_s.get('p999')), _f(ct_s.get('max')),
                          '', '', ''])
-        for key, label in CONDITION_LABELS.items():
+        for key in CONDITION_LABELS:
             c = r.get(key)
             if not c:
                 continue
@@ -109,7 +118,7 @@ def _per_round(summ: Mapping[str, Any]) -> list[str]:
             hard = c.get('hardening')
             hard_s = '-' if hard is None else ('SCHED_FIFO, locked' if hard.get('ok') else
                                               '**degraded: {}**'.format(hard.get('why')))
-            rows.append([r['round'], label, _f(lat.get('p50')), _f(lat.get('p99')),
+            rows.append([r['round'], _label(key, c), _f(lat.get('p50')), _f(lat.get('p99')),
                          _f(lat.get('p999')), _f(lat.get('max')),
                          '{} / {}'.format(_f(ct.get('p99')), _f(ct.get('max'))),
                          '{} / {}'.format(c.get('overruns', '-'), c.get('deadline_misses', '-')),
@@ -127,9 +136,9 @@ def _per_round(summ: Mapping[str, Any]) -> list[str]:
 def _stalls(summ: Mapping[str, Any]) -> list[str]:
     rows = []
     for r in summ.get('rounds', []):
-        for key, label in CONDITION_LABELS.items():
+        for key in CONDITION_LABELS:
             for st in (r.get(key) or {}).get('stalls') or []:
-                rows.append([r['round'], label, st['metric'].replace('_us', ''),
+                rows.append([r['round'], _label(key, r[key]), st['metric'].replace('_us', ''),
                              _f(st['stall_us']), _f(st['cyclictest_max_us']), st['owner']])
     lines = ['## Stalls that set a maximum, checked against the concurrent cyclictest', '',
              "A maximum above a tenth of the period is a stall. It is the host's when the "
@@ -150,7 +159,7 @@ def _utilization(summ: Mapping[str, Any]) -> list[str]:
             u = c.get('utilization') or {}
             v = c.get('verdicts') or {}
             if u:
-                rows.append([r['round'], CONDITION_LABELS[key],
+                rows.append([r['round'], _label(key, c),
                              '{} % ({})'.format(_f(100 * u['utilization'], 2)
                                                 if 'utilization' in u else '-',
                                                 v.get('utilization', '-')),
