@@ -537,7 +537,9 @@ class Bench:
             self.rounds, self.tables)
         try:
             from m4k_bench import core_bench
+            from m4k_bench.benchlib import loopparts
             s['loop_cost']['bookkeeping_us'] = core_bench.machinery_overhead(20_000)
+            s['loop_cost']['parts_us'] = loopparts.measure_parts(2000)
         except Exception as exc:  # noqa: BLE001 -- a part of the report, not the run
             s['loop_cost']['bookkeeping_us'] = {'error': str(exc)}
         periods = {k: np.concatenate(v) for k, v in self.periods.items()

@@ -194,7 +194,17 @@ def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
     if 'per_cycle_us_median' in bk:
         brows.append(['bookkeeping (no wait)', '{} µs'.format(_f(bk['per_cycle_us_median'],
                                                                    2))])
-    return lines + _table(['Part', 'µs per cycle'], brows)
+    lines += _table(['Part', 'µs per cycle'], brows)
+    parts = lc.get('parts_us') or {}
+    if parts:
+        lines += ['', 'The parts of a cycle, each timed alone on the real objects '
+                  '(`m4k_bench.benchlib.loopparts`; µs per call, rusage per cycle):', '']
+        lines += _table(['clock read', 'drain + decode one datagram', 'drain, empty port',
+                         'encode + send one datagram', 'timing record', 'rusage'],
+                        [[_f(parts.get(k), 2) for k in ('clock', 'drain_decode', 'drain_empty',
+                                                         'encode_send', 'timing_record',
+                                                         'rusage')]])
+    return lines
 
 
 def _scaling(summ: Mapping[str, Any]) -> list[str]:
