@@ -82,7 +82,7 @@ K = Kind
 # "unexpected". Ports the RT side only writes accept nothing.
 ACCEPTS: Mapping[str, frozenset[int]] = {
     'status': frozenset(), 'stat': frozenset(),
-    'cmd': frozenset({K.VELOCITY_CMD}),
+    'cmd': frozenset({K.VELOCITY_CMD, K.E_STOP, K.ODOM_RESET}),
     'motor': frozenset({K.ENCODERS, K.DEVICE_STATUS}),
     'imu': frozenset({K.IMU, K.DEVICE_STATUS}), 'imu_out': frozenset(),
     'led': frozenset({K.DEVICE_STATUS}), 'led_in': frozenset({K.LED}),
@@ -142,6 +142,10 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return ('dev', u(rng, 8), rng.randint(0, 3), u(rng, 32), u(rng, 32))
     if kind == K.PORT_STATS:
         return ('port', u(rng, 16), rng.randint(0, 1)) + tuple(u(rng, 64) for _ in range(7))
+    if kind == K.E_STOP:
+        return (rng.randint(0, 1),)
+    if kind == K.ODOM_RESET:
+        return (u(rng, 32),)
     raise ValueError('no field generator for kind {!r}'.format(kind))
 
 

@@ -36,6 +36,8 @@ ODOM_BRAKING = 0x1
 ODOM_GUARD = 0x2
 ODOM_MOTOR_STALE = 0x4
 ODOM_CLAMPED = 0x8
+ODOM_E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
+ODOM_HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
 
 SONAR_OK = 0
 SONAR_NO_ECHO = 1
@@ -73,6 +75,8 @@ class Kind(IntEnum):
     RT_STATUS = 11
     DEVICE_STATUS = 12
     PORT_STATS = 13
+    E_STOP = 14
+    ODOM_RESET = 15
 
 
 class ProtocolError(ValueError):
@@ -253,6 +257,18 @@ class PortStats(NamedTuple):
     peer_restarts: int
 
 
+class EStop(NamedTuple):
+    """Emergency stop request: ``engage`` 1 latches the stop in the RT actuator, 0 releases it."""
+
+    engage: int
+
+
+class OdomReset(NamedTuple):
+    """Odometry pose reset: the request (NRT -> RT) and its acknowledgement carry one id."""
+
+    request_id: int
+
+
 class _Spec(NamedTuple):
     kind: Kind
     payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
@@ -301,6 +317,8 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
           string=NAME_SIZE),
     _spec(Kind.PORT_STATS, '32sHBQQQQQQQ', PortStats, ranges=((2, 0, 1),),
           string=LABEL_SIZE),
+    _spec(Kind.E_STOP, 'B', EStop, ranges=((0, 0, 1),)),
+    _spec(Kind.ODOM_RESET, 'I', OdomReset),
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)
