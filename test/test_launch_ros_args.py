@@ -31,6 +31,7 @@ SERVERS = {
     'bringup': (['--python-m', '--no-status'], r'starting '),
     'baseline': ([], None),
     'echo_peer': (['cmd'], r'echo peer: serving cmd'),
+    'record': (['odom', '-o', '{tmp}/bag'], None),
 }
 # Tools: arguments for a short real run, and what their output must show.
 TOOLS = {
