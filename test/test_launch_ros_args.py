@@ -37,9 +37,9 @@ SERVERS = {
 TOOLS = {
     'rt_stat': (['--wait', '0'], 1, r'no RT core'),
     'xddp_bench': (['-n', '20', '--runtime-dir', '{rt}'], 0, r'xddp/raw p50 ratio'),
-    'fuzz': (['--count', '1', '--ports', 'cmd'], 0, r'task monitor: cycles'),
+    'fuzz': (['--count', '1', '--ports', 'cmd'], 0, r'fuzz: 1 datagrams, 1 bad'),
     'core_bench': (['--duration', '0.2', '--rtt', '10'], 0, r'task machinery per cycle'),
-    'bench': (['--duration', '-1'], 2, r'--duration must be > 0'),      # its own check
+    'bench': (['--duration', '-1'], 2, r'must be > 0 s, got -1.0'),      # its own check
     'demo': (['--timeout', '-1'], 2, r'demo: bad arguments: timeout -1.0'),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),
