@@ -31,6 +31,8 @@ setup(
         'console_scripts': [
             'driver_host = m4k_drivers.host:main',
             'baseline = m4k_drivers.baseline:main',
+            'sim_robot = m4k_drivers.sim_robot:main',
+            'sim_truth = m4k_drivers.sim_robot:truth_main',
         ],
     },
 )

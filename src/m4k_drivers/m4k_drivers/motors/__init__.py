@@ -1,4 +1,8 @@
-"""Drive motors: MCP4911 DACs and AS5045 wheel encoders on SPI; backends ``real`` and ``sim``."""
+"""Drive motors: MCP4911 DACs and AS5045 wheel encoders on SPI; backends ``real`` and ``sim``.
+
+``sim`` is the same handler on sim-bus transports to the ``sim_robot`` process; the sim's own
+parameters (``vref``, ``noise_lsb``) configure the simulated chips inside sim_robot.
+"""
 
 from __future__ import annotations
 
@@ -14,11 +18,26 @@ _COMMON = {
     'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
     'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
     'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read'),
+    'heartbeat': Param(bool, True, 'toggle the amplifier-enable line on every fresh command; '
+                       'false = enable strapped on (a dead driver host leaves the motors '
+                       'driven at the last DAC word)'),
+    'heartbeat_chip': Param(str, '/dev/gpiochip0', 'gpiochip of the heartbeat line'),
+    'heartbeat_line': Param(int, 25, 'line offset of the heartbeat output'),
+    'heartbeat_hold_s': Param(float, 0.05, 'hold time of the enable monostable, s (hardware: '
+                              'the RC of the retriggerable monostable; sim: modelled)'),
 }
 
 
+_HANDLER_KEYS = ('period_s', 'watchdog_periods', 'max_wheel_rad_s', 'lead_bits')
+
+
 def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
-    return {k: params[k] for k in _COMMON} | {'clock': ctx.clock}
+    hold, period = params['heartbeat_hold_s'], params['period_s']
+    if params['heartbeat'] and not hold >= 2.0 * period:
+        # One late command must not drop the enable: the hold spans at least two periods.
+        raise ValueError(f'devices.motor.heartbeat_hold_s: must be >= 2 * period_s '
+                         f'({2.0 * period!r} s), got {hold!r}')
+    return {k: params[k] for k in _HANDLER_KEYS} | {'clock': ctx.clock}
 
 
 @register('motor', 'real', params=_COMMON | {
@@ -32,14 +51,19 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
     'enc_speed_hz': Param(int, 500_000, 'SPI clock of the encoders (AS5045 max 1 MHz)'),
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
-    from m4k_drivers.motors.real import open_real_bus
+    from m4k_drivers.motors.real import open_real_bus, open_real_enable
+    kw = _handler_kw(params, ctx)
+
+    def enable() -> Any:
+        return open_real_enable(params['heartbeat_chip'], params['heartbeat_line'])
 
     def opener() -> Any:
         return open_real_bus(params['left_dac'], params['right_dac'], params['left_enc'],
                              params['right_enc'], dac_mode=params['dac_mode'],
                              dac_speed_hz=params['dac_speed_hz'], enc_mode=params['enc_mode'],
-                             enc_speed_hz=params['enc_speed_hz'])
-    return MotorHandler(opener, name=name, **_handler_kw(params, ctx))
+                             enc_speed_hz=params['enc_speed_hz'],
+                             enable=enable if params['heartbeat'] else None)
+    return MotorHandler(opener, name=name, **kw)
 
 
 @register('motor', 'sim', params=_COMMON | {
@@ -47,9 +71,8 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
     'noise_lsb': Param(float, 0.5, 'encoder noise, standard deviation in counts'),
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
-    from m4k_drivers.motors.sim import open_sim_bus
-    world = ctx.world
-    return MotorHandler(lambda: open_sim_bus(world, vref=params['vref'],
-                                             noise_lsb=params['noise_lsb'],
-                                             lead_bits=params['lead_bits']),
-                        name=name, **_handler_kw(params, ctx))
+    from m4k_drivers.motors.sim import open_simbus_bus
+    kw = _handler_kw(params, ctx)
+    runtime_dir = ctx.sim_runtime_dir()
+    line = (params['heartbeat_chip'], params['heartbeat_line']) if params['heartbeat'] else None
+    return MotorHandler(lambda: open_simbus_bus(runtime_dir, line), name=name, **kw)

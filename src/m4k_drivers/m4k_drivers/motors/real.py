@@ -2,15 +2,18 @@
 
 The paper's RPi3 extends the SPI chip selects with GPIO so that two MCP4911 DACs and two
 AS5045 encoders each get their own ``/dev/spidevB.C`` node; the config names the four paths.
+The amplifier enable heartbeat is one GPIO output line (python-periphery GPIO on the gpiochip
+character device); the handler toggles it on every fresh command (docs/internals.md).
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Callable, Protocol
 
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 
-__all__ = ['MotorBus', 'SpiLike', 'SpiPort', 'open_real_bus']
+__all__ = ['EnableLine', 'LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_real_bus',
+           'open_real_enable']
 
 
 class SpiLike(Protocol):
@@ -45,18 +48,67 @@ class SpiPort:
             pass
 
 
+class LineLike(Protocol):
+    """What the heartbeat needs from a GPIO output line (periphery.GPIO's subset)."""
+
+    def write(self, value: bool) -> None:
+        """Drive the line."""
+
+    def close(self) -> None:
+        """Release the line."""
+
+
+class EnableLine:
+    """The amplifier-enable heartbeat output: each :meth:`toggle` retriggers the monostable."""
+
+    def __init__(self, line: LineLike, where: str) -> None:
+        self.line = line
+        self.where = where
+        self.level = False
+        self.toggles = 0
+
+    def toggle(self) -> None:
+        """Flip the line (one edge = one retrigger); OSError -> DeviceIOError naming it."""
+        try:
+            self.line.write(not self.level)
+        except OSError as exc:
+            raise wrap_os_error(exc, self.where, 'heartbeat') from exc
+        self.level = not self.level
+        self.toggles += 1
+
+    def close(self) -> None:
+        """Release the line, ignoring errors (the monostable then times out)."""
+        try:
+            self.line.close()
+        except OSError:
+            pass
+
+
 class MotorBus:
-    """The four SPI endpoints of the base: left/right DAC, left/right encoder."""
+    """The four SPI endpoints of the base (left/right DAC, left/right encoder) + enable line."""
 
     def __init__(self, left_dac: SpiPort, right_dac: SpiPort, left_enc: SpiPort,
-                 right_enc: SpiPort) -> None:
+                 right_enc: SpiPort, enable: EnableLine | None = None) -> None:
         self.dacs = (left_dac, right_dac)
         self.encoders = (left_enc, right_enc)
+        self.enable = enable
 
     def close(self) -> None:
         """Close every endpoint."""
         for port in (*self.dacs, *self.encoders):
             port.close()
+        if self.enable is not None:
+            self.enable.close()
+
+
+def open_real_enable(chip: str, line: int) -> EnableLine:
+    """Request the heartbeat line as an output, initially low."""
+    from periphery import GPIO
+    where = f'{chip} line {line}'
+    try:
+        return EnableLine(GPIO(chip, line, 'low'), where)
+    except OSError as exc:
+        raise wrap_os_error(exc, where) from exc
 
 
 def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
@@ -73,8 +125,9 @@ def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
 
 def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, *,
                   dac_mode: int = 0, dac_speed_hz: int = 1_000_000, enc_mode: int = 2,
-                  enc_speed_hz: int = 500_000) -> MotorBus:
-    """Open the four spidev nodes (closing any already opened if one fails)."""
+                  enc_speed_hz: int = 500_000,
+                  enable: Callable[[], EnableLine] | None = None) -> MotorBus:
+    """Open the four spidev nodes and the enable line (closing what opened if one fails)."""
     opened: list[SpiPort] = []
     try:
         for path, mode, speed in ((left_dac, dac_mode, dac_speed_hz),
@@ -82,8 +135,9 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
                                   (left_enc, enc_mode, enc_speed_hz),
                                   (right_enc, enc_mode, enc_speed_hz)):
             opened.append(open_spi(path, mode, speed))
+        line = enable() if enable is not None else None
     except DriverError:
         for port in opened:
             port.close()
         raise
-    return MotorBus(*opened)
+    return MotorBus(*opened, enable=line)
