@@ -31,7 +31,7 @@ import signal
 import sys
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 from m4k_drivers import config as dconfig
 from m4k_drivers.simbus import read_truth, SimBusServer, socket_path
@@ -105,16 +105,20 @@ class SimRobot:
     """The simulated robot: a world, the device models on it, the sim-bus server."""
 
     def __init__(self, cfg: dconfig.DriverConfig, runtime_dir: str,
-                 report_path: str | None = None) -> None:
+                 report_path: str | None = None, *,
+                 clock: Callable[[], int] = time.monotonic_ns,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.cfg = cfg
         self.runtime_dir = runtime_dir
         self.report_path = report_path
-        self.world = World(cfg.world)
+        self.sleep = sleep       # waits on ``clock`` (sonar echoes); tests pass a fake pair
+        self.world = World(cfg.world, clock=clock)
         self.spi: dict[str, Any] = {}
         self.gpio: dict[tuple[str, int], Any] = {}
         self.i2c: dict[str, _I2cBus] = {}
         self.enable: Any = None
         self.urg: Any = None
+        self.sonar_trigger: Any = None
         self.leds: Any = None
         self.sims = [k for k, s in cfg.devices.items() if s['enabled'] and s['backend'] == 'sim']
         for kind in self.sims:
@@ -142,9 +146,10 @@ class SimRobot:
 
     def _build_sonar(self, s: dict[str, Any]) -> None:
         from m4k_drivers.sonar.sim import FakeEchoLine, FakeTriggerLine
-        echo = FakeEchoLine(self.world.clock, time.sleep)
+        echo = FakeEchoLine(self.world.clock, self.sleep)
         trig = FakeTriggerLine(self.world, echo, s['mount'], s['fov_deg'], s['noise_sd'],
                                s['temperature_c'])
+        self.sonar_trigger = trig        # fault injection (tests): ``dead``
         self.gpio[(s['chip'], s['trigger_line'])] = _OutputLine(trig)
         self.gpio[(s['chip'], s['echo_line'])] = _EchoLine(echo)
 
@@ -200,7 +205,8 @@ class SimRobot:
             return
         tmp = self.report_path + '.tmp'
         try:
-            with open(tmp, 'w', encoding='utf-8') as f:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o600)
+            with open(fd, 'w', encoding='utf-8') as f:
                 json.dump(self.truth(), f)
             os.replace(tmp, self.report_path)
         except OSError as exc:

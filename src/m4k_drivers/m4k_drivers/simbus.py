@@ -273,7 +273,9 @@ class SimBusServer:
             pass
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self.sock.bind(path)
-        os.chmod(path, 0o660)
+        # Like the XDDP sockets: the owner only, or the group the runtime dir is shared with.
+        shared = os.stat(os.path.dirname(path) or '.').st_mode & 0o070
+        os.chmod(path, 0o660 if shared else 0o600)
         self.sock.listen(16)
         self.thread = threading.Thread(target=self._accept, name='sim-bus', daemon=True)
 

@@ -20,7 +20,7 @@ def _run(procs, *args, timeout=40):
     return proc.returncode, out, err
 
 
-def test_print_imu_sim_prints_plausible_values(procs):
+def test_print_imu_sim_prints_plausible_values(procs, sim_robot):
     rc, out, err = _run(procs, '--device', 'imu', '--print', '--count', '5', '--rate', '50')
     assert rc == 0, err
     lines = [ln for ln in out.splitlines() if ln.startswith('imu ')]
@@ -31,7 +31,7 @@ def test_print_imu_sim_prints_plausible_values(procs):
         assert 9.6 < az < 10.0 and abs(yaw) < 1.0 and ln.endswith('status=0')
 
 
-def test_print_sonar_sim_sees_obstacle(procs):
+def test_print_sonar_sim_sees_obstacle(procs, sim_robot):
     rc, out, err = _run(procs, '--device', 'sonar', '--print', '--count', '3', '--rate', '20')
     assert rc == 0, err
     ranges = [float(m) for m in re.findall(r'sonar range=([\d.]+) m status=0 \(ok\)', out)]
@@ -52,7 +52,7 @@ def test_print_missing_bus_exits_1_naming_path(procs):
     assert '/dev/i2c-97: No such file or directory (errno 2)' in err
 
 
-def test_host_sigterm_exits_0(procs, m4k_runtime_dir):
+def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
     proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
                         '--device', 'motor', '--device', 'led'])
     deadline = time.monotonic() + 30
@@ -83,7 +83,7 @@ def _wait_linked(rt, timeout=5.0):
         time.sleep(0.01)
 
 
-def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir):
+def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, sim_robot):
     cfg = dconfig.validate({'devices': {'motor': {'backend': 'sim'}}})
     ctx = registry.BuildContext()
     handler = registry.create('motor', cfg.devices['motor'], ctx)
@@ -122,10 +122,11 @@ def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir):
         rt.close()
     assert not svc.thread.is_alive()
     assert handler.state == State.FINALIZED
-    assert ctx.world.motor_voltage(0) == 0.0 and ctx.world.motor_voltage(1) == 0.0
+    world = sim_robot.world      # the simulator's DACs latched the safe word
+    assert world.motor_voltage(0) == 0.0 and world.motor_voltage(1) == 0.0
 
 
-def test_sensor_and_led_services_answer(m4k_runtime_dir):
+def test_sensor_and_led_services_answer(m4k_runtime_dir, sim_robot):
     kinds = (('sonar', 7), ('led', 5), ('imu', 3), ('lrf', 9))
     cfg = dconfig.validate({'devices': {k: {'backend': 'sim'} for k, _ in kinds}})
     ctx = registry.BuildContext()
@@ -177,12 +178,13 @@ def test_print_real_lrf(procs):
 
 
 def test_world_report_tracks_ground_truth_and_counts_a_collision(procs, m4k_runtime_dir,
-                                                                 tmp_path):
+                                                                 sim_robot):
     import json
-    report = tmp_path / 'world.json'
+    import pathlib
+    report = pathlib.Path(sim_robot.report_path)
     rt = rt_xddp_bind(2, 'motor')
     proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
-                        '--device', 'motor', '--world-report', str(report)])
+                        '--device', 'motor'])
     try:
         _wait_linked(rt, timeout=30)
         buf = bytearray(64)

@@ -129,7 +129,9 @@ class EnableMonostable:
         t = self.world.now()         # integrate up to the edge under the old hold time
         self.level = bool(value)
         self.edges += 1
-        edge = t if t_ns is None else min(t, t_ns)
+        # The writer's time of the edge (the socket may have delayed it), when it is on the
+        # world's clock: within a hold time of it (a test world may run on a fake clock).
+        edge = t if t_ns is None or abs(t - t_ns) > self.hold_ns else min(t, t_ns)
         self.world.set_enable_until(edge + self.hold_ns)
         self.last_edge_ns = edge
 
