@@ -2,8 +2,9 @@
 
 Each test runs one real DeviceService (the driver host's per-device thread, sim backend, talking
 to an in-process SimRobot over the sim-bus) against an RT side played by the test over a real
-XDDP port, then injects a fault into the simulated device: an RT process that hangs or dies (motor watchdog), encoder frame errors and jumps,
-a sonar that never answers, a laser unplugged and replugged, bad checksums and line noise.
+XDDP port, then injects a fault into the simulated device: an RT process that hangs or dies
+(motor watchdog), encoder frame errors and jumps, a sonar that never answers, a laser unplugged
+and replugged, bad checksums and line noise.
 Nothing stale may be sent as fresh; every fault must show up in the counters and in
 DEVICE_STATUS; the device must recover without a restart.
 """

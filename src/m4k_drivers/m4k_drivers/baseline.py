@@ -2,8 +2,9 @@
 
 The same control code as the RT actuator task (:class:`m4k_rt.control.BaseController`) and
 the same motor handler as the driver host (backend from ``devices.yaml``: by default the
-``sim_robot``'s motors over the sim-bus), but run inside an rclpy node: a 10 ms timer whose callback reads the encoders,
-steps the controller and writes the DAC codes by calling the handler directly, in a normal
+``sim_robot``'s motors over the sim-bus), but run inside an rclpy node: a 10 ms timer whose
+callback reads the encoders, steps the controller and writes the DAC codes by calling the
+handler directly, in a normal
 (SCHED_OTHER) process with the garbage collector on -- what a ROS driver node does.
 ``cmd_vel`` comes in through a subscription in the same executor, ``odom`` goes out every
 ``odom_every_n``-th cycle.

@@ -8,7 +8,7 @@ It plays the hardware the driver host talks to, and nothing else reaches the wor
   the US-100 TRIG and ECHO lines with edge timestamps (``devices.sonar.chip`` / ``*_line``);
 * I2C (sim-bus): the myAHRS+ registers on bus ``devices.imu.bus`` (:mod:`m4k_drivers.imu.sim`);
 * a pseudo terminal: the URG-04LX speaking SCIP 2.0, linked at ``<runtime_dir>/sim-urg``;
-* LED class and sysfs PWM: files in ``<runtime_dir>/sim-sysfs`` it polls (:mod:`.led.simfs`).
+* LED class and sysfs PWM: files in ``<runtime_dir>/sim-sysfs`` it polls (``led.simfs``).
 
 Every device whose ``devices.<kind>.backend`` is ``sim`` is simulated, configured by the same
 section the driver host reads (one configuration).  Because the world lives here, killing or
@@ -37,10 +37,11 @@ from m4k_drivers import config as dconfig
 from m4k_drivers.simbus import read_truth, SimBusServer, socket_path
 from m4k_drivers.world import World
 
-__all__ = ['SimRobot', 'URG_LINK', 'main', 'truth_main', 'wait_ready']
+__all__ = ['SYSFS_DIR', 'SimRobot', 'URG_LINK', 'main', 'truth_main', 'wait_ready']
 
 LOG = logging.getLogger('m4k_drivers.sim_robot')
 URG_LINK = 'sim-urg'          # <runtime_dir>/sim-urg -> /dev/pts/N of the simulated URG
+SYSFS_DIR = 'sim-sysfs'       # <runtime_dir>/sim-sysfs: the LED class and PWM files
 REPORT_PERIOD_S = 0.1
 
 
@@ -160,6 +161,10 @@ class SimRobot:
                 if s.get(k) is not None}
         self.urg = UrgSim(self.world, link_path=link, **args)
 
+    def _build_led(self, s: dict[str, Any]) -> None:
+        from m4k_drivers.led.simfs import SysfsLeds
+        self.leds = SysfsLeds(os.path.join(self.runtime_dir, SYSFS_DIR), s, self.world.clock)
+
     def _open(self, spec: dict[str, Any]) -> tuple[str, Any]:
         bus = spec.get('bus')
         if bus == 'spi':
@@ -227,8 +232,6 @@ class SimRobot:
     def run(self, stop: threading.Event) -> None:
         """Keep the world and the report current until ``stop`` is set."""
         while not stop.wait(REPORT_PERIOD_S):
-            if self.leds is not None:
-                self.leds.poll()
             self.write_report()
 
     def close(self) -> None:

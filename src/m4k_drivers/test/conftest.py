@@ -1,8 +1,8 @@
 """Shared m4k fixtures: ROS isolation, private runtime dir, process cleanup, leak check."""
 
-from m4k_rt.testing import *  # noqa: F401,F403
+import pytest
 
-import pytest  # noqa: E402
+from m4k_rt.testing import *  # noqa: F401,F403
 
 
 @pytest.fixture

@@ -150,11 +150,12 @@ def test_sensor_and_led_services_answer(m4k_runtime_dir, sim_robot):
         scan = _recv(rts['lrf'], protocol.Kind.LASER_SCAN, timeout=10)
         front = scan.ranges[len(scan.ranges) // 2]
         assert len(scan.ranges) > 600 and abs(front - 1500) < 60     # obstacle face, mm
-        sim_led = handlers['led'].out
+        strip = sim_robot.leds          # the LED-class files the simulator watches
         rts['led'].send(protocol.encode(protocol.Kind.LED, 1, 0, 255, 128, 0, 200, 0))
+        want = pytest.approx((200 / 255, 128 * 200 / 255 ** 2, 0.0))
         deadline = time.monotonic() + 5
-        while sim_led.last != (255, 128, 0, 200):
-            assert time.monotonic() < deadline
+        while strip.poll() != want:
+            assert time.monotonic() < deadline, strip.levels
             time.sleep(0.01)
     finally:
         stop.set()
@@ -162,7 +163,7 @@ def test_sensor_and_led_services_answer(m4k_runtime_dir, sim_robot):
             s.thread.join(5)
         for rt in rts.values():
             rt.close()
-    assert sim_led.last == (0, 0, 0, 0) and sim_led.closed     # deactivate turned it off
+    assert strip.poll() == (0.0, 0.0, 0.0) and strip.errors == 0    # deactivate: off
 
 
 def test_main_rejects_print_without_single_device(capsys):

@@ -3,8 +3,9 @@
     ros2 launch m4k_rt m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
 
 Starts sim_robot (the simulated robot; ``sim:=false`` on the real M4K), rt_core, driver_host
-and the bridge (node m4k_bridge) with the configuration installed in share/m4k_rt/config. ``config`` is the same user overlay as ``bringup --config``: rt_core
-gets it as ``--config``, driver_host as ``--overlay``; bridge parameters in it are NOT
+and the bridge (node m4k_bridge) with the configuration installed in share/m4k_rt/config.
+``config`` is the same user overlay as ``bringup --config``: rt_core gets it as ``--config``,
+sim_robot and driver_host as ``--overlay``; bridge parameters in it are NOT
 extracted here -- pass them as a ROS parameter file with ``bridge_params:=FILE``. For
 supervision with restarts and the live status line use ``bringup`` instead.
 """

@@ -68,19 +68,23 @@ class _SysfsLed:
         pass
 
 
-class PwmOutput:
-    """Three sysfs PWM channels (r, g, b) of ``/sys/class/pwm/pwmchipN``."""
+PWM_ROOT = '/sys/class/pwm'
 
-    def __init__(self, chip: int, channels: Sequence[int], period_ns: int = 1_000_000) -> None:
+
+class PwmOutput:
+    """Three sysfs PWM channels (r, g, b) of ``<root>/pwmchipN`` (root: /sys/class/pwm)."""
+
+    def __init__(self, chip: int, channels: Sequence[int], period_ns: int = 1_000_000,
+                 root: str = PWM_ROOT) -> None:
         from periphery import PWM
         if len(channels) != 3:
             raise ValueError(f'PWM LED needs 3 channels (r, g, b), got {list(channels)!r}')
-        self.where = f'/sys/class/pwm/pwmchip{chip}'
+        self.where = os.path.join(root, f'pwmchip{chip}')
         self.period_ns = period_ns
         self.pwms: list[Any] = []
         try:
             for ch in channels:
-                pwm = PWM(chip, ch)
+                pwm = PWM(chip, ch) if root == PWM_ROOT else _SysfsPwm(self.where, ch)
                 self.pwms.append(pwm)
                 pwm.period_ns = period_ns
                 pwm.duty_cycle_ns = 0
@@ -113,3 +117,66 @@ class PwmOutput:
             except OSError:
                 pass
         self.pwms = []
+
+
+class _SysfsPwm:
+    """periphery.PWM's subset on a PWM chip under a non-standard root (tests, sim_robot)."""
+
+    def __init__(self, chip_dir: str, channel: int, tries: int = 50, delay_s: float = 0.02
+                 ) -> None:
+        import time
+        self.chip_dir = chip_dir
+        self.channel = channel
+        self.path = os.path.join(chip_dir, f'pwm{channel}')
+        if not os.path.isdir(chip_dir):
+            raise LookupError(f'{chip_dir}: no such PWM chip')
+        if not os.path.isdir(self.path):
+            with open(os.path.join(chip_dir, 'export'), 'w', encoding='ascii') as fh:
+                fh.write(f'{channel}\n')
+            for _ in range(tries):          # export is asynchronous, as with the kernel + udev
+                if os.path.isdir(self.path):
+                    break
+                time.sleep(delay_s)
+            else:
+                raise TimeoutError(f'{self.path}: not exported after {tries * delay_s:.1f} s')
+
+    def _write(self, attr: str, value: Any) -> None:
+        with open(os.path.join(self.path, attr), 'w', encoding='ascii') as fh:
+            fh.write(f'{value}\n')
+
+    @property
+    def period_ns(self) -> int:
+        with open(os.path.join(self.path, 'period'), encoding='ascii') as fh:
+            return int(fh.read())
+
+    @period_ns.setter
+    def period_ns(self, value: int) -> None:
+        self._write('period', value)
+
+    @property
+    def duty_cycle_ns(self) -> int:
+        with open(os.path.join(self.path, 'duty_cycle'), encoding='ascii') as fh:
+            return int(fh.read())
+
+    @duty_cycle_ns.setter
+    def duty_cycle_ns(self, value: int) -> None:
+        self._write('duty_cycle', value)
+
+    @property
+    def polarity(self) -> str:
+        with open(os.path.join(self.path, 'polarity'), encoding='ascii') as fh:
+            return fh.read().strip()
+
+    @polarity.setter
+    def polarity(self, value: str) -> None:
+        self._write('polarity', value)
+
+    def enable(self) -> None:
+        self._write('enable', 1)
+
+    def disable(self) -> None:
+        self._write('enable', 0)
+
+    def close(self) -> None:
+        with open(os.path.join(self.chip_dir, 'unexport'), 'w', encoding='ascii') as fh:
+            fh.write(f'{self.channel}\n')

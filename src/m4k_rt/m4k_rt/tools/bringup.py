@@ -21,8 +21,8 @@ plain lines every ``--status-interval`` seconds otherwise. It is read from the b
 open the ``stat`` port next to a running stack.
 
 Ctrl-C / SIGTERM: bridge first (it sends a zero velocity), then driver host (motors safe),
-then rt_core, then sim_robot; each gets a bounded wait, then SIGKILL. Exit codes: 0 clean stop, 1 a child
-kept failing, 2 configuration error or another stack already running.
+then rt_core, then sim_robot; each gets a bounded wait, then SIGKILL. Exit codes: 0 clean
+stop, 1 a child kept failing, 2 configuration error or another stack already running.
 """
 
 from __future__ import annotations
