@@ -1,8 +1,7 @@
 import pytest
 
-from m4k_drivers.handler import DeviceNotFoundError, State, Status
+from m4k_drivers.handler import DeviceNotFoundError
 from m4k_drivers.led import protocol as p
-from m4k_drivers.led.handler import LedHandler
 from m4k_drivers.led.real import LedClassOutput
 
 
