@@ -188,10 +188,14 @@ class GpioClient:
     """One requested GPIO line of a simulated gpiochip (periphery.GPIO's subset)."""
 
     def __init__(self, runtime_dir: str, chip: str, line: int, direction: str,
-                 edge: str = 'none') -> None:
+                 edge: str = 'none', event_clock: str = 'monotonic') -> None:
+        if event_clock not in ('monotonic', 'realtime'):
+            raise ValueError(f"event_clock must be 'monotonic' or 'realtime', "
+                             f'got {event_clock!r}')
         self.chip, self.line = chip, line
         self._conn = _Connection(runtime_dir, {'bus': 'gpio', 'chip': chip, 'line': line,
-                                               'direction': direction, 'edge': edge})
+                                               'direction': direction, 'edge': edge,
+                                               'event_clock': event_clock})
         self._pending: list[GpioEvent] = []
         if direction in ('low', 'high'):
             self.write(direction == 'high')
@@ -319,6 +323,7 @@ class SimBusServer:
 
     def _serve(self, conn: socket.socket) -> None:
         device: Any = None
+        realtime = False
         try:
             while not self._stop.is_set():
                 try:
@@ -329,14 +334,16 @@ class SimBusServer:
                     if body[0] == Op.OPEN:
                         if device is not None:
                             raise OSError(errno.EBUSY, 'this connection already has a device')
-                        name, device = self.open_device(json.loads(body[1:]))
+                        spec = json.loads(body[1:])
+                        name, device = self.open_device(spec)
+                        realtime = spec.get('event_clock') == 'realtime'
                         reply = json.dumps({'name': name}).encode()
                     elif body[0] == Op.TRUTH:
                         reply = json.dumps(self.truth()).encode()
                     else:
                         if device is None:
                             raise OSError(errno.EBADF, 'no device opened on this connection')
-                        reply = self._device_op(device, body[0], body[1:])
+                        reply = self._device_op(device, body[0], body[1:], realtime)
                     send_frame(conn, b'\x00' + reply)
                 except OSError as exc:
                     self.errors += 1
@@ -359,7 +366,7 @@ class SimBusServer:
                 release()
 
     @staticmethod
-    def _device_op(device: Any, op: int, payload: bytes) -> bytes:
+    def _device_op(device: Any, op: int, payload: bytes, realtime: bool = False) -> bytes:
         if op == Op.SPI_TRANSFER:
             return bytes(device.transfer(payload))
         if op == Op.I2C_READ:
@@ -379,5 +386,10 @@ class SimBusServer:
         if op == Op.GPIO_EVENT:
             (timeout_ns,) = _EVENT_WAIT.unpack(payload)
             ev = device.wait_event(max(timeout_ns, 0) * 1e-9)
-            return b'' if ev is None else _EVENT.pack(EDGE_CODES[ev[0]], ev[1])
+            if ev is None:
+                return b''
+            stamp = ev[1]
+            if realtime:    # what a line request with EVENT_CLOCK_REALTIME reports
+                stamp += time.time_ns() - time.monotonic_ns()
+            return _EVENT.pack(EDGE_CODES[ev[0]], stamp)
         raise OSError(errno.EOPNOTSUPP, f'unknown sim-bus op 0x{op:02x}')

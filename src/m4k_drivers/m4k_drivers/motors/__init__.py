@@ -33,10 +33,11 @@ _HANDLER_KEYS = ('period_s', 'watchdog_periods', 'max_wheel_rad_s', 'lead_bits')
 
 def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
     hold, period = params['heartbeat_hold_s'], params['period_s']
-    if params['heartbeat'] and not hold >= 2.0 * period:
-        # One late command must not drop the enable: the hold spans at least two periods.
-        raise ValueError(f'devices.motor.heartbeat_hold_s: must be >= 2 * period_s '
-                         f'({2.0 * period!r} s), got {hold!r}')
+    if params['heartbeat'] and not hold >= 3.0 * period:
+        # The monostable retriggers on rising edges, every second command: one late command
+        # must not drop the enable, so the hold spans at least three periods.
+        raise ValueError(f'devices.motor.heartbeat_hold_s: must be >= 3 * period_s '
+                         f'({3.0 * period!r} s), got {hold!r}')
     return {k: params[k] for k in _HANDLER_KEYS} | {'clock': ctx.clock}
 
 

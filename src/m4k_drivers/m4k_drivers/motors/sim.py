@@ -108,9 +108,10 @@ def open_sim_bus(world: World, *, vref: float = 3.3, noise_lsb: float = 0.5,
 class EnableMonostable:
     """The amplifier enable: a retriggerable monostable clocked by the heartbeat line.
 
-    Every level change of the line restarts the hold time; the enable output is on while the
-    last edge is younger than ``hold_s`` (74HC123-style: a missing edge lets it fall).  It
-    starts off: no drive until the first heartbeat.
+    As a 74HC123 with the heartbeat on B and A tied low: every rising edge restarts the hold
+    time; the enable output is on while the last rising edge is younger than ``hold_s``, so a
+    heartbeat toggled every command period retriggers it every two periods.  It starts off:
+    no drive until the first heartbeat.
     """
 
     def __init__(self, world: World, hold_s: float) -> None:
@@ -123,11 +124,12 @@ class EnableMonostable:
         world.set_enable_until(t)
 
     def write(self, value: bool, t_ns: int | None = None) -> None:
-        """Drive the heartbeat line (written at ``t_ns``); an edge retriggers the hold time."""
-        if bool(value) == self.level:
+        """Drive the heartbeat line (written at ``t_ns``); a rising edge retriggers the hold."""
+        rising = bool(value) and not self.level
+        self.level = bool(value)
+        if not rising:
             return
         t = self.world.now()         # integrate up to the edge under the old hold time
-        self.level = bool(value)
         self.edges += 1
         # The writer's time of the edge (the socket may have delayed it), when it is on the
         # world's clock: within a hold time of it (a test world may run on a fake clock).
@@ -138,6 +140,10 @@ class EnableMonostable:
     def read(self) -> bool:
         """Return the line level."""
         return self.level
+
+    def close(self) -> None:
+        """Release the line: the pull-down holds it low, which never retriggers."""
+        self.level = False
 
     def wait_event(self, timeout_s: float) -> None:
         """Raise: an output line has no edge events."""
