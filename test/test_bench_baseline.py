@@ -11,7 +11,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from wsenv import ground_truth, stack_env, start_sim_robot
 
-from m4k_drivers import baseline
+from m4k_bench import baseline
 
 MS = 1_000_000
 
@@ -46,7 +46,7 @@ def test_timing_buffer_rejects_bad_capacity_and_unwritable_path(tmp_path):
 
 
 def test_baseline_rejects_negative_duration(procs):
-    p = procs.start(['python', '-c', 'import sys; from m4k_drivers.baseline import main; '
+    p = procs.start(['python', '-c', 'import sys; from m4k_bench.baseline import main; '
                      'sys.exit(main())', '--duration', '-1'])
     _, err = p.communicate(timeout=60)
     assert p.returncode == 2
@@ -59,7 +59,7 @@ def test_baseline_drives_the_sim_robot_from_cmd_vel_and_times_every_callback(pro
     out = tmp_path / 'timing.csv'
     env = stack_env(m4k_runtime_dir)
     start_sim_robot(procs, env, m4k_runtime_dir)
-    p = procs.start([sys.executable, '-c', 'import sys; from m4k_drivers.baseline import main; '
+    p = procs.start([sys.executable, '-c', 'import sys; from m4k_bench.baseline import main; '
                      'sys.exit(main())', '--duration', '6', '--timing-csv', str(out)], env=env)
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)

@@ -17,7 +17,7 @@ RATIO_KEYS = ('release_p99_over_cyclictest_idle', 'release_p99_over_cyclictest_s
 
 def test_bench_quick_smoke_writes_report_plots_csvs_and_summary(tmp_path):
     results = tmp_path / 'results'
-    argv = [sys.executable, '-c', 'import sys; from m4k_rt.tools.bench import main; '
+    argv = [sys.executable, '-c', 'import sys; from m4k_bench.bench import main; '
             'sys.exit(main())', '--quick', '--duration', '2', '--rtt-n', '200',
             '--cmd-trials', '3', '--no-install', '--results', str(results)]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=170,

@@ -28,7 +28,7 @@ def test_demo_reaches_the_goal_around_the_obstacle_without_contact(procs, tmp_pa
     results = tmp_path / 'results'
     out = open(tmp_path / 'demo.out', 'w')
     try:
-        proc = procs.start([sys.executable, '-m', 'm4k_rt.tools.demo', '--python-m',
+        proc = procs.start([sys.executable, '-m', 'm4k_bench.demo', '--python-m',
                             '--config', overlay, '--results', str(results),
                             '--timeout', '60'],
                            env=stack_env(m4k_runtime_dir), stdout=out, stderr=out)

@@ -25,8 +25,8 @@ import pytest
 from wsenv import stack_env
 import yaml
 
+from m4k_bench.soak import children
 from m4k_rt import recorder, xddp
-from m4k_rt.tools.soak import children
 
 rclpy = pytest.importorskip('rclpy')
 

@@ -661,19 +661,6 @@ def test_nrt_link_validates_port_up_front(rundir):
         xddp.NrtLink(99)
 
 
-# ---- benchmark smoke test (counts only; timing is reported by the tool, never asserted) ----
-
-def test_rtt_benchmark_runs_both_transports(rundir):
-    from m4k_rt.tools import xddp_bench
-    result = xddp_bench.run_rtt(20, rundir)
-    for name in ('xddp', 'raw'):
-        r = result[name]
-        assert r['n'] == 20
-        assert 0 < r['min_us'] <= r['p50_us'] <= r['p99_us'] <= r['max_us']
-    assert isinstance(result['sched_fifo'], bool)
-    assert sorted(os.listdir(rundir)) == []  # both transports cleaned up their sockets
-
-
 def test_recv_wait_into_returns_a_reply_within_the_budget_or_zero(rundir):
     rt = xddp.rt_xddp_bind(5, 'budget')
     try:

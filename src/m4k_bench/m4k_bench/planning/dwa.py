@@ -30,7 +30,7 @@ Each control period (``dt``, 50 ms as the paper's local planner) :meth:`DwaPlann
    free it reports ``BLOCKED`` and stands still.
 
 Poses are ``(x, y, yaw)`` in the odom frame; obstacle points an (N, 2) odom-frame array
-(see :mod:`m4k_rt.planning.scan`).
+(see :mod:`m4k_bench.planning.scan`).
 """
 
 from __future__ import annotations

@@ -28,8 +28,8 @@ import threading
 import time
 from typing import Any, Callable, Sequence
 
+from m4k_bench.benchlib import system
 from m4k_rt import protocol, recorder, xddp
-from m4k_rt.tools.benchlib import system
 
 __all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
            'ros_commander', 'start_sim_robot', 'velocity_profile']
@@ -287,7 +287,7 @@ def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
         return {'exit': None, 'csv': None, 'log_tail': [str(exc)]}
     stop = threading.Event()
     commander = ros_commander(stop)
-    child = Child(name, entry_argv('m4k_drivers.baseline', '--duration', str(duration_s),
+    child = Child(name, entry_argv('m4k_bench.baseline', '--duration', str(duration_s),
                                    '--timing-csv', csv_path), log_dir, env)
     t0 = time.monotonic()
     try:

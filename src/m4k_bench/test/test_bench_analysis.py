@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from m4k_rt.tools import bench
-from m4k_rt.tools.benchlib import analysis, stack
+from m4k_bench import bench
+from m4k_bench.benchlib import analysis, stack
 
 MS = 1_000_000
 

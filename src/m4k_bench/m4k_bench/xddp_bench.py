@@ -39,7 +39,7 @@ def _percentiles(samples_ns: list[int]) -> dict[str, float]:
 def _spawn(*args: str, cpu: int | None = None) -> subprocess.Popen:
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(filter(None, [_PKG_ROOT, env.get('PYTHONPATH')]))
-    proc = subprocess.Popen([sys.executable, '-m', 'm4k_rt.tools.xddp_bench', *args],
+    proc = subprocess.Popen([sys.executable, '-m', 'm4k_bench.xddp_bench', *args],
                             env=env, stdout=subprocess.PIPE, text=True)
     if cpu is not None:
         os.sched_setaffinity(proc.pid, {cpu})

@@ -13,7 +13,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 
-from m4k_rt.planning.node import ParamError, PlannerNode
+from m4k_bench.planning.node import ParamError, PlannerNode
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from m4k_rt.planning.evaluate import (
+from m4k_bench.planning.evaluate import (
     contacts,
     densify,
     EvaluateError,

@@ -1,6 +1,6 @@
 """The m4k local planner node (``m4k_planner``): DWA over ``scan`` + ``odom`` -> ``cmd_vel``.
 
-The ROS 2 adapter of :mod:`m4k_rt.planning.dwa` -- the stand-in for the paper's navigation
+The ROS 2 adapter of :mod:`m4k_bench.planning.dwa` -- the stand-in for the paper's navigation
 stack (``base_local_planner``), producing a centre velocity command every 50 ms. It subscribes
 ``odom`` (nav_msgs/Odometry) and ``scan`` (sensor_msgs/LaserScan), turns each scan into odom
 points using the odometry pose at the scan's stamp and the laser's mounting pose
@@ -14,8 +14,8 @@ between messages (the twist's 10 ms encoder quotient spikes); the twist is used 
 message only. Fail-safe: no odometry within ``odom_timeout`` or no scan within
 ``scan_timeout`` -> zero command. The goal (odom frame) comes from ``goal_x`` / ``goal_y``
 (NaN: none) and may be changed at run time with ``ros2 param set``. Every ``dwa.*`` parameter is a
-:class:`m4k_rt.planning.dwa.DwaConfig` field; a bad one stops the node with exit code 2 and a
-message naming it. Run: ``python -m m4k_rt.planning.node --ros-args -p goal_x:=3.0``.
+:class:`m4k_bench.planning.dwa.DwaConfig` field; a bad one stops the node with exit code 2 and a
+message naming it. Run: ``python -m m4k_bench.planning.node --ros-args -p goal_x:=3.0``.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 
-from m4k_rt.planning.dwa import DwaConfig, DwaError, DwaPlanner, State
-from m4k_rt.planning.scan import PointMemory, scan_to_points, ScanError
+from m4k_bench.planning.dwa import DwaConfig, DwaError, DwaPlanner, State
+from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError
 
 __all__ = ['NODE_NAME', 'PlannerNode', 'main']
 

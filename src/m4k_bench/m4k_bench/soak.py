@@ -13,7 +13,7 @@ bringup ran to the end), no leak (each process's RSS growth after ``--warmup`` w
 
 Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log.
 
-Usage: ``python -m m4k_rt.tools.soak [--duration 600] [--warmup 60] [--no-stress]``
+Usage: ``python -m m4k_bench.soak [--duration 600] [--warmup 60] [--no-stress]``
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ import threading
 import time
 from typing import Any, Sequence
 
+from m4k_bench import core_bench
+from m4k_bench.benchlib import stack, system
 from m4k_rt import config, recorder, xddp
-from m4k_rt.tools import core_bench
-from m4k_rt.tools.benchlib import stack, system
 
 __all__ = ['children', 'leak_verdict', 'main', 'rss_kib']
 

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from m4k_rt.planning.dwa import footprint_clearance
+from m4k_bench.planning.dwa import footprint_clearance
 
 __all__ = ['EvaluateError', 'WorldGeometry', 'contacts', 'densify', 'odom_to_world',
            'trajectory_clearance']

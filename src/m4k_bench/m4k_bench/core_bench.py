@@ -6,7 +6,7 @@ One run prints, side by side (ratios in one run matter on a noisy VM, absolute n
    periodicity jitter p50/p99/p99.9/max;
 2. the same task with the full five-task set (echo bodies, NRT echo peers in this process);
 3. ``cyclictest -m -p 90 -i 10000`` for the same time, as the C baseline;
-4. the XDDP round trip (:func:`m4k_rt.tools.xddp_bench.run_rtt`) when available;
+4. the XDDP round trip (:func:`m4k_bench.xddp_bench.run_rtt`) when available;
 5. the per-cycle cost of the task machinery itself (timer bookkeeping, ring, rusage).
 
 ``run()`` returns everything as a dict for the full bench tool. This is a benchmark, not a test.
@@ -164,7 +164,7 @@ def run(duration_s: float = 10.0, rtt_n: int = 2000) -> dict[str, Any]:
         res['full_set'] = run_core(duration_s, rdir, None)
         res['cyclictest'] = run_cyclictest(duration_s)
         try:
-            from m4k_rt.tools import xddp_bench
+            from m4k_bench import xddp_bench
         except ImportError:
             res['xddp_rtt'] = None
         else:
@@ -215,7 +215,7 @@ def format_report(res: dict[str, Any]) -> str:
             u['total'] * 100, u['liu_layland_bound'] * 100, u['verdict']))
     rtt = res.get('xddp_rtt')
     if rtt is None:
-        lines.append('XDDP round trip: m4k_rt.tools.xddp_bench not available')
+        lines.append('XDDP round trip: m4k_bench.xddp_bench not available')
     else:
         x = rtt['xddp']
         lines.append('XDDP round trip (us): ' + ', '.join(

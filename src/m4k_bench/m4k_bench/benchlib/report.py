@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
+from m4k_bench.benchlib.analysis import RATIO_KEYS
 from m4k_rt import recorder
-from m4k_rt.tools.benchlib.analysis import RATIO_KEYS
 
 __all__ = ['CONDITION_LABELS', 'render']
 
@@ -172,7 +172,7 @@ def _rtt(summ: Mapping[str, Any]) -> list[str]:
             for k, name in (('xddp', 'XDDP emulation (RtXddpSocket <-> NrtXddpEndpoint)'),
                             ('raw', 'raw SOCK_SEQPACKET, blocking'))]
     return lines + ['{}-byte datagram echoed by a peer process; measuring thread SCHED_FIFO: '
-                    '{} (`m4k_rt.tools.xddp_bench.run_rtt`).'.format(
+                    '{} (`m4k_bench.xddp_bench.run_rtt`).'.format(
                         r.get('payload_bytes', '?'), _f(r.get('sched_fifo'))), ''] + _table(
         ['Transport', 'min (us)', 'p50 (us)', 'p99 (us)', 'max (us)', 'round trips'], rows)
 

@@ -4,7 +4,7 @@ import io
 
 import numpy as np
 
-from m4k_rt.tools.benchlib import analysis, plots, progress, report
+from m4k_bench.benchlib import analysis, plots, progress, report
 
 MS = 1_000_000
 
@@ -113,7 +113,7 @@ def test_fig10_writes_a_png(tmp_path):
 
 
 def test_busy_note_only_when_load_exceeds_half_the_cpus():
-    from m4k_rt.tools.benchlib import system
+    from m4k_bench.benchlib import system
     assert system.busy_note({'loadavg': '0.50 0.4 0.3 1/100 5', 'cpus_online': 2}) is None
     note = system.busy_note({'loadavg': '3.25 2.0 1.0 1/100 5', 'cpus_online': 2})
     assert '1-min load average 3.25 on 2 CPUs' in note

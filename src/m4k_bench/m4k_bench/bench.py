@@ -33,8 +33,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from m4k_rt.tools.benchlib import analysis, plots, report, stack, system
-from m4k_rt.tools.benchlib import progress as progress_mod
+from m4k_bench.benchlib import analysis, plots, report, stack, system
+from m4k_bench.benchlib import progress as progress_mod
 
 __all__ = ['main', 'plan_durations']
 
@@ -229,7 +229,7 @@ class Bench:
                                                 series.expirations))
 
     def _cyclictest(self, cond: str, seconds: float) -> None:
-        from m4k_rt.tools import core_bench
+        from m4k_bench import core_bench
         res = core_bench.run_cyclictest(seconds, priority=PRIORITY,
                                         interval_us=PERIOD_NS // 1000)
         if res is None or 'error' in res:
@@ -304,7 +304,7 @@ class Bench:
         return 0
 
     def _rtt(self, n: int) -> None:
-        from m4k_rt.tools import xddp_bench
+        from m4k_bench import xddp_bench
         try:
             self.summ['xddp_rtt'] = xddp_bench.run_rtt(n, self._rundir('rtt'))
         except (OSError, RuntimeError) as exc:
@@ -312,7 +312,7 @@ class Bench:
             self._note('XDDP round trip failed: {}'.format(exc))
 
     def _cmdlat(self, trials: int) -> None:
-        from m4k_rt.tools.benchlib import cmdlat
+        from m4k_bench.benchlib import cmdlat
         try:
             res = cmdlat.run_cmd_latency(trials, self._rundir('cmdlat'), self.logs, env=self.env,
                                          progress=self.progress.update)
@@ -351,7 +351,7 @@ class Bench:
             'bench is the NRT peer of `status` (TASK_STATS recorded with '
             '`m4k_rt.recorder.Recorder`) and of `cmd` (VELOCITY_CMD at 20 Hz: 0.25 m/s '
             'forward 4 s, back 4 s).',
-            'Baseline runs: `baseline` (m4k_drivers.baseline), the same controller and motor '
+            'Baseline runs: `baseline` (m4k_bench.baseline), the same controller and motor '
             'handler in a 10 ms rclpy timer (steady clock, SCHED_OTHER), the same velocity '
             'profile published on cmd_vel; per-callback timing written as CSV at exit.',
             'Stress: `{}` (CPU on both vCPUs, 256 MiB memory thrasher, sync I/O) started '

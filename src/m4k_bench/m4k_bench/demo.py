@@ -4,7 +4,7 @@
 
 1. starts the stack with ``bringup`` (rt_core + driver_host with simulated devices + bridge);
 2. waits for ``odom`` and ``scan`` over ROS, then starts the DWA planner node
-   (:mod:`m4k_rt.planning.node`) with the goal 3 m ahead, 0.25 m/s and the laser mount of the
+   (:mod:`m4k_bench.planning.node`) with the goal 3 m ahead, 0.25 m/s and the laser mount of the
    simulated laser (``devices.lrf.mount``);
 3. records ``odom`` (pose and measured centre velocity), the reference ``cmd_vel`` and
    ``planner_state`` as a plain ROS user, printing a progress line;
@@ -16,7 +16,7 @@
 Contacts: sim_robot keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
 the simulated world's collision counter and true pose; that is the verdict's evidence. The
 footprint clearance along the recorded odometry against the room geometry
-(:mod:`m4k_rt.planning.evaluate`) is reported beside it as the robot's own view.
+(:mod:`m4k_bench.planning.evaluate`) is reported beside it as the robot's own view.
 
 ROS isolation: the user's ``ROS_DOMAIN_ID`` is kept when set; when unset, the demo picks a
 random domain (printed, so ``ROS_DOMAIN_ID=N`` lets you watch it) -- another robot or node on
@@ -47,15 +47,15 @@ from typing import Any, Sequence, TextIO
 
 import numpy as np
 
-from m4k_rt import config
-from m4k_rt.planning.dwa import DwaConfig
-from m4k_rt.planning.evaluate import (
+from m4k_bench.planning.dwa import DwaConfig
+from m4k_bench.planning.evaluate import (
     contacts,
     EvaluateError,
     odom_to_world,
     trajectory_clearance,
     WorldGeometry,
 )
+from m4k_rt import config
 
 __all__ = ['main', 'pose_rate']
 
@@ -142,7 +142,7 @@ def _bringup_argv(overlay: str | None, python_m: bool) -> list[str]:
 def _planner_argv(goal: Sequence[float], mount: Sequence[float], max_v: float,
                   tolerance: float) -> list[str]:
     mount_s = '[' + ','.join(repr(float(v)) for v in mount) + ']'
-    return [sys.executable, '-m', 'm4k_rt.planning.node', '--ros-args',
+    return [sys.executable, '-m', 'm4k_bench.planning.node', '--ros-args',
             '-p', f'goal_x:={float(goal[0])!r}', '-p', f'goal_y:={float(goal[1])!r}',
             '-p', f'laser_mount:={mount_s}', '-p', f'dwa.max_v:={float(max_v)!r}',
             '-p', f'dwa.goal_tolerance:={float(tolerance)!r}']
@@ -365,7 +365,7 @@ def _report(summary: dict[str, Any]) -> str:
         f"| planner recoveries | {s['recovery_episodes']} |",
         '',
         '* Stack: `bringup` (rt_core RT tasks, driver_host with simulated devices, ROS bridge);',
-        '  the DWA local planner (`m4k_rt.planning`) publishes `cmd_vel` at 20 Hz, at most',
+        '  the DWA local planner (`m4k_bench.planning`) publishes `cmd_vel` at 20 Hz, at most',
         f"  {s['max_v_mps']} m/s, from `scan` and `odom` only; goal {s['goal_odom']} in the odom",
         "  frame -- the paper's 3 m ahead, past the triangular obstacle.",
         "* Fig. 9(a): the bridge's `odom` (encoder odometry, as in the paper) in the room, with",

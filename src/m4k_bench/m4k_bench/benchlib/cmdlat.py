@@ -31,9 +31,9 @@ import threading
 import time
 from typing import Any, Callable
 
+from m4k_bench.benchlib.analysis import stats_dict
 from m4k_rt import protocol, xddp
 from m4k_rt.timing import describe
-from m4k_rt.tools.benchlib.analysis import stats_dict
 
 __all__ = ['MotorProbe', 'run_cmd_latency']
 
@@ -126,7 +126,7 @@ def run_cmd_latency(trials: int, runtime_dir: str, log_dir: str, *,
     import rclpy
     from rclpy.context import Context
 
-    from m4k_rt.tools.benchlib.stack import Child, entry_argv
+    from m4k_bench.benchlib.stack import Child, entry_argv
 
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     xddp.ensure_runtime_dir(runtime_dir)

@@ -19,8 +19,8 @@ bodies' bounded per-cycle drain (``tasks.portio.DRAIN_MAX``) does not make 1e5 d
 
 Usage::
 
-    python -m m4k_rt.tools.fuzz [--count 100000] [--period-ms 1] [--ports cmd,motor] [--json F]
-    python -m m4k_rt.tools.fuzz send LABEL COUNT SEED   # the sender (started by the above)
+    python -m m4k_bench.fuzz [--count 100000] [--period-ms 1] [--ports cmd,motor] [--json F]
+    python -m m4k_bench.fuzz send LABEL COUNT SEED   # the sender (started by the above)
 """
 
 from __future__ import annotations
@@ -353,7 +353,7 @@ def fuzz_port(h: RtHarness, label: str, count: int, seed: int,
     t0 = time.monotonic()
     problems = []
     env = dict(os.environ, M4K_RUNTIME_DIR=h.runtime_dir)
-    proc = subprocess.Popen([sys.executable, '-m', 'm4k_rt.tools.fuzz', 'send', label,
+    proc = subprocess.Popen([sys.executable, '-m', 'm4k_bench.fuzz', 'send', label,
                              str(count), str(seed)], env=env, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

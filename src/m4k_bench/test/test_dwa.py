@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 
-from m4k_rt.planning.dwa import (
+from m4k_bench.planning.dwa import (
     DwaConfig,
     DwaConfigError,
     DwaInputError,
@@ -17,7 +17,7 @@ from m4k_rt.planning.dwa import (
     rollout,
     State,
 )
-from m4k_rt.planning.scan import PointMemory, scan_to_points, ScanError, voxel_downsample
+from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError, voxel_downsample
 
 CFG = DwaConfig()
 TRIANGLE = [(1.5, -0.25), (1.5, 0.25), (1.9, 0.0)]
