@@ -143,10 +143,13 @@ class SysfsLeds:
             shutil.rmtree(d, ignore_errors=True)
 
     def _led_class(self) -> tuple[float, float, float] | None:
+        bri_text = _read(os.path.join(self.led_dir, 'brightness'))
+        multi_text = _read(os.path.join(self.led_dir, 'multi_intensity'))
+        if not bri_text or not multi_text:
+            return None      # truncated by open() and not written yet: look again next poll
         try:
-            bri = int(_read(os.path.join(self.led_dir, 'brightness')) or 0)
-            values = [int(v) for v in _read(os.path.join(self.led_dir,
-                                                          'multi_intensity')).split()]
+            bri = int(bri_text)
+            values = [int(v) for v in multi_text.split()]
         except ValueError as exc:
             self._error(f'LED class: {exc}')
             return None
@@ -169,14 +172,16 @@ class SysfsLeds:
             if not os.path.isdir(d):
                 out.append(0.0)
                 continue
+            texts = [_read(os.path.join(d, a))
+                     for a in ('period', 'duty_cycle', 'enable', 'polarity')]
+            if not all(texts):
+                return None  # a write in progress (truncated, not written): next poll
             try:
-                period = int(_read(os.path.join(d, 'period')) or 0)
-                duty = int(_read(os.path.join(d, 'duty_cycle')) or 0)
-                enable = int(_read(os.path.join(d, 'enable')) or 0)
+                period, duty, enable = (int(t) for t in texts[:3])
             except ValueError as exc:
                 self._error(f'pwm{ch}: {exc}')
                 return None
-            polarity = _read(os.path.join(d, 'polarity'))
+            polarity = texts[3]
             if duty > period:
                 self._error(f'pwm{ch}: duty_cycle {duty} > period {period} (EINVAL)')
                 return None
