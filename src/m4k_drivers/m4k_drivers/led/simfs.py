@@ -75,6 +75,8 @@ class SysfsLeds:
     def start(self, period_s: float = 0.02) -> SysfsLeds:
         """Create the files and poll them every ``period_s`` from a thread."""
         os.makedirs(self.led_dir, exist_ok=True)
+        # Only who may use the runtime directory may reach the files (its mode: 0700 / 0770).
+        os.chmod(self.root, os.stat(os.path.dirname(self.root)).st_mode & 0o770)
         _write(os.path.join(self.led_dir, 'max_brightness'), str(self.max_brightness))
         _write(os.path.join(self.led_dir, 'brightness'), '0')
         _write(os.path.join(self.led_dir, 'multi_index'), ' '.join(self.order))
