@@ -135,9 +135,22 @@ class DeviceService:
             return 1.0 / float(self.section.get('rate_hz', 100.0))
         return 0.1
 
+    def _set_priority(self) -> None:
+        # The motor service feeds the amplifier-enable heartbeat: starved by other load for
+        # longer than the monostable's hold, it would drop the motors of a live stack.
+        prio = int(self.section.get('sched_priority') or 0)
+        if prio <= 0:
+            return
+        from m4k_rt.sched import SchedError, set_thread_fifo
+        try:
+            set_thread_fifo(prio)
+        except (SchedError, ValueError) as exc:
+            LOG.warning('%s: stays SCHED_OTHER: %s', self.kind, exc)
+
     def run(self) -> None:
         """Serve until the stop event is set, then deactivate and clean up."""
         from m4k_rt.xddp import NrtLink
+        self._set_priority()
         self.link = NrtLink(self.port, self.runtime_dir)
         next_stream = time.monotonic()
         try:

@@ -198,6 +198,7 @@ class SimRobot:
             'motor_enabled': self.world.drive_enabled(),
             'heartbeat': self.enable is not None,
             'heartbeat_edges': self.enable.edges if self.enable else 0,
+            'heartbeat_drops': self.enable.drops if self.enable else 0,
             'heartbeat_last_edge_ns': self.enable.last_edge_ns if self.enable else None,
             'motor_volts': [self.world.motor_voltage(0), self.world.motor_voltage(1)],
             'collisions': st.collisions, 'contacts': st.collisions,
@@ -265,6 +266,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--world-report', default=os.environ.get('M4K_WORLD_REPORT'),
                     metavar='FILE', help='JSON ground truth file (default: $M4K_WORLD_REPORT, '
                     'else <runtime_dir>/world.json)')
+    ap.add_argument('--priority', type=int, default=45, metavar='P',
+                    help='SCHED_FIFO priority of the simulator (0: SCHED_OTHER; default 45, '
+                    'below the RT tasks and the motor service): hardware does not slow down '
+                    'when the machine is busy, so neither may the simulator')
     ap.add_argument('-v', '--verbose', action='store_true')
     return ap
 
@@ -291,6 +296,12 @@ def main(argv: list[str] | None = None) -> int:
     except LockError as exc:
         print(f'sim_robot: {exc}', file=sys.stderr)
         return 2
+    if args.priority > 0:
+        from m4k_rt.sched import SchedError, set_thread_fifo
+        try:
+            set_thread_fifo(args.priority)    # inherited by every thread started below
+        except (SchedError, ValueError) as exc:
+            LOG.warning('stays SCHED_OTHER: %s', exc)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -25,6 +25,9 @@ _COMMON = {
     'heartbeat_line': Param(int, 25, 'line offset of the heartbeat output'),
     'heartbeat_hold_s': Param(float, 0.05, 'hold time of the enable monostable, s (hardware: '
                               'the RC of the retriggerable monostable; sim: modelled)'),
+    'sched_priority': Param(int, 50, 'SCHED_FIFO priority of the motor service thread (0: '
+                            'SCHED_OTHER); below every RT task, above ordinary load, so the '
+                            'heartbeat keeps its period on a busy machine'),
 }
 
 

@@ -120,6 +120,7 @@ class EnableMonostable:
         self.level = False
         self.edges = 0
         self.last_edge_ns: int | None = None
+        self.drops = 0
         t = world.now()
         world.set_enable_until(t)
 
@@ -131,6 +132,8 @@ class EnableMonostable:
             return
         t = self.world.now()         # integrate up to the edge under the old hold time
         self.edges += 1
+        if not self.world.drive_enabled(t) and self.last_edge_ns is not None:
+            self.drops += 1          # the hold ran out between two edges of a live heartbeat
         # The writer's time of the edge (the socket may have delayed it), when it is on the
         # world's clock: within a hold time of it (a test world may run on a fake clock).
         edge = t if t_ns is None or abs(t - t_ns) > self.hold_ns else min(t, t_ns)
