@@ -37,6 +37,7 @@ setup(
             'bridge = m4k_rt.bridge.node:main',
             'bringup = m4k_rt.tools.bringup:main',
             'echo_peer = m4k_rt.tasks.echo:main',
+            'record = m4k_rt.bag.record:main',
         ],
     },
 )

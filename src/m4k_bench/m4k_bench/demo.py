@@ -11,7 +11,8 @@
 4. stops at the goal (planner ``goal_reached`` and the robot at rest) or after ``--timeout``,
    stops planner and stack, and writes ``results/demo-<UTC>/`` (``results/demo-latest`` links
    to it): ``fig9a_trajectory.png``, ``fig9b_velocity.png``, ``trajectory.csv``,
-   ``summary.json``, ``report.md`` and the processes' logs.
+   ``summary.json``, ``report.md``, the processes' logs and the whole run's ROS topics as
+   MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_rt.bag.record`).
 
 Contacts: sim_robot keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
 the simulated world's collision counter and true pose; that is the verdict's evidence. The
@@ -575,6 +576,9 @@ def main(argv: Sequence[str] | None = None) -> int:
          f'{env["M4K_RUNTIME_DIR"]}')
     env['M4K_WORLD_REPORT'] = os.path.join(out_dir, WORLD_REPORT)
     rec = Recorder()
+    bag = _Child('record', [sys.executable, '-m', 'm4k_rt.bag.record', '-o',
+                            os.path.join(out_dir, 'bag')],
+                 os.path.join(out_dir, 'record.log'), env)
     stack = _Child('bringup', _bringup_argv(args.config, args.python_m),
                    os.path.join(out_dir, 'bringup.log'), env)
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
@@ -585,6 +589,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         timed_out, rc = False, 130
     finally:
         signal.signal(signal.SIGTERM, previous)
+        bag.stop(STOP_TIMEOUT_S)
         code = stack.stop(STOP_TIMEOUT_S)
         _log(f'stack stopped (bringup exit code {code})')
         rec.close()

@@ -13,13 +13,18 @@ datagram, what the RT side must do with it:
 * valid and expected -> consumed by the body.
 
 After each port the RT counters must match the prediction exactly, every task must still be
-cycling, and no body may have raised. Periods can be shortened (``--period-ms``) so that the
-bodies' bounded per-cycle drain (``tasks.portio.DRAIN_MAX``) does not make 1e5 datagrams on a
-200 ms port take ten minutes.
+cycling, and no body may have raised. The tasks run at their configured periods and
+priorities (``--period-ms`` shortens them all for a quick look); over the whole campaign every
+task's cycle count must be within 1 % of elapsed time ÷ its period (at least one cycle of
+slack: the window does not start on a release) and the fuzzing must cause no overrun
+(:func:`cycle_verdict`). A body drains at most ``tasks.portio.DRAIN_MAX`` datagrams per cycle,
+so a port gets ``min(--count, what its owner can drain in --seconds-per-port)`` datagrams: 1e5
+on the 1 s monitor's port would take an hour. Writes ``report.md`` and ``results.json`` to
+``--results`` (default docs/results/fuzz).
 
 Usage::
 
-    python -m m4k_bench.fuzz [--count 100000] [--period-ms 1] [--ports cmd,motor] [--json F]
+    python -m m4k_bench.fuzz [--count 100000] [--seconds-per-port 8] [--ports cmd,motor]
     python -m m4k_bench.fuzz send LABEL COUNT SEED   # the sender (started by the above)
 """
 
@@ -42,15 +47,42 @@ from m4k_rt.protocol import Kind
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.portio import PortReader
 
-__all__ = ['ACCEPTS', 'Expectation', 'PortResult', 'RtHarness', 'classify', 'datagrams',
-           'main', 'mutate', 'valid_datagram']
+__all__ = ['ACCEPTS', 'Expectation', 'PortResult', 'RtHarness', 'classify', 'cycle_verdict',
+           'datagrams', 'main', 'mutate', 'port_count', 'valid_datagram']
+
+CYCLE_TOLERANCE = 0.01   # cycles during the campaign within 1 % of elapsed / period
+DRAIN_SHARE = 0.8        # use at most 80 % of a body's drain capacity per port
+
+
+def port_count(count: int, seconds: float, period_ns: int, drain_max: int) -> int:
+    """Return how many datagrams a port gets: ``count`` at most, else what fits the time.
+
+    The owning body drains at most ``drain_max`` per cycle; at ``DRAIN_SHARE`` of that the
+    RT side keeps up and the sender does not time out on a full socket.
+    """
+    fits = int(seconds * 1e9 / period_ns * drain_max * DRAIN_SHARE)
+    return max(1, min(count, fits))
+
+
+def cycle_verdict(elapsed_ns: int, period_ns: int, cycles: int,
+                  overruns: int) -> dict[str, Any]:
+    """Judge one task over the fuzz campaign: cycles vs elapsed / period, and no overrun.
+
+    Tolerance: 1 % of the expected count, at least one cycle (the window is not aligned with
+    the releases, so one cycle more or less is the window's, not the task's).
+    """
+    expected = elapsed_ns / period_ns
+    slack = max(CYCLE_TOLERANCE * expected, 1.0)
+    ok_cycles = abs(cycles - expected) <= slack
+    return {'expected': expected, 'cycles': cycles, 'slack': slack, 'overruns': overruns,
+            'ok': ok_cycles and overruns == 0}
 
 K = Kind
 # What each port's RT body consumes (docs/internals.md, "Ports"); anything else valid is
 # "unexpected". Ports the RT side only writes accept nothing.
 ACCEPTS: Mapping[str, frozenset[int]] = {
     'status': frozenset(), 'stat': frozenset(),
-    'cmd': frozenset({K.VELOCITY_CMD}),
+    'cmd': frozenset({K.VELOCITY_CMD, K.E_STOP, K.ODOM_RESET}),
     'motor': frozenset({K.ENCODERS, K.DEVICE_STATUS}),
     'imu': frozenset({K.IMU, K.DEVICE_STATUS}), 'imu_out': frozenset(),
     'led': frozenset({K.DEVICE_STATUS}), 'led_in': frozenset({K.LED}),
@@ -110,6 +142,10 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return ('dev', u(rng, 8), rng.randint(0, 3), u(rng, 32), u(rng, 32))
     if kind == K.PORT_STATS:
         return ('port', u(rng, 16), rng.randint(0, 1)) + tuple(u(rng, 64) for _ in range(7))
+    if kind == K.E_STOP:
+        return (rng.randint(0, 1),)
+    if kind == K.ODOM_RESET:
+        return (u(rng, 32),)
     raise ValueError('no field generator for kind {!r}'.format(kind))
 
 
@@ -397,8 +433,12 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog='fuzz', description=__doc__.split('\n')[0])
     ap.add_argument('--count', type=int, default=100_000, help='datagrams per port')
     ap.add_argument('--seed', type=int, default=1)
-    ap.add_argument('--period-ms', type=float, default=1.0,
-                    help='period of every task during the run (0: as configured)')
+    ap.add_argument('--period-ms', type=float, default=0.0,
+                    help='period of every task during the run (default 0: as configured)')
+    ap.add_argument('--seconds-per-port', type=float, default=8.0,
+                    help="time budget per port at its owner's drain rate (default 8)")
+    ap.add_argument('--results', default=os.path.join('docs', 'results', 'fuzz'),
+                    help='directory for report.md and results.json ("" to skip)')
     ap.add_argument('--ports', default='', help='comma-separated labels (default: all)')
     ap.add_argument('--config', default=None, help='user overlay YAML')
     ap.add_argument('--json', default=None, metavar='FILE', help='write the results as JSON')
@@ -421,13 +461,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     results = []
     h = RtHarness(args.config, args.period_ms or None, rd)
     labels = [x for x in args.ports.split(',') if x] or list(h.ports)
+    from m4k_rt.tasks.portio import DRAIN_MAX
+    counts = {label: port_count(args.count, args.seconds_per_port, h.owner[label].period_ns,
+                                DRAIN_MAX) for label in labels}
     try:
-        exps = {label: expect(label, args.count, args.seed, h.reader_size(label))
+        exps = {label: expect(label, counts[label], args.seed, h.reader_size(label))
                 for label in labels}
     except BaseException:
         h.close()
         raise
     with h:
+        time.sleep(1.0)  # past the first releases: start-up is not the fuzzing's
+        snap0 = {t.name: (t.cycles, t.overruns) for t in h.shared.tasks}
+        t_begin = time.monotonic_ns()
         print('fuzz: {} datagrams per port, seed {}, periods {}, ports {}'.format(
             args.count, args.seed, '{} ms'.format(args.period_ms) if args.period_ms
             else 'as configured', ', '.join(labels)), flush=True)
@@ -435,12 +481,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(head.format('PORT', 'NUM', 'SENT', 'MALFORMED', 'OVERSIZE', 'UNEXPECTED',
                           'ACCEPTED', 'ERRORS', 'CYCLES', 'OVR', 'SEC', 'RESULT'), flush=True)
         for label in labels:
-            r = fuzz_port(h, label, args.count, args.seed, exp=exps[label])
+            r = fuzz_port(h, label, counts[label], args.seed, exp=exps[label])
             results.append(r)
             print(head.format(label, r.port, r.expected.sent, r.malformed, r.oversize,
                               r.unexpected, r.expected.accepted, r.body_errors, r.cycles_during,
                               r.overruns_during, '{:.1f}'.format(r.seconds),
                               'ok' if r.ok else 'LOST: ' + '; '.join(r.problems)), flush=True)
+        elapsed = time.monotonic_ns() - t_begin
+        verdicts = {t.name: dict(cycle_verdict(elapsed, t.period_ns, t.cycles - snap0[t.name][0],
+                                               t.overruns - snap0[t.name][1]),
+                                 period_ms=t.period_ns / 1e6, priority=t.priority,
+                                 fifo=t.fifo)
+                    for t in h.shared.tasks}
         tasks_end = {t.name: {'cycles': t.cycles, 'overruns': t.overruns,
                               'deadline_misses': t.deadline_misses,
                               'body_errors': t.body_errors} for t in h.shared.tasks}
@@ -449,14 +501,49 @@ def main(argv: Sequence[str] | None = None) -> int:
     print('fuzz: {} datagrams, {} bad ({} malformed, {} oversize, {} unexpected), lost {}'.format(
         total, bad, sum(r.malformed for r in results), sum(r.oversize for r in results),
         sum(r.unexpected for r in results), sum(0 if r.ok else 1 for r in results)))
-    for name, c in tasks_end.items():
-        print('task {}: {}'.format(name, ' '.join('{} {}'.format(k, v) for k, v in c.items())))
+    for name, v in verdicts.items():
+        print('task {}: {} cycles while fuzzing, expected {:.1f} (+-{:.1f}), overruns {}: {}'
+              .format(name, v['cycles'], v['expected'], v['slack'], v['overruns'],
+                      'ok' if v['ok'] else 'FAIL'))
+    out = {'count': args.count, 'seed': args.seed, 'period_ms': args.period_ms,
+           'seconds_per_port': args.seconds_per_port, 'elapsed_s': elapsed / 1e9,
+           'ports': [dataclasses.asdict(r) for r in results], 'tasks': tasks_end,
+           'cycle_verdicts': verdicts}
     if args.json:
         with open(args.json, 'w') as f:
-            json.dump({'count': args.count, 'seed': args.seed, 'period_ms': args.period_ms,
-                       'ports': [dataclasses.asdict(r) for r in results],
-                       'tasks': tasks_end}, f, indent=1)
-    return 0 if all(r.ok for r in results) else 1
+            json.dump(out, f, indent=1)
+    if args.results:
+        _write_results(args.results, out)
+    ok = all(r.ok for r in results) and all(v['ok'] for v in verdicts.values())
+    return 0 if ok else 1
+
+
+def _write_results(outdir: str, out: dict[str, Any]) -> None:
+    os.makedirs(outdir, exist_ok=True)
+    with open(os.path.join(outdir, 'results.json'), 'w') as f:
+        json.dump(out, f, indent=1)
+    periods = ('at {:g} ms periods'.format(out['period_ms']) if out['period_ms']
+               else 'at its configured periods and priorities')
+    lines = ['# m4k fuzz', '',
+             '`make fuzz` (`fuzz --count {}`): the configured RT task set {} with its real XDDP '
+             'ports; a sender process per port writes a deterministic stream of valid, mutated, '
+             'random and oversize datagrams; {:.0f} s in all.'.format(
+                 out['count'], periods, out['elapsed_s']), '',
+             '| port | sent | malformed | oversize | unexpected | accepted | body errors | '
+             'result |', '|---|---|---|---|---|---|---|---|']
+    for p in out['ports']:
+        e = p['expected']
+        lines.append('| {} | {} | {} | {} | {} | {} | {} | {} |'.format(
+            p['label'], e['sent'], p['malformed'], p['oversize'], p['unexpected'],
+            e['accepted'], p['body_errors'], 'ok' if p['ok'] else '; '.join(p['problems'])))
+    lines += ['', '| task | period (ms) | cycles while fuzzing | expected | overruns | result |',
+              '|---|---|---|---|---|---|']
+    for name, v in out['cycle_verdicts'].items():
+        lines.append('| {} | {:g} | {} | {:.1f} ± {:.1f} | {} | {} |'.format(
+            name, v['period_ms'], v['cycles'], v['expected'], v['slack'], v['overruns'],
+            'ok' if v['ok'] else 'FAIL'))
+    with open(os.path.join(outdir, 'report.md'), 'w') as f:
+        f.write('\n'.join(lines) + '\n')
 
 
 if __name__ == '__main__':

@@ -1,14 +1,19 @@
 """Benchmark the XDDP emulation's round trip against a raw Unix SOCK_SEQPACKET ping-pong.
 
 Both measurements use the same shape: a measuring thread in this process (SCHED_FIFO when
-permitted) sends a 32-byte datagram to an echoing peer in a child process and waits for the
-echo. The XDDP run goes through ``RtXddpSocket`` (non-blocking send, bounded poll, recv_into)
-and an ``NrtXddpEndpoint`` echo; the raw run uses plain blocking sockets on both ends, so the
-difference is the emulation's own cost. Timing is reported, never asserted: this is a noisy VM.
+permitted) sends a 32-byte datagram to an echoing peer in a child process, waits in one
+blocking ``poll`` on the socket until the echo is readable, then receives it. The XDDP run
+receives the way every RT task body does (:class:`m4k_rt.tasks.portio.PortReader`):
+``RtXddpSocket.recv_into`` -- non-blocking, a ``poll(0)`` for openers and the counters -- after
+``RtXddpSocket.send``; the echo is an ``NrtXddpEndpoint``. The raw run waits in the same
+``poll`` and then calls ``recv_into`` on a plain non-blocking SOCK_SEQPACKET socket, so the
+difference is the emulation's own cost on the tasks' path (the wait itself stands in for the
+task's timerfd wake-up and is the same on both sides). Timing is reported, never asserted.
 """
 
 import argparse
 import os
+import select
 import socket
 import subprocess
 import sys
@@ -116,12 +121,15 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
         def body() -> list[int]:
             buf = bytearray(rt.max_datagram)
             clock = time.monotonic_ns
+            readable = select.poll()
+            readable.register(rt.fileno(), select.POLLIN)
+            wait = readable.poll
             samples = []
             for i in range(n + _WARMUP):
                 t0 = clock()
                 if not rt.send(_PAYLOAD):
                     raise RuntimeError('XDDP send dropped: {}'.format(rt.counters.as_dict()))
-                if not rt.recv_wait_into(buf, _REPLY_TIMEOUT_MS):
+                if not wait(_REPLY_TIMEOUT_MS) or not rt.recv_into(buf):
                     raise RuntimeError('no XDDP echo within {} ms'.format(_REPLY_TIMEOUT_MS))
                 t1 = clock()
                 if i >= _WARMUP:
@@ -153,18 +161,22 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int,
         peer = _spawn('--echo-raw', path, cpu=cpu)
         listener.settimeout(30.0)
         conn, _ = listener.accept()
-        conn.settimeout(None)
+        conn.setblocking(False)
         assert peer.stdout is not None
         peer.stdout.readline()
 
         def body() -> list[int]:
             clock = time.monotonic_ns
             buf = bytearray(4096)
+            readable = select.poll()
+            readable.register(conn.fileno(), select.POLLIN)
+            wait = readable.poll
             samples = []
             for i in range(n + _WARMUP):
                 t0 = clock()
                 conn.send(_PAYLOAD)
-                conn.recv_into(buf)
+                if not wait(_REPLY_TIMEOUT_MS) or not conn.recv_into(buf):
+                    raise RuntimeError('no raw echo within {} ms'.format(_REPLY_TIMEOUT_MS))
                 t1 = clock()
                 if i >= _WARMUP:
                     samples.append(t1 - t0)

@@ -19,21 +19,24 @@ def _rows(n, period=10 * MS, latency=50_000, response=20_000, late_every=0, late
     return rows
 
 
-def _cond(jitter_p99, latency_p99):
-    return {'jitter_us': {'p99': jitter_p99}, 'latency_us': {'p99': latency_p99}}
+def _m4k(lat_p99, ct_p99, jit_p99=10.0, ok=True, cpu=None):
+    return {'latency_us': {'p99': lat_p99, 'p999': lat_p99 * 2}, 'jitter_us': {'p99': jit_p99},
+            'cyclictest': {'p99': ct_p99, 'p999': ct_p99 * 2},
+            'hardening': {'ok': ok, 'why': '' if ok else 'not SCHED_FIFO'},
+            'cpu_per_cycle_us': cpu}
 
 
-def _summary():
-    return {
-        'conditions': {'m4k_idle': _cond(10.0, 60.0), 'm4k_stress': _cond(20.0, 90.0),
-                       'baseline_idle': _cond(500.0, 900.0),
-                       'baseline_stress': _cond(2000.0, 4000.0),
-                       'm4k_alone': _cond(8.0, 50.0)},
-        'cyclictest': {'idle': {'latency_us': {'p99': 40}},
-                       'stress': {'latency_us': {'p99': 30}}},
-        'xddp_rtt': {'xddp': {'p50_us': 12.0}, 'raw': {'p50_us': 10.0}},
-        'rt_cpu_percent': 6.5,
-    }
+def _rounds():
+    # Three rounds; per-round ratio p99 / ct p99 = 1.2, 3.0, 1.4 -> median 1.4.
+    return [
+        {'round': 0, 'm4k_idle': _m4k(60.0, 50.0, cpu=80.0), 'm4k_alone': _m4k(50.0, 50.0),
+         'floor': {'cpu_per_cycle_us': 40.0},
+         'rtt': {'xddp': {'p50_us': 12.0}, 'raw': {'p50_us': 10.0}}},
+        {'round': 1, 'm4k_idle': _m4k(300.0, 100.0, cpu=90.0), 'm4k_alone': _m4k(60.0, 50.0),
+         'floor': {'cpu_per_cycle_us': 30.0}},
+        {'round': 2, 'm4k_idle': _m4k(70.0, 50.0, cpu=100.0), 'm4k_alone': _m4k(70.0, 50.0),
+         'floor': {'cpu_per_cycle_us': 50.0}},
+    ]
 
 
 def test_load_samples_csv_groups_rows_by_task(tmp_path):
@@ -76,52 +79,77 @@ def test_ratio_handles_missing_zero_and_nan():
     assert analysis.ratio(math.nan, 1.0) is None
 
 
-def test_compute_ratios_from_summary():
-    r = analysis.compute_ratios(_summary())
-    assert set(r) == set(analysis.RATIO_KEYS)
-    assert r['release_p99_over_cyclictest_idle'] == pytest.approx(1.5)
-    assert r['release_p99_over_cyclictest_stress'] == pytest.approx(3.0)
-    assert r['baseline_over_m4k_jitter_p99_stress'] == pytest.approx(100.0)
-    assert r['baseline_over_m4k_jitter_p99_idle'] == pytest.approx(50.0)
-    assert r['five_tasks_over_alone_p99'] == pytest.approx(1.2)
-    assert r['xddp_rtt_p50_over_raw'] == pytest.approx(1.2)
+def test_round_ratios_are_per_round_with_the_median_and_spread():
+    r = analysis.round_ratios(_rounds())
+    assert set(analysis.RATIO_KEYS) <= set(r)
+    idle = r['release_p99_over_cyclictest_idle']
+    assert idle['values'] == pytest.approx([1.2, 3.0, 1.4])
+    assert idle['spread']['median'] == pytest.approx(1.4)
+    assert (idle['spread']['min'], idle['spread']['max']) == pytest.approx((1.2, 3.0))
+    # five tasks / alone: 60/50, 300/60, 70/70 -> 1.2, 5.0, 1.0 -> median 1.2
+    assert r['five_tasks_over_alone_p99']['spread']['median'] == pytest.approx(1.2)
+    # CPU per cycle / floor: 80/40, 90/30, 100/50 -> 2, 3, 2 -> median 2
+    assert r['cpu_per_cycle_over_floor']['spread']['median'] == pytest.approx(2.0)
+    assert r['xddp_rtt_p50_over_raw']['values'] == [pytest.approx(1.2), None, None]
+    assert r['release_p99_over_cyclictest_stress']['spread'] is None
 
 
-def test_compute_ratios_without_measurements_are_none():
-    assert set(analysis.compute_ratios({}).values()) == {None}
+def test_a_degraded_m4k_run_is_left_out_of_the_m4k_ratios():
+    rs = _rounds()
+    rs[1]['m4k_idle']['hardening'] = {'ok': False, 'why': 'not SCHED_FIFO'}
+    r = analysis.round_ratios(rs)
+    assert r['release_p99_over_cyclictest_idle']['values'] == pytest.approx([1.2, None, 1.4])
+    assert r['release_p99_over_cyclictest_idle']['spread']['median'] == pytest.approx(1.3)
+    assert r['_excluded'] == ['round 1 m4k_idle: not SCHED_FIFO']
 
 
-def test_targets_say_met_missed_and_unmeasured():
-    s = _summary()
-    s['ratios'] = analysis.compute_ratios(s)
-    s['ratios']['xddp_rtt_p50_over_raw'] = None
-    s['skipped'] = {'xddp_rtt_p50_over_raw': 'phase skipped'}
-    rows = {t['key']: t for t in analysis.evaluate_targets(s)}
-    assert rows['release_p99_over_cyclictest_idle']['met'] is True
-    assert rows['release_p99_over_cyclictest_stress']['met'] is False
-    assert 'wake-up' in rows['release_p99_over_cyclictest_stress']['why']
-    assert rows['baseline_over_m4k_jitter_p99_stress']['met'] is True   # >= 50
-    assert rows['five_tasks_over_alone_p99']['met'] is True
-    assert rows['rt_cpu_percent']['met'] is False
-    assert rows['rt_cpu_percent']['target'] == '<= 5 %'
-    assert rows['xddp_rtt_p50_over_raw']['met'] is None
-    assert rows['xddp_rtt_p50_over_raw']['why'] == 'not measured in this run: phase skipped'
+def test_targets_judge_the_median_and_keep_the_spread():
+    r = analysis.round_ratios(_rounds())
+    scaling = [{'rate_hz': 1000, 'set': 'alone', 'ratio_p99': 2.5},
+               {'rate_hz': 1000, 'set': 'task set', 'ratio_p99': 1.0}]
+    rows = {t['key']: t for t in analysis.evaluate_targets(r, scaling)}
+    assert rows['release_p99_over_cyclictest_idle']['met'] is True      # 1.4 <= 1.5
+    assert rows['release_p99_over_cyclictest_idle']['spread']['max'] == pytest.approx(3.0)
+    assert rows['five_tasks_over_alone_p99']['met'] is True             # 1.2 <= 1.25
+    assert rows['cpu_per_cycle_over_floor']['met'] is True              # 2.0 <= 2
+    assert rows['release_p99_over_cyclictest_stress']['met'] is None    # not measured
+    assert rows['scaling_1khz_release_p99_over_cyclictest']['met'] is False   # 2.5 > 2
+    assert all(set(t) == {'key', 'label', 'target', 'spread', 'met'} for t in rows.values())
+
+
+def test_median_round_table_picks_the_median_round():
+    tables = {'r0_m4k_idle': 'T0', 'r1_m4k_idle': 'T1', 'r2_m4k_idle': 'T2'}
+    # actuator p99: 60, 300, 70 -> median 70 -> round 2
+    assert analysis.median_round_table(_rounds(), tables) == (2, 'T2')
+    assert analysis.median_round_table([], tables) == (None, None)
+
+
+def test_loop_cost_spreads_cpu_per_cycle_and_floor():
+    lc = analysis.loop_cost(_rounds())
+    assert lc['m4k_cpu_per_cycle_us']['median'] == 90.0
+    assert lc['floor_cpu_per_cycle_us']['median'] == 40.0
 
 
 def test_plan_durations_quick_full_and_overrides():
-    assert bench.plan_durations(False, None, None)['table1_s'] == bench.FULL['table1_s']
+    assert bench.plan_durations(False, None, None) == bench.FULL
     q = bench.plan_durations(True, None, None)
-    assert q['table1_s'] < bench.FULL['table1_s'] and q['condition_s'] <= q['table1_s']
-    tiny = bench.plan_durations(True, 3.0, None)
-    assert tiny['table1_s'] == 3.0 and tiny['condition_s'] == 3.0
-    assert bench.plan_durations(False, None, 5.0)['condition_s'] == 5.0
-    with pytest.raises(ValueError, match='--duration must be > 0'):
+    assert q['rounds'] == 3 and bench.FULL['rounds'] >= 5
+    assert bench.plan_durations(True, 3.0, None, 2) == dict(bench.QUICK, condition_s=3.0,
+                                                            rounds=2)
+    with pytest.raises(ValueError, match='> 0'):
         bench.plan_durations(False, 0.0, None)
+    with pytest.raises(ValueError, match='--rounds'):
+        bench.plan_durations(False, None, None, 0)
+
+
+def test_the_full_plan_fits_in_30_minutes_and_quick_in_10():
+    assert bench.estimate_s(bench.FULL) <= 30 * 60
+    assert bench.estimate_s(bench.QUICK) <= 10 * 60
 
 
 def test_bench_rejects_unknown_skip_phase(capsys):
     with pytest.raises(SystemExit) as exc:
-        bench.main(['--skip', 'table1,nope'])
+        bench.main(['--skip', 'floor,nope'])
     assert exc.value.code == 2
     assert "unknown phase(s) ['nope']" in capsys.readouterr().err
 
@@ -129,9 +157,9 @@ def test_bench_rejects_unknown_skip_phase(capsys):
 def test_actuator_periods_skip_non_consecutive_cycles():
     rel = [0, 10 * MS, 30 * MS, 40 * MS]       # a batch lost between cycles 1 and 2
     start = [1, 10 * MS + 1, 30 * MS + 5, 40 * MS + 2]
-    exp = [1, 1, 1, 1]
-    per = bench._actuator_periods((rel, start, exp))
-    assert list(per) == [10 * MS, 10 * MS - 3]
+    series = analysis.series_from_rows('actuator', 10 * MS, [
+        (r, st, st + 5, 1) for r, st in zip(rel, start, strict=True)])
+    assert list(bench._periods(series)) == [10 * MS, 10 * MS - 3]
 
 
 def test_velocity_profile_alternates_at_paper_speed():

@@ -15,7 +15,7 @@ Clients here (one per kernel interface the real backends use):
 
 * :class:`SpiClient` -- ``transfer(bytes) -> bytes``, ``close()``  (periphery.SPI's subset)
 * :class:`I2cClient` -- smbus2.SMBus's ``read_byte_data``, ``read_i2c_block_data``,
-  ``write_byte_data``, ``close`` plus :meth:`I2cClient.read_burst` (any length)
+  ``write_byte_data``, ``i2c_rdwr``, ``close`` plus :meth:`I2cClient.read_burst` (any length)
 * :class:`GpioClient` -- periphery.GPIO's ``write``, ``read``, ``poll``, ``read_event``,
   ``close``; events carry CLOCK_MONOTONIC nanosecond timestamps
 """
@@ -171,6 +171,29 @@ class I2cClient:
     def write_byte_data(self, i2c_addr: int, register: int, value: int) -> None:
         """Write one register."""
         self._conn.call(Op.I2C_WRITE, _I2C_WRITE.pack(i2c_addr, register) + bytes([value]))
+
+    def i2c_rdwr(self, *messages: Any) -> None:
+        """Run smbus2 ``i2c_msg`` messages as one combined transaction (I2C_RDWR).
+
+        A write of one byte sets the register pointer, a longer write writes registers from
+        it; a read fills the message's buffer from the pointer (auto-increment) in one I2C_READ.
+        """
+        import ctypes
+        addr, pointer = None, 0
+        for msg in messages:
+            addr = msg.addr
+            if msg.flags & 0x0001:                       # I2C_M_RD (linux/i2c.h)
+                data = self.read_burst(addr, pointer, msg.len)
+                ctypes.memmove(msg.buf, data, msg.len)
+                pointer += msg.len
+                continue
+            data = bytes(msg)
+            if not data:
+                continue
+            pointer = data[0]
+            if len(data) > 1:
+                self._conn.call(Op.I2C_WRITE, _I2C_WRITE.pack(addr, pointer) + data[1:])
+                pointer += len(data) - 1
 
     def close(self) -> None:
         """Release the bus."""

@@ -87,9 +87,9 @@ def test_led_class_backend_unchanged_on_the_simulated_tree(leds):
 def test_pwm_backend_unchanged_on_the_simulated_tree(leds):
     sim = leds(interface='pwm', chip=0, channels=[0, 1, 2])
     out = PwmOutput(0, [0, 1, 2], 1000, root=os.path.dirname(sim.chip_dir))
+    assert sim.poll() == (0.0, 0.0, 0.0)             # exported, configured, duty 0
     out.show(p.LedColor(255, 128, 0, 255))
     assert sim.poll() == pytest.approx((1.0, 128 / 255, 0.0), abs=1e-3)
-    out.close()
-    sim.poll()
+    out.close()                                      # duty 0, disabled (left exported)
+    assert sim.poll() == (0.0, 0.0, 0.0)
     assert sim.errors == 0, sim.last_error
-    assert not any(e.startswith('pwm') for e in os.listdir(sim.chip_dir))

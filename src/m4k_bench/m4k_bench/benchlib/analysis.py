@@ -4,9 +4,10 @@ Per-task statistics come from :func:`m4k_rt.recorder.summarize` (the same code t
 Table 1), so the RT actuator task and the plain-ROS baseline are measured identically:
 period, jitter = |period - nominal|, release latency = t_start - t_rel, response time.
 
-The ratios compare measurements taken in one run on one machine (design.md: absolute numbers
-on a shared VM are noise, ratios are the evidence). Each ratio is None when either side is
-missing or zero, and the report says why.
+The ratios compare measurements taken side by side in one round (design.md: absolute numbers
+on a shared VM are noise, ratios are the evidence); each is computed per round and reported
+as the median with min-max over the rounds. A ratio is None in a round when either side is
+missing or zero, or when the m4k run of that round was not hardened (RT_STATUS).
 """
 
 from __future__ import annotations
@@ -20,17 +21,11 @@ import numpy as np
 from m4k_rt import recorder, timing
 
 __all__ = [
-    'RATIO_KEYS', 'Target', 'condition_summary', 'evaluate_targets', 'compute_ratios',
-    'interference', 'load_samples_csv', 'ratio', 'series_from_rows', 'stats_dict', 'TARGETS',
+    'RATIOS', 'RATIO_KEYS', 'Ratio', 'TARGETS', 'Target', 'condition_summary',
+    'evaluate_targets', 'hardened_rounds', 'interference', 'load_samples_csv', 'loop_cost',
+    'median_round_table', 'ratio', 'round_ratios', 'series_from_rows', 'stats_dict',
     'trim_warmup',
 ]
-
-# The keys summary.json carries under "ratios" (issue 6), in report order.
-RATIO_KEYS = (
-    'release_p99_over_cyclictest_idle', 'release_p99_over_cyclictest_stress',
-    'baseline_over_m4k_jitter_p99_stress', 'baseline_over_m4k_jitter_p99_idle',
-    'five_tasks_over_alone_p99', 'xddp_rtt_p50_over_raw',
-)
 
 
 def stats_dict(s: timing.Stats, scale: float = 1.0) -> dict[str, float | int | None]:
@@ -149,6 +144,76 @@ def ratio(num: float | None, den: float | None) -> float | None:
     return num / den
 
 
+class Ratio(NamedTuple):
+    """One ratio computed per round: numerator and denominator key paths into a round."""
+
+    key: str
+    label: str
+    num: tuple[str, ...]
+    den: tuple[str, ...]
+
+
+RATIOS: tuple[Ratio, ...] = (
+    Ratio('release_p99_over_cyclictest_idle', 'actuator release p99 ÷ concurrent cyclictest '
+          'p99, idle', ('m4k_idle', 'latency_us', 'p99'), ('m4k_idle', 'cyclictest', 'p99')),
+    Ratio('release_p999_over_cyclictest_idle', 'actuator release p99.9 ÷ concurrent '
+          'cyclictest p99.9, idle', ('m4k_idle', 'latency_us', 'p999'),
+          ('m4k_idle', 'cyclictest', 'p999')),
+    Ratio('release_p99_over_cyclictest_stress', 'actuator release p99 ÷ concurrent cyclictest '
+          'p99, stress-ng', ('m4k_stress', 'latency_us', 'p99'),
+          ('m4k_stress', 'cyclictest', 'p99')),
+    Ratio('release_p999_over_cyclictest_stress', 'actuator release p99.9 ÷ concurrent '
+          'cyclictest p99.9, stress-ng', ('m4k_stress', 'latency_us', 'p999'),
+          ('m4k_stress', 'cyclictest', 'p999')),
+    Ratio('five_tasks_over_alone_p99', 'actuator release p99, five tasks ÷ alone',
+          ('m4k_idle', 'latency_us', 'p99'), ('m4k_alone', 'latency_us', 'p99')),
+    Ratio('xddp_rtt_p50_over_raw', "XDDP round trip p50 (tasks' receive path) ÷ raw socket",
+          ('rtt', 'xddp', 'p50_us'), ('rtt', 'raw', 'p50_us')),
+    Ratio('cpu_per_cycle_over_floor', 'RT process CPU per task cycle ÷ Python floor',
+          ('m4k_idle', 'cpu_per_cycle_us'), ('floor', 'cpu_per_cycle_us')),
+    Ratio('baseline_over_m4k_jitter_p99_stress', 'plain-ROS ÷ m4k jitter p99, stress-ng',
+          ('baseline_stress', 'jitter_us', 'p99'), ('m4k_stress', 'jitter_us', 'p99')),
+    Ratio('baseline_over_m4k_jitter_max_stress', 'plain-ROS ÷ m4k jitter max, stress-ng '
+          '(paper: 57× on max)', ('baseline_stress', 'jitter_us', 'max'),
+          ('m4k_stress', 'jitter_us', 'max')),
+    Ratio('baseline_over_m4k_jitter_p99_idle', 'plain-ROS ÷ m4k jitter p99, idle',
+          ('baseline_idle', 'jitter_us', 'p99'), ('m4k_idle', 'jitter_us', 'p99')),
+    Ratio('cyclictest_concurrent_over_alone_p99_idle', 'cyclictest p99 next to m4k ÷ '
+          'cyclictest alone, idle', ('m4k_idle', 'cyclictest', 'p99'),
+          ('ct_idle', 'latency_us', 'p99')),
+)
+RATIO_KEYS = tuple(r.key for r in RATIOS)
+M4K_CONDITIONS = ('m4k_idle', 'm4k_alone', 'm4k_stress')
+
+
+def hardened_rounds(rounds_: Sequence[Mapping[str, Any]]) -> tuple[list[dict[str, Any]],
+                                                                    list[str]]:
+    """Return the rounds without m4k runs whose RT_STATUS was not the real thing, and why."""
+    out, excluded = [], []
+    for r in rounds_:
+        r2 = dict(r)
+        for cond in M4K_CONDITIONS:
+            c = r2.get(cond)
+            if isinstance(c, Mapping) and not _get(c, 'hardening', 'ok'):
+                excluded.append('round {} {}: {}'.format(
+                    r.get('round'), cond, _get(c, 'hardening', 'why') or 'no RT_STATUS'))
+                r2[cond] = None
+        out.append(r2)
+    return out, excluded
+
+
+def round_ratios(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Return every ratio as its per-round values and their spread (median, min, max)."""
+    from m4k_bench.benchlib.rounds import per_round_ratios, spread
+    ok, excluded = hardened_rounds(rounds_)
+    out: dict[str, Any] = {}
+    for r in RATIOS:
+        values = per_round_ratios(ok, r.num, r.den)
+        out[r.key] = {'label': r.label, 'spread': spread(values), 'values': values}
+    out['_excluded'] = excluded
+    return out
+
+
 def _get(d: Mapping[str, Any] | None, *path: str) -> Any:
     for key in path:
         if not isinstance(d, Mapping) or key not in d:
@@ -157,97 +222,77 @@ def _get(d: Mapping[str, Any] | None, *path: str) -> Any:
     return d
 
 
-def compute_ratios(summ: Mapping[str, Any]) -> dict[str, float | None]:
-    """Compute the summary's ratios from its ``conditions``, ``cyclictest`` and ``xddp_rtt``."""
-    c = summ.get('conditions', {})
-    ct = summ.get('cyclictest', {})
-    return {
-        'release_p99_over_cyclictest_idle': ratio(
-            _get(c, 'm4k_idle', 'latency_us', 'p99'), _get(ct, 'idle', 'latency_us', 'p99')),
-        'release_p99_over_cyclictest_stress': ratio(
-            _get(c, 'm4k_stress', 'latency_us', 'p99'),
-            _get(ct, 'stress', 'latency_us', 'p99')),
-        'baseline_over_m4k_jitter_p99_stress': ratio(
-            _get(c, 'baseline_stress', 'jitter_us', 'p99'),
-            _get(c, 'm4k_stress', 'jitter_us', 'p99')),
-        'baseline_over_m4k_jitter_p99_idle': ratio(
-            _get(c, 'baseline_idle', 'jitter_us', 'p99'),
-            _get(c, 'm4k_idle', 'jitter_us', 'p99')),
-        'five_tasks_over_alone_p99': ratio(
-            _get(c, 'm4k_idle', 'latency_us', 'p99'), _get(c, 'm4k_alone', 'latency_us', 'p99')),
-        'xddp_rtt_p50_over_raw': ratio(
-            _get(summ, 'xddp_rtt', 'xddp', 'p50_us'), _get(summ, 'xddp_rtt', 'raw', 'p50_us')),
-    }
-
-
 class Target(NamedTuple):
-    """One benchmark target: the key it checks, how, and what a miss usually means."""
+    """One target of issue 14 on the median over the rounds of a ratio."""
 
-    key: str           # a ratio key, or 'rt_cpu_percent'
-    label: str
+    key: str
     op: str            # '<=' or '>='
     limit: float
-    miss_reason: str   # why m4k typically falls short there (the report prints it on a miss)
 
 
 TARGETS: tuple[Target, ...] = (
-    Target('release_p99_over_cyclictest_idle', 'Actuator release p99 / cyclictest p99 (idle)',
-           '<=', 2.0,
-           'the Python wake-up path (timerfd read returning into the interpreter, taking the '
-           'GIL from whichever NRT thread of the RT process holds it, the bytecode up to '
-           "t_start) costs tens of microseconds that cyclictest's C loop does not pay"),
-    Target('release_p99_over_cyclictest_stress',
-           'Actuator release p99 / cyclictest p99 (stress-ng)', '<=', 2.0,
-           "under stress the interpreter's wake-up path runs with cold caches and memory "
-           'pressure from stress-ng --vm; cyclictest touches a few cache lines, the Python task '
-           'touches many more'),
-    Target('baseline_over_m4k_jitter_p99_stress',
-           'Plain-ROS baseline jitter p99 / m4k jitter p99 (stress-ng)', '>=', 50.0,
-           "the baseline (SCHED_OTHER) was not slowed as much as the paper's: with 2 vCPUs and "
-           "CFS fair sharing it still gets the CPU within a few ms, and the hypervisor's own "
-           "preemptions, which hit SCHED_FIFO threads alike, set a floor under m4k's jitter"),
-    Target('five_tasks_over_alone_p99',
-           'Actuator release p99, five tasks / actuator alone', '<=', 1.25,
-           'all tasks share one interpreter: the IMU task has the same period and release '
-           'instant, so on 2 CPUs both threads wake together and when the IMU thread takes the '
-           'GIL first the actuator waits for its cycle -- a priority inversion a C program does '
-           'not have (see "Interference inside the RT process"); the rest of the gap (clean '
-           'cycles are slower than alone too) is most likely the bigger working set of five '
-           'task bodies evicting the actuator code and data from the caches between cycles'),
-    Target('xddp_rtt_p50_over_raw', 'XDDP round trip p50 / raw Unix-socket ping-pong p50',
-           '<=', 1.3,
-           "the emulation's RT side is non-blocking (poll + recv_into + counters in Python), so "
-           'each round trip pays a poll() and more bytecode than a blocking raw recv()'),
-    Target('rt_cpu_percent', 'RT process CPU (% of one core, full stack)', '<=', 5.0,
-           'every cycle of every task runs Python bytecode (decode, control, encode, timing '
-           'ring, rusage); about 10 us per cycle times 300 cycles/s is already 0.3 %, and the '
-           "monitor's stats batching and the interpreter's wake-ups add the rest"),
+    Target('release_p99_over_cyclictest_idle', '<=', 1.5),
+    Target('release_p999_over_cyclictest_idle', '<=', 2.0),
+    Target('release_p99_over_cyclictest_stress', '<=', 1.5),
+    Target('release_p999_over_cyclictest_stress', '<=', 2.0),
+    Target('xddp_rtt_p50_over_raw', '<=', 1.3),
+    Target('cpu_per_cycle_over_floor', '<=', 2.0),
+    Target('five_tasks_over_alone_p99', '<=', 1.25),
+    Target('scaling_1khz_release_p99_over_cyclictest', '<=', 2.0),
 )
 
 
-def _measured(summ: Mapping[str, Any], key: str) -> float | None:
-    if key == 'rt_cpu_percent':
-        v = summ.get('rt_cpu_percent')
-    else:
-        v = _get(summ, 'ratios', key)
-    return v if isinstance(v, (int, float)) and math.isfinite(v) else None
-
-
-def evaluate_targets(summ: Mapping[str, Any],
+def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, Any]] = (),
                      targets: Iterable[Target] = TARGETS) -> list[dict[str, Any]]:
-    """Return one row per target: label, target text, measured, met (None = not measured)."""
+    """Return one row per target: the median, min-max, rounds, met (None = not measured).
+
+    The verdict is on the median; the spread is shown next to it. No explanation is made up:
+    a missed target shows its measured figures and nothing else.
+    """
+    from m4k_bench.benchlib.rounds import spread
     rows = []
     for t in targets:
-        m = _measured(summ, t.key)
-        if m is None:
-            met = None
-            why = 'not measured in this run' + (
-                ': ' + summ['skipped'][t.key] if t.key in summ.get('skipped', {}) else '')
+        if t.key == 'scaling_1khz_release_p99_over_cyclictest':
+            label = 'actuator alone at 1 kHz: release p99 ÷ concurrent cyclictest p99 at 1 kHz'
+            sp = spread([r.get('ratio_p99') for r in scaling
+                         if r.get('rate_hz') == 1000 and r.get('set') == 'alone'])
         else:
+            entry = ratios.get(t.key) or {}
+            label = entry.get('label', t.key)
+            sp = entry.get('spread')
+        if sp is None:
+            met = None
+        else:
+            m = sp['median']
             met = m <= t.limit if t.op == '<=' else m >= t.limit
-            why = '' if met else t.miss_reason
-        rows.append({'key': t.key, 'label': t.label,
-                     'target': '{} {:g}{}'.format(t.op, t.limit,
-                                                  ' %' if t.key == 'rt_cpu_percent' else 'x'),
-                     'measured': m, 'met': met, 'why': why})
+        rows.append({'key': t.key, 'label': label, 'target': '{} {:g}×'.format(t.op, t.limit),
+                     'spread': sp, 'met': met})
     return rows
+
+
+def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Return CPU per cycle of m4k (full stack, idle) and of the floor, per round and spread.
+
+    Also the median over rounds of each task's response p50: what its body costs per cycle.
+    """
+    from m4k_bench.benchlib.rounds import spread
+    ok, _ = hardened_rounds(rounds_)
+    m4k = [_get(r, 'm4k_idle', 'cpu_per_cycle_us') for r in ok]
+    floor = [_get(r, 'floor', 'cpu_per_cycle_us') for r in ok]
+    bodies: dict[str, list[Any]] = {}
+    for r in ok:
+        for name, v in (_get(r, 'm4k_idle', 'task_response_p50_us') or {}).items():
+            bodies.setdefault(name, []).append(v)
+    return {'m4k_cpu_per_cycle_us': spread(m4k), 'floor_cpu_per_cycle_us': spread(floor),
+            'body_response_p50_us': {k: spread(v) for k, v in bodies.items()}}
+
+
+def median_round_table(rounds_: Sequence[Mapping[str, Any]],
+                       tables: Mapping[str, Any]) -> tuple[int | None, Any]:
+    """Pick the round whose m4k_idle actuator release p99 is the (lower) median; its Table 1."""
+    scored = sorted((p99, r['round']) for r in rounds_
+                    if (p99 := _get(r, 'm4k_idle', 'latency_us', 'p99')) is not None)
+    if not scored:
+        return None, None
+    k = scored[(len(scored) - 1) // 2][1]
+    return k, tables.get('r{}_m4k_idle'.format(k))

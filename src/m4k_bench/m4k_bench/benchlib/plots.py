@@ -13,7 +13,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ['COLORS', 'fig10']
+__all__ = ['COLORS', 'fig10', 'scaling']
 
 # condition key -> (label, colour, line style); XDDP solid, ROS dashed, stress darker.
 COLORS = {
@@ -67,6 +67,39 @@ def fig10(periods_ns: Mapping[str, Sequence[int] | np.ndarray], nominal_ns: int,
     ax2.grid(True, which='both', alpha=0.3)
     ax2.legend(fontsize=8, loc='lower left')
     fig.suptitle(title or 'Periodicity of the actuator task (paper Fig. 10)')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def scaling(rows: Sequence[Mapping[str, object]], path: str) -> str:
+    """Write the scaling figure: release p99 vs cyclictest p99, and CPU per cycle, per rate."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
+    for label, style in (('alone', 'o-'), ('task set', 's--')):
+        sel = [r for r in rows if r.get('set') == label]
+        hz = [r['rate_hz'] for r in sel]
+        ax1.plot(hz, [r.get('release_p99_us') or np.nan for r in sel], style,
+                 label='actuator release p99, {}'.format(label))
+        ax1.plot(hz, [r.get('cyclictest_p99_us') or np.nan for r in sel], style, alpha=0.45,
+                 label='concurrent cyclictest p99 ({})'.format(label))
+        ax2.plot(hz, [r.get('cpu_per_cycle_us') or np.nan for r in sel], style,
+                 label='CPU per cycle, {}'.format(label))
+    for ax in (ax1, ax2):
+        ax.set_xscale('log')
+        ax.set_xticks([100, 250, 500, 1000])
+        ax.set_xticklabels(['100', '250', '500', '1000'])
+        ax.set_xlabel('actuator rate (Hz)')
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend(fontsize=8)
+    ax1.set_ylabel('µs')
+    ax1.set_title('(a) release latency p99 vs cyclictest at the same rate')
+    ax2.set_ylabel('µs of CPU per task cycle')
+    ax2.set_title('(b) RT process CPU per cycle')
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -1,25 +1,27 @@
-"""Render ``report.md`` from the bench summary (pure: dict in, Markdown out).
+"""Render ``report.md`` and ``readme_snippet.md`` from the bench summary (pure).
 
-Table 1, the utilization test and the response-time analysis come from
-:func:`m4k_rt.recorder.format_table1`; everything else (targets, ratios, Fig. 10 statistics,
-cyclictest, XDDP round trip, cmd_vel latency, machine) is formatted here.
+Table 1, the utilization test and the response-time analysis of the median round come from
+:func:`m4k_rt.recorder.format_table1`; everything else (targets with their spread over the
+rounds, per-round figures, hardening, stalls, loop cost, scaling, XDDP round trip, cmd_vel
+latency, machine) is formatted here. Nothing is explained that was not measured: a missed
+target shows its figures.
 """
 
 from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
-from m4k_bench.benchlib.analysis import RATIO_KEYS
+from m4k_bench.benchlib.analysis import RATIOS
 from m4k_rt import recorder
 
-__all__ = ['CONDITION_LABELS', 'render']
+__all__ = ['CONDITION_LABELS', 'method_lines', 'readme_snippet', 'render']
 
 CONDITION_LABELS = {
-    'm4k_idle': 'm4k (XDDP), idle',
-    'm4k_stress': 'm4k (XDDP), stress-ng',
+    'm4k_idle': 'm4k full stack, idle',
+    'm4k_alone': 'm4k actuator alone, idle',
+    'm4k_stress': 'm4k full stack, stress-ng',
     'baseline_idle': 'plain ROS, idle',
     'baseline_stress': 'plain ROS, stress-ng',
-    'm4k_alone': 'm4k actuator alone, idle',
 }
 
 
@@ -49,26 +51,193 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
     return out
 
 
+def _sp(sp: Mapping[str, Any] | None, digits: int = 2) -> str:
+    """Format a spread: 'median (min–max, n)'."""
+    if not sp:
+        return '-'
+    return '{} ({}–{}, n={})'.format(_f(sp['median'], digits), _f(sp['min'], digits),
+                                     _f(sp['max'], digits), sp['n'])
+
+
 def _targets(summ: Mapping[str, Any]) -> list[str]:
     rows = []
     for t in summ.get('targets', []):
         met = {True: '**met**', False: '**NOT met**', None: 'not measured'}[t['met']]
-        digits = 2 if t['key'] != 'rt_cpu_percent' else 2
-        rows.append([t['label'], t['target'], _f(t['measured'], digits), met, t['why'] or ''])
-    lines = ['## Targets', '',
-             'Ratios measured in this run (absolute numbers on a shared VM are noise; the '
-             'ratios compare things measured side by side).', '']
-    lines += _table(['What', 'Target', 'Measured', 'Verdict', 'Why (when missed)'], rows)
+        rows.append([t['label'], t['target'], _sp(t['spread']), met])
+    lines = ['## Targets (issue 14): median over the rounds, min–max', '',
+             'Every ratio is computed within one round, from two measurements taken side by '
+             'side; the verdict is on the median.', '']
+    lines += _table(['Ratio', 'Target', 'median (min–max, rounds)', 'Verdict'], rows)
     return lines
 
 
 def _ratios(summ: Mapping[str, Any]) -> list[str]:
-    r = summ.get('ratios', {})
-    lines = ['', '### summary.json "ratios"', '']
-    lines += _table(['key', 'value'], [['`{}`'.format(k), _f(r.get(k), 3)] for k in RATIO_KEYS])
-    lines += ['', '`rt_cpu_percent` = {} (utime + stime of the rt_core process over the Table 1 '
-              'run, % of one core).'.format(_f(summ.get('rt_cpu_percent'), 2))]
+    ratios = summ.get('ratios', {})
+    rows = []
+    for r in RATIOS:
+        e = ratios.get(r.key) or {}
+        rows.append([r.label, _sp(e.get('spread')),
+                     ' / '.join(_f(v, 2) for v in e.get('values', []))])
+    lines = ['## All ratios, per round', '']
+    lines += _table(['Ratio', 'median (min–max, n)', 'per round'], rows)
+    excl = ratios.get('_excluded') or []
+    if excl:
+        lines += ['', 'Left out of the m4k ratios (RT hardening not obtained): ' +
+                  '; '.join(excl) + '.']
     return lines
+
+
+def _label(key: str, cond: Mapping[str, Any]) -> str:
+    """Return the condition's label; a run without RT hardening is never called m4k."""
+    label = CONDITION_LABELS[key]
+    hard = cond.get('hardening')
+    if hard is not None and not hard.get('ok'):
+        label = label.replace('m4k', 'rt_core (degraded, not an m4k run)')
+    return label
+
+
+def _per_round(summ: Mapping[str, Any]) -> list[str]:
+    rows = []
+    for r in summ.get('rounds', []):
+        ct_alone = _g(r, 'ct_idle', 'latency_us')
+        if ct_alone:
+            rows.append([r['round'], 'cyclictest alone, idle', _f(ct_alone.get('p50')),
+                         _f(ct_alone.get('p99')), _f(ct_alone.get('p999')),
+                         _f(ct_alone.get('max')), '', '', ''])
+        ct_s = _g(r, 'ct_stress', 'latency_us')
+        if ct_s:
+            rows.append([r['round'], 'cyclictest alone, stress-ng', _f(ct_s.get('p50')),
+                         _f(ct_s.get('p99')), _f(ct_s.get('p999')), _f(ct_s.get('max')),
+                         '', '', ''])
+        for key in CONDITION_LABELS:
+            c = r.get(key)
+            if not c:
+                continue
+            lat = c.get('latency_us') or {}
+            ct = c.get('cyclictest') or {}
+            hard = c.get('hardening')
+            hard_s = '-' if hard is None else ('SCHED_FIFO, locked' if hard.get('ok') else
+                                              '**degraded: {}**'.format(hard.get('why')))
+            rows.append([r['round'], _label(key, c), _f(lat.get('p50')), _f(lat.get('p99')),
+                         _f(lat.get('p999')), _f(lat.get('max')),
+                         '{} / {}'.format(_f(ct.get('p99')), _f(ct.get('max'))),
+                         '{} / {}'.format(c.get('overruns', '-'), c.get('deadline_misses', '-')),
+                         hard_s])
+    lines = ['## Release latency per round and condition (µs)', '',
+             'Release latency = cycle start - the release it serves; after an overrun, from the '
+             "missed release (cyclictest's metric). The plain-ROS rows are its timer callback. "
+             '"concurrent cyclictest" ran at the same period and priority during that run.', '']
+    lines += _table(['Round', 'Condition', 'p50', 'p99', 'p99.9', 'max',
+                     'concurrent cyclictest p99 / max', 'overruns / misses', 'RT hardening'],
+                    rows)
+    return lines
+
+
+def _stalls(summ: Mapping[str, Any]) -> list[str]:
+    rows = []
+    for r in summ.get('rounds', []):
+        for key in CONDITION_LABELS:
+            for st in (r.get(key) or {}).get('stalls') or []:
+                rows.append([r['round'], _label(key, r[key]), st['metric'].replace('_us', ''),
+                             _f(st['stall_us']), _f(st['cyclictest_max_us']), st['owner']])
+    lines = ['## Stalls that set a maximum, checked against the concurrent cyclictest', '',
+             "A maximum above a tenth of the period is a stall. It is the host's when the "
+             'cyclictest running at the same time saw at least half of it (a C loop at the '
+             'same priority cannot be stalled by Python), else it is the measured '
+             "process's own.", '']
+    if not rows:
+        return lines + ['No stall in any round.']
+    return lines + _table(['Round', 'Condition', 'Metric', 'max (µs)',
+                           'concurrent cyclictest max (µs)', 'Whose'], rows)
+
+
+def _utilization(summ: Mapping[str, Any]) -> list[str]:
+    rows = []
+    for r in summ.get('rounds', []):
+        for key in ('m4k_idle', 'm4k_stress'):
+            c = r.get(key) or {}
+            u = c.get('utilization') or {}
+            v = c.get('verdicts') or {}
+            if u:
+                rows.append([r['round'], _label(key, c),
+                             '{} % ({})'.format(_f(100 * u['utilization'], 2)
+                                                if 'utilization' in u else '-',
+                                                v.get('utilization', '-')),
+                             '{} % ({})'.format(_f(100 * u['utilization_p999'], 2)
+                                                if 'utilization_p999' in u else '-',
+                                                v.get('utilization_p999', '-'))])
+    lines = ['## Utilization per round: from the max and from p99.9 of the response', '',
+             'Liu–Layland test on measured response ÷ period; the response-time analysis '
+             '(with release jitter = the release latency at the same percentile) of the '
+             'median round is in the Table 1 section. A max set by a stall is listed above '
+             'with its owner.', '']
+    return lines + _table(['Round', 'Condition', 'from max', 'from p99.9'], rows)
+
+
+def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
+    lc = summ.get('loop_cost') or {}
+    lines = ['## Cost of the RT loop', '',
+             'CPU per task cycle = rt_core process CPU (utime + stime) over the measured window '
+             '÷ the cycles its tasks ran in it (full stack, idle). The floor: bare Python '
+             'SCHED_FIFO timerfd threads at the same periods, priorities and phases (wake, '
+             'read, clock read), thread CPU ÷ cycles, measured in every round.', '']
+    rows = [['m4k full stack, idle', _sp(lc.get('m4k_cpu_per_cycle_us'), 1)],
+            ['Python floor', _sp(lc.get('floor_cpu_per_cycle_us'), 1)]]
+    ratio = _g(summ, 'ratios', 'cpu_per_cycle_over_floor', 'spread')
+    rows.append(['m4k ÷ floor', _sp(ratio)])
+    lines += _table(['CPU per cycle (µs)', 'median (min–max, rounds)'], rows)
+    lines += ['', "Breakdown: what each task's body costs per cycle (response p50, median "
+              'over rounds) and the per-cycle bookkeeping of `RtTask.wait_period` without the '
+              'kernel wait (clock read, ring record, rusage every 64 cycles):', '']
+    brows = [[k, _sp(v, 1)] for k, v in (lc.get('body_response_p50_us') or {}).items()]
+    bk = lc.get('bookkeeping_us') or {}
+    if 'per_cycle_us_median' in bk:
+        brows.append(['bookkeeping (no wait)', '{} µs'.format(_f(bk['per_cycle_us_median'],
+                                                                   2))])
+    lines += _table(['Part', 'µs per cycle'], brows)
+    parts = lc.get('parts_us') or {}
+    if parts:
+        lines += ['', 'The parts of a cycle, each timed alone on the real objects '
+                  '(`m4k_bench.benchlib.loopparts`; µs per call, rusage per cycle):', '']
+        lines += _table(['clock read', 'drain + decode one datagram', 'drain, empty port',
+                         'encode + send one datagram', 'timing record', 'rusage'],
+                        [[_f(parts.get(k), 2) for k in ('clock', 'drain_decode', 'drain_empty',
+                                                         'encode_send', 'timing_record',
+                                                         'rusage')]])
+    return lines
+
+
+def _scaling(summ: Mapping[str, Any]) -> list[str]:
+    rows = [[r['rate_hz'], r['set'], _f(r['release_p99_us']), _f(r['release_p999_us']),
+             _f(r['cyclictest_p99_us']), _f(r['ratio_p99'], 2), _f(r['cpu_per_cycle_us']),
+             '{} / {}'.format(r.get('overruns', '-'), r.get('deadline_misses', '-')),
+             _f(r.get('hardening_ok'))]
+            for r in summ.get('scaling') or []]
+    lines = ['## Scaling: the actuator at 100, 250, 500 and 1000 Hz', '']
+    if not rows:
+        return lines + ['Not measured.']
+    lines += ['![scaling](scaling.png)', '']
+    return lines + _table(['Rate (Hz)', 'Tasks', 'release p99 (µs)', 'release p99.9 (µs)',
+                           'cyclictest p99 at that rate (µs)', 'p99 ratio',
+                           'CPU per cycle (µs)', 'overruns / misses', 'hardened'], rows)
+
+
+def _rtt(summ: Mapping[str, Any]) -> list[str]:
+    rows = []
+    for r in summ.get('rounds', []):
+        t = r.get('rtt')
+        if t:
+            rows.append([r['round'], _f(t['xddp']['p50_us']), _f(t['raw']['p50_us']),
+                         _f(t['xddp']['p99_us']), _f(t['raw']['p99_us']),
+                         _f(t['xddp']['p50_us'] / t['raw']['p50_us'], 2)
+                         if t['raw']['p50_us'] else '-'])
+    lines = ["## XDDP round trip on the tasks' receive path vs a raw socket", '',
+             'A 32-byte datagram echoed by a peer process, both pinned to one CPU; the measuring '
+             'thread waits in one poll, then receives with `RtXddpSocket.recv_into` (what '
+             '`PortReader` does every cycle) -- the raw side with the same poll + recv_into '
+             '(`m4k_bench.xddp_bench`).', '']
+    return lines + _table(['Round', 'XDDP p50', 'raw p50', 'XDDP p99', 'raw p99',
+                           'p50 ratio'], rows)
 
 
 def _machine(m: Mapping[str, Any]) -> list[str]:
@@ -82,99 +251,6 @@ def _machine(m: Mapping[str, Any]) -> list[str]:
             ('loadavg', 'Load average at start')]
     return ['## Machine and kernel', ''] + _table(
         ['', ''], [[label, _f(m.get(k))] for k, label in keys if k in m])
-
-
-def _conditions(summ: Mapping[str, Any]) -> list[str]:
-    conds = summ.get('conditions', {})
-    rows = []
-    for key, label in CONDITION_LABELS.items():
-        c = conds.get(key)
-        if not c:
-            continue
-        p = c['period_ms_stats']
-        j = c['jitter_us']
-        lat = c['latency_us']
-        rows.append([label, c['samples'], _f(p['avg'], 3), _f(p['max'], 3), _f(p['min'], 3),
-                     _f(j['avg']), _f(j['max']), _f(j['std']), _f(j['p50']), _f(j['p99']),
-                     _f(j['p999']), _f(lat['p99']), c['overruns'], c['deadline_misses']])
-    lines = ['## Fig. 10: periodicity of the actuator task', '',
-             'Same control code (`m4k_rt.control.BaseController`) and the same simulated motor '
-             'handler in both: **m4k** runs it in the RT actuator task (SCHED_FIFO thread, '
-             'timerfd, XDDP ports to the driver host); the **plain-ROS baseline** runs it in an '
-             'rclpy node timer (SCHED_OTHER) that calls the motor handler directly. '
-             'Jitter = |period - 10 ms|.', '',
-             '![Fig. 10 periodicity](fig10_periodicity.png)', '']
-    lines += _table(['Condition', 'Samples', 'Period avg (ms)', 'Period max (ms)',
-                     'Period min (ms)', 'Jitter avg (us)', 'Jitter max (us)', 'Jitter std (us)',
-                     'Jitter p50 (us)', 'Jitter p99 (us)', 'Jitter p99.9 (us)',
-                     'Release p99 (us)', 'Overruns', 'Deadline misses'], rows)
-    warm = summ.get('warmup') or {}
-    parts = ['{} {} us'.format(CONDITION_LABELS.get(k, k), _f(v.get('max_latency_us')))
-             for k, v in warm.items() if isinstance(v, Mapping) and v.get('max_latency_us')]
-    if parts:
-        lines += ['', 'Start-up transient, excluded above: the first {} s of every run. Worst '
-                  'release latency in it: {}.'.format(_f(warm.get('seconds'), 0),
-                                                      '; '.join(parts))]
-    return lines + _interference(summ)
-
-
-def _interference(summ: Mapping[str, Any]) -> list[str]:
-    inter = summ.get('interference') or {}
-    rows = []
-    for cond, d in inter.items():
-        if not d:
-            continue
-        shares = ', '.join('{} {:.1f} %'.format(k, v * 100)
-                           for k, v in d['share_by_task'].items() if v > 0) or 'none'
-        rows.append([CONDITION_LABELS.get(cond, cond), d['cycles'],
-                     _f(d['interfered_share'] * 100, 2), shares,
-                     _f(d['latency_p99_interfered_us']), _f(d['latency_p99_clean_us']),
-                     _f(d['latency_p99_all_us'])])
-    if not rows:
-        return []
-    return ['', '### Interference inside the RT process', '',
-            'Actuator cycles whose release found another task of the same process running '
-            '(that task held the interpreter lock while the actuator waited), and the release '
-            'latency p99 of those cycles vs the others:', ''] + _table(
-        ['Condition', 'Cycles', 'Interfered (%)', 'By task', 'p99 interfered (us)',
-         'p99 clean (us)', 'p99 all (us)'], rows)
-
-
-def _cyclictest(summ: Mapping[str, Any]) -> list[str]:
-    ct = summ.get('cyclictest') or {}
-    conds = summ.get('conditions', {})
-    rows = []
-    for cond in ('idle', 'stress'):
-        c = _g(ct, cond, 'latency_us')
-        m = _g(conds, 'm4k_' + cond, 'latency_us')
-        if c:
-            rows.append(['cyclictest, ' + cond, _f(c.get('p50')), _f(c.get('p99')),
-                         _f(c.get('p999')), _f(c.get('max')), c.get('n', '-')])
-        if m:
-            rows.append(['m4k actuator, ' + cond, _f(m['p50']), _f(m['p99']), _f(m['p999']),
-                         _f(m['max']), m['n']])
-    lines = ['## Release latency: m4k actuator vs cyclictest', '',
-             "cyclictest at the actuator's period (10 ms) and priority, run right before the "
-             'm4k run of the same condition: `{}`.'.format(ct.get('command', 'cyclictest'))]
-    if not rows:
-        return lines + ['', 'Not measured: {}.'.format(ct.get('error', 'cyclictest missing'))]
-    return lines + [''] + _table(['Run', 'p50 (us)', 'p99 (us)', 'p99.9 (us)', 'max (us)',
-                                  'samples'], rows)
-
-
-def _rtt(summ: Mapping[str, Any]) -> list[str]:
-    r = summ.get('xddp_rtt')
-    lines = ['## XDDP round trip vs raw Unix-socket ping-pong', '']
-    if not r or 'xddp' not in r:
-        return lines + ['Not measured: {}.'.format((r or {}).get('error', 'skipped'))]
-    rows = [[name, _f(r[k]['min_us']), _f(r[k]['p50_us']), _f(r[k]['p99_us']),
-             _f(r[k]['max_us']), r[k]['n']]
-            for k, name in (('xddp', 'XDDP emulation (RtXddpSocket <-> NrtXddpEndpoint)'),
-                            ('raw', 'raw SOCK_SEQPACKET, blocking'))]
-    return lines + ['{}-byte datagram echoed by a peer process; measuring thread SCHED_FIFO: '
-                    '{} (`m4k_bench.xddp_bench.run_rtt`).'.format(
-                        r.get('payload_bytes', '?'), _f(r.get('sched_fifo'))), ''] + _table(
-        ['Transport', 'min (us)', 'p50 (us)', 'p99 (us)', 'max (us)', 'round trips'], rows)
 
 
 def _cmdlat(summ: Mapping[str, Any]) -> list[str]:
@@ -196,43 +272,90 @@ def _cmdlat(summ: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def method_lines(summ: Mapping[str, Any], domain: Any) -> list[str]:
+    """Return the method, as it was run (the numbers come from the plan)."""
+    plan = _g(summ, 'run', 'plan') or {}
+    dma = summ.get('cpu_dma_latency') or {}
+    return [
+        '{} rounds; in each, every condition for {:g} s (+ {:g} s warm-up left out of the '
+        'statistics); the order of the conditions is reversed every other round.'.format(
+            plan.get('rounds'), plan.get('condition_s', 0), summ.get('warmup_s', 0)),
+        'm4k conditions run the architecture end to end: Twist on `cmd_vel` at 20 Hz over DDS '
+        '-> `bridge` -> XDDP `cmd` -> actuator task of `rt_core` (+ `driver_host` on simulated '
+        'devices); the bench records TASK_STATS on the `status` port. The plain-ROS baseline '
+        'gets the same `cmd_vel` publisher.',
+        'cyclictest (`-m -p 90 -i <period>`) runs concurrently with every m4k and baseline run, '
+        "at the actuator's period and priority, and alone idle and under stress-ng.",
+        '/dev/cpu_dma_latency is held at 0 µs by the bench for the whole run: {}.'.format(
+            'held' if dma.get('held') else 'NOT held ({})'.format(dma.get('error'))),
+        'Stress: `{}`, started 1 s before and stopped after each stressed run.'.format(
+            summ.get('stress_command', '')),
+        'RT hardening of every m4k run is read from RT_STATUS (policy, memory locked, degraded); '
+        'a run without SCHED_FIFO and locked memory is left out of the m4k ratios.',
+        'Release latency after an overrun counts from the missed release.',
+        'ROS isolation: ROS_DOMAIN_ID={}, localhost discovery.'.format(domain),
+    ]
+
+
 def render(summ: Mapping[str, Any]) -> str:
     """Return the whole report as Markdown."""
     run = summ.get('run', {})
     lines = ['# m4k bench report', '',
-             'Run {} (UTC), {} mode: Table 1 run {} s, each Fig. 10 / cyclictest condition '
-             '{} s. Reproduce: `{}`.'.format(
-                 run.get('started_utc', '?'), run.get('mode', '?'),
-                 _f(run.get('table1_s'), 0), _f(run.get('condition_s'), 0),
-                 run.get('reproduce', 'make bench')), '']
-    lines += _targets(summ)
-    lines += _ratios(summ)
-    lines += ['']
-    table1 = summ.get('table1')
-    if table1 and table1.get('tasks'):
-        lines += ['# Table 1 and the utilization test', '',
-                  'Full stack on simulated devices (rt_core with the five robot tasks + monitor, '
-                  'driver_host with the sim backends), idle machine, velocity commands at 20 Hz '
-                  'as the navigation stack would send them. Response = t_end - t_start; '
-                  'release latency = t_start - t_rel. Worst case = max measured response.', '']
-        lines += recorder.format_table1(table1).splitlines()
-        lines += ['', 'RT process CPU over the run: {} % of one core.'.format(
-            _f(summ.get('rt_cpu_percent'), 2))]
-    else:
-        lines += ['# Table 1', '', 'Not measured: {}.'.format(
-            summ.get('skipped', {}).get('table1', 'no samples received'))]
-    lines += [''] + _conditions(summ)
-    lines += [''] + _cyclictest(summ)
+             '`{}` -- {} run started {} UTC; results in `{}`.'.format(
+                 run.get('reproduce', 'bench'), run.get('mode', ''), run.get('started_utc', ''),
+                 run.get('results_dir', '')), '']
+    for note in summ.get('notes', []):
+        lines.append('* ' + note)
+    lines += [''] + _targets(summ)
+    lines += [''] + _ratios(summ)
+    lines += [''] + _per_round(summ)
+    lines += [''] + _stalls(summ)
+    lines += [''] + _utilization(summ)
+    lines += [''] + _loop_cost(summ)
+    lines += [''] + _scaling(summ)
     lines += [''] + _rtt(summ)
     lines += [''] + _cmdlat(summ)
+    if any(summ.get('rounds', [{}])[0:1]) and 'fig10_periodicity.png' in summ.get('files', []):
+        lines += ['', '## Fig. 10: periodicity of the actuator task, all rounds pooled', '',
+                  '![Fig. 10 periodicity](fig10_periodicity.png)']
+    lines += ['', '## Timing of the median round (paper Table 1)', '']
+    if summ.get('table1'):
+        lines += ['Round {} (the one whose actuator release p99, idle, is the median).'.format(
+            summ.get('table1_round')), '']
+        lines += [recorder.format_table1(summ['table1'])]
+    else:
+        lines += ['Not measured.']
     lines += [''] + _machine(summ.get('machine', {}))
-    notes = summ.get('notes') or []
-    if notes:
-        lines += ['', '## Notes', ''] + ['* ' + n for n in notes]
-    method = summ.get('method') or []
-    if method:
-        lines += ['', '## How this was measured', ''] + ['* ' + m for m in method]
-    files = summ.get('files') or []
-    if files:
-        lines += ['', '## Files', ''] + ['* `{}`'.format(f) for f in files]
+    lines += ['', '## Method', ''] + ['* ' + m for m in summ.get('method', [])]
+    skipped = summ.get('skipped') or {}
+    if skipped:
+        lines += ['', '## Not measured', ''] + ['* {}: {}'.format(k, v)
+                                                for k, v in skipped.items()]
+    return '\n'.join(lines) + '\n'
+
+
+def readme_snippet(summ: Mapping[str, Any]) -> str:
+    """Return the README's results block: targets with their spread, the machine, the command."""
+    m = summ.get('machine', {})
+    run = summ.get('run', {})
+    plan = run.get('plan') or {}
+    lines = ['Measured with `{}` ({} rounds × {:g} s per condition, started {} UTC) on: {}, '
+             '{} CPUs, kernel {} ({}). Median over the rounds, min–max in brackets; full '
+             'report: [`docs/results/bench/report.md`](docs/results/bench/report.md).'.format(
+                 run.get('reproduce', 'make bench'), plan.get('rounds'),
+                 plan.get('condition_s', 0), run.get('started_utc', ''),
+                 m.get('cpu_model', '?'), m.get('cpus_online', '?'), m.get('kernel', '?'),
+                 m.get('preempt_model', '?')), '']
+    rows = [[t['label'], _sp(t['spread']), t['target'],
+             {True: 'met', False: 'NOT met', None: 'not measured'}[t['met']]]
+            for t in summ.get('targets', [])]
+    for key in ('baseline_over_m4k_jitter_p99_stress', 'baseline_over_m4k_jitter_max_stress'):
+        e = _g(summ, 'ratios', key) or {}
+        rows.append([e.get('label', key), _sp(e.get('spread')), '–', 'reported'])
+    lines += _table(['ratio', 'median (min–max, rounds)', 'target', ''], rows)
+    lc = summ.get('loop_cost') or {}
+    lines += ['', 'CPU per task cycle: m4k {} µs, Python floor {} µs.'.format(
+        _sp(lc.get('m4k_cpu_per_cycle_us'), 1), _sp(lc.get('floor_cpu_per_cycle_us'), 1))]
+    if summ.get('scaling'):
+        lines += ['', '![scaling](docs/results/bench/scaling.png)']
     return '\n'.join(lines) + '\n'

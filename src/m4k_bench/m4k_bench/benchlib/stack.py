@@ -8,14 +8,16 @@ bench works from the source tree and from the colcon install alike, each in its 
 with stderr logged to ``<results>/logs/``. They are stopped by their own pid (SIGTERM, then
 SIGKILL after a grace period), never by name.
 
-While the RT stack runs, the bench itself is the NRT peer of two ports:
+:func:`start_stack` is the one place that starts the robot stack for a measurement.
 
-* ``status`` -- it records every TASK_STATS batch with :class:`m4k_rt.recorder.Recorder`;
-* ``cmd`` -- it sends VELOCITY_CMD at 20 Hz (the navigation stack's rate in the paper) from
-  :func:`velocity_profile` and drains the ODOMETRY replies, as the bridge would.
-
-The same profile is published on ``cmd_vel`` for the baseline (``ros_commander``), so both
-run the same control on the same commands.
+While the RT stack runs, the bench records every TASK_STATS batch of the ``status`` port with
+:class:`m4k_rt.recorder.Recorder`. Commands take the architecture's path end to end
+(``e2e=True``, the default): the velocity profile (:func:`velocity_profile`, 20 Hz as the
+paper's navigation stack) is published as Twist on ``cmd_vel`` over DDS, the bridge forwards it
+over XDDP to the actuator -- the same DDS publisher the plain-ROS baseline gets
+(:func:`ros_commander`), so both run the same control on the same commands over the same
+middleware. The bridge's own ``status`` port is pointed at an unused label: the bench, not the
+bridge, is that port's peer. ``e2e=False`` writes VELOCITY_CMD on ``cmd`` directly.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from m4k_bench.benchlib import system
 from m4k_rt import protocol, recorder, xddp
 
 __all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
-           'ros_commander', 'start_sim_robot', 'velocity_profile']
+           'ros_commander', 'start_sim_robot', 'start_stack', 'velocity_profile']
 
 CMD_PERIOD_S = 0.05   # 20 Hz, as the paper's navigation stack
 _ENTRY = 'import sys; from {} import {} as _m; sys.exit(_m())'
@@ -136,6 +138,7 @@ class M4kRun:
         """Start empty."""
         self.recorder = recorder.Recorder()
         self.cpu_percent: float | None = None
+        self.cpu_s: float | None = None
         self.cpu_window_s = 0.0
         self.rt_exit: int | None = None
         self.host_exit: int | None = None
@@ -144,34 +147,62 @@ class M4kRun:
         self.errors: list[str] = []
 
 
+UNUSED_STATUS_LABEL = 'bench_unused'
+
+
+def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], *,
+                tasks: str | None = None, driver_host: bool = True, bridge: bool = True,
+                rt_config: str | None = None) -> dict[str, Child]:
+    """Start the robot stack for one measurement; return its children by role.
+
+    sim_robot first (with the driver host; RuntimeError when it does not come up), rt_core
+    (``--tasks`` / ``--config`` as given), then the driver host and the bridge. Every process
+    the stack needs is started here and nowhere else.
+    """
+    rt_args = ['--tasks', tasks] if tasks else []
+    if rt_config:
+        rt_args += ['--config', rt_config]
+    kids = {}
+    if driver_host:     # the robot the driver host drives: first, and stopped last
+        kids['sim_robot'] = start_sim_robot(runtime_dir, log_dir, name, env)
+    kids['rt_core'] = Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args),
+                            log_dir, env)
+    if driver_host:
+        kids['driver_host'] = Child(name + '.driver_host', entry_argv('m4k_drivers.host'),
+                                    log_dir, env)
+    if bridge:
+        kids['bridge'] = Child(name + '.bridge', entry_argv(
+            'm4k_rt.bridge.node', '--ros-args', '-p',
+            'ports.status:={}'.format(UNUSED_STATUS_LABEL)), log_dir, env)
+    return kids
+
+
 def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
             tasks: str | None = None, driver_host: bool = True,
             progress: Callable[[str], None] | None = None,
             env: dict[str, str] | None = None, start_timeout_s: float = 30.0,
-            rt_config: str | None = None) -> M4kRun:
-    """Run rt_core (+ driver_host) for ``duration_s`` of task time, recording the status port.
+            rt_config: str | None = None, e2e: bool = True,
+            on_started: Callable[[], None] | None = None) -> M4kRun:
+    """Run the stack for ``duration_s`` of task time, recording the status port.
 
     The CPU window starts when the first TASK_STATS batch arrives (tasks running, imports
-    done) and ends ``duration_s`` later, just before rt_core is stopped.
+    done; ``on_started`` is called then) and ends ``duration_s`` later, just before rt_core
+    is stopped.
     """
     out = M4kRun()
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     xddp.ensure_runtime_dir(runtime_dir)
-    rt_args = ['--tasks', tasks] if tasks else []
-    if rt_config:
-        rt_args += ['--config', rt_config]
-    sim = host = None
-    if driver_host:
-        try:
-            sim = start_sim_robot(runtime_dir, log_dir, name, env)
-        except RuntimeError as exc:
-            out.errors.append(str(exc))
-            return out
-    rt = Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args), log_dir, env)
-    if driver_host:
-        host = Child(name + '.driver_host', entry_argv('m4k_drivers.host'), log_dir, env)
+    try:
+        kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks,
+                           driver_host=driver_host, bridge=e2e, rt_config=rt_config)
+    except RuntimeError as exc:
+        out.errors.append(str(exc))
+        return out
+    rt = kids['rt_core']
     status = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
-    cmd = xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+    cmd = None if e2e else xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+    stop_cmd = threading.Event()
+    commander = ros_commander(stop_cmd) if e2e else None
     rec = out.recorder
     seq = 0
     try:
@@ -193,26 +224,30 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
             elif now - t_first >= duration_s:
                 break
             if now >= next_cmd:
-                v, w = velocity_profile(now - t_begin)
-                if cmd.write(protocol.encode(protocol.Kind.VELOCITY_CMD, seq,
-                                             time.monotonic_ns(), v, w)):
-                    out.commands_sent += 1
-                seq += 1
+                if cmd is not None:
+                    v, w = velocity_profile(now - t_begin)
+                    if cmd.write(protocol.encode(protocol.Kind.VELOCITY_CMD, seq,
+                                                 time.monotonic_ns(), v, w)):
+                        out.commands_sent += 1
+                    seq += 1
+                    while cmd.read(0.0) is not None:
+                        out.odometry_received += 1
                 next_cmd += CMD_PERIOD_S
-                while cmd.read(0.0) is not None:
-                    out.odometry_received += 1
             data = status.read(max(0.0, min(next_cmd - time.monotonic(), CMD_PERIOD_S)))
             if data:
                 kind = rec.feed(data)
                 if t_first is None and kind == protocol.Kind.TASK_STATS:
                     t_first = time.monotonic()
                     cpu0 = system.proc_cpu_seconds(rt.pid)
+                    if on_started is not None:
+                        on_started()
             if progress is not None and now >= next_note:
                 next_note = now + 0.5
                 progress('{} batches'.format(rec.datagrams))
         if t_first is not None and rt.alive():
             cpu1 = system.proc_cpu_seconds(rt.pid)
             out.cpu_window_s = time.monotonic() - t_first
+            out.cpu_s = cpu1 - cpu0
             out.cpu_percent = 100.0 * (cpu1 - cpu0) / out.cpu_window_s
         if rt.alive():
             rt.proc.send_signal(signal.SIGTERM)
@@ -225,16 +260,22 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
             elif not rt.alive():
                 break
     finally:
+        stop_cmd.set()
+        if commander is not None:
+            commander.join(5.0)
         status.close()
-        cmd.close()
+        if cmd is not None:
+            cmd.close()
         out.rt_exit = rt.stop()
-        if host is not None:
-            out.host_exit = host.stop()
-            if out.host_exit not in (0, -signal.SIGTERM, None):
-                out.errors.append('driver_host exited {}: {}'.format(
-                    out.host_exit, ' | '.join(host.tail())))
-        if sim is not None:
-            sim.stop()
+        for role, child in reversed(list(kids.items())):    # sim_robot last
+            if role == 'rt_core':
+                continue
+            code = child.stop()
+            if role == 'driver_host':
+                out.host_exit = code
+            if code not in (0, -signal.SIGTERM, None):
+                out.errors.append('{} exited {}: {}'.format(role, code, ' | '.join(
+                    child.tail())))
     if out.rt_exit not in (0, -signal.SIGTERM):
         out.errors.append('rt_core exited {}: {}'.format(out.rt_exit, ' | '.join(rt.tail())))
     return out
@@ -274,7 +315,8 @@ def ros_commander(stop: threading.Event, *, topic: str = 'cmd_vel',
 
 def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
                  env: dict[str, str] | None = None,
-                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                 progress: Callable[[str], None] | None = None,
+                 on_started: Callable[[], None] | None = None) -> dict[str, Any]:
     """Run the baseline node for ``duration_s`` with the profile on cmd_vel; return status."""
     import shutil
     import tempfile
@@ -289,6 +331,8 @@ def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
     commander = ros_commander(stop)
     child = Child(name, entry_argv('m4k_bench.baseline', '--duration', str(duration_s),
                                    '--timing-csv', csv_path), log_dir, env)
+    if on_started is not None:
+        on_started()
     t0 = time.monotonic()
     try:
         while child.wait(0.5) is None:

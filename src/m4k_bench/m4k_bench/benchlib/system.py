@@ -19,7 +19,7 @@ import sys
 import time
 from typing import Any, Callable
 
-__all__ = ['STRESS_ARGS', 'Stress', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
+__all__ = ['DmaLatency', 'STRESS_ARGS', 'Stress', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
            'machine_info', 'proc_cpu_seconds']
 
 # tool -> Debian package
@@ -101,6 +101,49 @@ class Stress:
                 continue
         if proc.poll() is None:
             proc.wait()
+
+
+class DmaLatency:
+    """Hold ``/dev/cpu_dma_latency`` at 0 µs for a ``with`` block (``held`` says if it worked).
+
+    The bench holds it for the whole run, so every condition -- m4k, the plain-ROS baseline and
+    cyclictest alone -- runs with the same CPU idle-state policy (cyclictest and rt_core also
+    request 0 µs themselves; the kernel takes the minimum of all requests).
+    """
+
+    PATH = '/dev/cpu_dma_latency'
+
+    def __init__(self) -> None:
+        """Prepare; nothing is opened yet."""
+        self.fd: int | None = None
+        self.error: str | None = None
+
+    @property
+    def held(self) -> bool:
+        """Tell whether the request is in force."""
+        return self.fd is not None
+
+    def __enter__(self) -> DmaLatency:
+        """Open the device and write a 32-bit 0 (the request lasts while the fd is open)."""
+        try:
+            fd = os.open(self.PATH, os.O_WRONLY | os.O_CLOEXEC)
+        except OSError as exc:
+            self.error = '{}: {}'.format(self.PATH, exc.strerror)
+            return self
+        try:
+            os.write(fd, (0).to_bytes(4, sys.byteorder))
+        except OSError as exc:
+            os.close(fd)
+            self.error = '{}: {}'.format(self.PATH, exc.strerror)
+            return self
+        self.fd = fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Close the fd: the kernel drops the request."""
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
 
 
 def proc_cpu_seconds(pid: int) -> float:

@@ -1,7 +1,8 @@
-"""LED strip NS-LED-02; backends ``led_class`` (alias ``real``), ``pwm`` and ``sim``.
+"""LED strip NS-LED-02; backends ``led_class`` (= ``real``), ``led_class_rgb``, ``pwm``, ``sim``.
 
-``sim`` runs the ``led_class`` (or, with ``interface: pwm``, the ``pwm``) code unchanged on the
-sysfs files ``sim_robot`` keeps in ``<runtime_dir>/sim-sysfs`` (``sysfs_root``).
+``led_class_rgb`` drives a strip wired as three single-colour LED class devices.  ``sim`` runs
+the ``led_class`` (or, with ``interface: pwm``, the ``pwm``) code unchanged on the sysfs files
+``sim_robot`` keeps in ``<runtime_dir>/sim-sysfs`` (their ``sysfs_root``).
 """
 
 from __future__ import annotations
@@ -14,61 +15,84 @@ from m4k_drivers.registry import BuildContext, Param, register
 
 __all__ = ['LedColor', 'LedHandler']
 
-_ROOT = {'sysfs_root': Param(str, '/sys', 'where sysfs is mounted (a simulated tree in tests)')}
+_ROOT = {'sysfs_root': Param(str, '/sys', 'where sysfs is mounted (sim_robot: its own tree)')}
 _LED_CLASS = {'name': Param(str, doc='LED class device name under /sys/class/leds')} | _ROOT
 
 
-def _led_class(params: dict[str, Any], name: str) -> LedHandler:
+def _leds(params: dict[str, Any]) -> str:
     import os
-
-    from m4k_drivers.led.real import LedClassOutput
-    root = os.path.join(params['sysfs_root'], 'class', 'leds')
-    return LedHandler(lambda: LedClassOutput(params['name'], root), name=name)
-
-
-def _pwm(params: dict[str, Any], name: str) -> LedHandler:
-    import os
-
-    from m4k_drivers.led.real import PwmOutput
-    root = os.path.join(params['sysfs_root'], 'class', 'pwm')
-    return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns'],
-                                        root=root), name=name)
+    return os.path.join(params['sysfs_root'], 'class', 'leds')
 
 
 def _build_led_class(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
-    return _led_class(params, name)
+    from m4k_drivers.led.real import LedClassOutput
+    return LedHandler(lambda: LedClassOutput(params['name'], _leds(params)), name=name)
 
 
 register('led', 'led_class', params=_LED_CLASS)(_build_led_class)
 register('led', 'real', params=_LED_CLASS)(_build_led_class)
 
 
+def _check_names(value: object) -> str | None:
+    if not (isinstance(value, list) and len(value) == 3
+            and all(isinstance(v, str) and v and '/' not in v for v in value)):
+        return 'expected [red, green, blue] LED class device names'
+    return None
+
+
+def _check_channels(value: object) -> str | None:
+    if not (isinstance(value, list) and len(value) == 3 and len(set(value)) == 3
+            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                    for v in value)):
+        return 'expected three distinct channel numbers >= 0 for [r, g, b]'
+    return None
+
+
+@register('led', 'led_class_rgb', params={
+    'names': Param(list, doc='[red, green, blue] single-colour LED class names under '
+                   '/sys/class/leds', check=_check_names),
+} | _ROOT)
+def _build_led_class_rgb(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
+    from m4k_drivers.led.real import LedClassRgbOutput
+    return LedHandler(lambda: LedClassRgbOutput(params['names'], _leds(params)), name=name)
+
+
 _PWM = {
     'chip': Param(int, doc='PWM chip number N of /sys/class/pwm/pwmchipN'),
-    'channels': Param(list, [0, 1, 2], 'PWM channels for r, g, b'),
-    'period_ns': Param(int, 1_000_000, 'PWM period, ns'),
+    'channels': Param(list, [0, 1, 2], 'PWM channels for r, g, b', _check_channels),
+    'period_ns': Param(int, 1_000_000, 'PWM period, ns (> 0)',
+                       lambda v: None if v > 0 else 'must be > 0'),
+    'polarity': Param(str, 'normal', "'normal' or 'inversed' (active-low wiring, e.g. a "
+                      'common-anode strip)',
+                      lambda v: None if v in ('normal', 'inversed')
+                      else "must be 'normal' or 'inversed'"),
 }
 
 
 @register('led', 'pwm', params=_PWM | _ROOT)
 def _build_pwm(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
-    return _pwm(params, name)
+    import os
+
+    from m4k_drivers.led.real import PwmOutput
+    root = os.path.join(params['sysfs_root'], 'class', 'pwm')
+    return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns'],
+                                        params['polarity'], root), name=name)
 
 
 @register('led', 'sim', params={
-    'interface': Param(str, 'led_class', "'led_class' (multicolor LED) or 'pwm' (3 channels)"),
+    'interface': Param(str, 'led_class', "'led_class' (multicolor LED) or 'pwm' (3 channels)",
+                       lambda v: None if v in ('led_class', 'pwm')
+                       else "must be 'led_class' or 'pwm'"),
     'name': Param(str, 'rgb:status', 'simulated LED class device name'),
     'chip': Param(int, 0, 'simulated PWM chip'),
     'channels': _PWM['channels'],
     'period_ns': _PWM['period_ns'],
+    'polarity': _PWM['polarity'],
     'multi_index': Param(list, ['red', 'green', 'blue'], 'sim: the channel order the '
                          'simulated multicolor LED reports in multi_index'),
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
     import os
-    if params['interface'] not in ('led_class', 'pwm'):
-        raise ValueError(f"devices.{name}.interface: expected 'led_class' or 'pwm', "
-                         f"got {params['interface']!r}")
     root = os.path.join(ctx.sim_runtime_dir(), 'sim-sysfs')
-    build = _pwm if params['interface'] == 'pwm' else _led_class
-    return build(params | {'sysfs_root': root}, name)
+    build = _build_pwm if params['interface'] == 'pwm' else _build_led_class
+    return build(name, params | {'sysfs_root': root}, ctx)

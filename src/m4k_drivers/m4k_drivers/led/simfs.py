@@ -137,10 +137,14 @@ class SysfsLeds:
             return
         d = os.path.join(self.chip_dir, f'pwm{ch}')
         if make and not os.path.isdir(d):
-            os.makedirs(d)
+            # The channel appears whole (built aside, renamed in): a driver waiting for its
+            # files must never write one that the "kernel" then initialises over.
+            tmp = d + '.new'
+            os.makedirs(tmp, exist_ok=True)
             for attr, value in (('period', '0'), ('duty_cycle', '0'), ('enable', '0'),
                                 ('polarity', 'normal')):
-                _write(os.path.join(d, attr), value)
+                _write(os.path.join(tmp, attr), value)
+            os.rename(tmp, d)
         elif not make:
             shutil.rmtree(d, ignore_errors=True)
 

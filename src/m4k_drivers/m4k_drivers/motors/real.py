@@ -12,8 +12,8 @@ from typing import Callable, Protocol
 
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 
-__all__ = ['EnableLine', 'LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_real_bus',
-           'open_real_enable']
+__all__ = ['EnableLine', 'LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_ldac',
+           'open_real_bus', 'open_real_enable']
 
 
 class SpiLike(Protocol):
@@ -49,7 +49,7 @@ class SpiPort:
 
 
 class LineLike(Protocol):
-    """What the heartbeat needs from a GPIO output line (periphery.GPIO's subset)."""
+    """An output GPIO line (python-periphery GPIO): write and close."""
 
     def write(self, value: bool) -> None:
         """Drive the line."""
@@ -68,7 +68,7 @@ class EnableLine:
         self.toggles = 0
 
     def toggle(self) -> None:
-        """Flip the line (one edge = one retrigger); OSError -> DeviceIOError naming it."""
+        """Flip the line (a rising edge retriggers); OSError -> DeviceIOError naming it."""
         try:
             self.line.write(not self.level)
         except OSError as exc:
@@ -85,30 +85,45 @@ class EnableLine:
 
 
 class MotorBus:
-    """The four SPI endpoints of the base (left/right DAC, left/right encoder) + enable line."""
+    """The four SPI endpoints of the base (left/right DAC, left/right encoder), /LDAC, enable.
+
+    ``ldac`` None: /LDAC is tied low on the board, every DAC output follows its own write.
+    Otherwise the line idles high and :meth:`latch` pulses it low after both writes.
+    ``enable`` is the amplifier-enable heartbeat (None: enable strapped on).
+    """
 
     def __init__(self, left_dac: SpiPort, right_dac: SpiPort, left_enc: SpiPort,
-                 right_enc: SpiPort, enable: EnableLine | None = None) -> None:
+                 right_enc: SpiPort, ldac: LineLike | None = None,
+                 ldac_where: str = 'LDAC', enable: EnableLine | None = None) -> None:
         self.dacs = (left_dac, right_dac)
         self.encoders = (left_enc, right_enc)
+        self.ldac = ldac
+        self.ldac_where = ldac_where
+        self.latches = 0
         self.enable = enable
+
+    def latch(self) -> None:
+        """Pulse /LDAC low then high (a Python GPIO write pair lasts >> t_LD = 100 ns)."""
+        if self.ldac is None:
+            return
+        try:
+            self.ldac.write(False)
+            self.ldac.write(True)
+        except OSError as exc:
+            raise wrap_os_error(exc, self.ldac_where, 'pulse') from exc
+        self.latches += 1
 
     def close(self) -> None:
         """Close every endpoint."""
         for port in (*self.dacs, *self.encoders):
             port.close()
+        if self.ldac is not None:
+            try:
+                self.ldac.close()
+            except OSError:
+                pass
         if self.enable is not None:
             self.enable.close()
-
-
-def open_real_enable(chip: str, line: int) -> EnableLine:
-    """Request the heartbeat line as an output, initially low."""
-    from periphery import GPIO
-    where = f'{chip} line {line}'
-    try:
-        return EnableLine(GPIO(chip, line, 'low'), where)
-    except OSError as exc:
-        raise wrap_os_error(exc, where) from exc
 
 
 def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
@@ -123,11 +138,31 @@ def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
                             ) from exc
 
 
+def open_ldac(chip: str, line: int) -> LineLike:
+    """Request /LDAC as an output idling high (outputs hold until the pulse)."""
+    from periphery import GPIO
+    try:
+        return GPIO(chip, line, 'high')
+    except OSError as exc:
+        raise wrap_os_error(exc, f'{chip} line {line} (LDAC)') from exc
+
+
+def open_real_enable(chip: str, line: int) -> EnableLine:
+    """Request the heartbeat line as an output, initially low."""
+    from periphery import GPIO
+    where = f'{chip} line {line}'
+    try:
+        return EnableLine(GPIO(chip, line, 'low'), where)
+    except OSError as exc:
+        raise wrap_os_error(exc, where) from exc
+
+
 def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, *,
                   dac_mode: int = 0, dac_speed_hz: int = 1_000_000, enc_mode: int = 2,
-                  enc_speed_hz: int = 500_000,
+                  enc_speed_hz: int = 500_000, ldac_chip: str | None = None,
+                  ldac_line: int | None = None,
                   enable: Callable[[], EnableLine] | None = None) -> MotorBus:
-    """Open the four spidev nodes and the enable line (closing what opened if one fails)."""
+    """Open the four spidev nodes, /LDAC if driven, the enable line (closing all on failure)."""
     opened: list[SpiPort] = []
     try:
         for path, mode, speed in ((left_dac, dac_mode, dac_speed_hz),
@@ -135,9 +170,16 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
                                   (left_enc, enc_mode, enc_speed_hz),
                                   (right_enc, enc_mode, enc_speed_hz)):
             opened.append(open_spi(path, mode, speed))
-        line = enable() if enable is not None else None
+        ldac = None if ldac_chip is None else open_ldac(ldac_chip, int(ldac_line or 0))
+        try:
+            line = enable() if enable is not None else None
+        except DriverError:
+            if ldac is not None:
+                ldac.close()
+            raise
     except DriverError:
         for port in opened:
             port.close()
         raise
-    return MotorBus(*opened, enable=line)
+    return MotorBus(*opened, ldac=ldac, ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)',
+                    enable=line)
