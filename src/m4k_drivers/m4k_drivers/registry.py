@@ -36,7 +36,7 @@ KIND_MODULES: dict[str, str] = {
     'imu': 'm4k_drivers.imu',
     'sonar': 'm4k_drivers.sonar',
     'led': 'm4k_drivers.led',
-    'lrf': 'm4k_drivers.lrf',
+    'lrf': 'm4k_drivers.lrf.handler',  # the package itself stays free of pyserial
 }
 
 # Keys every device section may carry, whatever its backend.
