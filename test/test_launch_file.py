@@ -71,7 +71,7 @@ def test_launch_starts_what_bringup_starts_with_the_derived_bridge_parameters(
 
 def test_sim_false_refuses_a_configuration_with_simulated_devices(monkeypatch,
                                                                   m4k_runtime_dir):
-    with pytest.raises(RuntimeError, match='sim:=false but devices'):
+    with pytest.raises(RuntimeError, match='sim:=false but the configuration has simulated'):
         _evaluate(monkeypatch, m4k_runtime_dir, sim='false')
 
 

@@ -32,10 +32,12 @@ SERVERS = {
     'baseline': ([], None),
     'echo_peer': (['cmd'], r'echo peer: serving cmd'),
     'record': (['odom', '-o', '{tmp}/bag'], None),
+    'sim_robot': (['--runtime-dir', '{rt}'], r'simulating '),
 }
 # Tools: arguments for a short real run, and what their output must show.
 TOOLS = {
     'rt_stat': (['--wait', '0'], 1, r'no RT core'),
+    'sim_truth': (['--runtime-dir', '{rt}'], 1, r'no sim_robot answering'),
     'xddp_bench': (['-n', '20', '--runtime-dir', '{rt}'], 0, r'xddp/raw p50 ratio'),
     'fuzz': (['--count', '1', '--ports', 'cmd'], 0, r'fuzz: 1 datagrams, 1 bad'),
     'core_bench': (['--duration', '0.2', '--rtt', '10'], 0, r'task machinery per cycle'),

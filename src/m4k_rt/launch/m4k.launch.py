@@ -4,11 +4,11 @@
         [sim:=auto|true|false] [robot_state_publisher:=false|true] [bridge_params:=FILE]
 
 Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
-``bridge_overlay``) from the same layered configuration and overlay: rt_core, driver_host, the
-bridge (node m4k_bridge, parameters: share/m4k_rt/config/bridge.yaml, then those derived from
-the configuration -- runtime directory, robot description, sensor frames -- and the overlay's
-``m4k_bridge:`` section, then ``bridge_params``), and the simulated robot (``sim_robot``) when
-that executable exists and ``sim`` is on.
+``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
+simulated robot (``sim_robot``, when ``sim`` is on), rt_core, driver_host and the bridge (node
+m4k_bridge, parameters: share/m4k_rt/config/bridge.yaml, then those derived from the
+configuration -- runtime directory, robot description, sensor frames -- and the overlay's
+``m4k_bridge:`` section, then ``bridge_params``).
 
 ``sim``: ``auto`` (default) simulates when the configuration has any ``backend: sim`` device;
 ``true`` requires such devices; ``false`` refuses a configuration that still has simulated
@@ -68,12 +68,10 @@ def _nodes(context, *args, **kwargs):
 
     cfg = config.load(overlay)                       # ConfigError names the field
     doc = config.load_layered(overlay)
-    simulated = sorted(k for k, s in (doc.get('devices') or {}).items()
-                       if isinstance(s, dict) and s.get('backend') == 'sim'
-                       and s.get('enabled', True))
+    simulated = bringup.uses_sim(doc)
     if sim is False and simulated:
-        raise RuntimeError('sim:=false but devices {} are simulated (backend: sim); give '
-                           'config:= an overlay with their real backends'.format(simulated))
+        raise RuntimeError('sim:=false but the configuration has simulated devices (backend: '
+                           'sim); give config:= an overlay with their real backends')
     if sim is True and not simulated:
         raise RuntimeError('sim:=true but no device has backend: sim in the configuration')
     runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
@@ -82,17 +80,10 @@ def _nodes(context, *args, **kwargs):
     if with_rsp:
         bridge_values['publish_robot_state'] = False
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
-    specs = bringup.child_specs(overlay, '', bridge_yaml, runtime_dir)
+    # sim_robot first (the world outlives a driver-host restart, as the real robot would).
+    specs = bringup.child_specs(overlay, '', bridge_yaml, runtime_dir, sim=simulated)
     env = {'M4K_RUNTIME_DIR': runtime_dir, 'PYTHONUNBUFFERED': '1'}
     actions = []
-    if simulated and _installed('m4k_drivers', 'sim_robot') and not any(
-            s.executable == 'sim_robot' for s in specs):
-        # The simulated robot as its own process (m4k_drivers' sim_robot): the world outlives
-        # a driver-host restart, as the real robot would.
-        actions.append(Node(package='m4k_drivers', executable='sim_robot', name='sim_robot',
-                            arguments=['--runtime-dir', runtime_dir]
-                            + (['--overlay', overlay] if overlay else []),
-                            additional_env=env, output='screen'))
     for spec in specs:
         if spec.executable == 'bridge':
             params = [bridge_yaml, bridge_values]
@@ -105,8 +96,7 @@ def _nodes(context, *args, **kwargs):
         else:
             actions.append(Node(package=spec.package, executable=spec.executable,
                                 name=spec.name, arguments=list(spec.args), additional_env=env,
-                                output='screen', respawn=spec.executable != 'sim_robot',
-                                respawn_delay=1.0))
+                                output='screen', respawn=True, respawn_delay=1.0))
     if with_rsp:
         if not _installed('robot_state_publisher', 'robot_state_publisher'):
             raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
