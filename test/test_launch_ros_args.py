@@ -22,6 +22,8 @@ import rclpy
 from wsenv import ROOT, stack_env
 import yaml
 
+from m4k_rt.tools import bringup
+
 NS = '/m4k_launch_test'
 # Servers: the output line that says "up" (None: an rclpy node, found in the ROS graph).
 SERVERS = {
@@ -46,6 +48,7 @@ TOOLS = {
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),
 }
+NEEDS_SIM = {'baseline'}
 pytestmark = pytest.mark.allow_leaks('fds')  # the graph check keeps FastDDS sockets
 
 
@@ -112,6 +115,13 @@ def test_server_starts_with_launch_arguments_and_stops_on_sigterm(procs, tmp_pat
                                                                    m4k_runtime_dir, exe):
     package, module = console_scripts()[exe]
     args, ready = SERVERS[exe]
+    if exe in NEEDS_SIM:   # its motor is a sim-bus device: the simulated robot must run
+        procs.start([sys.executable, '-m', 'm4k_drivers.sim_robot', '--runtime-dir',
+                     m4k_runtime_dir], env=stack_env(m4k_runtime_dir))
+        end = time.monotonic() + 30
+        while not bringup.sim_ready(m4k_runtime_dir) and time.monotonic() < end:
+            time.sleep(0.1)
+        assert bringup.sim_ready(m4k_runtime_dir), 'sim_robot did not come up'
     params = {'use_sim_time': False}
     cmd = launch_cmdline(_argv(module) + _subst(args, m4k_runtime_dir, tmp_path), exe,
                          NS, params, tmp_path)
