@@ -19,6 +19,7 @@ launch = pytest.importorskip(
     'launch', reason='launch/launch_ros are not on PyPI (full ROS install or ros-verify env)')
 launch_ros = pytest.importorskip('launch_ros', reason='launch_ros is not on PyPI')
 
+from launch.events.process import ProcessIO  # noqa: E402
 from launch.launch_description_sources import PythonLaunchDescriptionSource  # noqa: E402
 
 from m4k_rt import description  # noqa: E402
@@ -38,7 +39,18 @@ def _evaluate(monkeypatch, runtime_dir, **args):
         if isinstance(entity, launch.actions.DeclareLaunchArgument):
             entity.execute(ctx)
     opaque = [e for e in ld.entities if isinstance(e, launch.actions.OpaqueFunction)][0]
-    nodes = opaque._OpaqueFunction__function(ctx)
+    nodes = []
+    for e in opaque._OpaqueFunction__function(ctx):
+        if isinstance(e, launch.actions.RegisterEventHandler):
+            # The rest starts once sim_robot says it serves (as bringup waits for it).
+            def line(text, sim=nodes[0]):
+                return ProcessIO(action=sim, name='sim_robot', cmd=[], cwd=None, env=None,
+                                 pid=1, text=text, fd=2)
+            assert e.event_handler.handle(line(b'INFO: loading the world'), ctx) is None
+            nodes += list(e.event_handler.handle(line(b'INFO: simulating motor on x'), ctx))
+            assert e.event_handler.handle(line(b'INFO: simulating again'), ctx) is None
+        else:
+            nodes.append(e)
     for n in nodes:
         n._perform_substitutions(ctx)
     return nodes
@@ -60,7 +72,7 @@ def test_launch_starts_what_bringup_starts_with_the_derived_bridge_parameters(
         monkeypatch, m4k_runtime_dir):
     nodes = _evaluate(monkeypatch, m4k_runtime_dir)
     exes = [n.node_executable for n in nodes]
-    assert {'rt_core', 'driver_host', 'bridge'} <= set(exes)
+    assert exes[0] == 'sim_robot' and {'rt_core', 'driver_host', 'bridge'} <= set(exes)
     bridge = nodes[exes.index('bridge')]
     values = _bridge_params(bridge)
     assert values['runtime_dir'] == m4k_runtime_dir

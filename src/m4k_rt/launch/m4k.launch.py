@@ -24,7 +24,8 @@ no transform has two publishers. For supervision with restarts and the live stat
 import os
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -84,6 +85,7 @@ def _nodes(context, *args, **kwargs):
     specs = bringup.child_specs(overlay, '', bridge_yaml, runtime_dir, sim=simulated)
     env = {'M4K_RUNTIME_DIR': runtime_dir, 'PYTHONUNBUFFERED': '1'}
     actions = []
+    sim_node = None
     for spec in specs:
         if spec.executable == 'bridge':
             params = [bridge_yaml, bridge_values]
@@ -94,9 +96,13 @@ def _nodes(context, *args, **kwargs):
                                 parameters=params, additional_env=env, output='screen',
                                 respawn=True, respawn_delay=1.0))
         else:
-            actions.append(Node(package=spec.package, executable=spec.executable,
-                                name=spec.name, arguments=list(spec.args), additional_env=env,
-                                output='screen', respawn=True, respawn_delay=1.0))
+            node = Node(package=spec.package, executable=spec.executable, name=spec.name,
+                        arguments=list(spec.args), additional_env=env, output='screen',
+                        respawn=True, respawn_delay=1.0)
+            if spec.executable == 'sim_robot':
+                sim_node = node
+            else:
+                actions.append(node)
     if with_rsp:
         if not _installed('robot_state_publisher', 'robot_state_publisher'):
             raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
@@ -105,7 +111,28 @@ def _nodes(context, *args, **kwargs):
         actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
                             namespace=namespace, output='screen', parameters=[
                                 {'robot_description': bridge_values['robot_description']}]))
-    return actions
+    if sim_node is None:
+        return actions
+    ready = _once_ready(actions)
+    return [sim_node, RegisterEventHandler(OnProcessIO(
+        target_action=sim_node, on_stdout=ready, on_stderr=ready))]
+
+
+def _once_ready(actions, marker=b'simulating '):
+    """Return an IO handler that starts ``actions`` once, when sim_robot says it serves.
+
+    As bringup waits for the sim-bus before starting the driver host: devices configured
+    against a simulator that is not listening yet would fail their configure.
+    """
+    state = {'done': False}
+
+    def handler(event):
+        if state['done'] or marker not in event.text:
+            return None
+        state['done'] = True
+        return actions
+
+    return handler
 
 
 def generate_launch_description():
