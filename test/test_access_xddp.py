@@ -22,8 +22,7 @@ import pytest
 
 from m4k_rt import protocol, xddp
 
-pytestmark = pytest.mark.skipif(os.geteuid() != 0,
-                                reason='impersonating another user needs root')
+pytestmark = pytest.mark.needs_root('to impersonate another user')
 
 NOBODY = pwd.getpwnam('nobody')
 

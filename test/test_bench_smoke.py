@@ -4,15 +4,48 @@ Asserts on structure only (files, keys, sample counts > 0), never on timing valu
 numbers are the benchmark's business, not a test's.
 """
 
+import copy
 import json
 import os
 import shutil
 import subprocess
 import sys
 
+from m4k_rt.tools.benchlib import analysis
+
 RATIO_KEYS = ('release_p99_over_cyclictest_idle', 'release_p99_over_cyclictest_stress',
               'baseline_over_m4k_jitter_p99_stress', 'baseline_over_m4k_jitter_p99_idle',
               'five_tasks_over_alone_p99', 'xddp_rtt_p50_over_raw')
+
+
+def _measurement(summ, key):
+    return summ.get('rt_cpu_percent') if key == 'rt_cpu_percent' else summ['ratios'].get(key)
+
+
+def check_verdicts_follow_the_measurements(summ):
+    """Each target verdict in the run's summary is its measurement against its limit.
+
+    Recomputed here from the run's own numbers, then each measured value is moved to the
+    other side of its limit in a copy of the summary: the verdict must flip, so a verdict
+    that ignores its data (always met, always None) fails.
+    """
+    by_key = {t.key: t for t in analysis.TARGETS}
+    for row in summ['targets']:
+        t = by_key[row['key']]
+        m = _measurement(summ, t.key)
+        assert row['measured'] == m, row
+        if m is None:
+            assert row['met'] is None, row
+            continue
+        assert row['met'] is (m <= t.limit if t.op == '<=' else m >= t.limit), row
+        flipped = copy.deepcopy(summ)
+        other = t.limit * 2 + 1 if row['met'] == (t.op == '<=') else t.limit / 2
+        if t.key == 'rt_cpu_percent':
+            flipped['rt_cpu_percent'] = other
+        else:
+            flipped['ratios'][t.key] = other
+        again = {r['key']: r for r in analysis.evaluate_targets(flipped)}[t.key]
+        assert again['met'] is (not row['met']), (row, again)
 
 
 def test_bench_quick_smoke_writes_report_plots_csvs_and_summary(tmp_path):
@@ -54,7 +87,7 @@ def test_bench_quick_smoke_writes_report_plots_csvs_and_summary(tmp_path):
     assert summ['cmd_latency']['trials'] + summ['cmd_latency']['lost'] == 3, \
         summ['cmd_latency']
     assert len(summ['targets']) == 6
-    assert {t['met'] for t in summ['targets']} <= {True, False, None}
+    check_verdicts_follow_the_measurements(summ)
     report = (out / 'report.md').read_text()
     assert '![Fig. 10 periodicity](fig10_periodicity.png)' in report
     assert '## Timing analysis per task (paper Table 1)' in report

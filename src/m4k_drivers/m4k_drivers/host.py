@@ -26,7 +26,6 @@ import json
 import logging
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -35,6 +34,7 @@ from typing import Any, TextIO
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
+from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['DeviceService', 'format_reading', 'load_raw_config', 'main']
 
@@ -377,7 +377,20 @@ class WorldReporter:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the driver host (see the module docstring); return the exit code."""
-    args = _parser().parse_args(argv)
+    signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
+    try:
+        rc = _main(_parser().parse_args(argv), signals)
+    finally:
+        signals.restore()
+    if signals.stopping:
+        # Every handler built was shut down on the way out: outputs safe.
+        print('driver_host: stopped ({}); outputs safe{}'.format(
+            signals.name, '' if rc == 0 else ', exit code {}'.format(rc)),
+            file=sys.stderr, flush=True)
+    return rc
+
+
+def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format='%(asctime)s %(name)s %(levelname)s: %(message)s')
     try:
@@ -395,26 +408,25 @@ def main(argv: list[str] | None = None) -> int:
     handlers: dict[str, DeviceHandler] = {}
     try:
         for kind in enabled:
+            if signals.stopping:
+                break
             handlers[kind] = registry.create(kind, cfg.devices[kind], ctx)
     except (DriverError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         for h in handlers.values():
             h.shutdown()
         return 2
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        if args.print_mode:
-            (kind, handler), = handlers.items()
-            return run_print(kind, handler, args.count, args.rate, stop)
-        runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
-        reporter = WorldReporter(ctx, args.world_report) if args.world_report else None
-        return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop,
-                      reporter)
-    finally:
-        for sig, handler_fn in previous.items():
-            signal.signal(sig, handler_fn)
+    if signals.stopping:  # stopped during start-up: nothing was activated, shut down anyway
+        for h in handlers.values():
+            h.shutdown()
+        return 0
+    stop = signals.event
+    if args.print_mode:
+        (kind, handler), = handlers.items()
+        return run_print(kind, handler, args.count, args.rate, stop)
+    runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
+    reporter = WorldReporter(ctx, args.world_report) if args.world_report else None
+    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop, reporter)
 
 
 def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
