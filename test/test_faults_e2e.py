@@ -16,16 +16,18 @@ rt_core picks up. Bad input: NaN/inf cmd_vel rejected and counted, huge values c
 
 import math
 import os
+import random
 import signal
 import subprocess
 import threading
 import time
 
 import pytest
-from wsenv import stack_env
+from wsenv import ground_truth, ROOT, stack_env
 import yaml
 
-from m4k_rt import recorder, xddp
+from m4k_rt import config, recorder, xddp
+from m4k_rt.control.params import control_params
 from m4k_rt.tools.soak import children
 
 rclpy = pytest.importorskip('rclpy')
@@ -176,7 +178,9 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
             times[name + '_driving_again'] = time.monotonic() - t0
             assert children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
 
-        # --- bridge gone: the RT actuator brakes on its own; no lurch on restart ---------------
+        # --- both at once: the restarted pair does not drive on an old command ------------------
+        # (Whether the RT actuator brakes on its own is test_bridge_kill_... below: with the
+        # driver host killed too, the simulated robot goes with it.)
         kids = children(bu.pid)
         x0 = probe.x
         os.kill(kids['bridge'], signal.SIGKILL)
@@ -213,3 +217,97 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
         assert 'bringup: {} restarted'.format(name) in text, text[-3000:]
     assert 'RT side gone' in text or 'relinking' in text
     print('fault e2e times (s):', {k: round(v, 2) for k, v in times.items()})
+
+
+def _brake_bound_s(overlay):
+    """Return cmd_vel_timeout + v / max_deceleration + 2 actuator periods, from config/."""
+    cfg_dir = os.path.join(ROOT, 'config')
+    params = control_params(config.load_layered(overlay, cfg_dir).get('control'))
+    decel = params.linear.max_deceleration or params.linear.max_acceleration
+    period = next(t.period_ns for t in config.load(overlay, cfg_dir).tasks
+                  if t.name == 'actuator') / 1e9
+    return params.cmd_vel_timeout + DRIVE_V / decel + 2 * period
+
+
+DRIVE_V = 0.25   # m/s, the paper's experiment speed
+KILLS = 5
+SEED = 10        # the phases are random but the same every run
+
+
+def _truth_at_or_after(probe, runtime_dir, t_ns, timeout):
+    """Pump ROS (no command) until the simulator reports a state at or after ``t_ns``."""
+    got = {}
+
+    def reached():
+        gt = ground_truth(runtime_dir)
+        if gt is not None and gt['t_ns'] >= t_ns:
+            got.update(gt)
+            return True
+        return False
+    probe.until(reached, timeout, 'a ground-truth report after {} ns'.format(t_ns))
+    return got
+
+
+@pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
+        procs, tmp_path, m4k_runtime_dir):
+    """Kill -9 only the bridge while cmd_vel flows; the simulator's robot must stop in time.
+
+    Judged on the simulator's ground truth (wsenv.ground_truth), not on the odometry under
+    test: every simulator report at or after kill + bound must show |v| < 0.01 m/s, with the
+    bound cmd_vel_timeout + v / max_deceleration + 2 actuator periods from config/. The kill
+    lands at a seeded random phase of the drive, five times; the RT cycle counters never
+    restart across the kills.
+    """
+    overlay = tmp_path / 'overlay.yaml'
+    overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
+                                                   'start_delay_ms': 10}}))
+    bound_s = _brake_bound_s(str(overlay))
+    log = open(tmp_path / 'bringup.log', 'w')
+    try:
+        bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+                          str(overlay), '--status-interval', '1'], env=stack_env(m4k_runtime_dir),
+                         stdout=log, stderr=subprocess.STDOUT)
+    finally:
+        log.close()
+    rng = random.Random(SEED)
+    probe = Probe(m4k_runtime_dir)
+    stops = []
+    try:
+        probe.until(lambda: probe.odom is not None, 60, 'first odom')
+        rt_pid = children(bu.pid)['rt_core']
+        for k in range(KILLS):
+            # Drive until the simulated robot really moves, then on for a random phase.
+            probe.until(lambda: (ground_truth(m4k_runtime_dir) or {}).get('v', 0.0) > 0.2, 30,
+                        'simulated robot at speed (kill {})'.format(k), lin=DRIVE_V)
+            probe.pump(rng.uniform(0.0, 1.0), lin=DRIVE_V)
+            moving = ground_truth(m4k_runtime_dir)
+            assert moving['v'] > 0.2, moving
+            old = children(bu.pid)['bridge']
+            t_kill = time.monotonic_ns()
+            os.kill(old, signal.SIGKILL)
+            deadline = t_kill + int(bound_s * 1e9)
+            after = _truth_at_or_after(probe, m4k_runtime_dir, deadline, bound_s + 30)
+            assert abs(after['v']) < 0.01, \
+                'kill {}: robot still at {:.3f} m/s {:.3f} s after the bridge died ' \
+                '(bound {:.3f} s)'.format(k, after['v'], (after['t_ns'] - t_kill) / 1e9,
+                                          bound_s)
+            stops.append((after['t_ns'] - t_kill) / 1e9)
+            assert children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
+            probe.until(lambda o=old: children(bu.pid).get('bridge', o) != o, 30,
+                        'bridge restarted by bringup')
+            n0 = probe.odom_count
+            probe.until(lambda n=n0: probe.odom_count > n + 5, 60,
+                        'odom from the restarted bridge')
+        seen = probe.cycles_seen
+        assert len(seen) > KILLS and all(b > a for a, b in zip(seen, seen[1:], strict=False)), \
+            'RT cycle counters restarted or stopped: {}'.format(seen)
+    finally:
+        probe.close()
+    bu.send_signal(signal.SIGINT)
+    bu.wait(40)
+    text = (tmp_path / 'bringup.log').read_text()
+    assert bu.returncode == 0, text[-3000:]
+    assert 'bringup: bridge restarted (restart {})'.format(KILLS) in text, text[-3000:]
+    print('bridge kill: truth report at/after bound (s):', [round(x, 2) for x in stops],
+          'bound', round(bound_s, 3))
