@@ -277,12 +277,14 @@ def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
         probe.until(lambda: probe.odom is not None, 60, 'first odom')
         rt_pid = children(bu.pid)['rt_core']
         for k in range(KILLS):
-            # Drive until the simulated robot really moves, then on for a random phase.
-            probe.until(lambda: (ground_truth(m4k_runtime_dir) or {}).get('v', 0.0) > 0.2, 30,
-                        'simulated robot at speed (kill {})'.format(k), lin=DRIVE_V)
-            probe.pump(rng.uniform(0.0, 1.0), lin=DRIVE_V)
+            # Forward, then back (the obstacle ahead would stop a forward-only drive): drive
+            # until the simulated robot really moves, then on for a random phase.
+            lin = DRIVE_V if k % 2 == 0 else -DRIVE_V
+            probe.until(lambda: abs((ground_truth(m4k_runtime_dir) or {}).get('v', 0.0)) > 0.2,
+                        30, 'simulated robot at speed (kill {})'.format(k), lin=lin)
+            probe.pump(rng.uniform(0.0, 1.0), lin=lin)
             moving = ground_truth(m4k_runtime_dir)
-            assert moving['v'] > 0.2, moving
+            assert abs(moving['v']) > 0.2, moving
             old = children(bu.pid)['bridge']
             t_kill = time.monotonic_ns()
             os.kill(old, signal.SIGKILL)
