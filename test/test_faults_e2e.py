@@ -17,6 +17,7 @@ rt_core picks up. Bad input: NaN/inf cmd_vel rejected and counted, huge values c
 import math
 import os
 import random
+import re
 import signal
 import subprocess
 import threading
@@ -313,3 +314,87 @@ def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
     assert 'bringup: bridge restarted (restart {})'.format(KILLS) in text, text[-3000:]
     print('bridge kill: truth report at/after bound (s):', [round(x, 2) for x in stops],
           'bound', round(bound_s, 3))
+
+
+_LOG_TIME = re.compile(r'^\[driver_host\] (\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(\d{3}) ')
+
+
+def _host_log_times(text, needle):
+    """Return the stamps (s, the driver host's own log clock) of its lines containing needle."""
+    out = []
+    for line in text.splitlines():
+        m = _LOG_TIME.match(line)
+        if m and needle in line:
+            out.append(time.mktime(time.strptime(m.group(1), '%Y-%m-%d %H:%M:%S'))
+                       + int(m.group(2)) / 1000.0)
+    return out
+
+
+@pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+def test_driver_host_kill_alone_relinks_within_a_second_and_rt_keeps_counting(
+        procs, tmp_path, m4k_runtime_dir):
+    """Kill -9 only the driver host, five times at seeded random phases of a drive.
+
+    Each restarted driver host links its motor port to the RT side within 1 s of serving
+    (its own log stamps); the RT side counts every lost peer (rt_status motor port
+    peer_restarts, the stack's counter) and is linked again; rt_core is never restarted and
+    its actuator cycle counter never goes back; driving resumes on fresh commands each time.
+    """
+    from m4k_msgs.msg import RtStatus
+    overlay = tmp_path / 'overlay.yaml'
+    overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
+                                                   'start_delay_ms': 10}}))
+    log = open(tmp_path / 'bringup.log', 'w')
+    try:
+        bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+                          str(overlay), '--status-interval', '1'], env=stack_env(m4k_runtime_dir),
+                         stdout=log, stderr=subprocess.STDOUT)
+    finally:
+        log.close()
+    rng = random.Random(SEED + 1)
+    probe = Probe(m4k_runtime_dir)
+    motor_port = {}
+
+    def on_status(msg):
+        for port in msg.ports:
+            if port.label == 'motor':
+                motor_port.update(linked=port.linked, peer_restarts=port.peer_restarts)
+    probe.node.create_subscription(RtStatus, 'rt_status', on_status, 10)
+    text = lambda: (tmp_path / 'bringup.log').read_text()  # noqa: E731
+    try:
+        probe.until(lambda: probe.odom is not None and motor_port.get('linked'), 60,
+                    'first odom and a linked motor port')
+        rt_pid = children(bu.pid)['rt_core']
+        restarts0 = motor_port['peer_restarts']
+        for k in range(KILLS):
+            lin = DRIVE_V if k % 2 == 0 else -DRIVE_V
+            n0 = probe.odom_count
+            probe.until(lambda n=n0, s=lin: probe.odom_count > n + 5 and probe.v * s > 0.1, 60,
+                        'driving (kill {})'.format(k), lin=lin)
+            probe.pump(rng.uniform(0.0, 1.0), lin=lin)
+            old = children(bu.pid)['driver_host']
+            os.kill(old, signal.SIGKILL)
+            probe.until(lambda o=old: children(bu.pid).get('driver_host', o) != o, 30,
+                        'driver_host restarted by bringup', lin=lin)
+            probe.until(lambda n=k + 2: len(_host_log_times(text(), 'serving ')) >= n and len(
+                _host_log_times(text(), 'motor: linked to the RT side (link 1)')) >= n, 30,
+                'restarted driver host serving and linked', lin=lin)
+            assert children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
+        probe.until(lambda: motor_port.get('linked') and motor_port['peer_restarts']
+                    >= restarts0 + KILLS, 30, 'the RT side counting every lost motor peer')
+        seen = probe.cycles_seen
+        assert len(seen) > KILLS and all(b > a for a, b in zip(seen, seen[1:], strict=False)), \
+            'RT cycle counters restarted or stopped: {}'.format(seen)
+    finally:
+        probe.close()
+    bu.send_signal(signal.SIGINT)
+    bu.wait(40)
+    log_text = text()
+    assert bu.returncode == 0, log_text[-3000:]
+    assert 'bringup: driver_host restarted (restart {})'.format(KILLS) in log_text
+    serving = _host_log_times(log_text, 'serving ')
+    linked = _host_log_times(log_text, 'motor: linked to the RT side (link 1)')
+    assert len(serving) == len(linked) == KILLS + 1, log_text[-3000:]
+    relink = [b - a for a, b in zip(serving, linked, strict=True)]
+    assert all(r <= 1.0 for r in relink), relink
+    print('driver host kill: motor re-link after serving (s):', [round(r, 3) for r in relink])

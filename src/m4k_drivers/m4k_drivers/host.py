@@ -152,6 +152,9 @@ class DeviceService:
                 if self.link.links != self._links_seen:      # (re)linked: say hello at once
                     self._links_seen = self.link.links
                     self._status_state = None
+                    # Timestamped evidence for the fault tests (re-link time after a restart).
+                    LOG.info('%s: linked to the RT side (link %d)', self.handler.name,
+                             self.link.links)
                 if data is not None:
                     self._dispatch(data)
                 if self.kind == 'motor' and self.handler.state == State.ACTIVE:
