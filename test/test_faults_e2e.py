@@ -369,7 +369,7 @@ def test_driver_host_kill_alone_relinks_within_a_second_and_rt_keeps_counting(
         for k in range(KILLS):
             lin = DRIVE_V if k % 2 == 0 else -DRIVE_V
             n0 = probe.odom_count
-            probe.until(lambda n=n0, s=lin: probe.odom_count > n + 5 and probe.v * s > 0.1, 60,
+            probe.until(lambda n=n0, s=lin: probe.odom_count > n + 5 and probe.v / s > 0.4, 60,
                         'driving (kill {})'.format(k), lin=lin)
             probe.pump(rng.uniform(0.0, 1.0), lin=lin)
             old = children(bu.pid)['driver_host']
