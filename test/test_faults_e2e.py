@@ -261,8 +261,11 @@ def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
     restart across the kills.
     """
     overlay = tmp_path / 'overlay.yaml'
+    # The collision guard off: under load a late sonar/laser reading counts as an obstacle
+    # (stale_policy: stop) and would hold the robot, which is not what this test is about.
     overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
-                                                   'start_delay_ms': 10}}))
+                                                   'start_delay_ms': 10},
+                                       'control': {'guard': {'enabled': False}}}))
     bound_s = _brake_bound_s(str(overlay))
     log = open(tmp_path / 'bringup.log', 'w')
     try:
@@ -282,7 +285,7 @@ def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
             # until the simulated robot really moves, then on for a random phase.
             lin = DRIVE_V if k % 2 == 0 else -DRIVE_V
             probe.until(lambda: abs((ground_truth(m4k_runtime_dir) or {}).get('v', 0.0)) > 0.2,
-                        30, 'simulated robot at speed (kill {})'.format(k), lin=lin)
+                        60, 'simulated robot at speed (kill {})'.format(k), lin=lin)
             probe.pump(rng.uniform(0.0, 1.0), lin=lin)
             moving = ground_truth(m4k_runtime_dir)
             assert abs(moving['v']) > 0.2, moving
@@ -395,6 +398,7 @@ def test_driver_host_kill_alone_relinks_within_a_second_and_rt_keeps_counting(
     serving = _host_log_times(log_text, 'serving ')
     linked = _host_log_times(log_text, 'motor: linked to the RT side (link 1)')
     assert len(serving) == len(linked) == KILLS + 1, log_text[-3000:]
-    relink = [b - a for a, b in zip(serving, linked, strict=True)]
+    # The first instance waits for rt_core to bind (both start at once): only restarts count.
+    relink = [b - a for a, b in zip(serving, linked, strict=True)][1:]
     assert all(r <= 1.0 for r in relink), relink
     print('driver host kill: motor re-link after serving (s):', [round(r, 3) for r in relink])
