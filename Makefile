@@ -1,7 +1,7 @@
 # m4k -- one entry point. Every target sets the workspace up first (idempotent, seconds when done).
 #   make run [CONFIG=my_robot.yaml]   the robot stack on simulated hardware (Ctrl-C stops it)
 #   make test                         lint + colcon test of every package + workspace tests
-#   make bench [QUICK=1]              the paper's evidence (Table 1, utilization, Fig. 10)
+#   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
 #   make fuzz [COUNT=100000] [SEED=n] random and mutated datagrams at every XDDP port, then every
@@ -38,7 +38,7 @@ run: build
 	@$(ENV); bringup $(if $(CONFIG),--config $(CONFIG),)
 
 bench: build
-	@$(ENV); bench $(if $(QUICK),--quick,) $(if $(DURATION),--duration $(DURATION),)
+	@$(ENV); bench $(if $(QUICK),--quick,) $(if $(DURATION),--duration $(DURATION),) $(if $(ROUNDS),--rounds $(ROUNDS),)
 
 demo: build
 	@$(ENV); demo

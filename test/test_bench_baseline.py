@@ -10,7 +10,7 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from m4k_drivers import baseline
+from m4k_bench import baseline
 
 MS = 1_000_000
 
@@ -45,7 +45,7 @@ def test_timing_buffer_rejects_bad_capacity_and_unwritable_path(tmp_path):
 
 
 def test_baseline_rejects_negative_duration(procs):
-    p = procs.start(['python', '-c', 'import sys; from m4k_drivers.baseline import main; '
+    p = procs.start(['python', '-c', 'import sys; from m4k_bench.baseline import main; '
                      'sys.exit(main())', '--duration', '-1'])
     _, err = p.communicate(timeout=60)
     assert p.returncode == 2
@@ -56,7 +56,7 @@ def test_baseline_rejects_negative_duration(procs):
 def test_baseline_drives_the_sim_robot_from_cmd_vel_and_times_every_callback(procs, tmp_path):
     out = tmp_path / 'timing.csv'
     t_spawn = time.monotonic_ns()  # the test's own clock: CLOCK_MONOTONIC, system-wide
-    p = procs.start([sys.executable, '-c', 'import sys; from m4k_drivers.baseline import main; '
+    p = procs.start([sys.executable, '-c', 'import sys; from m4k_bench.baseline import main; '
                      'sys.exit(main())', '--duration', '6', '--timing-csv', str(out)])
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)

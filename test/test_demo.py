@@ -3,7 +3,8 @@
 Runs ``demo`` from the source tree (bringup --python-m, the DWA planner node, the recorder) in
 a private runtime directory and ROS domain, bounded by a 60 s driving timeout, then checks
 what it wrote: the goal reached within tolerance without contact, a trajectory that went
-around the triangular obstacle, both figures, the CSV and the latest-run link.
+around the triangular obstacle, both figures, the CSV, the latest-run link and the run's
+MCAP recording.
 """
 
 import csv
@@ -11,6 +12,7 @@ import json
 import os
 import sys
 
+from mcap.reader import make_reader
 import pytest
 from test_bringup import write_overlay
 from wsenv import stack_env
@@ -28,7 +30,7 @@ def test_demo_reaches_the_goal_around_the_obstacle_without_contact(procs, tmp_pa
     results = tmp_path / 'results'
     out = open(tmp_path / 'demo.out', 'w')
     try:
-        proc = procs.start([sys.executable, '-m', 'm4k_rt.tools.demo', '--python-m',
+        proc = procs.start([sys.executable, '-m', 'm4k_bench.demo', '--python-m',
                             '--config', overlay, '--results', str(results),
                             '--timeout', '60'],
                            env=stack_env(m4k_runtime_dir), stdout=out, stderr=out)
@@ -72,3 +74,10 @@ def test_demo_reaches_the_goal_around_the_obstacle_without_contact(procs, tmp_pa
         assert data[:8] == b'\x89PNG\r\n\x1a\n' and len(data) > 20_000, name
     report = (run / 'report.md').read_text()
     assert 'PASS' in report and 'Fig. 9' in report
+
+    # The run is also recorded as MCAP (m4k_rt.bag.record): the planner's commands and odom.
+    with open(run / 'bag' / 'bag_0.mcap', 'rb') as f:
+        summary = make_reader(f).get_summary()
+    counts = {ch.topic: summary.statistics.channel_message_counts.get(cid, 0)
+              for cid, ch in summary.channels.items()}
+    assert counts.get('/odom', 0) > 100 and counts.get('/cmd_vel', 0) > 100, counts

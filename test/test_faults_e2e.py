@@ -27,9 +27,9 @@ import pytest
 from wsenv import ground_truth, ROOT, stack_env
 import yaml
 
+from m4k_bench.soak import children
 from m4k_rt import config, recorder, xddp
 from m4k_rt.control.params import control_params
-from m4k_rt.tools.soak import children
 
 rclpy = pytest.importorskip('rclpy')
 

@@ -1,6 +1,6 @@
 """Bounded soak: the stack driving in a loop for a few seconds, the soak tool's verdicts and files.
 
-The full soak (default 10 minutes, under stress-ng) is ``python -m m4k_rt.tools.soak``; this
+The full soak (default 10 minutes, under stress-ng) is ``python -m m4k_bench.soak``; this
 runs the same code for 15 s without stress so ``make test`` proves the tool and the stack's
 short-term health: no crash, no restart, no body error, no RSS growth beyond the tool's leak
 limit, every output file written (timing verdicts are the benchmarks' business).
@@ -16,12 +16,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def test_short_soak_runs_clean_and_writes_its_report(tmp_path):
     env = dict(os.environ, M4K_CONFIG_DIR=os.path.join(ROOT, 'config'))
-    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
+    src = [os.path.join(ROOT, 'src', p) for p in ('m4k_rt', 'm4k_drivers', 'm4k_bench')]
     env['PYTHONPATH'] = os.pathsep.join(
         src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
     over = tmp_path / 'o.yaml'
     over.write_text('runtime: {mlockall: false, cpu_dma_latency: false}\n')
-    p = subprocess.run([sys.executable, '-m', 'm4k_rt.tools.soak', '--duration', '15',
+    p = subprocess.run([sys.executable, '-m', 'm4k_bench.soak', '--duration', '15',
                         '--warmup', '5', '--sample', '1', '--no-stress', '--config', str(over),
                         '--results', str(tmp_path / 'results')],
                        env=env, capture_output=True, text=True, timeout=180)

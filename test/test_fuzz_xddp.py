@@ -1,6 +1,6 @@
 """Fuzz every XDDP port of the running robot task set: nothing crashes, every bad datagram counts.
 
-Bounded form of ``python -m m4k_rt.tools.fuzz`` (which sends 1e5 datagrams per port): the RT
+Bounded form of ``python -m m4k_bench.fuzz`` (which sends 1e5 datagrams per port): the RT
 task set runs in this process as rt_core builds it (real bodies, real ports, one timerfd
 thread per task); a sender process per port writes a deterministic stream of valid, mutated,
 random and oversize datagrams; the RT counters must match the prediction exactly.
@@ -14,8 +14,8 @@ import time
 
 import pytest
 
+from m4k_bench import fuzz
 from m4k_rt import protocol, xddp
-from m4k_rt.tools import fuzz
 
 SAMPLE = 150  # datagrams per port here; the benchmark script sends 1e5
 

@@ -7,7 +7,10 @@ import subprocess
 import pytest
 
 
-@pytest.mark.parametrize('pkg,exe', [('m4k_rt', 'rt_core'), ('m4k_drivers', 'driver_host')])
+@pytest.mark.parametrize('pkg,exe', [
+    ('m4k_rt', 'rt_core'), ('m4k_drivers', 'driver_host'), ('m4k_bench', 'bench'),
+    ('m4k_bench', 'baseline'),
+])
 def test_ros2_run_starts_the_installed_executable(pkg, exe):
     ros2 = shutil.which('ros2')
     assert ros2, 'tools/env.sh puts a ros2 on PATH'

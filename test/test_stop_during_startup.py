@@ -32,7 +32,7 @@ EXECUTABLES = {
     'bridge': (['python', '-m', 'm4k_rt.bridge.node'], 'm4k_bridge: stopped (SIGTERM)'),
     'bringup': (['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--no-status'],
                 'bringup: stopped (SIGTERM)'),
-    'baseline': (['python', '-m', 'm4k_drivers.baseline', '--duration', '60'],
+    'baseline': (['python', '-m', 'm4k_bench.baseline', '--duration', '60'],
                  'baseline: stopped (SIGTERM); motors safe'),
 }
 

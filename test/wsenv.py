@@ -14,7 +14,7 @@ def stack_env(runtime_dir: str) -> dict[str, str]:
     repository's ``config/``.
     """
     env = dict(os.environ)
-    src = [os.path.join(ROOT, 'src', 'm4k_rt'), os.path.join(ROOT, 'src', 'm4k_drivers')]
+    src = [os.path.join(ROOT, 'src', p) for p in ('m4k_rt', 'm4k_drivers', 'm4k_bench')]
     env['PYTHONPATH'] = os.pathsep.join(
         src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
     env['M4K_RUNTIME_DIR'] = runtime_dir

@@ -30,7 +30,6 @@ setup(
     entry_points={
         'console_scripts': [
             'driver_host = m4k_drivers.host:main',
-            'baseline = m4k_drivers.baseline:main',
         ],
     },
 )

@@ -1,4 +1,4 @@
-"""Package m4k_rt (ament_python): the RT core, the robot's RT tasks, the ROS 2 bridge, tools."""
+"""Package m4k_rt (ament_python): the RT core, the robot's RT tasks, the ROS 2 bridge, bringup."""
 
 from glob import glob
 import os
@@ -36,13 +36,8 @@ setup(
             'rt_stat = m4k_rt.tools.rt_stat:main',
             'bridge = m4k_rt.bridge.node:main',
             'bringup = m4k_rt.tools.bringup:main',
-            'bench = m4k_rt.tools.bench:main',
-            'demo = m4k_rt.tools.demo:main',
-            'core_bench = m4k_rt.tools.core_bench:main',
-            'xddp_bench = m4k_rt.tools.xddp_bench:main',
             'echo_peer = m4k_rt.tasks.echo:main',
-            'fuzz = m4k_rt.tools.fuzz:main',
-            'soak = m4k_rt.tools.soak:main',
+            'record = m4k_rt.bag.record:main',
         ],
     },
 )

@@ -121,6 +121,9 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
     for name, param in spec.params.items():
         if name in section:
             out[name] = _check_type(section[name], param, f'{where}.{name}')
+            reason = param.check(out[name]) if param.check is not None else None
+            if reason:
+                raise ConfigError(f'{where}.{name}: {reason}, got {out[name]!r}')
         elif param.required:
             doc = f' ({param.doc})' if param.doc else ''
             raise ConfigError(f'{where}.{name}: missing, required by backend {backend!r}{doc}')

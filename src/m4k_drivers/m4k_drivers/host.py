@@ -16,7 +16,9 @@ every device (motors at zero), clean up and exit 0.
 
 Bring-up without an RT process: ``driver_host --device imu --print`` prints decoded readings;
 ``--port``/``--bus`` select a real device path (and the ``real`` backend), e.g.
-``driver_host --device lrf --port /dev/ttyACM0 --print``.
+``driver_host --device lrf --port /dev/ttyACM0 --print``.  Wheel direction check on the real
+robot (on blocks): ``driver_host --device motor --jog left 0.1 --duration 2``
+(:mod:`m4k_drivers.motors.jog`; docs/real-robot.md).
 """
 
 from __future__ import annotations
@@ -242,7 +244,8 @@ class DeviceService:
         self.seq = (self.seq + 1) & 0xFFFFFFFF
         try:
             n = protocol.encode_scan_into(
-                self._scan_buf, 0, self.seq, time.monotonic_ns(), g.angle_min,
+                # Stamped at acquisition (the sensor's clock mapped onto ours), not now.
+                self._scan_buf, 0, self.seq, r.value.stamp_ns, g.angle_min,
                 g.angle_increment, g.range_min, g.range_max, g.scan_time, g.time_increment,
                 r.value.device_stamp, [int(x) for x in r.value.ranges_mm])
         except protocol.ProtocolError as exc:
@@ -262,7 +265,7 @@ def format_reading(kind: str, value: Any) -> str:
                 f'acc=({a[0]:+.3f},{a[1]:+.3f},{a[2]:+.3f}) m/s^2 '
                 f'T={value.temperature:.1f}C status={value.status}')
     if kind == 'sonar':
-        names = {0: 'ok', 1: 'no echo', 2: 'timeout', 3: 'fault'}
+        names = {0: 'ok', 1: 'no echo', 2: 'timeout', 3: 'invalid'}
         return f'sonar range={value.range_m:.3f} m status={value.status} ' \
                f'({names.get(value.status, "?")})'
     if kind == 'motor':
@@ -283,8 +286,9 @@ def format_reading(kind: str, value: Any) -> str:
 
 
 def run_print(kind: str, handler: DeviceHandler, count: int, rate_hz: float,
-              stop: threading.Event, out: TextIO = sys.stdout) -> int:
-    """Bring one device up and print ``count`` readings (0 = until stopped)."""
+              stop: threading.Event, out: TextIO | None = None) -> int:
+    """Bring one device up and print ``count`` readings (0 = until stopped) to ``out``."""
+    out = out if out is not None else sys.stdout      # looked up now, not at import
     try:
         handler.configure()
         handler.activate()
@@ -320,6 +324,11 @@ def _parser() -> argparse.ArgumentParser:
                     help='print decoded readings to the console; no RT process needed')
     ap.add_argument('--count', type=int, default=0, help='--print: readings to print (0: all)')
     ap.add_argument('--rate', type=float, default=10.0, help='--print: readings per second')
+    ap.add_argument('--jog', nargs=2, metavar=('WHEEL', 'SPEED'),
+                    help='--device motor: turn WHEEL (left|right) at SPEED (fraction of full '
+                    'scale, |SPEED| <= 0.25) for --duration s, then zero (bring-up)')
+    ap.add_argument('--duration', type=float, default=1.0, help='--jog: seconds (<= 5)')
+    ap.add_argument('--yes', action='store_true', help='--jog: do not ask for confirmation')
     ap.add_argument('--runtime-dir', help='XDDP runtime directory')
     ap.add_argument('--world-report', default=os.environ.get('M4K_WORLD_REPORT'),
                     metavar='FILE',
@@ -407,6 +416,15 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     if args.print_mode and len(enabled) != 1:
         print('driver_host: --print needs exactly one enabled --device', file=sys.stderr)
         return 2
+    if args.jog is not None:
+        from m4k_drivers.motors.jog import check_jog, JogError
+        try:
+            if enabled != ['motor'] or args.print_mode:
+                raise JogError('--jog needs --device motor alone (and no --print)')
+            check_jog(args.jog[0], float(args.jog[1]), args.duration)
+        except (JogError, ValueError) as exc:
+            print(f'driver_host: {exc}', file=sys.stderr)
+            return 2
     ctx = registry.BuildContext(world_config=cfg.world_raw)
     handlers: dict[str, DeviceHandler] = {}
     try:
@@ -427,6 +445,16 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     if args.print_mode:
         (kind, handler), = handlers.items()
         return run_print(kind, handler, args.count, args.rate, stop)
+    if args.jog is not None:
+        from m4k_drivers.motors.jog import JogError, run_jog
+        try:
+            return run_jog(handlers['motor'], args.jog[0], float(args.jog[1]),
+                           args.duration, stop, out=sys.stdout, stdin=sys.stdin,
+                           assume_yes=args.yes)
+        except JogError as exc:
+            print(f'driver_host: {exc}', file=sys.stderr)
+            handlers['motor'].shutdown()
+            return 2
     runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
     reporter = WorldReporter(ctx, args.world_report) if args.world_report else None
     return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop, reporter)

@@ -55,11 +55,17 @@ _REQUIRED = object()
 
 @dataclass(frozen=True)
 class Param:
-    """One config field of a backend: accepted type(s), default (omit = required), help."""
+    """One config field of a backend: accepted type(s), default (omit = required), help.
+
+    ``check`` (optional) validates the value after the type check: it returns None when the
+    value is fine, else a short reason ("must be 1 or -1"); :mod:`m4k_drivers.config` turns
+    that into a ConfigError naming the field and the value.
+    """
 
     type: type | tuple[type, ...]
     default: Any = _REQUIRED
     doc: str = ''
+    check: Callable[[Any], str | None] | None = None
 
     @property
     def required(self) -> bool:

@@ -207,3 +207,18 @@ def test_world_report_tracks_ground_truth_and_counts_a_collision(procs, m4k_runt
     finally:
         procs.stop(proc)
         rt.close()
+
+
+@pytest.mark.parametrize('kind, pattern', [
+    ('motor', r'^motor raw=\(\d+,\d+\) angle=\([+-]\d+\.\d+,[+-]\d+\.\d+\) rad status=0x'),
+    ('imu', r'^imu rpy=\('),
+    ('sonar', r'^sonar range=\d+\.\d+ m status=\d \('),
+    ('led', r'^led shown=#000000@0$'),
+    ('lrf', r'^lrf seq=\d+ n=682 valid=\d+ '),
+])
+def test_print_works_for_every_device(capsys, kind, pattern):
+    assert set(registry.kinds()) == {'motor', 'imu', 'sonar', 'led', 'lrf'}
+    assert main(['--config', CONFIG, '--device', kind, '--print', '--count', '2',
+                 '--rate', '20']) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 and all(re.match(pattern, line) for line in lines), lines

@@ -1,3 +1,4 @@
+import ctypes
 import errno
 import math
 
@@ -14,7 +15,7 @@ from m4k_drivers.imu import protocol as p
 from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice, open_real_i2c
 from m4k_drivers.imu.sim import FakeMyAhrsBus
-from m4k_drivers.world import World
+from m4k_drivers.world import World, WorldConfig
 
 # Hand-made registers 0x22..0x35: acc (2048, 0, -2048), gyro (0, 0, 1638), magnet
 # (100, -200, 300), temperature 4096 -- all int16 little-endian.
@@ -89,6 +90,18 @@ class RegBus:
 
     def write_byte_data(self, a, r, v):
         self.regs[r] = v
+
+    def i2c_rdwr(self, *msgs):
+        self.transactions = getattr(self, 'transactions', 0) + 1
+        pointer = 0
+        for m in msgs:
+            if m.addr != self.address:
+                raise OSError(errno.EREMOTEIO, 'Remote I/O error')
+            if m.flags & 1:
+                ctypes.memmove(m.buf, bytes(self.regs[pointer:pointer + m.len]), m.len)
+                pointer += m.len
+            else:
+                pointer = bytes(m)[0]
 
     def close(self):
         self.closed = True
@@ -178,4 +191,55 @@ def test_real_myahrs_identifies():
     h = ImuHandler(lambda: open_real_i2c(1, 0x20))
     h.configure()
     assert h.read().status == Status.OK
+    h.shutdown()
+
+
+class UpdatingBus(RegBus):
+    """Registers that change to a new sample after every transaction (worst-case timing)."""
+
+    def __init__(self, regs, samples):
+        super().__init__(regs)
+        self.samples = list(samples)
+
+    def _next(self):
+        b1, b2 = p.encode_blocks(self.samples.pop(0))
+        self.regs[p.BLOCK1:p.BLOCK1 + p.BLOCK1_LEN] = b1
+        self.regs[p.BLOCK2:p.BLOCK2 + p.BLOCK2_LEN] = b2
+
+    def i2c_rdwr(self, *msgs):
+        super().i2c_rdwr(*msgs)
+        self._next()
+
+    def read_i2c_block_data(self, a, r, n):
+        out = super().read_i2c_block_data(a, r, n)
+        self._next()
+        return out
+
+
+def test_sample_is_one_transaction_and_never_mixes_two_updates():
+    # The device updates between any two bus transactions: a two-burst read would pair the
+    # accel of one sample with the quaternion of the next.
+    still = p.DeviceSample((0.0, 0.0, -9.80665), (0.0,) * 3, (0, 0, 0), 20.0, (0.0,) * 3,
+                           (0.0, 0.0, 0.0, 1.0))
+    turned = p.DeviceSample((1.0, 0.0, -9.80665), (0.0,) * 3, (0, 0, 0), 20.0,
+                            (0.0, 0.0, -math.pi / 2),
+                            (0.0, 0.0, -math.sin(math.pi / 4), math.cos(math.pi / 4)))
+    bus = UpdatingBus(_regs(), [still, turned, still, turned, still, turned])
+    dev = I2cDevice(bus, 0x20, 'fake')
+    for _ in range(4):
+        s = p.decode_sample(dev.read_burst(p.SAMPLE, p.SAMPLE_LEN))
+        moving = abs(s.accel[0]) > 0.5
+        turned_q = abs(s.quaternion[2]) > 0.5
+        assert moving == turned_q                      # both halves from the same update
+    assert bus.transactions == 4
+
+
+def test_sim_sample_is_read_in_one_i2c_transaction():
+    world = World(WorldConfig(), clock=lambda: 0, t0_ns=0)
+    bus = FakeMyAhrsBus(world)
+    h = ImuHandler(lambda: I2cDevice(bus, p.ADDRESS, 'sim'))
+    h.configure()
+    h.activate()
+    assert h.read().status == Status.OK
+    assert bus.transactions == 1
     h.shutdown()

@@ -63,6 +63,7 @@ def test_led_class_multicolor_writes_files(tmp_path):
     (d / 'max_brightness').write_text('255\n')
     (d / 'brightness').write_text('0\n')
     (d / 'multi_intensity').write_text('0 0 0\n')
+    (d / 'multi_index').write_text('red green blue\n')
     out = LedClassOutput('rgb:status', root=str(tmp_path))
     out.show(p.LedColor(255, 0, 51, 128))
     assert (d / 'multi_intensity').read_text() == '255 0 51\n'

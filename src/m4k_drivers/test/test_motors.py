@@ -67,11 +67,53 @@ def test_encoder_frame_parity_error_rejected():
     ({'ocf': False}, 'OCF=0'),
     ({'cof': True}, 'COF=1'),
     ({'lin': True}, 'LIN=1'),
-    ({'mag_inc': True, 'mag_dec': True}, 'magnetic field'),
 ])
 def test_encoder_status_bits_rejected(kw, match):
     with pytest.raises(p.EncoderFrameError, match=match):
         p.decode_encoder(p.encode_encoder(100, **kw))
+
+
+@pytest.mark.parametrize('mag_inc, mag_dec', [(0, 0), (1, 0), (0, 1), (1, 1)])
+def test_encoder_mag_bits_are_valid_data(mag_inc, mag_dec):
+    # AS5045 datasheet Table 3: D11:D0 valid for OCF=1, COF=0, LIN=0 and any MagINC/MagDEC.
+    f = p.decode_encoder(p.encode_encoder(100, mag_inc=bool(mag_inc), mag_dec=bool(mag_dec)))
+    assert f.raw == 100
+    assert p.mag_out_of_range(f) == bool(mag_inc and mag_dec)
+
+
+@pytest.mark.parametrize('bad', [-1, 7, 24, True, 1.0])
+def test_lead_bits_out_of_range_is_a_clear_error(bad):
+    with pytest.raises(ValueError, match=r'lead_bits must be an int 0\.\.6'):
+        p.decode_encoder(bytes(3), lead_bits=bad)
+
+
+@pytest.mark.parametrize('lead', range(0, 7))
+def test_every_valid_lead_bits_round_trips(lead):
+    assert p.decode_encoder(p.encode_encoder(2345, lead_bits=lead), lead).raw == 2345
+
+
+def test_dac_mapping_has_one_owner():
+    # m4k_rt.control.dac computes WHEEL_CMD codes; the driver uses the very same functions.
+    from m4k_rt.control import dac
+    assert p.command_to_code is dac.command_to_code
+    assert p.code_to_command is dac.code_to_command
+    assert (p.DAC_ZERO, p.DAC_MAX, p.DAC_SPAN) == (dac.DAC_ZERO, dac.DAC_MAX, dac.DAC_SPAN)
+    for code in range(1, 1024):
+        assert p.command_to_code(p.code_to_command(code)) == code
+
+
+@pytest.mark.parametrize('code, sign, trim, out', [
+    (512, 1, 0, 512), (700, 1, 0, 700), (700, -1, 0, 324), (1, -1, 0, 1023),
+    (512, 1, 5, 517), (512, -1, -7, 505), (1023, 1, 10, 1023), (1, 1, -10, 0)])
+def test_trim_dac_code(code, sign, trim, out):
+    assert p.trim_dac_code(code, sign, trim) == out
+
+
+@pytest.mark.parametrize('raw, direction, zero, out', [
+    (100, 1, 0, 100), (100, -1, 0, 3996), (100, 1, 100, 0), (50, 1, 100, 4046),
+    (50, -1, 100, 50)])
+def test_wheel_raw(raw, direction, zero, out):
+    assert p.wheel_raw(raw, direction, zero) == out
 
 
 @pytest.mark.parametrize('data, level', [(b'\x00\x00\x00', 'low'), (b'\xff\xff\xff', 'high')])
@@ -118,6 +160,121 @@ def make_sim(world_cfg=None, **kw):
     world = World(world_cfg or WorldConfig(), clock=clock, t0_ns=0)
     h = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.0), clock=clock, **kw)
     return h, world, clock
+
+
+def test_mag_out_of_range_is_accepted_with_a_diagnostics_warning():
+    h, world, clock = make_sim()
+    h.configure()
+    h.activate()
+    h.bus.encoders[LEFT].dev.fault = {'mag_inc': True, 'mag_dec': True}
+    for _ in range(3):
+        clock.t += 10_000_000
+        h.write(WheelCommand(600, 600, 1))
+        r = h.read()
+        assert r.status == Status.OK
+        assert not r.value.status & (p.STATUS_LEFT_FRAME | p.STATUS_RIGHT_FRAME)
+    assert r.value.left_angle > 0                       # the angle is used, the wheel moves
+    assert h.mag_warnings == [3, 0]
+    assert h.faults == 1 and h.status_level() == 1      # one warning per episode
+    assert isinstance(h.last_exception, p.EncoderFieldWarning)
+    assert 'magnet gap' in str(h.last_exception)
+    h.shutdown()
+
+
+def test_dac_sign_and_trim_reach_the_wires_and_the_wheel():
+    h, world, clock = make_sim(dac_sign=(-1, 1), dac_zero_trim=(3, -2))
+    h.configure()
+    assert h.bus.dacs[LEFT].dev.last.code == 515 and h.bus.dacs[RIGHT].dev.last.code == 510
+    h.activate()
+    h.write(WheelCommand(700, 700, 1))
+    assert h.codes == (700, 700)
+    assert (h.bus.dacs[LEFT].dev.last.code, h.bus.dacs[RIGHT].dev.last.code) == (327, 698)
+    clock.t += 200_000_000
+    assert world.motor_voltage(LEFT) < 0 < world.motor_voltage(RIGHT)   # ground truth
+    h.shutdown()
+
+
+def test_encoder_direction_and_zero_give_forward_positive_angles():
+    # The left encoder is mounted mirrored: -1 makes forward motion count up on both sides.
+    h, world, clock = make_sim()
+    h.configure()
+    h.activate()
+    first = h.read().value
+    h.shutdown()
+    h2, world2, clock2 = make_sim(enc_direction=(-1, 1), enc_zero=(first.left_raw, 0))
+    h2.configure()
+    h2.activate()
+    r0 = h2.read().value
+    assert r0.left_raw == 0                               # zero offset applied
+    for _ in range(50):
+        clock2.t += 10_000_000
+        h2.write(WheelCommand(700, 700, 1))
+        r = h2.read().value
+    assert r.right_angle > 0 > r.left_angle               # sim wheel turns forward: mirrored
+    h2.shutdown()
+
+
+@pytest.mark.parametrize('kw, match', [
+    ({'lead_bits': 7}, r'lead_bits: must be an int 0\.\.6'),
+    ({'dac_sign': (1, 0)}, r'dac_sign: expected \[left, right\], each 1 or -1'),
+    ({'dac_zero_trim': (0, 65)}, r'dac_zero_trim: .*-64\.\.64'),
+    ({'enc_direction': (1,)}, r'enc_direction: expected \[left, right\]'),
+    ({'enc_zero': (0, 4096)}, r'enc_zero: .*0\.\.4095'),
+])
+def test_handler_rejects_bad_trims(kw, match):
+    with pytest.raises(ValueError, match=match):
+        make_sim(**kw)
+
+
+class _Spi:
+    def __init__(self, log, name):
+        self.log, self.name = log, name
+
+    def transfer(self, data):
+        self.log.append((self.name, bytes(data)))
+        return p.encode_encoder(0) if self.name.endswith('_enc') else bytes(len(data))
+
+    def close(self):
+        pass
+
+
+def _ports(log):
+    from m4k_drivers.motors.real import SpiPort
+    return [SpiPort(_Spi(log, n), n) for n in ('left_dac', 'right_dac', 'left_enc', 'right_enc')]
+
+
+class _Ldac:
+    def __init__(self, log):
+        self.log = log
+
+    def write(self, value):
+        self.log.append(('ldac', value))
+
+    def close(self):
+        self.log.append(('ldac', 'closed'))
+
+
+def test_driven_ldac_pulses_once_after_both_dac_words():
+    from m4k_drivers.motors.real import MotorBus
+    log = []
+    bus = MotorBus(*_ports(log), ldac=_Ldac(log))
+    h = MotorHandler(lambda: bus, clock=Clock())
+    h.configure()
+    h.activate()
+    log.clear()
+    h.write(WheelCommand(600, 400, 1))
+    assert [e[0] for e in log] == ['left_dac', 'right_dac', 'ldac', 'ldac']
+    assert log[2:] == [('ldac', False), ('ldac', True)]        # low pulse after both words
+    h.shutdown()
+    assert ('ldac', 'closed') in log
+
+
+def test_tied_low_ldac_needs_no_pulse():
+    from m4k_drivers.motors.real import MotorBus
+    log = []
+    bus = MotorBus(*_ports(log))
+    bus.latch()
+    assert log == [] and bus.latches == 0
 
 
 def test_lifecycle_deactivate_leaves_motors_at_zero():

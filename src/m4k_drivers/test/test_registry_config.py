@@ -11,7 +11,7 @@ def test_registry_lists_backends_per_kind():
     assert registry.backends('motor') == ['real', 'sim']
     assert registry.backends('imu') == ['real', 'sim']
     assert registry.backends('sonar') == ['gpio', 'iio', 'real', 'sim']
-    assert registry.backends('led') == ['led_class', 'pwm', 'real', 'sim']
+    assert registry.backends('led') == ['led_class', 'led_class_rgb', 'pwm', 'real', 'sim']
 
 
 def test_registry_unknown_backend_lists_valid_ones():
@@ -57,6 +57,19 @@ def test_create_builds_handler_for_mixed_backends():
      r"devices\.imu: unknown field\(s\) \['bsu'\] for backend 'sim'"),
     ({'gps': {'backend': 'sim'}}, r'devices\.gps: unknown device; valid: imu, led, lrf'),
     ({'led': 'sim'}, r"devices\.led: expected a mapping, got 'sim'"),
+    ({'motor': {'backend': 'sim', 'lead_bits': 7}},
+     r'devices\.motor\.lead_bits: must be an int 0\.\.6 .*, got 7'),
+    ({'motor': {'backend': 'sim', 'dac_sign': [1, 2]}},
+     r'devices\.motor\.dac_sign: expected \[left, right\], each 1 or -1, got \[1, 2\]'),
+    ({'motor': {'backend': 'sim', 'dac_zero_trim': [0, -100]}},
+     r'devices\.motor\.dac_zero_trim: .*-64\.\.64 \(codes\), got \[0, -100\]'),
+    ({'motor': {'backend': 'sim', 'enc_direction': [True, 1]}},
+     r'devices\.motor\.enc_direction: expected \[left, right\]'),
+    ({'motor': {'backend': 'sim', 'enc_zero': [0, 5000]}},
+     r'devices\.motor\.enc_zero: .*0\.\.4095'),
+    ({'motor': {'backend': 'real', 'left_dac': 'a', 'right_dac': 'b', 'left_enc': 'c',
+                'right_enc': 'd', 'ldac': 'floating'}},
+     r"devices\.motor\.ldac: must be one of tied_low, gpio, got 'floating'"),
 ])
 def test_config_errors_name_the_field(devices, match):
     with pytest.raises(dconfig.ConfigError, match=match):

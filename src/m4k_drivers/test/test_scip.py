@@ -112,6 +112,9 @@ def test_geometry_follows_requested_steps_and_cluster():
     assert geo.angle_min == 0.0
     assert geo.angle_increment == pytest.approx(3 * 2 * math.pi / 1024)
     assert geo.angle_max == pytest.approx(9 * 2 * math.pi / 1024)
+    # SCIP geometry: 1024 steps per 100 ms revolution; one value every 3 steps.
+    assert geo.time_increment == pytest.approx(0.1 / 1024 * 3)
+    assert spec.geometry().time_increment == pytest.approx(0.1 / 1024)
 
 
 def test_geometry_outside_measurable_steps_is_rejected():
@@ -191,7 +194,10 @@ def test_laser_off_status_raises_status_error_with_meaning():
 
 
 def test_range_error_codes_are_documented():
+    from m4k_rt import protocol
+    assert scip.RANGE_ERROR_CODES is protocol.SCAN_ERROR_CODES      # one owner of the table
     assert set(scip.RANGE_ERROR_CODES) == set(range(20))
+    assert scip.RANGE_ERROR_CODES[6] == 'others'                    # spec Table 3, not "far"
     assert 'non-measurable' in scip.range_error_meaning(19)
     with pytest.raises(ValueError, match='20'):
         scip.range_error_meaning(20)

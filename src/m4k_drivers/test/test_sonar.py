@@ -16,8 +16,8 @@ def test_speed_of_sound_hand_values():
 @pytest.mark.parametrize('width, temp, rng, status', [
     (0.01, 0.0, 1.6565, p.STATUS_OK),                  # 331.3 * 0.01 / 2
     (2 / 343.2166, 20.0, 1.0, p.STATUS_OK),
-    (0.0001, 20.0, 0.01716, p.STATUS_NO_ECHO),         # 1.7 cm < 2 cm
-    (0.038, 20.0, 6.5211, p.STATUS_NO_ECHO),           # the long no-echo pulse
+    (0.0001, 20.0, 0.01716, p.STATUS_FAULT),           # 1.7 cm < 2 cm: too close, invalid
+    (0.038, 20.0, 6.5211, p.STATUS_FAULT),             # the long no-echo pulse: invalid
 ])
 def test_pulse_to_range(width, temp, rng, status):
     r = p.pulse_to_range(width, temp)
@@ -69,9 +69,17 @@ def test_sim_sonar_obstacle_in_cone():
     assert r.range_m == pytest.approx(1.5 - 0.225, abs=1e-6)
 
 
-def test_sim_sonar_no_echo_beyond_max_range():
+def test_sim_sonar_no_echo_beyond_max_range_is_invalid_not_free():
     world, clock, sonar = _sim(WorldConfig(walls=((6.0, -3.0, 6.0, 3.0),), obstacles=()))
-    assert sonar.measure().status == p.STATUS_NO_ECHO
+    r = sonar.measure()
+    assert r.status == p.STATUS_FAULT and r.status != p.STATUS_NO_ECHO
+    h = SonarHandler(lambda: sonar)
+    h.configure()
+    h.activate()
+    assert h.read().value.status == p.STATUS_FAULT
+    assert h.invalid == 1 and h.no_echo == 0
+    assert h.faults == 1 and h.status_level() == 1       # visible in DEVICE_STATUS
+    h.shutdown()
 
 
 def test_sim_sonar_short_trigger_is_ignored_and_times_out():
@@ -107,7 +115,7 @@ def test_iio_backend_reads_raw_times_scale(tmp_path):
     dev = IioSonar(str(tmp_path))
     assert dev.measure() == pytest.approx((1.234, p.STATUS_OK))
     (tmp_path / 'in_distance_raw').write_text('5000\n')
-    assert dev.measure().status == p.STATUS_NO_ECHO
+    assert dev.measure().status == p.STATUS_FAULT       # unmeasurable: invalid, not free
     dev.close()
 
 
@@ -127,3 +135,99 @@ def test_real_gpio_sonar_measures():
     h.configure()
     assert h.read().status == Status.OK
     h.shutdown()
+
+
+class _Line:
+    """A cdev-like line: trigger writes, echo events queued by the test's script."""
+
+    def __init__(self):
+        self.events = []
+        self.writes = []
+
+    def write(self, value):
+        self.writes.append(value)
+        if self.on_write is not None:
+            self.on_write(value)
+
+    on_write = None
+
+    def poll(self, timeout=None):
+        return bool(self.events)
+
+    def read_event(self):
+        return self.events.pop(0)
+
+    def close(self):
+        pass
+
+
+class _Clocks:
+    """Monotonic and realtime; ``step_ns`` is added to realtime once ``step_at`` reads passed."""
+
+    def __init__(self, offset_ns=1_700_000_000_000_000_000):
+        self.mono = 10_000_000_000
+        self.offset = offset_ns
+
+    def monotonic(self):
+        self.mono += 1_000          # 1 us per read
+        return self.mono
+
+    def realtime(self):
+        return self.mono + self.offset
+
+
+def _edge_sonar(clocks, width_ns, stamp_clock, step_ns=0, line_clock='unknown'):
+    trig, echo = _Line(), _Line()
+
+    def fire(value):
+        if value:                       # rising TRIG: echo rises 0.5 ms later
+            return
+        t0 = clocks.mono + 500_000
+        base = clocks.offset if stamp_clock == 'realtime' else 0
+        echo.events.append(p.Edge('rising', t0 + base))
+        clocks.offset += step_ns        # NTP steps the wall clock during the pulse
+        base = clocks.offset if stamp_clock == 'realtime' else 0
+        echo.events.append(p.Edge('falling', t0 + width_ns + base))
+        clocks.mono = t0 + width_ns + 10_000
+
+    trig.on_write = fire
+    return EdgeSonar(trig, echo, 'fake', hold=lambda s: None, clock=clocks.monotonic,
+                     realtime=clocks.realtime, line_clock=line_clock)
+
+
+@pytest.mark.parametrize('stamp_clock', ['monotonic', 'realtime'])
+def test_edge_sonar_without_clock_step_measures(stamp_clock):
+    sonar = _edge_sonar(_Clocks(), 5_830_000, stamp_clock)      # 5.83 ms = 1.0 m at 20 degC
+    r = sonar.measure()
+    assert r.status == p.STATUS_OK and r.range_m == pytest.approx(1.0, abs=0.002)
+    assert sonar.edge_clock == stamp_clock and sonar.clock_steps == 0
+
+
+def test_realtime_edges_across_a_wall_clock_step_are_discarded():
+    # +2 s NTP step between the edges: the realtime stamps say 2.006 s (344 m): not a range.
+    sonar = _edge_sonar(_Clocks(), 5_830_000, 'realtime', step_ns=2_000_000_000)
+    r = sonar.measure()
+    assert r.status == p.STATUS_FAULT and sonar.clock_steps == 1
+    # A small backwards step would shorten the pulse into a plausible but wrong range.
+    sonar = _edge_sonar(_Clocks(), 5_830_000, 'realtime', step_ns=-3_000_000)
+    assert sonar.measure().status == p.STATUS_FAULT and sonar.clock_steps == 1
+
+
+def test_monotonic_edges_are_immune_to_a_wall_clock_step():
+    sonar = _edge_sonar(_Clocks(), 5_830_000, 'monotonic', step_ns=2_000_000_000,
+                        line_clock='monotonic')
+    r = sonar.measure()
+    assert r.status == p.STATUS_OK and r.range_m == pytest.approx(1.0, abs=0.002)
+    assert sonar.clock_steps == 0
+
+
+def test_unknown_line_clock_near_boot_discards_across_a_step():
+    # No RTC: the wall clock starts near the monotonic one, so the stamps cannot tell which
+    # clock they are; a step across the pulse still discards the reading.
+    sonar = _edge_sonar(_Clocks(offset_ns=3_000_000), 5_830_000, 'realtime', step_ns=-2_000_000)
+    assert sonar.measure().status == p.STATUS_FAULT and sonar.clock_steps == 1
+
+
+def test_request_monotonic_edges_reports_failure_without_cdev():
+    from m4k_drivers.sonar.real import request_monotonic_edges
+    assert request_monotonic_edges(_Line()) is False      # no line fd: guard instead

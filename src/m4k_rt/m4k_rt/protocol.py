@@ -32,10 +32,36 @@ ENCODER_MAX = 4095
 SCAN_STAMP_MAX = 0xFFFFFF  # URG time stamps are 24-bit ms counters
 SCAN_ERROR_CODE_MAX = 19  # ranges (mm) below 20 are URG error codes, not distances
 
+# The one table of URG range error codes (LASER_SCAN ranges below 20 mm), from Hokuyo's
+# "Communication Protocol Specification For SCIP2.0" (C-42-03320B), Table 3 "ERROR CODES
+# (URG-04LX, UBG-04LX-F01, UHG-08LX)"; 3..5 are not in the table. The driver names them in
+# logs (m4k_drivers.lrf.scip) and the bridge maps them (m4k_rt.bridge.convert).
+SCAN_ERROR_CODES: dict[int, str] = {
+    0: 'detected object is possibly at 22 m',
+    1: 'reflected light has low intensity',
+    2: 'reflected light has low intensity',
+    3: 'undocumented error',
+    4: 'undocumented error',
+    5: 'undocumented error',
+    6: 'others',
+    7: 'distance data on the preceding and succeeding steps have errors',
+    8: 'intensity difference of two waves',
+    9: 'the same step had an error in the last two scans',
+    **dict.fromkeys(range(10, 18), 'others'),
+    18: 'error reading due to a strongly reflective object',
+    19: 'non-measurable step',
+}
+# Codes Table 3 documents as "no object within the measurable range": only 0 (the object, if
+# any, is beyond the 5.6 m range). REP-117 +inf; every other code is an invalid reading (NaN).
+# No code means "too close" (REP-117 -inf): ranges below DMIN (20 mm) are the codes themselves.
+SCAN_FAR_CODES = frozenset((0,))
+
 ODOM_BRAKING = 0x1
 ODOM_GUARD = 0x2
 ODOM_MOTOR_STALE = 0x4
 ODOM_CLAMPED = 0x8
+ODOM_E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
+ODOM_HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
 
 SONAR_OK = 0
 SONAR_NO_ECHO = 1
@@ -73,6 +99,8 @@ class Kind(IntEnum):
     RT_STATUS = 11
     DEVICE_STATUS = 12
     PORT_STATS = 13
+    E_STOP = 14
+    ODOM_RESET = 15
 
 
 class ProtocolError(ValueError):
@@ -253,6 +281,18 @@ class PortStats(NamedTuple):
     peer_restarts: int
 
 
+class EStop(NamedTuple):
+    """Emergency stop request: ``engage`` 1 latches the stop in the RT actuator, 0 releases it."""
+
+    engage: int
+
+
+class OdomReset(NamedTuple):
+    """Odometry pose reset: the request (NRT -> RT) and its acknowledgement carry one id."""
+
+    request_id: int
+
+
 class _Spec(NamedTuple):
     kind: Kind
     payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
@@ -301,6 +341,8 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
           string=NAME_SIZE),
     _spec(Kind.PORT_STATS, '32sHBQQQQQQQ', PortStats, ranges=((2, 0, 1),),
           string=LABEL_SIZE),
+    _spec(Kind.E_STOP, 'B', EStop, ranges=((0, 0, 1),)),
+    _spec(Kind.ODOM_RESET, 'I', OdomReset),
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)

@@ -5,7 +5,10 @@ Definitions (design.md, "Timing, as the paper measures it"), per cycle i:
 * ``t_rel`` ideal release, ``t_start`` after the wait, ``t_end`` after the last command,
   ``expirations`` as read from the timerfd;
 * period = t_start[i] - t_start[i-1]; periodicity jitter = |period - nominal|;
-* release latency = t_start - t_rel; response time = t_end - t_start;
+* release latency = t_start - the first release the cycle serves: ``t_rel`` is the latest
+  release, so after an overrun (``expirations`` > 1) the latency counts from the earliest
+  missed one, ``t_rel - (expirations - 1) * period`` -- cyclictest's metric;
+  response time = t_end - t_start;
 * overruns = expirations - 1; deadline miss = t_end > t_rel + nominal period.
 
 The release arithmetic mirrors an absolute periodic timerfd: a late wake-up reports every
@@ -25,7 +28,8 @@ import numpy as np
 __all__ = [
     'RtaResult', 'RtaTask', 'SampleRing', 'Stats', 'TaskTiming', 'UtilizationResult',
     'advance_release', 'analyze', 'deadline_missed', 'describe', 'expirations_at',
-    'first_release', 'liu_layland_bound', 'overruns', 'response_time_analysis',
+    'first_release', 'liu_layland_bound', 'overruns', 'release_latency',
+    'response_time_analysis',
     'utilization_test',
 ]
 
@@ -159,6 +163,19 @@ def describe(values: Sequence[float] | np.ndarray) -> Stats:
                  float(p50), float(p99), float(p999))
 
 
+def release_latency(t_rel: np.ndarray, t_start: np.ndarray, expirations: np.ndarray,
+                    period_ns: int) -> np.ndarray:
+    """Return t_start minus the earliest release each cycle serves (ns, int64).
+
+    ``t_rel`` is the latest release the timer reported; with ``expirations`` > 1 the cycle
+    also answers the ``expirations - 1`` releases before it, and its latency is measured from
+    the first of them -- the release it missed -- as cyclictest measures a late wake-up.
+    """
+    rel = np.asarray(t_rel, dtype=np.int64)
+    missed = np.clip(np.asarray(expirations, dtype=np.int64) - 1, 0, None)
+    return np.asarray(t_start, dtype=np.int64) - (rel - missed * int(period_ns))
+
+
 @dataclasses.dataclass
 class TaskTiming:
     """Timing analysis of one task's samples (all times in ns)."""
@@ -203,7 +220,8 @@ def analyze(t_rel: Sequence[int], t_start: Sequence[int], t_end: Sequence[int],
     return TaskTiming(
         name=name, period_ns=period_ns, cycles=int(rel.size),
         period=describe(periods), jitter=describe(np.abs(periods - period_ns)),
-        latency=describe(start - rel), response=describe(end - start),
+        latency=describe(release_latency(rel, start, exp, period_ns)),
+        response=describe(end - start),
         overruns=int(np.clip(exp - 1, 0, None).sum()),
         deadline_misses=int((end > rel + period_ns).sum()))
 
@@ -260,6 +278,7 @@ class RtaTask(NamedTuple):
     period_ns: float
     priority: int
     deadline_ns: float | None = None  # None: implicit deadline = period
+    jitter_ns: float = 0.0            # release jitter J: worst release latency (wake-up delay)
 
 
 class RtaResult(NamedTuple):
@@ -274,28 +293,36 @@ class RtaResult(NamedTuple):
 
 def response_time_analysis(tasks: Sequence[RtaTask],
                            max_iterations: int = 1000) -> list[RtaResult]:
-    """Compute R = C + sum(ceil(R / Tj) * Cj) over higher-priority j, per task, in input order.
+    """Worst-case response per task, in input order, with release jitter (Audsley et al. 1993).
+
+    w = C_i + sum over higher-priority j of ceil((w + J_j) / T_j) * C_j, iterated to a fixed
+    point; R_i = J_i + w. J is the release jitter: how late a task may start after its
+    release (its worst measured release latency), so a late wake-up of task j can put one
+    more of its jobs in the window, and task i's own late start adds to its response. With
+    every J = 0 this is the classic R = C + sum(ceil(R / Tj) * Cj).
 
     Tasks of equal priority count as interference for each other (SCHED_FIFO runs a
     same-priority task to completion, whichever was released first), which is the safe side.
     """
     out = []
     for task in tasks:
-        if not task.period_ns > 0 or not task.wcet_ns >= 0:
-            raise ValueError('task {!r}: need wcet >= 0 and period > 0'.format(task.name))
+        if not task.period_ns > 0 or not task.wcet_ns >= 0 or not task.jitter_ns >= 0:
+            raise ValueError('task {!r}: need wcet >= 0, jitter >= 0 and period > 0'.format(
+                task.name))
         deadline = task.period_ns if task.deadline_ns is None else task.deadline_ns
         hp = [j for j in tasks if j is not task and j.priority >= task.priority]
-        r = task.wcet_ns + sum(j.wcet_ns for j in hp)
+        w = task.wcet_ns + sum(j.wcet_ns for j in hp)
         iterations = 0
         result: float | None = None
         while iterations < max_iterations:
             iterations += 1
-            if r > deadline:
+            if task.jitter_ns + w > deadline:
                 break
-            nxt = task.wcet_ns + sum(math.ceil(r / j.period_ns) * j.wcet_ns for j in hp)
-            if nxt == r:
-                result = r
+            nxt = task.wcet_ns + sum(math.ceil((w + j.jitter_ns) / j.period_ns) * j.wcet_ns
+                                     for j in hp)
+            if nxt == w:
+                result = task.jitter_ns + w
                 break
-            r = nxt
+            w = nxt
         out.append(RtaResult(task.name, result, deadline, result is not None, iterations))
     return out

@@ -421,26 +421,6 @@ class RtXddpSocket:
             if n >= 0:
                 return n
 
-    def recv_wait_into(self, buf: bytearray | memoryview, timeout_ms: float) -> int:
-        """Receive one datagram, waiting at most ``timeout_ms`` (the task's budget); 0 if none.
-
-        For a request/response exchange inside one cycle: a single blocking ``poll`` bounded by
-        the budget, then the receive -- no extra ``poll(0)`` on the way.
-        """
-        deadline = time.monotonic_ns() + int(timeout_ms * 1e6)
-        wait_ms = timeout_ms
-        while True:
-            events = self._poll.poll(wait_ms)
-            if not events:
-                return 0
-            n = self._take(buf, events)
-            if n > 0:
-                return n
-            # Woken by a new opener, an oversize drop or a peer that left: wait out the rest.
-            wait_ms = (deadline - time.monotonic_ns()) / 1e6
-            if wait_ms <= 0:
-                return self.recv_into(buf)
-
     def _take(self, buf: bytearray | memoryview, events: list[tuple[int, int]]) -> int:
         """Handle ready ``events``: accept an opener, receive one datagram.
 

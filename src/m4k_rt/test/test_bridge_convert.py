@@ -105,14 +105,23 @@ def test_imu_not_ready_is_not_published():
 
 
 @pytest.mark.parametrize('mm, expected', [
-    (20, 0.02), (1500, 1.5), (5600, 5.6), (0, math.inf), (6, math.inf)])
+    (20, 0.02), (1500, 1.5), (5600, 5.6), (0, math.inf)])
 def test_urg_ranges_and_far_codes(mm, expected):
     assert convert.urg_range_m(mm) == pytest.approx(expected)
 
 
-@pytest.mark.parametrize('code', [1, 2, 5, 7, 16, 19])
+@pytest.mark.parametrize('code', [1, 2, 5, 6, 7, 16, 19])
 def test_urg_error_codes_are_nan(code):
     assert math.isnan(convert.urg_range_m(code))
+
+
+def test_every_urg_code_but_no_object_in_range_is_invalid():
+    # SCIP 2.0 spec C-42-03320B Table 3: only code 0 ("possibly at 22 m") says "nothing in
+    # range"; code 6 is "Others". The driver names codes from this same table.
+    assert set(protocol.SCAN_ERROR_CODES) == set(range(protocol.SCAN_ERROR_CODE_MAX + 1))
+    for code in protocol.SCAN_ERROR_CODES:
+        value = convert.urg_range_m(code)
+        assert (value == math.inf) if code == 0 else math.isnan(value), code
 
 
 def test_scan_message_geometry_from_the_datagram():

@@ -42,6 +42,8 @@ FIELDS = {
     Kind.RT_STATUS: st.tuples(BIT, BIT, BIT, BIT, U32, U32, U32),
     Kind.DEVICE_STATUS: st.tuples(NAME, U8, st.integers(0, 3), U32, U32),
     Kind.PORT_STATS: st.tuples(LABEL, U16, BIT, *[U64] * 7),
+    Kind.E_STOP: st.tuples(BIT),
+    Kind.ODOM_RESET: st.tuples(U32),
 }
 
 PAYLOAD_TYPES = {
@@ -49,7 +51,7 @@ PAYLOAD_TYPES = {
     Kind.ENCODERS: p.Encoders, Kind.IMU: p.Imu, Kind.SONAR: p.Sonar,
     Kind.LASER_SCAN: p.LaserScan, Kind.LED: p.Led, Kind.TASK_STATS: p.TaskStats,
     Kind.REQUEST: p.Request, Kind.RT_STATUS: p.RtStatus, Kind.DEVICE_STATUS: p.DeviceStatus,
-    Kind.PORT_STATS: p.PortStats,
+    Kind.PORT_STATS: p.PortStats, Kind.E_STOP: p.EStop, Kind.ODOM_RESET: p.OdomReset,
 }
 
 # One hand-picked valid payload per kind (used by example tests and mutation fuzzing).
@@ -69,6 +71,8 @@ EXAMPLES = {
     Kind.RT_STATUS: (1, 1, 0, 1, 0, 6, 100),
     Kind.DEVICE_STATUS: ('imu', 3, p.LEVEL_WARN, 2, 121),
     Kind.PORT_STATS: ('cmd', 1, 1, 5000, 1000, 3, 2, 1, 4, 1),
+    Kind.E_STOP: (1,),
+    Kind.ODOM_RESET: (0xDEADBEEF,),
 }
 
 
@@ -134,6 +138,28 @@ def test_port_stats_label_holds_any_xddp_label():
     assert p.decode(data)[1].label == label
     with pytest.raises(ProtocolError):
         p.encode(Kind.PORT_STATS, 0, 0, label + 'b', 7, 0, 0, 0, 0, 0, 0, 0, 0)
+
+
+def test_e_stop_and_odom_reset_bytes_are_exact():
+    data = p.encode(Kind.E_STOP, 5, 7, 1)
+    assert data == struct.pack('<HBBIqB', 0x4B4D, 1, 14, 5, 7, 1)
+    data = p.encode(Kind.ODOM_RESET, 6, 8, 0x01020304)
+    assert data == struct.pack('<HBBIqI', 0x4B4D, 1, 15, 6, 8, 0x01020304)
+    assert p.decode(data)[1] == p.OdomReset(0x01020304)
+
+
+def test_e_stop_engage_other_than_0_or_1_is_rejected():
+    data = bytearray(p.encode(Kind.E_STOP, 0, 0, 1))
+    data[-1] = 2
+    with pytest.raises(ProtocolError) as exc:
+        p.decode(bytes(data))
+    assert exc.value.reason == 'range'
+
+
+def test_odometry_flag_bits_are_distinct():
+    bits = [p.ODOM_BRAKING, p.ODOM_GUARD, p.ODOM_MOTOR_STALE, p.ODOM_CLAMPED, p.ODOM_E_STOP,
+            p.ODOM_HOLD]
+    assert all(b & (b - 1) == 0 for b in bits) and len(set(bits)) == len(bits)
 
 
 def test_encoded_size_matches_layouts():
@@ -226,7 +252,7 @@ def test_bad_magic_version_and_kind_are_rejected():
     assert _reason(b'KM' + good[2:]) == 'magic'
     assert _reason(good[:2] + b'\x02' + good[3:]) == 'version'
     assert _reason(good[:3] + b'\x00' + good[4:]) == 'kind'
-    assert _reason(good[:3] + b'\x0e' + good[4:]) == 'kind'
+    assert _reason(good[:3] + bytes([max(Kind) + 1]) + good[4:]) == 'kind'
 
 
 @pytest.mark.parametrize('kind', [k for k in Kind if k not in (Kind.LASER_SCAN, Kind.TASK_STATS)])

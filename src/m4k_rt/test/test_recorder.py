@@ -63,8 +63,11 @@ def test_summary_computes_stats_counters_and_tests():
     assert led['forbidden_sites'][0]['file'].endswith('test_body.py')
     assert s['utilization']['liu_layland_bound'] == pytest.approx(0.8284, abs=1e-4)
     assert s['utilization']['per_task']['led'] == pytest.approx(0.025)
-    # The late actuator cycle makes its worst case ~10 ms: the LED task no longer fits.
-    assert [r['schedulable'] for r in s['rta']] == [True, False]
+    # The late actuator cycle ended past its deadline (deadline_misses == 1): with its release
+    # jitter (60 us) on top of its worst response, R = J + C > T, and the LED task no longer
+    # fits either.
+    assert [r['schedulable'] for r in s['rta']] == [False, False]
+    assert s['utilization_p999']['from'] == 'response p999'
     assert s['rt_status']['ntasks'] == 2
 
 

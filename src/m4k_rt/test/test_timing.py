@@ -141,13 +141,22 @@ def test_analyze_computes_period_latency_response_overruns_misses():
     assert t.cycles == 4
     assert t.overruns == 1
     assert t.deadline_misses == 1
-    assert t.latency.max == 150 and t.latency.min == 100
+    # The overrun cycle serves releases 3p and 4p: its latency counts from the missed 3p.
+    assert t.latency.max == p + 100 and t.latency.min == 100
     assert t.period.n == 3
     assert t.period.max == 2 * p
     assert sorted([p + 50, p - 50, 2 * p]) == sorted(
         [t.period.min, t.period.max, 3 * t.period.avg - t.period.min - t.period.max])
     assert t.jitter.max == p
     assert t.wcrt_ns == p + 1 - 100
+
+
+def test_release_latency_counts_from_the_missed_release():
+    p = 1000
+    # Cycle 0 on time (+30); cycle 1 woke 2.5 periods after release p: the timer reports
+    # releases 2p and 3p as passed too (3 expirations, t_rel = 3p), the wake-up is at 3.5p.
+    lat = timing.release_latency([0, 3 * p], [30, 3 * p + 500], [1, 3], p)
+    assert lat.tolist() == [30, 2 * p + 500]    # from release p, not from 3p (that gives 500)
 
 
 def test_analyze_skips_periods_across_lost_samples():
@@ -224,6 +233,24 @@ def test_rta_equal_priorities_interfere_both_ways():
     tasks = [timing.RtaTask('a', 2, 10, 5), timing.RtaTask('b', 3, 10, 5)]
     res = timing.response_time_analysis(tasks)
     assert [r.response_ns for r in res] == [5, 5]
+
+
+def test_rta_release_jitter_adds_interference_and_own_delay():
+    # hi (C 1, T 4, J 2), lo (C 2, T 10, J 1). By hand: R_hi = J + C = 3.
+    # lo: w = 2 + 1 = 3; 2 + ceil((3 + 2) / 4) * 1 = 4; 2 + ceil((4 + 2) / 4) * 1 = 4 -> w = 4,
+    # R_lo = J_lo + w = 5 (without jitter: 2 + ceil(3 / 4) = 3).
+    tasks = [timing.RtaTask('hi', 1, 4, 2, jitter_ns=2), timing.RtaTask('lo', 2, 10, 1,
+                                                                          jitter_ns=1)]
+    assert [r.response_ns for r in timing.response_time_analysis(tasks)] == [3, 5]
+    no_jitter = [t._replace(jitter_ns=0) for t in tasks]
+    assert [r.response_ns for r in timing.response_time_analysis(no_jitter)] == [1, 3]
+
+
+def test_rta_jitter_alone_can_miss_the_deadline():
+    res = timing.response_time_analysis([timing.RtaTask('x', 3, 10, 1, jitter_ns=8)])
+    assert not res[0].schedulable and res[0].response_ns is None
+    with pytest.raises(ValueError):
+        timing.response_time_analysis([timing.RtaTask('x', 3, 10, 1, jitter_ns=-1)])
 
 
 def test_rta_explicit_deadline_is_used():

@@ -33,12 +33,10 @@ class ImuHandler(DeviceHandler):
         self.revision = (self.dev.read_byte(p.REG_REV_MAJOR), self.dev.read_byte(p.REG_REV_MINOR))
 
     def on_read(self) -> p.ImuSample:
-        """Read STATUS and both data bursts; return the sample in the ROS frame."""
+        """Read STATUS, then the whole sample in one transaction; return it in the ROS frame."""
         assert self.dev is not None
         ready = bool(self.dev.read_byte(p.REG_STATUS) & p.STATUS_READY)
-        b1 = self.dev.read_block(p.BLOCK1, p.BLOCK1_LEN)
-        b2 = self.dev.read_block(p.BLOCK2, p.BLOCK2_LEN)
-        return p.to_ros(p.decode_blocks(b1, b2), ready)
+        return p.to_ros(p.decode_sample(self.dev.read_burst(p.SAMPLE, p.SAMPLE_LEN)), ready)
 
     def on_cleanup(self) -> None:
         """Close the bus."""

@@ -15,8 +15,11 @@ signed 16-bit little-endian (LOW register first)::
     0x36..0x3B  ROLL, PITCH, YAW deg = E * 180 / 32767
     0x3C..0x43  QUATERNION x,y,z,w  = Q / 32767
 
-SMBus block reads stop at 32 bytes, so a sample is two bursts: 0x22..0x35 (20 bytes: accel,
-gyro, magnet, temperature) and 0x36..0x43 (14 bytes: Euler, quaternion).
+A sample is ONE burst 0x22..0x43 (34 bytes: accel, gyro, magnet, temperature, Euler,
+quaternion) in one I2C transaction (register write, repeated START, read; the pointer
+auto-increments), so it cannot mix two of the device's 100 Hz updates.  SMBus block reads stop
+at 32 bytes, hence a plain I2C_RDWR rather than read_i2c_block_data (``BLOCK1``/``BLOCK2``
+name the two halves inside that burst).
 
 Axes: the myAHRS+ board frame is x forward, y right, z down (its Euler angles are roll about x,
 pitch about y, yaw about z-down, i.e. heading clockwise).  REP-103 wants x forward, y left,
@@ -36,6 +39,7 @@ from m4k_drivers.handler import DeviceProtocolError
 
 __all__ = [
     'ADDRESS', 'BLOCK1', 'BLOCK1_LEN', 'BLOCK2', 'BLOCK2_LEN', 'GRAVITY', 'REG_STATUS',
+    'SAMPLE', 'SAMPLE_LEN', 'decode_sample',
     'REG_WHO_AM_I', 'STATUS_READY', 'WHO_AM_I_VALUE', 'DeviceSample', 'ImuSample',
     'decode_blocks', 'encode_blocks', 'to_ros',
 ]
@@ -58,6 +62,7 @@ REG_LAST = 0x43
 
 BLOCK1, BLOCK1_LEN = REG_C_ACC_X, REG_ROLL - REG_C_ACC_X            # 0x22, 20 bytes
 BLOCK2, BLOCK2_LEN = REG_ROLL, REG_LAST + 1 - REG_ROLL             # 0x36, 14 bytes
+SAMPLE, SAMPLE_LEN = BLOCK1, BLOCK1_LEN + BLOCK2_LEN                # 0x22, 34 bytes, one read
 
 GRAVITY = 9.80665
 FULL = 32767.0
@@ -111,6 +116,14 @@ def decode_blocks(block1: bytes | bytearray, block2: bytes | bytearray) -> Devic
     euler = tuple(math.radians(c * EULER_DEG) for c in v2[0:3])
     quat = tuple(c * QUAT for c in v2[3:7])
     return DeviceSample(acc, gyro, (v1[6], v1[7], v1[8]), v1[9] * TEMP_C, euler, quat)
+
+
+def decode_sample(burst: bytes | bytearray) -> DeviceSample:
+    """Decode the one-transaction burst 0x22..0x43 into a DeviceSample."""
+    if len(burst) != SAMPLE_LEN:
+        raise DeviceProtocolError(f'myAHRS+ sample burst must be {SAMPLE_LEN} bytes, '
+                                  f'got {len(burst)}')
+    return decode_blocks(burst[:BLOCK1_LEN], burst[BLOCK1_LEN:])
 
 
 def _i16(value: float) -> int:

@@ -21,6 +21,9 @@ class SmbusLike(Protocol):
     def write_byte_data(self, i2c_addr: int, register: int, value: int) -> None:
         """Write one register."""
 
+    def i2c_rdwr(self, *messages: Any) -> None:
+        """Run smbus2 ``i2c_msg`` messages as one combined transaction (I2C_RDWR ioctl)."""
+
     def close(self) -> None:
         """Release the bus."""
 
@@ -47,6 +50,23 @@ class I2cDevice:
             return bytes(self.bus.read_i2c_block_data(self.address, register, length))
         except OSError as exc:
             raise wrap_os_error(exc, self.where, f'read 0x{register:02x}+{length}') from exc
+
+    def read_burst(self, register: int, length: int) -> bytes:
+        """Read ``length`` registers from ``register`` in ONE I2C transaction, any length.
+
+        A register-pointer write, a repeated START and a ``length``-byte read in one I2C_RDWR
+        ioctl (smbus2 ``i2c_msg``): unlike SMBus block reads it is not limited to 32 bytes, so
+        a whole myAHRS+ sample (34 bytes) comes from one transaction and cannot mix two of
+        the device's 100 Hz register updates.
+        """
+        from smbus2 import i2c_msg
+        write = i2c_msg.write(self.address, [register])
+        read = i2c_msg.read(self.address, length)
+        try:
+            self.bus.i2c_rdwr(write, read)
+        except OSError as exc:
+            raise wrap_os_error(exc, self.where, f'read 0x{register:02x}+{length}') from exc
+        return bytes(read)
 
     def write_byte(self, register: int, value: int) -> None:
         """Write one register."""

@@ -1,6 +1,7 @@
 """A register-level fake myAHRS+ on a fake SMBus, fed from the simulated world's motion.
 
-Same methods as ``smbus2.SMBus`` (read_byte_data, read_i2c_block_data, write_byte_data), so
+Same methods as ``smbus2.SMBus`` (read_byte_data, read_i2c_block_data, write_byte_data,
+i2c_rdwr for combined transactions), so
 the real register decoding runs against it.  The registers refresh at the device's output
 rate (100 Hz): reads in between return the same sample, as on the real part.  Noise levels are
 the standard deviations the ``robotpilot/myahrs_driver`` authors measured on a myAHRS+
@@ -12,14 +13,18 @@ a flat floor: roll = pitch = 0; the heading reference is the world x axis.
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import math
 import os
+from typing import Any
 
 from m4k_drivers.imu import protocol as p
 from m4k_drivers.world import World
 
 __all__ = ['FakeMyAhrsBus']
+
+I2C_M_RD = 0x0001          # linux/i2c.h: read message
 
 # Earth field in base_link at yaw 0 (uT): 25 horizontal towards world +x, 40 down.
 _EARTH_H_UT = 25.0
@@ -46,6 +51,7 @@ class FakeMyAhrsBus:
         self._tick = -1
         self.closed = False
         self.samples = 0
+        self.transactions = 0
 
     def _refresh(self) -> None:
         now = self.world.now()
@@ -95,6 +101,29 @@ class FakeMyAhrsBus:
         self._check(i2c_addr, register, length)
         self._refresh()
         return list(self.regs[register:register + length])
+
+    def i2c_rdwr(self, *messages: Any) -> None:
+        """Run a combined transaction (I2C_RDWR): a pointer write, then auto-incrementing reads.
+
+        The registers are refreshed once, at the START: one transaction sees one update.
+        """
+        if self.closed:
+            raise OSError(errno.EBADF, 'Bad file descriptor')
+        self._refresh()
+        pointer = 0
+        for msg in messages:
+            if msg.addr != self.address:
+                raise OSError(errno.EREMOTEIO, os.strerror(errno.EREMOTEIO))
+            if not msg.flags & I2C_M_RD:
+                data = bytes(msg)
+                if data:
+                    pointer = data[0]
+                continue
+            if pointer + msg.len > len(self.regs):
+                raise OSError(errno.EIO, f'register 0x{pointer:02x}+{msg.len} out of range')
+            ctypes.memmove(msg.buf, bytes(self.regs[pointer:pointer + msg.len]), msg.len)
+            pointer += msg.len
+        self.transactions += 1
 
     def write_byte_data(self, i2c_addr: int, register: int, value: int) -> None:
         """Accept a write (the data registers are read-only and ignore it)."""

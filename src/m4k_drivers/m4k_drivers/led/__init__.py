@@ -1,4 +1,7 @@
-"""LED strip NS-LED-02; backends ``led_class`` (alias ``real``), ``pwm`` and ``sim``."""
+"""LED strip NS-LED-02; backends ``led_class`` (= ``real``), ``led_class_rgb``, ``pwm``, ``sim``.
+
+``led_class_rgb`` drives a strip wired as three single-colour LED class devices.
+"""
 
 from __future__ import annotations
 
@@ -22,15 +25,44 @@ register('led', 'led_class', params=_LED_CLASS)(_build_led_class)
 register('led', 'real', params=_LED_CLASS)(_build_led_class)
 
 
+def _check_names(value: object) -> str | None:
+    if not (isinstance(value, list) and len(value) == 3
+            and all(isinstance(v, str) and v and '/' not in v for v in value)):
+        return 'expected [red, green, blue] LED class device names'
+    return None
+
+
+def _check_channels(value: object) -> str | None:
+    if not (isinstance(value, list) and len(value) == 3 and len(set(value)) == 3
+            and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                    for v in value)):
+        return 'expected three distinct channel numbers >= 0 for [r, g, b]'
+    return None
+
+
+@register('led', 'led_class_rgb', params={
+    'names': Param(list, doc='[red, green, blue] single-colour LED class names under '
+                   '/sys/class/leds', check=_check_names),
+})
+def _build_led_class_rgb(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
+    from m4k_drivers.led.real import LedClassRgbOutput
+    return LedHandler(lambda: LedClassRgbOutput(params['names']), name=name)
+
+
 @register('led', 'pwm', params={
     'chip': Param(int, doc='PWM chip number N of /sys/class/pwm/pwmchipN'),
-    'channels': Param(list, [0, 1, 2], 'PWM channels for r, g, b'),
-    'period_ns': Param(int, 1_000_000, 'PWM period, ns'),
+    'channels': Param(list, [0, 1, 2], 'PWM channels for r, g, b', _check_channels),
+    'period_ns': Param(int, 1_000_000, 'PWM period, ns (> 0)',
+                       lambda v: None if v > 0 else 'must be > 0'),
+    'polarity': Param(str, 'normal', "'normal' or 'inversed' (active-low wiring, e.g. a "
+                      'common-anode strip)',
+                      lambda v: None if v in ('normal', 'inversed')
+                      else "must be 'normal' or 'inversed'"),
 })
 def _build_pwm(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
     from m4k_drivers.led.real import PwmOutput
-    return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns']),
-                      name=name)
+    return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns'],
+                                        params['polarity']), name=name)
 
 
 @register('led', 'sim', params={'history': Param(int, 1000, 'colours remembered')})

@@ -1,15 +1,21 @@
 """NS-LED-02 colour handling (pure): 24-bit RGB plus an 8-bit brightness.
 
 The strip takes a 24-bit colour and a brightness; on Linux we drive it through the LED class
-(multicolor: ``multi_intensity`` = "r g b", ``brightness`` scales all three) or through three
-sysfs PWM channels (duty = colour / 255 * brightness / 255 of the period).
+(multicolor: ``multi_intensity`` holds one intensity per colour in the order the kernel lists
+in ``multi_index`` -- e.g. "green red blue" -- and ``brightness`` scales all of them; see
+Documentation/ABI/testing/sysfs-class-led-multicolor), through three single-colour LED class
+devices, or through three sysfs PWM channels (duty = colour / 255 * brightness / 255 of the
+period).
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
-__all__ = ['OFF', 'LedColor', 'channel_levels', 'duty_ns', 'multicolor_values', 'to_hex']
+__all__ = ['OFF', 'RGB_INDEX', 'LedColor', 'channel_levels', 'duty_ns', 'multicolor_values',
+           'parse_multi_index', 'to_hex']
+
+RGB_INDEX = ('red', 'green', 'blue')
 
 
 class LedColor(NamedTuple):
@@ -42,10 +48,24 @@ def duty_ns(level: float, period_ns: int) -> int:
     return round(max(0.0, min(1.0, level)) * period_ns)
 
 
-def multicolor_values(color: LedColor, max_brightness: int) -> tuple[str, int]:
-    """Return (multi_intensity text, brightness) for an LED class multicolor device."""
+def parse_multi_index(text: str) -> tuple[str, ...]:
+    """Return the colour names of a ``multi_index`` file; ValueError without red/green/blue.
+
+    The kernel lists one LED_COLOR_ID name per channel (``red``, ``green``, ``blue``,
+    ``white``, ``amber``, ...); channels other than red, green and blue are written 0.
+    """
+    names = tuple(text.split())
+    if not names or not set(RGB_INDEX) & set(names):
+        raise ValueError(f'multi_index {text.strip()!r} has no red, green or blue channel')
+    return names
+
+
+def multicolor_values(color: LedColor, max_brightness: int,
+                      index: tuple[str, ...] = RGB_INDEX) -> tuple[str, int]:
+    """Return (multi_intensity text in ``index`` order, brightness) for a multicolor LED."""
     scale = max_brightness / 255.0
-    text = f'{round(color.r * scale)} {round(color.g * scale)} {round(color.b * scale)}'
+    level = {'red': color.r, 'green': color.g, 'blue': color.b}
+    text = ' '.join(str(round(level.get(name, 0) * scale)) for name in index)
     return text, round(color.brightness * scale)
 
 

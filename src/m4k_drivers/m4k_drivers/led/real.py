@@ -1,16 +1,44 @@
-"""LED outputs on Linux: the LED class (python-periphery LED, multicolor aware) or sysfs PWM."""
+"""LED outputs on Linux: the LED class (multicolor aware, or three single-colour LEDs) or PWM.
+
+LED class (Documentation/ABI/testing/sysfs-class-led, -led-multicolor): ``brightness`` 0..
+``max_brightness``; a multicolor LED also has ``multi_index`` (the colour of each channel, in
+the kernel's order) and ``multi_intensity`` (one value per channel, in that same order).
+
+sysfs PWM (Documentation/ABI/testing/sysfs-class-pwm, drivers/pwm/sysfs.c): a channel is
+exported by writing its number to ``pwmchipN/export``; ``period``, ``duty_cycle`` (ns),
+``polarity`` (``normal``/``inversed``) and ``enable``.  The kernel applies every write as a
+whole state and refuses one with duty_cycle > period (EINVAL), and most drivers refuse a
+polarity change while enabled (EBUSY).  So :class:`SysfsPwmChannel` configures in the one order
+that is valid from any previous state: disable, duty 0, period, polarity, enable.
+"""
 
 from __future__ import annotations
 
 import os
-from typing import Any, Sequence
+import time
+from typing import Any, Callable, Sequence
 
-from m4k_drivers.handler import DeviceIOError, DeviceNotFoundError, wrap_os_error
+from m4k_drivers.handler import (
+    DeviceIdentityError,
+    DeviceIOError,
+    DeviceNotFoundError,
+    DriverError,
+    wrap_os_error,
+)
 from m4k_drivers.led import protocol as p
 
-__all__ = ['LedClassOutput', 'PwmOutput']
+__all__ = ['LedClassOutput', 'LedClassRgbOutput', 'POLARITIES', 'PwmOutput', 'SysfsPwmChannel',
+           'write_attr']
 
 LED_ROOT = '/sys/class/leds'
+PWM_ROOT = '/sys/class/pwm'
+POLARITIES = ('normal', 'inversed')
+
+
+def write_attr(path: str, text: str) -> None:
+    """Write one sysfs attribute in one write() (the kernel parses each write whole)."""
+    with open(path, 'w', encoding='ascii') as fh:
+        fh.write(text)
 
 
 class LedClassOutput:
@@ -23,6 +51,16 @@ class LedClassOutput:
             raise DeviceNotFoundError(f'{self.path}: No such file or directory (errno 2)')
         self.multi = os.path.join(self.path, 'multi_intensity')
         self.is_multicolor = os.path.exists(self.multi)
+        self.index = p.RGB_INDEX
+        if self.is_multicolor:
+            index_path = os.path.join(self.path, 'multi_index')
+            try:
+                with open(index_path, encoding='ascii') as fh:
+                    self.index = p.parse_multi_index(fh.read())
+            except OSError as exc:
+                raise wrap_os_error(exc, index_path) from exc
+            except ValueError as exc:
+                raise DeviceIdentityError(f'{index_path}: {exc}') from exc
         try:
             self.led: Any = LED(name) if root == LED_ROOT else _SysfsLed(self.path)
         except (OSError, LookupError) as exc:
@@ -34,7 +72,7 @@ class LedClassOutput:
         """Show ``color``; a mono LED shows the brightest channel."""
         try:
             if self.is_multicolor:
-                text, bri = p.multicolor_values(color, self.led.max_brightness)
+                text, bri = p.multicolor_values(color, self.led.max_brightness, self.index)
                 with open(self.multi, 'w', encoding='ascii') as fh:
                     fh.write(text + '\n')
                 self.led.write(bri)
@@ -50,6 +88,39 @@ class LedClassOutput:
             self.led.close()
         except OSError:
             pass
+
+
+class LedClassRgbOutput:
+    """An RGB strip wired as three single-colour LED class devices (red, green, blue)."""
+
+    def __init__(self, names: Sequence[str], root: str = LED_ROOT) -> None:
+        if len(names) != 3:
+            raise ValueError(f'RGB LED needs 3 LED names (red, green, blue), got {list(names)!r}')
+        self.leds: list[LedClassOutput] = []
+        try:
+            for name in names:
+                led = LedClassOutput(name, root)
+                if led.is_multicolor:
+                    raise DeviceIdentityError(f'{led.path}: a multicolor LED, expected a '
+                                              f'single-colour one (use backend led_class)')
+                self.leds.append(led)
+        except BaseException:
+            self.close()
+            raise
+
+    def show(self, color: p.LedColor) -> None:
+        """Set each LED's brightness to its channel level."""
+        for led, level in zip(self.leds, p.channel_levels(color), strict=True):
+            try:
+                led.led.write(round(level * led.led.max_brightness))
+            except OSError as exc:
+                raise wrap_os_error(exc, led.path, 'write') from exc
+
+    def close(self) -> None:
+        """Close the three brightness files."""
+        for led in self.leds:
+            led.close()
+        self.leds = []
 
 
 class _SysfsLed:
@@ -68,48 +139,85 @@ class _SysfsLed:
         pass
 
 
-class PwmOutput:
-    """Three sysfs PWM channels (r, g, b) of ``/sys/class/pwm/pwmchipN``."""
+class SysfsPwmChannel:
+    """One sysfs PWM channel under ``root`` (default /sys/class/pwm), exported on open."""
 
-    def __init__(self, chip: int, channels: Sequence[int], period_ns: int = 1_000_000) -> None:
-        from periphery import PWM
+    def __init__(self, chip: int, channel: int, root: str = PWM_ROOT, *,
+                 write: Callable[[str, str], None] = write_attr,
+                 export_timeout_s: float = 1.0) -> None:
+        self.chip_dir = os.path.join(root, f'pwmchip{chip}')
+        self.dir = os.path.join(self.chip_dir, f'pwm{channel}')
+        self._write = write
+        if not os.path.isdir(self.chip_dir):
+            raise DeviceNotFoundError(f'{self.chip_dir}: No such file or directory (errno 2)')
+        if not os.path.isdir(self.dir):
+            self._set(os.path.join(self.chip_dir, 'export'), channel)
+            # udev applies the group/permissions of a new channel asynchronously.
+            deadline = time.monotonic() + export_timeout_s
+            while not os.access(os.path.join(self.dir, 'enable'), os.W_OK):
+                if time.monotonic() > deadline:
+                    raise DeviceIOError(f'{self.dir}: not writable {export_timeout_s} s after '
+                                        f'export (udev rule for the pwm group?)')
+                time.sleep(0.01)
+
+    def _set(self, path: str, value: object) -> None:
+        try:
+            self._write(path, f'{value}\n')
+        except OSError as exc:
+            raise wrap_os_error(exc, path, f'write {value!r}') from exc
+
+    def set(self, attr: str, value: object) -> None:
+        """Write one attribute of the channel."""
+        self._set(os.path.join(self.dir, attr), value)
+
+    def configure(self, period_ns: int, polarity: str = 'normal') -> None:
+        """Disable, duty 0, period, polarity, enable: valid whatever the previous state."""
+        if polarity not in POLARITIES:
+            raise ValueError(f'PWM polarity must be one of {POLARITIES}, got {polarity!r}')
+        self.set('enable', 0)
+        self.set('duty_cycle', 0)          # first: the kernel rejects duty > a shorter period
+        self.set('period', period_ns)
+        self.set('polarity', polarity)     # only while disabled on most controllers
+        self.set('enable', 1)
+
+    def off(self) -> None:
+        """Duty 0, then disable (never raises: cleanup)."""
+        for attr in ('duty_cycle', 'enable'):
+            try:
+                self.set(attr, 0)
+            except DriverError:
+                pass                       # a vanished tree must not break cleanup
+
+
+class PwmOutput:
+    """Three sysfs PWM channels (r, g, b) of ``<root>/pwmchipN``."""
+
+    def __init__(self, chip: int, channels: Sequence[int], period_ns: int = 1_000_000,
+                 polarity: str = 'normal', root: str = PWM_ROOT,
+                 write: Callable[[str, str], None] = write_attr) -> None:
         if len(channels) != 3:
             raise ValueError(f'PWM LED needs 3 channels (r, g, b), got {list(channels)!r}')
-        self.where = f'/sys/class/pwm/pwmchip{chip}'
+        if not isinstance(period_ns, int) or isinstance(period_ns, bool) or period_ns <= 0:
+            raise ValueError(f'PWM period_ns must be a positive int, got {period_ns!r}')
+        self.where = os.path.join(root, f'pwmchip{chip}')
         self.period_ns = period_ns
-        self.pwms: list[Any] = []
+        self.pwms: list[SysfsPwmChannel] = []
         try:
             for ch in channels:
-                pwm = PWM(chip, ch)
+                pwm = SysfsPwmChannel(chip, ch, root, write=write)
                 self.pwms.append(pwm)
-                pwm.period_ns = period_ns
-                pwm.duty_cycle_ns = 0
-                pwm.enable()
-        except OSError as exc:
+                pwm.configure(period_ns, polarity)
+        except BaseException:
             self.close()
-            raise wrap_os_error(exc, self.where) from exc
-        except LookupError as exc:
-            self.close()
-            raise DeviceNotFoundError(f'{self.where}: {exc}') from exc
-        except TimeoutError as exc:
-            self.close()
-            raise DeviceIOError(f'{self.where}: {exc}') from exc
+            raise
 
     def show(self, color: p.LedColor) -> None:
         """Set the three duty cycles."""
-        try:
-            for pwm, level in zip(self.pwms, p.channel_levels(color), strict=True):
-                pwm.duty_cycle_ns = p.duty_ns(level, self.period_ns)
-        except OSError as exc:
-            raise wrap_os_error(exc, self.where, 'duty_cycle') from exc
+        for pwm, level in zip(self.pwms, p.channel_levels(color), strict=True):
+            pwm.set('duty_cycle', p.duty_ns(level, self.period_ns))
 
     def close(self) -> None:
-        """Disable and unexport the channels."""
+        """Duty 0 and disable every channel (left exported: a re-export waits for udev)."""
         for pwm in self.pwms:
-            try:
-                pwm.duty_cycle_ns = 0
-                pwm.disable()
-                pwm.close()
-            except OSError:
-                pass
+            pwm.off()
         self.pwms = []

@@ -35,9 +35,10 @@ class LrfReading(NamedTuple):
     geometry: scip.ScanGeometry
     device_stamp: int          # raw 24-bit device ms counter
     stamp_ms: int              # unwrapped device ms
-    host_stamp_ns: int         # CLOCK_MONOTONIC at decode
+    host_stamp_ns: int         # CLOCK_MONOTONIC when received
     seq: int
     fresh: bool                # False: the same scan as the previous read()
+    stamp_ns: int = 0          # CLOCK_MONOTONIC of the first value (m4k_drivers.lrf.stamp)
 
 
 class LrfHandler(DeviceHandler):
@@ -106,7 +107,7 @@ class LrfHandler(DeviceHandler):
         fresh = scan.seq != self._last_seq
         self._last_seq = scan.seq
         return LrfReading(scan.ranges_mm, scan.geometry, scan.device_stamp, scan.stamp_ms,
-                          scan.host_stamp_ns, scan.seq, fresh)
+                          scan.host_stamp_ns, scan.seq, fresh, scan.stamp_ns)
 
     def on_deactivate(self) -> None:
         """Stop the stream (the laser goes off with QT)."""

@@ -29,6 +29,8 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from m4k_rt.protocol import SCAN_ERROR_CODES
+
 LF = b'\n'
 BLOCK_CHARS = 64                 # payload characters per data line
 TAG_MAX = 16                     # max length of the echoed string characters
@@ -36,22 +38,9 @@ TIMESTAMP_BITS = 24
 TIMESTAMP_MODULO = 1 << TIMESTAMP_BITS
 RANGE_ERROR_LIMIT = 20           # range values below this are error codes, not distances
 
-# URG-04LX / UBG-04LX-F01 / UHG-08LX error codes (spec table 3); 3..5 are not documented.
-RANGE_ERROR_CODES: dict[int, str] = {
-    0: 'detected object is possibly at 22 m',
-    1: 'reflected light has low intensity',
-    2: 'reflected light has low intensity',
-    3: 'undocumented error',
-    4: 'undocumented error',
-    5: 'undocumented error',
-    6: 'others',
-    7: 'distance data on the preceding and succeeding steps have errors',
-    8: 'intensity difference of two waves',
-    9: 'the same step had an error in the last two scans',
-    **dict.fromkeys(range(10, 18), 'others'),
-    18: 'error reading due to a strongly reflective object',
-    19: 'non-measurable step',
-}
+# URG-04LX / UBG-04LX-F01 / UHG-08LX error codes (SCIP 2.0 spec C-42-03320B, Table 3): one
+# table for the driver and the bridge, kept in m4k_rt.protocol.
+RANGE_ERROR_CODES = SCAN_ERROR_CODES
 
 # Statuses common to every command when the command itself is refused (spec section 9).
 _INVALID_COMMAND = {
@@ -293,6 +282,7 @@ _ECHO_RE = re.compile(
     rb'(?P<cmd>GD|GS)(?P<args>\d{10})(?:;(?P<tag>[\x21-\x7e]{0,16}))?\Z'
     rb'|(?P<cmd2>MD|MS)(?P<args2>\d{13})(?:;(?P<tag2>[\x21-\x7e]{0,16}))?\Z'
     rb'|(?P<cmd3>BM|QT|RS|VV|PP|II)(?:;(?P<tag3>[\x21-\x7e]{0,16}))?\Z'
+    rb'|(?P<cmd5>TM)(?P<args5>[0-2])(?:;(?P<tag5>[\x21-\x7e]{0,16}))?\Z'
     rb'|(?P<cmd4>SCIP2\.0)\Z')
 
 
@@ -308,6 +298,8 @@ def match_echo(line: bytes) -> tuple[int, str, bytes, bytes] | None:
         return m.start(), g['cmd2'].decode(), g['args2'], g['tag2'] or b''
     if g['cmd3']:
         return m.start(), g['cmd3'].decode(), b'', g['tag3'] or b''
+    if g['cmd5']:
+        return m.start(), g['cmd5'].decode(), g['args5'], g['tag5'] or b''
     return m.start(), g['cmd4'].decode(), b'', b''
 
 
@@ -394,7 +386,7 @@ class ScanGeometry:
     range_min: float            # m
     range_max: float            # m
     scan_time: float            # s per revolution
-    time_increment: float       # s between measured steps
+    time_increment: float       # s between consecutive values (step period * cluster)
 
 
 @dataclass(frozen=True)
@@ -444,7 +436,9 @@ class SensorSpec:
             angle_max=self.step_angle(start + (count - 1) * group),
             angle_increment=step_rad * group,
             range_min=self.dmin / 1000.0, range_max=self.dmax / 1000.0,
-            scan_time=scan_time, time_increment=scan_time / self.ares)
+            # One value every ``group`` steps: the seconds between two consecutive *values*
+            # are the step period (scan_time / ARES, 1024 on the URG-04LX) times the cluster.
+            scan_time=scan_time, time_increment=scan_time / self.ares * group)
 
 
 # --- scans -------------------------------------------------------------------------------------

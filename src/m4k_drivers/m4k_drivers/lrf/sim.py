@@ -6,7 +6,8 @@ the real serial and protocol code runs in simulation. With ``link_path`` the sim
 symlink (e.g. ``<tmp>/ttyACM0 -> /dev/pts/N``) that :meth:`UrgSim.replug` re-points to a fresh pty,
 so a driver configured with that path reconnects to the same name, as after a USB replug.
 
-Commands: SCIP2.0, VV, PP, II, BM, QT, RS, GD/GS, MD/MS (anything else: status 0E). Ranges come
+Commands: SCIP2.0, VV, PP, II, BM, QT, RS, TM, GD/GS, MD/MS (anything else: status 0E; in
+time-adjust mode everything but TM). Ranges come
 from ray casting a world (:class:`ScanWorld`: the shared :class:`m4k_drivers.world.World`, or
 :class:`RectRoom` for standalone tests). Timestamps come from a 24-bit ms counter that can start
 near its wrap. Fault hooks: corrupt the sums of the next N scans, inject stray bytes, unplug and
@@ -249,6 +250,7 @@ class UrgSim:
     def _reset_device(self) -> None:
         self._scip2 = False
         self._laser = False
+        self.time_adjust = False               # TM0 .. TM2 (SCIP 2.0 spec 8.6)
         self._stream: dict[str, Any] | None = None
         self._inbuf = bytearray()
         self._out = bytearray()
@@ -409,7 +411,11 @@ class UrgSim:
             return
         body, _, tag = echo.partition(b';')
         code, args = body[:2].decode('ascii', 'replace'), body[2:].decode('ascii', 'replace')
-        if code in ('VV', 'PP', 'II') and not args:
+        if code == 'TM':
+            self._tm(echo, args)
+        elif self.time_adjust:
+            self._reply(echo, '0E')        # spec 8.6: nothing but TM in time-adjust mode
+        elif code in ('VV', 'PP', 'II') and not args:
             self._reply(echo, '00', self._params(code), param_lines=True)
         elif code == 'BM' and not args:
             self._reply(echo, '02' if self._laser else '00')
@@ -426,6 +432,22 @@ class UrgSim:
             self._md(echo, code, args, tag)
         else:
             self._reply(echo, '0E')
+
+    def _tm(self, echo: bytes, args: str) -> None:
+        # SCIP 2.0 spec 8.6: TM0 adjust mode on (laser off), TM1 time, TM2 adjust mode off.
+        if args == '0':
+            self._reply(echo, '02' if self.time_adjust else '00')
+            self.time_adjust, self._laser, self._stream = True, False, None
+        elif args == '1':
+            if not self.time_adjust:
+                self._reply(echo, '04')
+            else:
+                self._reply(echo, '00', [scip.encode(self.device_timestamp(), 4)])
+        elif args == '2':
+            self._reply(echo, '00' if self.time_adjust else '03')
+            self.time_adjust = False
+        else:
+            self._reply(echo, '01')
 
     def _params(self, code: str) -> list[bytes]:
         if code == 'VV':

@@ -1,7 +1,8 @@
 """Serial driver of the Hokuyo URG-04LX-UG01 (SCIP 2.0 over USB CDC-ACM) through pyserial.
 
 Connect sequence: ``SCIP2.0`` (answer ``0`` = switched, ``0E``/``0D`` = already in SCIP 2.0),
-``QT`` (stops a stream a previous client left running; its leftovers are skipped), ``VV``,
+``QT`` (stops a stream a previous client left running; its leftovers are skipped; a sensor
+left in time-adjust mode refuses it with ``0E`` and is taken out of it with ``TM2`` first), ``VV``,
 ``PP`` (the scan geometry comes from these parameters, never from constants), ``II``, ``BM``
 (laser on; ``02`` = already on).
 
@@ -41,6 +42,7 @@ from m4k_drivers.handler import (
     DriverError,
 )
 from m4k_drivers.lrf import scip
+from m4k_drivers.lrf.stamp import ScanStamper
 
 _ALREADY_SCIP2 = ('0', '00', '0D', '0E')
 
@@ -100,7 +102,8 @@ class UrgScan:
     geometry: scip.ScanGeometry
     device_stamp: int           # raw 24-bit device ms counter
     stamp_ms: int               # device ms unwrapped since the first scan of this connection
-    host_stamp_ns: int          # CLOCK_MONOTONIC when the scan was decoded
+    host_stamp_ns: int          # CLOCK_MONOTONIC when the scan's last bytes were read
+    stamp_ns: int = 0           # CLOCK_MONOTONIC when its first value was measured (estimated)
 
 
 SerialFactory = Callable[..., Any]
@@ -131,6 +134,8 @@ class UrgDriver:
         self._parser = scip.ScipParser()
         self._stats = UrgStats()
         self._unwrap = scip.TimestampUnwrapper()
+        self._stamper = ScanStamper()
+        self._rx_ns = 0
         self._io_lock = threading.RLock()
         self._cond = threading.Condition()
         self._latest: UrgScan | None = None
@@ -212,7 +217,13 @@ class UrgDriver:
         except (serial.SerialException, OSError) as exc:
             raise UrgIOError(f'URG port {self.port!r}: {exc}') from exc
         self._command(scip.build_command('SCIP2.0'), 'SCIP2.0', _ALREADY_SCIP2)
-        self._command(scip.build_command('QT'), 'QT')
+        qt = self._command(scip.build_command('QT'), 'QT', ('00', '0E'))
+        if qt.status == '0E':
+            # A previous client left the sensor in time-adjust mode (TM0), where it refuses
+            # every other command (spec 8.6); leave it with TM2 as urg_c does, then go on.
+            self.log.warning('URG on %s is in time-adjust mode; sending TM2', self.port)
+            self._command(scip.build_command('TM2'), 'TM', ('00', '03'))
+            self._command(scip.build_command('QT'), 'QT')
         self.version = scip.parse_params(self._command(scip.build_command('VV'), 'VV'))
         params = scip.parse_params(self._command(scip.build_command('PP'), 'PP'))
         try:
@@ -223,6 +234,7 @@ class UrgDriver:
         self.status = scip.parse_params(self._command(scip.build_command('II'), 'II'))
         self._command(scip.build_command('BM'), 'BM', ('00', '02'))
         self._unwrap.reset()
+        self._stamper.reset()
         self._stats.consecutive_errors = 0
 
     # -- request / response -----------------------------------------------------------------
@@ -236,7 +248,9 @@ class UrgDriver:
 
     def _read_some(self) -> bytes:
         try:
-            return self._serial.read(max(1, self._serial.in_waiting))
+            data = self._serial.read(max(1, self._serial.in_waiting))
+            self._rx_ns = time.monotonic_ns()    # receive time of the bytes just read
+            return data
         except (serial.SerialException, OSError) as exc:
             self._stats.io_errors += 1
             self._close_port()
@@ -272,8 +286,13 @@ class UrgDriver:
             raise UrgProtocolError(f'URG scan has {data.count} values, expected '
                                    f'{self.geometry.count}')
         self._stats.scans += 1
-        return UrgScan(self._stats.scans, data.ranges, self.geometry, data.timestamp,
-                       self._unwrap.update(data.timestamp), time.monotonic_ns())
+        g = self.geometry
+        stamp_ms = self._unwrap.update(data.timestamp)
+        # The device stamps step 0; the first value is measured ``start`` steps later.
+        step0_ns = self._stamper.update(stamp_ms, self._rx_ns)
+        first_ns = step0_ns + round(g.start * g.time_increment / g.cluster * 1e9)
+        return UrgScan(self._stats.scans, data.ranges, g, data.timestamp, stamp_ms,
+                       self._rx_ns, min(first_ns, self._rx_ns))
 
     def _count_error(self) -> bool:
         """Count one consecutive error; return True when the limit asks for a reconnect."""

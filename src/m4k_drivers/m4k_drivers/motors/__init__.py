@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import EncoderReading, MotorHandler, WheelCommand
 from m4k_drivers.registry import BuildContext, Param, register
 
@@ -13,8 +14,24 @@ _COMMON = {
     'period_s': Param(float, 0.01, 'actuator period, s'),
     'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
     'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
-    'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read'),
+    'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read (0..6)',
+                       p.check_lead_bits),
+    'dac_sign': Param(list, [1, 1], '[left, right] +1/-1: -1 mirrors a DAC code about 512 '
+                      '(a motor wired the other way round)', p.check_sign_pair),
+    'dac_zero_trim': Param(list, [0, 0], '[left, right] codes added to 512 so the amplifier '
+                           f'sees zero (|trim| <= {p.DAC_TRIM_MAX})', p.check_trim_pair),
+    'enc_direction': Param(list, [1, 1], '[left, right] +1/-1 so wheel angles grow forward',
+                           p.check_sign_pair),
+    'enc_zero': Param(list, [0, 0], '[left, right] AS5045 reading taken as wheel angle 0',
+                      p.check_zero_pair),
 }
+
+
+LDAC_MODES = ('tied_low', 'gpio')
+
+
+def _check_ldac(value: object) -> str | None:
+    return None if value in LDAC_MODES else f'must be one of {", ".join(LDAC_MODES)}'
 
 
 def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
@@ -30,15 +47,26 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
     'dac_speed_hz': Param(int, 1_000_000, 'SPI clock of the DACs'),
     'enc_mode': Param(int, 2, 'SPI mode of the encoders'),
     'enc_speed_hz': Param(int, 500_000, 'SPI clock of the encoders (AS5045 max 1 MHz)'),
+    'ldac': Param(str, 'tied_low', "MCP4911 /LDAC: 'tied_low' (wired to GND) or 'gpio' "
+                  '(driven: both outputs latch together)', _check_ldac),
+    'ldac_chip': Param((str, type(None)), None, "gpiochip of /LDAC when ldac is 'gpio'"),
+    'ldac_line': Param((int, type(None)), None, "line offset of /LDAC when ldac is 'gpio'"),
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
     from m4k_drivers.motors.real import open_real_bus
+    driven = params['ldac'] == 'gpio'
+    if driven and (params['ldac_chip'] is None or params['ldac_line'] is None
+                   or params['ldac_line'] < 0):
+        raise ValueError(f"devices.{name}.ldac: 'gpio' needs ldac_chip and ldac_line (>= 0), "
+                         f"got chip={params['ldac_chip']!r} line={params['ldac_line']!r}")
 
     def opener() -> Any:
         return open_real_bus(params['left_dac'], params['right_dac'], params['left_enc'],
                              params['right_enc'], dac_mode=params['dac_mode'],
                              dac_speed_hz=params['dac_speed_hz'], enc_mode=params['enc_mode'],
-                             enc_speed_hz=params['enc_speed_hz'])
+                             enc_speed_hz=params['enc_speed_hz'],
+                             ldac_chip=params['ldac_chip'] if driven else None,
+                             ldac_line=params['ldac_line'] if driven else None)
     return MotorHandler(opener, name=name, **_handler_kw(params, ctx))
 
 

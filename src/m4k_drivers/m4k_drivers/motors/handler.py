@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, NamedTuple, Sequence
 
 from m4k_drivers.handler import DeviceHandler, DeviceIdentityError, DriverError
 from m4k_drivers.motors import protocol as p
@@ -50,11 +50,24 @@ class MotorHandler(DeviceHandler):
     def __init__(self, opener: Callable[[], MotorBus], *, name: str = 'motor',
                  period_s: float = 0.01, watchdog_periods: int = 10,
                  max_wheel_rad_s: float = 30.0, lead_bits: int = 1,
+                 dac_sign: Sequence[int] = (1, 1), dac_zero_trim: Sequence[int] = (0, 0),
+                 enc_direction: Sequence[int] = (1, 1), enc_zero: Sequence[int] = (0, 0),
                  clock: Callable[[], int] = time.monotonic_ns, **kw: Any) -> None:
         super().__init__(name, **kw)
+        for field, value, check in (('lead_bits', lead_bits, p.check_lead_bits),
+                                    ('dac_sign', list(dac_sign), p.check_sign_pair),
+                                    ('dac_zero_trim', list(dac_zero_trim), p.check_trim_pair),
+                                    ('enc_direction', list(enc_direction), p.check_sign_pair),
+                                    ('enc_zero', list(enc_zero), p.check_zero_pair)):
+            reason = check(value)
+            if reason:
+                raise ValueError(f'{name}.{field}: {reason}, got {value!r}')
+        self.dac_sign, self.dac_zero_trim = tuple(dac_sign), tuple(dac_zero_trim)
+        self.enc_direction, self.enc_zero = tuple(enc_direction), tuple(enc_zero)
         self._opener = opener
         self.bus: MotorBus | None = None
         self.clock = clock
+        self.period_s = period_s
         self.watchdog_ns = int(period_s * watchdog_periods * 1e9)
         self.lead_bits = lead_bits
         max_rate = max_wheel_rad_s / (2 * math.pi) * p.ENC_COUNTS
@@ -65,6 +78,9 @@ class MotorHandler(DeviceHandler):
         self.watchdog_trips = 0
         self.write_error = False
         self.last_raw = [0, 0]
+        self.written = (p.DAC_ZERO, p.DAC_ZERO)      # codes on the wires, after the trims
+        self.mag_warnings = [0, 0]                   # frames with MagINC = MagDEC = 1
+        self._mag_bad = [False, False]
 
     # -- hooks ----------------------------------------------------------------------------
     def on_configure(self) -> None:
@@ -76,9 +92,10 @@ class MotorHandler(DeviceHandler):
                 frame = p.decode_encoder(port.transfer(bytes(p.ENC_READ_LEN)), self.lead_bits)
             except p.EncoderFrameError as exc:
                 raise DeviceIdentityError(f'{port.path}: no valid AS5045 frame: {exc}') from exc
+            raw = self._wheel(side, frame)
             self.unwrap[side].reset()
-            self.unwrap[side].update(frame.raw, self.clock())
-            self.last_raw[side] = frame.raw
+            self.unwrap[side].update(raw, self.clock())
+            self.last_raw[side] = raw
 
     def on_activate(self) -> None:
         """Accept commands; outputs stay at zero until the first one."""
@@ -109,8 +126,9 @@ class MotorHandler(DeviceHandler):
             t_sum += t
             try:
                 frame = p.decode_encoder(data, self.lead_bits)
-                self.unwrap[side].update(frame.raw, t)
-                self.last_raw[side] = frame.raw
+                raw = self._wheel(side, frame)
+                self.unwrap[side].update(raw, t)
+                self.last_raw[side] = raw
             except p.EncoderJumpError as exc:
                 self.record_fault(exc)
                 status |= _JUMP_BITS[side]
@@ -138,16 +156,35 @@ class MotorHandler(DeviceHandler):
             self.bus = None
 
     # -- helpers --------------------------------------------------------------------------
+    def _wheel(self, side: int, frame: p.EncoderFrame) -> int:
+        """Return the wheel-frame raw reading; warn (diagnostics) on a weak/strong field."""
+        bad = p.mag_out_of_range(frame)
+        if bad:
+            self.mag_warnings[side] += 1
+            if not self._mag_bad[side]:
+                # Valid data per the datasheet (Table 3), so it is used -- but the magnet gap
+                # is marginal: one counted fault per episode puts DEVICE_STATUS at warn.
+                self.record_fault(p.EncoderFieldWarning(
+                    f'{self.name}: {("left", "right")[side]} AS5045 magnetic field out of '
+                    f'range (MagINC=MagDEC=1); angle used, check the magnet gap'))
+                self.log.warning('%s', self.last_exception)
+        self._mag_bad[side] = bad
+        return p.wheel_raw(frame.raw, self.enc_direction[side], self.enc_zero[side])
+
     def _write_codes(self, left: int, right: int) -> None:
         assert self.bus is not None
+        out = tuple(p.trim_dac_code(code, sign, trim) for code, sign, trim in
+                    zip((left, right), self.dac_sign, self.dac_zero_trim, strict=True))
         try:
-            for port, code in zip(self.bus.dacs, (left, right), strict=True):
+            for port, code in zip(self.bus.dacs, out, strict=True):
                 port.transfer(p.encode_dac(code))
+            self.bus.latch()           # /LDAC pulse when driven: both outputs change together
         except DriverError:
             self.write_error = True
             raise
         self.write_error = False
         self.codes = (left, right)
+        self.written = out
 
     def make_safe(self) -> None:
         """Write the zero code to both DACs (outputs active, so the amplifier sees 0 V)."""

@@ -13,7 +13,17 @@ big-endian frame::
 The motor amplifier takes the DAC voltage with mid-scale as zero speed: code 512 = stop,
 1023 = full forward, 1 = full reverse (WHEEL_CMD in docs/internals.md).  We never use /SHDN for
 "safe": a shut-down MCP4911 drives 0 V, which the amplifier reads as full reverse.  Safe is
-code 512 with the output active.
+code 512 with the output active.  The normalized-command <-> code mapping has ONE owner,
+:mod:`m4k_rt.control.dac` (the RT controller computes the codes); it is re-exported here.
+
+Per-wheel trims (``dac_sign``, ``dac_zero_trim``; :func:`trim_dac_code`) map the WHEEL_CMD code
+to the code written: a motor wired the other way round gets sign -1, an amplifier whose zero
+is not exactly at mid-scale gets a zero trim (in codes, within +/-``DAC_TRIM_MAX``).
+
+LDAC (/LDAC, pin 5): the MCP4911 moves its input register to the output on /LDAC low.  Tied
+low (``ldac: tied_low``, the default), each DAC output changes when its /CS rises, so the two
+wheels update one SPI frame (~20 us) apart.  Driven (``ldac: gpio``), the line idles high, both
+words are written, then one low pulse (>= 100 ns, datasheet t_LD) updates both outputs together.
 
 Encoder: **ams AS5045** 12-bit magnetic absolute encoder on each *wheel* shaft (after the
 12:1 gear, so one count is 2*pi/4096 rad of wheel = 0.156 mm of travel and an absolute reading
@@ -26,8 +36,15 @@ dummy bit, MSB first::
     OCF     1 = offset compensation finished (must be 1)
     COF     1 = CORDIC overflow, angle invalid
     LIN     1 = linearity alarm, angle invalid
-    MagINC & MagDEC both 1 = magnetic field out of range, angle invalid
+    MagINC & MagDEC both 1 = magnetic field out of range (Table 4), but the angle is still
+            VALID: the datasheet's Table 3 ("Status Bit Outputs": D11:D0 valid when OCF=1,
+            COF=0, LIN=0, any MagINC/MagDEC, even parity; 1/1 "only recommended in YELLOW
+            mode") -- the handler accepts it and raises a warning in diagnostics
     EvenPAR makes the 18 bits contain an even number of ones
+
+``lead_bits`` (0..6): the 18-bit frame must fit in the 24 bits read.  Per-wheel ``enc_direction``
+(+1/-1) and ``enc_zero`` (0..4095) turn the shaft reading into the wheel angle the robot uses,
+positive = forward (:func:`wheel_raw`).
 """
 
 from __future__ import annotations
@@ -36,12 +53,16 @@ import math
 from typing import NamedTuple
 
 from m4k_drivers.handler import DeviceProtocolError
+from m4k_rt.control.dac import code_to_command, command_to_code  # the one owner
 from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # WHEEL_CMD codes: 0..1023, 512 = zero
 
 __all__ = [
     'DAC_MAX', 'DAC_ZERO', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame', 'EncoderFrame',
-    'EncoderFrameError', 'EncoderJumpError', 'Unwrapper', 'code_to_command', 'code_to_volts',
+    'EncoderFieldWarning', 'EncoderFrameError', 'EncoderJumpError', 'Unwrapper',
+    'code_to_command', 'code_to_volts',
     'command_to_code', 'decode_dac', 'decode_encoder', 'encode_dac', 'encode_encoder',
+    'DAC_TRIM_MAX', 'LEAD_BITS_MAX', 'check_lead_bits', 'check_sign_pair', 'check_trim_pair',
+    'check_zero_pair', 'mag_out_of_range', 'trim_dac_code', 'wheel_raw',
     'STATUS_LEFT_FRAME', 'STATUS_RIGHT_FRAME', 'STATUS_LEFT_JUMP', 'STATUS_RIGHT_JUMP',
     'STATUS_SAFE', 'STATUS_WRITE_ERROR',
 ]
@@ -54,6 +75,8 @@ ENC_COUNTS = 1 << ENC_BITS
 ENC_FRAME_BITS = 18
 ENC_READ_LEN = 3
 RAD_PER_COUNT = 2.0 * math.pi / ENC_COUNTS
+LEAD_BITS_MAX = ENC_READ_LEN * 8 - ENC_FRAME_BITS      # 6: the frame must fit in the read
+DAC_TRIM_MAX = 64                                      # zero trim limit, codes (12.5 % span)
 
 # ENCODERS.status bits (docs/internals.md).
 STATUS_LEFT_FRAME = 0x01
@@ -66,6 +89,10 @@ STATUS_WRITE_ERROR = 0x20
 
 class EncoderFrameError(DeviceProtocolError):
     """Raise when an encoder frame fails parity or its status bits flag an invalid angle."""
+
+
+class EncoderFieldWarning(DeviceProtocolError):
+    """Recorded (not raised) when MagINC = MagDEC = 1: valid angle, marginal magnet gap."""
 
 
 class EncoderJumpError(DeviceProtocolError):
@@ -122,17 +149,59 @@ def volts_to_code(volts: float, vref: float = 3.3, gain: int = 1) -> int:
     return max(0, min(DAC_MAX, code))
 
 
-def code_to_command(code: int) -> float:
-    """Return the normalized motor command in [-1, 1] for a DAC code (512 = 0)."""
-    return max(-1.0, min(1.0, (code - DAC_ZERO) / DAC_SPAN))
+def trim_dac_code(code: int, sign: int = 1, zero_trim: int = 0) -> int:
+    """Return the code to write for WHEEL_CMD ``code``: mirrored by ``sign``, shifted by trim.
+
+    512 + trim + sign * (code - 512), clamped to 0..1023; with sign 1 and trim 0 the identity.
+    """
+    return max(0, min(DAC_MAX, DAC_ZERO + zero_trim + sign * (code - DAC_ZERO)))
 
 
-def command_to_code(command: float) -> int:
-    """Return the DAC code for a normalized command in [-1, 1] (NaN -> 512, clamped)."""
-    if not math.isfinite(command):
-        return DAC_ZERO
-    command = max(-1.0, min(1.0, command))
-    return DAC_ZERO + round(command * DAC_SPAN)
+def wheel_raw(raw: int, direction: int = 1, zero: int = 0) -> int:
+    """Return the wheel-frame reading of a shaft reading: direction * (raw - zero) mod 4096."""
+    return (direction * (raw - zero)) % ENC_COUNTS
+
+
+def mag_out_of_range(frame: EncoderFrame) -> bool:
+    """Return True for MagINC = MagDEC = 1 (Table 4: field out of range; angle still valid)."""
+    return frame.mag_inc and frame.mag_dec
+
+
+# -- config checks (registry.Param.check: None = fine, else the reason) ---------------------
+def _is_int(v: object) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def check_lead_bits(value: object) -> str | None:
+    """Check an AS5045 lead_bits setting."""
+    if not _is_int(value) or not 0 <= value <= LEAD_BITS_MAX:
+        return (f'must be an int 0..{LEAD_BITS_MAX} (the 18-bit frame must fit in the '
+                f'{ENC_READ_LEN * 8} bits read)')
+    return None
+
+
+def check_sign_pair(value: object) -> str | None:
+    """Check a per-wheel [left, right] pair of +1/-1."""
+    if not (isinstance(value, list) and len(value) == 2
+            and all(_is_int(v) and v in (1, -1) for v in value)):
+        return 'expected [left, right], each 1 or -1'
+    return None
+
+
+def check_zero_pair(value: object) -> str | None:
+    """Check a per-wheel [left, right] pair of encoder zero offsets."""
+    if not (isinstance(value, list) and len(value) == 2
+            and all(_is_int(v) and 0 <= v < ENC_COUNTS for v in value)):
+        return f'expected [left, right], each an int 0..{ENC_COUNTS - 1} (counts)'
+    return None
+
+
+def check_trim_pair(value: object) -> str | None:
+    """Check a per-wheel [left, right] pair of DAC zero trims."""
+    if not (isinstance(value, list) and len(value) == 2
+            and all(_is_int(v) and abs(v) <= DAC_TRIM_MAX for v in value)):
+        return f'expected [left, right], each an int -{DAC_TRIM_MAX}..{DAC_TRIM_MAX} (codes)'
+    return None
 
 
 def encode_encoder(raw: int, *, ocf: bool = True, cof: bool = False, lin: bool = False,
@@ -150,7 +219,13 @@ def encode_encoder(raw: int, *, ocf: bool = True, cof: bool = False, lin: bool =
 
 
 def decode_encoder(data: bytes | bytearray, lead_bits: int = 1) -> EncoderFrame:
-    """Decode and validate one AS5045 read; raise EncoderFrameError if it is not a valid angle."""
+    """Decode and validate one AS5045 read; raise EncoderFrameError if it is not a valid angle.
+
+    MagINC = MagDEC = 1 is valid data (Table 3); check :func:`mag_out_of_range` to warn.
+    """
+    reason = check_lead_bits(lead_bits)
+    if reason:
+        raise ValueError(f'AS5045 lead_bits {reason}, got {lead_bits!r}')
     if len(data) != ENC_READ_LEN:
         raise EncoderFrameError(f'AS5045 read must be {ENC_READ_LEN} bytes, got {bytes(data)!r}')
     word = int.from_bytes(data, 'big')
@@ -166,8 +241,6 @@ def decode_encoder(data: bytes | bytearray, lead_bits: int = 1) -> EncoderFrame:
         raise EncoderFrameError(f'AS5045: offset compensation not finished (OCF=0) {f!r}')
     if f.cof or f.lin:
         raise EncoderFrameError(f'AS5045: angle invalid (COF={f.cof:d}, LIN={f.lin:d}) {f!r}')
-    if f.mag_inc and f.mag_dec:
-        raise EncoderFrameError(f'AS5045: magnetic field out of range {f!r}')
     return f
 
 

@@ -10,7 +10,7 @@ from typing import Protocol
 
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 
-__all__ = ['MotorBus', 'SpiLike', 'SpiPort', 'open_real_bus']
+__all__ = ['LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_ldac', 'open_real_bus']
 
 
 class SpiLike(Protocol):
@@ -45,18 +45,52 @@ class SpiPort:
             pass
 
 
+class LineLike(Protocol):
+    """An output GPIO line (python-periphery GPIO): write and close."""
+
+    def write(self, value: bool) -> None:
+        """Drive the line."""
+
+    def close(self) -> None:
+        """Release the line."""
+
+
 class MotorBus:
-    """The four SPI endpoints of the base: left/right DAC, left/right encoder."""
+    """The four SPI endpoints of the base (left/right DAC, left/right encoder), and /LDAC.
+
+    ``ldac`` None: /LDAC is tied low on the board, every DAC output follows its own write.
+    Otherwise the line idles high and :meth:`latch` pulses it low after both writes.
+    """
 
     def __init__(self, left_dac: SpiPort, right_dac: SpiPort, left_enc: SpiPort,
-                 right_enc: SpiPort) -> None:
+                 right_enc: SpiPort, ldac: LineLike | None = None,
+                 ldac_where: str = 'LDAC') -> None:
         self.dacs = (left_dac, right_dac)
         self.encoders = (left_enc, right_enc)
+        self.ldac = ldac
+        self.ldac_where = ldac_where
+        self.latches = 0
+
+    def latch(self) -> None:
+        """Pulse /LDAC low then high (a Python GPIO write pair lasts >> t_LD = 100 ns)."""
+        if self.ldac is None:
+            return
+        try:
+            self.ldac.write(False)
+            self.ldac.write(True)
+        except OSError as exc:
+            raise wrap_os_error(exc, self.ldac_where, 'pulse') from exc
+        self.latches += 1
 
     def close(self) -> None:
         """Close every endpoint."""
         for port in (*self.dacs, *self.encoders):
             port.close()
+        if self.ldac is not None:
+            try:
+                self.ldac.close()
+            except OSError:
+                pass
 
 
 def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
@@ -71,10 +105,20 @@ def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
                             ) from exc
 
 
+def open_ldac(chip: str, line: int) -> LineLike:
+    """Request /LDAC as an output idling high (outputs hold until the pulse)."""
+    from periphery import GPIO
+    try:
+        return GPIO(chip, line, 'high')
+    except OSError as exc:
+        raise wrap_os_error(exc, f'{chip} line {line} (LDAC)') from exc
+
+
 def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, *,
                   dac_mode: int = 0, dac_speed_hz: int = 1_000_000, enc_mode: int = 2,
-                  enc_speed_hz: int = 500_000) -> MotorBus:
-    """Open the four spidev nodes (closing any already opened if one fails)."""
+                  enc_speed_hz: int = 500_000, ldac_chip: str | None = None,
+                  ldac_line: int | None = None) -> MotorBus:
+    """Open the four spidev nodes and /LDAC if driven (closing all if one fails)."""
     opened: list[SpiPort] = []
     try:
         for path, mode, speed in ((left_dac, dac_mode, dac_speed_hz),
@@ -82,8 +126,9 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
                                   (left_enc, enc_mode, enc_speed_hz),
                                   (right_enc, enc_mode, enc_speed_hz)):
             opened.append(open_spi(path, mode, speed))
+        ldac = None if ldac_chip is None else open_ldac(ldac_chip, int(ldac_line or 0))
     except DriverError:
         for port in opened:
             port.close()
         raise
-    return MotorBus(*opened)
+    return MotorBus(*opened, ldac=ldac, ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)')

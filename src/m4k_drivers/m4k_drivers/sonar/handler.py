@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Protocol
 
-from m4k_drivers.handler import DeviceHandler
+from m4k_drivers.handler import DeviceHandler, DeviceProtocolError
 from m4k_drivers.sonar import protocol as p
 
 __all__ = ['SonarHandler', 'SonarTransport']
@@ -36,19 +36,29 @@ class SonarHandler(DeviceHandler):
         self.timeout_s = timeout_s
         self.no_echo = 0
         self.timeouts = 0
+        self.invalid = 0          # unmeasurable echoes and clock-step discards
 
     def on_configure(self) -> None:
         """Request the lines / open the IIO attribute."""
         self.dev = self._opener()
 
     def on_read(self) -> p.SonarReading:
-        """Measure once; count no-echo and timeout readings (they are data, not faults)."""
+        """Measure once; count no-echo, timeout and invalid readings.
+
+        An invalid reading is also recorded as a fault (DEVICE_STATUS level warn, fault count):
+        a sensor that keeps failing to measure must be visible in diagnostics.
+        """
         assert self.dev is not None
         reading = self.dev.measure(self.temperature_c, self.timeout_s)
         if reading.status == p.STATUS_NO_ECHO:
             self.no_echo += 1
         elif reading.status == p.STATUS_TIMEOUT:
             self.timeouts += 1
+        elif reading.status == p.STATUS_FAULT:
+            self.invalid += 1
+            self.record_fault(DeviceProtocolError(
+                f'{self.name}: unmeasurable echo (range {reading.range_m:.3f} m) or clock step '
+                f'-- reported invalid'))
         return reading
 
     def on_cleanup(self) -> None:

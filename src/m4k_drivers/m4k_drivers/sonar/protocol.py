@@ -2,9 +2,12 @@
 
 Trigger: a high pulse of at least 10 us on TRIG starts one measurement.  The sensor sends a
 40 kHz burst, raises ECHO, and lowers it when the echo returns: range = c * width / 2 with the
-speed of sound c = 331.3 * sqrt(1 + T / 273.15) m/s.  Usable range 0.02-4.5 m; a longer pulse
-means no echo / out of range; no edge at all within the timeout means the sensor did not
-answer.  Status codes are the SONAR datagram's (docs/internals.md).
+speed of sound c = 331.3 * sqrt(1 + T / 273.15) m/s.  Usable range 0.02-4.5 m.  A pulse
+outside that range is an unmeasurable echo -- no echo heard (a soft or angled surface), or too
+close -- and is reported INVALID (``STATUS_FAULT``, NaN on /sonar), never as the maximum range:
+"no echo" must not mean free space.  No edge at all within the timeout means the sensor did
+not answer (``STATUS_TIMEOUT``).  ``STATUS_NO_ECHO`` stays in the datagram vocabulary but the
+US-100 drivers never report it.  Status codes are the SONAR datagram's (docs/internals.md).
 """
 
 from __future__ import annotations
@@ -25,9 +28,9 @@ ECHO_TIMEOUT_S = 0.06        # > the ~38 ms "no echo" pulse HC-SR04-style module
 
 # The SONAR datagram's status codes (m4k_rt.protocol).
 STATUS_OK = SONAR_OK              # range valid
-STATUS_NO_ECHO = SONAR_NO_ECHO    # no echo / out of range
+STATUS_NO_ECHO = SONAR_NO_ECHO    # "nothing within range": never claimed by the US-100 drivers
 STATUS_TIMEOUT = SONAR_TIMEOUT    # no edges: sensor not answering
-STATUS_FAULT = SONAR_FAULT        # edges inconsistent or transport error
+STATUS_FAULT = SONAR_FAULT        # invalid: unmeasurable echo, clock step, inconsistent edges
 
 
 class Edge(NamedTuple):
@@ -58,7 +61,7 @@ def pulse_to_range(width_s: float | None, temp_c: float = 20.0,
         return SonarReading(0.0, STATUS_FAULT)
     rng = speed_of_sound(temp_c) * width_s / 2.0
     if rng < min_m or rng > max_m:
-        return SonarReading(rng, STATUS_NO_ECHO)
+        return SonarReading(rng, STATUS_FAULT)        # unmeasurable echo: invalid
     return SonarReading(rng, STATUS_OK)
 
 

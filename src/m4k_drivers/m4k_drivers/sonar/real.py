@@ -1,9 +1,19 @@
 """US-100 transports: GPIO character device with kernel edge timestamps, or the IIO srf04 driver.
 
 Backend A (``gpio``): TRIG is an output line, ECHO an input line requesting both edges; the
-kernel timestamps each edge (CLOCK_MONOTONIC), so the pulse width does not depend on how fast
-this process wakes up.  Backend B (``iio``): the kernel ``srf04`` driver does the timing;
-reading ``in_distance_raw`` triggers a measurement, times ``in_distance_scale`` gives metres.
+kernel timestamps each edge, so the pulse width does not depend on how fast this process wakes
+up.  Which clock: GPIO cdev v2 stamps edges with CLOCK_MONOTONIC unless the request sets
+``GPIO_V2_LINE_FLAG_EVENT_CLOCK_REALTIME`` -- and python-periphery 2.4 always sets it
+(``gpio_cdev2.py``).  A wall-clock step (NTP on a board without RTC) between the two edges
+would then stretch or shrink the pulse.  So :func:`open_gpio_sonar` reconfigures the echo line
+with ``GPIO_V2_LINE_SET_CONFIG_IOCTL`` without that flag (monotonic edges).  Unless that
+succeeded (``line_clock == 'monotonic'``), :class:`EdgeSonar` discards every reading across
+which the realtime-minus-monotonic offset changed (status FAULT, counted in ``clock_steps``).
+It does not trust a guess of the stamps' clock for that: on a board without RTC the wall clock
+starts near the monotonic one, exactly when NTP is about to step it.
+
+Backend B (``iio``): the kernel ``srf04`` driver does the timing; reading ``in_distance_raw``
+triggers a measurement, times ``in_distance_scale`` gives metres.
 """
 
 from __future__ import annotations
@@ -42,19 +52,37 @@ def _busy_wait(seconds: float) -> None:
         pass
 
 
+# Largest change of (CLOCK_REALTIME - CLOCK_MONOTONIC) across one ping that is still read
+# jitter, not a clock step: 20 us = 3.4 mm of range.
+CLOCK_STEP_TOLERANCE_NS = 20_000
+
+
 class EdgeSonar:
     """Pulse-mode measurement over a trigger line and an edge-timestamping echo line."""
 
     def __init__(self, trigger: GpioLike, echo: GpioLike, where: str, *,
                  trigger_s: float = 2 * p.TRIGGER_S,
                  hold: Callable[[float], None] = _busy_wait,
-                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns,
+                 realtime: Callable[[], int] = time.time_ns,
+                 line_clock: str = 'unknown') -> None:
         if trigger_s < p.TRIGGER_S:
             raise ValueError(f'trigger pulse must be >= 10 us, got {trigger_s!r} s')
         self.trigger, self.echo, self.where = trigger, echo, where
         self.trigger_s = trigger_s
         self._hold = hold
         self._clock = clock
+        self._realtime = realtime
+        self.clock_steps = 0          # pulses discarded because the wall clock stepped
+        self.line_clock = line_clock  # 'monotonic' once the edge clock was requested as such
+        self.edge_clock = 'unknown'   # diagnostics: the clock the last stamps looked like
+
+    def _offset(self) -> int:
+        """Return CLOCK_REALTIME - CLOCK_MONOTONIC (ns), read as tightly as Python can."""
+        a = self._clock()
+        r = self._realtime()
+        b = self._clock()
+        return r - (a + b) // 2
 
     def edges(self, timeout_s: float = p.ECHO_TIMEOUT_S) -> list[p.Edge]:
         """Trigger once and collect echo edges until a falling edge or the timeout."""
@@ -79,8 +107,22 @@ class EdgeSonar:
 
     def measure(self, temp_c: float = 20.0, timeout_s: float = p.ECHO_TIMEOUT_S,
                 ) -> p.SonarReading:
-        """Ping once and convert the echo pulse to a reading."""
-        return p.pulse_to_range(p.edges_to_width(self.edges(timeout_s)), temp_c)
+        """Ping once and convert the echo pulse to a reading (FAULT if the clock stepped)."""
+        off0 = self._offset()
+        edges = self.edges(timeout_s)
+        off1 = self._offset()
+        if edges:
+            # Which clock stamped the edges: the one whose "now" they are nearer to.
+            now_mono = self._clock()
+            now_real = now_mono + off1
+            ts = edges[-1].timestamp
+            self.edge_clock = ('monotonic' if abs(now_mono - ts) <= abs(now_real - ts)
+                               else 'realtime')
+            stepped = abs(off1 - off0) > CLOCK_STEP_TOLERANCE_NS
+            if stepped and self.line_clock != 'monotonic':
+                self.clock_steps += 1
+                return p.SonarReading(0.0, p.STATUS_FAULT)
+        return p.pulse_to_range(p.edges_to_width(edges), temp_c)
 
     def close(self) -> None:
         """Release both lines."""
@@ -91,8 +133,31 @@ class EdgeSonar:
                 pass
 
 
+def request_monotonic_edges(gpio: Any) -> bool:
+    """Re-request the edge clock of a periphery cdev v2 input line as CLOCK_MONOTONIC.
+
+    GPIO_V2_LINE_SET_CONFIG_IOCTL with INPUT | EDGE_RISING | EDGE_FALLING and no
+    EVENT_CLOCK_REALTIME flag (Linux uapi ``gpio.h``: the default event clock is
+    CLOCK_MONOTONIC).  Returns False when that is not possible (cdev v1, sysfs GPIO, an old
+    kernel): :meth:`EdgeSonar.measure` then guards against clock steps instead.
+    """
+    import fcntl
+    try:
+        from periphery import gpio_cdev2 as c2
+        cls = c2.Cdev2GPIO
+        fd = gpio._line_fd
+        config = c2._CGpioV2LineConfig()
+        config.flags = (cls._GPIO_V2_LINE_FLAG_INPUT | cls._GPIO_V2_LINE_FLAG_EDGE_RISING
+                        | cls._GPIO_V2_LINE_FLAG_EDGE_FALLING)
+        config.num_attrs = 0
+        fcntl.ioctl(fd, cls._GPIO_V2_LINE_SET_CONFIG_IOCTL, config)
+    except (AttributeError, ImportError, OSError, TypeError):
+        return False
+    return True
+
+
 def open_gpio_sonar(chip: str, trigger_line: int, echo_line: int) -> EdgeSonar:
-    """Request TRIG (out, low) and ECHO (in, both edges) on a gpiochip character device."""
+    """Request TRIG (out, low) and ECHO (in, both edges, monotonic stamps) on a gpiochip."""
     from periphery import GPIO
     try:
         trigger = GPIO(chip, trigger_line, 'low')
@@ -103,7 +168,9 @@ def open_gpio_sonar(chip: str, trigger_line: int, echo_line: int) -> EdgeSonar:
     except OSError as exc:
         trigger.close()
         raise wrap_os_error(exc, f'{chip} line {echo_line}') from exc
-    return EdgeSonar(trigger, echo, f'{chip} lines {trigger_line}/{echo_line}')
+    sonar = EdgeSonar(trigger, echo, f'{chip} lines {trigger_line}/{echo_line}')
+    sonar.line_clock = 'monotonic' if request_monotonic_edges(echo) else 'unknown'
+    return sonar
 
 
 class IioSonar:
@@ -135,7 +202,7 @@ class IioSonar:
         except ValueError as exc:
             raise DriverError(f'{self.raw_path}: not an integer: {text!r}') from exc
         if not p.MIN_RANGE_M <= rng <= p.MAX_RANGE_M:
-            return p.SonarReading(rng, p.STATUS_NO_ECHO)
+            return p.SonarReading(rng, p.STATUS_FAULT)   # unmeasurable, never "free"
         return p.SonarReading(rng, p.STATUS_OK)
 
     def close(self) -> None:

@@ -107,4 +107,7 @@ def open_sim_sonar(world: World, mount: Sequence[float] = (0.225, 0.0, 0.0), *,
     """Return an EdgeSonar wired to simulated lines on ``world`` (``sleep`` on its clock)."""
     echo = FakeEchoLine(world.clock, sleep)
     trig = FakeTriggerLine(world, echo, mount, fov_deg, noise_sd)
-    return EdgeSonar(trig, echo, 'sim:sonar', hold=sleep, clock=world.clock)
+    # The simulated echo line stamps edges with the world's (monotonic) clock: the model of a
+    # line whose event clock was requested as CLOCK_MONOTONIC.
+    return EdgeSonar(trig, echo, 'sim:sonar', hold=sleep, clock=world.clock,
+                     line_clock='monotonic')

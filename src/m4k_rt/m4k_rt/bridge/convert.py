@@ -35,10 +35,10 @@ __all__ = [
 IMU_NOT_READY = 1
 IMU_BAD_QUATERNION = 2
 
-# URG (SCIP 2.0) error codes that mean "no object within the measurable range": 0 = possibly
-# at 22 m, 6 = possibly at 5.7 m -- REP-117 +inf. Every other code (< 20) is an erroneous
-# reading (low intensity, neighbours in error, non-measurable step, ...): NaN.
-URG_FAR_CODES = frozenset((0, 6))
+# URG (SCIP 2.0) error codes: the table has one owner, m4k_rt.protocol.SCAN_ERROR_CODES (SCIP 2.0
+# spec C-42-03320B, Table 3). Only code 0 ("object possibly at 22 m", i.e. nothing within the
+# measurable range) is REP-117 +inf; every other code (< 20) is an erroneous reading: NaN.
+URG_FAR_CODES = protocol.SCAN_FAR_CODES
 
 
 class NonFiniteCommand(ValueError):

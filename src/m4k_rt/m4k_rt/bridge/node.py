@@ -5,7 +5,9 @@ It never runs control logic. Inbound, ``cmd_vel`` (Twist, or TwistStamped with
 as VELOCITY_CMD on the ``cmd`` port; ``led`` (ColorRGBA) becomes an LED override on ``led_in``.
 The bridge does not repeat commands: when cmd_vel stops, the RT actuator brakes after its own
 ``control.cmd_vel_timeout``; the bridge's ``cmd_vel_timeout`` only labels the input idle in
-diagnostics. On shutdown it sends one zero command.
+diagnostics. On shutdown it sends one zero command. ``e_stop`` (std_msgs/Bool) and the
+``~/reset_odometry`` service (std_srvs/Trigger) go to the RT actuator on the same ``cmd`` port
+(:mod:`m4k_rt.bridge.safety`: the latch itself lives in the RT process).
 
 Outbound, datagrams from the RT process become ``odom`` (+ ``tf`` when tf2_msgs exists),
 ``imu``, ``scan``, ``sonar``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and,
@@ -50,6 +52,7 @@ from m4k_rt import modeswitch, protocol, xddp
 from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
 from m4k_rt.bridge.ports import PortPump
+from m4k_rt.bridge.safety import SafetyInterface
 from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt.stopsignals import StopSignals
 
@@ -63,6 +66,11 @@ __all__ = ['BridgeNode', 'main', 'param_files']
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# cmd_vel is taken best effort: a reliable reader makes a reliable writer (Nav2, teleop) keep
+# and re-send the samples it could not deliver, so after a network outage the robot would get
+# a burst of commands from before the outage and drive on them. A velocity stream needs the
+# newest sample or none; the RT actuator brakes when none comes (control.cmd_vel_timeout).
+_CMD_VEL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 _INBOX_MAX = 4096
 _WATCH_PERIOD_S = 0.25
 # Devices the bridge sees through their data ports: role -> (device, period expected [s]).
@@ -134,11 +142,12 @@ class BridgeNode(Node):
                 self._tf_pub = self.create_publisher(TFMessage, 'tf', 100)
                 self._tf_static_pub = self.create_publisher(TFMessage, 'tf_static', _LATCHED)
                 self._publish_static_transforms()
+        self._init_safety()
         if p['use_stamped_vel']:
             self.create_subscription(TwistStamped, p.topic('cmd_vel'), self._on_twist_stamped,
-                                     10)
+                                     _CMD_VEL_QOS)
         else:
-            self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, 10)
+            self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, _CMD_VEL_QOS)
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
@@ -220,6 +229,7 @@ class BridgeNode(Node):
         self.p = params.from_values(merged)
         self._monitor.set_window(self.p['stats_window'])
         self._monitor.stale_ns = int(self.p['rt_stale_timeout'] * 1e9)
+        self._safety.reset_timeout = self.p['reset_odometry_timeout']
         if self.p['diagnostics_period'] != old['diagnostics_period']:
             self._diag_timer.cancel()
             self.destroy_timer(self._diag_timer)
@@ -237,6 +247,12 @@ class BridgeNode(Node):
         self._command(msg.linear.x, msg.angular.z)
 
     def _on_twist_stamped(self, msg: TwistStamped) -> None:
+        stamp = msg.header.stamp
+        if not self._safety.gate.accept(stamp.sec * 1_000_000_000 + stamp.nanosec):
+            self.get_logger().warning(
+                'cmd_vel stamped before the last e_stop release: dropped ({} so far)'.format(
+                    self._safety.gate.rejected), throttle_duration_sec=1.0)
+            return
         self._command(msg.twist.linear.x, msg.twist.angular.z)
 
     def _command(self, linear_x: float, angular_z: float) -> None:
@@ -356,6 +372,9 @@ class BridgeNode(Node):
                 p['sonar_min_range'], p['sonar_max_range']))
         elif k == protocol.Kind.LED:
             self._led_shown = payload
+        elif k == protocol.Kind.ODOM_RESET:
+            if not self._safety.on_reset_ack(payload.request_id):
+                self.counters['unexpected_' + role] += 1
         elif not self._monitor.feed(k, payload, rx_ns, header.stamp_ns):
             self.counters['unexpected_' + role] += 1
 
@@ -366,6 +385,14 @@ class BridgeNode(Node):
             convert.static_transform(p['base_frame'], p[frame], p[pose], stamp)
             for frame, pose in (('laser_frame', 'laser_pose'), ('imu_frame', 'imu_pose'),
                                 ('sonar_frame', 'sonar_pose'))]))
+
+    # --- e-stop and odometry reset (m4k_rt.bridge.safety) ---------------------------------
+
+    def _init_safety(self) -> None:
+        # Created before the pumps: it only needs the send path, which exists at first use.
+        self._safety = SafetyInterface(
+            self, lambda data: self._pumps['cmd'].send(data), self.p.topic('e_stop'),
+            self.p['reset_odometry_timeout'])
 
     # --- health -------------------------------------------------------------------------------
 
@@ -405,6 +432,7 @@ class BridgeNode(Node):
             else:
                 self.get_logger().info('linked to the RT process after {:.1f} s'.format(gap))
         self._last_rx_seen = last
+        self._safety.on_cmd_links(self._pumps['cmd'].links)
         for role, pump in self._pumps.items():
             if pump.error is not None and role not in self._reported_errors:
                 self._reported_errors.add(role)
@@ -420,6 +448,8 @@ class BridgeNode(Node):
         msg = self._monitor.rt_status_msg(now, age, guard_fallback=guard)
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.ports = self._monitor.port_msgs(now)   # the RT side's counters (PORT_STATS)
+        latch = self._safety.latch(self._last_odom, self._last_odom_ns, now)
+        msg.e_stop_active, msg.e_stop_hold = latch if latch is not None else (False, False)
         self._rt_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
@@ -430,6 +460,7 @@ class BridgeNode(Node):
         arr.status.extend(self._device_statuses(now))
         arr.status.append(self._link_status(now))
         arr.status.append(self._cmd_status(now))
+        arr.status.append(self._safety.status(self._last_odom, self._last_odom_ns, now))
         self._diag_pub.publish(arr)
 
     def _device_statuses(self, now: int) -> list:

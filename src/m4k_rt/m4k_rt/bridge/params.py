@@ -26,7 +26,8 @@ __all__ = [
 
 NODE_NAME = 'm4k_bridge'
 PORT_ROLES = ('status', 'cmd', 'imu_out', 'led_in', 'sonar_out', 'lrf_out')
-TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 'rt_status')
+TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 'rt_status',
+               'e_stop')
 
 _TOPIC = re.compile(r'^~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 _FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
@@ -154,6 +155,9 @@ SPECS: tuple[ParamSpec, ...] = (
               lo=0.1, hi=600.0),
     ParamSpec('relink_interval', 0.5, 'Seconds between attempts to re-open a port whose RT '
               'side is gone.', lo=0.01, hi=60.0, read_only=True),
+    ParamSpec('reset_odometry_timeout', 1.0, 'Seconds ~/reset_odometry waits for the RT '
+              "actuator's acknowledgement before it answers success=false.",
+              lo=0.05, hi=60.0),
 )
 
 _BY_NAME = {s.name: s for s in SPECS}

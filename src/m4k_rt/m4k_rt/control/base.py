@@ -20,6 +20,11 @@ Order inside ``step``:
    voltage: the amplifier brakes the motor down with its own lag) and clear the integrators,
    so a residual integral or encoder quantization can never make a stopped robot creep.
 
+The e-stop latch (``control.estop``) overrides steps 2-3: while it is engaged, or released but
+no command has arrived since, both axes ramp to zero at the e-stop decelerations
+(``control.e_stop``) and the operator's command is ignored; flags E_STOP / HOLD, mode E_STOP.
+It survives *motor stale* (the latch is state, not an output).
+
 Two speed estimates from the same ring of encoder samples (``control.odometry``), each an angle
 difference over a baseline, never shorter than half its window's nominal span:
 
@@ -51,23 +56,36 @@ import math
 
 from m4k_rt.control.dac import command_to_code, DAC_ZERO
 from m4k_rt.control.diffdrive import DiffDrive
+from m4k_rt.control.estop import EStopLatch, ramp_to_zero
 from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.odometry import Odometry
 from m4k_rt.control.params import AxisLimits, ControlParams
 from m4k_rt.control.pid import WheelSpeedPI
-from m4k_rt.protocol import seq_newer
+from m4k_rt.protocol import (
+    ODOM_BRAKING,
+    ODOM_CLAMPED,
+    ODOM_E_STOP,
+    ODOM_GUARD,
+    ODOM_HOLD,
+    ODOM_MOTOR_STALE,
+    seq_newer,
+)
 
-FLAG_BRAKING = 1 << 0
-FLAG_GUARD = 1 << 1
-FLAG_MOTOR_STALE = 1 << 2
-FLAG_CLAMPED = 1 << 3
+# The controller's flags are the ODOMETRY flags (protocol.py owns the bits).
+FLAG_BRAKING = ODOM_BRAKING
+FLAG_GUARD = ODOM_GUARD
+FLAG_MOTOR_STALE = ODOM_MOTOR_STALE
+FLAG_CLAMPED = ODOM_CLAMPED
+FLAG_E_STOP = ODOM_E_STOP
+FLAG_HOLD = ODOM_HOLD
 
 MODE_IDLE = 0
 MODE_DRIVING = 1
 MODE_BRAKING = 2
 MODE_OBSTACLE = 3
 MODE_FAULT = 4
-MODE_NAMES = ('idle', 'driving', 'braking', 'obstacle', 'fault')
+MODE_E_STOP = 5
+MODE_NAMES = ('idle', 'driving', 'braking', 'obstacle', 'fault', 'e_stop')
 
 # ENCODERS.status bits that make the angles untrustworthy (frame or jump error, either wheel);
 # the other bits (driver in safe mode, DAC write error) leave the angles valid.
@@ -109,6 +127,10 @@ class BaseController:
                              sample_period=self.period,
                              history=max(params.odom_velocity_window, self._fb_window) + 16)
         self._alpha = params.speed_filter_alpha
+        self.estop = EStopLatch(params.e_stop_linear_deceleration,
+                                params.e_stop_angular_deceleration)
+        self.commands_blocked = 0   # commands received while the e-stop latch was engaged
+        self.pose_resets = 0
         self._enc_seq = -1          # last ENCODERS sequence number; -1: none yet
         self._cmd_timeout_ns = int(params.cmd_vel_timeout * 1e9)
         self._motor_timeout_ns = int(params.motor_timeout * 1e9)
@@ -140,11 +162,26 @@ class BaseController:
         self._last_step_ns = 0
 
     def command(self, linear: float, angular: float, rx_ns: int) -> None:
-        """Take a fresh velocity command (already validated finite by the decoder)."""
+        """Take a fresh velocity command (already validated finite by the decoder).
+
+        Call in the order commands and e-stop requests arrived: a command after an e-stop
+        release ends the release's hold, one during the latch is kept but drives nothing.
+        """
         self.cmd_linear = linear
         self.cmd_angular = angular
         self.cmd_rx_ns = rx_ns
         self.commands += 1
+        if not self.estop.command():
+            self.commands_blocked += 1
+
+    def e_stop(self, engage: bool) -> None:
+        """Latch (True) or release (False) the e-stop; takes effect at the next ``step``."""
+        self.estop.set(engage)
+
+    def reset_pose(self) -> None:
+        """Zero the odometry pose (x, y, yaw); speeds and the encoder baseline are kept."""
+        self.odom.set_pose()
+        self.pose_resets += 1
 
     def encoders(self, left_angle: float, right_angle: float, stamp_ns: int, rx_ns: int,
                  status: int = 0, seq: int | None = None) -> None:
@@ -204,7 +241,7 @@ class BaseController:
             self.hold_zero = True
             self.braking = False
             self._stop_outputs(0)
-            self.flags = FLAG_MOTOR_STALE
+            self.flags = FLAG_MOTOR_STALE | self._estop_flags()
             self.mode = MODE_FAULT
             return
         if self.motor_stale:
@@ -229,10 +266,20 @@ class BaseController:
             flags |= FLAG_GUARD
         if guard_active:
             flags |= FLAG_GUARD
-        v = self.linear.step(tv, dt)
-        w = self.angular.step(tw, dt)
-        # Ramping to zero is the point of braking, not a clamp of the operator's command.
-        clamped = not cmd_stale and (self.linear.clamped or self.angular.clamped)
+        estop = self.estop
+        if estop.blocking:
+            # The e-stop's own ramp replaces the limiters; they restart from this output.
+            v = ramp_to_zero(self.linear.value, estop.linear_deceleration, dt)
+            w = ramp_to_zero(self.angular.value, estop.angular_deceleration, dt)
+            self.linear.override(v)
+            self.angular.override(w)
+            flags |= self._estop_flags()
+            clamped = False
+        else:
+            v = self.linear.step(tv, dt)
+            w = self.angular.step(tw, dt)
+            # Ramping to zero is the point of braking, not a clamp of the operator's command.
+            clamped = not cmd_stale and (self.linear.clamped or self.angular.clamped)
         if forward_cap <= 0.0 and v > 0.0:
             v = 0.0
             self.linear.override(0.0)
@@ -259,7 +306,9 @@ class BaseController:
             flags |= FLAG_CLAMPED
         self.flags = flags
         moving = abs(v) > _MOVING_EPS or abs(w) > _MOVING_EPS
-        if flags & FLAG_GUARD and (guard_active or forward_cap <= 0.0):
+        if estop.engaged:
+            self.mode = MODE_E_STOP
+        elif flags & FLAG_GUARD and (guard_active or forward_cap <= 0.0):
             self.mode = MODE_OBSTACLE
         elif cmd_stale and moving:
             self.mode = MODE_BRAKING
@@ -267,3 +316,9 @@ class BaseController:
             self.mode = MODE_DRIVING
         else:
             self.mode = MODE_IDLE
+
+    def _estop_flags(self) -> int:
+        estop = self.estop
+        if estop.engaged:
+            return FLAG_E_STOP
+        return FLAG_HOLD if estop.holding else 0

@@ -174,6 +174,16 @@ class Odometry:
         self._have = False
         self.history.clear()
 
+    def set_pose(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> None:
+        """Move the integrated pose to (x, y, yaw), keeping the baseline and the speeds.
+
+        Unlike :meth:`reset` the next sample is still differenced against the last one, so
+        a pose reset while driving loses no motion and leaves the twist continuous.
+        """
+        self.x = float(x)
+        self.y = float(y)
+        self.yaw = normalize_angle(float(yaw))
+
     def zero_speeds(self) -> None:
         """Report zero speeds (no fresh samples: the speed is unknown) but keep the baseline.
 

@@ -65,6 +65,19 @@ class GuardParams:
 
 
 @dataclass(frozen=True)
+class EStopParams:
+    """Decelerations of the latched e-stop (``control.e_stop``); None: the axis's maximum."""
+
+    linear_deceleration: float | None = None    # m/s^2
+    angular_deceleration: float | None = None   # rad/s^2
+
+
+def _axis_deceleration(limits: AxisLimits) -> float:
+    return (limits.max_acceleration if limits.max_deceleration is None
+            else limits.max_deceleration)
+
+
+@dataclass(frozen=True)
 class ControlParams:
     """All parameters of the base controller."""
 
@@ -83,6 +96,19 @@ class ControlParams:
     angular: AxisLimits = field(default_factory=lambda: AxisLimits(1.5, 1.85, None, None))
     pi: PiGains = field(default_factory=PiGains)
     guard: GuardParams = field(default_factory=GuardParams)
+    e_stop: EStopParams = field(default_factory=EStopParams)
+
+    @property
+    def e_stop_linear_deceleration(self) -> float:
+        """Return the e-stop's linear deceleration actually used [m/s^2]."""
+        d = self.e_stop.linear_deceleration
+        return _axis_deceleration(self.linear) if d is None else d
+
+    @property
+    def e_stop_angular_deceleration(self) -> float:
+        """Return the e-stop's angular deceleration actually used [rad/s^2]."""
+        d = self.e_stop.angular_deceleration
+        return _axis_deceleration(self.angular) if d is None else d
 
     @property
     def feed_forward(self) -> float:
@@ -190,6 +216,12 @@ def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> 
                                  f'must be 0 (off) or > stop_distance ({guard.stop_distance!r}), '
                                  f'got {guard.slow_distance!r}')
 
+    e = f'{path}.e_stop'
+    e_raw = _section(e, d.get('e_stop'), EStopParams)
+    e_stop = EStopParams(**{
+        f.name: _number(f'{e}.{f.name}', e_raw.get(f.name), positive=True, optional=True)
+        for f in fields(EStopParams)})
+
     def num(name: str, **kw: Any) -> Any:
         return _number(f'{path}.{name}', d.get(name, getattr(base, name)), **kw)
 
@@ -209,7 +241,19 @@ def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> 
         angular=_axis(f'{path}.angular', d.get('angular'), base.angular),
         pi=pi,
         guard=guard,
+        e_stop=e_stop,
     )
+    # An e-stop that brakes more gently than a stale command would stop the robot later than
+    # losing the operator's link does.
+    for axis, value, normal in (
+            ('linear', params.e_stop.linear_deceleration, _axis_deceleration(params.linear)),
+            ('angular', params.e_stop.angular_deceleration,
+             _axis_deceleration(params.angular))):
+        if value is not None and value < normal:
+            raise ControlConfigError(
+                f'{e}.{axis}_deceleration',
+                f'must be >= {axis}.max_deceleration ({normal!r}: the e-stop may not brake '
+                f'more gently than a stale command), got {value!r}')
     for name in ('odom_velocity_window', 'speed_feedback_window'):
         if getattr(params, name) > MAX_SPEED_WINDOW:
             raise ControlConfigError(f'{path}.{name}',

@@ -11,7 +11,9 @@ instead cycle k runs:
 1. drain ``motor``: the ENCODERS replying to WHEEL_CMD k-1 (sent last cycle; the driver had a
    whole period to answer) -> odometry, wheel speeds by differencing the *driver's* stamps,
    so how late the reply is read does not distort the speeds;
-2. drain ``cmd``: the latest VELOCITY_CMD wins;
+2. drain ``cmd`` in arrival order: VELOCITY_CMD (the latest wins), E_STOP (latch / release,
+   effective in this cycle's step; a command after a release ends its hold) and ODOM_RESET
+   (pose zeroed now, acknowledged with an ODOM_RESET carrying the same id on ``cmd``);
 3. guard cap from the sonar/lrf readings in the shared state, then the controller's step
    (supervision, limits, IK, PI on the feedback of step 1);
 4. send WHEEL_CMD k; every ``odom_every_n``-th cycle send ODOMETRY on ``cmd``.
@@ -44,6 +46,8 @@ _ENCODERS = Kind.ENCODERS
 _DEVICE_STATUS = Kind.DEVICE_STATUS
 _WHEEL_CMD = Kind.WHEEL_CMD
 _ODOMETRY = Kind.ODOMETRY
+_E_STOP = Kind.E_STOP
+_ODOM_RESET = Kind.ODOM_RESET
 
 
 def make_guard(params: ControlParams) -> CollisionGuard:
@@ -87,7 +91,9 @@ class ActuatorBody:
                 'unexpected': self.unexpected, 'wheel_cmd_sent': self._motor_out.sent,
                 'wheel_cmd_dropped': self._motor_out.dropped, 'odom_sent': self._cmd_out.sent,
                 'odom_dropped': self._cmd_out.dropped,
-                'guard_activations': self.guard.activations}
+                'guard_activations': self.guard.activations,
+                'e_stop_engagements': c.estop.engagements, 'e_stop_releases': c.estop.releases,
+                'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets}
 
     def __call__(self, ctx: Any = None) -> None:
         """Run one actuator cycle (``ctx.t_start`` is the cycle's start time when given)."""
@@ -106,13 +112,25 @@ class ActuatorBody:
                 state.record_device_status('motor', msg, now)
             else:
                 self.unexpected += 1
-        # 2. latest velocity command
+        # 2. velocity commands, e-stop and pose reset, in the order they arrived
         reader = self._cmd_in
         reader.start_cycle()
         latest = None
         while (got := reader.next()) is not None:
-            if got[0].kind == _VELOCITY_CMD:
-                latest = got[1]
+            hdr, msg = got
+            kind = hdr.kind
+            if kind == _VELOCITY_CMD:
+                latest = msg
+            elif kind == _E_STOP:
+                # Commands before the request are taken before it, so a release only counts
+                # commands that came after it as fresh.
+                if latest is not None:
+                    ctl.command(latest.linear_x, latest.angular_z, now)
+                    latest = None
+                ctl.e_stop(msg.engage == 1)
+            elif kind == _ODOM_RESET:
+                ctl.reset_pose()
+                self._cmd_out.send(_ODOM_RESET, now, msg.request_id)
             else:
                 self.unexpected += 1
         if latest is not None:

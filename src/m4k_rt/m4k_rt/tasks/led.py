@@ -19,8 +19,8 @@ obstacle   red (255, 0, 0)      255
 fault      red, blinking 2 Hz   255 / 0
 =========  ===================  ==========
 
-Fault means the actuator reports MODE_FAULT (motor stale) or any device reported an error
-level (DEVICE_STATUS level >= LEVEL_ERROR).
+Fault means the actuator reports MODE_FAULT (motor stale) or MODE_E_STOP (e-stop latched), or
+any device reported an error level (DEVICE_STATUS level >= LEVEL_ERROR).
 """
 
 from __future__ import annotations
@@ -28,7 +28,13 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
-from m4k_rt.control.base import MODE_BRAKING, MODE_DRIVING, MODE_FAULT, MODE_OBSTACLE
+from m4k_rt.control.base import (
+    MODE_BRAKING,
+    MODE_DRIVING,
+    MODE_E_STOP,
+    MODE_FAULT,
+    MODE_OBSTACLE,
+)
 from m4k_rt.protocol import Kind, LEVEL_ERROR
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
@@ -83,7 +89,7 @@ class LedBody:
         """Return the colour showing the robot state at ``now_ns``."""
         s = self.state
         mode = s.mode
-        if mode == MODE_FAULT or s.worst_device_level() >= LEVEL_ERROR:
+        if mode in (MODE_FAULT, MODE_E_STOP) or s.worst_device_level() >= LEVEL_ERROR:
             return FAULT_ON if (now_ns // BLINK_HALF_PERIOD_NS) % 2 == 0 else FAULT_OFF
         if mode == MODE_OBSTACLE:
             return OBSTACLE

@@ -1,0 +1,298 @@
+"""Pure analysis for the bench: samples -> condition statistics, ratios and targets.
+
+Per-task statistics come from :func:`m4k_rt.recorder.summarize` (the same code that makes
+Table 1), so the RT actuator task and the plain-ROS baseline are measured identically:
+period, jitter = |period - nominal|, release latency = t_start - t_rel, response time.
+
+The ratios compare measurements taken side by side in one round (design.md: absolute numbers
+on a shared VM are noise, ratios are the evidence); each is computed per round and reported
+as the median with min-max over the rounds. A ratio is None in a round when either side is
+missing or zero, or when the m4k run of that round was not hardened (RT_STATUS).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from typing import Any, Iterable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+
+from m4k_rt import recorder, timing
+
+__all__ = [
+    'RATIOS', 'RATIO_KEYS', 'Ratio', 'TARGETS', 'Target', 'condition_summary',
+    'evaluate_targets', 'hardened_rounds', 'interference', 'load_samples_csv', 'loop_cost',
+    'median_round_table', 'ratio', 'round_ratios', 'series_from_rows', 'stats_dict',
+    'trim_warmup',
+]
+
+
+def stats_dict(s: timing.Stats, scale: float = 1.0) -> dict[str, float | int | None]:
+    """Return a Stats as a JSON-able dict scaled by ``scale`` (NaN -> None)."""
+    out: dict[str, float | int | None] = {'n': s.n}
+    for k in ('avg', 'max', 'min', 'std', 'p50', 'p99', 'p999'):
+        v = getattr(s, k) * scale
+        out[k] = None if math.isnan(v) else v
+    return out
+
+
+def load_samples_csv(path: str) -> dict[str, list[tuple[int, int, int, int]]]:
+    """Read a samples CSV (task, t_rel_ns, t_start_ns, t_end_ns, expirations) per task."""
+    out: dict[str, list[tuple[int, int, int, int]]] = {}
+    with open(path, newline='', encoding='utf-8') as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if header is None or header[:5] != ['task', 't_rel_ns', 't_start_ns', 't_end_ns',
+                                             'expirations']:
+            raise ValueError(f'{path}: not a timing samples CSV (header {header!r})')
+        for lineno, row in enumerate(reader, start=2):
+            try:
+                out.setdefault(row[0], []).append(
+                    (int(row[1]), int(row[2]), int(row[3]), int(row[4])))
+            except (IndexError, ValueError) as exc:
+                raise ValueError(f'{path}:{lineno}: bad sample row {row!r}') from exc
+    return out
+
+
+def series_from_rows(name: str, period_ns: int, rows: Sequence[tuple[int, int, int, int]],
+                     priority: int = 0) -> recorder.TaskSeries:
+    """Build a recorder TaskSeries from (t_rel, t_start, t_end, expirations) rows."""
+    s = recorder.TaskSeries(name, priority=priority, period_ns=period_ns, cycles=len(rows))
+    for r in rows:
+        s.t_rel.append(r[0])
+        s.t_start.append(r[1])
+        s.t_end.append(r[2])
+        s.expirations.append(r[3])
+    return s
+
+
+def condition_summary(series: recorder.TaskSeries) -> dict[str, Any] | None:
+    """Return the recorder's per-task dict for one series (None when it has no samples)."""
+    tasks = recorder.summarize([series])['tasks']
+    return tasks[0] if tasks else None
+
+
+def trim_warmup(series: Iterable[recorder.TaskSeries], warmup_ns: int) -> dict[str, Any]:
+    """Drop, in place, samples released in the first ``warmup_ns`` of the run (start-up).
+
+    The run starts at the earliest first release of all series (the RT tasks release together).
+    Return what was dropped: cycles per task and the worst release latency among them (us), so
+    the report can say what the start-up transient looked like instead of hiding it.
+    """
+    series = [s for s in series if s.t_rel]
+    if not series:
+        return {'cycles': {}, 'max_latency_us': None}
+    until = min(s.t_rel[0] for s in series) + warmup_ns
+    dropped: dict[str, int] = {}
+    worst = None
+    for s in series:
+        n = 0
+        while n < len(s.t_rel) and s.t_rel[n] < until:
+            n += 1
+        if n:
+            lat = max(s.t_start[i] - s.t_rel[i] for i in range(n)) * 1e-3
+            worst = lat if worst is None or lat > worst else worst
+            del s.t_rel[:n], s.t_start[:n], s.t_end[:n], s.expirations[:n]
+        dropped[s.name] = n
+    return {'cycles': dropped, 'max_latency_us': worst}
+
+
+def interference(series: Mapping[str, recorder.TaskSeries], focus: str) -> dict[str, Any] | None:
+    """Tell how often another task of the process was running when ``focus`` was released.
+
+    A cycle of ``focus`` is *interfered* when another task's [t_start, t_end] overlaps its
+    [t_rel, t_start] window: that task held the interpreter (GIL) while ``focus`` waited.
+    Returns the share per task and the release-latency p99 (us) of interfered vs clean cycles.
+    """
+    f = series.get(focus)
+    if f is None or not f.t_rel:
+        return None
+    rel = np.asarray(f.t_rel, dtype=np.int64)
+    start = np.asarray(f.t_start, dtype=np.int64)
+    lat_us = (start - rel) * 1e-3
+    hit = np.zeros(rel.size, dtype=bool)
+    by_task = {}
+    for name, s in series.items():
+        if name == focus or not s.t_start:
+            continue
+        s_start = np.asarray(s.t_start, dtype=np.int64)
+        s_end = np.asarray(s.t_end, dtype=np.int64)
+        order = np.argsort(s_start, kind='stable')
+        s_start, s_end = s_start[order], s_end[order]
+        idx = np.searchsorted(s_start, start) - 1   # last cycle of s starting before ours
+        ok = idx >= 0
+        over = np.zeros(rel.size, dtype=bool)
+        over[ok] = s_end[idx[ok]] > rel[ok]
+        by_task[name] = float(over.mean())
+        hit |= over
+
+    def p99(a: np.ndarray) -> float | None:
+        return float(np.percentile(a, 99)) if a.size else None
+
+    return {'cycles': int(rel.size), 'interfered_share': float(hit.mean()),
+            'share_by_task': by_task, 'latency_p99_interfered_us': p99(lat_us[hit]),
+            'latency_p99_clean_us': p99(lat_us[~hit]), 'latency_p99_all_us': p99(lat_us)}
+
+
+def ratio(num: float | None, den: float | None) -> float | None:
+    """Return num / den, or None when either is missing, not finite, or den is zero."""
+    if num is None or den is None:
+        return None
+    if not (math.isfinite(num) and math.isfinite(den)) or den == 0.0:
+        return None
+    return num / den
+
+
+class Ratio(NamedTuple):
+    """One ratio computed per round: numerator and denominator key paths into a round."""
+
+    key: str
+    label: str
+    num: tuple[str, ...]
+    den: tuple[str, ...]
+
+
+RATIOS: tuple[Ratio, ...] = (
+    Ratio('release_p99_over_cyclictest_idle', 'actuator release p99 ÷ concurrent cyclictest '
+          'p99, idle', ('m4k_idle', 'latency_us', 'p99'), ('m4k_idle', 'cyclictest', 'p99')),
+    Ratio('release_p999_over_cyclictest_idle', 'actuator release p99.9 ÷ concurrent '
+          'cyclictest p99.9, idle', ('m4k_idle', 'latency_us', 'p999'),
+          ('m4k_idle', 'cyclictest', 'p999')),
+    Ratio('release_p99_over_cyclictest_stress', 'actuator release p99 ÷ concurrent cyclictest '
+          'p99, stress-ng', ('m4k_stress', 'latency_us', 'p99'),
+          ('m4k_stress', 'cyclictest', 'p99')),
+    Ratio('release_p999_over_cyclictest_stress', 'actuator release p99.9 ÷ concurrent '
+          'cyclictest p99.9, stress-ng', ('m4k_stress', 'latency_us', 'p999'),
+          ('m4k_stress', 'cyclictest', 'p999')),
+    Ratio('five_tasks_over_alone_p99', 'actuator release p99, five tasks ÷ alone',
+          ('m4k_idle', 'latency_us', 'p99'), ('m4k_alone', 'latency_us', 'p99')),
+    Ratio('xddp_rtt_p50_over_raw', "XDDP round trip p50 (tasks' receive path) ÷ raw socket",
+          ('rtt', 'xddp', 'p50_us'), ('rtt', 'raw', 'p50_us')),
+    Ratio('cpu_per_cycle_over_floor', 'RT process CPU per task cycle ÷ Python floor',
+          ('m4k_idle', 'cpu_per_cycle_us'), ('floor', 'cpu_per_cycle_us')),
+    Ratio('baseline_over_m4k_jitter_p99_stress', 'plain-ROS ÷ m4k jitter p99, stress-ng',
+          ('baseline_stress', 'jitter_us', 'p99'), ('m4k_stress', 'jitter_us', 'p99')),
+    Ratio('baseline_over_m4k_jitter_max_stress', 'plain-ROS ÷ m4k jitter max, stress-ng '
+          '(paper: 57× on max)', ('baseline_stress', 'jitter_us', 'max'),
+          ('m4k_stress', 'jitter_us', 'max')),
+    Ratio('baseline_over_m4k_jitter_p99_idle', 'plain-ROS ÷ m4k jitter p99, idle',
+          ('baseline_idle', 'jitter_us', 'p99'), ('m4k_idle', 'jitter_us', 'p99')),
+    Ratio('cyclictest_concurrent_over_alone_p99_idle', 'cyclictest p99 next to m4k ÷ '
+          'cyclictest alone, idle', ('m4k_idle', 'cyclictest', 'p99'),
+          ('ct_idle', 'latency_us', 'p99')),
+)
+RATIO_KEYS = tuple(r.key for r in RATIOS)
+M4K_CONDITIONS = ('m4k_idle', 'm4k_alone', 'm4k_stress')
+
+
+def hardened_rounds(rounds_: Sequence[Mapping[str, Any]]) -> tuple[list[dict[str, Any]],
+                                                                    list[str]]:
+    """Return the rounds without m4k runs whose RT_STATUS was not the real thing, and why."""
+    out, excluded = [], []
+    for r in rounds_:
+        r2 = dict(r)
+        for cond in M4K_CONDITIONS:
+            c = r2.get(cond)
+            if isinstance(c, Mapping) and not _get(c, 'hardening', 'ok'):
+                excluded.append('round {} {}: {}'.format(
+                    r.get('round'), cond, _get(c, 'hardening', 'why') or 'no RT_STATUS'))
+                r2[cond] = None
+        out.append(r2)
+    return out, excluded
+
+
+def round_ratios(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Return every ratio as its per-round values and their spread (median, min, max)."""
+    from m4k_bench.benchlib.rounds import per_round_ratios, spread
+    ok, excluded = hardened_rounds(rounds_)
+    out: dict[str, Any] = {}
+    for r in RATIOS:
+        values = per_round_ratios(ok, r.num, r.den)
+        out[r.key] = {'label': r.label, 'spread': spread(values), 'values': values}
+    out['_excluded'] = excluded
+    return out
+
+
+def _get(d: Mapping[str, Any] | None, *path: str) -> Any:
+    for key in path:
+        if not isinstance(d, Mapping) or key not in d:
+            return None
+        d = d[key]
+    return d
+
+
+class Target(NamedTuple):
+    """One target of issue 14 on the median over the rounds of a ratio."""
+
+    key: str
+    op: str            # '<=' or '>='
+    limit: float
+
+
+TARGETS: tuple[Target, ...] = (
+    Target('release_p99_over_cyclictest_idle', '<=', 1.5),
+    Target('release_p999_over_cyclictest_idle', '<=', 2.0),
+    Target('release_p99_over_cyclictest_stress', '<=', 1.5),
+    Target('release_p999_over_cyclictest_stress', '<=', 2.0),
+    Target('xddp_rtt_p50_over_raw', '<=', 1.3),
+    Target('cpu_per_cycle_over_floor', '<=', 2.0),
+    Target('five_tasks_over_alone_p99', '<=', 1.25),
+    Target('scaling_1khz_release_p99_over_cyclictest', '<=', 2.0),
+)
+
+
+def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, Any]] = (),
+                     targets: Iterable[Target] = TARGETS) -> list[dict[str, Any]]:
+    """Return one row per target: the median, min-max, rounds, met (None = not measured).
+
+    The verdict is on the median; the spread is shown next to it. No explanation is made up:
+    a missed target shows its measured figures and nothing else.
+    """
+    from m4k_bench.benchlib.rounds import spread
+    rows = []
+    for t in targets:
+        if t.key == 'scaling_1khz_release_p99_over_cyclictest':
+            label = 'actuator alone at 1 kHz: release p99 ÷ concurrent cyclictest p99 at 1 kHz'
+            sp = spread([r.get('ratio_p99') for r in scaling
+                         if r.get('rate_hz') == 1000 and r.get('set') == 'alone'])
+        else:
+            entry = ratios.get(t.key) or {}
+            label = entry.get('label', t.key)
+            sp = entry.get('spread')
+        if sp is None:
+            met = None
+        else:
+            m = sp['median']
+            met = m <= t.limit if t.op == '<=' else m >= t.limit
+        rows.append({'key': t.key, 'label': label, 'target': '{} {:g}×'.format(t.op, t.limit),
+                     'spread': sp, 'met': met})
+    return rows
+
+
+def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Return CPU per cycle of m4k (full stack, idle) and of the floor, per round and spread.
+
+    Also the median over rounds of each task's response p50: what its body costs per cycle.
+    """
+    from m4k_bench.benchlib.rounds import spread
+    ok, _ = hardened_rounds(rounds_)
+    m4k = [_get(r, 'm4k_idle', 'cpu_per_cycle_us') for r in ok]
+    floor = [_get(r, 'floor', 'cpu_per_cycle_us') for r in ok]
+    bodies: dict[str, list[Any]] = {}
+    for r in ok:
+        for name, v in (_get(r, 'm4k_idle', 'task_response_p50_us') or {}).items():
+            bodies.setdefault(name, []).append(v)
+    return {'m4k_cpu_per_cycle_us': spread(m4k), 'floor_cpu_per_cycle_us': spread(floor),
+            'body_response_p50_us': {k: spread(v) for k, v in bodies.items()}}
+
+
+def median_round_table(rounds_: Sequence[Mapping[str, Any]],
+                       tables: Mapping[str, Any]) -> tuple[int | None, Any]:
+    """Pick the round whose m4k_idle actuator release p99 is the (lower) median; its Table 1."""
+    scored = sorted((p99, r['round']) for r in rounds_
+                    if (p99 := _get(r, 'm4k_idle', 'latency_us', 'p99')) is not None)
+    if not scored:
+        return None, None
+    k = scored[(len(scored) - 1) // 2][1]
+    return k, tables.get('r{}_m4k_idle'.format(k))

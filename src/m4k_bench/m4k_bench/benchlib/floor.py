@@ -1,0 +1,121 @@
+"""The Python floor of an RT loop: bare SCHED_FIFO timerfd threads doing nothing else.
+
+Each thread does what every m4k task cycle must do and nothing more: wait on its absolute
+timerfd (wake), read the expiration count (read), read the clock (clock read). Run with the
+same periods, priorities and phases as the task set, in a process hardened like rt_core
+(SCHED_FIFO, mlockall, gc frozen and off, the same switch interval), its process CPU per cycle
+(thread CPU time from the first wake to the last, summed over the threads, over the cycles
+run) is the least any Python task loop can cost on this machine; the bench reports m4k's CPU per
+cycle divided by it.
+
+Run as a child process (``python -m m4k_bench.benchlib.floor --periods-ms 10,10,20 ...``); it
+prints one JSON line: CPU µs per cycle, cycles and thread CPU per thread, and the release
+latency (µs, from the missed release, as cyclictest) per thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+from array import array
+import gc
+import json
+import os
+import sys
+import threading
+import time
+from typing import Sequence
+
+from m4k_rt import sched, timing
+from m4k_rt.timerfd import monotonic_ns, TimerFd
+
+__all__ = ['main', 'run_floor']
+
+
+def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict) -> None:
+    try:
+        sched.set_thread_fifo(priority)
+        out['fifo'] = True
+    except sched.SchedError:
+        out['fifo'] = False
+    cap = int((stop_ns - first_ns) // period_ns) + 2
+    rel_a, start_a, exp_a = array('q', bytes(8 * cap)), array('q', bytes(8 * cap)), \
+        array('q', bytes(8 * cap))
+    tfd = TimerFd()
+    tfd.set_abs(first_ns, period_ns)
+    rel = first_ns - period_ns
+    n = 0
+    read = tfd.read
+    clock = monotonic_ns
+    cpu = time.thread_time_ns
+    c0 = 0
+    try:
+        while n < cap:
+            if n == 1:
+                c0 = cpu()                    # after the first wake: start-up not counted
+            exp = read()                      # wake + read
+            t = clock()                       # clock read
+            rel += exp * period_ns
+            rel_a[n], start_a[n], exp_a[n] = rel, t, exp
+            n += 1
+            if t >= stop_ns:
+                break
+        c1 = cpu()
+    finally:
+        tfd.close()
+    lat = timing.release_latency(rel_a[:n], start_a[:n], exp_a[:n], period_ns) * 1e-3
+    stats = timing.describe(lat)
+    out.update(cycles=n, cpu_ns=c1 - c0, cpu_cycles=n - 1,
+               latency_us={'p50': stats.p50, 'p99': stats.p99, 'p999': stats.p999,
+                           'max': stats.max})
+
+
+def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
+              offsets_ns: Sequence[int], seconds: float) -> dict:
+    """Run one bare loop per period for ``seconds`` in this process; return the measurements."""
+    rep = sched.harden(priority=max(priorities), cpu_dma_latency=False)
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    now = monotonic_ns()
+    base = timing.first_release(now + 200_000_000, max(periods_ns))
+    stop = base + int(seconds * 1e9)
+    outs: list[dict] = [{} for _ in periods_ns]
+    threads = [threading.Thread(target=_loop, args=(p, pr, base + o, stop, out), daemon=True)
+               for p, pr, o, out in zip(periods_ns, priorities, offsets_ns, outs, strict=True)]
+    cpu0 = time.process_time()
+    t0 = time.monotonic()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(seconds + 30.0)
+    wall = time.monotonic() - t0
+    cpu_ns = sum(o.get('cpu_ns', 0) for o in outs)
+    cycles = sum(o.get('cpu_cycles', 0) for o in outs)
+    return {'cpu_per_cycle_us': cpu_ns * 1e-3 / cycles if cycles else None,
+            'process_cpu_s': time.process_time() - cpu0, 'wall_s': wall, 'seconds': seconds,
+            'mem_locked': rep.mem_locked, 'fifo': all(o.get('fifo') for o in outs),
+            'threads': [dict(o, period_ns=p) for o, p in zip(outs, periods_ns, strict=True)]}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the task set, run the floor loops, print one JSON line."""
+    ap = argparse.ArgumentParser(prog='floor', description=__doc__.splitlines()[0])
+    ap.add_argument('--periods-ms', required=True, help='comma list of periods (ms)')
+    ap.add_argument('--priorities', required=True, help='comma list of priorities')
+    ap.add_argument('--offsets-ms', default='', help='comma list of release offsets (ms)')
+    ap.add_argument('--seconds', type=float, default=5.0)
+    args = ap.parse_args(argv)
+    periods = [int(float(x) * 1e6) for x in args.periods_ms.split(',')]
+    prios = [int(x) for x in args.priorities.split(',')]
+    offs = [int(float(x) * 1e6) for x in args.offsets_ms.split(',')] if args.offsets_ms \
+        else [0] * len(periods)
+    if not len(periods) == len(prios) == len(offs):
+        ap.error('--periods-ms, --priorities and --offsets-ms differ in length')
+    json.dump(run_floor(periods, prios, offs, args.seconds), sys.stdout)
+    sys.stdout.write('\n')
+    sys.stdout.flush()
+    os._exit(0)  # daemon timer threads: leave at once
+
+
+if __name__ == '__main__':
+    sys.exit(main())

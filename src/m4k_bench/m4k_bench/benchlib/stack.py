@@ -1,0 +1,310 @@
+"""Run the pieces the bench measures: rt_core + driver_host, the plain-ROS baseline.
+
+Children are started by module entry point (``python -c 'from MOD import main; ...'``), so the
+bench works from the source tree and from the colcon install alike, each in its own session
+with stderr logged to ``<results>/logs/``. They are stopped by their own pid (SIGTERM, then
+SIGKILL after a grace period), never by name.
+
+:func:`start_stack` is the one place that starts the robot stack for a measurement.
+
+While the RT stack runs, the bench records every TASK_STATS batch of the ``status`` port with
+:class:`m4k_rt.recorder.Recorder`. Commands take the architecture's path end to end
+(``e2e=True``, the default): the velocity profile (:func:`velocity_profile`, 20 Hz as the
+paper's navigation stack) is published as Twist on ``cmd_vel`` over DDS, the bridge forwards it
+over XDDP to the actuator -- the same DDS publisher the plain-ROS baseline gets
+(:func:`ros_commander`), so both run the same control on the same commands over the same
+middleware. The bridge's own ``status`` port is pointed at an unused label: the bench, not the
+bridge, is that port's peer. ``e2e=False`` writes VELOCITY_CMD on ``cmd`` directly.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from typing import Any, Callable, Sequence
+
+from m4k_bench.benchlib import system
+from m4k_rt import protocol, recorder, xddp
+
+__all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
+           'ros_commander', 'start_stack', 'velocity_profile']
+
+CMD_PERIOD_S = 0.05   # 20 Hz, as the paper's navigation stack
+_ENTRY = 'import sys; from {} import {} as _m; sys.exit(_m())'
+
+
+def entry_argv(module: str, *args: str, func: str = 'main') -> list[str]:
+    """Return argv running ``module.func()`` with ``args`` in this interpreter."""
+    return [sys.executable, '-c', _ENTRY.format(module, func), *args]
+
+
+def module_available(module: str) -> bool:
+    """Tell whether ``module`` can be imported (without importing it)."""
+    import importlib.util
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def velocity_profile(t_s: float) -> tuple[float, float]:
+    """Return (linear m/s, angular rad/s) at ``t_s``: 0.25 m/s forward 4 s, back 4 s, repeat.
+
+    0.25 m/s is the paper's experiment speed; going back and forth keeps the simulated robot
+    well inside the room (about 1 m of travel) for a run of any length.
+    """
+    phase = (t_s % 8.0) < 4.0
+    return (0.25 if phase else -0.25), 0.0
+
+
+class Child:
+    """A child process in its own session, stderr to a log file, stopped by pid."""
+
+    def __init__(self, name: str, argv: Sequence[str], log_dir: str,
+                 env: dict[str, str] | None = None) -> None:
+        """Start ``argv`` now."""
+        self.name = name
+        os.makedirs(log_dir, exist_ok=True)
+        self.log_path = os.path.join(log_dir, name + '.log')
+        self._log = open(self.log_path, 'ab')
+        self._log.write('$ {}\n'.format(' '.join(argv)).encode())
+        self._log.flush()
+        self.proc = subprocess.Popen(list(argv), stdin=subprocess.DEVNULL,
+                                     stdout=self._log, stderr=self._log,
+                                     env=env, start_new_session=True)
+        self.pid = self.proc.pid
+
+    def alive(self) -> bool:
+        """Tell whether the process still runs."""
+        return self.proc.poll() is None
+
+    def stop(self, grace_s: float = 8.0) -> int:
+        """SIGTERM, wait ``grace_s``, then SIGKILL; return the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+    def wait(self, timeout: float) -> int | None:
+        """Wait up to ``timeout`` s for the exit; return the code or None."""
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def tail(self, lines: int = 6) -> list[str]:
+        """Return the last lines of the log."""
+        try:
+            with open(self.log_path, 'rb') as f:
+                return f.read().decode(errors='replace').strip().splitlines()[-lines:]
+        except OSError:
+            return []
+
+
+class M4kRun:
+    """What one rt_core (+ driver_host) run produced."""
+
+    def __init__(self) -> None:
+        """Start empty."""
+        self.recorder = recorder.Recorder()
+        self.cpu_percent: float | None = None
+        self.cpu_s: float | None = None
+        self.cpu_window_s = 0.0
+        self.rt_exit: int | None = None
+        self.host_exit: int | None = None
+        self.commands_sent = 0
+        self.odometry_received = 0
+        self.errors: list[str] = []
+
+
+UNUSED_STATUS_LABEL = 'bench_unused'
+
+
+def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], *,
+                tasks: str | None = None, driver_host: bool = True, bridge: bool = True,
+                rt_config: str | None = None) -> dict[str, Child]:
+    """Start the robot stack for one measurement; return its children by role.
+
+    rt_core first (``--tasks`` / ``--config`` as given), then the driver host and the bridge.
+    Every process the stack needs is started here and nowhere else.
+    """
+    rt_args = ['--tasks', tasks] if tasks else []
+    if rt_config:
+        rt_args += ['--config', rt_config]
+    kids = {'rt_core': Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args),
+                             log_dir, env)}
+    if driver_host:
+        kids['driver_host'] = Child(name + '.driver_host', entry_argv('m4k_drivers.host'),
+                                    log_dir, env)
+    if bridge:
+        kids['bridge'] = Child(name + '.bridge', entry_argv(
+            'm4k_rt.bridge.node', '--ros-args', '-p',
+            'ports.status:={}'.format(UNUSED_STATUS_LABEL)), log_dir, env)
+    return kids
+
+
+def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
+            tasks: str | None = None, driver_host: bool = True,
+            progress: Callable[[str], None] | None = None,
+            env: dict[str, str] | None = None, start_timeout_s: float = 30.0,
+            rt_config: str | None = None, e2e: bool = True,
+            on_started: Callable[[], None] | None = None) -> M4kRun:
+    """Run the stack for ``duration_s`` of task time, recording the status port.
+
+    The CPU window starts when the first TASK_STATS batch arrives (tasks running, imports
+    done; ``on_started`` is called then) and ends ``duration_s`` later, just before rt_core
+    is stopped.
+    """
+    out = M4kRun()
+    env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
+    xddp.ensure_runtime_dir(runtime_dir)
+    kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks, driver_host=driver_host,
+                       bridge=e2e, rt_config=rt_config)
+    rt = kids['rt_core']
+    status = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
+    cmd = None if e2e else xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+    stop_cmd = threading.Event()
+    commander = ros_commander(stop_cmd) if e2e else None
+    rec = out.recorder
+    seq = 0
+    try:
+        t_begin = time.monotonic()
+        t_first = None
+        cpu0 = 0.0
+        next_cmd = t_begin
+        next_note = t_begin
+        while True:
+            now = time.monotonic()
+            if t_first is None:
+                if now - t_begin > start_timeout_s:
+                    out.errors.append('no TASK_STATS within {:.0f} s of starting rt_core'
+                                      .format(start_timeout_s))
+                    break
+                if not rt.alive():
+                    out.errors.append('rt_core exited early: ' + ' | '.join(rt.tail()))
+                    break
+            elif now - t_first >= duration_s:
+                break
+            if now >= next_cmd:
+                if cmd is not None:
+                    v, w = velocity_profile(now - t_begin)
+                    if cmd.write(protocol.encode(protocol.Kind.VELOCITY_CMD, seq,
+                                                 time.monotonic_ns(), v, w)):
+                        out.commands_sent += 1
+                    seq += 1
+                    while cmd.read(0.0) is not None:
+                        out.odometry_received += 1
+                next_cmd += CMD_PERIOD_S
+            data = status.read(max(0.0, min(next_cmd - time.monotonic(), CMD_PERIOD_S)))
+            if data:
+                kind = rec.feed(data)
+                if t_first is None and kind == protocol.Kind.TASK_STATS:
+                    t_first = time.monotonic()
+                    cpu0 = system.proc_cpu_seconds(rt.pid)
+                    if on_started is not None:
+                        on_started()
+            if progress is not None and now >= next_note:
+                next_note = now + 0.5
+                progress('{} batches'.format(rec.datagrams))
+        if t_first is not None and rt.alive():
+            cpu1 = system.proc_cpu_seconds(rt.pid)
+            out.cpu_window_s = time.monotonic() - t_first
+            out.cpu_s = cpu1 - cpu0
+            out.cpu_percent = 100.0 * (cpu1 - cpu0) / out.cpu_window_s
+        if rt.alive():
+            rt.proc.send_signal(signal.SIGTERM)
+        # rt_core ships the tail of every ring after its tasks stop: keep reading until it exits.
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end:
+            data = status.read(0.2)
+            if data:
+                rec.feed(data)
+            elif not rt.alive():
+                break
+    finally:
+        stop_cmd.set()
+        if commander is not None:
+            commander.join(5.0)
+        status.close()
+        if cmd is not None:
+            cmd.close()
+        out.rt_exit = rt.stop()
+        for role, child in kids.items():
+            if role == 'rt_core':
+                continue
+            code = child.stop()
+            if role == 'driver_host':
+                out.host_exit = code
+            if code not in (0, -signal.SIGTERM, None):
+                out.errors.append('{} exited {}: {}'.format(role, code, ' | '.join(
+                    child.tail())))
+    if out.rt_exit not in (0, -signal.SIGTERM):
+        out.errors.append('rt_core exited {}: {}'.format(out.rt_exit, ' | '.join(rt.tail())))
+    return out
+
+
+def ros_commander(stop: threading.Event, *, topic: str = 'cmd_vel',
+                  t0: float | None = None) -> threading.Thread:
+    """Start a thread publishing the velocity profile as Twist at 20 Hz until ``stop``."""
+    from geometry_msgs.msg import Twist
+    import rclpy
+    from rclpy.context import Context
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('m4k_bench_commander', context=ctx)
+    pub = node.create_publisher(Twist, topic, 10)
+    start = time.monotonic() if t0 is None else t0
+
+    def run() -> None:
+        msg = Twist()
+        nxt = time.monotonic()
+        try:
+            while not stop.is_set():
+                v, w = velocity_profile(time.monotonic() - start)
+                msg.linear.x, msg.angular.z = v, w
+                pub.publish(msg)
+                nxt += CMD_PERIOD_S
+                stop.wait(max(0.0, nxt - time.monotonic()))
+        finally:
+            node.destroy_node()
+            ctx.try_shutdown()
+
+    th = threading.Thread(target=run, name='bench-cmd_vel', daemon=True)
+    th.start()
+    return th
+
+
+def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
+                 env: dict[str, str] | None = None,
+                 progress: Callable[[str], None] | None = None,
+                 on_started: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Run the baseline node for ``duration_s`` with the profile on cmd_vel; return status."""
+    stop = threading.Event()
+    commander = ros_commander(stop)
+    child = Child(name, entry_argv('m4k_bench.baseline', '--duration', str(duration_s),
+                                   '--timing-csv', csv_path), log_dir, env)
+    if on_started is not None:
+        on_started()
+    t0 = time.monotonic()
+    try:
+        while child.wait(0.5) is None:
+            if progress is not None:
+                progress('{:.0f} s'.format(time.monotonic() - t0))
+            if time.monotonic() - t0 > duration_s + 60.0:
+                break
+    finally:
+        code = child.stop()
+        stop.set()
+        commander.join(5.0)
+    return {'exit': code, 'csv': csv_path if os.path.exists(csv_path) else None,
+            'log_tail': child.tail()}

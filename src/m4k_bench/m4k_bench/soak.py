@@ -1,0 +1,389 @@
+"""soak: run the whole stack driving in a loop under stress-ng; watch for crashes and leaks.
+
+``bringup`` runs rt_core + driver_host + bridge (simulated devices); a ROS commander drives the
+bench's velocity profile (0.25 m/s back and forth) the whole time; stress-ng loads CPU, memory
+and I/O; cyclictest runs alongside at the actuator's period and priority, so the RT tasks'
+deadline misses can be compared with the machine's own samples above the period in the same
+run. Every ``--sample`` seconds the RSS of each process is recorded; the monitor's ``stat``
+port gives every task's cycles, overruns, deadline misses and body errors.
+
+Verdicts (a benchmark's, printed and written, not asserted): no crash (no child restarted,
+bringup ran to the end), no leak (each process's RSS growth after ``--warmup`` within
+``max(2 MiB, 3 %)``), and for every task, overruns + deadline misses <= cyclictest's samples
+later than one period in the same run (:func:`late_verdict`): a wake-up later than a period is
+an overrun in m4k (never a deadline miss), so both count against the machine's late samples.
+
+Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log.
+
+Usage: ``python -m m4k_bench.soak [--duration 600] [--warmup 60] [--no-stress]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from typing import Any, Sequence
+
+from m4k_bench import core_bench
+from m4k_bench.benchlib import stack, system
+from m4k_rt import config, recorder, xddp
+
+__all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
+
+NAMES = {'rt_core': 'm4k_rt.rt_core', 'driver_host': 'm4k_drivers.host',
+         'bridge': 'm4k_rt.bridge'}
+LEAK_ABS_KIB = 2048
+LEAK_REL = 0.03
+
+
+def rss_kib(pid: int) -> int | None:
+    """Return the resident set size of ``pid`` in KiB (None when it is gone)."""
+    try:
+        with open('/proc/{}/status'.format(pid)) as f:
+            for line in f:
+                if line.startswith('VmRSS:'):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def children(pid: int) -> dict[str, int]:
+    """Return name -> pid of the stack's processes among the children of ``pid``."""
+    out = {}
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open('/proc/{}/stat'.format(entry), 'rb') as f:
+                st = f.read()
+            with open('/proc/{}/cmdline'.format(entry), 'rb') as f:
+                cmd = f.read().replace(b'\0', b' ').decode(errors='replace')
+        except OSError:
+            continue
+        fields = st[st.rfind(b')') + 2:].split()
+        if len(fields) < 2 or int(fields[1]) != pid or fields[0] == b'Z':
+            continue
+        for name, mod in NAMES.items():
+            if mod in cmd:
+                out[name] = int(entry)
+    return out
+
+
+def late_verdict(tasks: dict[str, dict[str, Any]],
+                 cyclictest_late: int | None) -> dict[str, Any]:
+    """Judge every task: overruns + deadline misses against cyclictest's late samples.
+
+    ``tasks``: name -> counters with ``overruns`` and ``deadline_misses``; ``cyclictest_late``:
+    cyclictest's samples later than one period (its histogram overflows) in the same run.
+    Returns per task ``late`` (the sum), ``ok``, and ``all_ok`` (None when not measurable).
+    """
+    per: dict[str, Any] = {}
+    for name, t in tasks.items():
+        o, m = t.get('overruns'), t.get('deadline_misses')
+        if o is None or m is None:
+            per[name] = {'late': None, 'ok': None}
+            continue
+        late = int(o) + int(m)
+        per[name] = {'late': late, 'ok': None if cyclictest_late is None
+                     else late <= cyclictest_late}
+    oks = [v['ok'] for v in per.values()]
+    all_ok = None if not oks or None in oks else all(oks)
+    return {'cyclictest_late': cyclictest_late, 'tasks': per, 'all_ok': all_ok}
+
+
+def leak_verdict(samples: Sequence[tuple[float, int]], warmup_s: float) -> dict[str, Any]:
+    """Judge one process's RSS series [(t_s, kib)]: growth and slope after the warm-up."""
+    after = [(t, k) for t, k in samples if t >= warmup_s]
+    if len(after) < 2:
+        return {'verdict': 'too short', 'samples': len(after)}
+    t0, k0 = after[0]
+    t1, k1 = after[-1]
+    n = len(after)
+    mt = sum(t for t, _ in after) / n
+    mk = sum(k for _, k in after) / n
+    var = sum((t - mt) ** 2 for t, _ in after)
+    slope = sum((t - mt) * (k - mk) for t, k in after) / var if var else 0.0
+    growth = k1 - k0
+    limit = max(LEAK_ABS_KIB, LEAK_REL * k0)
+    return {'verdict': 'flat' if growth <= limit else 'GROWING', 'start_kib': k0, 'end_kib': k1,
+            'max_kib': max(k for _, k in after), 'growth_kib': growth, 'limit_kib': limit,
+            'slope_kib_per_min': slope * 60.0, 'samples': n}
+
+
+class StatReader:
+    """Read the monitor's ``stat`` port in a thread: per-task cycles and health counters."""
+
+    def __init__(self, runtime_dir: str) -> None:
+        self.rec = recorder.Recorder()
+        self.link = xddp.NrtLink('stat', runtime_dir, retry_interval=0.2)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name='soak-stat', daemon=True)
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            data = self.link.read(0.2)
+            if data:
+                try:
+                    self.rec.feed(data)
+                except Exception:  # noqa: BLE001 -- a bad datagram must not end the soak
+                    pass
+
+    def tasks(self) -> dict[str, dict[str, Any]]:
+        """Return the latest counters per task."""
+        out = {}
+        for name, t in self.rec.tasks.items():
+            h = t.health
+            out[name] = {'cycles': t.cycles, 'period_ms': t.period_ns / 1e6,
+                         'overruns': getattr(h, 'overruns', None),
+                         'deadline_misses': getattr(h, 'deadline_misses', None),
+                         'body_errors': getattr(h, 'body_errors', None)}
+        return out
+
+    def close(self) -> None:
+        """Stop the thread and close the link."""
+        self.stop.set()
+        self.thread.join(2.0)
+        self.link.close()
+
+
+def _cyclictest(duration_s: float, priority: int, interval_us: int,
+                hist_path: str) -> subprocess.Popen[str] | None:
+    exe = shutil.which('cyclictest')
+    if not exe:
+        return None
+    loops = max(1, int(duration_s * 1e6 / interval_us))
+    # -h <period>: every sample above the period lands in "Histogram Overflows".
+    return subprocess.Popen([exe, '-m', '-p', str(priority), '-i', str(interval_us), '-l',
+                             str(loops), '-q', '-h', str(interval_us),
+                             '--histfile={}'.format(hist_path)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog='soak', description=__doc__.split('\n')[0])
+    ap.add_argument('--duration', type=float, default=600.0, help='seconds (default 600)')
+    ap.add_argument('--warmup', type=float, default=None,
+                    help='seconds excluded from the leak check (default min(60, duration/4))')
+    ap.add_argument('--sample', type=float, default=5.0, help='RSS sampling interval, s')
+    ap.add_argument('--no-stress', action='store_true', help='do not run stress-ng')
+    ap.add_argument('--config', default=None, help='user overlay YAML for the stack')
+    ap.add_argument('--results', default='results', help='results root directory')
+    return ap.parse_args(argv)
+
+
+def _log(msg: str) -> None:
+    sys.stderr.write('soak: {}\n'.format(msg))
+    sys.stderr.flush()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the soak; return 0 when every verdict passed, 1 otherwise."""
+    args = _parse(argv)
+    warmup = args.warmup if args.warmup is not None else min(60.0, args.duration / 4)
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+    outdir = os.path.join(args.results, 'soak-' + stamp)
+    os.makedirs(outdir, exist_ok=True)
+    cfg = config.load(args.config)
+    act = next((t for t in cfg.tasks if t.name == 'actuator'), cfg.tasks[0])
+    period_us = act.period_ns // 1000
+    tmp = tempfile.mkdtemp(prefix='m4k-soak-')
+    runtime_dir = os.path.join(tmp, 'm4k')
+    env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    log_path = os.path.join(outdir, 'bringup.log')
+    hist_path = os.path.join(outdir, 'cyclictest.hist')
+    argv_bu = [sys.executable, '-m', 'm4k_rt.tools.bringup', '--python-m',
+               '--status-interval', '10'] + (['--config', args.config] if args.config else [])
+    _log('{} s (warm-up {} s), stress {}, results {}'.format(
+        args.duration, warmup, 'off' if args.no_stress else 'on', outdir))
+    rss: dict[str, list[tuple[float, int]]] = {n: [] for n in ['bringup', *NAMES]}
+    pids_seen: dict[str, set[int]] = {n: set() for n in NAMES}
+    summary: dict[str, Any] = {'started_utc': stamp, 'duration_s': args.duration,
+                               'warmup_s': warmup, 'stress': not args.no_stress,
+                               'machine': system.machine_info()}
+    with open(log_path, 'w') as log:
+        bu = subprocess.Popen(argv_bu, env=env, stdout=log, stderr=subprocess.STDOUT,
+                              start_new_session=True)
+    stat = StatReader(runtime_dir)
+    stop_cmd = threading.Event()
+    stress = None
+    ct = None
+    first: dict[str, dict[str, Any]] = {}
+    cmd_thread: threading.Thread | None = None
+    tools = system.ensure_tools(_log, install=False)
+    try:
+        end = time.monotonic() + 60.0
+        while set(children(bu.pid)) != set(NAMES):
+            if time.monotonic() > end or bu.poll() is not None:
+                raise RuntimeError('the stack did not start; see {}'.format(log_path))
+            time.sleep(0.2)
+        stat.thread.start()
+        cmd_thread = stack.ros_commander(stop_cmd)
+        if not args.no_stress and tools.get('stress-ng'):
+            stress = system.Stress(tools['stress-ng'], args.duration)
+            stress.__enter__()
+            summary['stress_command'] = stress.command_line
+        # Counters from here on only: the stack's start-up transient is not the soak's.
+        end = time.monotonic() + 10.0
+        while 'actuator' not in stat.tasks() and time.monotonic() < end:
+            time.sleep(0.1)
+        first = stat.tasks()
+        ct = _cyclictest(args.duration, act.priority, period_us, hist_path)
+        t0 = time.monotonic()
+        next_report = t0 + 30.0
+        while True:
+            now = time.monotonic()
+            t = now - t0
+            kids = children(bu.pid)
+            for name, pid in kids.items():
+                pids_seen[name].add(pid)
+            for name, pid in [('bringup', bu.pid), *kids.items()]:
+                k = rss_kib(pid)
+                if k is not None:
+                    rss[name].append((t, k))
+            if bu.poll() is not None or t >= args.duration:
+                break
+            if now >= next_report:
+                next_report += 30.0
+                _log('{:.0f}/{:.0f} s, RSS {}'.format(t, args.duration, ', '.join(
+                    '{} {} KiB'.format(n, s[-1][1]) for n, s in rss.items() if s)))
+            time.sleep(min(args.sample, max(0.0, args.duration - t)))
+        last = stat.tasks()
+        summary['tasks'] = {n: {k: (v - first[n][k] if k != 'period_ms' and n in first
+                                    and isinstance(v, int) and isinstance(first[n][k], int)
+                                    else v) for k, v in t.items()} for n, t in last.items()}
+    finally:
+        stop_cmd.set()
+        if cmd_thread is not None:
+            cmd_thread.join(5.0)
+        if stress is not None:
+            stress.__exit__(None, None, None)
+        if ct is not None:
+            if ct.poll() is None:
+                ct.send_signal(signal.SIGINT)
+            try:
+                ct.wait(30)
+            except subprocess.TimeoutExpired:
+                ct.kill()
+                ct.wait()
+        stat.close()
+        bu_rc = bu.poll()
+        if bu_rc is None:
+            bu.send_signal(signal.SIGINT)
+            try:
+                bu.wait(60)
+            except subprocess.TimeoutExpired:
+                os.killpg(bu.pid, signal.SIGKILL)
+                bu.wait()
+        shutil.rmtree(tmp, ignore_errors=True)
+    log_text = open(log_path, errors='replace').read()
+    summary['bringup_exit'] = bu.returncode
+    summary['bringup_ended_early'] = bu_rc is not None
+    summary['restarts'] = log_text.count('restarted (restart')
+    summary['pids'] = {n: sorted(p) for n, p in pids_seen.items()}
+    summary['rss'] = {n: leak_verdict(s, warmup) for n, s in rss.items()}
+    ctres = core_bench.parse_cyclictest_hist(open(hist_path).read()) \
+        if ct is not None and os.path.exists(hist_path) else None
+    summary['cyclictest'] = ctres
+    over = ctres['overflows'] if ctres else None
+    summary['late'] = late_verdict(summary.get('tasks') or {}, over)
+    crashes = summary['restarts'] + sum(max(0, len(p) - 1) for p in pids_seen.values())
+    summary['verdicts'] = {
+        'no_crash': crashes == 0 and not summary['bringup_ended_early'],
+        'no_leak': all(v.get('verdict') == 'flat' for v in summary['rss'].values()),
+        'misses_within_cyclictest': summary['late']['all_ok'],
+        'no_body_errors': all((t.get('body_errors') or 0) == 0
+                              for t in (summary.get('tasks') or {}).values()),
+    }
+    _write(outdir, summary, rss, period_us)
+    ok = all(v is not False for v in summary['verdicts'].values())
+    _log('verdicts: {} -> {}'.format(summary['verdicts'], outdir))
+    print(open(os.path.join(outdir, 'report.md')).read())
+    return 0 if ok else 1
+
+
+def _write(outdir: str, summary: dict[str, Any], rss: dict[str, list[tuple[float, int]]],
+           period_us: int) -> None:
+    with open(os.path.join(outdir, 'summary.json'), 'w') as f:
+        json.dump(summary, f, indent=1, default=str)
+    with open(os.path.join(outdir, 'rss.csv'), 'w', newline='') as f:
+        w = csv.writer(f)
+        w.writerow(['process', 't_s', 'rss_kib'])
+        for name, series in rss.items():
+            for t, k in series:
+                w.writerow([name, '{:.1f}'.format(t), k])
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for name, series in rss.items():
+            if series:
+                ax.plot([t for t, _ in series], [k / 1024 for _, k in series], label=name)
+        ax.axvline(summary['warmup_s'], color='grey', linestyle=':', label='end of warm-up')
+        ax.set_xlabel('time (s)')
+        ax.set_ylabel('RSS (MiB)')
+        ax.set_title('m4k soak: resident memory per process')
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(os.path.join(outdir, 'rss.png'), dpi=100)
+        plt.close(fig)
+    except ImportError:
+        summary.setdefault('notes', []).append('matplotlib missing: no rss.png')
+    v = summary['verdicts']
+    lines = ['# m4k soak {}'.format(summary['started_utc']), '',
+             '{:.0f} s driving in a loop, warm-up {:.0f} s, stress-ng {}.'.format(
+                 summary['duration_s'], summary['warmup_s'],
+                 summary.get('stress_command', 'off')), '',
+             '## Verdicts', '']
+    lines += ['* {}: **{}**'.format(k, {True: 'pass', False: 'FAIL', None: 'n/a'}[val])
+              for k, val in v.items()]
+    lines += ['', '## Crashes', '', 'bringup exit {}, child restarts {}, pids {}'.format(
+        summary['bringup_exit'], summary['restarts'], summary['pids']), '',
+        '## RSS after warm-up (KiB)', '',
+        '| process | start | end | max | growth | limit | slope /min | verdict |',
+        '|---|---|---|---|---|---|---|---|']
+    for name, r in summary['rss'].items():
+        if 'start_kib' in r:
+            lines.append('| {} | {} | {} | {} | {} | {:.0f} | {:.1f} | {} |'.format(
+                name, r['start_kib'], r['end_kib'], r['max_kib'], r['growth_kib'],
+                r['limit_kib'], r['slope_kib_per_min'], r['verdict']))
+        else:
+            lines.append('| {} | | | | | | | {} |'.format(name, r['verdict']))
+    lines += ['', '## RT tasks (from the monitor, counted over the soak, start-up excluded)', '',
+              '| task | period ms | cycles | overruns | deadline misses | body errors | '
+              'overruns + misses <= cyclictest late |',
+              '|---|---|---|---|---|---|---|']
+    late = (summary.get('late') or {}).get('tasks') or {}
+    for name, t in (summary.get('tasks') or {}).items():
+        ok = (late.get(name) or {}).get('ok')
+        lines.append('| {} | {:g} | {} | {} | {} | {} | {} |'.format(
+            name, t['period_ms'], t['cycles'], t['overruns'], t['deadline_misses'],
+            t['body_errors'], {True: 'pass', False: 'FAIL', None: 'n/a'}[ok]))
+    ct = summary.get('cyclictest')
+    lines += ['', '## cyclictest (same run, {} us period, actuator priority)'.format(period_us),
+              '']
+    if ct:
+        lines.append('samples {n}, min {min} us, avg {avg} us, p99 {p99} us, max {max} us, '
+                     'samples above the period {overflows}'.format(**ct))
+    else:
+        lines.append('not run (cyclictest missing)')
+    lines += ['', 'Files: summary.json, rss.csv, rss.png, bringup.log, cyclictest.hist', '']
+    with open(os.path.join(outdir, 'report.md'), 'w') as f:
+        f.write('\n'.join(lines))
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""Tests of the bench's pure parts: samples CSV, condition stats, ratios, targets, plan."""
+
+import math
+
+import pytest
+
+from m4k_bench import bench
+from m4k_bench.benchlib import analysis, stack
+
+MS = 1_000_000
+
+
+def _rows(n, period=10 * MS, latency=50_000, response=20_000, late_every=0, late_by=0):
+    rows = []
+    for k in range(n):
+        rel = 10**9 + k * period
+        start = rel + latency + (late_by if late_every and k % late_every == 0 else 0)
+        rows.append((rel, start, start + response, 1))
+    return rows
+
+
+def _m4k(lat_p99, ct_p99, jit_p99=10.0, ok=True, cpu=None):
+    return {'latency_us': {'p99': lat_p99, 'p999': lat_p99 * 2}, 'jitter_us': {'p99': jit_p99},
+            'cyclictest': {'p99': ct_p99, 'p999': ct_p99 * 2},
+            'hardening': {'ok': ok, 'why': '' if ok else 'not SCHED_FIFO'},
+            'cpu_per_cycle_us': cpu}
+
+
+def _rounds():
+    # Three rounds; per-round ratio p99 / ct p99 = 1.2, 3.0, 1.4 -> median 1.4.
+    return [
+        {'round': 0, 'm4k_idle': _m4k(60.0, 50.0, cpu=80.0), 'm4k_alone': _m4k(50.0, 50.0),
+         'floor': {'cpu_per_cycle_us': 40.0},
+         'rtt': {'xddp': {'p50_us': 12.0}, 'raw': {'p50_us': 10.0}}},
+        {'round': 1, 'm4k_idle': _m4k(300.0, 100.0, cpu=90.0), 'm4k_alone': _m4k(60.0, 50.0),
+         'floor': {'cpu_per_cycle_us': 30.0}},
+        {'round': 2, 'm4k_idle': _m4k(70.0, 50.0, cpu=100.0), 'm4k_alone': _m4k(70.0, 50.0),
+         'floor': {'cpu_per_cycle_us': 50.0}},
+    ]
+
+
+def test_load_samples_csv_groups_rows_by_task(tmp_path):
+    p = tmp_path / 's.csv'
+    p.write_text('task,t_rel_ns,t_start_ns,t_end_ns,expirations\n'
+                 'a,1,2,3,1\nb,10,20,30,2\na,4,5,6,1\n')
+    got = analysis.load_samples_csv(str(p))
+    assert got == {'a': [(1, 2, 3, 1), (4, 5, 6, 1)], 'b': [(10, 20, 30, 2)]}
+
+
+def test_load_samples_csv_rejects_wrong_header_and_bad_rows(tmp_path):
+    p = tmp_path / 'x.csv'
+    p.write_text('a,b,c\n1,2,3\n')
+    with pytest.raises(ValueError, match='not a timing samples CSV'):
+        analysis.load_samples_csv(str(p))
+    p.write_text('task,t_rel_ns,t_start_ns,t_end_ns,expirations\na,1,two,3,1\n')
+    with pytest.raises(ValueError, match=r'x.csv:2: bad sample row'):
+        analysis.load_samples_csv(str(p))
+
+
+def test_condition_summary_measures_jitter_of_late_cycles():
+    # every 10th cycle starts 2 ms late: two periods per late cycle deviate by 2 ms
+    rows = _rows(200, late_every=10, late_by=2 * MS)
+    c = analysis.condition_summary(analysis.series_from_rows('baseline', 10 * MS, rows))
+    assert c['samples'] == 200
+    assert c['jitter_us']['max'] == pytest.approx(2000.0)
+    assert c['jitter_us']['p50'] == pytest.approx(0.0)
+    assert c['latency_us']['min'] == pytest.approx(50.0)
+    assert c['deadline_misses'] == 0
+
+
+def test_condition_summary_of_empty_series_is_none():
+    assert analysis.condition_summary(analysis.series_from_rows('x', 10 * MS, [])) is None
+
+
+def test_ratio_handles_missing_zero_and_nan():
+    assert analysis.ratio(10.0, 4.0) == 2.5
+    assert analysis.ratio(None, 4.0) is None
+    assert analysis.ratio(1.0, 0.0) is None
+    assert analysis.ratio(math.nan, 1.0) is None
+
+
+def test_round_ratios_are_per_round_with_the_median_and_spread():
+    r = analysis.round_ratios(_rounds())
+    assert set(analysis.RATIO_KEYS) <= set(r)
+    idle = r['release_p99_over_cyclictest_idle']
+    assert idle['values'] == pytest.approx([1.2, 3.0, 1.4])
+    assert idle['spread']['median'] == pytest.approx(1.4)
+    assert (idle['spread']['min'], idle['spread']['max']) == pytest.approx((1.2, 3.0))
+    # five tasks / alone: 60/50, 300/60, 70/70 -> 1.2, 5.0, 1.0 -> median 1.2
+    assert r['five_tasks_over_alone_p99']['spread']['median'] == pytest.approx(1.2)
+    # CPU per cycle / floor: 80/40, 90/30, 100/50 -> 2, 3, 2 -> median 2
+    assert r['cpu_per_cycle_over_floor']['spread']['median'] == pytest.approx(2.0)
+    assert r['xddp_rtt_p50_over_raw']['values'] == [pytest.approx(1.2), None, None]
+    assert r['release_p99_over_cyclictest_stress']['spread'] is None
+
+
+def test_a_degraded_m4k_run_is_left_out_of_the_m4k_ratios():
+    rs = _rounds()
+    rs[1]['m4k_idle']['hardening'] = {'ok': False, 'why': 'not SCHED_FIFO'}
+    r = analysis.round_ratios(rs)
+    assert r['release_p99_over_cyclictest_idle']['values'] == pytest.approx([1.2, None, 1.4])
+    assert r['release_p99_over_cyclictest_idle']['spread']['median'] == pytest.approx(1.3)
+    assert r['_excluded'] == ['round 1 m4k_idle: not SCHED_FIFO']
+
+
+def test_targets_judge_the_median_and_keep_the_spread():
+    r = analysis.round_ratios(_rounds())
+    scaling = [{'rate_hz': 1000, 'set': 'alone', 'ratio_p99': 2.5},
+               {'rate_hz': 1000, 'set': 'task set', 'ratio_p99': 1.0}]
+    rows = {t['key']: t for t in analysis.evaluate_targets(r, scaling)}
+    assert rows['release_p99_over_cyclictest_idle']['met'] is True      # 1.4 <= 1.5
+    assert rows['release_p99_over_cyclictest_idle']['spread']['max'] == pytest.approx(3.0)
+    assert rows['five_tasks_over_alone_p99']['met'] is True             # 1.2 <= 1.25
+    assert rows['cpu_per_cycle_over_floor']['met'] is True              # 2.0 <= 2
+    assert rows['release_p99_over_cyclictest_stress']['met'] is None    # not measured
+    assert rows['scaling_1khz_release_p99_over_cyclictest']['met'] is False   # 2.5 > 2
+    assert all(set(t) == {'key', 'label', 'target', 'spread', 'met'} for t in rows.values())
+
+
+def test_median_round_table_picks_the_median_round():
+    tables = {'r0_m4k_idle': 'T0', 'r1_m4k_idle': 'T1', 'r2_m4k_idle': 'T2'}
+    # actuator p99: 60, 300, 70 -> median 70 -> round 2
+    assert analysis.median_round_table(_rounds(), tables) == (2, 'T2')
+    assert analysis.median_round_table([], tables) == (None, None)
+
+
+def test_loop_cost_spreads_cpu_per_cycle_and_floor():
+    lc = analysis.loop_cost(_rounds())
+    assert lc['m4k_cpu_per_cycle_us']['median'] == 90.0
+    assert lc['floor_cpu_per_cycle_us']['median'] == 40.0
+
+
+def test_plan_durations_quick_full_and_overrides():
+    assert bench.plan_durations(False, None, None) == bench.FULL
+    q = bench.plan_durations(True, None, None)
+    assert q['rounds'] == 3 and bench.FULL['rounds'] >= 5
+    assert bench.plan_durations(True, 3.0, None, 2) == dict(bench.QUICK, condition_s=3.0,
+                                                            rounds=2)
+    with pytest.raises(ValueError, match='> 0'):
+        bench.plan_durations(False, 0.0, None)
+    with pytest.raises(ValueError, match='--rounds'):
+        bench.plan_durations(False, None, None, 0)
+
+
+def test_the_full_plan_fits_in_30_minutes_and_quick_in_10():
+    assert bench.estimate_s(bench.FULL) <= 30 * 60
+    assert bench.estimate_s(bench.QUICK) <= 10 * 60
+
+
+def test_bench_rejects_unknown_skip_phase(capsys):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(['--skip', 'floor,nope'])
+    assert exc.value.code == 2
+    assert "unknown phase(s) ['nope']" in capsys.readouterr().err
+
+
+def test_actuator_periods_skip_non_consecutive_cycles():
+    rel = [0, 10 * MS, 30 * MS, 40 * MS]       # a batch lost between cycles 1 and 2
+    start = [1, 10 * MS + 1, 30 * MS + 5, 40 * MS + 2]
+    series = analysis.series_from_rows('actuator', 10 * MS, [
+        (r, st, st + 5, 1) for r, st in zip(rel, start, strict=True)])
+    assert list(bench._periods(series)) == [10 * MS, 10 * MS - 3]
+
+
+def test_velocity_profile_alternates_at_paper_speed():
+    assert stack.velocity_profile(0.0) == (0.25, 0.0)
+    assert stack.velocity_profile(5.0) == (-0.25, 0.0)
+    assert stack.velocity_profile(8.5) == (0.25, 0.0)
+
+
+def test_entry_argv_runs_module_main():
+    argv = stack.entry_argv('m4k_rt.rt_core', '--tasks', 'actuator')
+    assert argv[1] == '-c' and 'from m4k_rt.rt_core import main' in argv[2]
+    assert argv[3:] == ['--tasks', 'actuator']
+
+
+def test_trim_warmup_drops_the_first_second_of_every_task_and_reports_it():
+    a = analysis.series_from_rows('actuator', 10 * MS, _rows(300, latency=50_000))
+    a.t_start[0] += 5 * MS                    # a start-up hiccup
+    b = analysis.series_from_rows('lrf', 200 * MS, _rows(10, period=200 * MS))
+    got = analysis.trim_warmup([a, b], 1_000 * MS)
+    assert got['cycles'] == {'actuator': 100, 'lrf': 5}
+    assert got['max_latency_us'] == pytest.approx(5050.0)
+    assert len(a.t_rel) == 200 and len(a.t_start) == 200 and len(a.expirations) == 200
+    assert a.t_rel[0] == 10**9 + 1_000 * MS
+    assert analysis.trim_warmup([], 1) == {'cycles': {}, 'max_latency_us': None}
+
+
+def test_interference_finds_cycles_released_while_another_task_ran():
+    act = analysis.series_from_rows('actuator', 10 * MS, _rows(100, latency=20_000))
+    # imu runs [rel - 5 us, rel + 300 us] on every 4th release: the actuator waits for it
+    rows = []
+    for k in range(0, 100, 4):
+        rel = 10**9 + k * 10 * MS
+        rows.append((rel, rel - 5_000, rel + 300_000, 1))
+        act.t_start[k] = rel + 310_000
+    imu = analysis.series_from_rows('imu', 10 * MS, rows)
+    led = analysis.series_from_rows('led', 20 * MS, [(10**9 + 5 * MS, 10**9 + 5 * MS,
+                                                       10**9 + 6 * MS, 1)])
+    got = analysis.interference({'actuator': act, 'imu': imu, 'led': led}, 'actuator')
+    assert got['cycles'] == 100
+    assert got['interfered_share'] == pytest.approx(0.25)
+    assert got['share_by_task'] == {'imu': 0.25, 'led': 0.0}
+    assert got['latency_p99_interfered_us'] == pytest.approx(310.0)
+    assert got['latency_p99_clean_us'] == pytest.approx(20.0)
+    assert analysis.interference({'imu': imu}, 'actuator') is None

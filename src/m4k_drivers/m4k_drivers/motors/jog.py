@@ -1,0 +1,117 @@
+"""Wheel jog for real-robot bring-up: one wheel, a small speed, a short time, then zero.
+
+``driver_host --device motor --jog left|right SPEED --duration S [--yes]`` -- SPEED is a
+fraction of the DAC's full scale (WHEEL_CMD code 512 + SPEED * 511, the owner of that mapping
+is :mod:`m4k_rt.control.dac`), positive = the wheel should roll the robot forward.  It checks
+a wheel's direction (and so ``dac_sign``/``enc_direction``) with the robot on blocks.
+
+Safety: |SPEED| <= ``JOG_MAX_SPEED`` and S <= ``JOG_MAX_DURATION_S`` (larger values are
+refused, not clamped); on a terminal it asks for confirmation unless ``--yes`` (without a
+terminal, ``--yes`` is required).  Commands go through the motor handler's normal path
+(:meth:`MotorHandler.write`, one fresh command per actuator period -- what feeds the driver
+watchdog and the motor-enable heartbeat), the other wheel is held at zero, and both wheels are
+commanded to zero at the end, on Ctrl-C (``stop``) and on any error.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Callable, TextIO
+
+from m4k_drivers.handler import DriverError, Status
+from m4k_drivers.motors import protocol as p
+from m4k_drivers.motors.handler import MotorHandler, WheelCommand
+
+__all__ = ['JOG_MAX_DURATION_S', 'JOG_MAX_SPEED', 'JogError', 'check_jog', 'run_jog']
+
+JOG_MAX_SPEED = 0.25            # fraction of full scale (0.5 m/s rim speed on the M4K)
+JOG_MAX_DURATION_S = 5.0
+SIDES = ('left', 'right')
+
+
+class JogError(ValueError):
+    """A jog request outside the caps, or refused at the prompt."""
+
+
+def check_jog(side: str, speed: float, duration_s: float) -> None:
+    """Raise JogError unless side, speed and duration are within the caps."""
+    if side not in SIDES:
+        raise JogError(f'--jog: wheel must be left or right, got {side!r}')
+    if not math.isfinite(speed) or abs(speed) > JOG_MAX_SPEED or speed == 0.0:
+        raise JogError(f'--jog SPEED: must be a non-zero fraction of full scale within '
+                       f'+/-{JOG_MAX_SPEED}, got {speed!r}')
+    if not math.isfinite(duration_s) or not 0.0 < duration_s <= JOG_MAX_DURATION_S:
+        raise JogError(f'--duration: must be in (0, {JOG_MAX_DURATION_S}] s, got {duration_s!r}')
+
+
+def confirm(side: str, speed: float, duration_s: float, stdin: TextIO, out: TextIO) -> bool:
+    """Ask on the terminal; True only for an explicit yes."""
+    print(f'driver_host: jog the {side.upper()} wheel at {speed:+.2f} of full scale for '
+          f'{duration_s:.1f} s. Robot on blocks, wheels free, e-stop in reach? [y/N] ',
+          end='', file=out, flush=True)
+    answer = stdin.readline().strip().lower()
+    return answer in ('y', 'yes')
+
+
+def run_jog(handler: MotorHandler, side: str, speed: float, duration_s: float,
+            stop: threading.Event, *, out: TextIO, stdin: TextIO | None = None,
+            assume_yes: bool = False, period_s: float | None = None,
+            clock: Callable[[], float] | None = None) -> int:
+    """Jog one wheel; return the exit code (0 done, 1 refused or failed)."""
+    check_jog(side, speed, duration_s)
+    if not assume_yes:
+        if stdin is None or not stdin.isatty():
+            raise JogError('--jog needs confirmation: run it on a terminal, or pass --yes')
+        if not confirm(side, speed, duration_s, stdin, out):
+            print('driver_host: jog cancelled', file=out, flush=True)
+            return 1
+    now = clock or time.monotonic
+    period = period_s if period_s is not None else handler.period_s
+    code = p.command_to_code(speed)
+    cmd = WheelCommand(code, p.DAC_ZERO, 1) if side == 'left' else \
+        WheelCommand(p.DAC_ZERO, code, 1)
+    idx = SIDES.index(side)
+    try:
+        handler.configure()
+        handler.activate()
+    except DriverError as exc:
+        print(f'driver_host: motor: {exc}', file=out, flush=True)
+        handler.shutdown()
+        return 1
+    start_angle = None
+    angle = math.nan
+    rc = 0
+    try:
+        end = now() + duration_s
+        next_print = now()
+        while not stop.is_set() and now() < end:
+            if handler.write(cmd) != Status.OK:
+                print(f'driver_host: jog: write failed: {handler.last_exception}', file=out)
+                rc = 1
+                break
+            r = handler.read()
+            if r.status == Status.OK:
+                angle = (r.value.left_angle, r.value.right_angle)[idx]
+                if start_angle is None:
+                    start_angle = angle
+                if now() >= next_print:
+                    print(f'jog {side} code={code} angle={angle:+.3f} rad '
+                          f'status=0x{r.value.status:02x}', file=out, flush=True)
+                    next_print += 0.1
+            stop.wait(period)
+    finally:
+        zero = WheelCommand(p.DAC_ZERO, p.DAC_ZERO, 0)
+        if handler.write(zero) != Status.OK:
+            rc = 1
+        handler.shutdown()             # deactivate: code 512 again, outputs active
+    if start_angle is not None and math.isfinite(angle):
+        turned = angle - start_angle
+        verdict = 'forward' if turned * speed > 0 else 'BACKWARD (check dac_sign / ' \
+            'enc_direction)' if turned * speed < 0 else 'not at all'
+        print(f'jog {side}: wheel angle changed {turned:+.3f} rad: the encoder says it turned '
+              f'{verdict}', file=out, flush=True)
+    if stop.is_set():
+        print('driver_host: jog stopped early; motors at zero', file=out, flush=True)
+    return rc

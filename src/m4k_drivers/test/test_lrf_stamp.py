@@ -1,0 +1,102 @@
+"""URG scan stamps: the offset-and-drift estimator, and the driver stamping at acquisition."""
+
+import random
+import time
+
+import pytest
+
+from m4k_drivers.lrf import scip
+from m4k_drivers.lrf.sim import RectRoom, UrgSim
+from m4k_drivers.lrf.stamp import ScanStamper
+from m4k_drivers.lrf.urg import UrgDriver
+
+
+def _run(stamper, n, drift, delay, t0_host=5_000_000_000, sensor0=1000):
+    """Feed n scans 100 ms apart (sensor time), received after ``delay(i)`` ns."""
+    out = []
+    for i in range(n):
+        sensor_ms = sensor0 + 100 * i
+        true_ns = t0_host + round(100e6 * i * (1 + drift))    # host time of the scan
+        est = stamper.update(sensor_ms, true_ns + delay(i))
+        out.append((true_ns, est, true_ns + delay(i)))
+    return out
+
+
+def test_minimum_delay_offset_recovers_acquisition_time():
+    rng = random.Random(3)
+    # 2..30 ms USB/scheduling delay, at least every 10th scan near the 2 ms floor.
+    out = _run(ScanStamper(window=50), 200, 0.0,
+               lambda i: 2_000_000 if i % 10 == 0 else rng.randint(2_000_000, 30_000_000))
+    for true_ns, est, rx in out[20:]:
+        assert est <= rx
+        assert abs(est - (true_ns + 2_000_000)) < 300_000    # the floor delay stays, jitter goes
+
+
+def test_drift_is_tracked():
+    rng = random.Random(4)
+    drift = 100e-6       # sensor crystal 100 ppm slow: host advances faster
+    stamper = ScanStamper(window=60)
+    out = _run(stamper, 600, drift,
+               lambda i: 1_000_000 if i % 5 == 0 else rng.randint(1_000_000, 20_000_000))
+    assert stamper.drift == pytest.approx(drift, rel=0.2)
+    for true_ns, est, _ in out[100:]:
+        assert abs(est - (true_ns + 1_000_000)) < 500_000
+
+
+def test_stamp_never_after_receive_and_reset_on_clock_going_back():
+    stamper = ScanStamper(window=4)
+    assert stamper.update(100, 10_000) == 10_000
+    assert stamper.update(200, 100_010_000) <= 100_010_000
+    stamper.update(50, 200_000_000)       # sensor clock went back: new epoch
+    assert stamper.samples == 1
+
+
+@pytest.mark.parametrize('window', [1, 0, True, 2.5])
+def test_bad_window_is_rejected(window):
+    with pytest.raises(ValueError, match='window'):
+        ScanStamper(window=window)
+
+
+def test_scans_are_stamped_before_they_arrive_across_the_24bit_wrap():
+    room = RectRoom(-2.0, -1.5, 2.0, 1.5)
+    with UrgSim(room, scan_period=0.05, timestamp_start=scip.TIMESTAMP_MODULO - 300) as dev:
+        drv = UrgDriver(dev.path, timeout=0.5)
+        try:
+            drv.open()
+            drv.start_stream()
+            scans = []
+            while len(scans) < 12:
+                scan = drv.wait_scan(scans[-1].seq if scans else 0, 2.0)
+                assert scan is not None
+                scans.append(scan)
+        finally:
+            drv.close()
+    pairs = list(zip(scans, scans[1:], strict=False))
+    assert any(b.device_stamp < a.device_stamp for a, b in pairs)   # the 24-bit counter wrapped
+    for s in scans:
+        assert 0 < s.stamp_ns <= s.host_stamp_ns <= time.monotonic_ns()
+    # Stamps advance with the sensor's clock across the wrap (50 ms apart, +-10 ms of USB).
+    for a, b in zip(scans[4:], scans[5:], strict=False):
+        assert (b.stamp_ns - a.stamp_ns) == pytest.approx((b.stamp_ms - a.stamp_ms) * 1e6,
+                                                          abs=10e6)
+
+
+def test_connect_leaves_time_adjust_mode_with_tm2():
+    import serial
+    room = RectRoom(-2.0, -1.5, 2.0, 1.5)
+    with UrgSim(room, scan_period=0.05) as dev:
+        # A previous client switched the sensor to SCIP 2.0 and into time-adjust mode.
+        with serial.Serial(dev.path, timeout=3.0) as raw:
+            for cmd in (b'SCIP2.0\n', b'TM0\n'):
+                raw.write(cmd)
+                reply = raw.read_until(b'\n\n')
+                assert reply.startswith(cmd.rstrip(b'\n')), reply
+        assert dev.time_adjust
+        drv = UrgDriver(dev.path, timeout=3.0)       # generous: the machine may be loaded
+        try:
+            drv.open()               # QT -> 0E, TM2 -> 00, QT, VV, PP, II, BM
+            assert not dev.time_adjust
+            assert dev.command_codes['TM'] == 2
+            assert drv.get_scan().ranges_mm.size == drv.geometry.count
+        finally:
+            drv.close()

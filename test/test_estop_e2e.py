@@ -1,0 +1,180 @@
+"""E-stop and odometry reset through ROS against the running stack, judged on the ground truth.
+
+The test process is a plain ROS 2 user (its own Context): it drives with cmd_vel, publishes
+``e_stop`` (std_msgs/Bool) and calls ``/m4k_bridge/reset_odometry`` (std_srvs/Trigger). Motion
+is judged on the simulator's ground truth (``wsenv.ground_truth``), never on the odometry under
+test. The world reports its truth every 0.5 s, so stopping is judged two ways that need no
+finer sampling: the distance travelled from the last report before the e-stop (a stop that came
+later than the bound drives farther than the bound allows), and the first report after the
+bound shows the robot at rest and every later one at the same place.
+"""
+
+import math
+import os
+import signal
+import time
+
+from geometry_msgs.msg import Twist, TwistStamped
+import pytest
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+from test_bringup import cmdline
+from test_stack_e2e import _control, stack  # noqa: F401 -- the stack fixture
+from wsenv import ground_truth, ROOT
+import yaml
+
+from m4k_rt.control.params import control_params
+from m4k_rt.testing import child_pids
+
+pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
+
+V = 0.25
+AT_REST = 0.005      # m/s of true speed
+STILL_M = 0.005      # m of true travel
+# Slack on top of v / e_stop_deceleration + 2 actuator periods, each term an upper bound on
+# this loaded two-core machine: DDS delivery on localhost plus the bridge's executor and port
+# thread (0.1 s), and the simulated motor's first-order lag (devices.yaml world.motor_tau_s):
+# when the commanded ramp reaches zero the true speed still trails it by about
+# a * tau and decays as exp(-t / tau), below AT_REST after tau * ln(a * tau / AT_REST).
+DDS_SLACK_S = 0.1
+STAMPED = {'m4k_bridge': {'ros__parameters': {'use_stamped_vel': True}}}
+
+
+def _actuator_period_s():
+    with open(os.path.join(ROOT, 'config', 'm4k.yaml'), encoding='utf-8') as f:
+        return yaml.safe_load(f)['tasks']['actuator']['period_ms'] * 1e-3
+
+
+def _motor_tau_s():
+    with open(os.path.join(ROOT, 'config', 'devices.yaml'), encoding='utf-8') as f:
+        return float(yaml.safe_load(f)['world']['robot']['motor_tau_s'])
+
+
+def _dist(a, b):
+    return math.hypot(a['pose'][0] - b['pose'][0], a['pose'][1] - b['pose'][1])
+
+
+class Truth:
+    """Collect the distinct ground-truth reports while the user spins."""
+
+    def __init__(self, runtime_dir):
+        self.runtime_dir = runtime_dir
+        self.reports = []
+
+    def poll(self):
+        g = ground_truth(self.runtime_dir)
+        if g is not None and (not self.reports or g['t_ns'] > self.reports[-1]['t_ns']):
+            self.reports.append(g)
+        return g
+
+    def latest(self):
+        self.poll()
+        return self.reports[-1] if self.reports else None
+
+
+def _spin_collect(user, truth, seconds, each=None, period=0.05):
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        user.spin_for(0.05, each, period if each else None)
+        truth.poll()
+
+
+@pytest.mark.parametrize('stack', [STAMPED], indirect=True)
+def test_e_stop_stops_within_its_bound_ignores_commands_and_needs_a_fresh_one(
+        stack, m4k_runtime_dir):  # noqa: F811
+    user, proc, _ = stack
+    params = control_params(_control())
+    decel = params.e_stop_linear_deceleration
+    period = _actuator_period_s()
+    tau = _motor_tau_s()
+    slack = DDS_SLACK_S + tau * math.log(max(decel * tau / AT_REST, 1.0))
+    bound_s = V / decel + 2 * period + slack
+    truth = Truth(m4k_runtime_dir)
+    cmd = user.publisher(TwistStamped, 'cmd_vel')
+    e_stop = user.publisher(Bool, 'e_stop')
+    sent = []
+
+    def send(v=V, msg=None):
+        if msg is None:
+            msg = TwistStamped()
+            msg.header.stamp = user.node.get_clock().now().to_msg()
+            msg.twist.linear.x = v
+            sent.append(msg)
+        cmd.publish(msg)
+
+    # drive at 0.25 m/s (true speed)
+    user.spin_until(lambda: (truth.poll() or {}).get('v', 0.0) > V - 0.01, 20,
+                    'the true speed to reach 0.25 m/s', each=send)
+    before = truth.latest()
+    t_stop = time.monotonic_ns()
+    e_stop.publish(Bool(data=True))
+    # commands keep coming during the latch
+    _spin_collect(user, truth, bound_s + 1.6, each=send)
+    after = [r for r in truth.reports if r['t_ns'] >= t_stop + bound_s * 1e9]
+    assert len(after) >= 2, 'no ground truth report after the bound'
+    assert abs(after[0]['v']) < AT_REST, (bound_s, after[0])
+    assert all(abs(r['v']) < AT_REST and _dist(r, after[0]) < STILL_M for r in after)
+    travelled = _dist(after[-1], before)
+    allowed = (V * (t_stop - before['t_ns']) * 1e-9 + V * V / (2 * decel)
+               + V * (2 * period + slack))
+    assert travelled <= allowed, (travelled, allowed)
+    print('stopped: travelled {:.3f} m of {:.3f} m allowed; at rest by the first report '
+          '{:.2f} s after the event (bound {:.2f} s)'.format(
+              travelled, allowed, (after[0]['t_ns'] - t_stop) * 1e-9, bound_s))
+    user.spin_until(lambda: user.got['rt_status'] and user.got['rt_status'][-1].e_stop_active,
+                    5, 'rt_status to show the e-stop latched')
+
+    # the latch lives in the RT actuator: the bridge dies, bringup starts a new one (which was
+    # never asked to stop), commands flow through it -- the robot stays stopped
+    bridge = [pid for pid in child_pids(proc.pid) if 'm4k_rt.bridge.node' in cmdline(pid)]
+    assert len(bridge) == 1
+    os.kill(bridge[0], signal.SIGKILL)
+    user.spin_until(lambda: any('m4k_rt.bridge.node' in cmdline(pid) and pid != bridge[0]
+                                for pid in child_pids(proc.pid)), 30, 'a new bridge', each=send)
+    n_status = len(user.got['rt_status'])
+    user.spin_until(lambda: len(user.got['rt_status']) > n_status + 1
+                    and user.got['rt_status'][-1].e_stop_active, 30,
+                    'the new bridge to report the latch still engaged', each=send)
+    rest = truth.latest()
+    _spin_collect(user, truth, 1.6, each=send)
+    assert _dist(truth.latest(), rest) < STILL_M
+
+    # release just after the last command of the latch: neither it (still younger than
+    # cmd_vel_timeout at the release) nor a re-sent copy of it (stamped before the release)
+    # may restart the robot
+    old = sent[-1]
+    user.spin_for(0.2)
+    e_stop.publish(Bool(data=False))
+    user.spin_until(lambda: user.got['rt_status'][-1].e_stop_hold
+                    and not user.got['rt_status'][-1].e_stop_active, 5,
+                    'rt_status to show the release holding')
+    rest = truth.latest()
+    _spin_collect(user, truth, 1.6, each=lambda: send(msg=old))
+    assert _dist(truth.latest(), rest) < STILL_M
+    assert all(abs(r['v']) < AT_REST for r in truth.reports if r['t_ns'] > rest['t_ns'])
+    # a fresh command drives again
+    user.spin_until(lambda: (truth.poll() or {}).get('v', 0.0) > 0.1, 10,
+                    'a fresh command to move the robot', each=send)
+    assert proc.poll() is None
+
+
+def test_reset_odometry_zeroes_the_pose_after_the_rt_side_confirms(stack):  # noqa: F811
+    user, proc, _ = stack
+    cmd = user.publisher(Twist, 'cmd_vel')
+    msg = Twist()
+    msg.linear.x = V
+    odom = user.got['odom']
+    user.spin_until(lambda: odom[-1].pose.pose.position.x > odom[0].pose.pose.position.x + 0.2,
+                    20, 'odom to advance 0.2 m', each=lambda: cmd.publish(msg))
+    client = user.node.create_client(Trigger, '/m4k_bridge/reset_odometry')
+    user.spin_until(client.service_is_ready, 20, 'the reset_odometry service')
+    future = client.call_async(Trigger.Request())
+    user.spin_until(future.done, 10, 'the reset_odometry answer')
+    reply = future.result()
+    assert reply.success, reply.message
+    n = len(odom)
+    user.spin_until(lambda: len(odom) > n + 2, 5, 'odom after the reset')
+    # stopped or not, the pose restarted from zero: at most a few odom periods of travel
+    assert abs(odom[-1].pose.pose.position.x) < 0.1
+    assert abs(odom[-1].pose.pose.position.y) < 0.01
+    assert proc.poll() is None

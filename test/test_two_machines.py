@@ -1,0 +1,211 @@
+"""Robot and laptop on two machines: two network namespaces joined by a veth pair.
+
+The robot stack (bringup) runs in one namespace, a plain rclpy client publishing cmd_vel
+(``netns_driver.py``) in the other; the only link between them is a veth pair with a /30 of
+10.231.x.0 (nothing else gets an address, no default route). DDS discovers across the link by
+multicast (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``, the multicast flag and a 224.0.0.0/4 route
+on the veth) and Fast DDS is told to use UDP only (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``): its
+shared-memory transport would otherwise carry the data between two processes of one kernel
+and a cut link would cut nothing.
+
+Cut the link while driving at 0.25 m/s: the ground truth must stop within ``cmd_vel_timeout +
+v / max_deceleration + 2 periods`` (read from config) plus a slack for the motor's lag and the
+link. The laptop keeps publishing for a while into the dead link, then stops; restoring the
+link must not move the robot (no command from before or during the outage may arrive late);
+a fresh command does. Needs root (namespaces); every namespace and link is removed at the end.
+"""
+
+import math
+import os
+import random
+import shutil
+import signal
+import subprocess
+import time
+
+import pytest
+from test_bringup import write_overlay
+from test_estop_e2e import _actuator_period_s, _dist, _motor_tau_s, AT_REST, STILL_M, Truth
+from test_stack_e2e import _control, START
+from wsenv import ROOT
+
+from m4k_rt.control.params import control_params
+
+pytestmark = [
+    pytest.mark.allow_leaks('fds'),
+    pytest.mark.skipif(os.geteuid() != 0, reason='network namespaces need root'),
+    pytest.mark.skipif(shutil.which('ip') is None, reason='iproute2 (ip) is not installed'),
+]
+
+V = 0.25
+LINK_SLACK_S = 0.1   # last command up to one 50 ms publishing period before the cut, + margin
+
+
+def _ip(*args, check=True):
+    return subprocess.run(['ip', *args], check=check, capture_output=True, text=True,
+                          timeout=10)
+
+
+class Link:
+    """Two namespaces and the veth pair between them (removed by ``close``)."""
+
+    def __init__(self):
+        tag = '{:x}'.format(random.getrandbits(20))
+        self.robot, self.laptop = 'm4kr' + tag, 'm4kl' + tag
+        self.veth = {self.robot: 'vr' + tag, self.laptop: 'vl' + tag}
+        net = random.randrange(256)
+        self.addr = {self.robot: '10.231.{}.1'.format(net), self.laptop: '10.231.{}.2'.format(net)}
+        self.created = []
+        try:
+            for ns in (self.robot, self.laptop):
+                _ip('netns', 'add', ns)
+                self.created.append(ns)
+            _ip('link', 'add', self.veth[self.robot], 'type', 'veth', 'peer', 'name',
+                self.veth[self.laptop])
+            for ns in (self.robot, self.laptop):
+                _ip('link', 'set', self.veth[ns], 'netns', ns)
+                _ip('-n', ns, 'addr', 'add', self.addr[ns] + '/30', 'dev', self.veth[ns])
+                _ip('-n', ns, 'link', 'set', 'lo', 'up')
+            self.up()
+        except BaseException:
+            self.close()
+            raise
+
+    def up(self):
+        for ns in (self.robot, self.laptop):
+            _ip('-n', ns, 'link', 'set', self.veth[ns], 'multicast', 'on', 'up')
+            # taking the link down drops its routes: (re)add the multicast one each time
+            _ip('-n', ns, 'route', 'replace', '224.0.0.0/4', 'dev', self.veth[ns])
+
+    def down(self):
+        for ns in (self.robot, self.laptop):
+            _ip('-n', ns, 'link', 'set', self.veth[ns], 'down')
+
+    def argv(self, ns, argv):
+        return ['ip', 'netns', 'exec', ns, *argv]
+
+    def close(self):
+        for ns in reversed(self.created):
+            _ip('netns', 'del', ns, check=False)   # deleting a namespace deletes its veth end
+        self.created = []
+
+
+@pytest.fixture
+def link():
+    lk = Link()
+    try:
+        yield lk
+    finally:
+        lk.close()
+        left = _ip('netns', 'list').stdout
+        assert lk.robot not in left and lk.laptop not in left
+
+
+def _net_env(env):
+    env = dict(env)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
+    env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
+    env.pop('ROS_STATIC_PEERS', None)
+    return env
+
+
+def _say(path, word):
+    tmp = path.with_name(path.name + '.tmp')
+    tmp.write_text(word)
+    os.replace(tmp, path)
+
+
+def _status(path):
+    try:
+        matched, sent = path.read_text().split()
+        return int(matched), int(sent)
+    except (OSError, ValueError):
+        return 0, 0
+
+
+def _wait(predicate, timeout, what, truth):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        truth.poll()
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError('timed out after {} s waiting for {}'.format(timeout, what))
+
+
+def _collect(truth, seconds):
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        truth.poll()
+        time.sleep(0.05)
+
+
+def test_cut_link_stops_the_robot_and_restoring_it_does_not_restart_it(
+        link, procs, tmp_path, m4k_runtime_dir):
+    from wsenv import stack_env
+    params = control_params(_control())
+    period = _actuator_period_s()
+    tau = _motor_tau_s()
+    a = params.linear.max_deceleration or params.linear.max_acceleration
+    slack = LINK_SLACK_S + tau * math.log(max(a * tau / AT_REST, 1.0))
+    bound_s = params.cmd_vel_timeout + V / a + 2 * period + slack
+    truth = Truth(m4k_runtime_dir)
+    control = tmp_path / 'control'
+    status = tmp_path / 'status'
+    _say(control, 'off')
+    env = _net_env(stack_env(m4k_runtime_dir))
+    overlay = write_overlay(tmp_path, {'world': {'start': START}})
+    robot = procs.start(link.argv(link.robot, [
+        'python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config', overlay,
+        '--no-status']), env=env, stdout=open(tmp_path / 'bringup.out', 'w'),
+        stderr=open(tmp_path / 'bringup.err', 'w'))
+    laptop = procs.start(link.argv(link.laptop, [
+        'python', os.path.join(ROOT, 'test', 'netns_driver.py'), str(control), str(status)]),
+        env=env, stdout=open(tmp_path / 'laptop.out', 'w'),
+        stderr=open(tmp_path / 'laptop.err', 'w'))
+    try:
+        _wait(lambda: truth.latest() is not None and _status(status)[0] > 0
+              or robot.poll() is not None or laptop.poll() is not None, 60,
+              'the stack up and the laptop matched across the link', truth)
+        assert robot.poll() is None, (tmp_path / 'bringup.err').read_text()[-3000:]
+        assert laptop.poll() is None, (tmp_path / 'laptop.err').read_text()[-3000:]
+        # drive
+        _say(control, str(V))
+        _wait(lambda: truth.reports[-1]['v'] > V - 0.01, 30, 'the true speed 0.25 m/s', truth)
+        before = truth.latest()
+        t_cut = time.monotonic_ns()
+        link.down()
+        _collect(truth, bound_s + 1.6)          # the laptop keeps publishing into the dead link
+        after = [r for r in truth.reports if r['t_ns'] >= t_cut + bound_s * 1e9]
+        assert len(after) >= 2, 'no ground truth report after the bound'
+        assert abs(after[0]['v']) < AT_REST, (bound_s, after[0])
+        assert all(abs(r['v']) < AT_REST and _dist(r, after[0]) < STILL_M for r in after)
+        travelled = _dist(after[-1], before)
+        allowed = (V * (t_cut - before['t_ns']) * 1e-9 + V * params.cmd_vel_timeout
+                   + V * V / (2 * a) + V * (2 * period + slack))
+        assert travelled <= allowed, (travelled, allowed)
+        print('stopped: travelled {:.3f} m of {:.3f} m allowed; at rest by the first report '
+              '{:.2f} s after the event (bound {:.2f} s)'.format(
+                  travelled, allowed, (after[0]['t_ns'] - t_cut) * 1e-9, bound_s))
+        # the laptop stops commanding, then the link comes back: nothing may move the robot
+        _say(control, 'off')
+        sent = _status(status)[1]
+        _wait(lambda: _status(status)[1] == sent, 5, 'the laptop to stop publishing', truth)
+        link.up()
+        rest = truth.latest()
+        _collect(truth, 3.0)
+        assert _dist(truth.latest(), rest) < STILL_M
+        assert all(abs(r['v']) < AT_REST for r in truth.reports if r['t_ns'] > rest['t_ns'])
+        # a fresh command from the laptop drives again (discovery recovered across the link)
+        _say(control, str(V))
+        _wait(lambda: truth.reports[-1]['v'] > 0.1, 30, 'a fresh command to drive', truth)
+        _say(control, '0.0')
+        assert robot.poll() is None
+    finally:
+        for proc in (laptop, robot):
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(40)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
