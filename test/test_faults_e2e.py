@@ -10,8 +10,14 @@ its cycle counters never restart; bringup restarts the victim with backoff and r
 restarted process re-links; driving resumes only on a fresh command; with rt_core gone the
 driver host's watchdog/link-loss makes the motors safe, so the robot stops, and a restarted
 rt_core picks up. Bad input: NaN/inf cmd_vel rejected and counted, huge values clamped,
--0.0 accepted as zero, a wrong message type on the topic ignored. Measured times are printed
+-0.0 accepted as zero, a wrong message type on the topic ignored. Restart times are printed
 (run with -s), not asserted: the VM is noisy.
+
+Two more tests kill one process alone, five times each at seeded random phases of a drive:
+the bridge (the RT actuator must brake the simulated robot on its own: judged on the
+simulator's ground truth against cmd_vel_timeout + v / max_deceleration + 2 periods from
+config/) and the driver host (its motor port re-links within 1 s of serving, on its own log
+stamps; the RT side counts every lost peer; rt_core's cycle counters never go back).
 """
 
 import math
