@@ -20,6 +20,7 @@ import tempfile
 import time
 
 import pytest
+from wsenv import start_sim_robot
 
 from m4k_rt import protocol, xddp
 
@@ -258,18 +259,19 @@ def test_rt_core_and_driver_host_have_no_inet_or_abstract_sockets(procs, tmp_pat
                                                                    m4k_runtime_dir):
     overlay = tmp_path / 'fast.yaml'
     overlay.write_text('runtime: {mlockall: false, cpu_dma_latency: false}\n')
+    sim = start_sim_robot(procs, dict(os.environ), m4k_runtime_dir, '--overlay', str(overlay))
     core = procs.start(['python', '-m', 'm4k_rt.rt_core', '--config', str(overlay)])
     _wait_bound(m4k_runtime_dir, 12)
     with open(tmp_path / 'host.err', 'w') as err:
         host = procs.start(['python', '-m', 'm4k_drivers.host', '--overlay', str(overlay)],
                            stderr=err)
     _wait_host_linked(tmp_path / 'host.err', 60)  # every service's port linked: sockets open
-    assert core.poll() is None and host.poll() is None
+    assert core.poll() is None and host.poll() is None and sim.poll() is None
     inet = {}
     for kind in ('tcp', 'tcp6', 'udp', 'udp6', 'raw', 'raw6', 'udplite', 'udplite6'):
         inet.update(_net_inodes(kind))
     unix = _net_inodes('unix')
-    for name, p in (('rt_core', core), ('driver_host', host)):
+    for name, p in (('rt_core', core), ('driver_host', host), ('sim_robot', sim)):
         inodes = _socket_inodes(p.pid)
         assert inodes, name
         assert not inodes & set(inet), '{} has TCP/UDP/raw sockets: {}'.format(
@@ -279,5 +281,6 @@ def test_rt_core_and_driver_host_have_no_inet_or_abstract_sockets(procs, tmp_pat
     bad = _world_writable(m4k_runtime_dir)
     assert bad == [], bad
     modes = {e: stat.S_IMODE(os.lstat(os.path.join(m4k_runtime_dir, e)).st_mode)
-             for e in os.listdir(m4k_runtime_dir) if not e.startswith('label.')}
+             for e in os.listdir(m4k_runtime_dir)
+             if not os.path.islink(os.path.join(m4k_runtime_dir, e))}    # labels, sim-urg
     assert all(m & 0o077 == 0 for m in modes.values()), modes

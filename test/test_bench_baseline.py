@@ -9,6 +9,7 @@ from nav_msgs.msg import Odometry
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from wsenv import ground_truth, stack_env, start_sim_robot
 
 from m4k_bench import baseline
 
@@ -53,11 +54,14 @@ def test_baseline_rejects_negative_duration(procs):
 
 
 @pytest.mark.allow_leaks('fds')  # FastDDS keeps its transport sockets for the process lifetime
-def test_baseline_drives_the_sim_robot_from_cmd_vel_and_times_every_callback(procs, tmp_path):
+def test_baseline_drives_the_sim_robot_from_cmd_vel_and_times_every_callback(procs, tmp_path,
+                                                                             m4k_runtime_dir):
     out = tmp_path / 'timing.csv'
+    env = stack_env(m4k_runtime_dir)
+    start_sim_robot(procs, env, m4k_runtime_dir)
     t_spawn = time.monotonic_ns()  # the test's own clock: CLOCK_MONOTONIC, system-wide
     p = procs.start([sys.executable, '-c', 'import sys; from m4k_bench.baseline import main; '
-                     'sys.exit(main())', '--duration', '6', '--timing-csv', str(out)])
+                     'sys.exit(main())', '--duration', '6', '--timing-csv', str(out)], env=env)
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     odom = []
@@ -82,6 +86,7 @@ def test_baseline_drives_the_sim_robot_from_cmd_vel_and_times_every_callback(pro
     assert p.returncode == 0, err
     assert odom, 'no odom from the baseline node'
     assert max(m.pose.pose.position.x for m in odom) > 0.02   # it moved forward
+    assert ground_truth(m4k_runtime_dir)['x'] > 0.02          # and so did the robot
     rows = list(csv.DictReader(out.open()))
     assert len(rows) > 100                                     # ~600 callbacks in 6 s
     rel = [int(r['t_rel_ns']) for r in rows]

@@ -89,7 +89,12 @@ def test_resolve_command_falls_back_to_python_m():
 
 
 def test_child_specs_pass_the_overlay_the_way_each_child_takes_it():
-    rt, host, bridge = bringup.child_specs('/o.yaml', '/tmp/p.yaml', '/c/bridge.yaml', '/run/m')
+    sim, rt, host, bridge = bringup.child_specs('/o.yaml', '/tmp/p.yaml', '/c/bridge.yaml',
+                                                '/run/m')
+    assert sim.name == 'sim_robot' and sim.ready is not None    # started first, waited for
+    assert sim.args == ('--runtime-dir', '/run/m', '--overlay', '/o.yaml')
+    assert [s.name for s in bringup.child_specs(None, '/p', '/b', '/r', sim=False)] == [
+        'rt_core', 'driver_host', 'bridge']
     assert rt.args == ('--config', '/o.yaml')
     assert host.args == ('--runtime-dir', '/run/m', '--overlay', '/o.yaml')
     assert bridge.args[-4:] == ('--params-file', '/c/bridge.yaml', '--params-file',
@@ -134,7 +139,7 @@ def test_launch_file_compiles_and_defines_the_entry_point(tmp_path):
     names = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert 'generate_launch_description' in names
     text = ast.unparse(tree)
-    for exe in ("'rt_core'", "'driver_host'", "'bridge'", "'bridge.yaml'"):
+    for exe in ("'sim_robot'", "'rt_core'", "'driver_host'", "'bridge'", "'bridge.yaml'"):
         assert exe in text
 
 
@@ -190,7 +195,13 @@ def test_second_bringup_is_refused_and_first_stops_in_order_after_a_restart(
         pids = [p for p in child_pids(first.pid) if 'm4k_drivers.host' in cmdline(p)]
         return pids[0] if pids else None
 
+    def sim_pid():
+        pids = [p for p in child_pids(first.pid) if 'm4k_drivers.sim_robot' in cmdline(p)]
+        return pids[0] if pids else None
+
     wait_for(lambda: host_pid() is not None, 20, 'driver_host')
+    sim = sim_pid()
+    assert sim is not None
     old = host_pid()
     os.kill(old, signal.SIGKILL)
     wait_for(lambda: host_pid() not in (None, old), 20, 'driver_host restart')
@@ -198,15 +209,16 @@ def test_second_bringup_is_refused_and_first_stops_in_order_after_a_restart(
     wait_for(lambda: 'driver_host restarted (restart 1)' in err1(), 10, 'restart report')
     assert re.search(r'driver_host exited with code -9 after [\d.]+ s; restart 1', err1())
 
+    assert sim_pid() == sim      # the robot (the world) outlived the driver host
     kids = child_pids(first.pid)
-    assert len(kids) == 3
+    assert len(kids) == 4
     first.send_signal(signal.SIGTERM)
     assert first.wait(40) == 0
     text = err1()
     order = [text.index('bringup: {} stopped'.format(n))
-             for n in ('bridge', 'driver_host', 'rt_core')]
+             for n in ('bridge', 'driver_host', 'rt_core', 'sim_robot')]
     assert order == sorted(order), text[-2000:]
-    for name in ('bridge', 'driver_host', 'rt_core'):   # each one shut down cleanly
+    for name in ('bridge', 'driver_host', 'rt_core', 'sim_robot'):   # each one shut down cleanly
         assert 'bringup: {} stopped (exit code 0)'.format(name) in text, text[-3000:]
     for pid in kids:
         assert not os.path.exists('/proc/{}'.format(pid)) or 'Z' in open(

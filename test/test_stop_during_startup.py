@@ -34,7 +34,9 @@ EXECUTABLES = {
                 'bringup: stopped (SIGTERM)'),
     'baseline': (['python', '-m', 'm4k_bench.baseline', '--duration', '60'],
                  'baseline: stopped (SIGTERM); motors safe'),
+    'sim_robot': (['python', '-m', 'm4k_drivers.sim_robot'], 'sim_robot: stopped (SIGTERM)'),
 }
+BRINGUP_CHILDREN = ('bridge', 'driver_host', 'rt_core', 'sim_robot')
 
 
 def _overlay(tmp_path):
@@ -45,7 +47,7 @@ def _overlay(tmp_path):
 
 def _argv(name, tmp_path, runtime_dir):
     argv = list(EXECUTABLES[name][0])
-    if name in ('rt_core', 'bringup'):
+    if name in ('rt_core', 'bringup', 'sim_robot'):
         argv += ['--config', _overlay(tmp_path)]
     if name == 'driver_host':
         argv += ['--runtime-dir', runtime_dir]
@@ -113,19 +115,19 @@ def test_sigterm_right_after_spawn_stops_cleanly(procs, tmp_path, m4k_runtime_di
     ('rt_core', 'rt_core: '),                 # the hardening report: ports not bound yet
     ('rt_core', 'running '),                  # tasks started
     ('driver_host', 'serving '),              # services started
-    ('bringup', 'starting '),                 # then: its three children spawned
+    ('bringup', 'starting '),                 # then: all its children spawned
 ])
 def test_sigterm_after_a_startup_line_stops_cleanly(procs, tmp_path, m4k_runtime_dir, name,
                                                      line):
     p, watch = _start(procs, name, tmp_path, m4k_runtime_dir, blocked=False)
     watch.wait_for(line)
-    if name == 'bringup':  # all three children exist and are still starting up
+    if name == 'bringup':  # all children exist (bringup waits for sim_robot's readiness)
         deadline = time.monotonic() + TIMEOUT_S
-        while len(child_pids(p.pid)) < 3 and time.monotonic() < deadline:
+        while len(child_pids(p.pid)) < len(BRINGUP_CHILDREN) and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert len(child_pids(p.pid)) == 3
+        assert len(child_pids(p.pid)) == len(BRINGUP_CHILDREN)
     p.send_signal(signal.SIGTERM)
     err = _assert_clean_stop(p, watch, name)
     if name == 'bringup':  # its children got SIGTERM while starting up: each stopped cleanly
-        for child in ('bridge', 'driver_host', 'rt_core'):
+        for child in BRINGUP_CHILDREN:
             assert 'bringup: {} stopped (exit code 0)'.format(child) in err, err[-3000:]

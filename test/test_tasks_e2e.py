@@ -11,7 +11,7 @@ import signal
 import time
 
 import pytest
-from wsenv import stack_env
+from wsenv import stack_env, start_sim_robot
 import yaml
 
 from m4k_drivers.motors import protocol as motor_protocol
@@ -38,6 +38,7 @@ def stack(procs, tmp_path, m4k_runtime_dir):
     overlay.write_text(yaml.safe_dump({
         'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10}}))
     env = stack_env(m4k_runtime_dir)
+    start_sim_robot(procs, env, m4k_runtime_dir)
     host = procs.start(['python', '-m', 'm4k_drivers.host'], env=env)
     core = procs.start(['python', '-m', 'm4k_rt.rt_core', '--config', str(overlay),
                         '--duration', '60'], env=env)

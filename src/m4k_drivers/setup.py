@@ -30,6 +30,8 @@ setup(
     entry_points={
         'console_scripts': [
             'driver_host = m4k_drivers.host:main',
+            'sim_robot = m4k_drivers.sim_robot:main',
+            'sim_truth = m4k_drivers.sim_robot:truth_main',
         ],
     },
 )

@@ -1,9 +1,10 @@
 """The plain-ROS baseline: the actuator control run the classical way (paper Fig. 10, "ROS").
 
 The same control code as the RT actuator task (:class:`m4k_rt.control.BaseController`) and
-the same motor handler as the driver host (backend from ``devices.yaml``, the simulated world
-by default), but run inside an rclpy node: a 10 ms timer whose callback reads the encoders,
-steps the controller and writes the DAC codes by calling the handler directly, in a normal
+the same motor handler as the driver host (backend from ``devices.yaml``: by default the
+``sim_robot``'s motors over the sim-bus), but run inside an rclpy node: a 10 ms timer whose
+callback reads the encoders, steps the controller and writes the DAC codes by calling the
+handler directly, in a normal
 (SCHED_OTHER) process with the garbage collector on -- what a ROS driver node does.
 ``cmd_vel`` comes in through a subscription in the same executor, ``odom`` goes out every
 ``odom_every_n``-th cycle.
@@ -93,12 +94,18 @@ def release_index(t_start_ns: int, t0_ns: int, period_ns: int, last_k: int) -> i
 
 
 def build_motor(raw: dict[str, Any]) -> Any:
-    """Build the motor handler from the layered config (``devices.motor``, ``world``)."""
+    """Build the motor handler from the layered config (``devices.motor``).
+
+    A ``sim`` motor is the sim_robot's, reached through the sim-bus socket in the runtime
+    directory ($M4K_RUNTIME_DIR): start ``sim_robot`` first, as bringup and the bench do.
+    """
     from m4k_drivers import config as dconfig
     from m4k_drivers import registry
     section = ((raw.get('devices') or {}).get('motor')) or {'backend': 'sim'}
     valid = dconfig.validate_device('motor', section, 'devices.motor')
-    ctx = registry.BuildContext(world_config=raw.get('world') or {})
+    ctx = registry.BuildContext(
+        world_config=raw.get('world') or {},
+        runtime_dir=(raw.get('runtime') or {}).get('runtime_dir') or None)
     return registry.create('motor', valid, ctx)
 
 

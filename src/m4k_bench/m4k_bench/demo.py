@@ -14,7 +14,7 @@
    ``summary.json``, ``report.md``, the processes' logs and the whole run's ROS topics as
    MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_rt.bag.record`).
 
-Contacts: the driver host keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
+Contacts: sim_robot keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
 the simulated world's collision counter and true pose; that is the verdict's evidence. The
 footprint clearance along the recorded odometry against the room geometry
 (:mod:`m4k_bench.planning.evaluate`) is reported beside it as the robot's own view.
@@ -64,7 +64,7 @@ STARTUP_TIMEOUT_S = 45.0
 STOP_TIMEOUT_S = 20.0
 SETTLE_S = 0.5            # at rest this long after goal_reached ends the run
 REST_V = 0.02             # m/s: encoder quantisation shows ~0.01 m/s at rest
-WORLD_REPORT = 'world.json'  # the driver host's ground truth (collisions, true pose)
+WORLD_REPORT = 'world.json'  # sim_robot's ground truth (collisions, true pose)
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -24,10 +24,8 @@ robot (on blocks): ``driver_host --device motor --jog left 0.1 --duration 2``
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
-import os
 import sys
 import threading
 import time
@@ -139,9 +137,22 @@ class DeviceService:
             return 1.0 / float(self.section.get('rate_hz', 100.0))
         return 0.1
 
+    def _set_priority(self) -> None:
+        # The motor service feeds the amplifier-enable heartbeat: starved by other load for
+        # longer than the monostable's hold, it would drop the motors of a live stack.
+        prio = int(self.section.get('sched_priority') or 0)
+        if prio <= 0:
+            return
+        from m4k_rt.sched import SchedError, set_thread_fifo
+        try:
+            set_thread_fifo(prio)
+        except (SchedError, ValueError) as exc:
+            LOG.warning('%s: stays SCHED_OTHER: %s', self.kind, exc)
+
     def run(self) -> None:
         """Serve until the stop event is set, then deactivate and clean up."""
         from m4k_rt.xddp import NrtLink
+        self._set_priority()
         self.link = NrtLink(self.port, self.runtime_dir)
         next_stream = time.monotonic()
         try:
@@ -330,11 +341,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--duration', type=float, default=1.0, help='--jog: seconds (<= 5)')
     ap.add_argument('--yes', action='store_true', help='--jog: do not ask for confirmation')
     ap.add_argument('--runtime-dir', help='XDDP runtime directory')
-    ap.add_argument('--world-report', default=os.environ.get('M4K_WORLD_REPORT'),
-                    metavar='FILE',
-                    help='sim: keep FILE updated (JSON, twice a second and at exit) with the '
-                    "simulated world's ground truth: true pose, collisions, in contact "
-                    '(default: $M4K_WORLD_REPORT)')
     ap.add_argument('-v', '--verbose', action='store_true')
     return ap
 
@@ -355,36 +361,6 @@ def _apply_overrides(devices: dict[str, Any], args: argparse.Namespace) -> dict[
             section['backend'] = args.backend
         out[kind] = section
     return out
-
-
-class WorldReporter:
-    """Write the simulated world's ground truth to a JSON file, atomically (NRT only).
-
-    What the sim knows and the robot cannot: the true pose (odometry drifts from it) and
-    whether the footprint touched a wall or the obstacle -- the evidence a demo or a soak needs
-    to say "no contact" from the simulator itself rather than from the robot's own estimate.
-    """
-
-    def __init__(self, ctx: registry.BuildContext, path: str) -> None:
-        self.ctx = ctx
-        self.path = path
-
-    def write(self) -> None:
-        """Write the current ground truth (nothing when no simulated device built a world)."""
-        if not self.ctx.has_world:
-            return
-        world = self.ctx.world
-        world.now()
-        st = world.state()
-        doc = {'t_ns': st.t_ns, 'pose': list(st.pose), 'v': st.v, 'w': st.w,
-               'collisions': st.collisions, 'in_contact': st.in_contact}
-        tmp = self.path + '.tmp'
-        try:
-            with open(tmp, 'w', encoding='utf-8') as f:
-                json.dump(doc, f)
-            os.replace(tmp, self.path)
-        except OSError as exc:
-            LOG.warning('world report %s: %s', self.path, exc)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -425,7 +401,9 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
         except (JogError, ValueError) as exc:
             print(f'driver_host: {exc}', file=sys.stderr)
             return 2
-    ctx = registry.BuildContext(world_config=cfg.world_raw)
+    runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
+    # sim backends reach sim_robot through the sim-bus socket in the runtime directory.
+    ctx = registry.BuildContext(world_config=cfg.world_raw, runtime_dir=runtime_dir)
     handlers: dict[str, DeviceHandler] = {}
     try:
         for kind in enabled:
@@ -455,14 +433,12 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
             print(f'driver_host: {exc}', file=sys.stderr)
             handlers['motor'].shutdown()
             return 2
-    runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
-    reporter = WorldReporter(ctx, args.world_report) if args.world_report else None
-    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop, reporter)
+    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop)
 
 
 def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
            devices: dict[str, Any], ports: dict[str, Any], runtime_dir: str | None,
-           stop: threading.Event, reporter: 'WorldReporter | None' = None) -> int:
+           stop: threading.Event) -> int:
     services = []
     for kind, handler in handlers.items():
         # An explicit xddp_port wins; else the RT side's ports table; else the default.
@@ -474,12 +450,9 @@ def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
         s.start()
     LOG.info('serving %s', ', '.join(f'{s.kind}@{s.port}' for s in services))
     while not stop.wait(0.5):
-        if reporter is not None:
-            reporter.write()
+        pass
     for s in services:
         s.thread.join(timeout=5.0)
-    if reporter is not None:
-        reporter.write()
     stuck = [s.kind for s in services if s.thread.is_alive()]
     if stuck:
         LOG.error('services did not stop: %s', ', '.join(stuck))

@@ -36,7 +36,7 @@ KIND_MODULES: dict[str, str] = {
     'imu': 'm4k_drivers.imu',
     'sonar': 'm4k_drivers.sonar',
     'led': 'm4k_drivers.led',
-    'lrf': 'm4k_drivers.lrf',
+    'lrf': 'm4k_drivers.lrf.handler',  # the package itself stays free of pyserial
 }
 
 # Keys every device section may carry, whatever its backend.
@@ -85,12 +85,25 @@ class BackendSpec:
 
 @dataclass
 class BuildContext:
-    """What factories may need besides their params: the shared sim world, clock and sleep."""
+    """What factories may need besides their params: the runtime dir, clock and sleep.
+
+    ``sim`` backends reach the ``sim_robot`` process through the sim-bus socket in
+    ``runtime_dir`` (:meth:`sim_runtime_dir`); ``world`` is an in-process world for the device
+    models themselves (sim_robot and unit tests), never for the driver host.
+    """
 
     world_config: dict[str, Any] | None = None
     clock: Callable[[], int] = time.monotonic_ns
     sleep: Callable[[float], None] = time.sleep      # waits on ``clock`` (sim sonar echoes)
+    runtime_dir: str | None = None
     _world: World | None = None
+
+    def sim_runtime_dir(self) -> str:
+        """Return the runtime directory holding the simulator's sim-bus socket and pty link."""
+        if self.runtime_dir:
+            return self.runtime_dir
+        from m4k_rt.xddp import default_runtime_dir
+        return default_runtime_dir()
 
     @property
     def world(self) -> World:

@@ -12,6 +12,11 @@ callers look): motor armature voltage -> first-order lag (``motor_tau_s``) -> mo
 wheel speeds of the step.  A step whose new footprint would touch a wall or an obstacle is not
 taken: the robot stops, the wheels stall, and ``collisions`` counts the contact onset.
 
+The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md): while
+it is off the armatures get no drive and the wheels coast down through the same first-order
+lag towards zero, whatever the DACs hold.  ``set_enable_until`` sets the time the enable stays
+on; ``None`` (the default) is an enable strapped on.
+
 Time is advanced lazily to the caller's CLOCK_MONOTONIC (``advance_to``/``now``); every
 access is under one lock.  Noise streams come from :meth:`World.rng`, seeded from the world
 seed and the stream name, so a run is reproducible.
@@ -205,6 +210,7 @@ class World:
         self._wheel_speed = [0.0, 0.0]
         self._wheel_angle = [0.0, 0.0]
         self._volts = [0.0, 0.0]
+        self._enable_until_ns: int | None = None
         self._v = 0.0
         self._w = 0.0
         self._accel = 0.0
@@ -249,6 +255,17 @@ class World:
         with self._lock:
             self._volts[side] = v
 
+    def set_enable_until(self, t_ns: int | None) -> None:
+        """Keep the amplifier enable on until ``t_ns`` (None: always on, no heartbeat)."""
+        with self._lock:
+            self._enable_until_ns = t_ns
+
+    def drive_enabled(self, t_ns: int | None = None) -> bool:
+        """Return True when the amplifiers are enabled at ``t_ns`` (default: world time)."""
+        with self._lock:
+            until = self._enable_until_ns
+            return until is None or (self._t_ns if t_ns is None else t_ns) < until
+
     def motor_voltage(self, side: int) -> float:
         """Return the armature voltage last set for one motor."""
         with self._lock:
@@ -259,12 +276,14 @@ class World:
         rob = self.robot
         decay = math.exp(-dt / rob.motor_tau_s)
         old = self._wheel_speed
-        if old[0] == 0.0 and old[1] == 0.0 and self._volts[0] == 0.0 and self._volts[1] == 0.0:
+        until = self._enable_until_ns
+        volts = self._volts if until is None or self._t_ns < until else (0.0, 0.0)
+        if old[0] == 0.0 and old[1] == 0.0 and volts[0] == 0.0 and volts[1] == 0.0:
             self._accel = 0.0
             return
         new = []
         for side in (LEFT, RIGHT):
-            target = self._volts[side] / rob.supply_v * rob.max_wheel_rad_s
+            target = volts[side] / rob.supply_v * rob.max_wheel_rad_s
             w_new = target + (old[side] - target) * decay
             new.append(0.0 if abs(w_new) < 1e-9 else w_new)
         mean_l = 0.5 * (old[0] + new[0])

@@ -141,7 +141,7 @@ def test_cli_refuses_over_cap_and_wrong_device(capsys):
     assert '--device motor alone' in capsys.readouterr().err
 
 
-def test_cli_jog_on_the_sim_backend(capsys):
+def test_cli_jog_on_the_sim_backend(capsys, sim_robot):
     assert host.main(['--device', 'motor', '--jog', 'right', '0.1', '--duration', '0.3',
                       '--yes']) == 0
     text = capsys.readouterr().out

@@ -1,10 +1,8 @@
 import pytest
 
-from m4k_drivers.handler import DeviceNotFoundError, State, Status
+from m4k_drivers.handler import DeviceNotFoundError
 from m4k_drivers.led import protocol as p
-from m4k_drivers.led.handler import LedHandler
 from m4k_drivers.led.real import LedClassOutput
-from m4k_drivers.led.sim import SimLed
 
 
 def test_channel_levels_and_duty():
@@ -25,36 +23,6 @@ def test_multicolor_values_scale_to_max_brightness():
 def test_color_validation_names_component(bad):
     with pytest.raises(ValueError, match='must be an int 0..255'):
         p.LedColor(*bad).validated()
-
-
-def test_sim_records_history_and_deactivate_turns_off():
-    t = [100]
-    sim = SimLed(clock=lambda: t[0])
-    h = LedHandler(lambda: sim)
-    h.configure()
-    h.activate()
-    t[0] = 200
-    assert h.write((10, 20, 30, 255)) == Status.OK
-    t[0] = 300
-    assert h.write((1, 2, 3, 4)) == Status.OK
-    assert sim.last == p.LedColor(1, 2, 3, 4)
-    assert h.read().value == (1, 2, 3, 4)
-    h.deactivate()
-    assert sim.last == p.OFF
-    assert [ts for ts, _ in sim.snapshot()] == [100, 200, 300, 300]
-    assert sim.snapshot()[1][1] == p.LedColor(10, 20, 30, 255)
-    h.shutdown()
-    assert sim.closed and h.state == State.FINALIZED
-
-
-def test_bad_colour_is_counted_not_shown():
-    sim = SimLed()
-    h = LedHandler(lambda: sim)
-    h.configure()
-    h.activate()
-    assert h.write((300, 0, 0, 255)) == Status.ERROR
-    assert h.faults == 1 and sim.last == p.OFF and 'bad colour' in str(h.last_exception)
-    h.shutdown()
 
 
 def test_led_class_multicolor_writes_files(tmp_path):

@@ -23,7 +23,7 @@ def test_registry_unknown_backend_lists_valid_ones():
         registry.backends('gps')
 
 
-def test_create_builds_handler_for_mixed_backends():
+def test_create_builds_handler_for_mixed_backends(sim_robot):
     cfg = dconfig.validate({'devices': {
         'motor': {'backend': 'sim'},
         'imu': {'backend': 'real', 'bus': 97},
@@ -32,7 +32,7 @@ def test_create_builds_handler_for_mixed_backends():
     motor = registry.create('motor', cfg.devices['motor'], ctx)
     imu = registry.create('imu', cfg.devices['imu'], ctx)
     assert isinstance(motor, MotorHandler) and isinstance(imu, ImuHandler)
-    assert ctx.has_world            # the sim motor asked for the shared world
+    assert not ctx.has_world        # the sim motor talks to sim_robot, it has no world
     with pytest.raises(DeviceNotFoundError, match='/dev/i2c-97'):
         imu.configure()
     assert imu.state == State.ERROR

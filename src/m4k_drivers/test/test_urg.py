@@ -262,15 +262,21 @@ def test_handler_real_backend_with_missing_port_fails_configure(tmp_path):
     assert h.state == State.ERROR
 
 
-def test_registry_sim_backend_uses_shared_world():
-    ctx = registry.BuildContext()
-    h = registry.create('lrf', {'backend': 'sim', 'noise_mm': 0.0, 'scan_period': 0.02,
-                                'mode': 'poll'}, ctx)
+def test_registry_sim_backend_reads_the_sim_robot_world(m4k_runtime_dir):
+    from m4k_drivers import config as dconfig
+    from m4k_drivers.sim_robot import SimRobot
+    from m4k_rt.xddp import ensure_runtime_dir
+    section = {'backend': 'sim', 'noise_mm': 0.0, 'scan_period': 0.02, 'mode': 'poll'}
+    rd = ensure_runtime_dir(m4k_runtime_dir)
+    robot = SimRobot(dconfig.validate({'devices': {'lrf': section}}), rd).start()
+    ctx = registry.BuildContext(runtime_dir=rd)
+    h = registry.create('lrf', dconfig.validate({'devices': {'lrf': section}}).devices['lrf'],
+                        ctx)
     try:
         h.configure()
         h.activate()
         reading = h.read().value
-        world = ctx.world
+        world = robot.world
         x, y, yaw = world.pose()
         expected = world.raycast_many((x, y), [yaw], 5.6)[0] * 1000.0
         got = int(reading.ranges_mm[AHEAD])
@@ -280,6 +286,7 @@ def test_registry_sim_backend_uses_shared_world():
             assert got < scip.RANGE_ERROR_LIMIT
     finally:
         h.shutdown()
+        robot.close()
 
 
 @pytest.mark.hardware

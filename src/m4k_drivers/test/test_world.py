@@ -97,22 +97,42 @@ def test_world_config_errors_name_the_field(section, match):
         WorldConfig.from_dict(section)
 
 
-def test_drive_straight_one_metre_sensors_agree():
-    """Drive 1 m through DAC frames; encoders, IMU yaw, ray cast and sonar agree."""
+def test_drive_straight_one_metre_sensors_agree(m4k_runtime_dir):
+    """Drive 1 m through DAC frames on the sim-bus; encoders, IMU yaw, ray cast, sonar agree.
+
+    Motor and IMU go through the sim-bus to a SimRobot on a fake clock; the sonar's trigger
+    pulse is timed by a busy wait on the real clock, so it runs on the same world in-process.
+    """
+    from m4k_drivers.sim_robot import SimRobot
+    from m4k_rt.xddp import ensure_runtime_dir
     clock = Clock()
-    doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'},
-                       'sonar': {'backend': 'sim'}},
+    doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'}},
            'world': {'walls': {'rectangle': [-0.8, -1.5, 4.2, 1.5]}, 'obstacles': [],
                      'seed': 3}}
     cfg = dconfig.validate(doc)
-    ctx = registry.BuildContext(world_config=cfg.world_raw, clock=clock, sleep=clock.sleep)
+    rd = ensure_runtime_dir(m4k_runtime_dir)
+    robot = SimRobot(cfg, rd, clock=clock, sleep=clock.sleep).start()
+    ctx = registry.BuildContext(clock=clock, sleep=clock.sleep, runtime_dir=rd)
     motor = registry.create('motor', cfg.devices['motor'], ctx)
     imu = registry.create('imu', cfg.devices['imu'], ctx)
-    sonar = registry.create('sonar', cfg.devices['sonar'], ctx)
+    try:
+        _drive_and_compare(robot, motor, imu, clock)
+    finally:
+        for h in (motor, imu):
+            h.shutdown()
+        robot.close()
+    world = robot.world
+    assert world.motor_voltage(LEFT) == 0.0 and world.motor_voltage(RIGHT) == 0.0
+
+
+def _drive_and_compare(robot, motor, imu, clock):
+    from m4k_drivers.sonar import SonarHandler
+    from m4k_drivers.sonar.sim import open_sim_sonar
+    world = robot.world
+    sonar = SonarHandler(lambda: open_sim_sonar(world, sleep=clock.sleep))
     for h in (motor, imu, sonar):
         h.configure()
         h.activate()
-    world = ctx.world
     r = world.robot.wheel_radius_m
     start = motor.read().value
 
@@ -149,9 +169,7 @@ def test_drive_straight_one_metre_sensors_agree():
     s = sonar.read().value
     assert s.status == 0
     assert s.range_m == pytest.approx(4.2 - dist - 0.225, abs=4 * 0.003 + 3 * count_m)
-    for h in (motor, imu, sonar):
-        h.shutdown()
-    assert world.motor_voltage(LEFT) == 0.0 and world.motor_voltage(RIGHT) == 0.0
+    sonar.shutdown()
 
 
 def test_wheel_angle_between_steps_is_the_angle_at_that_time():

@@ -2,9 +2,10 @@
 
     ros2 launch m4k_rt m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
 
-Starts rt_core, driver_host and the bridge (node m4k_bridge) with the configuration installed
-in share/m4k_rt/config. ``config`` is the same user overlay as ``bringup --config``: rt_core
-gets it as ``--config``, driver_host as ``--overlay``; bridge parameters in it are NOT
+Starts sim_robot (the simulated robot; ``sim:=false`` on the real M4K), rt_core, driver_host
+and the bridge (node m4k_bridge) with the configuration installed in share/m4k_rt/config.
+``config`` is the same user overlay as ``bringup --config``: rt_core gets it as ``--config``,
+sim_robot and driver_host as ``--overlay``; bridge parameters in it are NOT
 extracted here -- pass them as a ROS parameter file with ``bridge_params:=FILE``. For
 supervision with restarts and the live status line use ``bringup`` instead.
 """
@@ -29,7 +30,10 @@ def _nodes(context, *args, **kwargs):
     params = [os.path.join(share, 'config', 'bridge.yaml')]
     if bridge_params:
         params.append(bridge_params)
-    return [
+    sim = LaunchConfiguration('sim').perform(context).lower() in ('true', '1', 'yes')
+    robot = [Node(package='m4k_drivers', executable='sim_robot', name='sim_robot',
+                  arguments=host_args, output='screen', respawn=True, respawn_delay=1.0)]
+    return robot * sim + [
         Node(package='m4k_rt', executable='rt_core', name='rt_core', arguments=rt_args,
              output='screen', respawn=True, respawn_delay=1.0),
         Node(package='m4k_drivers', executable='driver_host', name='driver_host',
@@ -46,6 +50,8 @@ def generate_launch_description():
                               description='user overlay YAML for rt_core and driver_host'),
         DeclareLaunchArgument('bridge_params', default_value='',
                               description='extra ROS parameter file for m4k_bridge'),
+        DeclareLaunchArgument('sim', default_value='true',
+                              description='start sim_robot (false: real devices only)'),
         DeclareLaunchArgument('namespace', default_value='',
                               description='ROS namespace of the bridge topics'),
         OpaqueFunction(function=_nodes),

@@ -1,5 +1,8 @@
 """Run the pieces the bench measures: rt_core + driver_host, the plain-ROS baseline.
 
+Both drive the same simulated robot: a ``sim_robot`` process started first (as bringup does,
+:func:`start_sim_robot`) and stopped last.
+
 Children are started by module entry point (``python -c 'from MOD import main; ...'``), so the
 bench works from the source tree and from the colcon install alike, each in its own session
 with stderr logged to ``<results>/logs/``. They are stopped by their own pid (SIGTERM, then
@@ -31,7 +34,7 @@ from m4k_bench.benchlib import system
 from m4k_rt import protocol, recorder, xddp
 
 __all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
-           'ros_commander', 'start_stack', 'velocity_profile']
+           'ros_commander', 'start_sim_robot', 'start_stack', 'velocity_profile']
 
 CMD_PERIOD_S = 0.05   # 20 Hz, as the paper's navigation stack
 _ENTRY = 'import sys; from {} import {} as _m; sys.exit(_m())'
@@ -110,6 +113,24 @@ class Child:
             return []
 
 
+def start_sim_robot(runtime_dir: str, log_dir: str, name: str,
+                    env: dict[str, str] | None = None, timeout_s: float = 30.0) -> Child:
+    """Start the simulated robot on ``runtime_dir`` the way bringup does; wait until it answers.
+
+    Raise RuntimeError (with the log tail) when it exits or stays silent.
+    """
+    from m4k_rt.tools import bringup
+    spec = bringup.sim_robot_spec(runtime_dir)
+    child = Child(name + '.sim_robot', entry_argv(spec.module, *spec.args), log_dir, env)
+    deadline = time.monotonic() + timeout_s
+    while not bringup.sim_ready(runtime_dir):
+        if not child.alive() or time.monotonic() > deadline:
+            child.stop()
+            raise RuntimeError('sim_robot did not start: ' + ' | '.join(child.tail()))
+        time.sleep(0.05)
+    return child
+
+
 class M4kRun:
     """What one rt_core (+ driver_host) run produced."""
 
@@ -134,14 +155,18 @@ def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], 
                 rt_config: str | None = None) -> dict[str, Child]:
     """Start the robot stack for one measurement; return its children by role.
 
-    rt_core first (``--tasks`` / ``--config`` as given), then the driver host and the bridge.
-    Every process the stack needs is started here and nowhere else.
+    sim_robot first (with the driver host; RuntimeError when it does not come up), rt_core
+    (``--tasks`` / ``--config`` as given), then the driver host and the bridge. Every process
+    the stack needs is started here and nowhere else.
     """
     rt_args = ['--tasks', tasks] if tasks else []
     if rt_config:
         rt_args += ['--config', rt_config]
-    kids = {'rt_core': Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args),
-                             log_dir, env)}
+    kids = {}
+    if driver_host:     # the robot the driver host drives: first, and stopped last
+        kids['sim_robot'] = start_sim_robot(runtime_dir, log_dir, name, env)
+    kids['rt_core'] = Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args),
+                            log_dir, env)
     if driver_host:
         kids['driver_host'] = Child(name + '.driver_host', entry_argv('m4k_drivers.host'),
                                     log_dir, env)
@@ -167,8 +192,12 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
     out = M4kRun()
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     xddp.ensure_runtime_dir(runtime_dir)
-    kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks, driver_host=driver_host,
-                       bridge=e2e, rt_config=rt_config)
+    try:
+        kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks,
+                           driver_host=driver_host, bridge=e2e, rt_config=rt_config)
+    except RuntimeError as exc:
+        out.errors.append(str(exc))
+        return out
     rt = kids['rt_core']
     status = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
     cmd = None if e2e else xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
@@ -238,7 +267,7 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
         if cmd is not None:
             cmd.close()
         out.rt_exit = rt.stop()
-        for role, child in kids.items():
+        for role, child in reversed(list(kids.items())):    # sim_robot last
             if role == 'rt_core':
                 continue
             code = child.stop()
@@ -289,6 +318,15 @@ def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
                  progress: Callable[[str], None] | None = None,
                  on_started: Callable[[], None] | None = None) -> dict[str, Any]:
     """Run the baseline node for ``duration_s`` with the profile on cmd_vel; return status."""
+    import shutil
+    import tempfile
+    runtime_dir = tempfile.mkdtemp(prefix='m4k-base-')    # short: a Unix socket lives there
+    env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
+    try:
+        sim = start_sim_robot(runtime_dir, log_dir, name, env)
+    except RuntimeError as exc:
+        shutil.rmtree(runtime_dir, ignore_errors=True)
+        return {'exit': None, 'csv': None, 'log_tail': [str(exc)]}
     stop = threading.Event()
     commander = ros_commander(stop)
     child = Child(name, entry_argv('m4k_bench.baseline', '--duration', str(duration_s),
@@ -306,5 +344,7 @@ def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
         code = child.stop()
         stop.set()
         commander.join(5.0)
+        sim.stop()
+        shutil.rmtree(runtime_dir, ignore_errors=True)
     return {'exit': code, 'csv': csv_path if os.path.exists(csv_path) else None,
             'log_tail': child.tail()}

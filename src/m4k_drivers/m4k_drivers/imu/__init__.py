@@ -1,4 +1,8 @@
-"""IMU: WithRobot myAHRS+ on I2C; backends ``real`` (smbus2) and ``sim`` (register-level fake)."""
+"""IMU: WithRobot myAHRS+ on I2C; backends ``real`` (smbus2) and ``sim`` (register-level fake).
+
+``sim`` reads the register-level myAHRS+ inside ``sim_robot`` through a sim-bus I2C client with
+smbus2's methods; ``gyro_bias_sd`` configures that simulated chip.
+"""
 
 from __future__ import annotations
 
@@ -26,14 +30,19 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> ImuHand
 
 
 @register('imu', 'sim', params=_COMMON | {
+    'bus': Param((int, str), 1, 'simulated I2C bus number'),
     'gyro_bias_sd': Param(float, 0.002, 'sd of the constant gyro bias per axis, rad/s'),
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> ImuHandler:
+    from m4k_drivers.handler import wrap_os_error
     from m4k_drivers.imu.real import I2cDevice
-    from m4k_drivers.imu.sim import FakeMyAhrsBus
-    world = ctx.world
+    from m4k_drivers.simbus import I2cClient
+    runtime_dir = ctx.sim_runtime_dir()
 
     def opener() -> I2cDevice:
-        bus = FakeMyAhrsBus(world, ADDRESS, gyro_bias_sd=params['gyro_bias_sd'])
-        return I2cDevice(bus, params['address'], 'sim:i2c')
+        where = f'sim-bus:i2c-{params["bus"]}'
+        try:
+            return I2cDevice(I2cClient(runtime_dir, params['bus']), params['address'], where)
+        except OSError as exc:
+            raise wrap_os_error(exc, where) from exc
     return ImuHandler(opener, name=name)

@@ -102,6 +102,22 @@ class FakeMyAhrsBus:
         self._refresh()
         return list(self.regs[register:register + length])
 
+    def read_burst(self, i2c_addr: int, register: int, length: int) -> bytes:
+        """Read ``length`` registers from ``register`` in one transaction (auto-increment).
+
+        An I2C read (i2c-dev ``I2C_RDWR``) is not limited to SMBus's 32 bytes; past the last
+        register the part returns 0xff (nothing drives SDA).
+        """
+        if self.closed:
+            raise OSError(errno.EBADF, 'Bad file descriptor')
+        if i2c_addr != self.address:
+            raise OSError(errno.EREMOTEIO, os.strerror(errno.EREMOTEIO))
+        if not 0 <= register <= 0xFF or length < 1:
+            raise OSError(errno.EINVAL, f'register 0x{register:02x}+{length} invalid')
+        self._refresh()
+        data = bytes(self.regs[register:register + length])
+        return data + b'\xff' * (length - len(data))
+
     def i2c_rdwr(self, *messages: Any) -> None:
         """Run a combined transaction (I2C_RDWR): a pointer write, then auto-incrementing reads.
 

@@ -1,6 +1,8 @@
 """LED strip NS-LED-02; backends ``led_class`` (= ``real``), ``led_class_rgb``, ``pwm``, ``sim``.
 
-``led_class_rgb`` drives a strip wired as three single-colour LED class devices.
+``led_class_rgb`` drives a strip wired as three single-colour LED class devices.  ``sim`` runs
+the ``led_class`` (or, with ``interface: pwm``, the ``pwm``) code unchanged on the sysfs files
+``sim_robot`` keeps in ``<runtime_dir>/sim-sysfs`` (their ``sysfs_root``).
 """
 
 from __future__ import annotations
@@ -13,12 +15,18 @@ from m4k_drivers.registry import BuildContext, Param, register
 
 __all__ = ['LedColor', 'LedHandler']
 
-_LED_CLASS = {'name': Param(str, doc='LED class device name under /sys/class/leds')}
+_ROOT = {'sysfs_root': Param(str, '/sys', 'where sysfs is mounted (sim_robot: its own tree)')}
+_LED_CLASS = {'name': Param(str, doc='LED class device name under /sys/class/leds')} | _ROOT
+
+
+def _leds(params: dict[str, Any]) -> str:
+    import os
+    return os.path.join(params['sysfs_root'], 'class', 'leds')
 
 
 def _build_led_class(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
     from m4k_drivers.led.real import LedClassOutput
-    return LedHandler(lambda: LedClassOutput(params['name']), name=name)
+    return LedHandler(lambda: LedClassOutput(params['name'], _leds(params)), name=name)
 
 
 register('led', 'led_class', params=_LED_CLASS)(_build_led_class)
@@ -43,13 +51,13 @@ def _check_channels(value: object) -> str | None:
 @register('led', 'led_class_rgb', params={
     'names': Param(list, doc='[red, green, blue] single-colour LED class names under '
                    '/sys/class/leds', check=_check_names),
-})
+} | _ROOT)
 def _build_led_class_rgb(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
     from m4k_drivers.led.real import LedClassRgbOutput
-    return LedHandler(lambda: LedClassRgbOutput(params['names']), name=name)
+    return LedHandler(lambda: LedClassRgbOutput(params['names'], _leds(params)), name=name)
 
 
-@register('led', 'pwm', params={
+_PWM = {
     'chip': Param(int, doc='PWM chip number N of /sys/class/pwm/pwmchipN'),
     'channels': Param(list, [0, 1, 2], 'PWM channels for r, g, b', _check_channels),
     'period_ns': Param(int, 1_000_000, 'PWM period, ns (> 0)',
@@ -58,14 +66,33 @@ def _build_led_class_rgb(name: str, params: dict[str, Any], ctx: BuildContext) -
                       'common-anode strip)',
                       lambda v: None if v in ('normal', 'inversed')
                       else "must be 'normal' or 'inversed'"),
-})
+}
+
+
+@register('led', 'pwm', params=_PWM | _ROOT)
 def _build_pwm(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
+    import os
+
     from m4k_drivers.led.real import PwmOutput
+    root = os.path.join(params['sysfs_root'], 'class', 'pwm')
     return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns'],
-                                        params['polarity']), name=name)
+                                        params['polarity'], root), name=name)
 
 
-@register('led', 'sim', params={'history': Param(int, 1000, 'colours remembered')})
+@register('led', 'sim', params={
+    'interface': Param(str, 'led_class', "'led_class' (multicolor LED) or 'pwm' (3 channels)",
+                       lambda v: None if v in ('led_class', 'pwm')
+                       else "must be 'led_class' or 'pwm'"),
+    'name': Param(str, 'rgb:status', 'simulated LED class device name'),
+    'chip': Param(int, 0, 'simulated PWM chip'),
+    'channels': _PWM['channels'],
+    'period_ns': _PWM['period_ns'],
+    'polarity': _PWM['polarity'],
+    'multi_index': Param(list, ['red', 'green', 'blue'], 'sim: the channel order the '
+                         'simulated multicolor LED reports in multi_index'),
+})
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
-    from m4k_drivers.led.sim import SimLed
-    return LedHandler(lambda: SimLed(ctx.clock, params['history']), name=name)
+    import os
+    root = os.path.join(ctx.sim_runtime_dir(), 'sim-sysfs')
+    build = _build_pwm if params['interface'] == 'pwm' else _build_led_class
+    return build(name, params | {'sysfs_root': root}, ctx)

@@ -11,7 +11,7 @@ __all__ = ['LedHandler', 'LedOutput']
 
 
 class LedOutput(Protocol):
-    """LedClassOutput, PwmOutput and SimLed all provide this."""
+    """LedClassOutput, LedClassRgbOutput, PwmOutput provide this (/sys or a sim tree)."""
 
     def show(self, color: p.LedColor) -> None:
         """Show one colour."""

@@ -8,8 +8,10 @@ counted UrgTimeoutError -- never the same scan twice; ``fresh`` marks a new scan
 deactivate() stops the stream, cleanup() closes the port.
 
 Backends (registered for kind ``lrf``): ``real`` opens ``port`` (e.g. ``/dev/ttyACM0``);
-``sim`` starts a :class:`m4k_drivers.lrf.sim.UrgSim` pty device on the shared world and connects
-the same driver to its slave (or ``link_path`` symlink), so the pyserial path runs in simulation.
+``sim`` opens the pty of the :class:`m4k_drivers.lrf.sim.UrgSim` that ``sim_robot`` runs
+(``link_path``, default ``<runtime_dir>/sim-urg``), so the pyserial path runs in simulation;
+the other sim fields configure that simulated URG.  :func:`make_lrf` with ``backend: sim`` and a
+world still builds an in-process pty device (unit tests).
 """
 
 from __future__ import annotations
@@ -171,4 +173,8 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> LrfHand
 
 @register('lrf', 'sim', params={**_COMMON, **_SIM})
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> LrfHandler:
-    return make_lrf({'backend': 'sim', **params}, ctx.world, name=name)
+    # The simulated URG runs in sim_robot; the driver opens its pty like /dev/ttyACM0.
+    import os
+    port = params.get('link_path') or os.path.join(ctx.sim_runtime_dir(), 'sim-urg')
+    return make_lrf({'backend': 'real', 'port': port,
+                     **{k: v for k, v in params.items() if k in _DRIVER_KEYS}}, name=name)

@@ -1,4 +1,8 @@
-"""Drive motors: MCP4911 DACs and AS5045 wheel encoders on SPI; backends ``real`` and ``sim``."""
+"""Drive motors: MCP4911 DACs and AS5045 wheel encoders on SPI; backends ``real`` and ``sim``.
+
+``sim`` is the same handler on sim-bus transports to the ``sim_robot`` process; the sim's own
+parameters (``vref``, ``noise_lsb``) configure the simulated chips inside sim_robot.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +14,7 @@ from m4k_drivers.registry import BuildContext, Param, register
 
 __all__ = ['EncoderReading', 'MotorHandler', 'WheelCommand']
 
-_COMMON = {
+_HANDLER = {
     'period_s': Param(float, 0.01, 'actuator period, s'),
     'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
     'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
@@ -25,6 +29,19 @@ _COMMON = {
     'enc_zero': Param(list, [0, 0], '[left, right] AS5045 reading taken as wheel angle 0',
                       p.check_zero_pair),
 }
+_HEARTBEAT = {
+    'heartbeat': Param(bool, True, 'toggle the amplifier-enable line on every fresh command; '
+                       'false = enable strapped on (a dead driver host leaves the motors '
+                       'driven at the last DAC word)'),
+    'heartbeat_chip': Param(str, '/dev/gpiochip0', 'gpiochip of the heartbeat line'),
+    'heartbeat_line': Param(int, 25, 'line offset of the heartbeat output'),
+    'heartbeat_hold_s': Param(float, 0.05, 'hold time of the enable monostable, s (hardware: '
+                              'the RC of the retriggerable monostable; sim: modelled)'),
+    'sched_priority': Param(int, 50, 'SCHED_FIFO priority of the motor service thread (0: '
+                            'SCHED_OTHER); below every RT task, above ordinary load, so the '
+                            'heartbeat keeps its period on a busy machine'),
+}
+_COMMON = _HANDLER | _HEARTBEAT
 
 
 LDAC_MODES = ('tied_low', 'gpio')
@@ -35,7 +52,13 @@ def _check_ldac(value: object) -> str | None:
 
 
 def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
-    return {k: params[k] for k in _COMMON} | {'clock': ctx.clock}
+    hold, period = params['heartbeat_hold_s'], params['period_s']
+    if params['heartbeat'] and not hold >= 3.0 * period:
+        # The monostable retriggers on rising edges, every second command: one late command
+        # must not drop the enable, so the hold spans at least three periods.
+        raise ValueError(f'devices.motor.heartbeat_hold_s: must be >= 3 * period_s '
+                         f'({3.0 * period!r} s), got {hold!r}')
+    return {k: params[k] for k in _HANDLER} | {'clock': ctx.clock}
 
 
 @register('motor', 'real', params=_COMMON | {
@@ -53,7 +76,8 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
     'ldac_line': Param((int, type(None)), None, "line offset of /LDAC when ldac is 'gpio'"),
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
-    from m4k_drivers.motors.real import open_real_bus
+    from m4k_drivers.motors.real import open_real_bus, open_real_enable
+    kw = _handler_kw(params, ctx)
     driven = params['ldac'] == 'gpio'
     if driven and (params['ldac_chip'] is None or params['ldac_line'] is None
                    or params['ldac_line'] < 0):
@@ -66,8 +90,12 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
                              dac_speed_hz=params['dac_speed_hz'], enc_mode=params['enc_mode'],
                              enc_speed_hz=params['enc_speed_hz'],
                              ldac_chip=params['ldac_chip'] if driven else None,
-                             ldac_line=params['ldac_line'] if driven else None)
-    return MotorHandler(opener, name=name, **_handler_kw(params, ctx))
+                             ldac_line=params['ldac_line'] if driven else None,
+                             enable=enable if params['heartbeat'] else None)
+
+    def enable() -> Any:
+        return open_real_enable(params['heartbeat_chip'], params['heartbeat_line'])
+    return MotorHandler(opener, name=name, **kw)
 
 
 @register('motor', 'sim', params=_COMMON | {
@@ -75,9 +103,8 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
     'noise_lsb': Param(float, 0.5, 'encoder noise, standard deviation in counts'),
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
-    from m4k_drivers.motors.sim import open_sim_bus
-    world = ctx.world
-    return MotorHandler(lambda: open_sim_bus(world, vref=params['vref'],
-                                             noise_lsb=params['noise_lsb'],
-                                             lead_bits=params['lead_bits']),
-                        name=name, **_handler_kw(params, ctx))
+    from m4k_drivers.motors.sim import open_simbus_bus
+    kw = _handler_kw(params, ctx)
+    runtime_dir = ctx.sim_runtime_dir()
+    line = (params['heartbeat_chip'], params['heartbeat_line']) if params['heartbeat'] else None
+    return MotorHandler(lambda: open_simbus_bus(runtime_dir, line), name=name, **kw)

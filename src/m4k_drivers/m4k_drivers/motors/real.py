@@ -2,15 +2,18 @@
 
 The paper's RPi3 extends the SPI chip selects with GPIO so that two MCP4911 DACs and two
 AS5045 encoders each get their own ``/dev/spidevB.C`` node; the config names the four paths.
+The amplifier enable heartbeat is one GPIO output line (python-periphery GPIO on the gpiochip
+character device); the handler toggles it on every fresh command (docs/internals.md).
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Callable, Protocol
 
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 
-__all__ = ['LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_ldac', 'open_real_bus']
+__all__ = ['EnableLine', 'LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_ldac',
+           'open_real_bus', 'open_real_enable']
 
 
 class SpiLike(Protocol):
@@ -55,21 +58,49 @@ class LineLike(Protocol):
         """Release the line."""
 
 
+class EnableLine:
+    """The amplifier-enable heartbeat output: each :meth:`toggle` retriggers the monostable."""
+
+    def __init__(self, line: LineLike, where: str) -> None:
+        self.line = line
+        self.where = where
+        self.level = False
+        self.toggles = 0
+
+    def toggle(self) -> None:
+        """Flip the line (a rising edge retriggers); OSError -> DeviceIOError naming it."""
+        try:
+            self.line.write(not self.level)
+        except OSError as exc:
+            raise wrap_os_error(exc, self.where, 'heartbeat') from exc
+        self.level = not self.level
+        self.toggles += 1
+
+    def close(self) -> None:
+        """Release the line, ignoring errors (the monostable then times out)."""
+        try:
+            self.line.close()
+        except OSError:
+            pass
+
+
 class MotorBus:
-    """The four SPI endpoints of the base (left/right DAC, left/right encoder), and /LDAC.
+    """The four SPI endpoints of the base (left/right DAC, left/right encoder), /LDAC, enable.
 
     ``ldac`` None: /LDAC is tied low on the board, every DAC output follows its own write.
     Otherwise the line idles high and :meth:`latch` pulses it low after both writes.
+    ``enable`` is the amplifier-enable heartbeat (None: enable strapped on).
     """
 
     def __init__(self, left_dac: SpiPort, right_dac: SpiPort, left_enc: SpiPort,
                  right_enc: SpiPort, ldac: LineLike | None = None,
-                 ldac_where: str = 'LDAC') -> None:
+                 ldac_where: str = 'LDAC', enable: EnableLine | None = None) -> None:
         self.dacs = (left_dac, right_dac)
         self.encoders = (left_enc, right_enc)
         self.ldac = ldac
         self.ldac_where = ldac_where
         self.latches = 0
+        self.enable = enable
 
     def latch(self) -> None:
         """Pulse /LDAC low then high (a Python GPIO write pair lasts >> t_LD = 100 ns)."""
@@ -91,6 +122,8 @@ class MotorBus:
                 self.ldac.close()
             except OSError:
                 pass
+        if self.enable is not None:
+            self.enable.close()
 
 
 def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
@@ -114,11 +147,22 @@ def open_ldac(chip: str, line: int) -> LineLike:
         raise wrap_os_error(exc, f'{chip} line {line} (LDAC)') from exc
 
 
+def open_real_enable(chip: str, line: int) -> EnableLine:
+    """Request the heartbeat line as an output, initially low."""
+    from periphery import GPIO
+    where = f'{chip} line {line}'
+    try:
+        return EnableLine(GPIO(chip, line, 'low'), where)
+    except OSError as exc:
+        raise wrap_os_error(exc, where) from exc
+
+
 def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, *,
                   dac_mode: int = 0, dac_speed_hz: int = 1_000_000, enc_mode: int = 2,
                   enc_speed_hz: int = 500_000, ldac_chip: str | None = None,
-                  ldac_line: int | None = None) -> MotorBus:
-    """Open the four spidev nodes and /LDAC if driven (closing all if one fails)."""
+                  ldac_line: int | None = None,
+                  enable: Callable[[], EnableLine] | None = None) -> MotorBus:
+    """Open the four spidev nodes, /LDAC if driven, the enable line (closing all on failure)."""
     opened: list[SpiPort] = []
     try:
         for path, mode, speed in ((left_dac, dac_mode, dac_speed_hz),
@@ -127,8 +171,15 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
                                   (right_enc, enc_mode, enc_speed_hz)):
             opened.append(open_spi(path, mode, speed))
         ldac = None if ldac_chip is None else open_ldac(ldac_chip, int(ldac_line or 0))
+        try:
+            line = enable() if enable is not None else None
+        except DriverError:
+            if ldac is not None:
+                ldac.close()
+            raise
     except DriverError:
         for port in opened:
             port.close()
         raise
-    return MotorBus(*opened, ldac=ldac, ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)')
+    return MotorBus(*opened, ldac=ldac, ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)',
+                    enable=line)

@@ -1,21 +1,29 @@
 """Simulated SPI peers for the motors: MCP4911 DACs feeding the world, AS5045 encoders reading it.
 
 They expose the same ``transfer(bytes) -> bytes`` as a spidev node, so the protocol code runs
-unchanged.  The DAC peer models the chip (Vout = Vref * code / 1024 at gain 1x, 0 V when shut
-down) and the motor amplifier (mid-scale Vref/2 = 0 V armature, full scale = +/- supply).
-The encoder peer is on the wheel shaft, like the real one, and adds +/-1 LSB noise.
+unchanged; ``sim_robot`` serves them on the sim-bus (:func:`open_simbus_bus` is the driver
+side).  The DAC peer models the chip (Vout = Vref * code / 1024 at gain 1x, 0 V when shut
+down) and the motor amplifier (mid-scale Vref/2 = 0 V armature, full scale = +/- supply).  Like
+the MCP4911 with LDAC tied low, the output holds the last written word until a new one comes:
+nothing resets it when its SPI master goes away.  :class:`EnableMonostable` is the amplifier
+enable: a retriggerable monostable on the heartbeat line.  The encoder peer is on the wheel
+shaft, like the real one, and adds +/-1 LSB noise.
 """
 
 from __future__ import annotations
 
 import math
 
-from m4k_drivers.handler import DeviceProtocolError
+from m4k_drivers.handler import DeviceProtocolError, DriverError, wrap_os_error
 from m4k_drivers.motors import protocol as p
-from m4k_drivers.motors.real import MotorBus, SpiPort
+from m4k_drivers.motors.real import EnableLine, MotorBus, SpiPort
 from m4k_drivers.world import World
 
-__all__ = ['SimDac', 'SimEncoder', 'open_sim_bus']
+__all__ = ['EnableMonostable', 'SPI_NAMES', 'SimDac', 'SimEncoder', 'open_sim_bus',
+           'open_simbus_bus']
+
+# The four spidev nodes of the base as sim_robot names them on the sim-bus.
+SPI_NAMES = ('left_dac', 'right_dac', 'left_enc', 'right_enc')
 
 
 class SimDac:
@@ -95,3 +103,76 @@ def open_sim_bus(world: World, *, vref: float = 3.3, noise_lsb: float = 0.5,
                     SpiPort(SimDac(world, 1, vref), 'sim:right_dac'),
                     SpiPort(SimEncoder(world, 0, noise_lsb, lead_bits), 'sim:left_enc'),
                     SpiPort(SimEncoder(world, 1, noise_lsb, lead_bits), 'sim:right_enc'))
+
+
+class EnableMonostable:
+    """The amplifier enable: a retriggerable monostable clocked by the heartbeat line.
+
+    As a 74HC123 with the heartbeat on B and A tied low: every rising edge restarts the hold
+    time; the enable output is on while the last rising edge is younger than ``hold_s``, so a
+    heartbeat toggled every command period retriggers it every two periods.  It starts off:
+    no drive until the first heartbeat.
+    """
+
+    def __init__(self, world: World, hold_s: float) -> None:
+        self.world = world
+        self.hold_ns = round(hold_s * 1e9)
+        self.level = False
+        self.edges = 0
+        self.last_edge_ns: int | None = None
+        self.drops = 0
+        t = world.now()
+        world.set_enable_until(t)
+
+    def write(self, value: bool, t_ns: int | None = None) -> None:
+        """Drive the heartbeat line (written at ``t_ns``); a rising edge retriggers the hold."""
+        rising = bool(value) and not self.level
+        self.level = bool(value)
+        if not rising:
+            return
+        t = self.world.now()         # integrate up to the edge under the old hold time
+        self.edges += 1
+        if not self.world.drive_enabled(t) and self.last_edge_ns is not None:
+            self.drops += 1          # the hold ran out between two edges of a live heartbeat
+        # The writer's time of the edge (the socket may have delayed it), when it is on the
+        # world's clock: within a hold time of it (a test world may run on a fake clock).
+        edge = t if t_ns is None or abs(t - t_ns) > self.hold_ns else min(t, t_ns)
+        self.world.set_enable_until(edge + self.hold_ns)
+        self.last_edge_ns = edge
+
+    def read(self) -> bool:
+        """Return the line level."""
+        return self.level
+
+    def close(self) -> None:
+        """Release the line: the pull-down holds it low, which never retriggers."""
+        self.level = False
+
+    def wait_event(self, timeout_s: float) -> None:
+        """Raise: an output line has no edge events."""
+        raise OSError(22, 'heartbeat line was requested as an output: no edge events')
+
+
+def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None) -> MotorBus:
+    """Open the four SPI nodes (and the heartbeat line) of the sim_robot on its sim-bus."""
+    from m4k_drivers.simbus import GpioClient, SpiClient
+    opened: list[SpiPort] = []
+    try:
+        for name in SPI_NAMES:
+            where = f'sim-bus:{name}'
+            try:
+                opened.append(SpiPort(SpiClient(runtime_dir, name), where))
+            except OSError as exc:
+                raise wrap_os_error(exc, where) from exc
+        line = None
+        if enable_line is not None:
+            where = f'sim-bus:{enable_line[0]} line {enable_line[1]}'
+            try:
+                line = EnableLine(GpioClient(runtime_dir, *enable_line, 'low'), where)
+            except OSError as exc:
+                raise wrap_os_error(exc, where) from exc
+    except DriverError:
+        for port in opened:
+            port.close()
+        raise
+    return MotorBus(*opened, enable=line)

@@ -1,4 +1,8 @@
-"""Sonar: US-100 in pulse mode; backends ``gpio`` (alias ``real``), ``iio`` (srf04) and ``sim``."""
+"""Sonar: US-100 in pulse mode; backends ``gpio`` (alias ``real``), ``iio`` (srf04) and ``sim``.
+
+``sim`` runs the ``gpio`` code on sim-bus GPIO lines of ``sim_robot`` (same chip/line fields);
+``mount``, ``noise_sd`` and ``fov_deg`` configure the simulated sensor there.
+"""
 
 from __future__ import annotations
 
@@ -45,16 +49,18 @@ def _build_iio(name: str, params: dict[str, Any], ctx: BuildContext) -> SonarHan
 
 
 @register('sonar', 'sim', params=_COMMON | {
+    'chip': Param(str, '/dev/gpiochip0', 'simulated gpiochip'),
+    'trigger_line': Param(int, 23, 'line offset of TRIG'),
+    'echo_line': Param(int, 24, 'line offset of ECHO'),
     'mount': Param(list, [0.225, 0.0, 0.0], 'sensor pose in base_link: [x, y, yaw]'),
     'noise_sd': Param(float, 0.003, 'range noise sd, m'),
     'fov_deg': Param(float, 15.0, 'beam width, deg'),
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> SonarHandler:
-    from m4k_drivers.sonar.sim import open_sim_sonar
+    from m4k_drivers.sonar.real import open_simbus_sonar
     mount = params['mount']
     if len(mount) != 3 or not all(isinstance(v, (int, float)) for v in mount):
         raise ValueError(f'devices.{name}.mount: expected [x, y, yaw] numbers, got {mount!r}')
-    world = ctx.world
-    return _handler(name, params, lambda: open_sim_sonar(
-        world, mount, noise_sd=params['noise_sd'], fov_deg=params['fov_deg'],
-        sleep=ctx.sleep))
+    runtime_dir = ctx.sim_runtime_dir()
+    return _handler(name, params, lambda: open_simbus_sonar(
+        runtime_dir, params['chip'], params['trigger_line'], params['echo_line']))

@@ -26,7 +26,7 @@ from typing import Any, Callable, Protocol
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 from m4k_drivers.sonar import protocol as p
 
-__all__ = ['EdgeSonar', 'GpioLike', 'IioSonar', 'open_gpio_sonar']
+__all__ = ['EdgeSonar', 'GpioLike', 'IioSonar', 'open_gpio_sonar', 'open_simbus_sonar']
 
 
 class GpioLike(Protocol):
@@ -171,6 +171,25 @@ def open_gpio_sonar(chip: str, trigger_line: int, echo_line: int) -> EdgeSonar:
     sonar = EdgeSonar(trigger, echo, f'{chip} lines {trigger_line}/{echo_line}')
     sonar.line_clock = 'monotonic' if request_monotonic_edges(echo) else 'unknown'
     return sonar
+
+
+def open_simbus_sonar(runtime_dir: str, chip: str, trigger_line: int,
+                      echo_line: int) -> EdgeSonar:
+    """Request TRIG and ECHO of the simulated US-100 on ``sim_robot``'s sim-bus GPIO."""
+    from m4k_drivers.simbus import GpioClient
+    where = f'sim-bus:{chip}'
+    try:
+        trigger = GpioClient(runtime_dir, chip, trigger_line, 'low')
+    except OSError as exc:
+        raise wrap_os_error(exc, f'{where} line {trigger_line}') from exc
+    try:
+        echo = GpioClient(runtime_dir, chip, echo_line, 'in', edge='both')
+    except OSError as exc:
+        trigger.close()
+        raise wrap_os_error(exc, f'{where} line {echo_line}') from exc
+    # The sim-bus line was requested with a CLOCK_MONOTONIC edge clock (docs/sim-bus.md).
+    return EdgeSonar(trigger, echo, f'{where} lines {trigger_line}/{echo_line}',
+                     line_clock='monotonic')
 
 
 class IioSonar:

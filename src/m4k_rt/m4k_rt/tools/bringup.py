@@ -1,8 +1,10 @@
 """bringup: start, watch and stop the whole m4k stack (``make run``).
 
-Starts three children -- ``rt_core``, ``driver_host`` (every device simulated unless the
-configuration says otherwise) and the ROS ``bridge`` -- each with the user overlay
-(``--config FILE``): rt_core ``--config``, driver_host ``--overlay``, and for the bridge the
+Starts the children -- ``sim_robot`` (the simulated robot, when any device's backend is
+``sim``; started first and stopped last, so a driver-host restart never resets the world),
+``rt_core``, ``driver_host`` (every device simulated unless the configuration says otherwise)
+and the ROS ``bridge`` -- each with the user overlay (``--config FILE``): rt_core and
+sim_robot ``--config``/``--overlay``, driver_host ``--overlay``, and for the bridge the
 overlay's ``m4k_bridge: ros__parameters:`` section, extracted into a temporary parameter file
 passed after ``config/bridge.yaml``. Executables come from the ament index
 (``<prefix>/lib/<pkg>/<exe>``), else ``python -m <module>``.
@@ -19,8 +21,8 @@ plain lines every ``--status-interval`` seconds otherwise. It is read from the b
 open the ``stat`` port next to a running stack.
 
 Ctrl-C / SIGTERM: bridge first (it sends a zero velocity), then driver host (motors safe),
-then rt_core; each gets a bounded wait, then SIGKILL. Exit codes: 0 clean stop, 1 a child
-kept failing, 2 configuration error or another stack already running.
+then rt_core, then sim_robot; each gets a bounded wait, then SIGKILL. Exit codes: 0 clean
+stop, 1 a child kept failing, 2 configuration error or another stack already running.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import math
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -47,11 +50,13 @@ from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, StopSignals
 
 __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
-           'lock_owner', 'main', 'resolve_command', 'restart_delay']
+           'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready', 'sim_robot_spec',
+           'uses_sim']
 
 STABLE_S = 30.0           # a child running this long has its backoff reset
 STOP_TIMEOUT_S = 8.0      # per child, then SIGKILL
 CONFIG_ERROR = 2
+SIM_BUS_SOCKET = 'sim-bus.sock'   # m4k_drivers.simbus.SOCKET_NAME
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +68,10 @@ class ChildSpec:
     executable: str
     module: str
     args: tuple[str, ...] = ()
+    ready: Callable[[], bool] | None = None   # start the next child once this is true
+
+
+READY_TIMEOUT_S = 10.0
 
 
 def restart_delay(failures: int, base: float = 0.5, cap: float = 10.0) -> float:
@@ -284,11 +293,19 @@ class Supervisor:
         return sum(c.restarts for c in self.children)
 
     def start_all(self, stopping: Callable[[], bool] = lambda: False) -> None:
-        """Start every child in order; start no more once ``stopping()`` says so."""
+        """Start every child in order (waiting, bounded, for a child's ``ready`` check).
+
+        Start no more once ``stopping()`` says so (a stop signal during start-up).
+        """
         for c in self.children:
             if stopping():
                 return
             c.start()
+            if c.spec.ready is not None:
+                deadline = self.clock() + READY_TIMEOUT_S
+                while (not c.spec.ready() and c.running and not stopping()
+                       and self.clock() < deadline):
+                    time.sleep(0.05)
 
     def step(self) -> None:
         """Reap children that ended; schedule and perform restarts."""
@@ -323,21 +340,53 @@ class Supervisor:
                     c.spec.name, c.restarts))
 
     def stop_all(self) -> None:
-        """Stop children in reverse start order (bridge, driver host, rt_core)."""
+        """Stop children in reverse start order (bridge, driver host, rt_core, sim_robot)."""
         for c in reversed(self.children):
             rc = c.stop()
             if rc is not None:
                 self.console.line('bringup: {} stopped (exit code {})'.format(c.spec.name, rc))
 
 
+def sim_robot_spec(runtime_dir: str, overlay: str | None = None) -> ChildSpec:
+    """Return how to run the simulated robot on ``runtime_dir`` (bringup, bench, demo).
+
+    The one place that knows how the simulator is started; ``ready`` is true once it accepts
+    connections on its sim-bus socket (docs/sim-bus.md).
+    """
+    args: tuple[str, ...] = ('--runtime-dir', runtime_dir)
+    if overlay:
+        args += ('--overlay', overlay)
+    return ChildSpec('sim_robot', 'm4k_drivers', 'sim_robot', 'm4k_drivers.sim_robot', args,
+                     ready=lambda: sim_ready(runtime_dir))
+
+
+def sim_ready(runtime_dir: str) -> bool:
+    """Return True when a simulator accepts connections on ``runtime_dir``'s sim-bus socket."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        sock.connect(os.path.join(runtime_dir, SIM_BUS_SOCKET))
+        return True
+    except OSError:
+        return False
+    finally:
+        sock.close()
+
+
+def uses_sim(doc: Mapping[str, Any] | None) -> bool:
+    """Return True when the layered configuration has any enabled ``sim`` device."""
+    devices = (doc or {}).get('devices') or {}
+    return any(isinstance(s, Mapping) and s.get('backend') == 'sim' and s.get('enabled', True)
+               for s in devices.values())
+
+
 def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
-                runtime_dir: str) -> list[ChildSpec]:
-    """Return the three children with their arguments, in start order."""
+                runtime_dir: str, sim: bool = True) -> list[ChildSpec]:
+    """Return the children with their arguments, in start order (sim_robot first if ``sim``)."""
     rt_args: tuple[str, ...] = ('--config', overlay) if overlay else ()
     host_args: tuple[str, ...] = ('--runtime-dir', runtime_dir)
     if overlay:
         host_args += ('--overlay', overlay)
-    return [
+    return [sim_robot_spec(runtime_dir, overlay)] * sim + [
         ChildSpec('rt_core', 'm4k_rt', 'rt_core', 'm4k_rt.rt_core', rt_args),
         ChildSpec('driver_host', 'm4k_drivers', 'driver_host', 'm4k_drivers.host', host_args),
         ChildSpec('bridge', 'm4k_rt', 'bridge', 'm4k_rt.bridge.node',
@@ -426,7 +475,8 @@ class StatusSource:
 
 def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog='bringup', description='Start and supervise the m4k '
-                                 'stack: rt_core, driver_host (simulated devices by default) '
+                                 'stack: sim_robot (when devices are simulated), rt_core, '
+                                 'driver_host (simulated devices by default) '
                                  'and the ROS 2 bridge. Ctrl-C stops it.')
     ap.add_argument('--config', metavar='FILE', help='user overlay YAML for every component '
                     '(its m4k_bridge: section holds bridge parameters)')
@@ -488,14 +538,14 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         return CONFIG_ERROR
     tmpdir = tempfile.mkdtemp(prefix='m4k-bringup-')
     try:
-        return _run(args, overlay, runtime_dir, bridge_doc, tmpdir, stop)
+        return _run(args, overlay, runtime_dir, bridge_doc, tmpdir, stop, uses_sim(doc))
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
         lock.release()
 
 
 def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
-         bridge_doc: dict[str, Any], tmpdir: str, stop: StopSignals) -> int:
+         bridge_doc: dict[str, Any], tmpdir: str, stop: StopSignals, sim: bool = True) -> int:
     params_file = os.path.join(tmpdir, 'bridge_overlay.yaml')
     with open(params_file, 'w', encoding='utf-8') as f:
         yaml.safe_dump(bridge_doc, f)
@@ -503,7 +553,7 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir, PYTHONUNBUFFERED='1')
     console = Console(sys.stdout, sys.stderr, sys.stdout.isatty())
     children = [Child(s, resolve_command(s, args.python_m), env, console)
-                for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir)]
+                for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim)]
     sup = Supervisor(children, console, args.max_restarts)
     status = None
     try:
@@ -534,7 +584,8 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
         if sup.fatal is not None:
             console.line('bringup: {}; stopping the stack'.format(sup.fatal[1]))
         else:
-            console.line('bringup: stopping (bridge, driver_host, rt_core)')
+            console.line('bringup: stopping (bridge, driver_host, rt_core{})'.format(
+                ', sim_robot' if sim else ''))
         return sup.fatal[0] if sup.fatal is not None else 0
     finally:
         # Signals during the stop sequence must not interrupt the bounded waits.

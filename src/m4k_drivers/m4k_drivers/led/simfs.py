@@ -1,0 +1,217 @@
+"""The LED strip as sysfs files: a multicolor LED-class device and a PWM chip, polled.
+
+``sim_robot`` lays out, under ``<runtime_dir>/sim-sysfs``, what the kernel shows under ``/sys``:
+
+* ``class/leds/<name>/``: ``max_brightness``, ``brightness``, ``multi_index`` (the channel order,
+  e.g. ``green red blue`` -- drivers must follow it), ``multi_intensity``;
+* ``class/pwm/pwmchip<N>/``: ``npwm``, ``export``, ``unexport``; writing a channel number to
+  ``export`` makes ``pwm<K>/`` appear with ``period``, ``duty_cycle``, ``enable``, ``polarity``
+  (``export``/``unexport`` are FIFOs, so every write is seen, as the kernel sees each one).
+
+The real LED backends write these files unchanged (their ``sysfs_root`` option), and
+:meth:`SysfsLeds.poll` interprets them as the kernel does (Documentation/leds/leds-class-
+multicolor.rst, Documentation/ABI/testing/sysfs-class-pwm): a multicolor channel shows
+``brightness * intensity / max_brightness``; a PWM channel ``duty_cycle / period`` when enabled
+(``1 -`` that when ``inversed``), off when disabled.  What the kernel would refuse with EINVAL
+(a ``multi_intensity`` without one value per ``multi_index`` entry, values above
+``max_brightness``, a ``duty_cycle`` longer than the ``period``) cannot be refused by a plain
+file: it is counted in ``errors`` with the reason in ``last_error``, and the output keeps its
+previous level, as after a rejected write.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import threading
+import time
+from typing import Any, Callable
+
+__all__ = ['COLORS', 'SysfsLeds']
+
+COLORS = ('red', 'green', 'blue')
+
+
+def _read(path: str) -> str:
+    try:
+        with open(path, encoding='ascii') as fh:
+            return fh.read().strip()
+    except (OSError, UnicodeDecodeError):
+        return ''
+
+
+def _write(path: str, text: str) -> None:
+    with open(path, 'w', encoding='ascii') as fh:
+        fh.write(text + '\n')
+
+
+class SysfsLeds:
+    """The simulated strip behind LED-class and PWM sysfs files (``section``: devices.led)."""
+
+    def __init__(self, root: str, section: dict[str, Any],
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        self.root = root
+        self.clock = clock
+        self.max_brightness = 255
+        self.order = tuple(section.get('multi_index') or COLORS)
+        if sorted(self.order) != sorted(COLORS):
+            raise ValueError(f'devices.led.multi_index: expected the three colours '
+                             f'{COLORS!r} in some order, got {list(self.order)!r}')
+        self.led_dir = os.path.join(root, 'class', 'leds', str(section.get('name', 'rgb:status')))
+        self.chip = int(section.get('chip', 0))
+        self.channels = tuple(int(c) for c in section.get('channels', (0, 1, 2)))
+        self.chip_dir = os.path.join(root, 'class', 'pwm', f'pwmchip{self.chip}')
+        self.interface = section.get('interface', 'led_class')
+        self.levels = (0.0, 0.0, 0.0)          # r, g, b output in [0, 1]
+        self.history: list[tuple[int, tuple[float, float, float]]] = []
+        self.errors = 0
+        self.last_error = ''
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._fifos: dict[str, tuple[int, int]] = {}     # name -> (read fd, keep-open write fd)
+
+    # -- the tree -------------------------------------------------------------------------
+    def start(self, period_s: float = 0.02) -> SysfsLeds:
+        """Create the files and poll them every ``period_s`` from a thread."""
+        os.makedirs(self.led_dir, exist_ok=True)
+        # Only who may use the runtime directory may reach the files (its mode: 0700 / 0770).
+        os.chmod(self.root, os.stat(os.path.dirname(self.root)).st_mode & 0o770)
+        _write(os.path.join(self.led_dir, 'max_brightness'), str(self.max_brightness))
+        _write(os.path.join(self.led_dir, 'brightness'), '0')
+        _write(os.path.join(self.led_dir, 'multi_index'), ' '.join(self.order))
+        _write(os.path.join(self.led_dir, 'multi_intensity'), '0 0 0')
+        os.makedirs(self.chip_dir, exist_ok=True)
+        _write(os.path.join(self.chip_dir, 'npwm'), str(max(self.channels) + 1))
+        for name in ('export', 'unexport'):
+            path = os.path.join(self.chip_dir, name)
+            if not os.path.exists(path):
+                os.mkfifo(path, 0o600)
+            rfd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+            # Our own writer keeps the FIFO open: writers never block, readers never see EOF.
+            self._fifos[name] = (rfd, os.open(path, os.O_WRONLY | os.O_CLOEXEC))
+        self._thread = threading.Thread(target=self._run, args=(period_s,), name='sim-leds',
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop polling and remove the tree."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+        for fds in self._fifos.values():
+            for fd in fds:
+                os.close(fd)
+        self._fifos.clear()
+        shutil.rmtree(self.root, ignore_errors=True)
+
+    def _run(self, period_s: float) -> None:
+        while not self._stop.wait(period_s):
+            self.poll()
+
+    # -- the kernel's side ----------------------------------------------------------------
+    def _error(self, why: str) -> None:
+        self.errors += 1
+        self.last_error = why
+
+    def _exports(self) -> None:
+        for name, make in (('export', True), ('unexport', False)):
+            if name not in self._fifos:
+                continue
+            try:
+                data = os.read(self._fifos[name][0], 4096)
+            except BlockingIOError:
+                continue
+            for text in data.decode('ascii', errors='replace').split():
+                self._export(name, make, text)
+
+    def _export(self, name: str, make: bool, text: str) -> None:
+        try:
+            ch = int(text)
+        except ValueError:
+            self._error(f'{name}: not a channel number: {text!r}')
+            return
+        if not 0 <= ch <= max(self.channels):
+            self._error(f'{name}: no channel {ch}')
+            return
+        d = os.path.join(self.chip_dir, f'pwm{ch}')
+        if make and not os.path.isdir(d):
+            # The channel appears whole (built aside, renamed in): a driver waiting for its
+            # files must never write one that the "kernel" then initialises over.
+            tmp = d + '.new'
+            os.makedirs(tmp, exist_ok=True)
+            for attr, value in (('period', '0'), ('duty_cycle', '0'), ('enable', '0'),
+                                ('polarity', 'normal')):
+                _write(os.path.join(tmp, attr), value)
+            os.rename(tmp, d)
+        elif not make:
+            shutil.rmtree(d, ignore_errors=True)
+
+    def _led_class(self) -> tuple[float, float, float] | None:
+        bri_text = _read(os.path.join(self.led_dir, 'brightness'))
+        multi_text = _read(os.path.join(self.led_dir, 'multi_intensity'))
+        if not bri_text or not multi_text:
+            return None      # truncated by open() and not written yet: look again next poll
+        try:
+            bri = int(bri_text)
+            values = [int(v) for v in multi_text.split()]
+        except ValueError as exc:
+            self._error(f'LED class: {exc}')
+            return None
+        if len(values) != len(self.order):
+            self._error(f'multi_intensity: {len(values)} values for multi_index '
+                        f'{" ".join(self.order)!r}')
+            return None
+        if not 0 <= bri <= self.max_brightness or any(
+                not 0 <= v <= self.max_brightness for v in values):
+            self._error(f'LED class: value above max_brightness {self.max_brightness}')
+            return None
+        by_color = dict(zip(self.order, values, strict=True))
+        m = float(self.max_brightness)
+        return tuple(bri * by_color[c] / m / m for c in COLORS)  # type: ignore[return-value]
+
+    def _pwm(self) -> tuple[float, float, float] | None:
+        out = []
+        for ch in self.channels:
+            d = os.path.join(self.chip_dir, f'pwm{ch}')
+            if not os.path.isdir(d):
+                out.append(0.0)
+                continue
+            texts = [_read(os.path.join(d, a))
+                     for a in ('period', 'duty_cycle', 'enable', 'polarity')]
+            if not all(texts):
+                return None  # a write in progress (truncated, not written): next poll
+            try:
+                period, duty, enable = (int(t) for t in texts[:3])
+            except ValueError as exc:
+                self._error(f'pwm{ch}: {exc}')
+                return None
+            polarity = texts[3]
+            if duty > period:
+                self._error(f'pwm{ch}: duty_cycle {duty} > period {period} (EINVAL)')
+                return None
+            if polarity not in ('normal', 'inversed'):
+                self._error(f'pwm{ch}: polarity {polarity!r}')
+                return None
+            level = duty / period if enable and period > 0 else 0.0
+            if enable and polarity == 'inversed':
+                level = 1.0 - level
+            out.append(level)
+        return tuple(out)  # type: ignore[return-value]
+
+    def poll(self) -> tuple[float, float, float]:
+        """Read the files as the kernel would apply them; return the r, g, b levels."""
+        with self._lock:
+            self._exports()
+            new = self._pwm() if self.interface == 'pwm' else self._led_class()
+            if new is not None and new != self.levels:
+                self.levels = new
+                self.history.append((self.clock(), new))
+                del self.history[:-1000]
+            return self.levels
+
+    def shown(self) -> dict[str, Any]:
+        """Return the strip's output (levels 0..1) and the error count, for the ground truth."""
+        r, g, b = self.levels
+        return {'r': r, 'g': g, 'b': b, 'errors': self.errors, 'last_error': self.last_error}

@@ -1,0 +1,95 @@
+"""The simulated LED strip as sysfs files: the kernel's rules, and the real backends on them."""
+
+import os
+
+import pytest
+
+from m4k_drivers.handler import State, Status
+from m4k_drivers.led import protocol as p
+from m4k_drivers.led.handler import LedHandler
+from m4k_drivers.led.real import LedClassOutput, PwmOutput
+from m4k_drivers.led.simfs import SysfsLeds
+
+
+@pytest.fixture
+def leds(tmp_path):
+    made = []
+
+    def make(**section):
+        sim = SysfsLeds(str(tmp_path / 'sys'), section).start(period_s=0.005)
+        made.append(sim)
+        return sim
+    yield make
+    for sim in made:
+        sim.close()
+
+
+def _write(path, text):
+    with open(path, 'w', encoding='ascii') as fh:
+        fh.write(text + '\n')
+
+
+def test_multi_intensity_follows_multi_index_and_brightness_scales(leds):
+    sim = leds(multi_index=['green', 'blue', 'red'])
+    with open(os.path.join(sim.led_dir, 'multi_index'), encoding='ascii') as fh:
+        assert fh.read().split() == ['green', 'blue', 'red']
+    _write(os.path.join(sim.led_dir, 'multi_intensity'), '255 0 51')   # green, blue, red
+    _write(os.path.join(sim.led_dir, 'brightness'), '255')
+    assert sim.poll() == pytest.approx((51 / 255, 1.0, 0.0))
+    _write(os.path.join(sim.led_dir, 'brightness'), '0')
+    assert sim.poll() == (0.0, 0.0, 0.0)
+
+
+def test_what_the_kernel_rejects_is_counted_and_not_shown(leds):
+    sim = leds()
+    _write(os.path.join(sim.led_dir, 'multi_intensity'), '255 0')      # two values for three
+    _write(os.path.join(sim.led_dir, 'brightness'), '255')
+    assert sim.poll() == (0.0, 0.0, 0.0)
+    assert sim.errors >= 1 and 'multi_intensity' in sim.last_error
+
+
+def test_pwm_export_duty_polarity_and_a_duty_longer_than_the_period(leds):
+    sim = leds(interface='pwm', chip=0, channels=[0, 1, 2])
+    _write(os.path.join(sim.chip_dir, 'export'), '1')
+    sim.poll()
+    ch = os.path.join(sim.chip_dir, 'pwm1')
+    assert sorted(os.listdir(ch)) == ['duty_cycle', 'enable', 'period', 'polarity']
+    _write(os.path.join(ch, 'period'), '1000')
+    _write(os.path.join(ch, 'duty_cycle'), '250')
+    assert sim.poll() == (0.0, 0.0, 0.0)                               # not enabled
+    _write(os.path.join(ch, 'enable'), '1')
+    assert sim.poll() == pytest.approx((0.0, 0.25, 0.0))
+    _write(os.path.join(ch, 'polarity'), 'inversed')
+    assert sim.poll() == pytest.approx((0.0, 0.75, 0.0))
+    errors = sim.errors
+    _write(os.path.join(ch, 'duty_cycle'), '2000')                     # EINVAL on a kernel
+    assert sim.poll() == pytest.approx((0.0, 0.75, 0.0)) and sim.errors == errors + 1
+    _write(os.path.join(sim.chip_dir, 'unexport'), '1')
+    sim.poll()
+    assert not os.path.exists(ch)
+
+
+def test_led_class_backend_unchanged_on_the_simulated_tree(leds):
+    sim = leds()
+    out = LedHandler(lambda: LedClassOutput('rgb:status', os.path.dirname(sim.led_dir)))
+    out.configure()
+    out.activate()
+    assert out.write((255, 0, 51, 255)) == Status.OK
+    assert sim.poll() == pytest.approx((1.0, 0.0, 51 / 255))
+    assert out.write((300, 0, 0, 255)) == Status.ERROR               # counted, not shown
+    assert out.faults == 1 and sim.poll() == pytest.approx((1.0, 0.0, 51 / 255))
+    out.deactivate()                                                 # off
+    assert sim.poll() == (0.0, 0.0, 0.0)
+    out.shutdown()
+    assert out.state == State.FINALIZED
+
+
+def test_pwm_backend_unchanged_on_the_simulated_tree(leds):
+    sim = leds(interface='pwm', chip=0, channels=[0, 1, 2])
+    out = PwmOutput(0, [0, 1, 2], 1000, root=os.path.dirname(sim.chip_dir))
+    assert sim.poll() == (0.0, 0.0, 0.0)             # exported, configured, duty 0
+    out.show(p.LedColor(255, 128, 0, 255))
+    assert sim.poll() == pytest.approx((1.0, 128 / 255, 0.0), abs=1e-3)
+    out.close()                                      # duty 0, disabled (left exported)
+    assert sim.poll() == (0.0, 0.0, 0.0)
+    assert sim.errors == 0, sim.last_error

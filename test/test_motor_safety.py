@@ -1,0 +1,165 @@
+"""Motor safety when a process dies, judged on the simulator's ground truth.
+
+Real processes: ``sim_robot`` (the robot: DACs latch their last word, the amplifier enable is a
+retriggerable monostable on the heartbeat line), ``driver_host``, ``rt_core``; the test plays
+the command source on the ``cmd`` port (VELOCITY_CMD 0.25 m/s at 20 Hz, as the bridge would).
+
+* kill -9 the driver host mid-drive: the heartbeat stops, the enable falls after the hold time
+  and the wheels coast down through the motor lag -- below 0.01 m/s by
+  ``hold + tau * ln(v / 0.01)`` after the kill (simulated time, from the configuration);
+* the same with ``heartbeat: false`` (enable strapped on): the DACs hold their word and the
+  robot keeps driving nobody commands -- the hazard the heartbeat exists for;
+* kill -9 rt_core: the driver host's watchdog writes the zero code (0 V on both armatures);
+* a driver-host restart keeps the world: the pose goes on from where it was.
+"""
+
+import math
+import os
+import signal
+import threading
+import time
+
+import pytest
+from wsenv import ground_truth_live, stack_env, start_sim_robot
+import yaml
+
+from m4k_drivers.config import validate
+from m4k_drivers.host import load_raw_config
+from m4k_rt import protocol as p
+from m4k_rt.xddp import nrt_xddp_open
+
+SPEED = 0.25
+STOPPED = 0.01
+
+
+class Commander:
+    """Send VELOCITY_CMD at 20 Hz from a thread until stopped (the bridge's role)."""
+
+    def __init__(self, runtime_dir: str) -> None:
+        self.ep = nrt_xddp_open('cmd', wait=20.0, runtime_dir=runtime_dir)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.wait(0.05):
+            try:
+                self.ep.write(p.encode(p.Kind.VELOCITY_CMD, 0, 0, SPEED, 0.0))
+                while True:                  # drain ODOMETRY so the port never fills
+                    self.ep.read(timeout=0.0)
+            except (TimeoutError, OSError):
+                pass
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.ep.close()
+
+
+def _wait_truth(runtime_dir, pred, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = ground_truth_live(runtime_dir)
+        if last is not None and pred(last):
+            return last
+        time.sleep(0.01)
+    raise AssertionError(f'{what} not seen within {timeout_s} s; last truth {last}')
+
+
+def _wait_sim_time(runtime_dir, t_ns, timeout_s=10.0):
+    """Return the truth once the simulated world has reached ``t_ns``."""
+    return _wait_truth(runtime_dir, lambda t: t['t_ns'] >= t_ns, timeout_s, f'sim time {t_ns}')
+
+
+@pytest.fixture
+def stack(procs, tmp_path, m4k_runtime_dir):
+    """Start sim_robot, driver_host, rt_core with an overlay; yield a starter for variants."""
+    made = {}
+
+    def start(heartbeat: bool = True):
+        overlay = tmp_path / 'overlay.yaml'
+        doc = {'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10},
+               'devices': {'motor': {'backend': 'sim', 'heartbeat': heartbeat}}}
+        overlay.write_text(yaml.safe_dump(doc))
+        env = stack_env(m4k_runtime_dir)
+        sim = start_sim_robot(procs, env, m4k_runtime_dir, '--overlay', str(overlay))
+        host_argv = ['python', '-m', 'm4k_drivers.host', '--overlay', str(overlay)]
+        host = procs.start(host_argv, env=env)
+        core = procs.start(['python', '-m', 'm4k_rt.rt_core', '--config', str(overlay),
+                            '--duration', '120'], env=env)
+        made['cmd'] = Commander(m4k_runtime_dir)
+        raw = load_raw_config(None, str(overlay))
+        cfg = validate({'devices': raw['devices'], 'world': raw.get('world') or {}})
+        return {'sim': sim, 'host': host, 'core': core, 'env': env, 'host_argv': host_argv,
+                'cfg': cfg, 'rd': m4k_runtime_dir}
+
+    yield start
+    if 'cmd' in made:
+        made['cmd'].close()
+
+
+def _drive(s):
+    """Wait until the robot drives at the commanded speed (ground truth)."""
+    return _wait_truth(s['rd'], lambda t: t['v'] > 0.95 * SPEED, 30.0, 'driving at 0.25 m/s')
+
+
+def _coast_bound_s(cfg, v0):
+    """Return hold + the motor lag's time from ``v0`` to STOPPED (the model's coast-down)."""
+    tau = cfg.world.robot.motor_tau_s
+    hold = cfg.devices['motor']['heartbeat_hold_s']
+    return hold + tau * math.log(v0 / STOPPED)
+
+
+def test_kill_driver_host_heartbeat_stops_the_robot(stack, procs):
+    s = stack(heartbeat=True)
+    before = _drive(s)
+    assert before['motor_enabled'] and before['heartbeat_edges'] > 0
+    # The latched word may still be accelerating the robot a little after the kill.
+    bound_s = _coast_bound_s(s['cfg'], 1.2 * before['v'])
+    t_kill = time.monotonic_ns()
+    os.kill(s['host'].pid, signal.SIGKILL)
+    after = _wait_sim_time(s['rd'], t_kill + int(bound_s * 1e9))
+    assert after['heartbeat_last_edge_ns'] <= t_kill      # nothing toggled after the kill
+    assert not after['motor_enabled'], after
+    assert abs(after['v']) < STOPPED, (bound_s, after)
+    assert max(abs(after['wheel_speed_left']), abs(after['wheel_speed_right'])) < 0.1
+    # the DACs still hold their word: the enable, not a reset, stopped the robot
+    assert after['motor_volts'][0] > 0.5 and after['motor_volts'][1] > 0.5, after
+
+
+def test_kill_driver_host_without_heartbeat_keeps_driving(stack, procs):
+    """The hazard: enable strapped on, a dead driver host leaves the motors driven."""
+    s = stack(heartbeat=False)
+    before = _drive(s)
+    assert before['motor_enabled'] and not before['heartbeat']
+    bound_s = _coast_bound_s(s['cfg'], 1.2 * before['v'])
+    t_kill = time.monotonic_ns()
+    os.kill(s['host'].pid, signal.SIGKILL)
+    after = _wait_sim_time(s['rd'], t_kill + int((bound_s + 0.5) * 1e9))
+    assert after['motor_enabled']
+    assert after['v'] > 0.9 * SPEED, after                 # nobody commands it, it drives on
+    assert after['x'] > before['x'] + 0.1, (before, after)
+
+
+def test_kill_rt_core_watchdog_zeroes_the_dacs(stack, procs):
+    s = stack(heartbeat=True)
+    _drive(s)
+    os.kill(s['core'].pid, signal.SIGKILL)
+    after = _wait_truth(s['rd'], lambda t: abs(t['v']) < STOPPED, 10.0, 'robot stopped')
+    # the watchdog wrote the zero code (0 V armature), the driver host is alive
+    _wait_truth(s['rd'], lambda t: t['motor_volts'] == [0.0, 0.0], 5.0, 'DACs at code 512')
+    assert s['host'].poll() is None
+    assert after['collisions'] == 0
+
+
+def test_driver_host_restart_keeps_the_world(stack, procs):
+    s = stack(heartbeat=True)
+    before = _drive(s)
+    os.kill(s['host'].pid, signal.SIGKILL)
+    stopped = _wait_truth(s['rd'], lambda t: abs(t['v']) < STOPPED, 10.0, 'robot stopped')
+    assert stopped['x'] >= before['x'] > 0.05                   # the pose was not reset
+    procs.start(s['host_argv'], env=s['env'])
+    again = _wait_truth(s['rd'], lambda t: t['v'] > 0.95 * SPEED, 30.0, 'driving again')
+    assert again['x'] > stopped['x'], (stopped, again)          # continues from there
+    assert again['heartbeat_edges'] > stopped['heartbeat_edges']
