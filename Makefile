@@ -4,7 +4,8 @@
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
-#   make fuzz [COUNT=100000]          random and mutated datagrams at every XDDP port
+#   make fuzz [COUNT=100000] [SEED=n] random and mutated datagrams at every XDDP port, then every
+#                                     property test with random seeds and 20x the examples
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
 ENV := source tools/env.sh
@@ -48,6 +49,7 @@ soak: build
 
 fuzz: build
 	@$(ENV); fuzz --count $(or $(COUNT),100000)
+	@tools/fuzz-properties.sh $(SEED)
 
 clean:
 	rm -rf build install log

@@ -12,6 +12,7 @@ import grp
 import json
 import os
 import pwd
+import re
 import shutil
 import socket
 import stat
@@ -23,8 +24,7 @@ from wsenv import start_sim_robot
 
 from m4k_rt import protocol, xddp
 
-pytestmark = pytest.mark.skipif(os.geteuid() != 0,
-                                reason='impersonating another user needs root')
+pytestmark = pytest.mark.needs_root('to impersonate another user')
 
 NOBODY = pwd.getpwnam('nobody')
 
@@ -242,6 +242,19 @@ def _wait_bound(rd: str, n: int, timeout: float = 20.0) -> None:
     pytest.fail('rt_core did not bind its ports in {}'.format(rd))
 
 
+def _wait_host_linked(log, timeout):
+    """Wait until the driver host says it serves N devices and N of them linked to rt_core."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        text = log.read_text()
+        m = re.search(r'serving (.+)$', text, re.M)
+        if m and text.count('linked to the RT side (link 1)') >= len(m.group(1).split(', ')):
+            return
+        time.sleep(0.05)
+    pytest.fail('driver_host did not link its ports in {} s:\n{}'.format(
+        timeout, log.read_text()[-2000:]))
+
+
 def test_rt_core_and_driver_host_have_no_inet_or_abstract_sockets(procs, tmp_path,
                                                                    m4k_runtime_dir):
     overlay = tmp_path / 'fast.yaml'
@@ -249,8 +262,10 @@ def test_rt_core_and_driver_host_have_no_inet_or_abstract_sockets(procs, tmp_pat
     sim = start_sim_robot(procs, dict(os.environ), m4k_runtime_dir, '--overlay', str(overlay))
     core = procs.start(['python', '-m', 'm4k_rt.rt_core', '--config', str(overlay)])
     _wait_bound(m4k_runtime_dir, 12)
-    host = procs.start(['python', '-m', 'm4k_drivers.host', '--overlay', str(overlay)])
-    time.sleep(2.0)  # let the host link its ports
+    with open(tmp_path / 'host.err', 'w') as err:
+        host = procs.start(['python', '-m', 'm4k_drivers.host', '--overlay', str(overlay)],
+                           stderr=err)
+    _wait_host_linked(tmp_path / 'host.err', 60)  # every service's port linked: sockets open
     assert core.poll() is None and host.poll() is None and sim.poll() is None
     inet = {}
     for kind in ('tcp', 'tcp6', 'udp', 'udp6', 'raw', 'raw6', 'udplite', 'udplite6'):

@@ -4,11 +4,44 @@ Asserts on structure only (files, keys, sample counts > 0), never on timing valu
 numbers are the benchmark's business, not a test's.
 """
 
+import copy
 import json
 import os
 import shutil
 import subprocess
 import sys
+
+from m4k_bench.benchlib import analysis
+
+SCALING_KEY = 'scaling_1khz_release_p99_over_cyclictest'
+
+
+def check_verdicts_follow_the_measurements(summ):
+    """Each target verdict in the run's summary is its median against its limit.
+
+    Recomputed here from the run's own numbers, then each measured median is moved to the
+    other side of its limit in a copy of the summary's ratios: the verdict must flip, so a
+    verdict that ignores its data (always met, always None) fails.
+    """
+    by_key = {t.key: t for t in analysis.TARGETS}
+    for row in summ['targets']:
+        t = by_key[row['key']]
+        sp = row['spread']
+        if sp is None:
+            assert row['met'] is None, row
+            continue
+        m = sp['median']
+        assert row['met'] is (m <= t.limit if t.op == '<=' else m >= t.limit), row
+        other = t.limit * 2 + 1 if row['met'] == (t.op == '<=') else t.limit / 2
+        ratios, scaling = copy.deepcopy(summ['ratios']), copy.deepcopy(summ['scaling'])
+        if t.key == SCALING_KEY:
+            for r in scaling:
+                if r.get('rate_hz') == 1000 and r.get('set') == 'alone':
+                    r['ratio_p99'] = other
+        else:
+            ratios[t.key]['spread'] = dict(sp, median=other)
+        again = {r['key']: r for r in analysis.evaluate_targets(ratios, scaling)}[t.key]
+        assert again['met'] is (not row['met']), (row, again)
 
 
 def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
@@ -55,7 +88,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     assert [r['rate_hz'] for r in summ['scaling']] == [500, 500]
     assert summ['cmd_latency']['trials'] + summ['cmd_latency']['lost'] == 3, \
         summ['cmd_latency']
-    assert {t['met'] for t in summ['targets']} <= {True, False, None}
+    check_verdicts_follow_the_measurements(summ)
     assert all(t['spread'] is None or t['spread']['n'] == 1 for t in summ['targets'])
     report = (out / 'report.md').read_text()
     assert '![Fig. 10 periodicity](fig10_periodicity.png)' in report

@@ -215,13 +215,15 @@ def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout
     # The expected drive comes from the commands as DDS delivered them (a subscriber next to
     # the bridge's), not from this process's publishing loop: on a loaded machine either may be
     # starved, and the RT actuator acts on what arrives, when it arrives.
+    # Stamped by DDS on reception (MessageInfo received_timestamp, system clock like the odom
+    # stamps), not when this process's executor gets to the callback: a starved test process
+    # ran its first callbacks 0.5 s late, which made the expected drive 13 % short.
     delivered = []
-    clock = user.node.get_clock()
     cmd = Twist()
 
-    def on_cmd(msg):
+    def on_cmd(msg, info):
         if msg.linear.x == v:
-            delivered.append(clock.now().nanoseconds)
+            delivered.append(info['received_timestamp'])
 
     user.node.create_subscription(Twist, 'cmd_vel', on_cmd, 100)
     user.spin_until(lambda: pub.get_subscription_count() >= 2, 20, 'cmd_vel matched twice')

@@ -238,15 +238,24 @@ def _parse_args(argv: Sequence[str]) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the baseline node; write the timing CSV at exit."""
-    import signal
+    from m4k_rt.stopsignals import StopSignals
+    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
+    try:
+        return _main(argv, stop)
+    finally:
+        stop.restore()
+        if stop.stopping:
+            sys.stderr.write(f'baseline: stopped ({stop.name}); motors safe\n')
 
+
+def _main(argv: Sequence[str] | None, stop: Any) -> int:
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.task import Future
     from rclpy.utilities import remove_ros_args
 
     from m4k_rt import config as rtconfig
-    from m4k_rt.bridge.shutdown import spin_until_shutdown
+    from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
     from m4k_rt.control import control_params
 
     args_all = sys.argv if argv is None else ['baseline', *argv]
@@ -255,20 +264,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     params = control_params(raw.get('control'))
     capacity = args.capacity or (int(args.duration * 100) + 1000 if args.duration else 360_000)
     timing = TimingBuffer(capacity)
+    if stop.stopping:
+        return 0
     motor = build_motor(raw)
     motor.configure()
     motor.activate()
+    # rclpy's handlers (SIGINT and SIGTERM: the bench stops us with SIGTERM) shut the context
+    # down, which ends the spin, and chain to ours.
     rclpy.init(args=args_all)
-    # SIGTERM (the bench stops us that way) ends the spin like Ctrl-C does.
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     node = None
     try:
-        node = BaselineNode(params, motor, timing)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        # A future nobody completes: spin until the duration is up (or forever).
-        spin_until_shutdown(lambda: executor.spin_until_future_complete(
-            Future(), timeout_sec=args.duration or None), node.context)
+        if not stop.stopping:
+            node = stop_aware_start(lambda: BaselineNode(params, motor, timing), stop)
+        if node is not None and not stop.stopping:
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            # A future nobody completes: spin until the duration is up (or forever).
+            spin_until_shutdown(lambda: executor.spin_until_future_complete(
+                Future(), timeout_sec=args.duration or None), node.context)
     except KeyboardInterrupt:  # before the node spins
         pass
     finally:

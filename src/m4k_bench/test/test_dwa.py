@@ -2,7 +2,7 @@
 
 import math
 
-from hypothesis import given, HealthCheck, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
@@ -18,6 +18,7 @@ from m4k_bench.planning.dwa import (
     State,
 )
 from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError, voxel_downsample
+from m4k_rt.testing import examples
 
 CFG = DwaConfig()
 TRIANGLE = [(1.5, -0.25), (1.5, 0.25), (1.9, 0.0)]
@@ -149,7 +150,7 @@ clouds = st.lists(st.tuples(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)), min_siz
                   max_size=40)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(60))
 @given(pose=poses, vel=velocities, cloud=clouds)
 def test_never_picks_a_colliding_arc(pose, vel, cloud):
     points = np.array(cloud, dtype=float).reshape(-1, 2)
@@ -170,7 +171,7 @@ def test_never_picks_a_colliding_arc(pose, vel, cloud):
     assert clear >= min(CFG.margin, now) - 1e-4
 
 
-@settings(max_examples=80, deadline=None)
+@settings(max_examples=examples(80))
 @given(pose=poses, vel=velocities)
 def test_commands_respect_the_dynamic_window(pose, vel):
     planner = DwaPlanner()

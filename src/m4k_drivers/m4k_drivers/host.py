@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -36,6 +35,7 @@ from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, rosargs
+from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['DeviceService', 'format_reading', 'load_raw_config', 'main']
 
@@ -170,6 +170,9 @@ class DeviceService:
                 if self.link.links != self._links_seen:      # (re)linked: say hello at once
                     self._links_seen = self.link.links
                     self._status_state = None
+                    # Timestamped evidence for the fault tests (re-link time after a restart).
+                    LOG.info('%s: linked to the RT side (link %d)', self.handler.name,
+                             self.link.links)
                 if data is not None:
                     self._dispatch(data)
                 if self.kind == 'motor' and self.handler.state == State.ACTIVE:
@@ -367,7 +370,20 @@ def _apply_overrides(devices: dict[str, Any], args: argparse.Namespace) -> dict[
 
 def main(argv: list[str] | None = None) -> int:
     """Run the driver host (see the module docstring); return the exit code."""
-    args = rosargs.parse_args(_parser(), argv)
+    signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
+    try:
+        rc = _main(rosargs.parse_args(_parser(), argv), signals)
+    finally:
+        signals.restore()
+    if signals.stopping:
+        # Every handler built was shut down on the way out: outputs safe.
+        print('driver_host: stopped ({}); outputs safe{}'.format(
+            signals.name, '' if rc == 0 else ', exit code {}'.format(rc)),
+            file=sys.stderr, flush=True)
+    return rc
+
+
+def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
     if level is None:
         level = logging.DEBUG if args.verbose else logging.INFO
@@ -399,33 +415,33 @@ def main(argv: list[str] | None = None) -> int:
     handlers: dict[str, DeviceHandler] = {}
     try:
         for kind in enabled:
+            if signals.stopping:
+                break
             handlers[kind] = registry.create(kind, cfg.devices[kind], ctx)
     except (DriverError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         for h in handlers.values():
             h.shutdown()
         return 2
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        if args.print_mode:
-            (kind, handler), = handlers.items()
-            return run_print(kind, handler, args.count, args.rate, stop)
-        if args.jog is not None:
-            from m4k_drivers.motors.jog import JogError, run_jog
-            try:
-                return run_jog(handlers['motor'], args.jog[0], float(args.jog[1]),
-                               args.duration, stop, out=sys.stdout, stdin=sys.stdin,
-                               assume_yes=args.yes)
-            except JogError as exc:
-                print(f'driver_host: {exc}', file=sys.stderr)
-                handlers['motor'].shutdown()
-                return 2
-        return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop)
-    finally:
-        for sig, handler_fn in previous.items():
-            signal.signal(sig, handler_fn)
+    if signals.stopping:  # stopped during start-up: nothing was activated, shut down anyway
+        for h in handlers.values():
+            h.shutdown()
+        return 0
+    stop = signals.event
+    if args.print_mode:
+        (kind, handler), = handlers.items()
+        return run_print(kind, handler, args.count, args.rate, stop)
+    if args.jog is not None:
+        from m4k_drivers.motors.jog import JogError, run_jog
+        try:
+            return run_jog(handlers['motor'], args.jog[0], float(args.jog[1]),
+                           args.duration, stop, out=sys.stdout, stdin=sys.stdin,
+                           assume_yes=args.yes)
+        except JogError as exc:
+            print(f'driver_host: {exc}', file=sys.stderr)
+            handlers['motor'].shutdown()
+            return 2
+    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop)
 
 
 def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,

@@ -27,7 +27,6 @@ import json
 import logging
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -277,7 +276,20 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the simulator until SIGINT/SIGTERM; return the exit code."""
-    args = rosargs.parse_args(_parser(), argv)
+    from m4k_rt.stopsignals import StopSignals
+    signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
+    try:
+        rc = _main(rosargs.parse_args(_parser(), argv), signals)
+    finally:
+        signals.restore()
+    if signals.stopping:
+        print('sim_robot: stopped ({}){}'.format(
+            signals.name, '' if rc == 0 else ', exit code {}'.format(rc)),
+            file=sys.stderr, flush=True)
+    return rc
+
+
+def _main(args: argparse.Namespace, signals: Any) -> int:
     level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
     if level is None:
         level = logging.DEBUG if args.verbose else logging.INFO
@@ -306,10 +318,10 @@ def main(argv: list[str] | None = None) -> int:
             set_thread_fifo(args.priority)    # inherited by every thread started below
         except (SchedError, ValueError) as exc:
             LOG.warning('stays SCHED_OTHER: %s', exc)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda signum, frame: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
+    stop = signals.event
     try:
+        if signals.stopping:  # stopped during start-up: nothing built yet
+            return 0
         report = args.world_report or os.path.join(runtime_dir, 'world.json')
         try:
             robot = SimRobot(cfg, runtime_dir, report).start()
@@ -322,8 +334,6 @@ def main(argv: list[str] | None = None) -> int:
             robot.close()
         return 0
     finally:
-        for sig, fn in previous.items():
-            signal.signal(sig, fn)
         lock.release()
 
 

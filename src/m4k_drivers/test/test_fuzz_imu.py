@@ -21,6 +21,7 @@ from m4k_drivers.imu import protocol as p
 from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice
 from m4k_rt import protocol as wire
+from m4k_rt.testing import examples
 
 STATUSES = {p.STATUS_OK, p.STATUS_NOT_READY, p.STATUS_BAD_QUATERNION}
 
@@ -50,14 +51,14 @@ def check_blocks(b1: bytes, b2: bytes, ready: bool) -> p.ImuSample | None:
     return s
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200))
 @given(st.binary(min_size=p.BLOCK1_LEN, max_size=p.BLOCK1_LEN),
        st.binary(min_size=p.BLOCK2_LEN, max_size=p.BLOCK2_LEN), st.booleans())
 def test_any_register_contents_decode_to_finite_flagged_samples(b1, b2, ready):
     assert check_blocks(b1, b2, ready) is not None
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200))
 @given(st.binary(max_size=40), st.binary(max_size=40))
 def test_wrong_burst_lengths_are_protocol_errors(b1, b2):
     check_blocks(b1, b2, True)

@@ -15,11 +15,12 @@ Run with atheris (coverage-guided, optional) as a script::
 
 import sys
 
-from hypothesis import given, HealthCheck, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 
 from m4k_drivers.lrf import scip
+from m4k_rt.testing import examples
 
 GD_ECHO = 'GD0044072501'
 N_STEPS = 725 - 44 + 1
@@ -86,7 +87,7 @@ def _chunked(data: bytes, cuts: list[int]) -> list[bytes]:
     return out
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(300))
 @given(st.lists(st.binary(max_size=300), max_size=8))
 def test_random_bytes_never_raise(chunks):
     check_stream(chunks)
@@ -95,7 +96,7 @@ def test_random_bytes_never_raise(chunks):
 _ALPHABET = b'\n\r;:0123456789GDMSPVIBQTRC0?@O_o\x7f\x00\xff' + bytes(range(0x30, 0x70))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300))
 @given(st.lists(st.sampled_from(list(_ALPHABET)), max_size=600),
        st.lists(st.integers(0, 10_000), max_size=6))
 def test_scip_alphabet_soup_never_raises(data, cuts):
@@ -103,7 +104,7 @@ def test_scip_alphabet_soup_never_raises(data, cuts):
     check_stream(_chunked(b'GD0044072501\n00P\n' + bytes(data), cuts))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300))
 @given(st.integers(0, len(VALID) * 8 - 1), st.lists(st.integers(0, 10_000), max_size=5))
 def test_single_bit_flip_never_yields_different_ranges(bit, cuts):
     data = bytearray(VALID)
@@ -115,25 +116,42 @@ def test_single_bit_flip_never_yields_different_ranges(bit, cuts):
                 assert np.array_equal(s.ranges, VALID_RANGES), bit
 
 
-@settings(max_examples=200, deadline=None)
+def mutate(b: bytearray, draw) -> None:
+    """Apply 1..6 random edits (replace, delete, insert, duplicate) to ``b`` in place."""
+    for _ in range(draw(st.integers(1, 6))):
+        # A deletion may empty the buffer: then only an insertion applies (and there is no
+        # index 0..len-1 to draw -- the flaky InvalidArgument of issue 10).
+        op = draw(st.integers(0, 3)) if b else 2
+        i = draw(st.integers(0, max(len(b) - 1, 0)))
+        if op == 0:
+            b[i] = draw(st.integers(0, 255))
+        elif op == 1:
+            del b[i:i + draw(st.integers(1, 80))]
+        elif op == 2:
+            b[i:i] = draw(st.binary(min_size=1, max_size=40))
+        elif len(b) > 2:
+            b[i:i] = b[draw(st.integers(0, len(b) - 2)):][:draw(st.integers(1, 200))]
+
+
+@settings(max_examples=examples(200))
 @given(st.data())
 def test_mutated_responses_only_raise_scip_errors(data):
     base = data.draw(st.sampled_from([VALID, PP, _valid_scan(1, 3)[0],
                                       scip.format_scan('MD', 44, 725, 1, 5, [1000] * N_STEPS,
                                                        remaining=3, tag=b'x')]))
     b = bytearray(base)
-    for _ in range(data.draw(st.integers(1, 6))):
-        op = data.draw(st.integers(0, 3))
-        i = data.draw(st.integers(0, len(b) - 1))
-        if op == 0:
-            b[i] = data.draw(st.integers(0, 255))
-        elif op == 1:
-            del b[i:i + data.draw(st.integers(1, 80))]
-        elif op == 2:
-            b[i:i] = data.draw(st.binary(min_size=1, max_size=40))
-        elif len(b) > 2:
-            b[i:i] = b[data.draw(st.integers(0, len(b) - 2)):][:data.draw(st.integers(1, 200))]
+    mutate(b, data.draw)
     check_stream([bytes(b), b'\n\n'])
+
+
+def test_mutation_after_a_deletion_emptied_the_buffer_inserts():
+    # Scripted draws: 2 edits; delete 80 bytes at 0 (empties the 4-byte buffer); then the
+    # next edit draws its index from 0..0 and must insert.
+    script = iter([2, 1, 0, 80, 0, b'QT\n'])
+    b = bytearray(b'00P\n')
+    mutate(b, lambda strategy: next(script))
+    assert b == bytearray(b'QT\n')
+    assert next(script, None) is None
 
 
 def test_valid_stream_survives_garbage_between_responses():

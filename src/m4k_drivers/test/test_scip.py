@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from m4k_drivers.lrf import scip
+from m4k_rt.testing import examples
 
 DATA = Path(__file__).parent / 'data'
 
@@ -244,7 +245,7 @@ def test_switch_reply_without_sum_and_already_scip2_reply():
     assert 'undefined' in scip.status_meaning('SCIP2.0', '0E')
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300))
 @given(st.lists(st.one_of(
     st.binary(max_size=80),
     st.sampled_from([b'\n', b'\n\n', b'GD0044072501\n', b'00P\n', b'99b\n', b'MD0044072501000\n',

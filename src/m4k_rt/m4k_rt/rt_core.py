@@ -18,12 +18,12 @@ import fcntl
 import importlib
 import math
 import os
-import signal
 import sys
 import threading
 from typing import Any, Mapping, Sequence
 
 from m4k_rt import config, modeswitch, protocol, rosargs, sched, tasks, timing
+from m4k_rt.stopsignals import StopSignals
 from m4k_rt.task import RtTask
 from m4k_rt.tasks import register_body
 from m4k_rt.tasks.portio import PortReader
@@ -322,7 +322,17 @@ def _select(cfg: config.RtConfig, names: str | None,
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the RT process; return the exit code."""
-    args = _parse_args(argv)
+    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
+    try:
+        rc = _main(_parse_args(argv), stop)
+    finally:
+        stop.restore()
+    if stop.stopping:
+        _err('stopped ({}){}'.format(stop.name, '' if rc == 0 else ', exit code {}'.format(rc)))
+    return rc
+
+
+def _main(args: argparse.Namespace, stop: StopSignals) -> int:
     mods = list(args.body_module) + [m for m in os.environ.get(BODY_MODULES_ENV, '').split(',')
                                      if m.strip()]
     for mod in mods:
@@ -351,7 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     socks: list[Any] = []
     try:
-        return _run(args, cfg, chosen, runtime_dir, socks)
+        return _run(args, cfg, chosen, runtime_dir, socks, stop)
     finally:
         for s in socks:
             s.close()
@@ -359,9 +369,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.TaskConfig],
-         runtime_dir: str, socks: list[Any]) -> int:
+         runtime_dir: str, socks: list[Any], stop: StopSignals) -> int:
     from m4k_rt import xddp
     rt = cfg.runtime
+    if stop.stopping:
+        return 0
     hard = sched.harden(priority=max(t.priority for t in chosen), mlockall=rt.mlockall,
                         cpu_dma_latency=rt.cpu_dma_latency,
                         switch_interval_s=rt.switch_interval_s)
@@ -371,7 +383,7 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
         if (args.require_rt or rt.require_rt) and hard.degraded:
             _err('--require-rt: refusing to run degraded')
             return 1
-        shared = SharedState(cfg, hard)
+        shared = SharedState(cfg, hard, stop_event=stop.event)
         built: list[tuple[config.TaskConfig, Any]] = []
         for t in chosen:
             ports = {}
@@ -394,6 +406,8 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
                     t.name, t.body, type(exc).__name__, exc))
                 return 1
             built.append((t, body))
+            if stop.stopping:  # nothing runs yet: outputs were never driven
+                return 0
         start = timing.first_release(monotonic_ns(), 1_000_000,
                                      lead_ns=int(rt.start_delay_ms * 1e6))
         for i, (t, body) in enumerate(built):
@@ -411,8 +425,6 @@ def _serve(args: argparse.Namespace, shared: SharedState) -> int:
     shared.audit_installed = True
     sched.freeze_gc(shared.hardening)
     stop = shared.stop_event
-    old = {sig: signal.signal(sig, lambda *_: stop.set())
-           for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         for t in shared.tasks:
             t.start()
@@ -425,8 +437,6 @@ def _serve(args: argparse.Namespace, shared: SharedState) -> int:
         for t in shared.tasks:
             t.stop()
         stuck = [t.name for t in shared.tasks if not t.join(2.0 * t.period_ns / 1e9 + 1.0)]
-        for sig, h in old.items():
-            signal.signal(sig, h)
         modeswitch.uninstall_console_guard()
         sched.unfreeze_gc()
     for t in shared.tasks:

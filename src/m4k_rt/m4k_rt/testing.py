@@ -8,8 +8,21 @@ Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. Wha
 * ``procs``: starts subprocesses in their own process group and kills whatever is left.
 * An autouse leak check that fails any test leaving behind a child process, a Python thread
   or a socket file descriptor -- the python-can habit of catching leaks where they happen.
+<<<<<<< HEAD
 * The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``),
   and ``ros2cli`` for tests that need launch or ros2cli (skipped, with the reason, without).
+=======
+* The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
+* The ``needs_root(reason)`` marker: skipped, saying why, when not root -- and the skip policy:
+  under the test runner (``M4K_CI=1``) a run fails when a test was skipped that could have run
+  here (any skip as root; any skip other than ``needs_root`` otherwise), so a missing
+  privilege or feature never hides behind a green summary.
+* The hypothesis settings profile, chosen in this one place for every suite by
+  ``M4K_HYPOTHESIS_PROFILE``: ``ci`` (the default: derandomized, no example database, fixed
+  example counts -- a commit passes or fails the same way every run) or ``fuzz`` (random
+  seeds, :data:`FUZZ_FACTOR` times the examples; ``make fuzz`` prints the seed to replay with
+  ``--hypothesis-seed``). Tests size themselves with :func:`examples`.
+>>>>>>> main
 """
 
 from __future__ import annotations
@@ -25,14 +38,45 @@ from typing import Iterator
 
 import pytest
 
-__all__ = ['pytest_configure', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
-           'child_pids', 'socket_fds']
+__all__ = ['pytest_configure', 'pytest_runtest_setup', 'pytest_runtest_logreport',
+           'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
+           'child_pids', 'socket_fds', 'examples', 'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
 
 _LEAK_GRACE_S = 3.0
+
+HYPOTHESIS_PROFILE_ENV = 'M4K_HYPOTHESIS_PROFILE'
+FUZZ_FACTOR = 20  # ``fuzz`` runs this many times each test's example count
+_NEEDS_ROOT = 'needs root: '
+_session_skips: list[tuple[str, str]] = []
+
+
+def _hypothesis_profile() -> str:
+    """Register the m4k hypothesis profiles and load the one the environment names."""
+    from hypothesis import HealthCheck, settings
+    common = {'deadline': None, 'database': None, 'print_blob': True,
+              # A loaded 2-core machine makes data generation slow, not wrong.
+              'suppress_health_check': [HealthCheck.too_slow]}
+    settings.register_profile('ci', derandomize=True, max_examples=100, **common)
+    settings.register_profile('fuzz', derandomize=False, max_examples=100 * FUZZ_FACTOR,
+                              **common)
+    name = os.environ.get(HYPOTHESIS_PROFILE_ENV) or 'ci'
+    settings.load_profile(name)  # an unknown name raises InvalidArgument, naming it
+    return name
+
+
+try:
+    HYPOTHESIS_PROFILE = _hypothesis_profile()
+except ImportError:  # hypothesis is a test requirement; suites without it still run
+    HYPOTHESIS_PROFILE = ''
+
+
+def examples(n: int) -> int:
+    """Return a property test's example count: ``n`` under ``ci``, more under ``fuzz``."""
+    return n * FUZZ_FACTOR if HYPOTHESIS_PROFILE == 'fuzz' else n
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -44,6 +88,49 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         'markers', 'allow_leaks(kinds): tolerate leftovers of the given kinds '
         "('fds' for in-process DDS transports); state why in the test")
+    config.addinivalue_line(
+        'markers', 'needs_root(reason): skipped, with the reason, when not run as root')
+
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Skip a ``needs_root`` test when not root, saying what it needs root for."""
+    marker = item.get_closest_marker('needs_root')
+    if marker is not None and os.geteuid() != 0:
+        pytest.skip(_NEEDS_ROOT + (marker.args[0] if marker.args else 'privileged test'))
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """Remember every skip for the skip policy."""
+    if report.skipped and not hasattr(report, 'wasxfail'):
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(
+            report.longrepr)
+        _session_skips.append((report.nodeid, reason))
+
+
+def forbidden_skips(skips: list[tuple[str, str]], euid: int) -> list[tuple[str, str]]:
+    """Return the skips the runner does not accept (pure: the policy itself).
+
+    As root every test can run here, so every skip is refused; otherwise only the
+    ``needs_root`` skips are accepted.
+    """
+    return [(node, why) for node, why in skips
+            if euid == 0 or not why.removeprefix('Skipped: ').startswith(_NEEDS_ROOT)]
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Under the runner (M4K_CI=1), fail the run when a test that could run was skipped."""
+    if os.environ.get('M4K_CI') != '1':
+        return
+    bad = forbidden_skips(_session_skips, os.geteuid())
+    if not bad:
+        return
+    sys.stderr.write('\nm4k skip policy: {} test(s) skipped that can run here (euid {}):\n'
+                     .format(len(bad), os.geteuid()))
+    for node, why in bad:
+        sys.stderr.write('  {}: {}\n'.format(node, why))
+    if session.exitstatus == 0:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 def child_pids(pid: int | None = None) -> set[int]:

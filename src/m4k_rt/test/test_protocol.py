@@ -10,6 +10,7 @@ import pytest
 
 from m4k_rt import protocol as p
 from m4k_rt.protocol import Header, Kind, ProtocolError
+from m4k_rt.testing import examples
 
 U8 = st.integers(0, 0xFF)
 U16 = st.integers(0, 0xFFFF)
@@ -192,7 +193,7 @@ def test_example_round_trips_through_encode_into_at_an_offset(kind):
 
 @pytest.mark.parametrize('kind', list(Kind))
 def test_generated_finite_values_round_trip(kind):
-    @settings(max_examples=60, deadline=None)
+    @settings(max_examples=examples(60))
     @given(fields=FIELDS[kind], seq=U32, stamp=I64)
     def check(fields, seq, stamp):
         data = p.encode(kind, seq, stamp, *fields)
@@ -390,19 +391,19 @@ def _decode_or_protocol_error(data):
     return payload
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=examples(400))
 @given(st.binary(max_size=300))
 def test_arbitrary_bytes_raise_only_protocol_error(data):
     _decode_or_protocol_error(data)
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=examples(400))
 @given(st.sampled_from(list(Kind) + [0, 14, 255]), st.binary(max_size=600))
 def test_arbitrary_payload_after_valid_header_raises_only_protocol_error(kind, body):
     _decode_or_protocol_error(struct.pack('<HBBIq', p.MAGIC, p.VERSION, kind, 0, 0) + body)
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=examples(500))
 @given(kind=st.sampled_from(list(Kind)), data=st.data())
 def test_mutated_valid_datagrams_raise_only_protocol_error(kind, data):
     good = bytearray(p.encode(kind, 1, 2, *EXAMPLES[kind]))
@@ -439,7 +440,7 @@ def test_seq_helpers_wrap():
     assert not p.seq_newer(7, 7)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200))
 @given(U32, st.integers(0, 1000))
 def test_seq_gap_after_losing_k_datagrams_is_k(start, lost):
     cur = start

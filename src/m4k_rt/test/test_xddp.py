@@ -580,8 +580,7 @@ def test_unknown_group_is_refused(rundir):
         xddp.ensure_runtime_dir(group='no-such-group-m4k')
 
 
-needs_root = pytest.mark.skipif(os.geteuid() != 0,
-                                reason='needs root to chown and to run a child as nobody')
+needs_root = pytest.mark.needs_root('to chown and to run a child as nobody')
 
 CONNECT_AS_NOBODY = """
 import errno, socket, sys

@@ -23,7 +23,6 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import fields
 import math
-import signal
 import sys
 import time
 from typing import Any, Sequence
@@ -42,6 +41,7 @@ from std_msgs.msg import String
 
 from m4k_bench.planning.dwa import DwaConfig, DwaError, DwaPlanner, State
 from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError
+from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['NODE_NAME', 'PlannerNode', 'main']
 
@@ -291,11 +291,12 @@ class PlannerNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the planner node; exit code 2 on a bad parameter, naming it."""
-    # Our own SIGINT handling (KeyboardInterrupt) keeps the context alive long enough to send
-    # the zero command; rclpy's handler would shut it down first.
+    # Our own stop handling (not rclpy's) keeps the context alive long enough to send the zero
+    # command; rclpy's handler would shut it down first. Installed first, so a stop during
+    # start-up ends it cleanly, too.
+    stop = StopSignals().install()
     rclpy.init(args=list(sys.argv if args is None else args),
                signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
     node = None
     try:
         try:
@@ -303,8 +304,9 @@ def main(args: Sequence[str] | None = None) -> int:
         except ParamError as exc:
             sys.stderr.write(f'{NODE_NAME}: {exc}\n')
             return 2
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        while not stop.stopping:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except ExternalShutdownException:
         pass
     finally:
         if node is not None:
@@ -312,6 +314,9 @@ def main(args: Sequence[str] | None = None) -> int:
                 node.stop()
             node.destroy_node()
         rclpy.try_shutdown()
+        stop.restore()
+    if stop.stopping:
+        sys.stderr.write(f'{NODE_NAME}: stopped ({stop.name})\n')
     return 0
 
 

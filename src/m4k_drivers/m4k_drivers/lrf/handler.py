@@ -72,7 +72,10 @@ class LrfHandler(DeviceHandler):
         """Start the sim if any, open the port and run the SCIP connect sequence."""
         port = self.port
         if self.sim is not None:
-            if not self.sim.plugged:
+            # Start it once; an unplugged device stays unplugged (the open below fails and the
+            # host retries) -- a driver cannot plug a device back in. Restarting a started sim
+            # raised RuntimeError, which ended the lrf service for good (issue 10 flake).
+            if not self.sim.started:
                 self.sim.start()
             port = self.sim.path
         self.driver = UrgDriver(port, **self._driver_args)

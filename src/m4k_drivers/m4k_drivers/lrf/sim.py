@@ -149,6 +149,11 @@ class UrgSim:
         """Return True while a pty is attached."""
         return self._master >= 0
 
+    @property
+    def started(self) -> bool:
+        """Return True once started (until stopped), plugged in or not."""
+        return self._thread is not None
+
     def start(self) -> UrgSim:
         """Create the pty (and link) and start serving."""
         if self._thread is not None:

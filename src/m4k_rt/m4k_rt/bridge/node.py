@@ -54,8 +54,9 @@ from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
 from m4k_rt.bridge.ports import PortPump
 from m4k_rt.bridge.safety import SafetyInterface
-from m4k_rt.bridge.shutdown import spin_until_shutdown
+from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt.bridge.tf import RobotStatePublisher
+from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['BridgeNode', 'main', 'param_files']
 
@@ -601,24 +602,31 @@ def _check_param_files(argv: Sequence[str]) -> None:
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the bridge node; exit code 2 on a bad parameter, naming it."""
+    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
     argv = list(sys.argv if args is None else args)
-    rclpy.init(args=argv)
+    rclpy.init(args=argv)  # rclpy's handlers chain to ours: both see a stop signal
     node = None
     try:
         try:
             _check_param_files(argv)
-            node = BridgeNode()
+            if not stop.stopping:
+                node = stop_aware_start(BridgeNode, stop)
         except params.ParamError as exc:
             sys.stderr.write('{}: {}\n'.format(params.NODE_NAME, exc))
             sys.stderr.flush()
             return 2
-        spin_until_shutdown(lambda: rclpy.spin(node), node.context)
+        if node is not None and not stop.stopping:
+            spin_until_shutdown(lambda: rclpy.spin(node), node.context)
     except KeyboardInterrupt:  # before the node spins
         pass
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        stop.restore()
+    if stop.stopping:
+        sys.stderr.write('{}: stopped ({})\n'.format(params.NODE_NAME, stop.name))
+        sys.stderr.flush()
     return 0
 
 

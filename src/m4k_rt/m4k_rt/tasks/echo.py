@@ -7,12 +7,12 @@ every datagram it reads straight back, re-linking when the RT side restarts.
 """
 
 import argparse
-import signal
 import sys
 import threading
 from typing import Any, Mapping, Sequence
 
 from m4k_rt import protocol, rosargs
+from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['EchoBody', 'EchoPeer', 'main', 'make_echo']
 
@@ -113,14 +113,13 @@ class EchoPeer:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run an NRT echo peer on the given port labels until SIGINT/SIGTERM."""
+    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
     ap = argparse.ArgumentParser(description='NRT echo peer for the echo task bodies.')
     ap.add_argument('labels', nargs='+', help='port labels (or numbers) to serve')
     ap.add_argument('--runtime-dir', default=None)
     args = rosargs.parse_args(ap, argv)
     labels: list[int | str] = [int(x) if x.isdigit() else x for x in args.labels]
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
+    done = stop.event
     peer = EchoPeer(labels, args.runtime_dir).start()
     sys.stderr.write('echo peer: serving {}\n'.format(', '.join(map(str, labels))))
     sys.stderr.flush()

@@ -47,6 +47,7 @@ import yaml
 from m4k_rt import config, description, rosargs
 from m4k_rt.bridge import params as bridge_params
 from m4k_rt.rt_core import InstanceLock
+from m4k_rt.stopsignals import blocked_stop_signals, StopSignals
 
 __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
            'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready', 'sim_robot_spec',
@@ -221,9 +222,13 @@ class Child:
         setpriv = shutil.which('setpriv')
         if setpriv:
             argv = [setpriv, '--pdeathsig', 'TERM', '--', *argv]
-        self.proc = subprocess.Popen(argv, env=self.env, stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     process_group=0, text=True, errors='replace', bufsize=1)
+        # Stop signals blocked until the child has its handlers (it unblocks them then): a
+        # SIGTERM from stop() while the child still starts up stops it cleanly, never kills it.
+        with blocked_stop_signals():
+            self.proc = subprocess.Popen(argv, env=self.env, stdin=subprocess.DEVNULL,
+                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                         process_group=0, text=True, errors='replace',
+                                         bufsize=1)
         self.started_at = time.monotonic()
         self.next_start = 0.0
         self._reader = threading.Thread(target=self._copy, args=(self.proc,),
@@ -300,13 +305,19 @@ class Supervisor:
         """Return the total number of restarts."""
         return sum(c.restarts for c in self.children)
 
-    def start_all(self) -> None:
-        """Start every child in order (waiting, bounded, for a child's ``ready`` check)."""
+    def start_all(self, stopping: Callable[[], bool] = lambda: False) -> None:
+        """Start every child in order (waiting, bounded, for a child's ``ready`` check).
+
+        Start no more once ``stopping()`` says so (a stop signal during start-up).
+        """
         for c in self.children:
+            if stopping():
+                return
             c.start()
             if c.spec.ready is not None:
                 deadline = self.clock() + READY_TIMEOUT_S
-                while not c.spec.ready() and c.running and self.clock() < deadline:
+                while (not c.spec.ready() and c.running and not stopping()
+                       and self.clock() < deadline):
                     time.sleep(0.05)
 
     def step(self) -> None:
@@ -499,7 +510,17 @@ def _err(msg: str) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the stack until Ctrl-C / SIGTERM; return the exit code."""
-    args = _parse_args(argv)
+    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
+    try:
+        rc = _main(_parse_args(argv), stop)
+    finally:
+        stop.restore()
+    if stop.stopping:
+        _err('stopped ({}){}'.format(stop.name, '' if rc == 0 else ', exit code {}'.format(rc)))
+    return rc
+
+
+def _main(args: argparse.Namespace, stop: StopSignals) -> int:
     from m4k_rt import xddp
     overlay = os.path.abspath(args.config) if args.config else None
     try:
@@ -530,14 +551,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return CONFIG_ERROR
     tmpdir = tempfile.mkdtemp(prefix='m4k-bringup-')
     try:
-        return _run(args, overlay, runtime_dir, bridge_doc, tmpdir, uses_sim(doc))
+        return _run(args, overlay, runtime_dir, bridge_doc, tmpdir, stop, uses_sim(doc))
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
         lock.release()
 
 
 def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
-         bridge_doc: dict[str, Any], tmpdir: str, sim: bool = True) -> int:
+         bridge_doc: dict[str, Any], tmpdir: str, stop: StopSignals, sim: bool = True) -> int:
     params_file = os.path.join(tmpdir, 'bridge_overlay.yaml')
     with open(params_file, 'w', encoding='utf-8') as f:
         yaml.safe_dump(bridge_doc, f)
@@ -547,26 +568,23 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
     children = [Child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim)]
     sup = Supervisor(children, console, args.max_restarts)
-    stop = threading.Event()
-    old = {sig: signal.signal(sig, lambda *_: stop.set())
-           for sig in (signal.SIGINT, signal.SIGTERM)}
     status = None
     try:
-        if not args.no_status:
+        if not args.no_status and not stop.stopping:
             try:
                 status = StatusSource()
             except Exception as exc:  # noqa: BLE001 -- the stack runs without a status line
                 console.line('bringup: no status line ({}: {})'.format(type(exc).__name__, exc))
         console.line('bringup: runtime dir {}; starting {}'.format(
             runtime_dir, ', '.join(' '.join(c.argv) for c in children)))
-        sup.start_all()
+        sup.start_all(lambda: stop.stopping)
         t0 = time.monotonic()
         next_status = t0 + (1.0 if console.live else min(args.status_interval, 3.0))
-        while not stop.is_set() and sup.fatal is None:
+        while not stop.stopping and sup.fatal is None:
             if status is not None:
                 status.spin(0.1)
             else:
-                stop.wait(0.1)
+                stop.event.wait(0.1)
             sup.step()
             now = time.monotonic()
             if now >= next_status:
@@ -584,13 +602,10 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
         return sup.fatal[0] if sup.fatal is not None else 0
     finally:
         # Signals during the stop sequence must not interrupt the bounded waits.
-        for sig in old:
-            signal.signal(sig, signal.SIG_IGN)
+        stop.ignore()
         sup.stop_all()
         if status is not None:
             status.close()
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
 
 
 if __name__ == '__main__':
