@@ -271,7 +271,10 @@ class UrgSim:
             self._requests.append(what)
         self._wake()
         with self._lock:
-            self._done.wait_for(lambda: what not in self._requests, timeout=5.0)
+            # Return only once done: a caller told "unplugged" must not see the old pty serve
+            # on (a loaded machine can starve this thread for seconds, hence the long bound).
+            if not self._done.wait_for(lambda: what not in self._requests, timeout=60.0):
+                raise TimeoutError(f'UrgSim: {what} not done by the sim thread within 60 s')
 
     def _plug(self) -> None:
         if self._master >= 0:
