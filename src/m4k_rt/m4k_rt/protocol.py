@@ -81,6 +81,20 @@ LEVEL_STALE = 3
 
 NAME_SIZE = 16
 LABEL_SIZE = 32  # PORT_STATS labels: XDDP labels are at most 32 characters
+SITE_FILE_SIZE = 40  # FORBIDDEN_SITE file: the tail of the path (the file name) is kept
+SITE_FUNC_SIZE = 24
+U32_MAX = 0xFFFFFFFF
+
+# FORBIDDEN_SITE event codes: the audit events an RT loop must not raise (m4k_rt.modeswitch).
+# 'console' is not an audit event: the console guard reports writes to sys.stdout/sys.stderr
+# under that name. Codes are contiguous from 1 (0 marks an empty slot in a site table).
+EVENT_CODES: dict[str, int] = {
+    'open': 1, 'import': 2, 'time.sleep': 3, 'subprocess.Popen': 4, 'os.system': 5,
+    'os.exec': 6, 'os.posix_spawn': 7, 'os.fork': 8, 'socket.__new__': 9, 'console': 10,
+    'os.listdir': 11, 'os.scandir': 12, 'os.remove': 13, 'os.rename': 14, 'os.mkdir': 15,
+    'socket.getaddrinfo': 16, 'shutil.copyfile': 17, 'os.truncate': 18, 'glob.glob': 19,
+}
+EVENT_NAMES: dict[int, str] = {v: k for k, v in EVENT_CODES.items()}
 
 
 class Kind(IntEnum):
@@ -101,6 +115,10 @@ class Kind(IntEnum):
     PORT_STATS = 13
     E_STOP = 14
     ODOM_RESET = 15
+    # Sent by the RT monitor on the `stat` port only (docs/internals.md); numbered apart from
+    # the kinds above since they were introduced as an extension.
+    FORBIDDEN_SITE = 64
+    TASK_HEALTH = 65
 
 
 class ProtocolError(ValueError):
@@ -293,6 +311,34 @@ class OdomReset(NamedTuple):
     request_id: int
 
 
+class ForbiddenSite(NamedTuple):
+    """One call site of a task's forbidden calls (``event`` is a name of EVENT_CODES)."""
+
+    name: str
+    task_index: int
+    event: str
+    count: int
+    line: int
+    total: int
+    file: str
+    func: str
+
+
+class TaskHealth(NamedTuple):
+    """The per-task counters TASK_STATS does not carry."""
+
+    name: str
+    task_index: int
+    overruns: int
+    deadline_misses: int
+    body_errors: int
+    majflt: int
+    nvcsw_extra: int
+    lost_samples: int
+    fifo: int
+    priority: int
+
+
 class _Spec(NamedTuple):
     kind: Kind
     payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
@@ -303,6 +349,7 @@ class _Spec(NamedTuple):
     string: int  # > 0: field 0 is a NUL-padded ASCII name of at most this many bytes
     item: struct.Struct | None  # array element of variable kinds
     max_items: int
+    texts: tuple[int, ...]  # NUL-padded UTF-8 text fields (lenient: undecodable bytes replaced)
 
 
 _I32_MAX = 2 ** 31 - 1
@@ -310,14 +357,14 @@ _I32_MAX = 2 ** 31 - 1
 
 def _spec(kind: Kind, fmt: str, cls: Any, floats: tuple[int, int] = (0, 0),
           ranges: tuple[tuple[int, float, float], ...] = (), string: int = 0,
-          item: str | None = None) -> _Spec:
+          item: str | None = None, texts: tuple[int, ...] = ()) -> _Spec:
     payload = struct.Struct('<' + fmt)
     item_struct = struct.Struct('<' + item) if item else None
     max_items = 0
     if item_struct is not None:
         max_items = (MAX_DATAGRAM - HEADER_SIZE - payload.size) // item_struct.size
     return _Spec(kind, payload, struct.Struct(HEADER_FORMAT + fmt), cls, floats, ranges,
-                 string, item_struct, max_items)
+                 string, item_struct, max_items, texts)
 
 
 _SPECS: dict[int, _Spec] = {s.kind: s for s in (
@@ -343,11 +390,17 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
           string=LABEL_SIZE),
     _spec(Kind.E_STOP, 'B', EStop, ranges=((0, 0, 1),)),
     _spec(Kind.ODOM_RESET, 'I', OdomReset),
+    _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
+          ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,
+          texts=(6, 7)),
+    _spec(Kind.TASK_HEALTH, '16sBIIIIIIBB', TaskHealth, ranges=((8, 0, 1),), string=NAME_SIZE),
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)
 _SCAN = _SPECS[Kind.LASER_SCAN]
 _STATS = _SPECS[Kind.TASK_STATS]
+_SITE = _SPECS[Kind.FORBIDDEN_SITE]
+_HEALTH = _SPECS[Kind.TASK_HEALTH]
 TASK_STATS_SAMPLE = struct.Struct('<qqqI')  # same layout as _STATS.item
 MAX_SCAN_RANGES = _SCAN.max_items
 MAX_STATS_SAMPLES = _STATS.max_items
@@ -437,8 +490,12 @@ def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, s
     with ``check=True`` (the receiver's :func:`decode` always checks them).
     """
     spec = _spec_for(kind)
+    if spec is _SITE:
+        return encode_forbidden_site_into(buf, offset, seq, stamp_ns, *fields)
     if check:
         _check_fields(spec, fields)
+    if spec is _HEALTH:
+        return encode_task_health_into(buf, offset, seq, stamp_ns, *fields)
     if spec.item is not None:
         if spec is _SCAN:
             return encode_scan_into(buf, offset, seq, stamp_ns, *fields)
@@ -525,9 +582,57 @@ def encode_task_stats_into(buf: bytearray | memoryview, offset: int, seq: int, s
     return pos - offset
 
 
+def _text_bytes(text: str, size: int, tail: bool = False) -> bytes:
+    raw = text.encode('utf-8', 'replace')
+    return raw[-size:] if tail else raw[:size]
+
+
+def encode_forbidden_site_into(buf: bytearray | memoryview, offset: int, seq: int,
+                               stamp_ns: int, name: str | bytes, task_index: int,
+                               event: int | str, count: int, line: int, total: int, file: str,
+                               func: str) -> int:
+    """Encode a FORBIDDEN_SITE datagram into ``buf`` and return the number of bytes written.
+
+    ``event`` is an EVENT_CODES code (RT loops) or name. Counters saturate at 2**32 - 1; a long
+    ``file`` keeps its tail (the file name), a long ``func`` its head.
+    """
+    code = EVENT_CODES.get(event, 0) if isinstance(event, str) else event
+    if code not in EVENT_NAMES:
+        raise ProtocolError('encode', 'unknown forbidden event {!r}'.format(event))
+    full = _SITE.full
+    try:
+        full.pack_into(buf, offset, MAGIC, VERSION, Kind.FORBIDDEN_SITE, seq & SEQ_MASK,
+                       stamp_ns, _name_bytes(name), task_index, code, min(count, U32_MAX),
+                       line, min(total, U32_MAX), _text_bytes(file, SITE_FILE_SIZE, tail=True),
+                       _text_bytes(func, SITE_FUNC_SIZE))
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode FORBIDDEN_SITE: {}'.format(exc)) from None
+    return full.size
+
+
+def encode_task_health_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
+                            name: str | bytes, task_index: int, overruns: int,
+                            deadline_misses: int, body_errors: int, majflt: int,
+                            nvcsw_extra: int, lost_samples: int, fifo: int,
+                            priority: int) -> int:
+    """Encode a TASK_HEALTH datagram into ``buf``; counters saturate at 2**32 - 1."""
+    m = U32_MAX
+    full = _HEALTH.full
+    try:
+        full.pack_into(buf, offset, MAGIC, VERSION, Kind.TASK_HEALTH, seq & SEQ_MASK, stamp_ns,
+                       _name_bytes(name), task_index, min(overruns, m),
+                       min(deadline_misses, m), min(body_errors, m), min(majflt, m),
+                       min(nvcsw_extra, m), min(lost_samples, m), fifo, priority)
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode TASK_HEALTH: {}'.format(exc)) from None
+    return full.size
+
+
 def encode(kind: int, seq: int, stamp_ns: int, *fields: Any) -> bytes:
     """Encode and fully validate one datagram into new bytes (convenience for NRT code)."""
     spec = _spec_for(kind)
+    if spec is _SITE and len(fields) > 2 and isinstance(fields[2], str):
+        fields = fields[:2] + (EVENT_CODES.get(fields[2], 0),) + fields[3:]
     _check_fields(spec, fields)
     count = len(fields[-1]) if spec.item is not None else 0
     buf = bytearray(encoded_size(kind, count))
@@ -588,6 +693,12 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
     _check(spec, values)
     if spec.string:
         values = (_decode_name(spec, values[0]),) + values[1:]
+    if spec.texts:
+        values = list(values)
+        for i in spec.texts:
+            values[i] = values[i].rstrip(b'\x00').decode('utf-8', 'replace')
+        if spec is _SITE:
+            values[2] = EVENT_NAMES[values[2]]  # in range: checked above
     return Header(spec.kind, seq, stamp_ns), spec.type._make(values)
 
 

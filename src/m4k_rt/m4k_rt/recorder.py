@@ -1,7 +1,7 @@
 """NRT timing recorder: collect TASK_STATS batches, compute the paper's Table 1 and more.
 
 The RT monitor task ships every task's ring samples as TASK_STATS datagrams (plus RT_STATUS,
-and on the ``stat`` port TASK_HEALTH and FORBIDDEN_SITE, see :mod:`m4k_rt.modeswitch`). This
+and on the ``stat`` port TASK_HEALTH and FORBIDDEN_SITE, see :mod:`m4k_rt.protocol`). This
 module accumulates them per task and writes, from one run:
 
 * ``table1.md`` -- period and response time avg/max/min/std and p50/p99/p99.9 per task, as the
@@ -23,7 +23,7 @@ import sys
 import time
 from typing import Any, Iterable, Sequence
 
-from m4k_rt import modeswitch, protocol, timing
+from m4k_rt import protocol, timing
 
 __all__ = ['Recorder', 'TaskSeries', 'format_table1', 'main', 'summary_json']
 
@@ -49,8 +49,8 @@ class TaskSeries:
     t_start: list[int] = dataclasses.field(default_factory=list)
     t_end: list[int] = dataclasses.field(default_factory=list)
     expirations: list[int] = dataclasses.field(default_factory=list)
-    health: modeswitch.TaskHealth | None = None
-    sites: dict[tuple[str, str, int], modeswitch.ForbiddenSite] = dataclasses.field(
+    health: protocol.TaskHealth | None = None
+    sites: dict[tuple[str, str, int], protocol.ForbiddenSite] = dataclasses.field(
         default_factory=dict)
     duplicates: int = 0
 
@@ -103,24 +103,17 @@ class Recorder:
     def feed(self, data: bytes) -> int:
         """Account one datagram; return its kind (-1 when malformed and counted)."""
         self.datagrams += 1
-        kind = modeswitch.extra_kind(data)
-        if kind in (modeswitch.FORBIDDEN_SITE, modeswitch.TASK_HEALTH):
-            try:
-                _, _, p = modeswitch.decode_extra(data)
-            except modeswitch.ExtraDatagramError:
-                self.malformed['extra'] = self.malformed.get('extra', 0) + 1
-                return -1
-            t = self._task(p.name)
-            if kind == modeswitch.TASK_HEALTH:
-                t.health = p
-            else:
-                t.sites[(p.event, p.file, p.line)] = p
-            return kind
         try:
             header, payload = protocol.decode(data)
         except protocol.ProtocolError as exc:
             self.malformed[exc.reason] = self.malformed.get(exc.reason, 0) + 1
             return -1
+        if header.kind == protocol.Kind.TASK_HEALTH:
+            self._task(payload.name).health = payload
+            return header.kind
+        if header.kind == protocol.Kind.FORBIDDEN_SITE:
+            self._task(payload.name).sites[(payload.event, payload.file, payload.line)] = payload
+            return header.kind
         if header.kind == protocol.Kind.TASK_STATS:
             self._task(payload.name).add_stats(payload)
         elif header.kind == protocol.Kind.RT_STATUS:

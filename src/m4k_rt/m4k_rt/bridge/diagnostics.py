@@ -21,7 +21,7 @@ from typing import Any, Iterable, Mapping
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats, XddpPort
-from m4k_rt import modeswitch, protocol, timing
+from m4k_rt import protocol, timing
 
 __all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte', 'make_status',
            'timing_stats']
@@ -86,7 +86,7 @@ class TaskWindow:
         self.window_ns = window_ns
         self.rows: collections.deque[tuple[int, int, int, int]] = collections.deque()
         self.stats: protocol.TaskStats | None = None
-        self.health: modeswitch.TaskHealth | None = None
+        self.health: protocol.TaskHealth | None = None
         self.last_site = ''
         self.rx_ns = 0               # CLOCK_MONOTONIC of the last batch (0 = never)
         self.prev_cycles = -1
@@ -162,9 +162,9 @@ class RtMonitor:
                                             rx_ns if stamp_ns is None else stamp_ns)
         elif kind == protocol.Kind.PORT_STATS:
             self.ports[payload.port] = (payload, rx_ns)
-        elif kind == modeswitch.TASK_HEALTH:
+        elif kind == protocol.Kind.TASK_HEALTH:
             self._task(payload.name).health = payload
-        elif kind == modeswitch.FORBIDDEN_SITE:
+        elif kind == protocol.Kind.FORBIDDEN_SITE:
             self._task(payload.name).last_site = '{} at {}:{} in {}'.format(
                 payload.event, payload.file, payload.line, payload.func)
         else:
