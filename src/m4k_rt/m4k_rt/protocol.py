@@ -13,7 +13,7 @@ the receiver counts. No other exception escapes :func:`decode` for any input byt
 """
 
 from array import array
-from enum import IntEnum
+from enum import IntEnum, IntFlag
 import math
 import struct
 import sys
@@ -56,28 +56,122 @@ SCAN_ERROR_CODES: dict[int, str] = {
 # No code means "too close" (REP-117 -inf): ranges below DMIN (20 mm) are the codes themselves.
 SCAN_FAR_CODES = frozenset((0,))
 
-ODOM_BRAKING = 0x1
-ODOM_GUARD = 0x2
-ODOM_MOTOR_STALE = 0x4
-ODOM_CLAMPED = 0x8
-ODOM_E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
-ODOM_HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
 
-SONAR_OK = 0
-SONAR_NO_ECHO = 1
-SONAR_TIMEOUT = 2
-SONAR_FAULT = 3
+class OdomFlag(IntFlag):
+    """ODOMETRY.flags bits (set by the RT actuator's controller)."""
 
-# RT_STATUS.flags bits (set by rt_core's monitor task).
-RT_FLAG_GC_FROZEN = 0x1      # gc frozen and disabled in the RT process
-RT_FLAG_DMA_LATENCY = 0x2    # /dev/cpu_dma_latency held at 0 us
-RT_FLAG_GUARD_VALID = 0x4    # an actuator runs: guard_active is its collision guard's state
-RT_FLAG_AUDIT = 0x8          # the forbidden-call audit hook is installed
+    BRAKING = 0x1
+    GUARD = 0x2
+    MOTOR_STALE = 0x4
+    CLAMPED = 0x8
+    E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
+    HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
 
-LEVEL_OK = 0
-LEVEL_WARN = 1
-LEVEL_ERROR = 2
-LEVEL_STALE = 3
+
+class EncoderStatus(IntFlag):
+    """ENCODERS.status bits (set by the motor driver)."""
+
+    LEFT_FRAME = 0x01
+    RIGHT_FRAME = 0x02
+    LEFT_JUMP = 0x04
+    RIGHT_JUMP = 0x08
+    SAFE = 0x10          # the driver holds the DACs at zero (link loss / watchdog)
+    WRITE_ERROR = 0x20
+    # The bits that make the angles untrustworthy (frame or jump error, either wheel); SAFE
+    # and WRITE_ERROR leave the angles valid.
+    INVALID = LEFT_FRAME | RIGHT_FRAME | LEFT_JUMP | RIGHT_JUMP
+
+
+class ImuStatus(IntEnum):
+    """IMU.status (set by the IMU driver)."""
+
+    OK = 0
+    NOT_READY = 1
+    BAD_QUATERNION = 2
+
+
+class SonarStatus(IntEnum):
+    """SONAR.status (set by the sonar driver)."""
+
+    OK = 0
+    NO_ECHO = 1       # nothing within range: a valid reading (REP-117 +inf)
+    TIMEOUT = 2       # no edges: sensor not answering
+    FAULT = 3         # invalid: unmeasurable echo, clock step, inconsistent edges
+
+
+class RtFlag(IntFlag):
+    """RT_STATUS.flags bits (set by rt_core's monitor task)."""
+
+    GC_FROZEN = 0x1      # gc frozen and disabled in the RT process
+    DMA_LATENCY = 0x2    # /dev/cpu_dma_latency held at 0 us
+    GUARD_VALID = 0x4    # an actuator runs: guard_active is its collision guard's state
+    AUDIT = 0x8          # the forbidden-call audit hook is installed
+
+
+class Level(IntEnum):
+    """DEVICE_STATUS.level (and the bridge's diagnostic levels)."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+class LedSource(IntEnum):
+    """LED.source: who sets the colour."""
+
+    STATE = 0      # the RT LED task shows the robot state
+    OVERRIDE = 1   # the bridge's ~/led command overrides it (brightness 0 releases it)
+
+
+class DeviceState(IntEnum):
+    """DEVICE_STATUS.state: lifecycle states, numbered as ROS 2 lifecycle_msgs/State."""
+
+    UNCONFIGURED = 1
+    INACTIVE = 2
+    ACTIVE = 3
+    FINALIZED = 4
+    ERROR = 5
+
+
+class DeviceError(IntEnum):
+    """DEVICE_STATUS.last_error codes (the device driver's last error class)."""
+
+    NONE = 0
+    OTHER = 1
+    NOT_FOUND = 2
+    PERMISSION = 3
+    IO = 4
+    IDENTITY = 5
+    PROTOCOL = 6
+    LIFECYCLE = 7
+    WATCHDOG = 8
+
+
+# Plain-int views of the bits the RT loops combine every cycle: IntFlag arithmetic calls into
+# Python and allocates a member per result, an int constant does neither.
+ODOM_BRAKING = int(OdomFlag.BRAKING)
+ODOM_GUARD = int(OdomFlag.GUARD)
+ODOM_MOTOR_STALE = int(OdomFlag.MOTOR_STALE)
+ODOM_CLAMPED = int(OdomFlag.CLAMPED)
+ODOM_E_STOP = int(OdomFlag.E_STOP)
+ODOM_HOLD = int(OdomFlag.HOLD)
+ENC_INVALID_MASK = int(EncoderStatus.INVALID)
+
+SONAR_OK = int(SonarStatus.OK)
+SONAR_NO_ECHO = int(SonarStatus.NO_ECHO)
+SONAR_TIMEOUT = int(SonarStatus.TIMEOUT)
+SONAR_FAULT = int(SonarStatus.FAULT)
+
+RT_FLAG_GC_FROZEN = int(RtFlag.GC_FROZEN)
+RT_FLAG_DMA_LATENCY = int(RtFlag.DMA_LATENCY)
+RT_FLAG_GUARD_VALID = int(RtFlag.GUARD_VALID)
+RT_FLAG_AUDIT = int(RtFlag.AUDIT)
+
+LEVEL_OK = int(Level.OK)
+LEVEL_WARN = int(Level.WARN)
+LEVEL_ERROR = int(Level.ERROR)
+LEVEL_STALE = int(Level.STALE)
 
 NAME_SIZE = 16
 LABEL_SIZE = 32  # PORT_STATS labels: XDDP labels are at most 32 characters
@@ -375,7 +469,7 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.ENCODERS, 'HHddB', Encoders, (2, 4),
           ranges=((0, 0, ENCODER_MAX), (1, 0, ENCODER_MAX))),
     _spec(Kind.IMU, '4d3d3dB', Imu, (0, 10)),
-    _spec(Kind.SONAR, 'fB', Sonar, (0, 1), ranges=((0, 0.0, math.inf), (1, 0, SONAR_FAULT))),
+    _spec(Kind.SONAR, 'fB', Sonar, (0, 1), ranges=((0, 0.0, math.inf), (1, 0, max(SonarStatus)))),
     _spec(Kind.LASER_SCAN, 'ffffffIH', LaserScan, (0, 6),
           ranges=((6, 0, SCAN_STAMP_MAX),), item='H'),
     _spec(Kind.LED, 'BBBBB', Led, ranges=((4, 0, 1),)),
@@ -384,7 +478,7 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.REQUEST, 'II', Request),
     _spec(Kind.RT_STATUS, 'BBBBIII', RtStatus,
           ranges=((0, 0, 1), (1, 0, 1), (2, 0, 1), (3, 0, 1))),
-    _spec(Kind.DEVICE_STATUS, '16sBBII', DeviceStatus, ranges=((2, 0, LEVEL_STALE),),
+    _spec(Kind.DEVICE_STATUS, '16sBBII', DeviceStatus, ranges=((2, 0, max(Level)),),
           string=NAME_SIZE),
     _spec(Kind.PORT_STATS, '32sHBQQQQQQQ', PortStats, ranges=((2, 0, 1),),
           string=LABEL_SIZE),

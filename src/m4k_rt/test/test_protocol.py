@@ -487,3 +487,21 @@ def test_seq_gap_after_losing_k_datagrams_is_k(start, lost):
     for _ in range(lost + 1):
         cur = p.next_seq(cur)
     assert p.seq_gap(start, cur) == lost
+
+
+def test_flag_and_status_enums_own_the_wire_values():
+    # The plain-int names the RT loops use are views of the one IntFlag/IntEnum definition.
+    assert p.ODOM_BRAKING == p.OdomFlag.BRAKING and p.ODOM_HOLD == p.OdomFlag.HOLD
+    assert p.ENC_INVALID_MASK == 0x0F and not p.ENC_INVALID_MASK & (
+        p.EncoderStatus.SAFE | p.EncoderStatus.WRITE_ERROR)
+    assert p.SONAR_FAULT == max(p.SonarStatus) and p.LEVEL_STALE == max(p.Level)
+    for flags in (p.OdomFlag, p.RtFlag):
+        bits = [int(f) for f in flags]
+        assert all(b & (b - 1) == 0 for b in bits) and len(set(bits)) == len(bits)
+    # Layout ranges follow the enums: one more than the largest value is rejected.
+    good = EXAMPLES[Kind.SONAR]
+    with pytest.raises(ProtocolError):
+        p.encode(Kind.SONAR, 0, 0, good[0], max(p.SonarStatus) + 1)
+    status = EXAMPLES[Kind.DEVICE_STATUS]
+    with pytest.raises(ProtocolError):
+        p.encode(Kind.DEVICE_STATUS, 0, 0, status[0], status[1], max(p.Level) + 1, *status[3:])

@@ -36,6 +36,7 @@ import struct
 from typing import NamedTuple
 
 from m4k_drivers.handler import DeviceProtocolError
+from m4k_rt.protocol import ImuStatus
 
 __all__ = [
     'ADDRESS', 'BLOCK1', 'BLOCK1_LEN', 'BLOCK2', 'BLOCK2_LEN', 'GRAVITY', 'REG_STATUS',
@@ -72,10 +73,10 @@ TEMP_C = 200.0 / FULL
 EULER_DEG = 180.0 / FULL
 QUAT = 1.0 / FULL
 
-# IMU datagram status (docs/internals.md IMU.status).
-STATUS_OK = 0
-STATUS_NOT_READY = 1
-STATUS_BAD_QUATERNION = 2
+# IMU datagram status: m4k_rt.protocol.ImuStatus owns it (docs/internals.md IMU.status).
+STATUS_OK = ImuStatus.OK
+STATUS_NOT_READY = ImuStatus.NOT_READY
+STATUS_BAD_QUATERNION = ImuStatus.BAD_QUATERNION
 
 
 class DeviceSample(NamedTuple):

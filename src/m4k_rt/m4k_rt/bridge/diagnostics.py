@@ -26,13 +26,10 @@ from m4k_rt import protocol, timing
 __all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte', 'make_status',
            'timing_stats']
 
-LEVELS = {protocol.LEVEL_OK: 'OK', protocol.LEVEL_WARN: 'WARN', protocol.LEVEL_ERROR: 'ERROR',
-          protocol.LEVEL_STALE: 'STALE'}
-# DEVICE_STATUS.state and .last_error codes (m4k_drivers.handler State / ErrorCode; named here
-# because m4k_rt must not import m4k_drivers).
-DEVICE_STATES = {1: 'unconfigured', 2: 'inactive', 3: 'active', 4: 'finalized', 5: 'error'}
-DEVICE_ERRORS = {0: 'none', 1: 'other', 2: 'not found', 3: 'permission', 4: 'io',
-                 5: 'identity', 6: 'protocol', 7: 'lifecycle', 8: 'watchdog'}
+LEVELS = {int(v): v.name for v in protocol.Level}
+# DEVICE_STATUS.state and .last_error names (protocol.DeviceState / DeviceError own the codes).
+DEVICE_STATES = {int(v): v.name.lower() for v in protocol.DeviceState}
+DEVICE_ERRORS = {int(v): v.name.lower().replace('_', ' ') for v in protocol.DeviceError}
 _NS = 1e-9
 
 
