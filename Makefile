@@ -29,7 +29,7 @@ $(BUILD_STAMP): $(SOURCES) tools/setup.sh requirements.txt colcon.meta
 build: setup $(BUILD_STAMP)
 
 lint: setup
-	@$(ENV); ruff check src test tools
+	@$(ENV); tools/lint.sh
 
 test: build
 	@tools/run-tests.sh

@@ -25,7 +25,8 @@ import sys
 import sysconfig
 import threading
 import time
-from typing import Callable, NamedTuple
+from types import FrameType
+from typing import Any, Callable, NamedTuple, SupportsIndex
 
 from m4k_rt.protocol import EVENT_CODES, EVENT_NAMES
 
@@ -39,6 +40,7 @@ __all__ = [
 # (FORBIDDEN_SITE); re-exported here for the audit hook's readers.
 
 _tls = threading.local()
+_Sleep = Callable[[float | SupportsIndex], None]  # time.sleep's signature
 _installed = False
 _install_lock = threading.Lock()
 _THIS_FILE = __file__
@@ -56,7 +58,7 @@ class Site(NamedTuple):
     file: str
     line: int
     func: str
-    count: int
+    calls: int
 
 
 class SiteTable:
@@ -74,7 +76,7 @@ class SiteTable:
         self.total = 0
         self.by_event = [0] * (max(EVENT_NAMES) + 1)
         # Each slot: [event code, file, line, func, count]; code 0 = empty.
-        self._slots = [[0, '', 0, '', 0] for _ in range(capacity)]
+        self._slots: list[list[Any]] = [[0, '', 0, '', 0] for _ in range(capacity)]
         self._next = 0
         self.seq = 0  # bumped on every record, so a reader can tell the table changed
 
@@ -97,7 +99,7 @@ class SiteTable:
         order = [self._slots[(self._next + i) % n] for i in range(n)]
         return [Site(EVENT_NAMES[s[0]], s[1], s[2], s[3], s[4]) for s in order if s[0]]
 
-    def slot(self, i: int) -> list:
+    def slot(self, i: int) -> list[Any]:
         """Return raw slot ``i`` ([code, file, line, func, count]; code 0 = empty)."""
         return self._slots[i]
 
@@ -122,7 +124,7 @@ def allow_file(path: str) -> None:
     _ALLOWED_FILES.add(os.path.abspath(path))
 
 
-def _caller_site(frame: object) -> tuple[str, int, str] | None:
+def _caller_site(frame: FrameType | None) -> tuple[str, int, str] | None:
     # Walk out of the standard library, frozen importlib and this module, so the site is the
     # task code that made the call, not subprocess.py or socket.py. None: sanctioned caller.
     f = frame
@@ -137,13 +139,13 @@ def _caller_site(frame: object) -> tuple[str, int, str] | None:
     return '?', 0, '?'
 
 
-def _record(table: SiteTable, code: int, frame: object) -> None:
+def _record(table: SiteTable, code: int, frame: FrameType | None) -> None:
     site = _caller_site(frame)
     if site is not None:
         table.record(code, *site)
 
 
-def _audit_hook(event: str, args: tuple) -> None:
+def _audit_hook(event: str, args: tuple[object, ...]) -> None:
     code = EVENT_CODES.get(event)
     if code is None:
         return
@@ -179,8 +181,8 @@ def install() -> None:
             time.sleep = _make_guarded_sleep(time.sleep)
 
 
-def _make_guarded_sleep(real_sleep: Callable[[float], None]) -> Callable[[float], None]:
-    def sleep(secs: float) -> None:
+def _make_guarded_sleep(real_sleep: _Sleep) -> _Sleep:
+    def sleep(secs: float | SupportsIndex) -> None:
         table = getattr(_tls, 'table', None)
         if table is not None:
             try:

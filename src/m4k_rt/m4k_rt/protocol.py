@@ -333,7 +333,7 @@ class TaskStats(NamedTuple):
     """A batch of per-cycle timing samples plus counters of one RT task."""
 
     name: str
-    index: int
+    task_index: int
     priority: int
     cpu: int
     period_ns: int
@@ -411,7 +411,7 @@ class ForbiddenSite(NamedTuple):
     name: str
     task_index: int
     event: str
-    count: int
+    calls: int
     line: int
     total: int
     file: str
@@ -607,7 +607,7 @@ def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, s
 def encode_scan_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
                      angle_min: float, angle_increment: float, range_min: float,
                      range_max: float, scan_time: float, time_increment: float,
-                     device_stamp: int, ranges_mm: Sequence[int] | array) -> int:
+                     device_stamp: int, ranges_mm: Sequence[int] | array[int]) -> int:
     """Encode a LASER_SCAN datagram into ``buf`` and return the number of bytes written.
 
     ``ranges_mm`` may be any sequence of ints; an ``array('H')`` is copied without unpacking.
@@ -683,7 +683,7 @@ def _text_bytes(text: str, size: int, tail: bool = False) -> bytes:
 
 def encode_forbidden_site_into(buf: bytearray | memoryview, offset: int, seq: int,
                                stamp_ns: int, name: str | bytes, task_index: int,
-                               event: int | str, count: int, line: int, total: int, file: str,
+                               event: int | str, calls: int, line: int, total: int, file: str,
                                func: str) -> int:
     """Encode a FORBIDDEN_SITE datagram into ``buf`` and return the number of bytes written.
 
@@ -696,7 +696,7 @@ def encode_forbidden_site_into(buf: bytearray | memoryview, offset: int, seq: in
     full = _SITE.full
     try:
         full.pack_into(buf, offset, MAGIC, VERSION, Kind.FORBIDDEN_SITE, seq & SEQ_MASK,
-                       stamp_ns, _name_bytes(name), task_index, code, min(count, U32_MAX),
+                       stamp_ns, _name_bytes(name), task_index, code, min(calls, U32_MAX),
                        line, min(total, U32_MAX), _text_bytes(file, SITE_FILE_SIZE, tail=True),
                        _text_bytes(func, SITE_FUNC_SIZE))
     except _ENCODE_ERRORS as exc:
@@ -764,7 +764,7 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
         if n != fixed_end:
             raise ProtocolError('length', '{} datagram is {} bytes, expected {}'.format(
                 spec.kind.name, n, fixed_end))
-        values: Sequence[Any] = spec.payload.unpack_from(data, HEADER_SIZE)
+        values: tuple[Any, ...] = spec.payload.unpack_from(data, HEADER_SIZE)
     else:
         if n < fixed_end:
             raise ProtocolError('length', '{} datagram is {} bytes, expected at least '
@@ -788,11 +788,12 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
     if spec.string:
         values = (_decode_name(spec, values[0]),) + values[1:]
     if spec.texts:
-        values = list(values)
+        texts = list(values)
         for i in spec.texts:
-            values[i] = values[i].rstrip(b'\x00').decode('utf-8', 'replace')
+            texts[i] = texts[i].rstrip(b'\x00').decode('utf-8', 'replace')
         if spec is _SITE:
-            values[2] = EVENT_NAMES[values[2]]  # in range: checked above
+            texts[2] = EVENT_NAMES[texts[2]]  # in range: checked above
+        values = tuple(texts)
     return Header(spec.kind, seq, stamp_ns), spec.type._make(values)
 
 

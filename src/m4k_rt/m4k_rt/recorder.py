@@ -56,7 +56,7 @@ class TaskSeries:
 
     def add_stats(self, st: Any) -> None:
         """Take the counters of a TASK_STATS payload and append its new samples."""
-        self.index, self.priority, self.cpu = st.index, st.priority, st.cpu
+        self.index, self.priority, self.cpu = st.task_index, st.priority, st.cpu
         self.period_ns, self.cycles = st.period_ns, st.cycles
         self.nvcsw, self.nivcsw, self.minflt = st.nvcsw, st.nivcsw, st.minflt
         self.forbidden_calls = st.forbidden_calls
@@ -162,7 +162,7 @@ def _stats_dict(s: timing.Stats, scale: float) -> dict[str, float | int | None]:
 def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
               warmup_cycles: int = 0) -> dict[str, Any]:
     """Build the summary dict from task series (pure)."""
-    tasks = []
+    tasks: list[dict[str, Any]] = []  # one JSON row per task
     for t in sorted(series, key=lambda s: (-s.priority, s.name)):
         if len(t.t_rel) <= warmup_cycles:
             continue
@@ -185,7 +185,7 @@ def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
             'forbidden_calls': t.forbidden_calls,
             'forbidden_sites': [
                 {'event': s.event, 'file': s.file, 'line': s.line, 'func': s.func,
-                 'count': s.count} for s in t.sites.values()],
+                 'count': s.calls} for s in t.sites.values()],
             'wcrt_ns': None if math.isnan(a.wcrt_ns) else a.wcrt_ns,
         })
     out: dict[str, Any] = {'tasks': tasks, 'warmup_cycles_skipped': warmup_cycles}

@@ -237,7 +237,7 @@ class StatsShipper:
                     for site in t.sites.sites():
                         size = protocol.encode_forbidden_site_into(
                             buf, 0, self.seq, now, t.name, t.index,
-                            protocol.EVENT_CODES[site.event], site.count, site.line,
+                            protocol.EVENT_CODES[site.event], site.calls, site.line,
                             t.sites.total, site.file, site.func)
                         self._send(size, _TO_STAT)
         if status_linked:

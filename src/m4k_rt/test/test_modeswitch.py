@@ -38,7 +38,7 @@ def test_open_inside_body_is_reported_with_this_file_and_line():
     assert t.sites.by_event[modeswitch.EVENT_CODES['open']] == t.sites.total
     assert [(s.event, s.file, s.line, s.func) for s in sites] == [
         ('open', __file__, line, 'body')]
-    assert sites[0].count == t.sites.total
+    assert sites[0].calls == t.sites.total
 
 
 def test_sleep_subprocess_socket_and_console_are_distinct_sites():
@@ -87,4 +87,4 @@ def test_site_table_keeps_last_n_distinct_sites():
     for line in (1, 2, 2, 3):
         table.record(1, 'f.py', line, 'fn')
     assert table.total == 4
-    assert [(s.line, s.count) for s in table.sites()] == [(2, 2), (3, 1)]
+    assert [(s.line, s.calls) for s in table.sites()] == [(2, 2), (3, 1)]

@@ -113,7 +113,7 @@ def test_forbidden_site_keeps_the_file_tail_and_saturates_counters():
                                      42, 400, '/very/long/path/' * 5 + 'led_body.py', 'cycle')
     header, site = p.decode(bytes(buf[:n]))
     assert header == Header(Kind.FORBIDDEN_SITE, 7, 123)
-    assert site.event == 'open' and site.count == 0xFFFFFFFF and site.total == 400
+    assert site.event == 'open' and site.calls == 0xFFFFFFFF and site.total == 400
     assert site.file.endswith('/path/led_body.py') and len(site.file) == p.SITE_FILE_SIZE
     with pytest.raises(ProtocolError, match='unknown forbidden event'):
         p.encode_forbidden_site_into(buf, 0, 0, 0, 'led', 2, 0, 1, 1, 1, 'f', 'g')

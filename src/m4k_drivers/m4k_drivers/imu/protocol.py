@@ -113,8 +113,10 @@ def decode_blocks(block1: bytes | bytearray, block2: bytes | bytearray) -> Devic
     v1 = _B1.unpack(bytes(block1))
     v2 = _B2.unpack(bytes(block2))
     acc = tuple(c * ACC_G * GRAVITY for c in v1[0:3])
-    gyro = tuple(math.radians(c * GYRO_DPS) for c in v1[3:6])
-    euler = tuple(math.radians(c * EULER_DEG) for c in v2[0:3])
+    gyro = (math.radians(v1[3] * GYRO_DPS), math.radians(v1[4] * GYRO_DPS),
+            math.radians(v1[5] * GYRO_DPS))
+    euler = (math.radians(v2[0] * EULER_DEG), math.radians(v2[1] * EULER_DEG),
+             math.radians(v2[2] * EULER_DEG))
     quat = tuple(c * QUAT for c in v2[3:7])
     return DeviceSample(acc, gyro, (v1[6], v1[7], v1[8]), v1[9] * TEMP_C, euler, quat)
 

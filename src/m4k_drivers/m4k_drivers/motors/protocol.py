@@ -50,7 +50,7 @@ positive = forward (:func:`wheel_raw`).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, TypeGuard
 
 from m4k_drivers.handler import DeviceProtocolError
 from m4k_rt.control.dac import code_to_command, command_to_code  # the one owner
@@ -168,7 +168,7 @@ def mag_out_of_range(frame: EncoderFrame) -> bool:
 
 
 # -- config checks (registry.Param.check: None = fine, else the reason) ---------------------
-def _is_int(v: object) -> bool:
+def _is_int(v: object) -> TypeGuard[int]:
     return isinstance(v, int) and not isinstance(v, bool)
 
 

@@ -171,7 +171,7 @@ class RtMonitor:
     def _ordered(self) -> list[TaskWindow]:
         # Highest priority first, as RtStatus.tasks documents.
         return sorted((t for t in self.tasks.values() if t.stats is not None),
-                      key=lambda t: (-t.stats.priority, t.stats.index))
+                      key=lambda t: (-t.stats.priority, t.stats.task_index))
 
     def task_timing(self, t: TaskWindow) -> tuple[TaskTiming, timing.TaskTiming]:
         """Return the TaskTiming message of one task and the analysis behind it."""
