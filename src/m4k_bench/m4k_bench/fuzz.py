@@ -392,6 +392,7 @@ def fuzz_port(h: RtHarness, label: str, count: int, seed: int,
     proc = subprocess.Popen([sys.executable, '-m', 'm4k_bench.fuzz', 'send', label,
                              str(count), str(seed)], env=env, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
     try:
         line = proc.stdout.readline()  # 'sent N' once every datagram is written
         if not line.startswith('sent '):

@@ -607,7 +607,7 @@ def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, s
 def encode_scan_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
                      angle_min: float, angle_increment: float, range_min: float,
                      range_max: float, scan_time: float, time_increment: float,
-                     device_stamp: int, ranges_mm: Sequence[int] | array[int]) -> int:
+                     device_stamp: int, ranges_mm: 'Sequence[int] | array[int]') -> int:
     """Encode a LASER_SCAN datagram into ``buf`` and return the number of bytes written.
 
     ``ranges_mm`` may be any sequence of ints; an ``array('H')`` is copied without unpacking.

@@ -24,6 +24,7 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     'RtaResult', 'RtaTask', 'SampleRing', 'Stats', 'TaskTiming', 'UtilizationResult',
@@ -164,7 +165,7 @@ def describe(values: Sequence[float] | np.ndarray) -> Stats:
                  float(p50), float(p99), float(p999))
 
 
-def release_latency(t_rel: np.ndarray, t_start: np.ndarray, expirations: np.ndarray,
+def release_latency(t_rel: npt.ArrayLike, t_start: npt.ArrayLike, expirations: npt.ArrayLike,
                     period_ns: int) -> np.ndarray:
     """Return t_start minus the earliest release each cycle serves (ns, int64).
 

@@ -57,7 +57,8 @@ from m4k_rt.control.dac import code_to_command, command_to_code  # the one owner
 from m4k_rt.protocol import DAC_MAX, DAC_ZERO, EncoderStatus  # DAC codes 0..1023, 512 = 0
 
 __all__ = [
-    'DAC_MAX', 'DAC_ZERO', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame', 'EncoderFrame',
+    'DAC_MAX', 'DAC_ZERO', 'DeviceProtocolError', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame',
+    'EncoderFrame',
     'EncoderFieldWarning', 'EncoderFrameError', 'EncoderJumpError', 'Unwrapper',
     'code_to_command', 'code_to_volts',
     'command_to_code', 'decode_dac', 'decode_encoder', 'encode_dac', 'encode_encoder',

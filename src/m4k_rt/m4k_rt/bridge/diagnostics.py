@@ -168,10 +168,11 @@ class RtMonitor:
             return False
         return True
 
-    def _ordered(self) -> list[TaskWindow]:
-        # Highest priority first, as RtStatus.tasks documents.
-        return sorted((t for t in self.tasks.values() if t.stats is not None),
-                      key=lambda t: (-t.stats.priority, t.stats.task_index))
+    def _ordered(self) -> list[tuple[TaskWindow, protocol.TaskStats]]:
+        # The tasks that reported, with their last TASK_STATS; highest priority first, as
+        # RtStatus.tasks documents.
+        reported = [(t, t.stats) for t in self.tasks.values() if t.stats is not None]
+        return sorted(reported, key=lambda ts: (-ts[1].priority, ts[1].task_index))
 
     def task_timing(self, t: TaskWindow) -> tuple[TaskTiming, timing.TaskTiming]:
         """Return the TaskTiming message of one task and the analysis behind it."""
@@ -235,13 +236,12 @@ class RtMonitor:
         tasks = []
         rta_in = []
         misses = 0
-        for t in self._ordered():
+        for t, st in self._ordered():
             m, a = self.task_timing(t)
             tasks.append(m)
             misses += a.deadline_misses
-            if not math.isnan(a.wcrt_ns) and t.stats.period_ns:
-                rta_in.append(timing.RtaTask(t.name, a.wcrt_ns, t.stats.period_ns,
-                                             t.stats.priority))
+            if not math.isnan(a.wcrt_ns) and st.period_ns:
+                rta_in.append(timing.RtaTask(t.name, a.wcrt_ns, st.period_ns, st.priority))
         msg.tasks = tasks
         if rta_in:
             u = timing.utilization_test([(r.name, r.wcet_ns, r.period_ns) for r in rta_in])
@@ -254,9 +254,8 @@ class RtMonitor:
     def task_statuses(self, now_ns: int, prefix: str = 'm4k_rt') -> list[DiagnosticStatus]:
         """Return one DiagnosticStatus per RT task."""
         out = []
-        for t in self._ordered():
+        for t, st in self._ordered():
             m, a = self.task_timing(t)
-            st = t.stats
             age = (now_ns - t.rx_ns) * _NS
             values = {'period_s': m.period, 'priority': m.priority, 'cycles': m.cycles,
                       'window_samples': a.cycles,

@@ -105,7 +105,7 @@ class BridgeNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.p
-        self.counters = collections.Counter()
+        self.counters: collections.Counter[str] = collections.Counter()
         self._seq = 0
         self._led_seq = 0
         self._last_seq: dict[str, int] = {}
