@@ -174,7 +174,7 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
     elif op == 3:                                         # magic / version
         b[rng.choice((0, 1, 2))] = rng.getrandbits(8)
     elif op == 4:                                         # another (or unknown) kind
-        b[3] = rng.choice([int(k) for k in Kind] + [0, 13, 64, 65, 255])
+        b[3] = rng.choice([int(k) for k in Kind] + [0, max(Kind) + 1, 63, 255])  # + unknown
     elif op == 5 and len(b) >= 24:                        # NaN / inf into a double slot
         off = rng.randrange(16, len(b) - 7)
         struct.pack_into('<d', b, off, rng.choice(_NONFINITE))

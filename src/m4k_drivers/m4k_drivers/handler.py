@@ -32,7 +32,7 @@ import os
 import time
 from typing import Any, Callable, NamedTuple, TypeVar
 
-from m4k_rt.protocol import DeviceError, DeviceState
+from m4k_rt.protocol import DeviceError, DeviceState, Level
 
 __all__ = [
     'DeviceHandler', 'DeviceIOError', 'DeviceIdentityError', 'DeviceNotFoundError',
@@ -288,10 +288,10 @@ class DeviceHandler:
         self._set_state(State.FINALIZED)
 
     def status_level(self) -> int:
-        """Return the DEVICE_STATUS level: 0 ok, 1 warn (faults seen), 2 error state."""
+        """Return the DEVICE_STATUS level: OK, WARN (faults seen) or ERROR (error state)."""
         if self.state == State.ERROR:
-            return 2
-        return 1 if self.faults else 0
+            return Level.ERROR
+        return Level.WARN if self.faults else Level.OK
 
     def __enter__(self) -> DeviceHandler:
         return self
