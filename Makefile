@@ -10,7 +10,7 @@
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
 ENV := source tools/env.sh
-SOURCES := $(shell find src config -type f -not -path '*/__pycache__/*' -not -name '*.pyc' 2>/dev/null)
+SOURCES := $(shell find src config compat -type f -not -path '*/__pycache__/*' -not -name '*.pyc' 2>/dev/null)
 BUILD_STAMP := install/.m4k-build-stamp
 COLCON_FLAGS := --event-handlers console_cohesion- status- --metas colcon.meta
 
@@ -19,10 +19,11 @@ COLCON_FLAGS := --event-handlers console_cohesion- status- --metas colcon.meta
 setup:
 	@tools/setup.sh
 
-$(BUILD_STAMP): $(SOURCES) tools/setup.sh requirements.txt colcon.meta
+$(BUILD_STAMP): $(SOURCES) tools/setup.sh tools/compat-paths.sh requirements.txt colcon.meta
 	@tools/setup.sh
 	@echo 'm4k: colcon build' >&2
-	@mkdir -p build; $(ENV); flock build/.m4k-build.lock colcon --log-base log build $(COLCON_FLAGS) --base-paths src \
+	@mkdir -p build; $(ENV); flock build/.m4k-build.lock colcon --log-base log build $(COLCON_FLAGS) \
+	  --base-paths src $$(tools/compat-paths.sh) \
 	  --cmake-args -DPython3_EXECUTABLE=$$VIRTUAL_ENV/bin/python3 >&2 \
 	  || { echo 'm4k: colcon build failed (see log/latest_build)' >&2; exit 1; }
 	@touch $(BUILD_STAMP)

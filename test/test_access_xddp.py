@@ -174,7 +174,7 @@ def test_configured_group_admits_its_members_only(public_parent):
             buf = bytearray(4096)
             while not stop.is_set():
                 if rt.recv_into(buf):
-                    rt.send(protocol.encode(protocol.Kind.ODOMETRY, 1, 0, *[0.0] * 7, 0))
+                    rt.send(protocol.encode(protocol.Kind.ODOMETRY, 1, 0, *[0.0] * 9, 0))
                 time.sleep(0.005)
         t = threading.Thread(target=serve)
         t.start()

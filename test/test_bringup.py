@@ -68,12 +68,13 @@ def test_restart_delay_doubles_and_is_capped():
 
 
 def test_bridge_overlay_coerces_integers_and_adds_the_runtime_dir():
-    doc = {'m4k_bridge': {'ros__parameters': {'cmd_vel_timeout': 1, 'topics': {'odom': 'o'},
-                                              'imu_pose': [0, 0, 1, 0, 0, 0]}}}
+    doc = {'m4k_bridge': {'ros__parameters': {
+        'cmd_vel_timeout': 1, 'topics': {'odom': 'o'},
+        'odom_pose_covariance_diagonal': [0, 0, 1, 0, 0, 0]}}}
     out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
     assert out['cmd_vel_timeout'] == 1.0 and isinstance(out['cmd_vel_timeout'], float)
     assert out['topics'] == {'odom': 'o'} and out['runtime_dir'] == '/run/x'
-    assert all(isinstance(v, float) for v in out['imu_pose'])
+    assert all(isinstance(v, float) for v in out['odom_pose_covariance_diagonal'])
 
 
 def test_bridge_overlay_names_a_bad_field():
@@ -139,8 +140,23 @@ def test_launch_file_compiles_and_defines_the_entry_point(tmp_path):
     names = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert 'generate_launch_description' in names
     text = ast.unparse(tree)
-    for exe in ("'sim_robot'", "'rt_core'", "'driver_host'", "'bridge'", "'bridge.yaml'"):
-        assert exe in text
+    # What it starts comes from bringup's own plan, not a copy of it.
+    for shared in ('bringup.child_specs', 'bringup.bridge_overlay', "'bridge.yaml'"):
+        assert shared in text
+
+
+def test_bridge_overlay_derives_the_description_and_frames_from_the_configuration():
+    from m4k_rt import config, description
+    doc = config.deep_merge(config.load_layered(), {'robot': {'sensors': {
+        'laser': {'frame': 'urg', 'pose': [0.1, 0.0, 0.3, 0.0, 0.0, 0.0]}}}})
+    out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
+    assert out['laser_frame'] == 'urg' and out['imu_frame'] == 'imu_link'
+    laser = {j.child: j for j in description.fixed_joints(out['robot_description'])}['urg']
+    assert laser.xyz == pytest.approx((0.1, 0.0, 0.3))
+    # The overlay's own m4k_bridge section wins over the derived values.
+    doc['m4k_bridge'] = {'ros__parameters': {'laser_frame': 'mine'}}
+    out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
+    assert out['laser_frame'] == 'mine'
 
 
 # --- processes ---------------------------------------------------------------------------------

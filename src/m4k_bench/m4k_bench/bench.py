@@ -43,6 +43,7 @@ import numpy as np
 from m4k_bench.benchlib import analysis, plots, report, rounds, stack, system
 from m4k_bench.benchlib import progress as progress_mod
 from m4k_rt import config as rt_config_mod
+from m4k_rt import rosargs
 
 __all__ = ['main', 'plan_durations']
 
@@ -123,7 +124,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                     ', '.join(PHASES))
     ap.add_argument('--no-install', action='store_true',
                     help='do not apt-get install missing rt-tests / stress-ng')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     unknown = sorted(set(filter(None, args.skip.split(','))) - set(PHASES))
     if unknown:
         ap.error('--skip: unknown phase(s) {!r}; valid: {}'.format(unknown, ', '.join(PHASES)))

@@ -25,7 +25,7 @@ from typing import Any, cast, Sequence
 
 import numpy as np
 
-from m4k_rt import config, recorder, timing, xddp
+from m4k_rt import config, recorder, rosargs, timing, xddp
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.echo import EchoPeer
 from m4k_rt.timerfd import TimerFd
@@ -234,7 +234,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--duration', type=float, default=10.0, help='seconds per run')
     ap.add_argument('--rtt', type=int, default=2000, help='XDDP round trips')
     ap.add_argument('--json', metavar='FILE', help='also write the results dict as JSON')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     res = run(args.duration, args.rtt)
     sys.stdout.write(format_report(res))
     if args.json:

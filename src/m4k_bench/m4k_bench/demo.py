@@ -5,7 +5,7 @@
 1. starts the stack with ``bringup`` (rt_core + driver_host with simulated devices + bridge);
 2. waits for ``odom`` and ``scan`` over ROS, then starts the DWA planner node
    (:mod:`m4k_bench.planning.node`) with the goal 3 m ahead, 0.25 m/s and the laser mount of the
-   simulated laser (``devices.lrf.mount``);
+   simulated laser (``robot.sensors.laser.pose``, unless ``devices.lrf.mount`` overrides it);
 3. records ``odom`` (pose and measured centre velocity), the reference ``cmd_vel`` and
    ``planner_state`` as a plain ROS user, printing a progress line;
 4. stops at the goal (planner ``goal_reached`` and the robot at rest) or after ``--timeout``,
@@ -56,7 +56,7 @@ from m4k_bench.planning.evaluate import (
     trajectory_clearance,
     WorldGeometry,
 )
-from m4k_rt import config
+from m4k_rt import config, description, rosargs
 
 __all__ = ['main', 'pose_rate']
 
@@ -545,16 +545,16 @@ def _drive(rec: Recorder, stack: _Child, env: dict[str, str], args: argparse.Nam
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo (see the module docstring); return the exit code."""
-    args = _parser().parse_args(argv)
+    args = rosargs.parse_args(_parser(), argv)
     if not (args.timeout > 0 and 0 < args.max_v <= 2.0 and args.tolerance > 0
             and all(math.isfinite(v) for v in args.goal)):
         _log(f'bad arguments: timeout {args.timeout!r} s, max_v {args.max_v!r} m/s, tolerance '
              f'{args.tolerance!r} m, goal {args.goal!r}')
         return 2
     try:
-        raw = config.load_layered(args.config)
+        raw = description.fill_sim_mounts(config.load_layered(args.config))
         WorldGeometry.from_config(raw.get('world'))
-    except (config.ConfigError, EvaluateError, OSError) as exc:
+    except (config.ConfigError, EvaluateError, OSError, description.DescriptionError) as exc:
         _log(f'configuration: {exc}')
         return 2
     lrf = ((raw.get('devices') or {}).get('lrf') or {})

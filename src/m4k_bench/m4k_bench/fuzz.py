@@ -42,7 +42,7 @@ import sys
 import time
 from typing import Any, Iterator, Mapping, Sequence
 
-from m4k_rt import config, protocol, sched, tasks, xddp
+from m4k_rt import config, protocol, rosargs, sched, tasks, xddp
 from m4k_rt.protocol import Kind
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.portio import PortReader
@@ -113,7 +113,7 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
     if kind == K.VELOCITY_CMD:
         return (f(rng), f(rng))
     if kind == K.ODOMETRY:
-        return tuple(f(rng) for _ in range(7)) + (u(rng, 32),)
+        return tuple(f(rng) for _ in range(9)) + (u(rng, 32),)
     if kind == K.WHEEL_CMD:
         return (rng.randint(0, 1023), rng.randint(0, 1023), rng.randint(0, 1))
     if kind == K.ENCODERS:
@@ -443,7 +443,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--ports', default='', help='comma-separated labels (default: all)')
     ap.add_argument('--config', default=None, help='user overlay YAML')
     ap.add_argument('--json', default=None, metavar='FILE', help='write the results as JSON')
-    return ap.parse_args(argv)
+    return rosargs.parse_args(ap, argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -36,7 +36,7 @@ from typing import Any, Sequence
 
 from m4k_bench import core_bench
 from m4k_bench.benchlib import stack, system
-from m4k_rt import config, recorder, xddp
+from m4k_rt import config, recorder, rosargs, xddp
 
 __all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
 
@@ -180,7 +180,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--no-stress', action='store_true', help='do not run stress-ng')
     ap.add_argument('--config', default=None, help='user overlay YAML for the stack')
     ap.add_argument('--results', default='results', help='results root directory')
-    return ap.parse_args(argv)
+    return rosargs.parse_args(ap, argv)
 
 
 def _log(msg: str) -> None:

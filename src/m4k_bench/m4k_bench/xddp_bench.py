@@ -22,7 +22,7 @@ import threading
 import time
 from typing import Callable
 
-from m4k_rt import xddp
+from m4k_rt import rosargs, xddp
 
 _PAYLOAD = bytes(range(32))
 _WARMUP = 50
@@ -236,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
                         'one; -2: no pinning)')
     parser.add_argument('--echo-xddp', type=int, metavar='PORT', help=argparse.SUPPRESS)
     parser.add_argument('--echo-raw', metavar='PATH', help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    args = rosargs.parse_args(parser, argv)
     if args.echo_xddp is not None:
         _echo_xddp(args.echo_xddp, args.runtime_dir)
         return 0

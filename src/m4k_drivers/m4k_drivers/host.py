@@ -34,6 +34,7 @@ from typing import Any, cast, TextIO, TYPE_CHECKING
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
+from m4k_rt import description, rosargs
 from m4k_rt.stopsignals import StopSignals
 
 if TYPE_CHECKING:  # pragma: no cover -- the host imports device packages on demand
@@ -49,7 +50,11 @@ BRINGUP_BACKOFF = RetryPolicy(attempts=1_000_000, base_s=0.5, factor=2.0, max_s=
 
 
 def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict[str, Any]:
-    """Return the merged config document: ``path`` alone, or m4k_rt's layered files."""
+    """Return the merged config document: ``path`` alone, or m4k_rt's layered files.
+
+    Simulated sensors without a ``mount`` of their own take it from the robot section
+    (``robot.sensors``, config/robot.yaml): the same pose the URDF and tf_static publish.
+    """
     if path:
         raw = dconfig.load_file(path)
     else:
@@ -58,10 +63,10 @@ def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict
         except ImportError:
             raw = dconfig.load_file(dconfig.default_config_path())
         else:
-            return load_layered(overlay)
+            return description.fill_sim_mounts(load_layered(overlay))
     if overlay:
         raw = dconfig.merge(raw, dconfig.load_file(overlay))
-    return raw
+    return description.fill_sim_mounts(raw)
 
 
 class DeviceService:
@@ -370,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the driver host (see the module docstring); return the exit code."""
     signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
     try:
-        rc = _main(_parser().parse_args(argv), signals)
+        rc = _main(rosargs.parse_args(_parser(), argv), signals)
     finally:
         signals.restore()
     if signals.stopping:
@@ -382,7 +387,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace, signals: StopSignals) -> int:
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+    level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
+    if level is None:
+        level = logging.DEBUG if args.verbose else logging.INFO
+    logging.basicConfig(level=level,
                         format='%(asctime)s %(name)s %(levelname)s: %(message)s')
     try:
         raw = load_raw_config(args.config, args.overlay)

@@ -35,6 +35,7 @@ from typing import Any, Callable
 from m4k_drivers import config as dconfig
 from m4k_drivers.simbus import read_truth, SimBusServer, socket_path
 from m4k_drivers.world import World
+from m4k_rt import rosargs
 
 __all__ = ['SYSFS_DIR', 'SimRobot', 'URG_LINK', 'main', 'truth_main', 'wait_ready']
 
@@ -278,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     from m4k_rt.stopsignals import StopSignals
     signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
     try:
-        rc = _main(_parser().parse_args(argv), signals)
+        rc = _main(rosargs.parse_args(_parser(), argv), signals)
     finally:
         signals.restore()
     if signals.stopping:
@@ -289,7 +290,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace, signals: Any) -> int:
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+    level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
+    if level is None:
+        level = logging.DEBUG if args.verbose else logging.INFO
+    logging.basicConfig(level=level,
                         format='%(asctime)s %(name)s %(levelname)s: %(message)s')
     from m4k_drivers.host import load_raw_config
     from m4k_rt import xddp
@@ -338,7 +342,7 @@ def truth_main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog='sim_truth', description='Print the ground truth of the '
                                  'running sim_robot (one JSON object) and exit.')
     ap.add_argument('--runtime-dir', help='runtime directory of the stack')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     from m4k_rt import xddp
     runtime_dir = args.runtime_dir or xddp.default_runtime_dir()
     try:

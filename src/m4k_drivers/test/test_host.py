@@ -226,3 +226,14 @@ def test_print_works_for_every_device(capsys, sim_robot, kind, pattern):
                  '--rate', '20']) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2 and all(re.match(pattern, line) for line in lines), lines
+
+
+def test_simulated_sensors_are_mounted_where_the_robot_description_says(tmp_path):
+    from m4k_drivers.host import load_raw_config
+    overlay = tmp_path / 'moved.yaml'
+    overlay.write_text('robot:\n  sensors:\n    laser:\n      frame: laser\n'
+                       '      pose: [0.12, -0.03, 0.3, 0.0, 0.0, 0.5]\n')
+    raw = load_raw_config(None, str(overlay))
+    assert raw['devices']['lrf']['mount'] == pytest.approx([0.12, -0.03, 0.5])
+    sonar = raw['robot']['sensors']['sonar']['pose']
+    assert raw['devices']['sonar']['mount'] == pytest.approx([sonar[0], sonar[1], sonar[5]])

@@ -21,7 +21,7 @@ __all__ = [
     'find_config_dir', 'load', 'load_layered', 'parse',
 ]
 
-LAYERS = ('m4k.yaml', 'devices.yaml', 'control.yaml')
+LAYERS = ('m4k.yaml', 'devices.yaml', 'control.yaml', 'robot.yaml')
 _LABEL = re.compile(r'^[A-Za-z_][A-Za-z0-9_]{0,31}$')
 
 

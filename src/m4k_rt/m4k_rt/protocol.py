@@ -244,7 +244,12 @@ class VelocityCmd(NamedTuple):
 
 
 class Odometry(NamedTuple):
-    """Odometry estimate; ``flags`` holds the ODOM_* bits."""
+    """Odometry estimate; ``flags`` holds the ODOM_* bits.
+
+    ``left_wheel``/``right_wheel`` are wheel speeds [rad/s]; ``left_position``/
+    ``right_position`` the wheels' accumulated angles [rad] (joint_states), continuous across
+    driver restarts.
+    """
 
     x: float
     y: float
@@ -253,6 +258,8 @@ class Odometry(NamedTuple):
     w: float
     left_wheel: float
     right_wheel: float
+    left_position: float
+    right_position: float
     flags: int
 
 
@@ -463,7 +470,7 @@ def _spec(kind: Kind, fmt: str, cls: Any, floats: tuple[int, int] = (0, 0),
 
 _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.VELOCITY_CMD, 'dd', VelocityCmd, (0, 2)),
-    _spec(Kind.ODOMETRY, 'dddddddI', Odometry, (0, 7)),
+    _spec(Kind.ODOMETRY, 'dddddddddI', Odometry, (0, 9)),
     _spec(Kind.WHEEL_CMD, 'HHB', WheelCmd,
           ranges=((0, 0, DAC_MAX), (1, 0, DAC_MAX), (2, 0, 1))),
     _spec(Kind.ENCODERS, 'HHddB', Encoders, (2, 4),

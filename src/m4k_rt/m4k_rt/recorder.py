@@ -23,7 +23,7 @@ import sys
 import time
 from typing import Any, Iterable, Sequence
 
-from m4k_rt import protocol, timing
+from m4k_rt import protocol, rosargs, timing
 
 __all__ = ['Recorder', 'TaskSeries', 'format_table1', 'main', 'summary_json']
 
@@ -285,7 +285,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--port', default='status', help='port label or number (default status)')
     ap.add_argument('--duration', type=float, default=10.0, help='seconds to record')
     ap.add_argument('--out', default='results/timing', help='output directory')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     from m4k_rt import xddp
     port: int | str = int(args.port) if args.port.isdigit() else args.port
     link = xddp.NrtLink(port)

@@ -22,7 +22,7 @@ import sys
 import threading
 from typing import Any, Mapping, Sequence
 
-from m4k_rt import config, modeswitch, protocol, sched, tasks, timing
+from m4k_rt import config, modeswitch, protocol, rosargs, sched, tasks, timing
 from m4k_rt.stopsignals import StopSignals
 from m4k_rt.task import RtTask
 from m4k_rt.tasks import register_body
@@ -301,7 +301,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--body-module', action='append', default=[], metavar='MOD',
                     help='import MOD first (it may call register_body); also $' +
                     BODY_MODULES_ENV)
-    return ap.parse_args(argv)
+    return rosargs.parse_args(ap, argv)
 
 
 def _select(cfg: config.RtConfig, names: str | None,

@@ -9,6 +9,8 @@ Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. Wha
 * An autouse leak check that fails any test leaving behind a child process, a Python thread
   or a socket file descriptor -- the python-can habit of catching leaks where they happen.
 * The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
+* The ``ros2cli`` marker for tests that need launch/launch_ros/ros2cli (not on PyPI): skipped,
+  saying so, where they do not import; the skip policy accepts that skip only there.
 * The ``needs_root(reason)`` marker: skipped, saying why, when not root -- and the skip policy:
   under the test runner (``M4K_CI=1``) a run fails when a test was skipped that could have run
   here (any skip as root; any skip other than ``needs_root`` otherwise), so a missing
@@ -46,6 +48,7 @@ _LEAK_GRACE_S = 3.0
 HYPOTHESIS_PROFILE_ENV = 'M4K_HYPOTHESIS_PROFILE'
 FUZZ_FACTOR = 20  # ``fuzz`` runs this many times each test's example count
 _NEEDS_ROOT = 'needs root: '
+_NEEDS_ROS2CLI = 'needs ros2cli/launch (not on PyPI: a full ROS install or the ros-verify env): '
 _session_skips: list[tuple[str, str]] = []
 
 
@@ -78,6 +81,9 @@ def pytest_configure(config: pytest.Config) -> None:
     """Register the m4k markers."""
     config.addinivalue_line('markers', 'hardware: needs the real M4K hardware; CI skips it')
     config.addinivalue_line(
+        'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
+        'install or the ros-verify environment); skipped with the reason elsewhere')
+    config.addinivalue_line(
         'markers', 'allow_leaks(kinds): tolerate leftovers of the given kinds '
         "('fds' for in-process DDS transports); state why in the test")
     config.addinivalue_line(
@@ -85,11 +91,19 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 
+def ros2cli_available() -> bool:
+    """Return True when launch_ros and ros2launch import (a full ROS install, ros-verify)."""
+    import importlib.util
+    return all(importlib.util.find_spec(m) is not None for m in ('launch_ros', 'ros2launch'))
+
+
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """Skip a ``needs_root`` test when not root, saying what it needs root for."""
+    """Skip needs_root tests when not root, ros2cli tests without ros2cli; say why."""
     marker = item.get_closest_marker('needs_root')
     if marker is not None and os.geteuid() != 0:
         pytest.skip(_NEEDS_ROOT + (marker.args[0] if marker.args else 'privileged test'))
+    if item.get_closest_marker('ros2cli') is not None and not ros2cli_available():
+        pytest.skip(_NEEDS_ROS2CLI + 'launch_ros/ros2launch do not import here')
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
@@ -104,10 +118,13 @@ def forbidden_skips(skips: list[tuple[str, str]], euid: int) -> list[tuple[str, 
     """Return the skips the runner does not accept (pure: the policy itself).
 
     As root every test can run here, so every skip is refused; otherwise only the
-    ``needs_root`` skips are accepted.
+    ``needs_root`` skips are accepted. A ``ros2cli`` skip is accepted only where launch_ros
+    and ros2launch really do not import (not on PyPI).
     """
+    ros2cli = ros2cli_available()
     return [(node, why) for node, why in skips
-            if euid == 0 or not why.removeprefix('Skipped: ').startswith(_NEEDS_ROOT)]
+            if not (why.removeprefix('Skipped: ').startswith(_NEEDS_ROS2CLI) and not ros2cli)
+            and (euid == 0 or not why.removeprefix('Skipped: ').startswith(_NEEDS_ROOT))]
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:

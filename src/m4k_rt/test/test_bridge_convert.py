@@ -49,7 +49,7 @@ def test_covariance_diagonals_land_on_the_diagonal():
 
 
 def test_odometry_message_has_pose_twist_frames_and_covariance():
-    odom = protocol.Odometry(1.5, -0.5, math.pi / 2, 0.25, 0.1, 2.4, 2.6, 0)
+    odom = protocol.Odometry(1.5, -0.5, math.pi / 2, 0.25, 0.1, 2.4, 2.6, 3.0, 3.5, 0)
     msg = convert.odometry_msg(odom, 5_000_000_000, 'odom', 'base_link',
                                [1, 2, 3, 4, 5, 6], [6, 5, 4, 3, 2, 1])
     assert msg.header.frame_id == 'odom' and msg.child_frame_id == 'base_link'
@@ -63,7 +63,7 @@ def test_odometry_message_has_pose_twist_frames_and_covariance():
 
 
 def test_odom_transform_matches_the_odometry_pose():
-    odom = protocol.Odometry(1.0, 2.0, 0.3, 0, 0, 0, 0, 0)
+    odom = protocol.Odometry(1.0, 2.0, 0.3, 0, 0, 0, 0, 0, 0, 0)
     t = convert.odom_transform(odom, 0, 'odom', 'base_link')
     assert (t.header.frame_id, t.child_frame_id) == ('odom', 'base_link')
     assert (t.transform.translation.x, t.transform.translation.y) == (1.0, 2.0)

@@ -10,9 +10,10 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import Imu, LaserScan, Range
-from std_msgs.msg import ColorRGBA
+from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, JointState, LaserScan, Range
+from std_msgs.msg import ColorRGBA, String
+from tf2_msgs.msg import TFMessage
 
 from m4k_msgs.msg import RtStatus
 from m4k_rt import protocol, xddp
@@ -178,7 +179,7 @@ def test_datagrams_become_odom_imu_scan_and_sonar(harness):
     rt = harness.rt
 
     def feed():
-        rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0, 2.4, 2.5, 0)
+        rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0, 2.4, 2.5, 7.0, 7.5, 0)
         rt.send('imu_out', protocol.Kind.IMU, 0, 0, 0, 1, 0, 0, 0.05, 0, 0, 9.81, 0)
         rt.send('lrf_out', protocol.Kind.LASER_SCAN, -2.09, 0.00614, 0.02, 5.6, 0.1, 1e-4, 7,
                 (1500,) * 10 + (0,))
@@ -225,7 +226,7 @@ def test_task_stats_become_rt_status_and_diagnostics(harness):
         rt.send('status', protocol.Kind.PORT_STATS, 'cmd', 1, 1, c, 2 * c, 0, 1, 0, 3, 1)
         rt.send('status', protocol.Kind.PORT_STATS, 'status', 0, 1, c, 0, 0, 0, 0, 0, 0)
         rt.send('status', protocol.Kind.RT_STATUS, 1, 1, 0, 1, 0, 2, c)
-        rt.send('cmd', protocol.Kind.ODOMETRY, 0, 0, 0, 0, 0, 0, 0, protocol.ODOM_GUARD)
+        rt.send('cmd', protocol.Kind.ODOMETRY, 0, 0, 0, 0, 0, 0, 0, 0, 0, protocol.ODOM_GUARD)
         state['cycle'] = c + 20
 
     def ready():
@@ -302,7 +303,7 @@ def test_rt_restart_is_survived_and_reported(harness):
     odom = harness.collect(Odometry, 'odom')
     rt = harness.rt
     def feed():
-        return (rt.send('cmd', protocol.Kind.ODOMETRY, 1.0, 0, 0, 0, 0, 0, 0, 0))
+        return (rt.send('cmd', protocol.Kind.ODOMETRY, 1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
     assert harness.spin_until(lambda: harness.bridge._rt_alive, each=feed)
     harness.bridge.set_parameters([Parameter('rt_stale_timeout', value=0.3)])
     rt.close()
@@ -343,7 +344,8 @@ def test_stamped_mode_drives_too(m4k_runtime_dir):
 
 
 @pytest.mark.parametrize('name, value', [
-    ('cmd_vel_timeout', -2.0), ('odom_frame', ''), ('laser_pose', [1.0, 2.0])])
+    ('cmd_vel_timeout', -2.0), ('odom_frame', ''), ('odom_pose_covariance_diagonal', [1.0, 2.0]),
+    ('robot_description', '<robot name="x"><link name="base_link"/></robot>')])
 def test_configure_fails_with_bad_parameter(m4k_runtime_dir, name, value):
     context = rclpy.context.Context()
     rclpy.init(context=context)
@@ -359,3 +361,43 @@ def test_param_files_are_found_on_the_command_line():
     argv = ['bridge', '--ros-args', '--params-file', 'a.yaml', '-p', 'x:=1',
             '--params-file', 'b.yaml']
     assert param_files(argv) == ['a.yaml', 'b.yaml']
+
+
+# --- robot state: joint_states, tf, tf_static, robot_description (m4k_rt.bridge.tf) ----------
+
+_LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@pytest.mark.parametrize('publish_tf, robot_state', [(True, True), (False, True),
+                                                      (True, False)])
+def test_tf_switches_select_who_publishes_which_transform(m4k_runtime_dir, publish_tf,
+                                                          robot_state):
+    h = Harness(m4k_runtime_dir, [Parameter('publish_tf', value=publish_tf),
+                                  Parameter('publish_robot_state', value=robot_state)])
+    try:
+        tf = h.collect(TFMessage, 'tf', 100)
+        static = h.collect(TFMessage, 'tf_static', _LATCHED)
+        joints = h.collect(JointState, 'joint_states')
+        desc = h.collect(String, 'robot_description', _LATCHED)
+        assert h.spin_until(h.rt.linked)
+        feed = lambda: h.rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0,  # noqa
+                                 2.4, 2.5, math.pi, -1.0, 0)
+        assert h.spin_until(lambda: joints and desc and (tf or not (publish_tf or robot_state))
+                            and (static or not robot_state), each=feed)
+        js = joints[-1]
+        assert list(js.name) == ['left_wheel_joint', 'right_wheel_joint']
+        assert list(js.position) == [math.pi, -1.0] and list(js.velocity) == [2.4, 2.5]
+        pairs = {(t.header.frame_id, t.child_frame_id): t for m in tf for t in m.transforms}
+        assert (('odom', 'base_link') in pairs) == publish_tf
+        assert (('base_link', 'left_wheel_link') in pairs) == robot_state
+        if robot_state:   # half a turn about the axle (y): quaternion (0, 1, 0, 0)
+            q = pairs[('base_link', 'left_wheel_link')].transform.rotation
+            assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 1.0, 0.0, 0.0), abs=1e-9)
+            assert {t.child_frame_id for m in static for t in m.transforms} == {
+                'laser', 'imu_link', 'sonar_link', 'front_caster_link', 'rear_caster_link'}
+        else:
+            assert not h.peer.get_publishers_info_by_topic('tf_static')
+        assert '<robot name="m4k">' in desc[-1].data
+    finally:
+        h.close()

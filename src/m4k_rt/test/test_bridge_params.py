@@ -44,7 +44,8 @@ def test_every_number_parameter_has_a_range_with_the_default_inside():
 
 
 def test_resource_parameters_are_read_only():
-    for name in ('runtime_dir', 'ports.cmd', 'topics.odom', 'use_stamped_vel', 'laser_pose'):
+    for name in ('runtime_dir', 'ports.cmd', 'topics.odom', 'use_stamped_vel',
+                 'robot_description', 'publish_robot_state'):
         assert params.spec(name).read_only, name
     assert not params.spec('max_linear_velocity').read_only
 

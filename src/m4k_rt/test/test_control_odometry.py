@@ -89,6 +89,21 @@ def test_jump_rebaselines_instead_of_teleporting():
     assert odom.x == pytest.approx(x + 0.2 * R)
 
 
+def test_wheel_positions_are_continuous_across_jumps_rebases_and_resets():
+    # joint_states positions: the integrated angle steps, never the encoders' origin.
+    odom = Odometry(R, L, max_wheel_speed=30.0)
+    odom.update(1.0, -2.0, 0)                            # first sample: a baseline only
+    odom.update(1.2, -2.1, 10_000_000)
+    assert (odom.left_position, odom.right_position) == pytest.approx((0.2, -0.1))
+    odom.update(500.0, 500.0, 20_000_000)                # jump: origin moved, wheels did not
+    odom.update(500.1, 500.0, 30_000_000)
+    odom.rebase()
+    odom.update(7.0, 7.0, 40_000_000)
+    odom.update(7.1, 7.2, 50_000_000)
+    odom.reset()                                         # moves the pose, not the wheels
+    assert (odom.left_position, odom.right_position) == pytest.approx((0.4, 0.1))
+
+
 def test_normalize_angle():
     assert normalize_angle(math.pi) == pytest.approx(math.pi)
     assert normalize_angle(-math.pi) == pytest.approx(math.pi)

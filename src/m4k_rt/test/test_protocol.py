@@ -28,7 +28,7 @@ FUNC = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=p.SIT
 
 FIELDS = {
     Kind.VELOCITY_CMD: st.tuples(F64, F64),
-    Kind.ODOMETRY: st.tuples(*[F64] * 7, U32),
+    Kind.ODOMETRY: st.tuples(*[F64] * 9, U32),
     Kind.WHEEL_CMD: st.tuples(st.integers(0, 1023), st.integers(0, 1023), BIT),
     Kind.ENCODERS: st.tuples(st.integers(0, 4095), st.integers(0, 4095), F64, F64, U8),
     Kind.IMU: st.tuples(*[F64] * 10, U8),
@@ -63,7 +63,8 @@ PAYLOAD_TYPES = {
 # One hand-picked valid payload per kind (used by example tests and mutation fuzzing).
 EXAMPLES = {
     Kind.VELOCITY_CMD: (0.25, -0.5),
-    Kind.ODOMETRY: (1.0, 2.0, 0.5, 0.25, 0.1, 2.5, 2.4, p.ODOM_BRAKING | p.ODOM_CLAMPED),
+    Kind.ODOMETRY: (1.0, 2.0, 0.5, 0.25, 0.1, 2.5, 2.4, 12.5, -3.25,
+                    p.ODOM_BRAKING | p.ODOM_CLAMPED),
     Kind.WHEEL_CMD: (512, 1023, 1),
     Kind.ENCODERS: (4095, 0, 12.5, -3.25, 0),
     Kind.IMU: (0.0, 0.0, 0.0, 1.0, 0.01, -0.02, 0.03, 0.1, -0.2, 9.81, 0),
@@ -336,7 +337,7 @@ def test_nonfinite_float_is_rejected_per_field(kind, index, bad):
 
 
 def test_float_fields_cover_every_float_in_the_layouts():
-    assert len(FLOAT_FIELDS) == 2 + 7 + 2 + 10 + 1 + 6
+    assert len(FLOAT_FIELDS) == 2 + 9 + 2 + 10 + 1 + 6
 
 
 @pytest.mark.parametrize(('kind', 'index', 'value'), [

@@ -26,3 +26,11 @@ def test_the_runner_profile_is_derandomized_without_a_database():
     else:
         assert settings.default.derandomize is False
         assert testing.examples(300) == 300 * testing.FUZZ_FACTOR
+
+
+def test_a_ros2cli_skip_is_accepted_only_where_ros2cli_does_not_import(monkeypatch):
+    skip = [('t.py::c', 'Skipped: ' + testing._NEEDS_ROS2CLI + 'launch_ros does not import')]
+    monkeypatch.setattr(testing, 'ros2cli_available', lambda: False)
+    assert testing.forbidden_skips(skip, 0) == []
+    monkeypatch.setattr(testing, 'ros2cli_available', lambda: True)
+    assert testing.forbidden_skips(skip, 0) == skip

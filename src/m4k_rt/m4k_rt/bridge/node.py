@@ -9,8 +9,9 @@ diagnostics. On shutdown it sends one zero command. ``e_stop`` (std_msgs/Bool) a
 ``~/reset_odometry`` service (std_srvs/Trigger) go to the RT actuator on the same ``cmd`` port
 (:mod:`m4k_rt.bridge.safety`: the latch itself lives in the RT process).
 
-Outbound, datagrams from the RT process become ``odom`` (+ ``tf`` when tf2_msgs exists),
-``imu``, ``scan``, ``sonar``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and,
+Outbound, datagrams from the RT process become ``odom``, ``imu``, ``scan``, ``sonar``, and
+through :mod:`m4k_rt.bridge.tf` ``joint_states``, ``tf``, ``tf_static`` and
+``robot_description``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and,
 with the link and device health, ``diagnostics``. Port I/O runs in one thread per port
 (:mod:`m4k_rt.bridge.ports` explains why); the executor thread does all ROS work.
 
@@ -42,30 +43,24 @@ from rclpy.exceptions import (
 )
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
+from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, LaserScan, Range
 from std_msgs.msg import ColorRGBA
 import yaml
 
 from m4k_msgs.msg import RtStatus
-from m4k_rt import protocol, xddp
+from m4k_rt import config, description, protocol, xddp
 from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
 from m4k_rt.bridge.ports import PortPump
 from m4k_rt.bridge.safety import SafetyInterface
 from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
+from m4k_rt.bridge.tf import RobotStatePublisher
 from m4k_rt.stopsignals import StopSignals
-
-try:  # not on PyPI: present with a full ROS install only
-    from tf2_msgs.msg import TFMessage
-except ImportError:  # pragma: no cover - depends on the installation
-    TFMessage = None
 
 __all__ = ['BridgeNode', 'main', 'param_files']
 
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-_LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # cmd_vel is taken best effort: a reliable reader makes a reliable writer (Nav2, teleop) keep
 # and re-send the samples it could not deliver, so after a network outage the robot would get
 # a burst of commands from before the outage and drive on them. A velocity stream needs the
@@ -132,16 +127,7 @@ class BridgeNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, p.topic('diagnostics'),
                                                _RELIABLE)
         self._rt_pub = self.create_publisher(RtStatus, p.topic('rt_status'), _RELIABLE)
-        self._tf_pub = None
-        if p['publish_tf']:
-            if TFMessage is None:
-                self.get_logger().info(
-                    'tf is off: tf2_msgs is not importable (it is not on PyPI; install '
-                    'ros-jazzy-tf2-msgs with a full ROS install). odom is still published.')
-            else:
-                self._tf_pub = self.create_publisher(TFMessage, 'tf', 100)
-                self._tf_static_pub = self.create_publisher(TFMessage, 'tf_static', _LATCHED)
-                self._publish_static_transforms()
+        self._robot_state = self._setup_robot_state()
         self._init_safety()
         if p['use_stamped_vel']:
             self.create_subscription(TwistStamped, p.topic('cmd_vel'), self._on_twist_stamped,
@@ -344,9 +330,7 @@ class BridgeNode(Node):
             self._odom_pub.publish(convert.odometry_msg(
                 payload, stamp, p['odom_frame'], p['base_frame'],
                 p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
-            if self._tf_pub is not None:
-                self._tf_pub.publish(TFMessage(transforms=[convert.odom_transform(
-                    payload, stamp, p['odom_frame'], p['base_frame'])]))
+            self._robot_state.on_odometry(payload, stamp)
         elif k == protocol.Kind.IMU:
             msg = convert.imu_msg(payload, stamp, p['imu_frame'],
                                   p['imu_orientation_covariance_diagonal'],
@@ -372,13 +356,32 @@ class BridgeNode(Node):
         elif not self._monitor.feed(k, payload, rx_ns, header.stamp_ns):
             self.counters['unexpected_' + role] += 1
 
-    def _publish_static_transforms(self) -> None:
+    # --- robot state: description, joint_states, tf (m4k_rt.bridge.tf) -----------------------
+
+    def _setup_robot_state(self) -> RobotStatePublisher:
+        """Publish the robot description and create the tf / joint_states publishers.
+
+        Raise ParamError when ``robot_description`` (or, when it is empty, the configuration it
+        is generated from) is unusable.
+        """
         p = self.p
-        stamp = self.get_clock().now().nanoseconds
-        self._tf_static_pub.publish(TFMessage(transforms=[
-            convert.static_transform(p['base_frame'], p[frame], p[pose], stamp)
-            for frame, pose in (('laser_frame', 'laser_pose'), ('imu_frame', 'imu_pose'),
-                                ('sonar_frame', 'sonar_pose'))]))
+        urdf = p['robot_description']
+        try:
+            if not urdf:
+                urdf = description.urdf(description.model(config.load_layered(),
+                                                          p['base_frame']))
+            state = RobotStatePublisher(self, urdf, p['odom_frame'], p['base_frame'],
+                                        p['publish_tf'], p['publish_robot_state'],
+                                        p.topic('joint_states'), p.topic('robot_description'))
+        except (description.DescriptionError, config.ConfigError) as exc:
+            raise params.ParamError('robot_description', str(exc)) from None
+        missing = [p[f] for f in ('base_frame', 'laser_frame', 'imu_frame', 'sonar_frame')
+                   if p[f] not in state.links]
+        if missing:
+            self.get_logger().warning(
+                'frames {} are not links of robot_description: their messages do not connect '
+                'to {!r} in tf'.format(missing, p['odom_frame']))
+        return state
 
     # --- e-stop and odometry reset (m4k_rt.bridge.safety) ---------------------------------
 

@@ -27,7 +27,7 @@ __all__ = [
 NODE_NAME = 'm4k_bridge'
 PORT_ROLES = ('status', 'cmd', 'imu_out', 'led_in', 'sonar_out', 'lrf_out')
 TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 'rt_status',
-               'e_stop')
+               'e_stop', 'joint_states', 'robot_description')
 
 _TOPIC = re.compile(r'^~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 _FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
@@ -111,8 +111,17 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec('imu_frame', 'imu_link', 'Frame id of imu messages (REP-145).', check=_frame),
     ParamSpec('laser_frame', 'laser', 'Frame id of scan messages.', check=_frame),
     ParamSpec('sonar_frame', 'sonar_link', 'Frame id of sonar messages.', check=_frame),
-    ParamSpec('publish_tf', True, 'Broadcast odom -> base_link on tf and the sensor frames on '
-              'tf_static (only possible when tf2_msgs is installed).'),
+    ParamSpec('publish_tf', True, 'Broadcast odom -> base_link on tf. Turn off when another '
+              'node (an EKF fusing odom and imu) publishes that transform.', read_only=True),
+    ParamSpec('publish_robot_state', True, "Do robot_state_publisher's job: the description's "
+              'fixed joints (sensors, casters) on tf_static and the wheel links on tf. Turn off '
+              'when robot_state_publisher runs, or every transform has two publishers.',
+              read_only=True),
+    ParamSpec('robot_description', '', 'URDF published on robot_description (transient '
+              'local); its fixed joints are the tf_static transforms and its wheel joints '
+              'name joint_states. Empty: generated from the layered configuration '
+              '(config/robot.yaml + control.wheel_radius/track_width), as bringup and the '
+              'launch file pass it.', read_only=True),
     ParamSpec('odom_pose_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
               'Diagonal of the odometry pose covariance (x, y, z [m^2], roll, pitch, yaw '
               '[rad^2]); huge values mark the unobserved planar-robot axes. ' + _COV,
@@ -129,15 +138,6 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec('imu_linear_acceleration_covariance_diagonal', [0.01, 0.01, 0.01],
               'Diagonal of the imu linear acceleration covariance [m^2/s^4]. ' + _COV,
               lo=0.0, hi=1.0e9, length=3),
-    ParamSpec('laser_pose', [0.0, 0.0, 0.2, 0.0, 0.0, 0.0],
-              'Static pose of laser_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
-              lo=-10.0, hi=10.0, read_only=True, length=6),
-    ParamSpec('imu_pose', [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
-              'Static pose of imu_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
-              lo=-10.0, hi=10.0, read_only=True, length=6),
-    ParamSpec('sonar_pose', [0.225, 0.0, 0.1, 0.0, 0.0, 0.0],
-              'Static pose of sonar_frame in base_frame: x, y, z [m], roll, pitch, yaw [rad].',
-              lo=-10.0, hi=10.0, read_only=True, length=6),
     ParamSpec('sonar_field_of_view', 0.2618, 'Sonar cone opening [rad] (US-100: about 15 deg).',
               lo=0.01, hi=math.pi),
     ParamSpec('sonar_min_range', 0.02, 'Sonar minimum range [m] (US-100: 2 cm).',
@@ -304,7 +304,8 @@ def flatten_section(doc: Any, node_name: str = NODE_NAME) -> dict[str, Any]:
         raise ParamError('<file>', 'top level must be a mapping, got {!r}'.format(doc))
     found: dict[str, Any] = {}
     for key, section in doc.items():
-        if str(key).lstrip('/') not in (node_name, '**'):
+        # '/ns/m4k_bridge' (launch_ros writes the fully qualified name), 'm4k_bridge', '/**'.
+        if str(key).rsplit('/', 1)[-1] not in (node_name, '**'):
             continue
         if not isinstance(section, Mapping) or not isinstance(
                 section.get('ros__parameters', {}), Mapping):
@@ -312,7 +313,7 @@ def flatten_section(doc: Any, node_name: str = NODE_NAME) -> dict[str, Any]:
                              .format(section))
         flat: dict[str, Any] = {}
         _flatten('', section.get('ros__parameters') or {}, flat)
-        wildcard = str(key).lstrip('/') == '**'
+        wildcard = str(key).rsplit('/', 1)[-1] == '**'
         # A wildcard section also feeds other nodes: only its names known here are ours.
         found.update((k, v) for k, v in flat.items() if not wildcard or k in _BY_NAME)
     return found

@@ -115,6 +115,10 @@ class Odometry:
     sample interval (plus a margin) is a jump -- a driver restart or a glitch -- and only
     re-baselines the angles; it is counted in ``jumps`` instead of being integrated.
 
+    ``left_position``/``right_position`` (rad) accumulate the integrated angle steps: the
+    wheels' joint positions, continuous across jumps and re-baselines and kept by
+    :meth:`reset` (which moves the pose, not the wheels).
+
     ``left_speed``, ``right_speed`` (rad/s) and the body twist ``v`` (m/s), ``w`` (rad/s) are
     taken over ``velocity_window`` sample intervals (1 = the single latest difference, the old
     behaviour), with a baseline of at least half the window's nominal span when
@@ -126,7 +130,8 @@ class Odometry:
 
     __slots__ = ('wheel_radius', 'track_width', 'max_wheel_speed', 'velocity_window',
                  'min_baseline_ns', 'history', 'x', 'y', 'yaw', 'v', 'w', 'left_speed',
-                 'right_speed', 'samples', 'jumps', 'bad_intervals', '_left', '_right',
+                 'right_speed', 'left_position', 'right_position', 'samples', 'jumps',
+                 'bad_intervals', '_left', '_right',
                  '_stamp_ns', '_have')
 
     def __init__(self, wheel_radius: float, track_width: float,
@@ -161,6 +166,7 @@ class Odometry:
         self.samples = 0
         self.jumps = 0
         self.bad_intervals = 0
+        self.left_position = self.right_position = 0.0
         self.reset()
 
     def reset(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> None:
@@ -228,6 +234,8 @@ class Odometry:
         self._left = left_angle
         self._right = right_angle
         self._stamp_ns = stamp_ns
+        self.left_position += dl
+        self.right_position += dr
         r = self.wheel_radius
         ds = 0.5 * r * (dl + dr)
         dth = r * (dr - dl) / self.track_width

@@ -148,7 +148,8 @@ class ActuatorBody:
         if self._odom_countdown <= 0:
             self._odom_countdown = self._odom_every
             self._cmd_out.send(_ODOMETRY, now, odom.x, odom.y, odom.yaw, odom.v, odom.w,
-                               odom.left_speed, odom.right_speed, flags)
+                               odom.left_speed, odom.right_speed, odom.left_position,
+                               odom.right_position, flags)
             flags = 0
         self._odom_flags = flags
         state.odom_flags = ctl.flags

@@ -11,7 +11,7 @@ import sys
 import threading
 from typing import Any, Mapping, Sequence
 
-from m4k_rt import protocol
+from m4k_rt import protocol, rosargs
 from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['EchoBody', 'EchoPeer', 'main', 'make_echo']
@@ -117,10 +117,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description='NRT echo peer for the echo task bodies.')
     ap.add_argument('labels', nargs='+', help='port labels (or numbers) to serve')
     ap.add_argument('--runtime-dir', default=None)
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     labels: list[int | str] = [int(x) if x.isdigit() else x for x in args.labels]
     done = stop.event
     peer = EchoPeer(labels, args.runtime_dir).start()
+    sys.stderr.write('echo peer: serving {}\n'.format(', '.join(map(str, labels))))
+    sys.stderr.flush()
     try:
         while not done.wait(0.5):
             pass

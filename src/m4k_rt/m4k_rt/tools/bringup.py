@@ -44,7 +44,7 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 import yaml
 
-from m4k_rt import config
+from m4k_rt import config, description, rosargs
 from m4k_rt.bridge import params as bridge_params
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, StopSignals
@@ -113,9 +113,12 @@ def _coerce(name: str, value: Any) -> Any:
 
 
 def bridge_overlay(doc: Mapping[str, Any] | None, runtime_dir: str) -> dict[str, Any]:
-    """Return the bridge parameter document for a (validated) overlay and the runtime dir.
+    """Return the bridge parameter document for a (validated) layered config and runtime dir.
 
-    Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad ``m4k_bridge`` parameter.
+    Derived from the configuration: the robot description (URDF of ``robot:`` +
+    ``control:``) and the sensor frames (``robot.sensors.*.frame``), unless the overlay's
+    ``m4k_bridge:`` section sets them. The ``ros2 launch`` file calls this too, so both start
+    the bridge alike. Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad parameter.
     """
     section: dict[str, Any] = {}
     if doc and bridge_params.NODE_NAME in doc:
@@ -124,6 +127,16 @@ def bridge_overlay(doc: Mapping[str, Any] | None, runtime_dir: str) -> dict[str,
         section = {k: _coerce(k, v) for k, v in flat.items()}
         bridge_params.check_section({bridge_params.NODE_NAME: {
             'ros__parameters': bridge_params.nest(section)}})
+    if doc and 'robot' in doc:
+        base = section.get('base_frame', bridge_params.spec('base_frame').default)
+        try:
+            robot = description.model(doc, base)
+        except description.DescriptionError as exc:
+            raise bridge_params.ParamError('robot_description', str(exc)) from None
+        section.setdefault('robot_description', description.urdf(robot))
+        for sensor, name in (('laser', 'laser_frame'), ('imu', 'imu_frame'),
+                             ('sonar', 'sonar_frame')):
+            section.setdefault(name, robot.sensors[sensor].frame)
     section['runtime_dir'] = runtime_dir
     return {bridge_params.NODE_NAME: {'ros__parameters': bridge_params.nest(section)}}
 
@@ -487,7 +500,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--python-m', action='store_true', help='run children with python -m '
                     '(source tree) instead of the installed executables')
     ap.add_argument('--no-status', action='store_true', help='do not subscribe rt_status')
-    return ap.parse_args(argv)
+    return rosargs.parse_args(ap, argv)
 
 
 def _err(msg: str) -> None:

@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Sequence, TextIO
 
-from m4k_rt import protocol, recorder, xddp
+from m4k_rt import protocol, recorder, rosargs, xddp
 
 __all__ = ['format_stat', 'main', 'read_batch']
 
@@ -76,7 +76,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     ap.add_argument('--wait', type=float, default=0.0, help='seconds to wait for the RT core')
     ap.add_argument('--timeout', type=float, default=3.0, help='seconds to wait for a batch')
     ap.add_argument('--watch', action='store_true', help='refresh every batch until Ctrl-C')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     out = out or sys.stdout
     port: int | str = int(args.port) if args.port.isdigit() else args.port
     try:

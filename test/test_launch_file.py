@@ -1,0 +1,134 @@
+"""src/m4k_rt/launch/m4k.launch.py evaluated by the real launch/launch_ros, and run by ros2 launch.
+
+launch, launch_ros and ros2cli are not on PyPI: on the wheels path these tests are skipped
+with that reason. They run under a full ROS install, or with the ros-verify environment's
+packages on the path (../shared/notes/ros-verify.md).
+"""
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+
+import pytest
+from wsenv import ROOT, stack_env
+import yaml
+
+from m4k_rt import description
+
+try:  # the ros2cli marker skips every test here, with the reason, when these are missing
+    import launch
+    from launch.events.process import ProcessIO
+    from launch.launch_description_sources import PythonLaunchDescriptionSource
+except ImportError:
+    launch = None
+
+LAUNCH = os.path.join(ROOT, 'src', 'm4k_rt', 'launch', 'm4k.launch.py')
+pytestmark = [pytest.mark.ros2cli, pytest.mark.allow_leaks('fds')]
+
+
+def _evaluate(monkeypatch, runtime_dir, **args):
+    """Return the Node actions of the launch file for ``args``, substitutions performed."""
+    for k, v in stack_env(runtime_dir).items():
+        monkeypatch.setenv(k, v)
+    ctx = launch.LaunchContext()
+    ld = PythonLaunchDescriptionSource(LAUNCH).get_launch_description(ctx)
+    ctx.launch_configurations.update(args)
+    for entity in ld.entities:
+        if isinstance(entity, launch.actions.DeclareLaunchArgument):
+            entity.execute(ctx)
+    opaque = [e for e in ld.entities if isinstance(e, launch.actions.OpaqueFunction)][0]
+    nodes = []
+    for e in opaque._OpaqueFunction__function(ctx):
+        if isinstance(e, launch.actions.RegisterEventHandler):
+            # The rest starts once sim_robot says it serves (as bringup waits for it).
+            def line(text, sim=nodes[0]):
+                return ProcessIO(action=sim, name='sim_robot', cmd=[], cwd=None, env=None,
+                                 pid=1, text=text, fd=2)
+            assert e.event_handler.handle(line(b'INFO: loading the world'), ctx) is None
+            nodes += list(e.event_handler.handle(line(b'INFO: simulating motor on x'), ctx))
+            assert e.event_handler.handle(line(b'INFO: simulating again'), ctx) is None
+        else:
+            nodes.append(e)
+    for n in nodes:
+        n._perform_substitutions(ctx)
+    return nodes
+
+
+def _bridge_params(node):
+    values = {}
+    for path, is_file in node._Node__expanded_parameter_arguments:
+        assert is_file
+        with open(path, encoding='utf-8') as f:
+            doc = yaml.safe_load(f)
+        for key, section in doc.items():
+            if key.rsplit('/', 1)[-1] == 'm4k_bridge':
+                values.update(section['ros__parameters'])
+    return values
+
+
+def test_launch_starts_what_bringup_starts_with_the_derived_bridge_parameters(
+        monkeypatch, m4k_runtime_dir):
+    nodes = _evaluate(monkeypatch, m4k_runtime_dir)
+    exes = [n.node_executable for n in nodes]
+    assert exes[0] == 'sim_robot' and {'rt_core', 'driver_host', 'bridge'} <= set(exes)
+    bridge = nodes[exes.index('bridge')]
+    values = _bridge_params(bridge)
+    assert values['runtime_dir'] == m4k_runtime_dir
+    assert [j.name for j in description.wheel_joints(values['robot_description'])] == list(
+        description.WHEEL_JOINTS)
+    assert values.get('publish_robot_state', True) is True
+
+
+def test_sim_false_refuses_a_configuration_with_simulated_devices(monkeypatch,
+                                                                  m4k_runtime_dir):
+    with pytest.raises(RuntimeError, match='sim:=false but the configuration has simulated'):
+        _evaluate(monkeypatch, m4k_runtime_dir, sim='false')
+
+
+def test_robot_state_publisher_takes_over_the_static_transforms(monkeypatch, m4k_runtime_dir):
+    try:
+        nodes = _evaluate(monkeypatch, m4k_runtime_dir, robot_state_publisher='true')
+    except RuntimeError as exc:   # the wheels path has no robot_state_publisher
+        assert 'robot_state_publisher is not installed' in str(exc)
+        return
+    exes = [n.node_executable for n in nodes]
+    assert 'robot_state_publisher' in exes
+    assert _bridge_params(nodes[exes.index('bridge')])['publish_robot_state'] is False
+
+
+def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_dir):
+    from nav_msgs.msg import Odometry
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ros2 = shutil.which('ros2') or ''
+    assert ros2 and 'tools/bin' not in ros2, 'ros2launch imports but the real ros2 is not on PATH'
+    log = open(tmp_path / 'launch.log', 'w')
+    proc = procs.start(['ros2', 'launch', 'm4k_rt', 'm4k.launch.py'],
+                       env=dict(stack_env(m4k_runtime_dir)), stdout=log, stderr=log)
+    log.close()
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('launch_probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    got = []
+    node.create_subscription(Odometry, 'odom', got.append, 10)
+    try:
+        end = time.monotonic() + 60
+        while not got and time.monotonic() < end and proc.poll() is None:
+            executor.spin_once(timeout_sec=0.1)
+        assert got, (tmp_path / 'launch.log').read_text()[-3000:]
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        pytest.fail('ros2 launch did not stop on SIGINT')
+    text = (tmp_path / 'launch.log').read_text()
+    for name in ('rt_core', 'driver_host', 'bridge'):
+        assert '[{}-'.format(name) in text and 'process has died' not in text, text[-3000:]

@@ -1,0 +1,146 @@
+"""TF, robot_description and joint_states of the running stack, through real rclpy and DDS.
+
+A plain ROS 2 user subscribes to /tf, /tf_static (transient local, as a tf2 listener does),
+/robot_description and /joint_states next to odom, scan, imu and sonar. Checks: the tf2_msgs
+type is the real Jazzy one (type hash), every frame the stack stamps its messages with
+connects to ``odom`` through the published transforms, the description's wheel joints are the
+ones joint_states names, and after a drive the wheel joint positions and the odom -> base_link
+transform agree with the simulator's ground truth (never with the odometry under test).
+"""
+
+import math
+import time
+
+from geometry_msgs.msg import Twist
+import pytest
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from test_bringup import start_bringup, write_overlay
+from test_stack_e2e import RosUser
+from tf2_msgs.msg import TFMessage
+from wsenv import ground_truth
+
+from m4k_rt import config, description
+
+JAZZY_TF_HASH = 'RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087'
+START = [0.0, 0.9, 0.0]
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
+
+
+@pytest.fixture
+def robot(procs, tmp_path, m4k_runtime_dir):
+    overlay = write_overlay(tmp_path, {'world': {'start': START}})
+    proc = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay, extra=['--no-status'])
+    user = RosUser()
+    n = user.node
+    for name, typ, qos in (('tf', TFMessage, 100), ('tf_static', TFMessage, LATCHED),
+                           ('robot_description', String, LATCHED),
+                           ('joint_states', JointState, 10)):
+        box = user.got[name] = []
+        n.create_subscription(typ, name, box.append, qos)
+    topics = ('odom', 'scan', 'imu', 'sonar', 'tf', 'tf_static', 'robot_description',
+              'joint_states')
+    try:
+        try:
+            user.spin_until(lambda: all(user.got[k] for k in topics)
+                            or proc.poll() is not None, 60, 'every topic')
+        except AssertionError:
+            missing = [k for k in topics if not user.got[k]]
+            raise AssertionError('no message on {}: {}'.format(
+                missing, (tmp_path / 'bringup.err').read_text()[-3000:])) from None
+        assert proc.poll() is None, (tmp_path / 'bringup.err').read_text()[-3000:]
+        yield user, proc
+    finally:
+        user.close()
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(40)
+
+
+def _parents(user):
+    out = {}
+    for box in ('tf_static', 'tf'):
+        for msg in user.got[box]:
+            for t in msg.transforms:
+                out[t.child_frame_id] = t.header.frame_id
+    return out
+
+
+def _root(frame, parents):
+    seen = [frame]
+    while frame in parents and len(seen) < 50:
+        frame = parents[frame]
+        seen.append(frame)
+    return seen
+
+
+def test_tf_is_the_jazzy_type_and_every_published_frame_connects_to_odom(robot):
+    user, _ = robot
+    infos = user.node.get_publishers_info_by_topic('/tf') + \
+        user.node.get_publishers_info_by_topic('/tf_static')
+    assert infos and {str(i.topic_type_hash) for i in infos} == {JAZZY_TF_HASH}
+    static = user.node.get_publishers_info_by_topic('/tf_static')
+    assert static[0].qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    parents = _parents(user)
+    odom = user.got['odom'][-1]
+    frames = {odom.header.frame_id, odom.child_frame_id}
+    frames |= {user.got[k][-1].header.frame_id for k in ('scan', 'imu', 'sonar')}
+    urdf = user.got['robot_description'][-1].data
+    frames |= {j.child for j in description.joints(urdf)}          # wheels, casters too
+    assert {'odom', 'base_link', 'laser', 'imu_link', 'sonar_link', 'left_wheel_link',
+            'right_wheel_link'} <= frames
+    for f in frames:
+        chain = _root(f, parents)
+        assert chain[-1] == 'odom', 'frame {!r} ends at {!r}: {}'.format(f, chain[-1], chain)
+
+
+def test_description_and_joint_states_follow_the_configuration(robot):
+    user, _ = robot
+    urdf = user.got['robot_description'][-1].data
+    doc = config.load_layered()
+    expected = {j.child: j for j in description.fixed_joints(
+        description.urdf(description.model(doc)))}
+    static = {t.child_frame_id: t for m in user.got['tf_static'] for t in m.transforms}
+    for sensor in description.SENSORS:
+        frame = doc['robot']['sensors'][sensor]['frame']
+        tr = static[frame].transform.translation
+        assert (tr.x, tr.y, tr.z) == pytest.approx(expected[frame].xyz)
+    js = user.got['joint_states'][-1]
+    assert list(js.name) == [j.name for j in description.wheel_joints(urdf)]
+    assert len(js.position) == len(js.velocity) == 2
+    # Stamped like odom: each joint_states carries the stamp of an odom message.
+    odom_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in user.got['odom']}
+    assert any((m.header.stamp.sec, m.header.stamp.nanosec) in odom_stamps
+               for m in user.got['joint_states'])
+
+
+def test_wheel_joints_and_odom_tf_follow_the_ground_truth_of_a_drive(robot, m4k_runtime_dir):
+    user, _ = robot
+    r = config.load_layered()['control']['wheel_radius']
+    user.spin_until(lambda: ground_truth(m4k_runtime_dir) is not None, 20, 'ground truth')
+    before = ground_truth(m4k_runtime_dir)['pose']
+    pos0 = list(user.got['joint_states'][-1].position)
+    pub = user.publisher(Twist, 'cmd_vel')
+    cmd = Twist()
+    cmd.linear.x = 0.25
+    user.spin_for(2.5, each=lambda: pub.publish(cmd), period=0.05)
+    pub.publish(Twist())
+    user.wait_still(20)
+    since = time.monotonic()
+    user.spin_until(lambda: ground_truth(m4k_runtime_dir) is not None
+                    and time.monotonic() - since > 0.6, 10, 'a fresh ground truth report')
+    after = ground_truth(m4k_runtime_dir)['pose']
+    dist = math.hypot(after[0] - before[0], after[1] - before[1])
+    assert dist > 0.3, 'the robot did not drive: {} -> {}'.format(before, after)
+    pos1 = list(user.got['joint_states'][-1].position)
+    for side in (0, 1):   # a wheel turns distance / radius (no slip in the simulator)
+        assert (pos1[side] - pos0[side]) * r == pytest.approx(dist, rel=0.05, abs=0.01)
+    odom_tf = [t for m in user.got['tf'] for t in m.transforms
+               if t.header.frame_id == 'odom' and t.child_frame_id == 'base_link'][-1]
+    x = odom_tf.transform.translation.x
+    y = odom_tf.transform.translation.y
+    # odom starts at the robot's start pose: compare displacements.
+    assert math.hypot(x, y) == pytest.approx(dist, abs=0.03)
