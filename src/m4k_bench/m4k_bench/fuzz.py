@@ -146,6 +146,12 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return (rng.randint(0, 1),)
     if kind == K.ODOM_RESET:
         return (u(rng, 32),)
+    if kind == K.FORBIDDEN_SITE:
+        return ('fuzz', u(rng, 8), rng.choice(sorted(protocol.EVENT_NAMES)), u(rng, 32),
+                u(rng, 32), u(rng, 32), '/fuzz/' * rng.randint(0, 12) + 'body.py', 'cycle')
+    if kind == K.TASK_HEALTH:
+        return ('fuzz', u(rng, 8)) + tuple(u(rng, 32) for _ in range(6)) + (
+            rng.randint(0, 1), u(rng, 8))
     raise ValueError('no field generator for kind {!r}'.format(kind))
 
 
