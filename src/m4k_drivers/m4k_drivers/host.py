@@ -35,7 +35,7 @@ from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, rosargs
-from m4k_rt.stopsignals import StopSignals
+from m4k_rt.stopsignals import run_stoppable, StopSignals
 
 if TYPE_CHECKING:  # pragma: no cover -- the host imports device packages on demand
     from m4k_drivers.motors.handler import MotorHandler
@@ -373,17 +373,10 @@ def _apply_overrides(devices: dict[str, Any], args: argparse.Namespace) -> dict[
 
 def main(argv: list[str] | None = None) -> int:
     """Run the driver host (see the module docstring); return the exit code."""
-    signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
-    try:
-        rc = _main(rosargs.parse_args(_parser(), argv), signals)
-    finally:
-        signals.restore()
-    if signals.stopping:
-        # Every handler built was shut down on the way out: outputs safe.
-        print('driver_host: stopped ({}); outputs safe{}'.format(
-            signals.name, '' if rc == 0 else ', exit code {}'.format(rc)),
-            file=sys.stderr, flush=True)
-    return rc
+    # Every handler built is shut down on the way out: outputs safe.
+    return run_stoppable('driver_host',
+                         lambda signals: _main(rosargs.parse_args(_parser(), argv), signals),
+                         when_stopped='; outputs safe')
 
 
 def _main(args: argparse.Namespace, signals: StopSignals) -> int:

@@ -276,17 +276,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the simulator until SIGINT/SIGTERM; return the exit code."""
-    from m4k_rt.stopsignals import StopSignals
-    signals = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
-    try:
-        rc = _main(rosargs.parse_args(_parser(), argv), signals)
-    finally:
-        signals.restore()
-    if signals.stopping:
-        print('sim_robot: stopped ({}){}'.format(
-            signals.name, '' if rc == 0 else ', exit code {}'.format(rc)),
-            file=sys.stderr, flush=True)
-    return rc
+    from m4k_rt.stopsignals import run_stoppable
+    return run_stoppable('sim_robot',
+                         lambda signals: _main(rosargs.parse_args(_parser(), argv), signals))
 
 
 def _main(args: argparse.Namespace, signals: Any) -> int:

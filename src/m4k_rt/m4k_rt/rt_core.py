@@ -23,7 +23,7 @@ import threading
 from typing import Any, Mapping, Sequence
 
 from m4k_rt import config, modeswitch, protocol, rosargs, sched, tasks, timing
-from m4k_rt.stopsignals import StopSignals
+from m4k_rt.stopsignals import run_stoppable, StopSignals
 from m4k_rt.task import RtTask
 from m4k_rt.tasks import register_body
 from m4k_rt.tasks.portio import PortReader
@@ -323,14 +323,7 @@ def _select(cfg: config.RtConfig, names: str | None,
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the RT process; return the exit code."""
-    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
-    try:
-        rc = _main(_parse_args(argv), stop)
-    finally:
-        stop.restore()
-    if stop.stopping:
-        _err('stopped ({}){}'.format(stop.name, '' if rc == 0 else ', exit code {}'.format(rc)))
-    return rc
+    return run_stoppable('rt_core', lambda stop: _main(_parse_args(argv), stop))
 
 
 def _main(args: argparse.Namespace, stop: StopSignals) -> int:

@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
-__all__ = ['STOP_SIGNALS', 'StopSignals', 'blocked_stop_signals']
+__all__ = ['STOP_SIGNALS', 'StopSignals', 'blocked_stop_signals', 'run_stoppable']
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -87,3 +88,22 @@ def blocked_stop_signals() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def run_stoppable(prog: str, body: Callable[[StopSignals], int], *, when_stopped: str = '') -> int:
+    """Run ``body`` under freshly installed stop handlers; return its exit code.
+
+    The one shape of an m4k executable's ``main``: the handlers come first (so a stop during
+    start-up ends the process cleanly, too), the body gets them to poll, and when a stop signal
+    ended it, one line says so: ``<prog>: stopped (SIGTERM)<when_stopped>[, exit code N]``.
+    """
+    signals = StopSignals().install()
+    try:
+        rc = body(signals)
+    finally:
+        signals.restore()
+    if signals.stopping:
+        sys.stderr.write('{}: stopped ({}){}{}\n'.format(
+            prog, signals.name, when_stopped, '' if rc == 0 else ', exit code {}'.format(rc)))
+        sys.stderr.flush()
+    return rc

@@ -47,7 +47,7 @@ import yaml
 from m4k_rt import config, description, rosargs
 from m4k_rt.bridge import params as bridge_params
 from m4k_rt.rt_core import InstanceLock
-from m4k_rt.stopsignals import blocked_stop_signals, StopSignals
+from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
 __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
            'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready', 'sim_robot_spec',
@@ -510,14 +510,7 @@ def _err(msg: str) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the stack until Ctrl-C / SIGTERM; return the exit code."""
-    stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
-    try:
-        rc = _main(_parse_args(argv), stop)
-    finally:
-        stop.restore()
-    if stop.stopping:
-        _err('stopped ({}){}'.format(stop.name, '' if rc == 0 else ', exit code {}'.format(rc)))
-    return rc
+    return run_stoppable('bringup', lambda stop: _main(_parse_args(argv), stop))
 
 
 def _main(args: argparse.Namespace, stop: StopSignals) -> int:
