@@ -1,5 +1,6 @@
 # m4k -- one entry point. Every target sets the workspace up first (idempotent, seconds when done).
 #   make run [CONFIG=my_robot.yaml]   the robot stack on simulated hardware (Ctrl-C stops it)
+#   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
@@ -30,7 +31,7 @@ $(BUILD_STAMP): $(SOURCES) tools/setup.sh tools/compat-paths.sh requirements.txt
 build: setup $(BUILD_STAMP)
 
 lint: setup
-	@$(ENV); ruff check src test tools
+	@$(ENV); tools/lint.sh
 
 test: build
 	@tools/run-tests.sh

@@ -9,8 +9,8 @@ export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-$(( (RANDOM % 100) + 1 ))}
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export M4K_CI=1
 rc=0
-echo "== lint (ruff: 99 columns, single quotes, pep257) =="
-ruff check src test tools || rc=1
+echo "== lint (tools/lint.sh: ruff, then mypy) =="
+tools/lint.sh || rc=1
 
 echo "== colcon test (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, localhost discovery) =="
 rm -rf build/*/test_results

@@ -36,7 +36,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from typing import Any, Callable, Sequence
+from typing import AbstractSet, Any, Callable, Sequence
 
 import numpy as np
 
@@ -82,7 +82,7 @@ def plan_durations(quick: bool, duration: float | None, condition: float | None,
     return plan
 
 
-def estimate_s(plan: dict[str, Any], skip: set[str] = frozenset()) -> float:
+def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> float:
     """Return a rough wall-time estimate of the plan (start-up of each run included)."""
     per_cond = plan['condition_s'] + WARMUP_S + 5.0
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)

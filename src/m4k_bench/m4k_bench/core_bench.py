@@ -21,13 +21,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Any, Sequence
+from typing import Any, cast, Sequence
 
 import numpy as np
 
 from m4k_rt import config, recorder, rosargs, timing, xddp
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.echo import EchoPeer
+from m4k_rt.timerfd import TimerFd
 
 __all__ = ['machinery_overhead', 'main', 'parse_cyclictest_hist', 'run', 'run_core',
            'run_cyclictest']
@@ -51,6 +52,7 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
         link = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
         proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
+        assert proc.stderr is not None  # stderr=PIPE
         try:
             while proc.poll() is None:
                 data = link.read(0.2)
@@ -142,7 +144,7 @@ def machinery_overhead(n: int = 100_000) -> dict[str, float]:
             return 1
 
     t = RtTask('bench', 1, 1_000_000, lambda ctx: None, ring_capacity=1024)
-    t._tfd = _Stub()  # noqa: SLF001 -- deliberate: bypass the kernel wait
+    t._tfd = cast(TimerFd, _Stub())  # noqa: SLF001 -- deliberate: bypass the kernel wait
     t.rusage.start()
     per = np.empty(5)
     for k in range(per.size):

@@ -277,7 +277,8 @@ def _write_csv(path: str, odom: np.ndarray, world: np.ndarray, ref: np.ndarray,
 
 
 def _plots(out_dir: str, geom: WorldGeometry, world: np.ndarray, odom: np.ndarray,
-           cmd: np.ndarray, v_pose: np.ndarray, goal_w: Sequence[float], tolerance: float,
+           cmd: np.ndarray, v_pose: np.ndarray, goal_w: Sequence[float] | np.ndarray,
+           tolerance: float,
            max_v: float, twist_ms: float) -> list[str]:
     import matplotlib
     matplotlib.use('Agg')
@@ -304,7 +305,7 @@ def _plots(out_dir: str, geom: WorldGeometry, world: np.ndarray, odom: np.ndarra
     if len(world):
         ax.plot(world[:, 0], world[:, 1], color='tab:blue', lw=2, label='M4K (odometry)')
         ax.plot(*world[0, :2], 'o', color='tab:green', ms=9, label='start')
-    ax.add_patch(Circle(goal_w, tolerance, fc='none', ec='tab:orange', ls='--'))
+    ax.add_patch(Circle((goal_w[0], goal_w[1]), tolerance, fc='none', ec='tab:orange', ls='--'))
     ax.plot(*goal_w, '*', color='tab:orange', ms=14, label=f'goal (tolerance {tolerance:g} m)')
     ax.set_aspect('equal')
     ax.set_xlabel('x [m]')
@@ -435,7 +436,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
     else:
         source = ('footprint clearance along the recorded odometry against the world: '
                   'geometry of the configuration (no world report from the driver host)')
-    summary = {
+    summary: dict[str, Any] = {
         'goal_reached': bool(len(odom) and err <= tolerance),
         'final_error_m': round(err, 4),
         'min_clearance_m': round(float(clear.min()), 4) if len(clear) else None,

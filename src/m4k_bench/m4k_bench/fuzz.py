@@ -146,6 +146,12 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return (rng.randint(0, 1),)
     if kind == K.ODOM_RESET:
         return (u(rng, 32),)
+    if kind == K.FORBIDDEN_SITE:
+        return ('fuzz', u(rng, 8), rng.choice(sorted(protocol.EVENT_NAMES)), u(rng, 32),
+                u(rng, 32), u(rng, 32), '/fuzz/' * rng.randint(0, 12) + 'body.py', 'cycle')
+    if kind == K.TASK_HEALTH:
+        return ('fuzz', u(rng, 8)) + tuple(u(rng, 32) for _ in range(6)) + (
+            rng.randint(0, 1), u(rng, 8))
     raise ValueError('no field generator for kind {!r}'.format(kind))
 
 
@@ -174,7 +180,7 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
     elif op == 3:                                         # magic / version
         b[rng.choice((0, 1, 2))] = rng.getrandbits(8)
     elif op == 4:                                         # another (or unknown) kind
-        b[3] = rng.choice([int(k) for k in Kind] + [0, 13, 64, 65, 255])
+        b[3] = rng.choice([int(k) for k in Kind] + [0, max(Kind) + 1, 63, 255])  # + unknown
     elif op == 5 and len(b) >= 24:                        # NaN / inf into a double slot
         off = rng.randrange(16, len(b) - 7)
         struct.pack_into('<d', b, off, rng.choice(_NONFINITE))
@@ -392,6 +398,7 @@ def fuzz_port(h: RtHarness, label: str, count: int, seed: int,
     proc = subprocess.Popen([sys.executable, '-m', 'm4k_bench.fuzz', 'send', label,
                              str(count), str(seed)], env=env, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
     try:
         line = proc.stdout.readline()  # 'sent N' once every datagram is written
         if not line.startswith('sent '):

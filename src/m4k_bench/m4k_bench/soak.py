@@ -231,8 +231,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             time.sleep(0.2)
         stat.thread.start()
         cmd_thread = stack.ros_commander(stop_cmd)
-        if not args.no_stress and tools.get('stress-ng'):
-            stress = system.Stress(tools['stress-ng'], args.duration)
+        stress_ng = tools.get('stress-ng')
+        if not args.no_stress and stress_ng:
+            stress = system.Stress(stress_ng, args.duration)
             stress.__enter__()
             summary['stress_command'] = stress.command_line
         # Counters from here on only: the stack's start-up transient is not the soak's.

@@ -32,6 +32,8 @@ import os
 import time
 from typing import Any, Callable, NamedTuple, TypeVar
 
+from m4k_rt.protocol import DeviceError, DeviceState, Level
+
 __all__ = [
     'DeviceHandler', 'DeviceIOError', 'DeviceIdentityError', 'DeviceNotFoundError',
     'DevicePermissionError', 'DeviceProtocolError', 'DriverError', 'ErrorCode', 'LifecycleError',
@@ -40,71 +42,52 @@ __all__ = [
 
 T = TypeVar('T')
 
+# DEVICE_STATUS.last_error codes and lifecycle states: the wire protocol owns them.
+ErrorCode = DeviceError
+State = DeviceState
+
 
 class DriverError(Exception):
     """Base class of every m4k driver error; ``code`` is an :class:`ErrorCode`."""
 
-    code: int = 1
+    code: int = ErrorCode.OTHER
 
 
 class DeviceNotFoundError(DriverError):
     """Raise when a device node or bus is missing; the message names the path."""
 
-    code = 2
+    code = ErrorCode.NOT_FOUND
 
 
 class DevicePermissionError(DriverError):
     """Raise when the device node exists but may not be opened."""
 
-    code = 3
+    code = ErrorCode.PERMISSION
 
 
 class DeviceIOError(DriverError):
     """Raise on a transient I/O failure (retryable)."""
 
-    code = 4
+    code = ErrorCode.IO
 
 
 class DeviceIdentityError(DriverError):
     """Raise when the device answers with the wrong identity (e.g. WHO_AM_I)."""
 
-    code = 5
+    code = ErrorCode.IDENTITY
 
 
 class DeviceProtocolError(DriverError):
     """Raise when a frame from the device fails validation."""
 
-    code = 6
+    code = ErrorCode.PROTOCOL
 
 
 class LifecycleError(DriverError):
     """Raise on a lifecycle transition that the current state does not allow."""
 
-    code = 7
+    code = ErrorCode.LIFECYCLE
 
-
-class ErrorCode(enum.IntEnum):
-    """Last-error codes carried in DEVICE_STATUS.last_error."""
-
-    NONE = 0
-    OTHER = 1
-    NOT_FOUND = 2
-    PERMISSION = 3
-    IO = 4
-    IDENTITY = 5
-    PROTOCOL = 6
-    LIFECYCLE = 7
-    WATCHDOG = 8
-
-
-class State(enum.IntEnum):
-    """Lifecycle states (numbers as in ROS 2 lifecycle_msgs/State, sent in DEVICE_STATUS)."""
-
-    UNCONFIGURED = 1
-    INACTIVE = 2
-    ACTIVE = 3
-    FINALIZED = 4
-    ERROR = 5
 
 
 class Status(enum.IntEnum):
@@ -305,10 +288,10 @@ class DeviceHandler:
         self._set_state(State.FINALIZED)
 
     def status_level(self) -> int:
-        """Return the DEVICE_STATUS level: 0 ok, 1 warn (faults seen), 2 error state."""
+        """Return the DEVICE_STATUS level: OK, WARN (faults seen) or ERROR (error state)."""
         if self.state == State.ERROR:
-            return 2
-        return 1 if self.faults else 0
+            return Level.ERROR
+        return Level.WARN if self.faults else Level.OK
 
     def __enter__(self) -> DeviceHandler:
         return self

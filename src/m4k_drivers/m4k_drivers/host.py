@@ -29,13 +29,16 @@ import math
 import sys
 import threading
 import time
-from typing import Any, TextIO
+from typing import Any, cast, TextIO, TYPE_CHECKING
 
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, rosargs
 from m4k_rt.stopsignals import run_stoppable, StopSignals
+
+if TYPE_CHECKING:  # pragma: no cover -- the host imports device packages on demand
+    from m4k_drivers.motors.handler import MotorHandler
 
 __all__ = ['DeviceService', 'format_reading', 'load_raw_config', 'main']
 
@@ -427,7 +430,9 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     if args.jog is not None:
         from m4k_drivers.motors.jog import JogError, run_jog
         try:
-            return run_jog(handlers['motor'], args.jog[0], float(args.jog[1]),
+            # Every backend of the motor kind builds a MotorHandler (m4k_drivers.motors).
+            motor = cast('MotorHandler', handlers['motor'])
+            return run_jog(motor, args.jog[0], float(args.jog[1]),
                            args.duration, stop, out=sys.stdout, stdin=sys.stdin,
                            assume_yes=args.yes)
         except JogError as exc:

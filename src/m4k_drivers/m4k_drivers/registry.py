@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import importlib
 import time
-from typing import Any, Callable, TYPE_CHECKING
+from typing import Any, Callable, TYPE_CHECKING, TypeVar
 
 from m4k_drivers.handler import DriverError
 
@@ -29,6 +29,9 @@ __all__ = [
     'COMMON_KEYS', 'KIND_MODULES', 'BackendSpec', 'BuildContext', 'Param', 'RegistryError',
     'backends', 'create', 'get', 'kinds', 'register',
 ]
+
+# A backend factory ``(name, params, ctx) -> handler``; the decorator keeps its precise type.
+_Factory = TypeVar('_Factory', bound='Callable[..., DeviceHandler]')
 
 # Where each device kind registers its backends; imported on first use.
 KIND_MODULES: dict[str, str] = {
@@ -126,10 +129,10 @@ _LOADED: set[str] = set()
 
 
 def register(kind: str, name: str, params: dict[str, Param] | None = None,
-             ) -> Callable[[Callable[..., DeviceHandler]], Callable[..., DeviceHandler]]:
+             ) -> Callable[[_Factory], _Factory]:
     """Register ``factory(name, params, ctx) -> DeviceHandler`` for (kind, backend name)."""
 
-    def deco(factory: Callable[..., DeviceHandler]) -> Callable[..., DeviceHandler]:
+    def deco(factory: _Factory) -> _Factory:
         _BACKENDS[(kind, name)] = BackendSpec(kind, name, factory, dict(params or {}))
         return factory
 

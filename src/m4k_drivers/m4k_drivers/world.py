@@ -111,6 +111,11 @@ def _numbers(value: Any, n: int | None, where: str) -> tuple[float, ...]:
     return tuple(out)
 
 
+def _point(value: Any, where: str) -> tuple[float, float]:
+    x, y = _numbers(value, 2, where)
+    return x, y
+
+
 # Paper Fig. 8: a room of white panel boards, the robot at the start, a triangular obstacle
 # about 1.5 m ahead (its flat side faces the robot) and a goal 3 m ahead.
 DEFAULT_WALLS = tuple(_rect(-0.8, -1.5, 4.2, 1.5))
@@ -159,7 +164,7 @@ class WorldConfig:
                 if not isinstance(poly, list) or len(poly) < 3:
                     raise WorldConfigError(f'{where}.obstacles[{i}]: expected a polygon of at '
                                            f'least 3 [x, y] points, got {poly!r}')
-                polys.append(tuple(_numbers(p, 2, f'{where}.obstacles[{i}][{j}]')
+                polys.append(tuple(_point(p, f'{where}.obstacles[{i}][{j}]')
                                    for j, p in enumerate(poly)))
             cfg = replace(cfg, obstacles=tuple(polys))
         if 'start' in data:

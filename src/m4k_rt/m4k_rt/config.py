@@ -281,7 +281,7 @@ def parse(raw: Mapping[str, Any],
     if 'tasks' not in raw:
         raise ConfigError('tasks', 'missing')
     tasks_m = _mapping(raw['tasks'], 'tasks')
-    tasks = []
+    tasks: list[TaskConfig] = []
     owner: dict[str, str] = {}
     for name, m in tasks_m.items():
         t = _parse_task(name, m, len(tasks), ports, body_exists)

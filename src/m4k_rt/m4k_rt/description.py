@@ -197,7 +197,7 @@ def _shape(link: ET.Element, tag: str, geometry: tuple[str, dict[str, str]],
     el = ET.SubElement(link, tag)
     ET.SubElement(el, 'origin', xyz=_vec(xyz), rpy=_vec(rpy))
     g = ET.SubElement(el, 'geometry')
-    ET.SubElement(g, geometry[0], **geometry[1])
+    ET.SubElement(g, geometry[0], geometry[1])  # the attributes as attrib
 
 
 def _joint(robot: ET.Element, name: str, kind: str, parent: str, child: str,

@@ -13,42 +13,34 @@ subprocesses or socket creation from inside its loop. This module measures them 
   "inside an RT loop", with the call site (file, line, function). The hook never raises and
   allocates only when a forbidden call actually happens.
 
-It also carries two small datagram kinds that only the RT monitor sends and only NRT tools
-read (``stat`` port; see docs/internals.md): FORBIDDEN_SITE and TASK_HEALTH. They use the
-protocol header layout with kind ids outside ``protocol.Kind`` so the protocol module stays
-untouched.
+What it measures travels as the FORBIDDEN_SITE and TASK_HEALTH datagrams of
+:mod:`m4k_rt.protocol` (``stat`` port; see docs/internals.md).
 """
 
 import dataclasses
 import io
 import os
 import resource
-import struct
 import sys
 import sysconfig
 import threading
 import time
-from typing import Callable, NamedTuple
+from types import FrameType
+from typing import Any, Callable, NamedTuple, SupportsIndex
+
+from m4k_rt.protocol import EVENT_CODES, EVENT_NAMES
 
 __all__ = [
-    'EVENT_CODES', 'ConsoleGuard', 'ExtraDatagramError', 'FORBIDDEN_SITE', 'ForbiddenSite',
-    'Site', 'SiteTable', 'TASK_HEALTH', 'TaskHealth', 'ThreadRusage', 'allow_file',
-    'current_table',
-    'decode_extra', 'encode_health_into', 'encode_site_into', 'enter_rt', 'install',
-    'install_console_guard', 'leave_rt', 'uninstall_console_guard',
+    'EVENT_CODES', 'EVENT_NAMES', 'ConsoleGuard', 'Site', 'SiteTable', 'ThreadRusage',
+    'allow_file', 'current_table', 'enter_rt', 'install', 'install_console_guard', 'leave_rt',
+    'uninstall_console_guard',
 ]
 
-# Audit events an RT loop must not raise, with a small code for the wire. 'console' is not an
-# audit event: the console guard reports writes to sys.stdout/sys.stderr under that name.
-EVENT_CODES: dict[str, int] = {
-    'open': 1, 'import': 2, 'time.sleep': 3, 'subprocess.Popen': 4, 'os.system': 5,
-    'os.exec': 6, 'os.posix_spawn': 7, 'os.fork': 8, 'socket.__new__': 9, 'console': 10,
-    'os.listdir': 11, 'os.scandir': 12, 'os.remove': 13, 'os.rename': 14, 'os.mkdir': 15,
-    'socket.getaddrinfo': 16, 'shutil.copyfile': 17, 'os.truncate': 18, 'glob.glob': 19,
-}
-EVENT_NAMES: dict[int, str] = {v: k for k, v in EVENT_CODES.items()}
+# The audit events an RT loop must not raise and their wire codes are the protocol's
+# (FORBIDDEN_SITE); re-exported here for the audit hook's readers.
 
 _tls = threading.local()
+_Sleep = Callable[[float | SupportsIndex], None]  # time.sleep's signature
 _installed = False
 _install_lock = threading.Lock()
 _THIS_FILE = __file__
@@ -66,7 +58,7 @@ class Site(NamedTuple):
     file: str
     line: int
     func: str
-    count: int
+    calls: int
 
 
 class SiteTable:
@@ -84,7 +76,7 @@ class SiteTable:
         self.total = 0
         self.by_event = [0] * (max(EVENT_NAMES) + 1)
         # Each slot: [event code, file, line, func, count]; code 0 = empty.
-        self._slots = [[0, '', 0, '', 0] for _ in range(capacity)]
+        self._slots: list[list[Any]] = [[0, '', 0, '', 0] for _ in range(capacity)]
         self._next = 0
         self.seq = 0  # bumped on every record, so a reader can tell the table changed
 
@@ -107,7 +99,7 @@ class SiteTable:
         order = [self._slots[(self._next + i) % n] for i in range(n)]
         return [Site(EVENT_NAMES[s[0]], s[1], s[2], s[3], s[4]) for s in order if s[0]]
 
-    def slot(self, i: int) -> list:
+    def slot(self, i: int) -> list[Any]:
         """Return raw slot ``i`` ([code, file, line, func, count]; code 0 = empty)."""
         return self._slots[i]
 
@@ -132,7 +124,7 @@ def allow_file(path: str) -> None:
     _ALLOWED_FILES.add(os.path.abspath(path))
 
 
-def _caller_site(frame: object) -> tuple[str, int, str] | None:
+def _caller_site(frame: FrameType | None) -> tuple[str, int, str] | None:
     # Walk out of the standard library, frozen importlib and this module, so the site is the
     # task code that made the call, not subprocess.py or socket.py. None: sanctioned caller.
     f = frame
@@ -147,13 +139,13 @@ def _caller_site(frame: object) -> tuple[str, int, str] | None:
     return '?', 0, '?'
 
 
-def _record(table: SiteTable, code: int, frame: object) -> None:
+def _record(table: SiteTable, code: int, frame: FrameType | None) -> None:
     site = _caller_site(frame)
     if site is not None:
         table.record(code, *site)
 
 
-def _audit_hook(event: str, args: tuple) -> None:
+def _audit_hook(event: str, args: tuple[object, ...]) -> None:
     code = EVENT_CODES.get(event)
     if code is None:
         return
@@ -189,8 +181,8 @@ def install() -> None:
             time.sleep = _make_guarded_sleep(time.sleep)
 
 
-def _make_guarded_sleep(real_sleep: Callable[[float], None]) -> Callable[[float], None]:
-    def sleep(secs: float) -> None:
+def _make_guarded_sleep(real_sleep: _Sleep) -> _Sleep:
+    def sleep(secs: float | SupportsIndex) -> None:
         table = getattr(_tls, 'table', None)
         if table is not None:
             try:
@@ -277,110 +269,3 @@ class ThreadRusage:
         self.majflt = ru.ru_majflt - b[3]
         extra = self.nvcsw - cycles
         self.nvcsw_extra = extra if extra > 0 else 0
-
-
-# --- extra datagram kinds (header layout of m4k_rt.protocol) ----------------------------------
-
-MAGIC = 0x4B4D
-VERSION = 1
-FORBIDDEN_SITE = 64
-TASK_HEALTH = 65
-_HEADER = struct.Struct('<HBBIq')
-_SITE = struct.Struct('<16sBBIII40s24s')
-_HEALTH = struct.Struct('<16sBIIIIIIBB')
-SITE_SIZE = _HEADER.size + _SITE.size
-HEALTH_SIZE = _HEADER.size + _HEALTH.size
-
-
-class ExtraDatagramError(ValueError):
-    """A FORBIDDEN_SITE / TASK_HEALTH datagram is malformed."""
-
-
-class ForbiddenSite(NamedTuple):
-    """Decoded FORBIDDEN_SITE: one call site of a task's forbidden calls."""
-
-    name: str
-    task_index: int
-    event: str
-    count: int
-    line: int
-    total: int
-    file: str
-    func: str
-
-
-class TaskHealth(NamedTuple):
-    """Decoded TASK_HEALTH: the per-task counters TASK_STATS does not carry."""
-
-    name: str
-    task_index: int
-    overruns: int
-    deadline_misses: int
-    body_errors: int
-    majflt: int
-    nvcsw_extra: int
-    lost_samples: int
-    fifo: int
-    priority: int
-
-
-def _b(s: str, n: int, tail: bool = False) -> bytes:
-    raw = s.encode('utf-8', 'replace')
-    return raw[-n:] if tail else raw[:n]
-
-
-def encode_site_into(buf: bytearray, offset: int, seq: int, stamp_ns: int, name: str,
-                     task_index: int, code: int, count: int, line: int, total: int, file: str,
-                     func: str) -> int:
-    """Write a FORBIDDEN_SITE datagram; the file keeps its tail (the file name) when long."""
-    _HEADER.pack_into(buf, offset, MAGIC, VERSION, FORBIDDEN_SITE, seq & 0xFFFFFFFF, stamp_ns)
-    _SITE.pack_into(buf, offset + _HEADER.size, _b(name, 16), task_index, code,
-                    min(count, 0xFFFFFFFF), line, min(total, 0xFFFFFFFF),
-                    _b(file, 40, tail=True), _b(func, 24))
-    return SITE_SIZE
-
-
-def encode_health_into(buf: bytearray, offset: int, seq: int, stamp_ns: int, name: str,
-                       task_index: int, overruns: int, deadline_misses: int, body_errors: int,
-                       majflt: int, nvcsw_extra: int, lost_samples: int, fifo: int,
-                       priority: int) -> int:
-    """Write a TASK_HEALTH datagram."""
-    m = 0xFFFFFFFF
-    _HEADER.pack_into(buf, offset, MAGIC, VERSION, TASK_HEALTH, seq & m, stamp_ns)
-    _HEALTH.pack_into(buf, offset + _HEADER.size, _b(name, 16), task_index, min(overruns, m),
-                      min(deadline_misses, m), min(body_errors, m), min(majflt, m),
-                      min(nvcsw_extra, m), min(lost_samples, m), fifo, priority)
-    return HEALTH_SIZE
-
-
-def extra_kind(data: bytes) -> int:
-    """Return the kind byte of a datagram with a valid header magic/version, else -1."""
-    if len(data) < _HEADER.size:
-        return -1
-    magic, version, kind, _, _ = _HEADER.unpack_from(data)
-    return kind if magic == MAGIC and version == VERSION else -1
-
-
-def decode_extra(data: bytes) -> tuple[int, int, ForbiddenSite | TaskHealth]:
-    """Decode a FORBIDDEN_SITE or TASK_HEALTH datagram into (seq, stamp_ns, payload)."""
-    kind = extra_kind(data)
-    if kind == FORBIDDEN_SITE:
-        body, size = _SITE, SITE_SIZE
-    elif kind == TASK_HEALTH:
-        body, size = _HEALTH, HEALTH_SIZE
-    else:
-        raise ExtraDatagramError('not a FORBIDDEN_SITE/TASK_HEALTH datagram (kind {!r})'.format(
-            kind))
-    if len(data) != size:
-        raise ExtraDatagramError('kind {} needs {} bytes, got {}'.format(kind, size, len(data)))
-    _, _, _, seq, stamp = _HEADER.unpack_from(data)
-    f = list(body.unpack_from(data, _HEADER.size))
-    f[0] = f[0].rstrip(b'\0').decode('utf-8', 'replace')
-    if kind == FORBIDDEN_SITE:
-        if f[2] not in EVENT_NAMES:
-            raise ExtraDatagramError('unknown forbidden event code {!r}'.format(f[2]))
-        f[2] = EVENT_NAMES[f[2]]
-        f[6] = f[6].rstrip(b'\0').decode('utf-8', 'replace')
-        f[7] = f[7].rstrip(b'\0').decode('utf-8', 'replace')
-        return seq, stamp, ForbiddenSite(*f)
-    return seq, stamp, TaskHealth(*f)

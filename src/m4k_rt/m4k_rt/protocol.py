@@ -13,7 +13,7 @@ the receiver counts. No other exception escapes :func:`decode` for any input byt
 """
 
 from array import array
-from enum import IntEnum
+from enum import IntEnum, IntFlag
 import math
 import struct
 import sys
@@ -56,31 +56,139 @@ SCAN_ERROR_CODES: dict[int, str] = {
 # No code means "too close" (REP-117 -inf): ranges below DMIN (20 mm) are the codes themselves.
 SCAN_FAR_CODES = frozenset((0,))
 
-ODOM_BRAKING = 0x1
-ODOM_GUARD = 0x2
-ODOM_MOTOR_STALE = 0x4
-ODOM_CLAMPED = 0x8
-ODOM_E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
-ODOM_HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
 
-SONAR_OK = 0
-SONAR_NO_ECHO = 1
-SONAR_TIMEOUT = 2
-SONAR_FAULT = 3
+class OdomFlag(IntFlag):
+    """ODOMETRY.flags bits (set by the RT actuator's controller)."""
 
-# RT_STATUS.flags bits (set by rt_core's monitor task).
-RT_FLAG_GC_FROZEN = 0x1      # gc frozen and disabled in the RT process
-RT_FLAG_DMA_LATENCY = 0x2    # /dev/cpu_dma_latency held at 0 us
-RT_FLAG_GUARD_VALID = 0x4    # an actuator runs: guard_active is its collision guard's state
-RT_FLAG_AUDIT = 0x8          # the forbidden-call audit hook is installed
+    BRAKING = 0x1
+    GUARD = 0x2
+    MOTOR_STALE = 0x4
+    CLAMPED = 0x8
+    E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
+    HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
 
-LEVEL_OK = 0
-LEVEL_WARN = 1
-LEVEL_ERROR = 2
-LEVEL_STALE = 3
+
+class EncoderStatus(IntFlag):
+    """ENCODERS.status bits (set by the motor driver)."""
+
+    LEFT_FRAME = 0x01
+    RIGHT_FRAME = 0x02
+    LEFT_JUMP = 0x04
+    RIGHT_JUMP = 0x08
+    SAFE = 0x10          # the driver holds the DACs at zero (link loss / watchdog)
+    WRITE_ERROR = 0x20
+    # The bits that make the angles untrustworthy (frame or jump error, either wheel); SAFE
+    # and WRITE_ERROR leave the angles valid.
+    INVALID = LEFT_FRAME | RIGHT_FRAME | LEFT_JUMP | RIGHT_JUMP
+
+
+class ImuStatus(IntEnum):
+    """IMU.status (set by the IMU driver)."""
+
+    OK = 0
+    NOT_READY = 1
+    BAD_QUATERNION = 2
+
+
+class SonarStatus(IntEnum):
+    """SONAR.status (set by the sonar driver)."""
+
+    OK = 0
+    NO_ECHO = 1       # nothing within range: a valid reading (REP-117 +inf)
+    TIMEOUT = 2       # no edges: sensor not answering
+    FAULT = 3         # invalid: unmeasurable echo, clock step, inconsistent edges
+
+
+class RtFlag(IntFlag):
+    """RT_STATUS.flags bits (set by rt_core's monitor task)."""
+
+    GC_FROZEN = 0x1      # gc frozen and disabled in the RT process
+    DMA_LATENCY = 0x2    # /dev/cpu_dma_latency held at 0 us
+    GUARD_VALID = 0x4    # an actuator runs: guard_active is its collision guard's state
+    AUDIT = 0x8          # the forbidden-call audit hook is installed
+
+
+class Level(IntEnum):
+    """DEVICE_STATUS.level (and the bridge's diagnostic levels)."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+class LedSource(IntEnum):
+    """LED.source: who sets the colour."""
+
+    STATE = 0      # the RT LED task shows the robot state
+    OVERRIDE = 1   # the bridge's ~/led command overrides it (brightness 0 releases it)
+
+
+class DeviceState(IntEnum):
+    """DEVICE_STATUS.state: lifecycle states, numbered as ROS 2 lifecycle_msgs/State."""
+
+    UNCONFIGURED = 1
+    INACTIVE = 2
+    ACTIVE = 3
+    FINALIZED = 4
+    ERROR = 5
+
+
+class DeviceError(IntEnum):
+    """DEVICE_STATUS.last_error codes (the device driver's last error class)."""
+
+    NONE = 0
+    OTHER = 1
+    NOT_FOUND = 2
+    PERMISSION = 3
+    IO = 4
+    IDENTITY = 5
+    PROTOCOL = 6
+    LIFECYCLE = 7
+    WATCHDOG = 8
+
+
+# Plain-int views of the bits the RT loops combine every cycle: IntFlag arithmetic calls into
+# Python and allocates a member per result, an int constant does neither.
+ODOM_BRAKING = int(OdomFlag.BRAKING)
+ODOM_GUARD = int(OdomFlag.GUARD)
+ODOM_MOTOR_STALE = int(OdomFlag.MOTOR_STALE)
+ODOM_CLAMPED = int(OdomFlag.CLAMPED)
+ODOM_E_STOP = int(OdomFlag.E_STOP)
+ODOM_HOLD = int(OdomFlag.HOLD)
+ENC_INVALID_MASK = int(EncoderStatus.INVALID)
+
+SONAR_OK = int(SonarStatus.OK)
+SONAR_NO_ECHO = int(SonarStatus.NO_ECHO)
+SONAR_TIMEOUT = int(SonarStatus.TIMEOUT)
+SONAR_FAULT = int(SonarStatus.FAULT)
+
+RT_FLAG_GC_FROZEN = int(RtFlag.GC_FROZEN)
+RT_FLAG_DMA_LATENCY = int(RtFlag.DMA_LATENCY)
+RT_FLAG_GUARD_VALID = int(RtFlag.GUARD_VALID)
+RT_FLAG_AUDIT = int(RtFlag.AUDIT)
+
+LEVEL_OK = int(Level.OK)
+LEVEL_WARN = int(Level.WARN)
+LEVEL_ERROR = int(Level.ERROR)
+LEVEL_STALE = int(Level.STALE)
 
 NAME_SIZE = 16
 LABEL_SIZE = 32  # PORT_STATS labels: XDDP labels are at most 32 characters
+SITE_FILE_SIZE = 40  # FORBIDDEN_SITE file: the tail of the path (the file name) is kept
+SITE_FUNC_SIZE = 24
+U32_MAX = 0xFFFFFFFF
+
+# FORBIDDEN_SITE event codes: the audit events an RT loop must not raise (m4k_rt.modeswitch).
+# 'console' is not an audit event: the console guard reports writes to sys.stdout/sys.stderr
+# under that name. Codes are contiguous from 1 (0 marks an empty slot in a site table).
+EVENT_CODES: dict[str, int] = {
+    'open': 1, 'import': 2, 'time.sleep': 3, 'subprocess.Popen': 4, 'os.system': 5,
+    'os.exec': 6, 'os.posix_spawn': 7, 'os.fork': 8, 'socket.__new__': 9, 'console': 10,
+    'os.listdir': 11, 'os.scandir': 12, 'os.remove': 13, 'os.rename': 14, 'os.mkdir': 15,
+    'socket.getaddrinfo': 16, 'shutil.copyfile': 17, 'os.truncate': 18, 'glob.glob': 19,
+}
+EVENT_NAMES: dict[int, str] = {v: k for k, v in EVENT_CODES.items()}
 
 
 class Kind(IntEnum):
@@ -101,6 +209,10 @@ class Kind(IntEnum):
     PORT_STATS = 13
     E_STOP = 14
     ODOM_RESET = 15
+    # Sent by the RT monitor on the `stat` port only (docs/internals.md); numbered apart from
+    # the kinds above since they were introduced as an extension.
+    FORBIDDEN_SITE = 64
+    TASK_HEALTH = 65
 
 
 class ProtocolError(ValueError):
@@ -228,7 +340,7 @@ class TaskStats(NamedTuple):
     """A batch of per-cycle timing samples plus counters of one RT task."""
 
     name: str
-    index: int
+    task_index: int
     priority: int
     cpu: int
     period_ns: int
@@ -300,6 +412,34 @@ class OdomReset(NamedTuple):
     request_id: int
 
 
+class ForbiddenSite(NamedTuple):
+    """One call site of a task's forbidden calls (``event`` is a name of EVENT_CODES)."""
+
+    name: str
+    task_index: int
+    event: str
+    calls: int
+    line: int
+    total: int
+    file: str
+    func: str
+
+
+class TaskHealth(NamedTuple):
+    """The per-task counters TASK_STATS does not carry."""
+
+    name: str
+    task_index: int
+    overruns: int
+    deadline_misses: int
+    body_errors: int
+    majflt: int
+    nvcsw_extra: int
+    lost_samples: int
+    fifo: int
+    priority: int
+
+
 class _Spec(NamedTuple):
     kind: Kind
     payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
@@ -310,6 +450,7 @@ class _Spec(NamedTuple):
     string: int  # > 0: field 0 is a NUL-padded ASCII name of at most this many bytes
     item: struct.Struct | None  # array element of variable kinds
     max_items: int
+    texts: tuple[int, ...]  # NUL-padded UTF-8 text fields (lenient: undecodable bytes replaced)
 
 
 _I32_MAX = 2 ** 31 - 1
@@ -317,14 +458,14 @@ _I32_MAX = 2 ** 31 - 1
 
 def _spec(kind: Kind, fmt: str, cls: Any, floats: tuple[int, int] = (0, 0),
           ranges: tuple[tuple[int, float, float], ...] = (), string: int = 0,
-          item: str | None = None) -> _Spec:
+          item: str | None = None, texts: tuple[int, ...] = ()) -> _Spec:
     payload = struct.Struct('<' + fmt)
     item_struct = struct.Struct('<' + item) if item else None
     max_items = 0
     if item_struct is not None:
         max_items = (MAX_DATAGRAM - HEADER_SIZE - payload.size) // item_struct.size
     return _Spec(kind, payload, struct.Struct(HEADER_FORMAT + fmt), cls, floats, ranges,
-                 string, item_struct, max_items)
+                 string, item_struct, max_items, texts)
 
 
 _SPECS: dict[int, _Spec] = {s.kind: s for s in (
@@ -335,7 +476,7 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.ENCODERS, 'HHddB', Encoders, (2, 4),
           ranges=((0, 0, ENCODER_MAX), (1, 0, ENCODER_MAX))),
     _spec(Kind.IMU, '4d3d3dB', Imu, (0, 10)),
-    _spec(Kind.SONAR, 'fB', Sonar, (0, 1), ranges=((0, 0.0, math.inf), (1, 0, SONAR_FAULT))),
+    _spec(Kind.SONAR, 'fB', Sonar, (0, 1), ranges=((0, 0.0, math.inf), (1, 0, max(SonarStatus)))),
     _spec(Kind.LASER_SCAN, 'ffffffIH', LaserScan, (0, 6),
           ranges=((6, 0, SCAN_STAMP_MAX),), item='H'),
     _spec(Kind.LED, 'BBBBB', Led, ranges=((4, 0, 1),)),
@@ -344,17 +485,23 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.REQUEST, 'II', Request),
     _spec(Kind.RT_STATUS, 'BBBBIII', RtStatus,
           ranges=((0, 0, 1), (1, 0, 1), (2, 0, 1), (3, 0, 1))),
-    _spec(Kind.DEVICE_STATUS, '16sBBII', DeviceStatus, ranges=((2, 0, LEVEL_STALE),),
+    _spec(Kind.DEVICE_STATUS, '16sBBII', DeviceStatus, ranges=((2, 0, max(Level)),),
           string=NAME_SIZE),
     _spec(Kind.PORT_STATS, '32sHBQQQQQQQ', PortStats, ranges=((2, 0, 1),),
           string=LABEL_SIZE),
     _spec(Kind.E_STOP, 'B', EStop, ranges=((0, 0, 1),)),
     _spec(Kind.ODOM_RESET, 'I', OdomReset),
+    _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
+          ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,
+          texts=(6, 7)),
+    _spec(Kind.TASK_HEALTH, '16sBIIIIIIBB', TaskHealth, ranges=((8, 0, 1),), string=NAME_SIZE),
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)
 _SCAN = _SPECS[Kind.LASER_SCAN]
 _STATS = _SPECS[Kind.TASK_STATS]
+_SITE = _SPECS[Kind.FORBIDDEN_SITE]
+_HEALTH = _SPECS[Kind.TASK_HEALTH]
 TASK_STATS_SAMPLE = struct.Struct('<qqqI')  # same layout as _STATS.item
 MAX_SCAN_RANGES = _SCAN.max_items
 MAX_STATS_SAMPLES = _STATS.max_items
@@ -444,8 +591,12 @@ def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, s
     with ``check=True`` (the receiver's :func:`decode` always checks them).
     """
     spec = _spec_for(kind)
+    if spec is _SITE:
+        return encode_forbidden_site_into(buf, offset, seq, stamp_ns, *fields)
     if check:
         _check_fields(spec, fields)
+    if spec is _HEALTH:
+        return encode_task_health_into(buf, offset, seq, stamp_ns, *fields)
     if spec.item is not None:
         if spec is _SCAN:
             return encode_scan_into(buf, offset, seq, stamp_ns, *fields)
@@ -463,7 +614,7 @@ def encode_into(buf: bytearray | memoryview, offset: int, kind: int, seq: int, s
 def encode_scan_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
                      angle_min: float, angle_increment: float, range_min: float,
                      range_max: float, scan_time: float, time_increment: float,
-                     device_stamp: int, ranges_mm: Sequence[int] | array) -> int:
+                     device_stamp: int, ranges_mm: 'Sequence[int] | array[int]') -> int:
     """Encode a LASER_SCAN datagram into ``buf`` and return the number of bytes written.
 
     ``ranges_mm`` may be any sequence of ints; an ``array('H')`` is copied without unpacking.
@@ -532,9 +683,57 @@ def encode_task_stats_into(buf: bytearray | memoryview, offset: int, seq: int, s
     return pos - offset
 
 
+def _text_bytes(text: str, size: int, tail: bool = False) -> bytes:
+    raw = text.encode('utf-8', 'replace')
+    return raw[-size:] if tail else raw[:size]
+
+
+def encode_forbidden_site_into(buf: bytearray | memoryview, offset: int, seq: int,
+                               stamp_ns: int, name: str | bytes, task_index: int,
+                               event: int | str, calls: int, line: int, total: int, file: str,
+                               func: str) -> int:
+    """Encode a FORBIDDEN_SITE datagram into ``buf`` and return the number of bytes written.
+
+    ``event`` is an EVENT_CODES code (RT loops) or name. Counters saturate at 2**32 - 1; a long
+    ``file`` keeps its tail (the file name), a long ``func`` its head.
+    """
+    code = EVENT_CODES.get(event, 0) if isinstance(event, str) else event
+    if code not in EVENT_NAMES:
+        raise ProtocolError('encode', 'unknown forbidden event {!r}'.format(event))
+    full = _SITE.full
+    try:
+        full.pack_into(buf, offset, MAGIC, VERSION, Kind.FORBIDDEN_SITE, seq & SEQ_MASK,
+                       stamp_ns, _name_bytes(name), task_index, code, min(calls, U32_MAX),
+                       line, min(total, U32_MAX), _text_bytes(file, SITE_FILE_SIZE, tail=True),
+                       _text_bytes(func, SITE_FUNC_SIZE))
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode FORBIDDEN_SITE: {}'.format(exc)) from None
+    return full.size
+
+
+def encode_task_health_into(buf: bytearray | memoryview, offset: int, seq: int, stamp_ns: int,
+                            name: str | bytes, task_index: int, overruns: int,
+                            deadline_misses: int, body_errors: int, majflt: int,
+                            nvcsw_extra: int, lost_samples: int, fifo: int,
+                            priority: int) -> int:
+    """Encode a TASK_HEALTH datagram into ``buf``; counters saturate at 2**32 - 1."""
+    m = U32_MAX
+    full = _HEALTH.full
+    try:
+        full.pack_into(buf, offset, MAGIC, VERSION, Kind.TASK_HEALTH, seq & SEQ_MASK, stamp_ns,
+                       _name_bytes(name), task_index, min(overruns, m),
+                       min(deadline_misses, m), min(body_errors, m), min(majflt, m),
+                       min(nvcsw_extra, m), min(lost_samples, m), fifo, priority)
+    except _ENCODE_ERRORS as exc:
+        raise ProtocolError('encode', 'cannot encode TASK_HEALTH: {}'.format(exc)) from None
+    return full.size
+
+
 def encode(kind: int, seq: int, stamp_ns: int, *fields: Any) -> bytes:
     """Encode and fully validate one datagram into new bytes (convenience for NRT code)."""
     spec = _spec_for(kind)
+    if spec is _SITE and len(fields) > 2 and isinstance(fields[2], str):
+        fields = fields[:2] + (EVENT_CODES.get(fields[2], 0),) + fields[3:]
     _check_fields(spec, fields)
     count = len(fields[-1]) if spec.item is not None else 0
     buf = bytearray(encoded_size(kind, count))
@@ -572,7 +771,7 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
         if n != fixed_end:
             raise ProtocolError('length', '{} datagram is {} bytes, expected {}'.format(
                 spec.kind.name, n, fixed_end))
-        values: Sequence[Any] = spec.payload.unpack_from(data, HEADER_SIZE)
+        values: tuple[Any, ...] = spec.payload.unpack_from(data, HEADER_SIZE)
     else:
         if n < fixed_end:
             raise ProtocolError('length', '{} datagram is {} bytes, expected at least '
@@ -595,6 +794,13 @@ def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
     _check(spec, values)
     if spec.string:
         values = (_decode_name(spec, values[0]),) + values[1:]
+    if spec.texts:
+        texts = list(values)
+        for i in spec.texts:
+            texts[i] = texts[i].rstrip(b'\x00').decode('utf-8', 'replace')
+        if spec is _SITE:
+            texts[2] = EVENT_NAMES[texts[2]]  # in range: checked above
+        values = tuple(texts)
     return Header(spec.kind, seq, stamp_ns), spec.type._make(values)
 
 

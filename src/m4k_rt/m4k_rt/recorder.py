@@ -1,7 +1,7 @@
 """NRT timing recorder: collect TASK_STATS batches, compute the paper's Table 1 and more.
 
 The RT monitor task ships every task's ring samples as TASK_STATS datagrams (plus RT_STATUS,
-and on the ``stat`` port TASK_HEALTH and FORBIDDEN_SITE, see :mod:`m4k_rt.modeswitch`). This
+and on the ``stat`` port TASK_HEALTH and FORBIDDEN_SITE, see :mod:`m4k_rt.protocol`). This
 module accumulates them per task and writes, from one run:
 
 * ``table1.md`` -- period and response time avg/max/min/std and p50/p99/p99.9 per task, as the
@@ -23,7 +23,7 @@ import sys
 import time
 from typing import Any, Iterable, Sequence
 
-from m4k_rt import modeswitch, protocol, rosargs, timing
+from m4k_rt import protocol, rosargs, timing
 
 __all__ = ['Recorder', 'TaskSeries', 'format_table1', 'main', 'summary_json']
 
@@ -49,14 +49,14 @@ class TaskSeries:
     t_start: list[int] = dataclasses.field(default_factory=list)
     t_end: list[int] = dataclasses.field(default_factory=list)
     expirations: list[int] = dataclasses.field(default_factory=list)
-    health: modeswitch.TaskHealth | None = None
-    sites: dict[tuple[str, str, int], modeswitch.ForbiddenSite] = dataclasses.field(
+    health: protocol.TaskHealth | None = None
+    sites: dict[tuple[str, str, int], protocol.ForbiddenSite] = dataclasses.field(
         default_factory=dict)
     duplicates: int = 0
 
     def add_stats(self, st: Any) -> None:
         """Take the counters of a TASK_STATS payload and append its new samples."""
-        self.index, self.priority, self.cpu = st.index, st.priority, st.cpu
+        self.index, self.priority, self.cpu = st.task_index, st.priority, st.cpu
         self.period_ns, self.cycles = st.period_ns, st.cycles
         self.nvcsw, self.nivcsw, self.minflt = st.nvcsw, st.nivcsw, st.minflt
         self.forbidden_calls = st.forbidden_calls
@@ -103,24 +103,17 @@ class Recorder:
     def feed(self, data: bytes) -> int:
         """Account one datagram; return its kind (-1 when malformed and counted)."""
         self.datagrams += 1
-        kind = modeswitch.extra_kind(data)
-        if kind in (modeswitch.FORBIDDEN_SITE, modeswitch.TASK_HEALTH):
-            try:
-                _, _, p = modeswitch.decode_extra(data)
-            except modeswitch.ExtraDatagramError:
-                self.malformed['extra'] = self.malformed.get('extra', 0) + 1
-                return -1
-            t = self._task(p.name)
-            if kind == modeswitch.TASK_HEALTH:
-                t.health = p
-            else:
-                t.sites[(p.event, p.file, p.line)] = p
-            return kind
         try:
             header, payload = protocol.decode(data)
         except protocol.ProtocolError as exc:
             self.malformed[exc.reason] = self.malformed.get(exc.reason, 0) + 1
             return -1
+        if header.kind == protocol.Kind.TASK_HEALTH:
+            self._task(payload.name).health = payload
+            return header.kind
+        if header.kind == protocol.Kind.FORBIDDEN_SITE:
+            self._task(payload.name).sites[(payload.event, payload.file, payload.line)] = payload
+            return header.kind
         if header.kind == protocol.Kind.TASK_STATS:
             self._task(payload.name).add_stats(payload)
         elif header.kind == protocol.Kind.RT_STATUS:
@@ -169,7 +162,7 @@ def _stats_dict(s: timing.Stats, scale: float) -> dict[str, float | int | None]:
 def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
               warmup_cycles: int = 0) -> dict[str, Any]:
     """Build the summary dict from task series (pure)."""
-    tasks = []
+    tasks: list[dict[str, Any]] = []  # one JSON row per task
     for t in sorted(series, key=lambda s: (-s.priority, s.name)):
         if len(t.t_rel) <= warmup_cycles:
             continue
@@ -192,7 +185,7 @@ def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
             'forbidden_calls': t.forbidden_calls,
             'forbidden_sites': [
                 {'event': s.event, 'file': s.file, 'line': s.line, 'func': s.func,
-                 'count': s.count} for s in t.sites.values()],
+                 'count': s.calls} for s in t.sites.values()],
             'wcrt_ns': None if math.isnan(a.wcrt_ns) else a.wcrt_ns,
         })
     out: dict[str, Any] = {'tasks': tasks, 'warmup_cycles_skipped': warmup_cycles}

@@ -115,7 +115,8 @@ class StatsShipper:
         per = (max_datagram - protocol.encoded_size(protocol.Kind.TASK_STATS, 0)) \
             // protocol.TASK_STATS_SAMPLE.size
         self.batch = max(1, min(batch, per, protocol.MAX_STATS_SAMPLES))
-        self._buf = bytearray(max(max_datagram, modeswitch.SITE_SIZE))
+        site_size = protocol.encoded_size(protocol.Kind.FORBIDDEN_SITE)
+        self._buf = bytearray(max(max_datagram, site_size))
         self._view = memoryview(self._buf)
         self._cursors: list[int] = []
         self._lost: list[int] = []
@@ -227,16 +228,16 @@ class StatsShipper:
                 if first >= end:
                     break
             if extra_linked:
-                size = modeswitch.encode_health_into(
+                size = protocol.encode_task_health_into(
                     buf, 0, self.seq, now, t.name, t.index, t.overruns, t.deadline_misses,
                     t.body_errors, ru.majflt, ru.nvcsw_extra, self._lost[i], int(t.fifo),
                     t.priority)
                 self._send(size, _TO_STAT)
                 if t.sites.total:
                     for site in t.sites.sites():
-                        size = modeswitch.encode_site_into(
+                        size = protocol.encode_forbidden_site_into(
                             buf, 0, self.seq, now, t.name, t.index,
-                            modeswitch.EVENT_CODES[site.event], site.count, site.line,
+                            protocol.EVENT_CODES[site.event], site.calls, site.line,
                             t.sites.total, site.file, site.func)
                         self._send(size, _TO_STAT)
         if status_linked:

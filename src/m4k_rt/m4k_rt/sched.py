@@ -33,7 +33,7 @@ RT_RUNTIME_PATH = '/proc/sys/kernel/sched_rt_runtime_us'
 class SchedError(OSError):
     """A scheduling or memory-locking call failed; ``fix`` says how to allow it."""
 
-    def __init__(self, err: int, message: str, fix: str = '') -> None:
+    def __init__(self, err: int | None, message: str, fix: str = '') -> None:
         """Keep errno, the message and the operator fix."""
         super().__init__(err, message)
         self.fix = fix
@@ -85,9 +85,10 @@ class Hardening:
         """Tell whether any hardening step failed."""
         return bool(self.failures)
 
-    def fail(self, step: str, err: int, fix: str) -> None:
-        """Record a failed step."""
-        self.failures.append(HardeningFailure(step, err, os.strerror(err), fix))
+    def fail(self, step: str, err: int | None, fix: str) -> None:
+        """Record a failed step (``err`` None: an OSError without errno, recorded as 0)."""
+        code = err or 0
+        self.failures.append(HardeningFailure(step, code, os.strerror(code), fix))
 
     def require(self) -> None:
         """Raise :class:`RtHardeningError` when degraded (the ``--require-rt`` semantic)."""
@@ -120,7 +121,7 @@ class Hardening:
             self.dma_latency_held = False
 
 
-def explain(step: str, err: int, priority: int = 0) -> str:
+def explain(step: str, err: int | None, priority: int = 0) -> str:
     """Return the operator fix for a failed hardening step."""
     if step == 'sched_fifo':
         if err == _errno.EPERM:

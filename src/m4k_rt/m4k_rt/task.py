@@ -230,7 +230,11 @@ class RtTask:
             self._open = False
         if self._stop:
             raise TaskStopped
-        exp = self._tfd.read()
+        tfd = self._tfd
+        if tfd is None:
+            raise TaskError('wait_period() called outside the task loop of {!r}'.format(
+                self.name))
+        exp = tfd.read()
         t_start = monotonic_ns()
         if self._stop:
             raise TaskStopped
@@ -277,7 +281,7 @@ def pt_create_task_rt(name: str, priority: int, period_ns: int, body: Body, *,
 
 def pt_task_wait_period() -> int:
     """Wait for the calling task's next release; return the overruns (skipped releases)."""
-    t = getattr(_current, 'task', None)
+    t: RtTask | None = getattr(_current, 'task', None)
     if t is None:
         raise TaskError('pt_task_wait_period() called outside an RT task thread')
     return t.wait_period()

@@ -31,7 +31,7 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Iterator
+from typing import Any, Iterator
 
 import pytest
 
@@ -55,7 +55,7 @@ _session_skips: list[tuple[str, str]] = []
 def _hypothesis_profile() -> str:
     """Register the m4k hypothesis profiles and load the one the environment names."""
     from hypothesis import HealthCheck, settings
-    common = {'deadline': None, 'database': None, 'print_blob': True,
+    common: dict[str, Any] = {'deadline': None, 'database': None, 'print_blob': True,
               # A loaded 2-core machine makes data generation slow, not wrong.
               'suppress_health_check': [HealthCheck.too_slow]}
     settings.register_profile('ci', derandomize=True, max_examples=100, **common)

@@ -11,6 +11,7 @@ import ctypes
 import ctypes.util
 import errno as _errno
 import os
+import sys
 import time
 
 __all__ = [
@@ -23,7 +24,9 @@ TFD_NONBLOCK = 0o4000
 TFD_TIMER_ABSTIME = 1
 _NS = 1_000_000_000
 
-_HAVE_OS_TIMERFD = hasattr(os, 'timerfd_create')
+# os.timerfd_* exist from Python 3.13; older interpreters go through libc with ctypes. Spelled
+# as a version check (not hasattr) so the type checker knows which branch exists.
+_HAVE_OS_TIMERFD = sys.version_info >= (3, 13)
 
 
 class TimerFdError(OSError):
@@ -70,13 +73,13 @@ class TimerFd:
     def __init__(self, *, nonblocking: bool = False) -> None:
         """Create the timer (disarmed); close-on-exec always, non-blocking on request."""
         flags = TFD_CLOEXEC | (TFD_NONBLOCK if nonblocking else 0)
-        if _HAVE_OS_TIMERFD:
+        if sys.version_info >= (3, 13):
             try:
-                self._fd = os.timerfd_create(CLOCK_MONOTONIC, flags=flags)
+                self._fd: int = os.timerfd_create(CLOCK_MONOTONIC, flags=flags)
             except OSError as exc:
                 raise TimerFdError(exc.errno, 'timerfd_create: {}'.format(exc.strerror)) from exc
         else:
-            fd = _lib().timerfd_create(CLOCK_MONOTONIC, flags)
+            fd: int = _lib().timerfd_create(CLOCK_MONOTONIC, flags)
             if fd < 0:
                 _raise('timerfd_create')
             self._fd = fd
@@ -100,7 +103,7 @@ class TimerFd:
                 'interval_ns must be an int >= 0 (ns), got {!r}'.format(interval_ns))
         if self._fd < 0:
             raise TimerFdError(_errno.EBADF, 'timerfd_settime: timer is closed')
-        if _HAVE_OS_TIMERFD:
+        if sys.version_info >= (3, 13):
             try:
                 os.timerfd_settime_ns(self._fd, flags=TFD_TIMER_ABSTIME,
                                       initial=first_ns, interval=interval_ns)
@@ -116,7 +119,7 @@ class TimerFd:
 
     def disarm(self) -> None:
         """Stop the timer (a blocked ``read`` then waits forever: wake it with ``set_abs``)."""
-        if _HAVE_OS_TIMERFD:
+        if sys.version_info >= (3, 13):
             os.timerfd_settime_ns(self._fd, flags=0, initial=0, interval=0)
             return
         spec = _Itimerspec()

@@ -24,6 +24,7 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     'RtaResult', 'RtaTask', 'SampleRing', 'Stats', 'TaskTiming', 'UtilizationResult',
@@ -132,9 +133,10 @@ class SampleRing:
         """Return the rows still held, oldest first, as int64 numpy arrays (NRT use)."""
         first, end, _ = self.available(0)
         idx = np.arange(first, end, dtype=np.int64) % self.capacity
-        return tuple(np.frombuffer(a, dtype=np.int64 if a.typecode == 'q' else np.uint64)[idx]
-                     .astype(np.int64) for a in (self.t_rel, self.t_start, self.t_end,
-                                                 self.expirations))
+        t_rel, t_start, t_end, expirations = (
+            np.frombuffer(a, dtype=np.int64 if a.typecode == 'q' else np.uint64)[idx]
+            .astype(np.int64) for a in (self.t_rel, self.t_start, self.t_end, self.expirations))
+        return t_rel, t_start, t_end, expirations
 
 
 # --- statistics -------------------------------------------------------------------------------
@@ -163,7 +165,7 @@ def describe(values: Sequence[float] | np.ndarray) -> Stats:
                  float(p50), float(p99), float(p999))
 
 
-def release_latency(t_rel: np.ndarray, t_start: np.ndarray, expirations: np.ndarray,
+def release_latency(t_rel: npt.ArrayLike, t_start: npt.ArrayLike, expirations: npt.ArrayLike,
                     period_ns: int) -> np.ndarray:
     """Return t_start minus the earliest release each cycle serves (ns, int64).
 
@@ -232,7 +234,7 @@ def liu_layland_bound(n: int) -> float:
     """Return the Liu-Layland RM utilization bound n(2^(1/n) - 1) (0.743 for n = 5)."""
     if not isinstance(n, int) or n < 1:
         raise ValueError('task count must be an int >= 1, got {!r}'.format(n))
-    return n * (2.0 ** (1.0 / n) - 1.0)
+    return n * (math.pow(2.0, 1.0 / n) - 1.0)  # math.pow: float (float ** may be complex)
 
 
 @dataclasses.dataclass

@@ -635,7 +635,8 @@ def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
                     path, handshake_timeout), path, errno.ETIMEDOUT) from None
             except OSError as exc:
                 sock.close()
-                raise _NotBoundYet(exc.errno, 'reset during handshake') from None
+                raise _NotBoundYet(exc.errno or errno.ECONNRESET,
+                                   'reset during handshake') from None
             if answer == HANDSHAKE_OK:
                 return NrtXddpEndpoint(sock, path, found_mode)
             sock.close()

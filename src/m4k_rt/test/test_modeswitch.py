@@ -38,7 +38,7 @@ def test_open_inside_body_is_reported_with_this_file_and_line():
     assert t.sites.by_event[modeswitch.EVENT_CODES['open']] == t.sites.total
     assert [(s.event, s.file, s.line, s.func) for s in sites] == [
         ('open', __file__, line, 'body')]
-    assert sites[0].count == t.sites.total
+    assert sites[0].calls == t.sites.total
 
 
 def test_sleep_subprocess_socket_and_console_are_distinct_sites():
@@ -87,27 +87,4 @@ def test_site_table_keeps_last_n_distinct_sites():
     for line in (1, 2, 2, 3):
         table.record(1, 'f.py', line, 'fn')
     assert table.total == 4
-    assert [(s.line, s.count) for s in table.sites()] == [(2, 2), (3, 1)]
-
-
-def test_site_and_health_datagrams_round_trip():
-    buf = bytearray(256)
-    n = modeswitch.encode_site_into(buf, 0, 7, 123, 'led', 2, modeswitch.EVENT_CODES['open'], 311,
-                                    42, 400, '/very/long/path/' * 5 + 'led_body.py', 'cycle')
-    seq, stamp, site = modeswitch.decode_extra(bytes(buf[:n]))
-    assert (seq, stamp) == (7, 123)
-    assert site.name == 'led' and site.event == 'open' and site.count == 311
-    assert site.file.endswith('led_body.py') and site.line == 42 and site.total == 400
-    n = modeswitch.encode_health_into(buf, 0, 8, 5, 'imu', 1, 3, 2, 1, 0, 4, 0, 1, 85)
-    _, _, h = modeswitch.decode_extra(bytes(buf[:n]))
-    assert h == modeswitch.TaskHealth('imu', 1, 3, 2, 1, 0, 4, 0, 1, 85)
-
-
-@pytest.mark.parametrize('data, match', [
-    (b'\x00' * 10, 'kind -1'),
-    (b'MK\x01\x40' + b'\x00' * 12, 'needs'),
-    (bytes.fromhex('4d4b0109') + b'\x00' * 12, 'kind 9'),
-])
-def test_decode_extra_rejects_malformed(data, match):
-    with pytest.raises(modeswitch.ExtraDatagramError, match=match):
-        modeswitch.decode_extra(data)
+    assert [(s.line, s.calls) for s in table.sites()] == [(2, 2), (3, 1)]

@@ -23,6 +23,8 @@ BIT = st.integers(0, 1)
 U64 = st.integers(0, 2 ** 64 - 1)
 NAME = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=16)
 LABEL = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=32)
+FILE = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=p.SITE_FILE_SIZE)
+FUNC = st.text(st.characters(min_codepoint=1, max_codepoint=127), max_size=p.SITE_FUNC_SIZE)
 
 FIELDS = {
     Kind.VELOCITY_CMD: st.tuples(F64, F64),
@@ -44,6 +46,9 @@ FIELDS = {
     Kind.PORT_STATS: st.tuples(LABEL, U16, BIT, *[U64] * 7),
     Kind.E_STOP: st.tuples(BIT),
     Kind.ODOM_RESET: st.tuples(U32),
+    Kind.FORBIDDEN_SITE: st.tuples(NAME, U8, st.sampled_from(sorted(p.EVENT_CODES)), U32, U32,
+                                   U32, FILE, FUNC),
+    Kind.TASK_HEALTH: st.tuples(NAME, U8, *[U32] * 6, BIT, U8),
 }
 
 PAYLOAD_TYPES = {
@@ -52,6 +57,7 @@ PAYLOAD_TYPES = {
     Kind.LASER_SCAN: p.LaserScan, Kind.LED: p.Led, Kind.TASK_STATS: p.TaskStats,
     Kind.REQUEST: p.Request, Kind.RT_STATUS: p.RtStatus, Kind.DEVICE_STATUS: p.DeviceStatus,
     Kind.PORT_STATS: p.PortStats, Kind.E_STOP: p.EStop, Kind.ODOM_RESET: p.OdomReset,
+    Kind.FORBIDDEN_SITE: p.ForbiddenSite, Kind.TASK_HEALTH: p.TaskHealth,
 }
 
 # One hand-picked valid payload per kind (used by example tests and mutation fuzzing).
@@ -74,6 +80,8 @@ EXAMPLES = {
     Kind.PORT_STATS: ('cmd', 1, 1, 5000, 1000, 3, 2, 1, 4, 1),
     Kind.E_STOP: (1,),
     Kind.ODOM_RESET: (0xDEADBEEF,),
+    Kind.FORBIDDEN_SITE: ('led', 2, 'open', 311, 42, 400, '/x/led_body.py', 'cycle'),
+    Kind.TASK_HEALTH: ('imu', 1, 3, 2, 1, 0, 4, 0, 1, 85),
 }
 
 
@@ -83,6 +91,39 @@ def _f32(x):
 
 def test_every_kind_has_an_example_and_a_strategy():
     assert set(EXAMPLES) == set(Kind) == set(FIELDS) == set(PAYLOAD_TYPES)
+
+
+def test_kind_table_has_unique_numbers_and_a_layout_per_kind():
+    numbers = [int(k) for k in Kind]
+    assert len(numbers) == len(set(numbers)) and all(0 < n < 256 for n in numbers)
+    assert set(p._SPECS) == set(Kind)
+    assert all(spec.kind == kind and spec.type is PAYLOAD_TYPES[kind]
+               and len(spec.type._fields) == len(spec.payload.unpack(bytes(spec.payload.size)))
+               for kind, spec in p._SPECS.items())
+
+
+def test_forbidden_event_codes_are_distinct_and_contiguous():
+    codes = sorted(p.EVENT_CODES.values())
+    assert codes == list(range(1, len(p.EVENT_CODES) + 1))
+    assert p.EVENT_NAMES == {c: e for e, c in p.EVENT_CODES.items()}
+
+
+def test_forbidden_site_keeps_the_file_tail_and_saturates_counters():
+    buf = bytearray(256)
+    n = p.encode_forbidden_site_into(buf, 0, 7, 123, 'led', 2, p.EVENT_CODES['open'], 2 ** 40,
+                                     42, 400, '/very/long/path/' * 5 + 'led_body.py', 'cycle')
+    header, site = p.decode(bytes(buf[:n]))
+    assert header == Header(Kind.FORBIDDEN_SITE, 7, 123)
+    assert site.event == 'open' and site.calls == 0xFFFFFFFF and site.total == 400
+    assert site.file.endswith('/path/led_body.py') and len(site.file) == p.SITE_FILE_SIZE
+    with pytest.raises(ProtocolError, match='unknown forbidden event'):
+        p.encode_forbidden_site_into(buf, 0, 0, 0, 'led', 2, 0, 1, 1, 1, 'f', 'g')
+
+
+def test_forbidden_site_with_an_unknown_event_code_is_rejected():
+    good = bytearray(p.encode(Kind.FORBIDDEN_SITE, 0, 0, *EXAMPLES[Kind.FORBIDDEN_SITE]))
+    good[16 + 17] = len(p.EVENT_CODES) + 1  # the event byte after name (16) and index (1)
+    assert _reason(bytes(good)) == 'range'
 
 
 # ---- exact bytes, computed by hand from the table in docs/internals.md ----
@@ -447,3 +488,21 @@ def test_seq_gap_after_losing_k_datagrams_is_k(start, lost):
     for _ in range(lost + 1):
         cur = p.next_seq(cur)
     assert p.seq_gap(start, cur) == lost
+
+
+def test_flag_and_status_enums_own_the_wire_values():
+    # The plain-int names the RT loops use are views of the one IntFlag/IntEnum definition.
+    assert p.ODOM_BRAKING == p.OdomFlag.BRAKING and p.ODOM_HOLD == p.OdomFlag.HOLD
+    assert p.ENC_INVALID_MASK == 0x0F and not p.ENC_INVALID_MASK & (
+        p.EncoderStatus.SAFE | p.EncoderStatus.WRITE_ERROR)
+    assert p.SONAR_FAULT == max(p.SonarStatus) and p.LEVEL_STALE == max(p.Level)
+    for flags in (p.OdomFlag, p.RtFlag):
+        bits = [int(f) for f in flags]
+        assert all(b & (b - 1) == 0 for b in bits) and len(set(bits)) == len(bits)
+    # Layout ranges follow the enums: one more than the largest value is rejected.
+    good = EXAMPLES[Kind.SONAR]
+    with pytest.raises(ProtocolError):
+        p.encode(Kind.SONAR, 0, 0, good[0], max(p.SonarStatus) + 1)
+    status = EXAMPLES[Kind.DEVICE_STATUS]
+    with pytest.raises(ProtocolError):
+        p.encode(Kind.DEVICE_STATUS, 0, 0, status[0], status[1], max(p.Level) + 1, *status[3:])

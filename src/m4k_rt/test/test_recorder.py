@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from m4k_rt import modeswitch, protocol, recorder
+from m4k_rt import protocol, recorder
 
 MS = 1_000_000
 
@@ -29,15 +29,15 @@ def _batch(name, index, prio, period, first_cycle, n, response=100_000, seq=0, l
 
 def _health(name, index, body_errors=0):
     buf = bytearray(128)
-    n = modeswitch.encode_health_into(buf, 0, 0, 0, name, index, 0, 0, body_errors, 0, 2, 0, 1,
-                                      90)
+    n = protocol.encode_task_health_into(buf, 0, 0, 0, name, index, 0, 0, body_errors, 0, 2, 0,
+                                         1, 90)
     return bytes(buf[:n])
 
 
 def _site(name):
     buf = bytearray(256)
-    n = modeswitch.encode_site_into(buf, 0, 0, 0, name, 2, modeswitch.EVENT_CODES['open'], 5,
-                                    42, 5, '/x/test_body.py', 'body')
+    n = protocol.encode_forbidden_site_into(buf, 0, 0, 0, name, 2, protocol.EVENT_CODES['open'],
+                                            5, 42, 5, '/x/test_body.py', 'body')
     return bytes(buf[:n])
 
 
@@ -82,7 +82,7 @@ def test_malformed_datagrams_are_counted_not_raised():
     rec = recorder.Recorder()
     assert rec.feed(b'garbage') == -1
     assert rec.feed(b'MK\x01\x40' + b'\x00' * 12) == -1
-    assert rec.malformed == {'short': 1, 'extra': 1}
+    assert rec.malformed == {'short': 1, 'length': 1}  # a FORBIDDEN_SITE header, no payload
     assert rec.summary()['tasks'] == []
 
 

@@ -91,10 +91,14 @@ def measure_parts(n: int = 2000) -> dict[str, float]:
         ring = timing.SampleRing(4096)
         ru = modeswitch.ThreadRusage()
         ru.start()
+        def drain_empty() -> None:
+            reader.start_cycle()
+            reader.next()
+
         out = {
             'clock': _best(monotonic_ns, n * 10),
             'drain_decode': _best(reader.next, n, between=feed),
-            'drain_empty': _best(lambda: (reader.start_cycle(), reader.next()), n),
+            'drain_empty': _best(drain_empty, n),
             'encode_send': _best(lambda: writer.send(protocol.Kind.WHEEL_CMD, 0, 512, 512, 0),
                                  n, between=drained),
             'timing_record': _best(lambda: ring.record(1, 2, 3, 1), n * 10),

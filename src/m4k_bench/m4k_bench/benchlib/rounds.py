@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import statistics
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence, TypeGuard
 
 __all__ = ['HOST_SHARE', 'attribute_stall', 'cpu_per_cycle_us', 'hardening_label',
            'per_round_ratios', 'spread']
@@ -26,7 +26,7 @@ __all__ = ['HOST_SHARE', 'attribute_stall', 'cpu_per_cycle_us', 'hardening_label
 HOST_SHARE = 0.5
 
 
-def _finite(v: Any) -> bool:
+def _finite(v: Any) -> TypeGuard[float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 

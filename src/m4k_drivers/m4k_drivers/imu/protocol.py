@@ -36,6 +36,7 @@ import struct
 from typing import NamedTuple
 
 from m4k_drivers.handler import DeviceProtocolError
+from m4k_rt.protocol import ImuStatus
 
 __all__ = [
     'ADDRESS', 'BLOCK1', 'BLOCK1_LEN', 'BLOCK2', 'BLOCK2_LEN', 'GRAVITY', 'REG_STATUS',
@@ -72,10 +73,10 @@ TEMP_C = 200.0 / FULL
 EULER_DEG = 180.0 / FULL
 QUAT = 1.0 / FULL
 
-# IMU datagram status (docs/internals.md IMU.status).
-STATUS_OK = 0
-STATUS_NOT_READY = 1
-STATUS_BAD_QUATERNION = 2
+# IMU datagram status: m4k_rt.protocol.ImuStatus owns it (docs/internals.md IMU.status).
+STATUS_OK = ImuStatus.OK
+STATUS_NOT_READY = ImuStatus.NOT_READY
+STATUS_BAD_QUATERNION = ImuStatus.BAD_QUATERNION
 
 
 class DeviceSample(NamedTuple):
@@ -112,8 +113,10 @@ def decode_blocks(block1: bytes | bytearray, block2: bytes | bytearray) -> Devic
     v1 = _B1.unpack(bytes(block1))
     v2 = _B2.unpack(bytes(block2))
     acc = tuple(c * ACC_G * GRAVITY for c in v1[0:3])
-    gyro = tuple(math.radians(c * GYRO_DPS) for c in v1[3:6])
-    euler = tuple(math.radians(c * EULER_DEG) for c in v2[0:3])
+    gyro = (math.radians(v1[3] * GYRO_DPS), math.radians(v1[4] * GYRO_DPS),
+            math.radians(v1[5] * GYRO_DPS))
+    euler = (math.radians(v2[0] * EULER_DEG), math.radians(v2[1] * EULER_DEG),
+             math.radians(v2[2] * EULER_DEG))
     quat = tuple(c * QUAT for c in v2[3:7])
     return DeviceSample(acc, gyro, (v1[6], v1[7], v1[8]), v1[9] * TEMP_C, euler, quat)
 

@@ -51,7 +51,7 @@ class LedClassOutput:
             raise DeviceNotFoundError(f'{self.path}: No such file or directory (errno 2)')
         self.multi = os.path.join(self.path, 'multi_intensity')
         self.is_multicolor = os.path.exists(self.multi)
-        self.index = p.RGB_INDEX
+        self.index: tuple[str, ...] = p.RGB_INDEX
         if self.is_multicolor:
             index_path = os.path.join(self.path, 'multi_index')
             try:

@@ -169,7 +169,7 @@ class SysfsLeds:
             return None
         by_color = dict(zip(self.order, values, strict=True))
         m = float(self.max_brightness)
-        return tuple(bri * by_color[c] / m / m for c in COLORS)  # type: ignore[return-value]
+        return tuple(bri * by_color[c] / m / m for c in COLORS)
 
     def _pwm(self) -> tuple[float, float, float] | None:
         out = []

@@ -90,6 +90,7 @@ class LrfHandler(DeviceHandler):
     def on_read(self) -> LrfReading:
         """Return the latest scan (stream) or poll one (GD)."""
         assert self.driver is not None
+        scan: UrgScan | None
         if self.mode == 'poll':
             scan = self.driver.get_scan()
         else:

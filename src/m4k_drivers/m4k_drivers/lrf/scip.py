@@ -143,7 +143,8 @@ def decode_array(data: bytes, nchars: int) -> np.ndarray:
     digits = (raw.astype(np.uint32) - 0x30).reshape(-1, nchars)
     out = np.zeros(digits.shape[0], dtype=np.uint32)
     for i in range(nchars):
-        out = (out << 6) | digits[:, i]
+        out <<= 6
+        out |= digits[:, i]
     return out
 
 

@@ -178,8 +178,8 @@ class MotorHandler(DeviceHandler):
 
     def _write_codes(self, left: int, right: int) -> None:
         assert self.bus is not None
-        out = tuple(p.trim_dac_code(code, sign, trim) for code, sign, trim in
-                    zip((left, right), self.dac_sign, self.dac_zero_trim, strict=True))
+        out = (p.trim_dac_code(left, self.dac_sign[0], self.dac_zero_trim[0]),
+               p.trim_dac_code(right, self.dac_sign[1], self.dac_zero_trim[1]))
         try:
             for port, code in zip(self.bus.dacs, out, strict=True):
                 port.transfer(p.encode_dac(code))

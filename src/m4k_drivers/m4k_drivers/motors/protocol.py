@@ -50,14 +50,15 @@ positive = forward (:func:`wheel_raw`).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import NamedTuple, TypeGuard
 
 from m4k_drivers.handler import DeviceProtocolError
 from m4k_rt.control.dac import code_to_command, command_to_code  # the one owner
-from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # WHEEL_CMD codes: 0..1023, 512 = zero
+from m4k_rt.protocol import DAC_MAX, DAC_ZERO, EncoderStatus  # DAC codes 0..1023, 512 = 0
 
 __all__ = [
-    'DAC_MAX', 'DAC_ZERO', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame', 'EncoderFrame',
+    'DAC_MAX', 'DAC_ZERO', 'DeviceProtocolError', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame',
+    'EncoderFrame',
     'EncoderFieldWarning', 'EncoderFrameError', 'EncoderJumpError', 'Unwrapper',
     'code_to_command', 'code_to_volts',
     'command_to_code', 'decode_dac', 'decode_encoder', 'encode_dac', 'encode_encoder',
@@ -78,13 +79,13 @@ RAD_PER_COUNT = 2.0 * math.pi / ENC_COUNTS
 LEAD_BITS_MAX = ENC_READ_LEN * 8 - ENC_FRAME_BITS      # 6: the frame must fit in the read
 DAC_TRIM_MAX = 64                                      # zero trim limit, codes (12.5 % span)
 
-# ENCODERS.status bits (docs/internals.md).
-STATUS_LEFT_FRAME = 0x01
-STATUS_RIGHT_FRAME = 0x02
-STATUS_LEFT_JUMP = 0x04
-STATUS_RIGHT_JUMP = 0x08
-STATUS_SAFE = 0x10
-STATUS_WRITE_ERROR = 0x20
+# ENCODERS.status bits: m4k_rt.protocol.EncoderStatus owns them (docs/internals.md).
+STATUS_LEFT_FRAME = EncoderStatus.LEFT_FRAME
+STATUS_RIGHT_FRAME = EncoderStatus.RIGHT_FRAME
+STATUS_LEFT_JUMP = EncoderStatus.LEFT_JUMP
+STATUS_RIGHT_JUMP = EncoderStatus.RIGHT_JUMP
+STATUS_SAFE = EncoderStatus.SAFE
+STATUS_WRITE_ERROR = EncoderStatus.WRITE_ERROR
 
 
 class EncoderFrameError(DeviceProtocolError):
@@ -168,7 +169,7 @@ def mag_out_of_range(frame: EncoderFrame) -> bool:
 
 
 # -- config checks (registry.Param.check: None = fine, else the reason) ---------------------
-def _is_int(v: object) -> bool:
+def _is_int(v: object) -> TypeGuard[int]:
     return isinstance(v, int) and not isinstance(v, bool)
 
 

@@ -19,8 +19,8 @@ __all__ = ['EnableLine', 'LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_lda
 class SpiLike(Protocol):
     """What the motor code needs from an SPI device: full-duplex transfer and close."""
 
-    def transfer(self, data: bytes) -> bytes:
-        """Clock ``data`` out and return the bytes clocked in."""
+    def transfer(self, data: bytes) -> bytes | bytearray | list[int]:
+        """Clock ``data`` out and return the bytes clocked in (periphery: as given)."""
 
     def close(self) -> None:
         """Release the device."""
@@ -181,5 +181,6 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
         for port in opened:
             port.close()
         raise
-    return MotorBus(*opened, ldac=ldac, ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)',
-                    enable=line)
+    dac_l, dac_r, enc_l, enc_r = opened
+    return MotorBus(dac_l, dac_r, enc_l, enc_r, ldac=ldac,
+                    ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)', enable=line)

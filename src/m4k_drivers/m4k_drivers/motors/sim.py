@@ -175,4 +175,5 @@ def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None
         for port in opened:
             port.close()
         raise
-    return MotorBus(*opened, enable=line)
+    dac_l, dac_r, enc_l, enc_r = opened
+    return MotorBus(dac_l, dac_r, enc_l, enc_r, enable=line)

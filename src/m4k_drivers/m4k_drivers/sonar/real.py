@@ -26,14 +26,22 @@ from typing import Any, Callable, Protocol
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 from m4k_drivers.sonar import protocol as p
 
-__all__ = ['EdgeSonar', 'GpioLike', 'IioSonar', 'open_gpio_sonar', 'open_simbus_sonar']
+__all__ = ['EdgeSonar', 'GpioLike', 'IioSonar', 'OutputLike', 'open_gpio_sonar',
+           'open_simbus_sonar']
 
 
-class GpioLike(Protocol):
-    """The python-periphery GPIO methods used here."""
+class OutputLike(Protocol):
+    """The python-periphery GPIO methods the trigger line needs."""
 
     def write(self, value: bool) -> None:
         """Drive an output line."""
+
+    def close(self) -> None:
+        """Release the line."""
+
+
+class GpioLike(Protocol):
+    """The python-periphery GPIO methods the echo (edge event) line needs."""
 
     def poll(self, timeout: float | None = None) -> bool:
         """Wait for an edge event."""
@@ -60,7 +68,7 @@ CLOCK_STEP_TOLERANCE_NS = 20_000
 class EdgeSonar:
     """Pulse-mode measurement over a trigger line and an edge-timestamping echo line."""
 
-    def __init__(self, trigger: GpioLike, echo: GpioLike, where: str, *,
+    def __init__(self, trigger: OutputLike, echo: GpioLike, where: str, *,
                  trigger_s: float = 2 * p.TRIGGER_S,
                  hold: Callable[[float], None] = _busy_wait,
                  clock: Callable[[], int] = time.monotonic_ns,

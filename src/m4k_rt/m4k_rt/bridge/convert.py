@@ -31,9 +31,9 @@ __all__ = [
     'velocity_command',
 ]
 
-# IMU status byte (m4k_drivers.imu.protocol): 0 ok, 1 not ready, 2 quaternion invalid.
-IMU_NOT_READY = 1
-IMU_BAD_QUATERNION = 2
+# IMU status byte: protocol.ImuStatus owns the values.
+IMU_NOT_READY = protocol.ImuStatus.NOT_READY
+IMU_BAD_QUATERNION = protocol.ImuStatus.BAD_QUATERNION
 
 # URG (SCIP 2.0) error codes: the table has one owner, m4k_rt.protocol.SCAN_ERROR_CODES (SCIP 2.0
 # spec C-42-03320B, Table 3). Only code 0 ("object possibly at 22 m", i.e. nothing within the
@@ -243,5 +243,5 @@ def led_command(r: float, g: float, b: float, a: float) -> tuple[int, int, int, 
         return int(round(min(max(c, 0.0), 1.0) * 255))
 
     if byte(a) == 0:
-        return 0, 0, 0, 0, 0
-    return byte(r), byte(g), byte(b), byte(a), 1
+        return 0, 0, 0, 0, int(protocol.LedSource.STATE)
+    return byte(r), byte(g), byte(b), byte(a), int(protocol.LedSource.OVERRIDE)

@@ -21,18 +21,15 @@ from typing import Any, Iterable, Mapping
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats, XddpPort
-from m4k_rt import modeswitch, protocol, timing
+from m4k_rt import protocol, timing
 
 __all__ = ['LEVELS', 'RtMonitor', 'TaskWindow', 'degraded_reasons', 'level_byte', 'make_status',
            'timing_stats']
 
-LEVELS = {protocol.LEVEL_OK: 'OK', protocol.LEVEL_WARN: 'WARN', protocol.LEVEL_ERROR: 'ERROR',
-          protocol.LEVEL_STALE: 'STALE'}
-# DEVICE_STATUS.state and .last_error codes (m4k_drivers.handler State / ErrorCode; named here
-# because m4k_rt must not import m4k_drivers).
-DEVICE_STATES = {1: 'unconfigured', 2: 'inactive', 3: 'active', 4: 'finalized', 5: 'error'}
-DEVICE_ERRORS = {0: 'none', 1: 'other', 2: 'not found', 3: 'permission', 4: 'io',
-                 5: 'identity', 6: 'protocol', 7: 'lifecycle', 8: 'watchdog'}
+LEVELS = {int(v): v.name for v in protocol.Level}
+# DEVICE_STATUS.state and .last_error names (protocol.DeviceState / DeviceError own the codes).
+DEVICE_STATES = {int(v): v.name.lower() for v in protocol.DeviceState}
+DEVICE_ERRORS = {int(v): v.name.lower().replace('_', ' ') for v in protocol.DeviceError}
 _NS = 1e-9
 
 
@@ -86,7 +83,7 @@ class TaskWindow:
         self.window_ns = window_ns
         self.rows: collections.deque[tuple[int, int, int, int]] = collections.deque()
         self.stats: protocol.TaskStats | None = None
-        self.health: modeswitch.TaskHealth | None = None
+        self.health: protocol.TaskHealth | None = None
         self.last_site = ''
         self.rx_ns = 0               # CLOCK_MONOTONIC of the last batch (0 = never)
         self.prev_cycles = -1
@@ -162,19 +159,20 @@ class RtMonitor:
                                             rx_ns if stamp_ns is None else stamp_ns)
         elif kind == protocol.Kind.PORT_STATS:
             self.ports[payload.port] = (payload, rx_ns)
-        elif kind == modeswitch.TASK_HEALTH:
+        elif kind == protocol.Kind.TASK_HEALTH:
             self._task(payload.name).health = payload
-        elif kind == modeswitch.FORBIDDEN_SITE:
+        elif kind == protocol.Kind.FORBIDDEN_SITE:
             self._task(payload.name).last_site = '{} at {}:{} in {}'.format(
                 payload.event, payload.file, payload.line, payload.func)
         else:
             return False
         return True
 
-    def _ordered(self) -> list[TaskWindow]:
-        # Highest priority first, as RtStatus.tasks documents.
-        return sorted((t for t in self.tasks.values() if t.stats is not None),
-                      key=lambda t: (-t.stats.priority, t.stats.index))
+    def _ordered(self) -> list[tuple[TaskWindow, protocol.TaskStats]]:
+        # The tasks that reported, with their last TASK_STATS; highest priority first, as
+        # RtStatus.tasks documents.
+        reported = [(t, t.stats) for t in self.tasks.values() if t.stats is not None]
+        return sorted(reported, key=lambda ts: (-ts[1].priority, ts[1].task_index))
 
     def task_timing(self, t: TaskWindow) -> tuple[TaskTiming, timing.TaskTiming]:
         """Return the TaskTiming message of one task and the analysis behind it."""
@@ -238,13 +236,12 @@ class RtMonitor:
         tasks = []
         rta_in = []
         misses = 0
-        for t in self._ordered():
+        for t, st in self._ordered():
             m, a = self.task_timing(t)
             tasks.append(m)
             misses += a.deadline_misses
-            if not math.isnan(a.wcrt_ns) and t.stats.period_ns:
-                rta_in.append(timing.RtaTask(t.name, a.wcrt_ns, t.stats.period_ns,
-                                             t.stats.priority))
+            if not math.isnan(a.wcrt_ns) and st.period_ns:
+                rta_in.append(timing.RtaTask(t.name, a.wcrt_ns, st.period_ns, st.priority))
         msg.tasks = tasks
         if rta_in:
             u = timing.utilization_test([(r.name, r.wcet_ns, r.period_ns) for r in rta_in])
@@ -257,9 +254,8 @@ class RtMonitor:
     def task_statuses(self, now_ns: int, prefix: str = 'm4k_rt') -> list[DiagnosticStatus]:
         """Return one DiagnosticStatus per RT task."""
         out = []
-        for t in self._ordered():
+        for t, st in self._ordered():
             m, a = self.task_timing(t)
-            st = t.stats
             age = (now_ns - t.rx_ns) * _NS
             values = {'period_s': m.period, 'priority': m.priority, 'cycles': m.cycles,
                       'window_samples': a.cycles,

@@ -49,7 +49,7 @@ from std_msgs.msg import ColorRGBA
 import yaml
 
 from m4k_msgs.msg import RtStatus
-from m4k_rt import config, description, modeswitch, protocol, xddp
+from m4k_rt import config, description, protocol, xddp
 from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
 from m4k_rt.bridge.ports import PortPump
@@ -100,7 +100,7 @@ class BridgeNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.p
-        self.counters = collections.Counter()
+        self.counters: collections.Counter[str] = collections.Counter()
         self._seq = 0
         self._led_seq = 0
         self._last_seq: dict[str, int] = {}
@@ -311,21 +311,15 @@ class BridgeNode(Node):
         self._last_seq[role] = seq
 
     def _handle(self, role: str, data: bytes, rx_ns: int, now_mono: int, now_ros: int) -> None:
-        kind = modeswitch.extra_kind(data)
-        if kind in (modeswitch.TASK_HEALTH, modeswitch.FORBIDDEN_SITE):
-            try:
-                _, _, payload = modeswitch.decode_extra(data)
-            except modeswitch.ExtraDatagramError:
-                self.counters['malformed_' + role] += 1
-                return
-            self._monitor.feed(kind, payload, rx_ns)
-            return
         try:
             header, payload = protocol.decode(data)
         except protocol.ProtocolError as exc:
             self.counters['malformed_' + role] += 1
             self.get_logger().warning('malformed datagram on port {!r}: {}'.format(role, exc),
                                       throttle_duration_sec=5.0)
+            return
+        if header.kind in (protocol.Kind.TASK_HEALTH, protocol.Kind.FORBIDDEN_SITE):
+            self._monitor.feed(header.kind, payload, rx_ns)
             return
         self._track_seq(role, header.seq)
         stamp = convert.ros_stamp_ns(header.stamp_ns, now_mono, now_ros)

@@ -62,6 +62,7 @@ from m4k_rt.control.odometry import Odometry
 from m4k_rt.control.params import AxisLimits, ControlParams
 from m4k_rt.control.pid import WheelSpeedPI
 from m4k_rt.protocol import (
+    ENC_INVALID_MASK,
     ODOM_BRAKING,
     ODOM_CLAMPED,
     ODOM_E_STOP,
@@ -86,10 +87,6 @@ MODE_OBSTACLE = 3
 MODE_FAULT = 4
 MODE_E_STOP = 5
 MODE_NAMES = ('idle', 'driving', 'braking', 'obstacle', 'fault', 'e_stop')
-
-# ENCODERS.status bits that make the angles untrustworthy (frame or jump error, either wheel);
-# the other bits (driver in safe mode, DAC write error) leave the angles valid.
-ENC_INVALID_MASK = 0x0F
 
 _MOVING_EPS = 1e-3   # m/s or rad/s below which the commanded base counts as stopped
 

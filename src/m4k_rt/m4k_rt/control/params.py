@@ -164,7 +164,7 @@ def _axis(path: str, raw: Any, default: AxisLimits) -> AxisLimits:
 def _choice(path: str, value: Any, choices: tuple[str, ...]) -> str:
     if value not in choices:
         raise ControlConfigError(path, f'must be one of {choices}, got {value!r}')
-    return value
+    return str(value)  # one of ``choices``
 
 
 def _flag(path: str, value: Any) -> bool:
@@ -192,7 +192,8 @@ def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> 
     gd = base.guard
 
     def gnum(name: str, **kw: Any) -> float:
-        return _number(f'{g}.{name}', g_raw.get(name, getattr(gd, name)), **kw)
+        value: float = _number(f'{g}.{name}', g_raw.get(name, getattr(gd, name)), **kw)
+        return value
 
     guard = GuardParams(
         enabled=_flag(f'{g}.enabled', g_raw.get('enabled', gd.enabled)),

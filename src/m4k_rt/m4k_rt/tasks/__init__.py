@@ -12,7 +12,7 @@ Names resolve in this order: bodies registered with :func:`register_body` (rt_co
 
 import importlib
 import importlib.util
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, cast, Mapping
 
 __all__ = ['BodyFactory', 'BodyError', 'body_exists', 'get_factory', 'register_body',
            'registered']
@@ -66,7 +66,7 @@ def get_factory(name: str) -> BodyFactory:
         raise BodyError('unknown task body {!r} (registered: {}; or a module {})'.format(
             name, ', '.join(registered()) or 'none', _module_name('<name>')))
     mod = importlib.import_module(_module_name(name))
-    f = getattr(mod, 'make_' + name, None)
-    if not callable(f):
+    factory = getattr(mod, 'make_' + name, None)
+    if not callable(factory):
         raise BodyError('module {} has no factory make_{}()'.format(_module_name(name), name))
-    return f
+    return cast(BodyFactory, factory)  # a module's make_<name> is a factory by convention

@@ -164,8 +164,12 @@ class ActuatorBody:
         state.actuator_cycles = self.cycles
 
 
-def control_section(task: Any, shared: Any) -> Mapping[str, Any] | None:
-    """Find the ``control:`` section: task params, then the shared config, else defaults."""
+def control_section(task: Any, shared: Any) -> Any:
+    """Find the raw ``control:`` section: task params, then the shared config, else None.
+
+    The section is returned as parsed from YAML, unvalidated: the control parameter parser
+    checks it (a non-mapping is a configuration error there).
+    """
     params = getattr(task, 'params', None) or {}
     if 'control' in params:
         return params['control']

@@ -35,7 +35,7 @@ from m4k_rt.control.base import (
     MODE_FAULT,
     MODE_OBSTACLE,
 )
-from m4k_rt.protocol import Kind, LEVEL_ERROR
+from m4k_rt.protocol import Kind, LedSource, LEVEL_ERROR
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -49,8 +49,8 @@ FAULT_ON = (255, 0, 0, 255)
 FAULT_OFF = (255, 0, 0, 0)
 STATE_COLOURS = {'idle': IDLE, 'driving': DRIVING, 'braking': BRAKING, 'obstacle': OBSTACLE,
                  'fault': FAULT_ON}
-SOURCE_STATE = 0
-SOURCE_OVERRIDE = 1
+SOURCE_STATE = int(LedSource.STATE)  # plain ints for the loop
+SOURCE_OVERRIDE = int(LedSource.OVERRIDE)
 BLINK_HALF_PERIOD_NS = 250_000_000
 ECHO_EVERY_NS = 1_000_000_000
 

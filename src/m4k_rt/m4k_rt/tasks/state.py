@@ -35,7 +35,7 @@ import math
 from typing import Any
 
 from m4k_rt.control.base import MODE_FAULT
-from m4k_rt.protocol import DeviceStatus
+from m4k_rt.protocol import DeviceStatus, LEVEL_OK, SONAR_OK
 
 __all__ = ['DEVICE_SLOTS', 'RobotState', 'robot_state']
 
@@ -74,23 +74,23 @@ class RobotState:
         self.y = 0.0
         self.yaw = 0.0
         self.guard_active = False
-        self.motor_level = 0
+        self.motor_level = LEVEL_OK
         self.actuator_cycles = 0
         # sonar
         self.sonar_range = math.inf     # m; inf = nothing in range
-        self.sonar_status = 0
+        self.sonar_status = SONAR_OK
         self.sonar_rx_ns = 0
-        self.sonar_level = 0
+        self.sonar_level = LEVEL_OK
         # lrf
         self.laser_front_min = math.inf  # m, front-sector minimum; inf = nothing seen
         self.laser_rx_ns = 0
-        self.lrf_level = 0
+        self.lrf_level = LEVEL_OK
         # imu
         self.imu_rx_ns = 0
-        self.imu_level = 0
+        self.imu_level = LEVEL_OK
         # led
         self.led_override = False
-        self.led_level = 0
+        self.led_level = LEVEL_OK
         # last DEVICE_STATUS per device and its arrival (writer: the device's task)
         self.motor_status: DeviceStatus | None = None
         self.motor_status_rx_ns = 0

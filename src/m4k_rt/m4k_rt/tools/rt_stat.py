@@ -46,7 +46,7 @@ def format_stat(rec: recorder.Recorder) -> str:
         sites = list(t.sites.values())
         last = sites[-1] if sites else None
         site = '{} {}:{} ({}) x{}'.format(last.event, last.file, last.line, last.func,
-                                          last.count) if last else '-'
+                                          last.calls) if last else '-'
         lat = a.latency.p99 / 1e3
         lines.append(head.format(
             t.name[:10], t.priority, '{:g}ms'.format(t.period_ns / 1e6), t.cycles, t.nvcsw,
@@ -64,7 +64,7 @@ def format_stat(rec: recorder.Recorder) -> str:
     for t in rec.tasks.values():
         for s in t.sites.values():
             lines.append('  {}: {} at {}:{} in {}() x{}'.format(
-                t.name, s.event, s.file, s.line, s.func, s.count))
+                t.name, s.event, s.file, s.line, s.func, s.calls))
     return '\n'.join(lines) + '\n'
 
 
