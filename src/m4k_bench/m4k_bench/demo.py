@@ -2,7 +2,7 @@
 
 ``make demo`` / ``demo [--goal X Y] [--timeout S] [--config FILE] [--results DIR]``:
 
-1. starts the stack with ``bringup`` (rt_core + driver_host with simulated devices + bridge);
+1. starts the stack with ``bringup`` (sim_robot + rt_core + driver_host + bridge);
 2. waits for ``odom`` and ``scan`` over ROS, then starts the DWA planner node
    (:mod:`m4k_bench.planning.node`) with the goal 3 m ahead, 0.25 m/s and the laser mount of the
    simulated laser (``robot.sensors.laser.pose``, unless ``devices.lrf.mount`` overrides it);
@@ -366,7 +366,7 @@ def _report(summary: dict[str, Any]) -> str:
         f"| largest lateral detour abs(y) | {s['max_abs_y_m']:.2f} m |",
         f"| planner recoveries | {s['recovery_episodes']} |",
         '',
-        '* Stack: `bringup` (rt_core RT tasks, driver_host with simulated devices, ROS bridge);',
+        '* Stack: `bringup` (sim_robot, rt_core RT tasks, driver_host, ROS bridge);',
         '  the DWA local planner (`m4k_bench.planning`) publishes `cmd_vel` at 20 Hz, at most',
         f"  {s['max_v_mps']} m/s, from `scan` and `odom` only; goal {s['goal_odom']} in the odom",
         "  frame -- the paper's 3 m ahead, past the triangular obstacle.",
