@@ -129,6 +129,14 @@ class Probe:
         rclpy.try_shutdown(context=self.ctx2)
 
 
+def _start_bringup(procs, tmp_path, overlay, runtime_dir):
+    """Start bringup with ``overlay`` in the test's runtime dir; its log in bringup.log."""
+    with open(tmp_path / 'bringup.log', 'w') as log:
+        return procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+                            str(overlay), '--status-interval', '1'], env=stack_env(runtime_dir),
+                           stdout=log, stderr=subprocess.STDOUT)
+
+
 def _vec(x=0.0, y=0.0, z=0.0):
     from geometry_msgs.msg import Vector3
     return Vector3(x=float(x), y=float(y), z=float(z))
@@ -139,13 +147,7 @@ def test_stack_survives_kill9_and_bad_cmd_vel(procs, tmp_path, m4k_runtime_dir):
     overlay = tmp_path / 'overlay.yaml'
     overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
                                                    'start_delay_ms': 10}}))
-    log = open(tmp_path / 'bringup.log', 'w')
-    try:
-        bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
-                          str(overlay), '--status-interval', '1'], env=stack_env(m4k_runtime_dir),
-                         stdout=log, stderr=subprocess.STDOUT)
-    finally:
-        log.close()
+    bu = _start_bringup(procs, tmp_path, overlay, m4k_runtime_dir)
     probe = Probe(m4k_runtime_dir)
     times = {}
     try:
@@ -273,13 +275,7 @@ def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
                                                    'start_delay_ms': 10},
                                        'control': {'guard': {'enabled': False}}}))
     bound_s = _brake_bound_s(str(overlay))
-    log = open(tmp_path / 'bringup.log', 'w')
-    try:
-        bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
-                          str(overlay), '--status-interval', '1'], env=stack_env(m4k_runtime_dir),
-                         stdout=log, stderr=subprocess.STDOUT)
-    finally:
-        log.close()
+    bu = _start_bringup(procs, tmp_path, overlay, m4k_runtime_dir)
     rng = random.Random(SEED)
     probe = Probe(m4k_runtime_dir)
     stops = []
@@ -353,13 +349,7 @@ def test_driver_host_kill_alone_relinks_within_a_second_and_rt_keeps_counting(
     overlay = tmp_path / 'overlay.yaml'
     overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
                                                    'start_delay_ms': 10}}))
-    log = open(tmp_path / 'bringup.log', 'w')
-    try:
-        bu = procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
-                          str(overlay), '--status-interval', '1'], env=stack_env(m4k_runtime_dir),
-                         stdout=log, stderr=subprocess.STDOUT)
-    finally:
-        log.close()
+    bu = _start_bringup(procs, tmp_path, overlay, m4k_runtime_dir)
     rng = random.Random(SEED + 1)
     probe = Probe(m4k_runtime_dir)
     motor_port = {}

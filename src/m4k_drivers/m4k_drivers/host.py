@@ -380,11 +380,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace, signals: StopSignals) -> int:
-    level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
-    if level is None:
-        level = logging.DEBUG if args.verbose else logging.INFO
-    logging.basicConfig(level=level,
-                        format='%(asctime)s %(name)s %(levelname)s: %(message)s')
+    rosargs.configure_logging(args.ros_args, args.verbose)
     try:
         raw = load_raw_config(args.config, args.overlay)
         devices = _apply_overrides(raw.get('devices') or {}, args)

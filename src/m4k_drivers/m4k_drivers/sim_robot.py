@@ -282,11 +282,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace, signals: Any) -> int:
-    level = rosargs.python_level(args.ros_args)   # --ros-args --log-level wins over -v
-    if level is None:
-        level = logging.DEBUG if args.verbose else logging.INFO
-    logging.basicConfig(level=level,
-                        format='%(asctime)s %(name)s %(levelname)s: %(message)s')
+    rosargs.configure_logging(args.ros_args, args.verbose)
     from m4k_drivers.host import load_raw_config
     from m4k_rt import xddp
     from m4k_rt.rt_core import InstanceLock, LockError

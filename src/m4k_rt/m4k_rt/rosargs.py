@@ -156,6 +156,14 @@ def python_level(ros: RosArgs, logger: str = '') -> int | None:
     return None if level in (None, 'unset') else _LEVELS[level]
 
 
+def configure_logging(ros: RosArgs, verbose: bool = False) -> None:
+    """Set up the root logger of an NRT process: ``--ros-args --log-level`` wins over ``-v``."""
+    level = python_level(ros)
+    if level is None:
+        level = logging.DEBUG if verbose else logging.INFO
+    logging.basicConfig(level=level, format='%(asctime)s %(name)s %(levelname)s: %(message)s')
+
+
 def parse_args(ap: argparse.ArgumentParser, argv: Sequence[str] | None = None,
                node: str | None = None) -> argparse.Namespace:
     """Parse a tool's command line with ``ap`` after taking out its ROS arguments.
