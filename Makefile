@@ -5,8 +5,9 @@
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
-#   make fuzz [COUNT=100000] [SEED=n] random and mutated datagrams at every XDDP port, then every
-#                                     property test with random seeds and 20x the examples
+#   make fuzz [COUNT=100000] [SEED=n] [SECONDS_PER_PORT=18]  random and mutated datagrams at every
+#                                     XDDP port of a real rt_core (about 10 min), then every
+#                                     property test with the same seed and 20x the examples
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
 ENV := source tools/env.sh
@@ -49,8 +50,10 @@ soak: build
 	@$(ENV); soak $(if $(DURATION),--duration $(DURATION),)
 
 fuzz: build
-	@$(ENV); fuzz --count $(or $(COUNT),100000)
-	@tools/fuzz-properties.sh $(SEED)
+	@$(ENV); seed='$(SEED)'; seed=$${seed:-$$(od -An -N4 -tu4 /dev/urandom | tr -d ' ')}; rc=0; \
+	  fuzz --count $(or $(COUNT),100000) --seed $$seed \
+	    $(if $(SECONDS_PER_PORT),--seconds-per-port $(SECONDS_PER_PORT),) || rc=1; \
+	  tools/fuzz-properties.sh $$seed || rc=1; exit $$rc
 
 clean:
 	rm -rf build install log

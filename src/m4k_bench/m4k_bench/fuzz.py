@@ -1,31 +1,41 @@
-"""fuzz: throw random and mutated datagrams at every XDDP port of a running RT task set.
+"""fuzz: throw random and mutated datagrams at every XDDP port of the real rt_core process.
 
-Benchmark-style (prints counts, exits 0 only when nothing was lost): the robot's RT task set
-runs in this process exactly as ``rt_core`` builds it -- the configured bodies, real XDDP
-ports, one SCHED_FIFO thread per task released by its timerfd -- and a separate sender process
-per port writes ``--count`` datagrams (default 100 000) through the NRT side. The datagram
-stream is a pure function of (seed, port), so this process regenerates it and knows, for every
-datagram, what the RT side must do with it:
+Benchmark-style (prints progress and counts; exit 0 only when every verdict holds). The real
+``rt_core`` runs as its own process, as ``make run`` starts it -- the layered configuration,
+SCHED_FIFO threads at the configured periods and priorities, mlockall -- in a runtime
+directory of its own under the temp dir, with no driver host and no bridge: the fuzzer takes
+the NRT side of every port. Everything it judges comes from what rt_core reports over XDDP:
+PORT_STATS (per-port counters, on ``status``), TASK_STATS (every cycle's timing sample),
+TASK_HEALTH (overruns, body errors, the bodies' ``unexpected`` counts, on ``stat``) and
+RT_STATUS (hardening). Nothing is read from inside the RT process.
 
-* longer than the body's receive buffer -> ``dropped_oversize`` on the socket;
-* rejected by ``protocol.decode`` -> ``malformed`` on the socket;
-* valid, but a kind the port does not carry -> the body's ``unexpected`` counter;
-* valid and expected -> consumed by the body.
+The fuzzer holds ``status`` and ``stat`` for the whole run (it must keep reading them); the
+fuzz stream of those two ports goes through the same links, written between reads. Every
+other port gets a sender process (``fuzz send LABEL COUNT SEED``) that writes its stream and
+keeps its link open until the RT side has taken every datagram. The stream is a pure function
+of (seed, port) (:mod:`m4k_bench.fuzzstream`), so the checker predicts the RT side's answer to
+each datagram; per port, the counter deltas (PORT_STATS received / malformed /
+dropped_oversize, TASK_HEALTH unexpected of the owning task) must equal the prediction
+exactly. A port the RT side only writes (``status``, ``stat``, ``*_out``) is judged the same
+way: its body drains and discards what a peer writes there, counting it.
 
-After each port the RT counters must match the prediction exactly, every task must still be
-cycling, and no body may have raised. The tasks run at their configured periods and
-priorities (``--period-ms`` shortens them all for a quick look); over the whole campaign every
-task's cycle count must be within 1 % of elapsed time ÷ its period (at least one cycle of
-slack: the window does not start on a release) and the fuzzing must cause no overrun
-(:func:`cycle_verdict`). A body drains at most ``tasks.portio.DRAIN_MAX`` datagrams per cycle,
-so a port gets ``min(--count, what its owner can drain in --seconds-per-port)`` datagrams: 1e5
-on the 1 s monitor's port would take an hour. Writes ``report.md`` and ``results.json`` to
-``--results`` (default docs/results/fuzz).
+Timing verdicts, per task, from the TASK_STATS samples: the cycles started during the campaign
+within 1 % of campaign time ÷ period (at least one cycle), and no overrun caused by the
+fuzzing. A quiet window of about the campaign's length, before it and in the same run,
+measures what the machine does without fuzzing. Stall probes (:mod:`.benchlib.stallprobe`:
+one process per CPU above every RT priority) see host stalls; an overrun whose late span
+coincides with a probe stall of at least half its lateness is counted as the host's, anything
+else as the fuzzing's. rt_core must
+still run at the end and exit cleanly.
+
+A body drains at most ``DRAIN_MAX`` datagrams per cycle (the monitor ``DRAIN_MONITOR``), so a
+port gets ``min(--count, what its owner can drain in --seconds-per-port)`` datagrams. Writes
+``report.md`` and ``results.json`` to ``--results`` (default docs/results/fuzz).
 
 Usage::
 
-    python -m m4k_bench.fuzz [--count 100000] [--seconds-per-port 8] [--ports cmd,motor]
-    python -m m4k_bench.fuzz send LABEL COUNT SEED   # the sender (started by the above)
+    python -m m4k_bench.fuzz [--count 100000] [--seed N] [--seconds-per-port 18] [--ports cmd]
+    python -m m4k_bench.fuzz send LABEL COUNT SEED   # a sender (started by the above)
 """
 
 from __future__ import annotations
@@ -33,43 +43,40 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import os
-import random
-import struct
+import platform
+import select
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
-from m4k_rt import config, protocol, rosargs, sched, tasks, xddp
-from m4k_rt.protocol import Kind
-from m4k_rt.task import RtTask
-from m4k_rt.tasks.portio import PortReader
+from m4k_bench import fuzzstream
+from m4k_bench.benchlib import stack, stallprobe
+from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
-__all__ = ['ACCEPTS', 'Expectation', 'PortResult', 'RtHarness', 'classify', 'cycle_verdict',
-           'datagrams', 'main', 'mutate', 'port_count', 'valid_datagram']
+# rt_core registers the monitor body on import: config.load needs it to know that body.
+from m4k_rt import config, protocol, recorder, rosargs, rt_core, sched, tasks, xddp
+from m4k_rt.tasks.portio import DRAIN_MAX, PortReader
 
-CYCLE_TOLERANCE = 0.01   # cycles during the campaign within 1 % of elapsed / period
-DRAIN_SHARE = 0.8        # use at most 80 % of a body's drain capacity per port
+__all__ = ['Observer', 'PortResult', 'cycle_verdict', 'judge_port', 'main', 'receive_sizes',
+           'send', 'window_timing']
 
-
-def port_count(count: int, seconds: float, period_ns: int, drain_max: int) -> int:
-    """Return how many datagrams a port gets: ``count`` at most, else what fits the time.
-
-    The owning body drains at most ``drain_max`` per cycle; at ``DRAIN_SHARE`` of that the
-    RT side keeps up and the sender does not time out on a full socket.
-    """
-    fits = int(seconds * 1e9 / period_ns * drain_max * DRAIN_SHARE)
-    return max(1, min(count, fits))
+CYCLE_TOLERANCE = 0.01    # cycles during the campaign within 1 % of elapsed / period
+MONITOR_PORTS = ('status', 'stat')
+HOST_SHARE = 0.5          # an overrun is the host's when a probe stalled >= half its lateness
+STALL_TIMEOUT_S = 30.0    # no datagram taken on the fuzzed port for this long: give up on it
 
 
 def cycle_verdict(elapsed_ns: int, period_ns: int, cycles: int,
                   overruns: int) -> dict[str, Any]:
-    """Judge one task over the fuzz campaign: cycles vs elapsed / period, and no overrun.
+    """Judge one task over a window: cycles vs elapsed / period, and no overrun.
 
     Tolerance: 1 % of the expected count, at least one cycle (the window is not aligned with
-    the releases, so one cycle more or less is the window's, not the task's).
+    the releases, so one cycle more or less is the window's, not the task's). ``overruns``
+    are the ones to hold against the task (the caller leaves out the host's).
     """
     expected = elapsed_ns / period_ns
     slack = max(CYCLE_TOLERANCE * expected, 1.0)
@@ -77,268 +84,203 @@ def cycle_verdict(elapsed_ns: int, period_ns: int, cycles: int,
     return {'expected': expected, 'cycles': cycles, 'slack': slack, 'overruns': overruns,
             'ok': ok_cycles and overruns == 0}
 
-K = Kind
-# What each port's RT body consumes (docs/internals.md, "Ports"); anything else valid is
-# "unexpected". Ports the RT side only writes accept nothing.
-ACCEPTS: Mapping[str, frozenset[int]] = {
-    'status': frozenset(), 'stat': frozenset(),
-    'cmd': frozenset({K.VELOCITY_CMD, K.E_STOP, K.ODOM_RESET}),
-    'motor': frozenset({K.ENCODERS, K.DEVICE_STATUS}),
-    'imu': frozenset({K.IMU, K.DEVICE_STATUS}), 'imu_out': frozenset(),
-    'led': frozenset({K.DEVICE_STATUS}), 'led_in': frozenset({K.LED}),
-    'sonar': frozenset({K.SONAR, K.DEVICE_STATUS}), 'sonar_out': frozenset(),
-    'lrf': frozenset({K.LASER_SCAN, K.DEVICE_STATUS}), 'lrf_out': frozenset(),
-}
 
-_F64 = (0.0, -0.0, 1.0, -1.0, 0.25, 2.0, -2.0, 1e308, -1e308, 5e-324, -5e-324, 1e-9, 3.4e38,
-        math.pi, 1e6, -1e6)
-_F32 = (0.0, -0.0, 1.0, -1.0, 0.25, 5.6, 0.02, 3.4e38, -3.4e38, 1e-45, 1e6, math.pi, 1e-3)
-_NONFINITE = (math.nan, math.inf, -math.inf, -math.nan)
+def window_timing(series: recorder.TaskSeries, start_ns: int, end_ns: int,
+                  stalls: Sequence[stallprobe.Stall]) -> dict[str, Any]:
+    """Count one task's cycles, overruns and deadline misses started in ``[start, end)``.
 
-
-def _f64(rng: random.Random) -> float:
-    return rng.choice(_F64) if rng.random() < 0.5 else rng.gauss(0.0, 10.0)
-
-
-def _f32(rng: random.Random) -> float:
-    return rng.choice(_F32) if rng.random() < 0.5 else rng.uniform(-100.0, 100.0)
-
-
-def _u(rng: random.Random, bits: int) -> int:
-    return rng.choice((0, 1, (1 << bits) - 1, rng.getrandbits(bits)))
-
-
-def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
-    f, g, u = _f64, _f32, _u
-    if kind == K.VELOCITY_CMD:
-        return (f(rng), f(rng))
-    if kind == K.ODOMETRY:
-        return tuple(f(rng) for _ in range(9)) + (u(rng, 32),)
-    if kind == K.WHEEL_CMD:
-        return (rng.randint(0, 1023), rng.randint(0, 1023), rng.randint(0, 1))
-    if kind == K.ENCODERS:
-        return (rng.randint(0, 4095), rng.randint(0, 4095), f(rng), f(rng), u(rng, 8))
-    if kind == K.IMU:
-        return tuple(f(rng) for _ in range(10)) + (u(rng, 8),)
-    if kind == K.SONAR:
-        return (abs(g(rng)), rng.randint(0, 3))
-    if kind == K.LASER_SCAN:
-        n = rng.choice((0, 1, 2, 683, rng.randint(0, protocol.MAX_SCAN_RANGES)))
-        ranges = [rng.choice((0, 19, 20, 65535, rng.getrandbits(16))) for _ in range(n)]
-        return tuple(g(rng) for _ in range(6)) + (rng.randint(0, 0xFFFFFF), ranges)
-    if kind == K.LED:
-        return (u(rng, 8), u(rng, 8), u(rng, 8), u(rng, 8), rng.randint(0, 1))
-    if kind == K.TASK_STATS:
-        n = rng.choice((0, 1, rng.randint(0, protocol.MAX_STATS_SAMPLES)))
-        rows = [(rng.getrandbits(62), rng.getrandbits(62), rng.getrandbits(62), u(rng, 32))
-                for _ in range(n)]
-        return ('fuzz', u(rng, 8), rng.randint(-5, 99), rng.randint(-1, 3), u(rng, 32),
-                u(rng, 32), u(rng, 32), u(rng, 32), u(rng, 32), u(rng, 32), rows)
-    if kind == K.REQUEST:
-        return (u(rng, 32), u(rng, 32))
-    if kind == K.RT_STATUS:
-        return tuple(rng.randint(0, 1) for _ in range(4)) + (u(rng, 32), u(rng, 32), u(rng, 32))
-    if kind == K.DEVICE_STATUS:
-        return ('dev', u(rng, 8), rng.randint(0, 3), u(rng, 32), u(rng, 32))
-    if kind == K.PORT_STATS:
-        return ('port', u(rng, 16), rng.randint(0, 1)) + tuple(u(rng, 64) for _ in range(7))
-    if kind == K.E_STOP:
-        return (rng.randint(0, 1),)
-    if kind == K.ODOM_RESET:
-        return (u(rng, 32),)
-    if kind == K.FORBIDDEN_SITE:
-        return ('fuzz', u(rng, 8), rng.choice(sorted(protocol.EVENT_NAMES)), u(rng, 32),
-                u(rng, 32), u(rng, 32), '/fuzz/' * rng.randint(0, 12) + 'body.py', 'cycle')
-    if kind == K.TASK_HEALTH:
-        return ('fuzz', u(rng, 8)) + tuple(u(rng, 32) for _ in range(6)) + (
-            rng.randint(0, 1), u(rng, 8))
-    raise ValueError('no field generator for kind {!r}'.format(kind))
-
-
-def valid_datagram(rng: random.Random, kind: int | None = None) -> bytes:
-    """Return a well-formed datagram of ``kind`` (random kind when None) with edgy values."""
-    kind = rng.choice(list(Kind)) if kind is None else kind
-    while True:  # a value outside the layout (f32 overflow, a range) -> draw again
-        try:
-            return protocol.encode(kind, rng.getrandbits(32), rng.getrandbits(63),
-                                   *_fields(rng, kind))
-        except protocol.ProtocolError:
-            continue
-
-
-def mutate(rng: random.Random, data: bytes) -> bytes:
-    """Return ``data`` damaged one way: bit flips, cut, extension, header or float poison."""
-    b = bytearray(data)
-    op = rng.randrange(9)
-    if op == 0:                                           # flip 1..8 bits
-        for _ in range(rng.randint(1, 8)):
-            b[rng.randrange(len(b))] ^= 1 << rng.randrange(8)
-    elif op == 1:                                         # truncate
-        del b[rng.randrange(1, len(b)):]
-    elif op == 2:                                         # extend
-        b += rng.randbytes(rng.randint(1, 64))
-    elif op == 3:                                         # magic / version
-        b[rng.choice((0, 1, 2))] = rng.getrandbits(8)
-    elif op == 4:                                         # another (or unknown) kind
-        b[3] = rng.choice([int(k) for k in Kind] + [0, max(Kind) + 1, 63, 255])  # + unknown
-    elif op == 5 and len(b) >= 24:                        # NaN / inf into a double slot
-        off = rng.randrange(16, len(b) - 7)
-        struct.pack_into('<d', b, off, rng.choice(_NONFINITE))
-    elif op == 6 and len(b) >= 20:                        # NaN / inf into a float slot
-        off = rng.randrange(16, len(b) - 3)
-        struct.pack_into('<f', b, off, rng.choice(_NONFINITE))
-    elif op == 7:                                         # random payload behind the header
-        b[16:] = rng.randbytes(max(0, len(b) - 16))
-    elif len(b) >= 4:                                     # a random u32 anywhere (counts)
-        struct.pack_into('<I', b, rng.randrange(len(b) - 3), rng.getrandbits(32))
-    return bytes(b) if b else b'\x00'
-
-
-def one_datagram(rng: random.Random, accepts: Sequence[int] = ()) -> bytes:
-    """Return one fuzz datagram: valid, mutated valid, random bytes or oversize.
-
-    Half of the valid and mutated ones are of a kind in ``accepts`` (what the port takes), so
-    the bodies' handling of valid-but-extreme values gets exercised, not only the decoder.
+    Each overrun (a wake-up serving more than one release) is late by ``start`` minus the
+    first release it served; it is the host's when one CPU's stall probe was stalled for at
+    least ``HOST_SHARE`` of that lateness between the release before it and its start
+    (:func:`.benchlib.stallprobe.explained_by`). ``missing_samples`` counts releases between
+    consecutive samples that no sample accounts for (a TASK_STATS batch the fuzzer missed).
     """
-    r = rng.random()
-    kind = rng.choice(accepts) if accepts and rng.random() < 0.5 else None
-    if r < 0.25:
-        return valid_datagram(rng, kind)
-    if r < 0.80:
-        return mutate(rng, valid_datagram(rng, kind))
-    if r < 0.99:
-        n = rng.choice((1, 15, 16, 17, rng.randint(1, 128)))
-        head = struct.pack('<HBB', protocol.MAGIC, protocol.VERSION, rng.getrandbits(8))
-        data = rng.randbytes(n)
-        return (head + data[4:]) if rng.random() < 0.5 and n > 4 else data
-    return rng.randbytes(rng.randint(4097, 6000))
+    p = series.period_ns
+    cycles = overruns = misses = missing = 0
+    host: list[dict[str, Any]] = []
+    own: list[dict[str, Any]] = []
+    prev_rel = None
+    for rel, start, end, exp in zip(series.t_rel, series.t_start, series.t_end,
+                                    series.expirations, strict=True):
+        if start < start_ns or start >= end_ns:
+            prev_rel = rel
+            continue
+        cycles += 1
+        if prev_rel is not None and p:
+            missing += max(0, (rel - prev_rel) // p - exp)
+        prev_rel = rel
+        if end > rel + p:
+            misses += 1
+        if exp > 1:
+            overruns += exp - 1
+            late = start - (rel - (exp - 1) * p)     # from the first release it served
+            s = stallprobe.explained_by(rel - exp * p, start, int(HOST_SHARE * late), stalls)
+            row = {'t_s': (rel - start_ns) / 1e9, 'missed': exp - 1, 'late_ms': late / 1e6}
+            if s is None:
+                own.append(row)
+            else:
+                host.append(dict(row, stall_cpu=s[0], stall_ms=s[1] / 1e6))
+    return {'cycles': cycles, 'overruns': overruns, 'deadline_misses': misses,
+            'missing_samples': missing,
+            'host_overruns': sum(r['missed'] for r in host),
+            'own_overruns': sum(r['missed'] for r in own), 'host': host, 'own': own}
 
 
-def _seed(seed: int, label: str) -> int:
-    return seed * 1_000_003 + sum(ord(c) * 31 ** i for i, c in enumerate(label))
+def receive_sizes(cfg: config.RtConfig) -> dict[str, int]:
+    """Return, per port label, the receive buffer of the body that drains it.
 
-
-def datagrams(label: str, count: int, seed: int) -> Iterator[bytes]:
-    """Yield the deterministic fuzz stream of one port (same in sender and checker)."""
-    rng = random.Random(_seed(seed, label))
-    accepts = sorted(ACCEPTS.get(label, ()))
-    for _ in range(count):
-        yield one_datagram(rng, accepts)
-
-
-def classify(data: bytes, accepts: frozenset[int], bufsize: int) -> str:
-    """Return what the RT side must do with ``data``: oversize/malformed/unexpected/accepted."""
-    if len(data) > bufsize:
-        return 'oversize'
+    Built as rt_core builds it -- the configured bodies on their ports, bound in a scratch
+    runtime directory and never started -- so the prediction follows the code: a datagram
+    longer than the buffer is ``dropped_oversize``.
+    """
+    rt = cfg.runtime
+    scratch = tempfile.mkdtemp(prefix='m4k-fz-')
+    shared = rt_core.SharedState(cfg, sched.Hardening())
+    socks: list[Any] = []
+    sizes: dict[str, int] = {}
     try:
-        hdr, _ = protocol.decode(data)
-    except protocol.ProtocolError:
-        return 'malformed'
-    return 'accepted' if hdr.kind in accepts else 'unexpected'
+        for t in cfg.tasks:
+            ports = {}
+            for label in t.ports:
+                s = xddp.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
+                                      max_datagram=rt.max_datagram, runtime_dir=scratch,
+                                      max_ports=rt.max_ports, group=rt.group)
+                socks.append(s)
+                ports[label] = shared.ports[label] = s
+            body = tasks.get_factory(t.body)(t, ports, shared)
+            readers = [r for v in vars(body).values()
+                       for r in (v if isinstance(v, (list, tuple)) else (v,))
+                       if isinstance(r, PortReader)]
+            for label, s in ports.items():
+                mine = [len(r.buf) for r in readers if r.sock is s]
+                sizes[label] = mine[0] if mine else rt.max_datagram
+    finally:
+        for s in socks:
+            s.close()
+        shutil.rmtree(scratch, ignore_errors=True)
+    return sizes
 
 
-@dataclasses.dataclass
-class Expectation:
-    """Predicted outcome counts of one port's fuzz stream."""
+class Observer:
+    """The fuzzer's NRT side of ``status`` and ``stat``: every monitor batch, and their streams.
 
-    sent: int = 0
-    oversize: int = 0
-    malformed: int = 0
-    unexpected: int = 0
-    accepted: int = 0
+    :meth:`pump` reads whatever the RT side sent (into a :class:`m4k_rt.recorder.Recorder`:
+    TASK_STATS samples, TASK_HEALTH, RT_STATUS, PORT_STATS) and, while :meth:`stream` is
+    active, writes the fuzz stream of one of these two ports whenever its socket has room.
+    ``batches`` counts monitor batches (RT_STATUS on ``status`` closes one).
+    """
 
-
-def expect(label: str, count: int, seed: int, bufsize: int) -> Expectation:
-    """Classify the fuzz stream of ``label`` without sending it."""
-    e = Expectation()
-    acc = ACCEPTS.get(label, frozenset())
-    for d in datagrams(label, count, seed):
-        e.sent += 1
-        what = classify(d, acc, bufsize)
-        setattr(e, what, getattr(e, what) + 1)
-    return e
-
-
-class RtHarness:
-    """The configured RT task set, built and run in this process the way rt_core does."""
-
-    def __init__(self, overlay: str | None = None, period_ms: float | None = None,
-                 runtime_dir: str | None = None) -> None:
-        from m4k_rt import rt_core  # the monitor body registers itself on import
-        cfg = config.load(overlay, body_exists=tasks.body_exists)
-        if period_ms is not None:
-            ns = int(period_ms * 1e6)
-            cfg = dataclasses.replace(cfg, tasks=tuple(
-                dataclasses.replace(t, period_ns=ns) for t in cfg.tasks))
-        self.cfg = cfg
-        rt = cfg.runtime
-        self.runtime_dir = xddp.ensure_runtime_dir(runtime_dir or rt.runtime_dir, rt.group)
-        self.shared = rt_core.SharedState(cfg, sched.Hardening())
-        self.ports: dict[str, xddp.RtXddpSocket] = {}
-        self.owner: dict[str, RtTask] = {}
+    def __init__(self, runtime_dir: str, wait_s: float = 30.0) -> None:
+        """Open both ports (waiting up to ``wait_s`` for rt_core to bind them)."""
+        self.rec = recorder.Recorder()
+        self.eps: dict[str, xddp.NrtXddpEndpoint] = {}
+        self.batches = 0
+        self.lost: str | None = None
+        self._poll = select.poll()
+        self._by_fd: dict[int, str] = {}
+        self._out: tuple[str, Iterator[bytes]] | None = None
+        self._pending: bytes | None = None
+        self.written = 0
         try:
-            for i, t in enumerate(cfg.tasks):
-                ports = {}
-                for label in t.ports:
-                    ports[label] = self.ports[label] = xddp.rt_xddp_bind(
-                        cfg.ports[label], label, poolsz=rt.poolsz, max_datagram=rt.max_datagram,
-                        runtime_dir=self.runtime_dir, max_ports=rt.max_ports, group=rt.group)
-                body = tasks.get_factory(t.body)(t, ports, self.shared)
-                task = RtTask(t.name, t.priority, t.period_ns, body, index=i,
-                              ring_capacity=rt.ring_capacity)
-                self.shared.tasks.append(task)
-                for label in t.ports:
-                    self.owner[label] = task
+            for label in MONITOR_PORTS:
+                ep = xddp.nrt_xddp_open(label, wait=wait_s, runtime_dir=runtime_dir)
+                self.eps[label] = ep
+                self._by_fd[ep.fileno()] = label
+                self._poll.register(ep.fileno(), select.POLLIN)
         except BaseException:
             self.close()
             raise
 
-    def start(self) -> 'RtHarness':
-        """Start every task thread."""
-        for t in self.shared.tasks:
-            t.start()
-        return self
+    def stream(self, label: str, data: Iterator[bytes]) -> None:
+        """Start writing ``data`` to ``label`` (one of the monitor ports) between reads."""
+        self._out = (label, data)
+        self._pending = None
+        self.written = 0
+        self._poll.modify(self.eps[label].fileno(), select.POLLIN | select.POLLOUT)
 
-    def reader_size(self, label: str) -> int:
-        """Return the receive buffer size the owning body uses on ``label``."""
-        body = self.owner[label].body
-        sock = self.ports[label]
-        for v in vars(body).values() if hasattr(body, '__dict__') else ():
-            for r in v if isinstance(v, (list, tuple)) else (v,):
-                if isinstance(r, PortReader) and r.sock is sock:
-                    return len(r.buf)
-        return self.cfg.runtime.max_datagram
+    @property
+    def streaming(self) -> bool:
+        """Tell whether a stream still has datagrams to write."""
+        return self._out is not None
 
-    def unexpected(self, label: str) -> int:
-        """Return the owning body's count of valid datagrams of a kind it does not take."""
-        return int(getattr(self.owner[label].body, 'unexpected', 0))
+    def _end_stream(self) -> None:
+        if self._out is not None:
+            self._poll.modify(self.eps[self._out[0]].fileno(), select.POLLIN)
+        self._out = None
+        self._pending = None
 
-    def settled(self, label: str, sent: int, timeout: float) -> bool:
-        """Wait until the RT side has taken every datagram sent to ``label``."""
-        c = self.ports[label].counters
-        end = time.monotonic() + timeout
-        while c.received + c.dropped_oversize < sent:
+    def pump(self, timeout_s: float) -> None:
+        """Wait up to ``timeout_s`` for traffic; read all that is ready, write what fits."""
+        if self.lost:
+            time.sleep(timeout_s)
+            return
+        for fd, ev in self._poll.poll(int(timeout_s * 1000)):
+            label = self._by_fd[fd]
+            if ev & (select.POLLIN | select.POLLHUP | select.POLLERR):
+                self._read(label)
+            if ev & select.POLLOUT and self._out is not None and self._out[0] == label:
+                self._write(label)
+
+    def _read(self, label: str) -> None:
+        ep = self.eps[label]
+        for _ in range(256):
+            try:
+                data = ep.read(0.0)
+            except TimeoutError:
+                return
+            except OSError as exc:
+                self.lost = '{}: {}'.format(label, exc)
+                self._poll.unregister(ep.fileno())
+                return
+            kind = self.rec.feed(data)
+            if kind == protocol.Kind.RT_STATUS and label == 'status':
+                self.batches += 1
+
+    def _write(self, label: str) -> None:
+        assert self._out is not None
+        ep = self.eps[label]
+        for _ in range(64):
+            if self._pending is None:
+                self._pending = next(self._out[1], None)
+                if self._pending is None:
+                    self._end_stream()
+                    return
+            try:
+                ep.write(self._pending, 0.001)
+            except TimeoutError:
+                return
+            except OSError as exc:
+                self.lost = '{}: {}'.format(label, exc)
+                self._end_stream()
+                return
+            self._pending = None
+            self.written += 1
+
+    def taken(self, label: str) -> tuple[int, int, int]:
+        """Return the RT side's (received, dropped_oversize, malformed) of ``label`` so far."""
+        ps = self.rec.port_stats.get(label)
+        return (0, 0, 0) if ps is None else (ps.received, ps.dropped_oversize, ps.malformed)
+
+    def unexpected(self, task: str) -> int | None:
+        """Return the latest TASK_HEALTH ``unexpected`` count of ``task`` (None: none yet)."""
+        ts = self.rec.tasks.get(task)
+        return None if ts is None or ts.health is None else ts.health.unexpected
+
+    def wait_batches(self, n: int, timeout_s: float) -> bool:
+        """Pump until ``n`` more monitor batches arrived; False on timeout or a lost link."""
+        goal = self.batches + n
+        end = time.monotonic() + timeout_s
+        while self.batches < goal and not self.lost:
             if time.monotonic() > end:
                 return False
-            time.sleep(0.01)
-        time.sleep(0.05)  # let the owning task finish decoding what it drained last
-        return True
+            self.pump(0.05)
+        return not self.lost
 
     def close(self) -> None:
-        """Stop the tasks and close every port."""
-        for t in self.shared.tasks:
-            t.stop()
-        for t in self.shared.tasks:
-            t.join(2.0)
-        for s in self.ports.values():
-            s.close()
-        self.ports.clear()
-
-    def __enter__(self) -> 'RtHarness':
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        """Close both links (the RT side counts a lost peer)."""
+        for ep in self.eps.values():
+            ep.close()
+        self.eps.clear()
 
 
 @dataclasses.dataclass
@@ -347,21 +289,32 @@ class PortResult:
 
     label: str
     port: int
+    owner: str
     expected: Expectation
     received: int
     oversize: int
     malformed: int
     unexpected: int
-    body_errors: int
-    cycles_during: int
-    overruns_during: int     # all tasks, while this port was fuzzed
     seconds: float
     ok: bool
     problems: list[str]
 
 
+def judge_port(exp: Expectation, received: int, oversize: int, malformed: int,
+               unexpected: int) -> list[str]:
+    """Return what disagrees between the prediction and the RT side's counter deltas."""
+    problems = []
+    for name, want, got in (('oversize', exp.oversize, oversize),
+                            ('malformed', exp.malformed, malformed),
+                            ('unexpected', exp.unexpected, unexpected),
+                            ('received', exp.sent - exp.oversize, received)):
+        if want != got:
+            problems.append('{}: expected {}, counted {}'.format(name, want, got))
+    return problems
+
+
 def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
-         timeout: float = 30.0, hold: Any = None) -> int:
+         timeout: float = 30.0, hold: Callable[[], None] | None = None) -> int:
     """Write the fuzz stream of ``label`` through the NRT side; return datagrams written.
 
     The link stays open until ``hold()`` returns: closing a Unix socket that still has unread
@@ -370,7 +323,7 @@ def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
     """
     n = 0
     with xddp.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
-        for d in datagrams(label, count, seed):
+        for d in fuzzstream.datagrams(label, count, seed):
             ep.write(d, timeout)
             n += 1
         if hold is not None:
@@ -378,179 +331,330 @@ def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
     return n
 
 
-def fuzz_port(h: RtHarness, label: str, count: int, seed: int,
-              timeout: float = 30.0, exp: Expectation | None = None) -> PortResult:
-    """Fuzz one port of a running harness and compare the RT counters with the prediction.
+class _Sender:
+    """A sender process for one port; ``done`` once it wrote its whole stream."""
 
-    ``exp`` may be precomputed (:func:`expect`) so the classification does not compete with
-    the RT threads for the interpreter while they run.
-    """
-    sock = h.ports[label]
-    task = h.owner[label]
-    if exp is None:
-        exp = expect(label, count, seed, h.reader_size(label))
-    ovr0 = sum(t.overruns for t in h.shared.tasks)
-    c0 = dataclasses.replace(sock.counters)
-    unexp0, err0, cyc0 = h.unexpected(label), task.body_errors, task.cycles
-    t0 = time.monotonic()
-    problems = []
-    env = dict(os.environ, M4K_RUNTIME_DIR=h.runtime_dir)
-    proc = subprocess.Popen([sys.executable, '-m', 'm4k_bench.fuzz', 'send', label,
-                             str(count), str(seed)], env=env, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
-    try:
-        line = proc.stdout.readline()  # 'sent N' once every datagram is written
-        if not line.startswith('sent '):
-            problems.append('sender failed: {}'.format(proc.stderr.read().strip()[-300:]))
-        elif not h.settled(label, exp.sent, 10.0):
-            problems.append('RT side did not take every datagram within 10 s')
-    finally:
-        proc.stdin.close()  # lets the sender close its link
+    def __init__(self, label: str, count: int, seed: int, env: Mapping[str, str]) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, '-m', 'm4k_bench.fuzz', 'send', label, str(count), str(seed)],
+            env=dict(env), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, text=True, start_new_session=True)
+        self.error: str | None = None
+        self.done = False
+        self._poll = select.poll()
+        assert self.proc.stdout is not None
+        self._poll.register(self.proc.stdout.fileno(), select.POLLIN)
+
+    def check(self) -> None:
+        """Notice the sender's 'sent N' line, or its death."""
+        if self.done or self.error or not self._poll.poll(0):
+            return
+        assert self.proc.stdout is not None and self.proc.stderr is not None
+        line = self.proc.stdout.readline()
+        if line.startswith('sent '):
+            self.done = True
+        else:
+            self.proc.wait(10.0)
+            self.error = 'sender failed: {}'.format(self.proc.stderr.read().strip()[-300:])
+
+    def release(self) -> None:
+        """Let the sender close its link and exit (killed by pid after 30 s)."""
+        assert self.proc.stdin is not None
         try:
-            proc.wait(timeout)
+            self.proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            self.proc.wait(30.0)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
-    c = sock.counters
-    res = PortResult(
-        label, sock.port, exp, c.received - c0.received, c.dropped_oversize - c0.dropped_oversize,
-        c.malformed - c0.malformed, h.unexpected(label) - unexp0, task.body_errors - err0,
-        task.cycles - cyc0, sum(t.overruns for t in h.shared.tasks) - ovr0,
-        time.monotonic() - t0, False, problems)
-    for name, want, got in (('oversize', exp.oversize, res.oversize),
-                            ('malformed', exp.malformed, res.malformed),
-                            ('unexpected', exp.unexpected, res.unexpected),
-                            ('received', exp.sent - exp.oversize, res.received)):
-        if want != got:
-            problems.append('{}: expected {}, counted {}'.format(name, want, got))
-    if res.body_errors:
-        problems.append('{} body errors, last {!r} at {}'.format(
-            res.body_errors, task.last_error, task.last_error_site))
-    dead = [t.name for t in h.shared.tasks if not t.is_alive()]
-    if dead:
-        problems.append('tasks not running: {}'.format(', '.join(dead)))
+            self.proc.kill()
+            self.proc.wait()
+        for f in (self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()
+
+
+def _say(msg: str) -> None:
+    print(msg, flush=True)
+
+
+def _fuzz_port(obs: Observer, label: str, port: int, owner: str, exp: Expectation,
+               seed: int, env: Mapping[str, str], monitor_period_s: float) -> PortResult:
+    """Fuzz one port of the running rt_core; judge the counter deltas against ``exp``."""
+    base = obs.taken(label)
+    unexp0 = obs.unexpected(owner) or 0
+    t0 = time.monotonic()
+    problems: list[str] = []
+    sender = None
+    if label in MONITOR_PORTS:
+        obs.stream(label, fuzzstream.datagrams(label, exp.sent, seed))
+    else:
+        sender = _Sender(label, exp.sent, seed, env)
+    last_taken, last_move, next_note = 0, t0, t0 + 5.0
+    settled_at = None
+    try:
+        while True:
+            obs.pump(0.05)
+            now = time.monotonic()
+            if obs.lost:
+                problems.append('status link lost: {}'.format(obs.lost))
+                break
+            if sender is not None:
+                sender.check()
+                if sender.error:
+                    problems.append(sender.error)
+                    break
+            written_all = sender.done if sender is not None else not obs.streaming
+            c = obs.taken(label)
+            taken = (c[0] - base[0]) + (c[1] - base[1])
+            if taken != last_taken:
+                last_taken, last_move = taken, now
+            elif now - last_move > STALL_TIMEOUT_S + monitor_period_s:
+                problems.append('RT side took {} of {} datagrams, then nothing for {:.0f} s'
+                                .format(taken, exp.sent, now - last_move))
+                break
+            if now >= next_note:
+                next_note = now + 5.0
+                _say('  {}: {}/{} taken by the RT side, {:.0f} s'.format(
+                    label, taken, exp.sent, now - t0))
+            if written_all and taken >= exp.sent and settled_at is None:
+                settled_at = obs.batches
+            # One more full batch after the last datagram was taken: the owning body has
+            # finished the cycle that drained it, so its unexpected count is final.
+            if settled_at is not None and obs.batches >= settled_at + 1:
+                break
+    finally:
+        if sender is not None:
+            sender.release()
+    c = obs.taken(label)
+    unexp = obs.unexpected(owner)
+    res = PortResult(label, port, owner, exp, c[0] - base[0], c[1] - base[1], c[2] - base[2],
+                     (unexp or 0) - unexp0, time.monotonic() - t0, False, problems)
+    if not problems:
+        problems += judge_port(exp, res.received, res.oversize, res.malformed, res.unexpected)
     res.ok = not problems
     return res
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog='fuzz', description=__doc__.split('\n')[0])
-    ap.add_argument('--count', type=int, default=100_000, help='datagrams per port')
-    ap.add_argument('--seed', type=int, default=1)
-    ap.add_argument('--period-ms', type=float, default=0.0,
-                    help='period of every task during the run (default 0: as configured)')
-    ap.add_argument('--seconds-per-port', type=float, default=8.0,
-                    help="time budget per port at its owner's drain rate (default 8)")
+    ap.add_argument('--count', type=int, default=100_000, help='datagrams per port (at most)')
+    ap.add_argument('--seed', type=int, default=None, help='stream seed (default: random)')
+    ap.add_argument('--seconds-per-port', type=float, default=18.0,
+                    help="time budget per port at its owner's drain rate (default 18)")
+    ap.add_argument('--quiet-s', type=float, default=None,
+                    help='quiet window before the campaign (default: the estimated campaign '
+                    'length)')
     ap.add_argument('--results', default=os.path.join('docs', 'results', 'fuzz'),
                     help='directory for report.md and results.json ("" to skip)')
     ap.add_argument('--ports', default='', help='comma-separated labels (default: all)')
-    ap.add_argument('--config', default=None, help='user overlay YAML')
+    ap.add_argument('--config', default=None, help='user overlay YAML (rt_core --config)')
     ap.add_argument('--json', default=None, metavar='FILE', help='write the results as JSON')
     return rosargs.parse_args(ap, argv)
+
+
+def _sender_main(argv: Sequence[str]) -> int:
+    label, count, seed = argv[0], int(argv[1]), int(argv[2])
+
+    def hold() -> None:
+        print('sent {}'.format(count), flush=True)
+        sys.stdin.read()  # until the checker closes our stdin
+    send(label, count, seed, hold=hold)
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the fuzz campaign (or, as ``fuzz send``, one port's sender); return the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ['send']:
-        label, count, seed = argv[1], int(argv[2]), int(argv[3])
-
-        def hold() -> None:
-            print('sent {}'.format(count), flush=True)
-            sys.stdin.read()  # until the checker closes our stdin
-        send(label, count, seed, hold=hold)
-        return 0
+        return _sender_main(argv[1:])
     args = _parse(argv)
-    rd = xddp.default_runtime_dir()
-    results = []
-    h = RtHarness(args.config, args.period_ms or None, rd)
-    labels = [x for x in args.ports.split(',') if x] or list(h.ports)
-    from m4k_rt.tasks.portio import DRAIN_MAX
-    counts = {label: port_count(args.count, args.seconds_per_port, h.owner[label].period_ns,
-                                DRAIN_MAX) for label in labels}
-    try:
-        exps = {label: expect(label, counts[label], args.seed, h.reader_size(label))
-                for label in labels}
-    except BaseException:
-        h.close()
-        raise
-    with h:
-        time.sleep(1.0)  # past the first releases: start-up is not the fuzzing's
-        snap0 = {t.name: (t.cycles, t.overruns) for t in h.shared.tasks}
-        t_begin = time.monotonic_ns()
-        print('fuzz: {} datagrams per port, seed {}, periods {}, ports {}'.format(
-            args.count, args.seed, '{} ms'.format(args.period_ms) if args.period_ms
-            else 'as configured', ', '.join(labels)), flush=True)
-        head = '{:<10} {:>4} {:>8} {:>9} {:>9} {:>10} {:>9} {:>7} {:>8} {:>6} {:>6}  {}'
-        print(head.format('PORT', 'NUM', 'SENT', 'MALFORMED', 'OVERSIZE', 'UNEXPECTED',
-                          'ACCEPTED', 'ERRORS', 'CYCLES', 'OVR', 'SEC', 'RESULT'), flush=True)
-        for label in labels:
-            r = fuzz_port(h, label, counts[label], args.seed, exp=exps[label])
-            results.append(r)
-            print(head.format(label, r.port, r.expected.sent, r.malformed, r.oversize,
-                              r.unexpected, r.expected.accepted, r.body_errors, r.cycles_during,
-                              r.overruns_during, '{:.1f}'.format(r.seconds),
-                              'ok' if r.ok else 'LOST: ' + '; '.join(r.problems)), flush=True)
-        elapsed = time.monotonic_ns() - t_begin
-        verdicts = {t.name: dict(cycle_verdict(elapsed, t.period_ns, t.cycles - snap0[t.name][0],
-                                               t.overruns - snap0[t.name][1]),
-                                 period_ms=t.period_ns / 1e6, priority=t.priority,
-                                 fifo=t.fifo)
-                    for t in h.shared.tasks}
-        tasks_end = {t.name: {'cycles': t.cycles, 'overruns': t.overruns,
-                              'deadline_misses': t.deadline_misses,
-                              'body_errors': t.body_errors} for t in h.shared.tasks}
-    total = sum(r.expected.sent for r in results)
-    bad = sum(r.expected.sent - r.expected.accepted for r in results)
-    print('fuzz: {} datagrams, {} bad ({} malformed, {} oversize, {} unexpected), lost {}'.format(
-        total, bad, sum(r.malformed for r in results), sum(r.oversize for r in results),
-        sum(r.unexpected for r in results), sum(0 if r.ok else 1 for r in results)))
-    for name, v in verdicts.items():
-        print('task {}: {} cycles while fuzzing, expected {:.1f} (+-{:.1f}), overruns {}: {}'
-              .format(name, v['cycles'], v['expected'], v['slack'], v['overruns'],
-                      'ok' if v['ok'] else 'FAIL'))
-    out = {'count': args.count, 'seed': args.seed, 'period_ms': args.period_ms,
-           'seconds_per_port': args.seconds_per_port, 'elapsed_s': elapsed / 1e9,
-           'ports': [dataclasses.asdict(r) for r in results], 'tasks': tasks_end,
-           'cycle_verdicts': verdicts}
+    if args.seed is None:
+        args.seed = int.from_bytes(os.urandom(4), 'little')
+    out = run(args)
     if args.json:
         with open(args.json, 'w') as f:
             json.dump(out, f, indent=1)
     if args.results:
         _write_results(args.results, out)
-    ok = all(r.ok for r in results) and all(v['ok'] for v in verdicts.values())
-    return 0 if ok else 1
+    _say('fuzz: {} (seed {}; replay: make fuzz SEED={})'.format(
+        'all verdicts hold' if out['ok'] else 'FAILED: ' + '; '.join(out['failures']),
+        args.seed, args.seed))
+    return 0 if out['ok'] else 1
+
+
+def _plan(args: argparse.Namespace, cfg: config.RtConfig,
+          accepts: Mapping[str, frozenset[int]]) -> tuple[list[str], dict[str, Any],
+                                                          dict[str, Expectation], float]:
+    owner = {label: t for t in cfg.tasks for label in t.ports}
+    labels = [x for x in args.ports.split(',') if x] or sorted(owner, key=lambda x: cfg.ports[x])
+    unknown = [x for x in labels if x not in owner]
+    if unknown:
+        raise SystemExit('fuzz: unknown port(s) {} (configured: {})'.format(
+            ', '.join(unknown), ', '.join(sorted(owner))))
+    sizes = receive_sizes(cfg)
+    exps: dict[str, Expectation] = {}
+    estimate = 0.0
+    for label in labels:
+        t = owner[label]
+        drain = rt_core.DRAIN_MONITOR if t.body == 'monitor' else DRAIN_MAX
+        n = fuzzstream.port_count(args.count, args.seconds_per_port, t.period_ns, drain)
+        exps[label] = fuzzstream.expect(label, n, args.seed, sizes[label], accepts)
+        monitor = next((m.period_ns for m in cfg.tasks if m.body == 'monitor'), 10**9)
+        estimate += n / drain * t.period_ns / 1e9 + 2.5 * monitor / 1e9
+    return labels, owner, exps, estimate
+
+
+def run(args: argparse.Namespace,
+        accepts: Mapping[str, frozenset[int]] = ACCEPTS) -> dict[str, Any]:
+    """Run the whole campaign against a fresh rt_core; return the results dict."""
+    t_run = time.monotonic()
+    cfg = config.load(args.config, body_exists=tasks.body_exists)
+    _say('fuzz: seed {} (replay: make fuzz SEED={}), up to {} datagrams per port'.format(
+        args.seed, args.seed, args.count))
+    labels, owner, exps, estimate = _plan(args, cfg, accepts)
+    _say('fuzz: predicted {} datagrams on {} ports in {:.1f} s; campaign about {:.0f} s'.format(
+        sum(e.sent for e in exps.values()), len(labels), time.monotonic() - t_run, estimate))
+    quiet_s = estimate if args.quiet_s is None else args.quiet_s
+    monitor_s = next((t.period_ns for t in cfg.tasks if t.body == 'monitor'), 10**9) / 1e9
+    runtime_dir = tempfile.mkdtemp(prefix='m4k-fuzz-')
+    env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir)
+    probes = stallprobe.StallProbes()
+    rt_args = ['--config', args.config] if args.config else []
+    core = stack.Child('rt_core', stack.entry_argv('m4k_rt.rt_core', *rt_args),
+                       os.path.join(runtime_dir, 'logs'), env)
+    failures: list[str] = []
+    results: list[PortResult] = []
+    obs = None
+    windows: dict[str, tuple[int, int]] = {}
+    try:
+        obs = Observer(runtime_dir)
+        if not obs.wait_batches(2, 30.0 + 3 * monitor_s):
+            raise RuntimeError('no monitor batch from rt_core: ' + ' | '.join(core.tail()))
+        _say('fuzz: rt_core pid {} running ({}); quiet window {:.0f} s'.format(
+            core.pid, _hardening(obs.rec.rt_status), quiet_s))
+        q0 = time.monotonic_ns()
+        next_note = time.monotonic() + 15.0
+        while time.monotonic_ns() - q0 < quiet_s * 1e9 and not obs.lost:
+            obs.pump(0.1)
+            if time.monotonic() >= next_note:
+                next_note += 15.0
+                _say('  quiet: {:.0f}/{:.0f} s'.format((time.monotonic_ns() - q0) / 1e9,
+                                                        quiet_s))
+        windows['quiet'] = (q0, time.monotonic_ns())
+        head = '{:<10} {:>4} {:>7} {:>9} {:>8} {:>10} {:>8} {:>6}  {}'
+        _say(head.format('PORT', 'NUM', 'SENT', 'MALFORMED', 'OVERSIZE', 'UNEXPECTED',
+                         'ACCEPTED', 'SEC', 'RESULT'))
+        c0 = time.monotonic_ns()
+        for label in labels:
+            r = _fuzz_port(obs, label, cfg.ports[label], owner[label].name, exps[label],
+                           args.seed, env, monitor_s)
+            results.append(r)
+            _say(head.format(label, r.port, r.expected.sent, r.malformed, r.oversize,
+                             r.unexpected, r.expected.accepted, '{:.1f}'.format(r.seconds),
+                             'ok' if r.ok else 'FAIL: ' + '; '.join(r.problems)))
+            if not core.alive() or obs.lost:
+                break
+        windows['campaign'] = (c0, time.monotonic_ns())
+        # The samples of the last cycles arrive with the next batch or two.
+        obs.wait_batches(2, 5.0 + 3 * monitor_s)
+    except (RuntimeError, OSError) as exc:
+        failures.append('campaign aborted: {}'.format(exc))
+    finally:
+        alive = core.alive()
+        if obs is not None:
+            obs.close()
+        code = core.stop(grace_s=15.0)
+        stalls = probes.stop()
+    log = core.tail(12)
+    shutil.rmtree(runtime_dir, ignore_errors=True)
+    out = _summarize(args, cfg, obs, results, windows, stalls, probes, alive, code, log,
+                     failures, quiet_s)
+    out['wall_s'] = time.monotonic() - t_run
+    return out
+
+
+def _hardening(st: Any) -> str:
+    if st is None:
+        return 'no RT_STATUS yet'
+    return '{}, memory {}, {}'.format('SCHED_FIFO' if st.policy else 'NOT FIFO',
+                                      'locked' if st.mem_locked else 'NOT locked',
+                                      'degraded' if st.degraded else 'not degraded')
+
+
+def _summarize(args: argparse.Namespace, cfg: config.RtConfig, obs: Observer | None,
+               results: list[PortResult], windows: Mapping[str, tuple[int, int]],
+               stalls: list[stallprobe.Stall], probes: stallprobe.StallProbes, alive: bool,
+               code: int | None, log: list[str], failures: list[str],
+               quiet_s: float) -> dict[str, Any]:
+    failures = list(failures)
+    for r in results:
+        if not r.ok:
+            failures.append('port {}: {}'.format(r.label, '; '.join(r.problems)))
+    if not alive:
+        failures.append('rt_core was not running at the end (exit {})'.format(code))
+    elif code != 0:
+        failures.append('rt_core exited {} on SIGTERM'.format(code))
+    st = obs.rec.rt_status if obs is not None else None
+    tasks_out: dict[str, Any] = {}
+    for t in cfg.tasks:
+        series = obs.rec.tasks.get(t.name) if obs is not None else None
+        if series is None or 'campaign' not in windows:
+            failures.append('task {}: no timing samples'.format(t.name))
+            continue
+        row: dict[str, Any] = {'period_ms': t.period_ns / 1e6, 'priority': t.priority}
+        for w, (a, b) in windows.items():
+            row[w] = window_timing(series, a, b, stalls)
+            row[w]['seconds'] = (b - a) / 1e9
+        camp = row['campaign']
+        v = cycle_verdict(windows['campaign'][1] - windows['campaign'][0], t.period_ns,
+                          camp['cycles'], camp['own_overruns'])
+        h = series.health
+        row.update(verdict=v, body_errors=None if h is None else h.body_errors,
+                   lost_samples=None if h is None else h.lost_samples,
+                   fifo=None if h is None else bool(h.fifo))
+        if camp['missing_samples']:
+            v['ok'] = False
+            failures.append('task {}: {} samples of the campaign never arrived'.format(
+                t.name, camp['missing_samples']))
+        if h is None or h.body_errors:
+            v['ok'] = False
+            failures.append('task {}: body errors {}'.format(
+                t.name, 'unknown' if h is None else h.body_errors))
+        if not v['ok'] and not camp['missing_samples']:
+            failures.append('task {}: {} cycles (expected {:.1f} ± {:.1f}), {} overruns not '
+                            "the host's".format(t.name, v['cycles'], v['expected'],
+                                                 v['slack'], v['overruns']))
+        tasks_out[t.name] = row
+    if st is None or not st.policy or not st.mem_locked or st.degraded:
+        failures.append('rt_core not hardened: {}'.format(_hardening(st)))
+    win_stalls = {w: [s for s in stalls if a <= s[2] and s[1] < b]
+                  for w, (a, b) in windows.items()}
+    return {
+        'seed': args.seed, 'count': args.count, 'seconds_per_port': args.seconds_per_port,
+        'config': args.config, 'quiet_s': quiet_s,
+        'machine': {'node': platform.node(), 'kernel': platform.release(),
+                    'cpus': os.cpu_count(), 'python': platform.python_version()},
+        'rt_status': None if st is None else dict(st._asdict()),
+        'windows_s': {w: (b - a) / 1e9 for w, (a, b) in windows.items()},
+        'probes': {'info': probes.info, 'summary': probes.summary,
+                   'threshold_ms': probes.threshold_ns / 1e6,
+                   'stalls': {w: [{'cpu': s[0], 't_s': (s[1] - windows[w][0]) / 1e9,
+                                   'ms': (s[2] - s[1]) / 1e6} for s in ss]
+                              for w, ss in win_stalls.items()}},
+        'ports': [dataclasses.asdict(r) for r in results], 'tasks': tasks_out,
+        'rt_core': {'alive_at_end': alive, 'exit': code, 'log_tail': log},
+        'failures': failures, 'ok': not failures,
+    }
 
 
 def _write_results(outdir: str, out: dict[str, Any]) -> None:
     os.makedirs(outdir, exist_ok=True)
     with open(os.path.join(outdir, 'results.json'), 'w') as f:
         json.dump(out, f, indent=1)
-    periods = ('at {:g} ms periods'.format(out['period_ms']) if out['period_ms']
-               else 'at its configured periods and priorities')
-    lines = ['# m4k fuzz', '',
-             '`make fuzz` (`fuzz --count {}`): the configured RT task set {} with its real XDDP '
-             'ports; a sender process per port writes a deterministic stream of valid, mutated, '
-             'random and oversize datagrams; {:.0f} s in all.'.format(
-                 out['count'], periods, out['elapsed_s']), '',
-             '| port | sent | malformed | oversize | unexpected | accepted | body errors | '
-             'result |', '|---|---|---|---|---|---|---|---|']
-    for p in out['ports']:
-        e = p['expected']
-        lines.append('| {} | {} | {} | {} | {} | {} | {} | {} |'.format(
-            p['label'], e['sent'], p['malformed'], p['oversize'], p['unexpected'],
-            e['accepted'], p['body_errors'], 'ok' if p['ok'] else '; '.join(p['problems'])))
-    lines += ['', '| task | period (ms) | cycles while fuzzing | expected | overruns | result |',
-              '|---|---|---|---|---|---|']
-    for name, v in out['cycle_verdicts'].items():
-        lines.append('| {} | {:g} | {} | {:.1f} ± {:.1f} | {} | {} |'.format(
-            name, v['period_ms'], v['cycles'], v['expected'], v['slack'], v['overruns'],
-            'ok' if v['ok'] else 'FAIL'))
+    from m4k_bench.fuzzreport import format_report
     with open(os.path.join(outdir, 'report.md'), 'w') as f:
-        f.write('\n'.join(lines) + '\n')
+        f.write(format_report(out))
 
 
 if __name__ == '__main__':

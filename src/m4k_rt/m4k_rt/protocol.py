@@ -438,6 +438,7 @@ class TaskHealth(NamedTuple):
     lost_samples: int
     fifo: int
     priority: int
+    unexpected: int  # the body's valid datagrams of a kind its ports do not carry
 
 
 class _Spec(NamedTuple):
@@ -494,7 +495,7 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
           ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,
           texts=(6, 7)),
-    _spec(Kind.TASK_HEALTH, '16sBIIIIIIBB', TaskHealth, ranges=((8, 0, 1),), string=NAME_SIZE),
+    _spec(Kind.TASK_HEALTH, '16sBIIIIIIBBI', TaskHealth, ranges=((8, 0, 1),), string=NAME_SIZE),
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)
@@ -715,7 +716,7 @@ def encode_task_health_into(buf: bytearray | memoryview, offset: int, seq: int, 
                             name: str | bytes, task_index: int, overruns: int,
                             deadline_misses: int, body_errors: int, majflt: int,
                             nvcsw_extra: int, lost_samples: int, fifo: int,
-                            priority: int) -> int:
+                            priority: int, unexpected: int) -> int:
     """Encode a TASK_HEALTH datagram into ``buf``; counters saturate at 2**32 - 1."""
     m = U32_MAX
     full = _HEALTH.full
@@ -723,7 +724,8 @@ def encode_task_health_into(buf: bytearray | memoryview, offset: int, seq: int, 
         full.pack_into(buf, offset, MAGIC, VERSION, Kind.TASK_HEALTH, seq & SEQ_MASK, stamp_ns,
                        _name_bytes(name), task_index, min(overruns, m),
                        min(deadline_misses, m), min(body_errors, m), min(majflt, m),
-                       min(nvcsw_extra, m), min(lost_samples, m), fifo, priority)
+                       min(nvcsw_extra, m), min(lost_samples, m), fifo, priority,
+                       min(unexpected, m))
     except _ENCODE_ERRORS as exc:
         raise ProtocolError('encode', 'cannot encode TASK_HEALTH: {}'.format(exc)) from None
     return full.size

@@ -90,6 +90,7 @@ class Recorder:
         self.warmup_cycles = warmup_cycles
         self.tasks: dict[str, TaskSeries] = {}
         self.rt_status: Any = None
+        self.port_stats: dict[str, protocol.PortStats] = {}   # label -> latest (``status``)
         self.datagrams = 0
         self.malformed: dict[str, int] = {}
         self.ignored = 0
@@ -118,6 +119,8 @@ class Recorder:
             self._task(payload.name).add_stats(payload)
         elif header.kind == protocol.Kind.RT_STATUS:
             self.rt_status = payload
+        elif header.kind == protocol.Kind.PORT_STATS:
+            self.port_stats[payload.label] = payload
         else:
             self.ignored += 1
         return int(header.kind)

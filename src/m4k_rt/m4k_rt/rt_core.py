@@ -93,7 +93,9 @@ class StatsShipper:
     """The monitor body: ship ring samples and counters of every task as datagrams.
 
     Runs at the lowest RT priority. Samples since the previous batch go out as TASK_STATS
-    (chunked to ``batch`` samples and to the datagram limit), then TASK_HEALTH and
+    (chunked to ``batch`` samples and to the datagram limit), then TASK_HEALTH (with the
+    body's ``unexpected`` count when it keeps one: valid datagrams of a kind its ports do not
+    carry, this monitor's own included) and
     FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then -- on the other ports
     (``status``) -- one DEVICE_STATUS per device that ever reported (its last report, level
     STALE when older than ``device_stale_ns``, stamped with its arrival time) and one
@@ -231,7 +233,7 @@ class StatsShipper:
                 size = protocol.encode_task_health_into(
                     buf, 0, self.seq, now, t.name, t.index, t.overruns, t.deadline_misses,
                     t.body_errors, ru.majflt, ru.nvcsw_extra, self._lost[i], int(t.fifo),
-                    t.priority)
+                    t.priority, getattr(t.body, 'unexpected', 0))
                 self._send(size, _TO_STAT)
                 if t.sites.total:
                     for site in t.sites.sites():

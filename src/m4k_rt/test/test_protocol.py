@@ -48,7 +48,7 @@ FIELDS = {
     Kind.ODOM_RESET: st.tuples(U32),
     Kind.FORBIDDEN_SITE: st.tuples(NAME, U8, st.sampled_from(sorted(p.EVENT_CODES)), U32, U32,
                                    U32, FILE, FUNC),
-    Kind.TASK_HEALTH: st.tuples(NAME, U8, *[U32] * 6, BIT, U8),
+    Kind.TASK_HEALTH: st.tuples(NAME, U8, *[U32] * 6, BIT, U8, U32),
 }
 
 PAYLOAD_TYPES = {
@@ -81,7 +81,7 @@ EXAMPLES = {
     Kind.E_STOP: (1,),
     Kind.ODOM_RESET: (0xDEADBEEF,),
     Kind.FORBIDDEN_SITE: ('led', 2, 'open', 311, 42, 400, '/x/led_body.py', 'cycle'),
-    Kind.TASK_HEALTH: ('imu', 1, 3, 2, 1, 0, 4, 0, 1, 85),
+    Kind.TASK_HEALTH: ('imu', 1, 3, 2, 1, 0, 4, 0, 1, 85, 17),
 }
 
 

@@ -30,7 +30,7 @@ def _batch(name, index, prio, period, first_cycle, n, response=100_000, seq=0, l
 def _health(name, index, body_errors=0):
     buf = bytearray(128)
     n = protocol.encode_task_health_into(buf, 0, 0, 0, name, index, 0, 0, body_errors, 0, 2, 0,
-                                         1, 90)
+                                         1, 90, 0)
     return bytes(buf[:n])
 
 
