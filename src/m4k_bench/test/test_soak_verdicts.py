@@ -24,11 +24,11 @@ def test_without_cyclictest_or_counters_there_is_no_verdict():
 
 
 def test_fuzz_port_count_is_bounded_by_the_owners_drain_rate():
-    from m4k_bench import fuzz
+    from m4k_bench import fuzzstream
     # 1 s monitor, 32 per cycle, 8 s at 80 %: 8 * 1 * 32 * 0.8 = 204.8 -> 204
-    assert fuzz.port_count(100_000, 8.0, 1_000_000_000, 32) == 204
+    assert fuzzstream.port_count(100_000, 8.0, 1_000_000_000, 32) == 204
     # 10 ms actuator: 8 * 100 * 32 * 0.8 = 20 480 > 10 000 -> the count
-    assert fuzz.port_count(10_000, 8.0, 10_000_000, 32) == 10_000
+    assert fuzzstream.port_count(10_000, 8.0, 10_000_000, 32) == 10_000
 
 
 def test_fuzz_cycle_verdict_within_one_percent_and_no_overrun():
@@ -41,3 +41,58 @@ def test_fuzz_cycle_verdict_within_one_percent_and_no_overrun():
     v = fuzz.cycle_verdict(120 * 10**9, 10**9, 119, 0)
     assert v['ok'] and v['expected'] == 120.0 and v['slack'] == pytest.approx(1.2)
     assert fuzz.cycle_verdict(120 * 10**9, 10**9, 118, 0)['ok'] is False
+
+
+MS = 1_000_000
+
+
+def _series():
+    from m4k_rt.recorder import TaskSeries
+    t = TaskSeries('actuator', period_ns=10 * MS)
+    # (release, start, end, expirations) in ms. The release at 40 ms is missed: the wake-up at
+    # 50.5 ms serves 40 and 50 (10.5 ms late from 40); the cycle at 60 ms ends at 70.5 (a
+    # deadline miss); the samples of 70 and 80 never arrived.
+    for rel, start, end, exp in ((10, 10.1, 10.3, 1), (20, 20.1, 20.3, 1), (30, 30.1, 30.3, 1),
+                                 (50, 50.5, 50.7, 2), (60, 60.1, 70.5, 1), (90, 90.1, 90.2, 1)):
+        t.t_rel.append(rel * MS)
+        t.t_start.append(int(start * MS))
+        t.t_end.append(int(end * MS))
+        t.expirations.append(exp)
+    return t
+
+
+def test_fuzz_window_counts_cycles_overruns_misses_and_missing_samples():
+    from m4k_bench import fuzz
+    w = fuzz.window_timing(_series(), 15 * MS, 100 * MS, [])
+    assert (w['cycles'], w['overruns'], w['deadline_misses'], w['missing_samples']) == (
+        5, 1, 1, 2)
+    # No probe saw a stall: the overrun is held against the RT process (the fuzzing).
+    assert w['own_overruns'] == 1 and w['host_overruns'] == 0
+    assert w['own'][0]['late_ms'] == pytest.approx(10.5)
+
+
+def test_fuzz_overrun_is_the_hosts_only_when_a_probe_stalled_for_half_its_lateness():
+    from m4k_bench import fuzz
+    from m4k_bench.benchlib import stallprobe
+    # Lateness 10.5 ms -> a probe must have been stalled >= 5.25 ms in [30, 50.5] ms.
+    long_stall = [(1, 39 * MS, 49 * MS)]                      # 10 ms of it
+    w = fuzz.window_timing(_series(), 15 * MS, 100 * MS, long_stall)
+    assert w['host_overruns'] == 1 and w['own_overruns'] == 0
+    assert w['host'][0]['stall_cpu'] == 1 and w['host'][0]['stall_ms'] == pytest.approx(10.0)
+    short = [(0, 44 * MS, 46 * MS), (1, 45 * MS, 47 * MS)]   # 2 ms on each CPU: not enough
+    assert fuzz.window_timing(_series(), 15 * MS, 100 * MS, short)['own_overruns'] == 1
+    split = [(0, 41 * MS, 44 * MS), (0, 46 * MS, 49 * MS)]   # 6 ms on one CPU: enough
+    assert stallprobe.explained_by(30 * MS, int(50.5 * MS), int(5.25 * MS), split) == (
+        0, 6 * MS)
+    outside = [(0, 60 * MS, 80 * MS)]                        # long, but after the start
+    assert stallprobe.explained_by(30 * MS, int(50.5 * MS), MS, outside) is None
+
+
+def test_fuzz_port_judgement_names_every_counter_that_disagrees():
+    from m4k_bench import fuzz
+    from m4k_bench.fuzzstream import Expectation
+    e = Expectation(sent=100, oversize=3, malformed=50, unexpected=20, accepted=27)
+    assert fuzz.judge_port(e, 97, 3, 50, 20) == []
+    assert fuzz.judge_port(e, 96, 4, 50, 19) == [
+        'oversize: expected 3, counted 4', 'unexpected: expected 20, counted 19',
+        'received: expected 97, counted 96']
