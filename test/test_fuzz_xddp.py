@@ -20,7 +20,7 @@ def _args(tmp_path, *extra):
     # Configured periods, except a 100 ms monitor: a port settles after one more batch.
     overlay.write_text('runtime: {cpu_dma_latency: false, start_delay_ms: 10}\n'
                        'tasks: {monitor: {period_ms: 100}}\n')
-    return fuzz._parse(['--count', str(SAMPLE), '--seed', '7', '--seconds-per-port', '1',
+    return fuzz._parse(['--count', str(SAMPLE), '--seed', '7', '--seconds-per-port', '5',
                         '--quiet-s', '1', '--config', str(overlay),
                         '--results', str(tmp_path / 'out'), *extra])
 

@@ -28,8 +28,10 @@ coincides with a probe stall of at least half its lateness is counted as the hos
 else as the fuzzing's. rt_core must
 still run at the end and exit cleanly.
 
-A body drains at most ``DRAIN_MAX`` datagrams per cycle (the monitor ``DRAIN_MONITOR``), so a
-port gets ``min(--count, what its owner can drain in --seconds-per-port)`` datagrams. Writes
+Each port's turn writes for ``--seconds-per-port`` (``--count`` datagrams at most): writes
+block while the RT side has not drained the socket, so the owner's period, its drain budget
+per cycle and the socket buffers set how many a port gets; the prediction classifies exactly
+the datagrams written (a prefix of the seeded stream, so ``--seed`` replays it). Writes
 ``report.md`` and ``results.json`` to ``--results`` (default docs/results/fuzz).
 
 Usage::
@@ -59,7 +61,7 @@ from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
 # rt_core registers the monitor body on import: config.load needs it to know that body.
 from m4k_rt import config, protocol, recorder, rosargs, rt_core, sched, tasks, xddp
-from m4k_rt.tasks.portio import DRAIN_MAX, PortReader
+from m4k_rt.tasks.portio import PortReader
 
 __all__ = ['Observer', 'PortResult', 'cycle_verdict', 'judge_port', 'main', 'receive_sizes',
            'send', 'window_timing']
@@ -180,6 +182,7 @@ class Observer:
         self._by_fd: dict[int, str] = {}
         self._out: tuple[str, Iterator[bytes]] | None = None
         self._pending: bytes | None = None
+        self._out_end = 0.0
         self.written = 0
         try:
             for label in MONITOR_PORTS:
@@ -191,9 +194,10 @@ class Observer:
             self.close()
             raise
 
-    def stream(self, label: str, data: Iterator[bytes]) -> None:
-        """Start writing ``data`` to ``label`` (one of the monitor ports) between reads."""
+    def stream(self, label: str, data: Iterator[bytes], seconds: float) -> None:
+        """Write ``data`` to ``label`` (a monitor port) between reads, for ``seconds`` at most."""
         self._out = (label, data)
+        self._out_end = time.monotonic() + seconds
         self._pending = None
         self.written = 0
         self._poll.modify(self.eps[label].fileno(), select.POLLIN | select.POLLOUT)
@@ -241,6 +245,9 @@ class Observer:
         ep = self.eps[label]
         for _ in range(64):
             if self._pending is None:
+                if time.monotonic() >= self._out_end:
+                    self._end_stream()
+                    return
                 self._pending = next(self._out[1], None)
                 if self._pending is None:
                     self._end_stream()
@@ -314,33 +321,43 @@ def judge_port(exp: Expectation, received: int, oversize: int, malformed: int,
 
 
 def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
-         timeout: float = 30.0, hold: Callable[[], None] | None = None) -> int:
+         timeout: float = 30.0, seconds: float | None = None,
+         hold: Callable[[int], None] | None = None) -> int:
     """Write the fuzz stream of ``label`` through the NRT side; return datagrams written.
 
-    The link stays open until ``hold()`` returns: closing a Unix socket that still has unread
-    datagrams (the RT side's own sends) resets the connection, and the RT side would then
-    drop what it had not drained yet -- in-flight loss of a dying peer, not what this measures.
+    Stops after ``count`` datagrams or ``seconds``, whichever comes first: the writes block
+    while the RT side has not drained the socket, so the time bounds the port's turn and
+    ``count`` caps it. The link stays open until ``hold(n)`` returns: closing a Unix socket
+    that still has unread datagrams (the RT side's own sends) resets the connection, and the
+    RT side would then drop what it had not drained yet -- in-flight loss of a dying peer, not
+    what this measures.
     """
     n = 0
+    end = None if seconds is None else time.monotonic() + seconds
     with xddp.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
         for d in fuzzstream.datagrams(label, count, seed):
+            if end is not None and time.monotonic() >= end:
+                break
             ep.write(d, timeout)
             n += 1
         if hold is not None:
-            hold()
+            hold(n)
     return n
 
 
 class _Sender:
     """A sender process for one port; ``done`` once it wrote its whole stream."""
 
-    def __init__(self, label: str, count: int, seed: int, env: Mapping[str, str]) -> None:
+    def __init__(self, label: str, count: int, seed: int, seconds: float,
+                 env: Mapping[str, str]) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'm4k_bench.fuzz', 'send', label, str(count), str(seed)],
+            [sys.executable, '-m', 'm4k_bench.fuzz', 'send', label, str(count), str(seed),
+             str(seconds)],
             env=dict(env), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
             stderr=subprocess.PIPE, text=True, start_new_session=True)
         self.error: str | None = None
         self.done = False
+        self.sent = 0
         self._poll = select.poll()
         assert self.proc.stdout is not None
         self._poll.register(self.proc.stdout.fileno(), select.POLLIN)
@@ -352,6 +369,7 @@ class _Sender:
         assert self.proc.stdout is not None and self.proc.stderr is not None
         line = self.proc.stdout.readline()
         if line.startswith('sent '):
+            self.sent = int(line.split()[1])
             self.done = True
         else:
             self.proc.wait(10.0)
@@ -378,18 +396,38 @@ def _say(msg: str) -> None:
     print(msg, flush=True)
 
 
-def _fuzz_port(obs: Observer, label: str, port: int, owner: str, exp: Expectation,
-               seed: int, env: Mapping[str, str], monitor_period_s: float) -> PortResult:
-    """Fuzz one port of the running rt_core; judge the counter deltas against ``exp``."""
+@dataclasses.dataclass
+class _Turn:
+    """What one port's turn needs: where, whose, how much, and how to predict it."""
+
+    label: str
+    port: int
+    owner: str
+    bufsize: int
+    count: int
+    seconds: float
+    seed: int
+    accepts: Mapping[str, frozenset[int]]
+
+
+def _fuzz_port(obs: Observer, turn: _Turn, env: Mapping[str, str],
+               monitor_period_s: float) -> PortResult:
+    """Fuzz one port of the running rt_core; judge the counter deltas against the prediction.
+
+    The stream is written for ``turn.seconds`` (``turn.count`` at most); the prediction is the
+    classification of the datagrams actually written, made once writing stopped.
+    """
+    label = turn.label
     base = obs.taken(label)
-    unexp0 = obs.unexpected(owner) or 0
+    unexp0 = obs.unexpected(turn.owner) or 0
     t0 = time.monotonic()
     problems: list[str] = []
     sender = None
     if label in MONITOR_PORTS:
-        obs.stream(label, fuzzstream.datagrams(label, exp.sent, seed))
+        obs.stream(label, fuzzstream.datagrams(label, turn.count, turn.seed), turn.seconds)
     else:
-        sender = _Sender(label, exp.sent, seed, env)
+        sender = _Sender(label, turn.count, turn.seed, turn.seconds, env)
+    exp: Expectation | None = None
     last_taken, last_move, next_note = 0, t0, t0 + 5.0
     settled_at = None
     try:
@@ -404,20 +442,22 @@ def _fuzz_port(obs: Observer, label: str, port: int, owner: str, exp: Expectatio
                 if sender.error:
                     problems.append(sender.error)
                     break
-            written_all = sender.done if sender is not None else not obs.streaming
+            if exp is None and (sender.done if sender is not None else not obs.streaming):
+                written = sender.sent if sender is not None else obs.written
+                exp = fuzzstream.expect(label, written, turn.seed, turn.bufsize, turn.accepts)
+                now = last_move = time.monotonic()
             c = obs.taken(label)
             taken = (c[0] - base[0]) + (c[1] - base[1])
             if taken != last_taken:
                 last_taken, last_move = taken, now
             elif now - last_move > STALL_TIMEOUT_S + monitor_period_s:
-                problems.append('RT side took {} of {} datagrams, then nothing for {:.0f} s'
-                                .format(taken, exp.sent, now - last_move))
+                problems.append('RT side took {} datagrams, then nothing for {:.0f} s'
+                                .format(taken, now - last_move))
                 break
             if now >= next_note:
                 next_note = now + 5.0
-                _say('  {}: {}/{} taken by the RT side, {:.0f} s'.format(
-                    label, taken, exp.sent, now - t0))
-            if written_all and taken >= exp.sent and settled_at is None:
+                _say('  {}: {} taken by the RT side, {:.0f} s'.format(label, taken, now - t0))
+            if exp is not None and taken >= exp.sent and settled_at is None:
                 settled_at = obs.batches
             # One more full batch after the last datagram was taken: the owning body has
             # finished the cycle that drained it, so its unexpected count is final.
@@ -427,10 +467,11 @@ def _fuzz_port(obs: Observer, label: str, port: int, owner: str, exp: Expectatio
         if sender is not None:
             sender.release()
     c = obs.taken(label)
-    unexp = obs.unexpected(owner)
-    res = PortResult(label, port, owner, exp, c[0] - base[0], c[1] - base[1], c[2] - base[2],
-                     (unexp or 0) - unexp0, time.monotonic() - t0, False, problems)
-    if not problems:
+    unexp = obs.unexpected(turn.owner)
+    res = PortResult(label, turn.port, turn.owner, exp or Expectation(), c[0] - base[0],
+                     c[1] - base[1], c[2] - base[2], (unexp or 0) - unexp0,
+                     time.monotonic() - t0, False, problems)
+    if exp is not None and not problems:
         problems += judge_port(exp, res.received, res.oversize, res.malformed, res.unexpected)
     res.ok = not problems
     return res
@@ -441,7 +482,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--count', type=int, default=100_000, help='datagrams per port (at most)')
     ap.add_argument('--seed', type=int, default=None, help='stream seed (default: random)')
     ap.add_argument('--seconds-per-port', type=float, default=18.0,
-                    help="time budget per port at its owner's drain rate (default 18)")
+                    help='seconds of writing per port (default 18; --count caps it)')
     ap.add_argument('--quiet-s', type=float, default=None,
                     help='quiet window before the campaign (default: the estimated campaign '
                     'length)')
@@ -454,12 +495,12 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def _sender_main(argv: Sequence[str]) -> int:
-    label, count, seed = argv[0], int(argv[1]), int(argv[2])
+    label, count, seed, seconds = argv[0], int(argv[1]), int(argv[2]), float(argv[3])
 
-    def hold() -> None:
-        print('sent {}'.format(count), flush=True)
+    def hold(n: int) -> None:
+        print('sent {}'.format(n), flush=True)
         sys.stdin.read()  # until the checker closes our stdin
-    send(label, count, seed, hold=hold)
+    send(label, count, seed, seconds=seconds, hold=hold)
     return 0
 
 
@@ -484,8 +525,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _plan(args: argparse.Namespace, cfg: config.RtConfig,
-          accepts: Mapping[str, frozenset[int]]) -> tuple[list[str], dict[str, Any],
-                                                          dict[str, Expectation], float]:
+          accepts: Mapping[str, frozenset[int]]) -> list[_Turn]:
     owner = {label: t for t in cfg.tasks for label in t.ports}
     labels = [x for x in args.ports.split(',') if x] or sorted(owner, key=lambda x: cfg.ports[x])
     unknown = [x for x in labels if x not in owner]
@@ -493,16 +533,8 @@ def _plan(args: argparse.Namespace, cfg: config.RtConfig,
         raise SystemExit('fuzz: unknown port(s) {} (configured: {})'.format(
             ', '.join(unknown), ', '.join(sorted(owner))))
     sizes = receive_sizes(cfg)
-    exps: dict[str, Expectation] = {}
-    estimate = 0.0
-    for label in labels:
-        t = owner[label]
-        drain = rt_core.DRAIN_MONITOR if t.body == 'monitor' else DRAIN_MAX
-        n = fuzzstream.port_count(args.count, args.seconds_per_port, t.period_ns, drain)
-        exps[label] = fuzzstream.expect(label, n, args.seed, sizes[label], accepts)
-        monitor = next((m.period_ns for m in cfg.tasks if m.body == 'monitor'), 10**9)
-        estimate += n / drain * t.period_ns / 1e9 + 2.5 * monitor / 1e9
-    return labels, owner, exps, estimate
+    return [_Turn(label, cfg.ports[label], owner[label].name, sizes[label], args.count,
+                  args.seconds_per_port, args.seed, accepts) for label in labels]
 
 
 def run(args: argparse.Namespace,
@@ -512,11 +544,11 @@ def run(args: argparse.Namespace,
     cfg = config.load(args.config, body_exists=tasks.body_exists)
     _say('fuzz: seed {} (replay: make fuzz SEED={}), up to {} datagrams per port'.format(
         args.seed, args.seed, args.count))
-    labels, owner, exps, estimate = _plan(args, cfg, accepts)
-    _say('fuzz: predicted {} datagrams on {} ports in {:.1f} s; campaign about {:.0f} s'.format(
-        sum(e.sent for e in exps.values()), len(labels), time.monotonic() - t_run, estimate))
-    quiet_s = estimate if args.quiet_s is None else args.quiet_s
+    turns = _plan(args, cfg, accepts)
     monitor_s = next((t.period_ns for t in cfg.tasks if t.body == 'monitor'), 10**9) / 1e9
+    # Each turn: its seconds of writing, the sender's start, then up to two monitor batches.
+    estimate = len(turns) * (args.seconds_per_port + 0.5 + 2.0 * monitor_s)
+    quiet_s = estimate if args.quiet_s is None else args.quiet_s
     runtime_dir = tempfile.mkdtemp(prefix='m4k-fuzz-')
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir)
     probes = stallprobe.StallProbes()
@@ -531,8 +563,10 @@ def run(args: argparse.Namespace,
         obs = Observer(runtime_dir)
         if not obs.wait_batches(2, 30.0 + 3 * monitor_s):
             raise RuntimeError('no monitor batch from rt_core: ' + ' | '.join(core.tail()))
-        _say('fuzz: rt_core pid {} running ({}); quiet window {:.0f} s'.format(
-            core.pid, _hardening(obs.rec.rt_status), quiet_s))
+        _say('fuzz: rt_core pid {} running ({}); quiet window {:.0f} s, then {} ports for '
+             '{:g} s each (campaign about {:.0f} s)'.format(
+                 core.pid, _hardening(obs.rec.rt_status), quiet_s, len(turns),
+                 args.seconds_per_port, estimate))
         q0 = time.monotonic_ns()
         next_note = time.monotonic() + 15.0
         while time.monotonic_ns() - q0 < quiet_s * 1e9 and not obs.lost:
@@ -546,11 +580,10 @@ def run(args: argparse.Namespace,
         _say(head.format('PORT', 'NUM', 'SENT', 'MALFORMED', 'OVERSIZE', 'UNEXPECTED',
                          'ACCEPTED', 'SEC', 'RESULT'))
         c0 = time.monotonic_ns()
-        for label in labels:
-            r = _fuzz_port(obs, label, cfg.ports[label], owner[label].name, exps[label],
-                           args.seed, env, monitor_s)
+        for turn in turns:
+            r = _fuzz_port(obs, turn, env, monitor_s)
             results.append(r)
-            _say(head.format(label, r.port, r.expected.sent, r.malformed, r.oversize,
+            _say(head.format(r.label, r.port, r.expected.sent, r.malformed, r.oversize,
                              r.unexpected, r.expected.accepted, '{:.1f}'.format(r.seconds),
                              'ok' if r.ok else 'FAIL: ' + '; '.join(r.problems)))
             if not core.alive() or obs.lost:

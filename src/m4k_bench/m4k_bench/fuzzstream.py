@@ -22,21 +22,8 @@ from typing import Any, Iterator, Mapping, Sequence
 from m4k_rt import protocol
 from m4k_rt.protocol import Kind
 
-__all__ = ['ACCEPTS', 'DRAIN_SHARE', 'Expectation', 'classify', 'datagrams', 'expect',
-           'mutate', 'one_datagram', 'port_count', 'valid_datagram']
-
-DRAIN_SHARE = 0.8        # use at most 80 % of a body's drain capacity per port
-
-
-def port_count(count: int, seconds: float, period_ns: int, drain_max: int) -> int:
-    """Return how many datagrams a port gets: ``count`` at most, else what fits the time.
-
-    The owning body drains at most ``drain_max`` per cycle; at ``DRAIN_SHARE`` of that the
-    RT side keeps up and the sender does not time out on a full socket.
-    """
-    fits = int(seconds * 1e9 / period_ns * drain_max * DRAIN_SHARE)
-    return max(1, min(count, fits))
-
+__all__ = ['ACCEPTS', 'Expectation', 'classify', 'datagrams', 'expect', 'mutate',
+           'one_datagram', 'valid_datagram']
 
 K = Kind
 # What each port's RT body consumes (docs/internals.md, "Ports"); anything else valid is
