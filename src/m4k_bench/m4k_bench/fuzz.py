@@ -11,11 +11,11 @@ RT_STATUS (hardening). Nothing is read from inside the RT process.
 
 The fuzzer holds ``status`` and ``stat`` for the whole run (it must keep reading them); the
 fuzz stream of those two ports goes through the same links, written between reads. Every
-other port gets a sender process (``fuzz send LABEL COUNT SEED``) that writes its stream and
-keeps its link open until the RT side has taken every datagram. The stream is a pure function
-of (seed, port) (:mod:`m4k_bench.fuzzstream`), so the checker predicts the RT side's answer to
-each datagram; per port, the counter deltas (PORT_STATS received / malformed /
-dropped_oversize, TASK_HEALTH unexpected of the owning task) must equal the prediction
+other port gets a sender process (``fuzz send LABEL COUNT SEED SECONDS``) that writes its
+stream and keeps its link open until the RT side has taken every datagram. The stream is a
+pure function of (seed, port) (:mod:`m4k_bench.fuzzstream`), so the checker predicts the RT
+side's answer to each datagram; per port, the counter deltas (PORT_STATS received / malformed
+/ dropped_oversize, TASK_HEALTH unexpected of the owning task) must equal the prediction
 exactly. A port the RT side only writes (``status``, ``stat``, ``*_out``) is judged the same
 way: its body drains and discards what a peer writes there, counting it.
 
@@ -23,10 +23,9 @@ Timing verdicts, per task, from the TASK_STATS samples: the cycles started durin
 within 1 % of campaign time ÷ period (at least one cycle), and no overrun caused by the
 fuzzing. A quiet window of about the campaign's length, before it and in the same run,
 measures what the machine does without fuzzing. Stall probes (:mod:`.benchlib.stallprobe`:
-one process per CPU above every RT priority) see host stalls; an overrun whose late span
-coincides with a probe stall of at least half its lateness is counted as the host's, anything
-else as the fuzzing's. rt_core must
-still run at the end and exit cleanly.
+one process per CPU above every RT priority) see host stalls; an overrun that coincides with
+a probe stall of at least half its lateness is counted as the host's, anything else as the
+fuzzing's. rt_core must still run at the end and exit cleanly.
 
 Each port's turn writes for ``--seconds-per-port`` (``--count`` datagrams at most): writes
 block while the RT side has not drained the socket, so the owner's period, its drain budget
@@ -37,7 +36,7 @@ the datagrams written (a prefix of the seeded stream, so ``--seed`` replays it).
 Usage::
 
     python -m m4k_bench.fuzz [--count 100000] [--seed N] [--seconds-per-port 18] [--ports cmd]
-    python -m m4k_bench.fuzz send LABEL COUNT SEED   # a sender (started by the above)
+    python -m m4k_bench.fuzz send LABEL COUNT SEED SECONDS   # a sender (started by the above)
 """
 
 from __future__ import annotations
@@ -47,27 +46,24 @@ import dataclasses
 import json
 import os
 import platform
-import select
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
-from m4k_bench import fuzzstream
+from m4k_bench import fuzzlinks, fuzzstream
 from m4k_bench.benchlib import stack, stallprobe
 from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
 # rt_core registers the monitor body on import: config.load needs it to know that body.
-from m4k_rt import config, protocol, recorder, rosargs, rt_core, sched, tasks, xddp
+from m4k_rt import config, recorder, rosargs, rt_core, sched, tasks, xddp
 from m4k_rt.tasks.portio import PortReader
 
-__all__ = ['Observer', 'PortResult', 'cycle_verdict', 'judge_port', 'main', 'receive_sizes',
-           'send', 'window_timing']
+__all__ = ['PortResult', 'cycle_verdict', 'judge_port', 'main', 'receive_sizes', 'run',
+           'window_timing']
 
 CYCLE_TOLERANCE = 0.01    # cycles during the campaign within 1 % of elapsed / period
-MONITOR_PORTS = ('status', 'stat')
 HOST_SHARE = 0.5          # an overrun is the host's when a probe stalled >= half its lateness
 STALL_TIMEOUT_S = 30.0    # no datagram taken on the fuzzed port for this long: give up on it
 
@@ -163,133 +159,6 @@ def receive_sizes(cfg: config.RtConfig) -> dict[str, int]:
     return sizes
 
 
-class Observer:
-    """The fuzzer's NRT side of ``status`` and ``stat``: every monitor batch, and their streams.
-
-    :meth:`pump` reads whatever the RT side sent (into a :class:`m4k_rt.recorder.Recorder`:
-    TASK_STATS samples, TASK_HEALTH, RT_STATUS, PORT_STATS) and, while :meth:`stream` is
-    active, writes the fuzz stream of one of these two ports whenever its socket has room.
-    ``batches`` counts monitor batches (RT_STATUS on ``status`` closes one).
-    """
-
-    def __init__(self, runtime_dir: str, wait_s: float = 30.0) -> None:
-        """Open both ports (waiting up to ``wait_s`` for rt_core to bind them)."""
-        self.rec = recorder.Recorder()
-        self.eps: dict[str, xddp.NrtXddpEndpoint] = {}
-        self.batches = 0
-        self.lost: str | None = None
-        self._poll = select.poll()
-        self._by_fd: dict[int, str] = {}
-        self._out: tuple[str, Iterator[bytes]] | None = None
-        self._pending: bytes | None = None
-        self._out_end = 0.0
-        self.written = 0
-        try:
-            for label in MONITOR_PORTS:
-                ep = xddp.nrt_xddp_open(label, wait=wait_s, runtime_dir=runtime_dir)
-                self.eps[label] = ep
-                self._by_fd[ep.fileno()] = label
-                self._poll.register(ep.fileno(), select.POLLIN)
-        except BaseException:
-            self.close()
-            raise
-
-    def stream(self, label: str, data: Iterator[bytes], seconds: float) -> None:
-        """Write ``data`` to ``label`` (a monitor port) between reads, for ``seconds`` at most."""
-        self._out = (label, data)
-        self._out_end = time.monotonic() + seconds
-        self._pending = None
-        self.written = 0
-        self._poll.modify(self.eps[label].fileno(), select.POLLIN | select.POLLOUT)
-
-    @property
-    def streaming(self) -> bool:
-        """Tell whether a stream still has datagrams to write."""
-        return self._out is not None
-
-    def _end_stream(self) -> None:
-        if self._out is not None:
-            self._poll.modify(self.eps[self._out[0]].fileno(), select.POLLIN)
-        self._out = None
-        self._pending = None
-
-    def pump(self, timeout_s: float) -> None:
-        """Wait up to ``timeout_s`` for traffic; read all that is ready, write what fits."""
-        if self.lost:
-            time.sleep(timeout_s)
-            return
-        for fd, ev in self._poll.poll(int(timeout_s * 1000)):
-            label = self._by_fd[fd]
-            if ev & (select.POLLIN | select.POLLHUP | select.POLLERR):
-                self._read(label)
-            if ev & select.POLLOUT and self._out is not None and self._out[0] == label:
-                self._write(label)
-
-    def _read(self, label: str) -> None:
-        ep = self.eps[label]
-        for _ in range(256):
-            try:
-                data = ep.read(0.0)
-            except TimeoutError:
-                return
-            except OSError as exc:
-                self.lost = '{}: {}'.format(label, exc)
-                self._poll.unregister(ep.fileno())
-                return
-            kind = self.rec.feed(data)
-            if kind == protocol.Kind.RT_STATUS and label == 'status':
-                self.batches += 1
-
-    def _write(self, label: str) -> None:
-        assert self._out is not None
-        ep = self.eps[label]
-        for _ in range(64):
-            if self._pending is None:
-                if time.monotonic() >= self._out_end:
-                    self._end_stream()
-                    return
-                self._pending = next(self._out[1], None)
-                if self._pending is None:
-                    self._end_stream()
-                    return
-            try:
-                ep.write(self._pending, 0.001)
-            except TimeoutError:
-                return
-            except OSError as exc:
-                self.lost = '{}: {}'.format(label, exc)
-                self._end_stream()
-                return
-            self._pending = None
-            self.written += 1
-
-    def taken(self, label: str) -> tuple[int, int, int]:
-        """Return the RT side's (received, dropped_oversize, malformed) of ``label`` so far."""
-        ps = self.rec.port_stats.get(label)
-        return (0, 0, 0) if ps is None else (ps.received, ps.dropped_oversize, ps.malformed)
-
-    def unexpected(self, task: str) -> int | None:
-        """Return the latest TASK_HEALTH ``unexpected`` count of ``task`` (None: none yet)."""
-        ts = self.rec.tasks.get(task)
-        return None if ts is None or ts.health is None else ts.health.unexpected
-
-    def wait_batches(self, n: int, timeout_s: float) -> bool:
-        """Pump until ``n`` more monitor batches arrived; False on timeout or a lost link."""
-        goal = self.batches + n
-        end = time.monotonic() + timeout_s
-        while self.batches < goal and not self.lost:
-            if time.monotonic() > end:
-                return False
-            self.pump(0.05)
-        return not self.lost
-
-    def close(self) -> None:
-        """Close both links (the RT side counts a lost peer)."""
-        for ep in self.eps.values():
-            ep.close()
-        self.eps.clear()
-
-
 @dataclasses.dataclass
 class PortResult:
     """Predicted and observed counts of one fuzzed port, and whether they agree."""
@@ -320,78 +189,6 @@ def judge_port(exp: Expectation, received: int, oversize: int, malformed: int,
     return problems
 
 
-def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
-         timeout: float = 30.0, seconds: float | None = None,
-         hold: Callable[[int], None] | None = None) -> int:
-    """Write the fuzz stream of ``label`` through the NRT side; return datagrams written.
-
-    Stops after ``count`` datagrams or ``seconds``, whichever comes first: the writes block
-    while the RT side has not drained the socket, so the time bounds the port's turn and
-    ``count`` caps it. The link stays open until ``hold(n)`` returns: closing a Unix socket
-    that still has unread datagrams (the RT side's own sends) resets the connection, and the
-    RT side would then drop what it had not drained yet -- in-flight loss of a dying peer, not
-    what this measures.
-    """
-    n = 0
-    end = None if seconds is None else time.monotonic() + seconds
-    with xddp.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
-        for d in fuzzstream.datagrams(label, count, seed):
-            if end is not None and time.monotonic() >= end:
-                break
-            ep.write(d, timeout)
-            n += 1
-        if hold is not None:
-            hold(n)
-    return n
-
-
-class _Sender:
-    """A sender process for one port; ``done`` once it wrote its whole stream."""
-
-    def __init__(self, label: str, count: int, seed: int, seconds: float,
-                 env: Mapping[str, str]) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'm4k_bench.fuzz', 'send', label, str(count), str(seed),
-             str(seconds)],
-            env=dict(env), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True, start_new_session=True)
-        self.error: str | None = None
-        self.done = False
-        self.sent = 0
-        self._poll = select.poll()
-        assert self.proc.stdout is not None
-        self._poll.register(self.proc.stdout.fileno(), select.POLLIN)
-
-    def check(self) -> None:
-        """Notice the sender's 'sent N' line, or its death."""
-        if self.done or self.error or not self._poll.poll(0):
-            return
-        assert self.proc.stdout is not None and self.proc.stderr is not None
-        line = self.proc.stdout.readline()
-        if line.startswith('sent '):
-            self.sent = int(line.split()[1])
-            self.done = True
-        else:
-            self.proc.wait(10.0)
-            self.error = 'sender failed: {}'.format(self.proc.stderr.read().strip()[-300:])
-
-    def release(self) -> None:
-        """Let the sender close its link and exit (killed by pid after 30 s)."""
-        assert self.proc.stdin is not None
-        try:
-            self.proc.stdin.close()
-        except OSError:
-            pass
-        try:
-            self.proc.wait(30.0)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        for f in (self.proc.stdout, self.proc.stderr):
-            if f is not None:
-                f.close()
-
-
 def _say(msg: str) -> None:
     print(msg, flush=True)
 
@@ -410,7 +207,7 @@ class _Turn:
     accepts: Mapping[str, frozenset[int]]
 
 
-def _fuzz_port(obs: Observer, turn: _Turn, env: Mapping[str, str],
+def _fuzz_port(obs: fuzzlinks.Observer, turn: _Turn, env: Mapping[str, str],
                monitor_period_s: float) -> PortResult:
     """Fuzz one port of the running rt_core; judge the counter deltas against the prediction.
 
@@ -423,10 +220,10 @@ def _fuzz_port(obs: Observer, turn: _Turn, env: Mapping[str, str],
     t0 = time.monotonic()
     problems: list[str] = []
     sender = None
-    if label in MONITOR_PORTS:
+    if label in fuzzlinks.MONITOR_PORTS:
         obs.stream(label, fuzzstream.datagrams(label, turn.count, turn.seed), turn.seconds)
     else:
-        sender = _Sender(label, turn.count, turn.seed, turn.seconds, env)
+        sender = fuzzlinks.Sender(label, turn.count, turn.seed, turn.seconds, env)
     exp: Expectation | None = None
     last_taken, last_move, next_note = 0, t0, t0 + 5.0
     settled_at = None
@@ -500,7 +297,7 @@ def _sender_main(argv: Sequence[str]) -> int:
     def hold(n: int) -> None:
         print('sent {}'.format(n), flush=True)
         sys.stdin.read()  # until the checker closes our stdin
-    send(label, count, seed, seconds=seconds, hold=hold)
+    fuzzlinks.send(label, count, seed, seconds=seconds, hold=hold)
     return 0
 
 
@@ -546,8 +343,9 @@ def run(args: argparse.Namespace,
         args.seed, args.seed, args.count))
     turns = _plan(args, cfg, accepts)
     monitor_s = next((t.period_ns for t in cfg.tasks if t.body == 'monitor'), 10**9) / 1e9
-    # Each turn: its seconds of writing, the sender's start, then up to two monitor batches.
-    estimate = len(turns) * (args.seconds_per_port + 0.5 + 2.0 * monitor_s)
+    # Each turn: a sender's start-up (an interpreter, about 2 s on this machine kind), its
+    # seconds of writing, classifying what it wrote, then up to two monitor batches.
+    estimate = len(turns) * (args.seconds_per_port + 3.0 + 2.0 * monitor_s)
     quiet_s = estimate if args.quiet_s is None else args.quiet_s
     runtime_dir = tempfile.mkdtemp(prefix='m4k-fuzz-')
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir)
@@ -560,7 +358,7 @@ def run(args: argparse.Namespace,
     obs = None
     windows: dict[str, tuple[int, int]] = {}
     try:
-        obs = Observer(runtime_dir)
+        obs = fuzzlinks.Observer(runtime_dir)
         if not obs.wait_batches(2, 30.0 + 3 * monitor_s):
             raise RuntimeError('no monitor batch from rt_core: ' + ' | '.join(core.tail()))
         _say('fuzz: rt_core pid {} running ({}); quiet window {:.0f} s, then {} ports for '
@@ -615,7 +413,7 @@ def _hardening(st: Any) -> str:
                                       'degraded' if st.degraded else 'not degraded')
 
 
-def _summarize(args: argparse.Namespace, cfg: config.RtConfig, obs: Observer | None,
+def _summarize(args: argparse.Namespace, cfg: config.RtConfig, obs: fuzzlinks.Observer | None,
                results: list[PortResult], windows: Mapping[str, tuple[int, int]],
                stalls: list[stallprobe.Stall], probes: stallprobe.StallProbes, alive: bool,
                code: int | None, log: list[str], failures: list[str],
