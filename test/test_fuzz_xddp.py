@@ -38,6 +38,12 @@ def test_fuzz_stream_covers_every_input_class():
             reasons.add(exc.reason)
     assert {'short', 'magic', 'version', 'kind', 'length', 'nonfinite', 'range'} <= reasons
     assert list(fuzzstream.datagrams('led', 50, 9)) == list(fuzzstream.datagrams('led', 50, 9))
+    # Classified a chunk at a time, any prefix totals as the whole stream cut there would.
+    pred = fuzzstream.Predictor('cmd', 3, protocol.MAX_DATAGRAM, 400)
+    assert pred.advance(100) == 100
+    assert pred.expectation(50) == fuzzstream.expect('cmd', 50, 3, protocol.MAX_DATAGRAM)
+    assert pred.expectation(400) == fuzzstream.expect('cmd', 400, 3, protocol.MAX_DATAGRAM)
+    assert pred.advance(100) == 400     # the stream ends at its limit
     # Every kind can be generated valid (a layout change without a generator would hang).
     for kind in protocol.Kind:
         protocol.decode(fuzzstream.valid_datagram(fuzzstream.random.Random(1), kind))

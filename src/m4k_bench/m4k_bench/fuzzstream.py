@@ -22,7 +22,7 @@ from typing import Any, Iterator, Mapping, Sequence
 from m4k_rt import protocol
 from m4k_rt.protocol import Kind
 
-__all__ = ['ACCEPTS', 'Expectation', 'classify', 'datagrams', 'expect', 'mutate',
+__all__ = ['ACCEPTS', 'Expectation', 'Predictor', 'classify', 'datagrams', 'expect', 'mutate',
            'one_datagram', 'valid_datagram']
 
 K = Kind
@@ -197,6 +197,42 @@ class Expectation:
     accepted: int = 0
 
 
+class Predictor:
+    """Classify one port's stream a chunk at a time (the checker keeps reading in between).
+
+    ``advance(n)`` classifies the next ``n`` datagrams of the stream (at most ``limit``);
+    ``expectation(sent)`` totals the first ``sent`` -- the stream is the same prefix however
+    many a sender got to write.
+    """
+
+    def __init__(self, label: str, seed: int, bufsize: int, limit: int,
+                 accepts: Mapping[str, frozenset[int]] = ACCEPTS) -> None:
+        """Prepare the stream of ``label`` (``limit`` datagrams at most)."""
+        self._stream = datagrams(label, limit, seed)
+        self._accepts = accepts.get(label, frozenset())
+        self._bufsize = bufsize
+        self.limit = limit
+        self.classes: list[str] = []
+
+    def advance(self, n: int) -> int:
+        """Classify up to ``n`` more datagrams; return how many are classified in all."""
+        for _ in range(n):
+            d = next(self._stream, None)
+            if d is None:
+                break
+            self.classes.append(classify(d, self._accepts, self._bufsize))
+        return len(self.classes)
+
+    def expectation(self, sent: int) -> Expectation:
+        """Return the predicted counts of the first ``sent`` datagrams (classifying the rest)."""
+        if len(self.classes) < sent:
+            self.advance(sent - len(self.classes))
+        e = Expectation(sent=sent)
+        for what in self.classes[:sent]:
+            setattr(e, what, getattr(e, what) + 1)
+        return e
+
+
 def expect(label: str, count: int, seed: int, bufsize: int,
            accepts: Mapping[str, frozenset[int]] = ACCEPTS) -> Expectation:
     """Classify the fuzz stream of ``label`` without sending it.
@@ -204,11 +240,4 @@ def expect(label: str, count: int, seed: int, bufsize: int,
     ``accepts`` is what each port's body takes (:data:`ACCEPTS`; a test passes a wrong table
     to see the verdict fail).
     """
-    e = Expectation()
-    acc = accepts.get(label, frozenset())
-    for d in datagrams(label, count, seed):
-        e.sent += 1
-        what = classify(d, acc, bufsize)
-        setattr(e, what, getattr(e, what) + 1)
-    return e
-
+    return Predictor(label, seed, bufsize, count, accepts).expectation(count)
