@@ -174,15 +174,34 @@ class BridgeNode(Node):
     # --- parameters ---------------------------------------------------------------------------
 
     def _declare(self) -> params.BridgeParams:
+        """Declare every parameter; derived ones default to the layered configuration's values.
+
+        Bringup and the launch file pass the derived values; started by hand (``ros2 run``)
+        the node computes them itself from the layered configuration, so both get the same.
+        """
         values = {}
-        for s in params.SPECS:
+
+        def declare(s: params.ParamSpec, default: Any) -> None:
             try:
-                self.declare_parameter(s.name, s.default, _descriptor(s))
+                self.declare_parameter(s.name, default, _descriptor(s))
             except InvalidParameterTypeException as exc:
                 raise params.ParamError(s.name, str(exc)) from None
             except (InvalidParameterValueException, ParameterException) as exc:
                 raise params.ParamError(s.name, str(exc)) from None
             values[s.name] = self.get_parameter(s.name).value
+
+        for s in params.SPECS:
+            if s.name not in params.DERIVED:
+                declare(s, s.default)
+        try:
+            doc = config.load_layered()
+        except config.ConfigError as exc:
+            raise params.ParamError('<config>', 'cannot load the layered configuration the '
+                                    'derived parameters come from: {}'.format(exc)) from None
+        self._derived = params.derived_values(doc, values['base_frame'])
+        for s in params.SPECS:
+            if s.name in params.DERIVED:
+                declare(s, self._derived.get(s.name, s.default))
         return params.from_values({k: list(v) if not isinstance(v, (str, bool, float, int))
                                    else v for k, v in values.items()})
 
@@ -365,15 +384,12 @@ class BridgeNode(Node):
         is generated from) is unusable.
         """
         p = self.p
-        urdf = p['robot_description']
+        urdf = p['robot_description'] or self._derived.get('robot_description', '')
         try:
-            if not urdf:
-                urdf = description.urdf(description.model(config.load_layered(),
-                                                          p['base_frame']))
             state = RobotStatePublisher(self, urdf, p['odom_frame'], p['base_frame'],
                                         p['publish_tf'], p['publish_robot_state'],
                                         p.topic('joint_states'), p.topic('robot_description'))
-        except (description.DescriptionError, config.ConfigError) as exc:
+        except description.DescriptionError as exc:
             raise params.ParamError('robot_description', str(exc)) from None
         missing = [p[f] for f in ('base_frame', 'laser_frame', 'imu_frame', 'sonar_frame')
                    if p[f] not in state.links]
