@@ -21,6 +21,9 @@ import math
 from typing import Any, Mapping, NamedTuple
 import xml.etree.ElementTree as ET
 
+from m4k_rt import schema
+from m4k_rt.control.params import CONTROL
+
 __all__ = ['DescriptionError', 'Joint', 'Mount', 'RobotModel', 'SENSORS', 'WHEEL_JOINTS',
            'fill_sim_mounts', 'fixed_joints', 'joints', 'model', 'mount_2d', 'urdf',
            'wheel_joints']
@@ -32,7 +35,7 @@ _SIM_MOUNTS = {'lrf': 'laser', 'sonar': 'sonar'}
 
 
 class DescriptionError(ValueError):
-    """The robot section is wrong; the message names the field."""
+    """The robot section (or a URDF text) is wrong; the message names the field."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,13 +79,8 @@ class Joint(NamedTuple):
     axis: tuple[float, float, float] = (1.0, 0.0, 0.0)   # URDF's default
 
 
-def _num(m: Mapping[str, Any], key: str, path: str, positive: bool = True) -> float:
-    v = m.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise DescriptionError('{}.{}: expected a finite number, got {!r}'.format(path, key, v))
-    if positive and v <= 0:
-        raise DescriptionError('{}.{}: must be > 0, got {!r}'.format(path, key, v))
-    return float(v)
+def _error(path: str, message: str) -> DescriptionError:
+    return DescriptionError('{}: {}'.format(path, message))
 
 
 def _mapping(v: Any, path: str) -> Mapping[str, Any]:
@@ -93,24 +91,21 @@ def _mapping(v: Any, path: str) -> Mapping[str, Any]:
 
 def _mount(m: Any, path: str) -> Mount:
     m = _mapping(m, path)
-    frame = m.get('frame')
-    if not isinstance(frame, str) or not frame or any(c.isspace() for c in frame):
-        raise DescriptionError('{}.frame: expected a frame id, got {!r}'.format(path, frame))
-    pose = m.get('pose')
-    if (not isinstance(pose, list) or len(pose) != 6
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                       and math.isfinite(v) for v in pose)):
-        raise DescriptionError('{}.pose: expected [x, y, z, roll, pitch, yaw] (6 finite numbers),'
-                               ' got {!r}'.format(path, pose))
-    p = [float(v) for v in pose]
+    sensor = path.rsplit('.', 1)[-1]
+    frame = schema.ROBOT['sensors.{}.frame'.format(sensor)].validate(
+        path + '.frame', m.get('frame'), _error)
+    p = schema.ROBOT['sensors.{}.pose'.format(sensor)].validate(
+        path + '.pose', m.get('pose'), _error)
     return Mount(frame, (p[0], p[1], p[2]), (p[3], p[4], p[5]))
 
 
 def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
-    """Return the robot model of a layered configuration document (``robot:`` + ``control:``)."""
+    """Return the robot model of a layered configuration document (``robot:`` + ``control:``).
+
+    The ``robot`` section is checked against :data:`m4k_rt.schema.ROBOT` (unknown keys too).
+    """
     robot = _mapping(doc.get('robot'), 'robot')
     control = _mapping(doc.get('control') or {}, 'control')
-    body = _mapping(robot.get('body'), 'robot.body')
     sensors = _mapping(robot.get('sensors'), 'robot.sensors')
     missing = [s for s in SENSORS if s not in sensors]
     if missing:
@@ -120,20 +115,16 @@ def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
     if len(set(frames)) != len(frames):
         raise DescriptionError('robot.sensors: frame ids must differ from each other and from '
                                '{!r}, got {!r}'.format(base_frame, frames[:-1]))
-    name = robot.get('name', 'm4k')
-    if not isinstance(name, str) or not name:
-        raise DescriptionError('robot.name: expected a name, got {!r}'.format(name))
+    v = schema.validate_tree(schema.ROBOT, robot, 'robot', _error)
+    wheel = {k: CONTROL[k].validate('control.' + k, control.get(k, CONTROL[k].default), _error)
+             for k in ('wheel_radius', 'track_width')}
     m = RobotModel(
-        name=name, length=_num(body, 'length', 'robot.body'),
-        width=_num(body, 'width', 'robot.body'), height=_num(body, 'height', 'robot.body'),
-        bottom=_num(body, 'bottom', 'robot.body', positive=False),
-        mass=_num(body, 'mass', 'robot.body'),
-        wheel_radius=_num(control, 'wheel_radius', 'control'),
-        track_width=_num(control, 'track_width', 'control'),
-        wheel_width=_num(robot, 'wheel_width', 'robot'),
-        wheel_mass=_num(robot, 'wheel_mass', 'robot'),
-        caster_radius=_num(robot, 'caster_radius', 'robot'),
-        caster_x=_num(robot, 'caster_x', 'robot'), sensors=mounts, base_frame=base_frame)
+        name=v['name'], length=v['body.length'], width=v['body.width'],
+        height=v['body.height'], bottom=v['body.bottom'], mass=v['body.mass'],
+        wheel_radius=wheel['wheel_radius'], track_width=wheel['track_width'],
+        wheel_width=v['wheel_width'], wheel_mass=v['wheel_mass'],
+        caster_radius=v['caster_radius'], caster_x=v['caster_x'], sensors=mounts,
+        base_frame=base_frame)
     if m.caster_radius >= m.wheel_radius:
         raise DescriptionError('robot.caster_radius: must be smaller than control.wheel_radius '
                                '({}), got {}'.format(m.wheel_radius, m.caster_radius))
