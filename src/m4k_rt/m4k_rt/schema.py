@@ -60,6 +60,7 @@ _SCALARS: dict[str, tuple[Callable[[Any], bool], str]] = {
     'float': (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
               and math.isfinite(v), 'a number'),
     'str': (lambda v: isinstance(v, str), 'a string'),
+    'list': (lambda v: isinstance(v, list), 'a list'),
     'map': (lambda v: isinstance(v, Mapping), 'a mapping'),
     'any': (lambda v: True, 'a value'),
 }
@@ -198,7 +199,7 @@ class Field:
         if isinstance(self.default, str):
             return "''" if self.default == '' else self.default
         if isinstance(self.default, float):
-            return _num(self.default)
+            return repr(self.default)
         return str(self.default)
 
 

@@ -31,6 +31,7 @@ from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
+    IntegerRange,
     ParameterDescriptor,
     ParameterType,
     SetParametersResult,
@@ -56,6 +57,7 @@ from m4k_rt.bridge.ports import PortPump
 from m4k_rt.bridge.safety import SafetyInterface
 from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt.bridge.tf import RobotStatePublisher
+from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['BridgeNode', 'main', 'param_files']
@@ -71,18 +73,31 @@ _WATCH_PERIOD_S = 0.25
 # Devices the bridge sees through their data ports: role -> (device, period expected [s]).
 _DEVICE_PORTS = {'imu_out': ('imu', 0.01), 'sonar_out': ('sonar', 0.03),
                  'lrf_out': ('lrf', 0.2), 'led_in': ('led', 1.0), 'cmd': ('motor', 0.05)}
-_TYPES = {bool: ParameterType.PARAMETER_BOOL, float: ParameterType.PARAMETER_DOUBLE,
-          str: ParameterType.PARAMETER_STRING, list: ParameterType.PARAMETER_DOUBLE_ARRAY}
+_TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
+          'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
+          'float[]': ParameterType.PARAMETER_DOUBLE_ARRAY}
 
 
-def _descriptor(s: params.ParamSpec) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=s.name, type=_TYPES[type(s.default)],
-                            description=s.description, read_only=s.read_only)
-    if isinstance(s.default, float) and s.lo is not None and s.hi is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float(s.lo),
-                                                     to_value=float(s.hi), step=0.0)]
-    elif s.lo is not None:
-        d.additional_constraints = 'every element within [{}, {}]'.format(s.lo, s.hi)
+def _descriptor(f: Field) -> ParameterDescriptor:
+    """Return the ROS descriptor of a schema Field: type, range, read-only, unit, source."""
+    text = f.description
+    if f.unit:
+        text += ' Unit: {}.'.format(f.unit)
+    if f.derived_from:
+        text += ' Default derived from {} of the layered configuration.'.format(f.derived_from)
+    d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
+                            read_only=f.read_only)
+    if f.lo is not None and f.hi is not None:
+        if f.type == 'float':
+            d.floating_point_range = [FloatingPointRange(from_value=float(f.lo),
+                                                         to_value=float(f.hi), step=0.0)]
+        elif f.type == 'int':
+            d.integer_range = [IntegerRange(from_value=int(f.lo), to_value=int(f.hi), step=1)]
+        else:
+            d.additional_constraints = 'every element within [{}, {}]'.format(f.lo, f.hi)
+    if f.length is not None:
+        d.additional_constraints = ' '.join(filter(None, (
+            '{} elements;'.format(f.length), d.additional_constraints)))
     return d
 
 
@@ -181,7 +196,7 @@ class BridgeNode(Node):
         """
         values = {}
 
-        def declare(s: params.ParamSpec, default: Any) -> None:
+        def declare(s: Field, default: Any) -> None:
             try:
                 self.declare_parameter(s.name, default, _descriptor(s))
             except InvalidParameterTypeException as exc:

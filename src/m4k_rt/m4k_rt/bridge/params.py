@@ -1,8 +1,10 @@
 """Parameters of the ``m4k_bridge`` node: one table of specs, pure validation (no rclpy).
 
-Every parameter is declared from :data:`SPECS` (name, default, unit-bearing description,
-range, read-only flag, extra check). ``config/bridge.yaml`` carries the defaults of the
-bridge's own parameters under ``m4k_bridge: ros__parameters:``; a test keeps the two in step.
+Every parameter is declared from :data:`SPECS`, schema Fields (:mod:`m4k_rt.schema`: name,
+type, default, unit, description, range, read-only flag, extra check, derived source); the
+node builds its ParameterDescriptors from them. ``config/bridge.yaml`` carries the defaults of
+the bridge's own parameters under ``m4k_bridge: ros__parameters:``; a test keeps the two in
+step.
 :func:`validate` is what the node's on-set-parameters callback and the start-up check both
 call, so a value is refused with the same reason whether it comes from a parameter file or
 ``ros2 param set``.
@@ -28,6 +30,7 @@ from typing import Any, Callable, Mapping
 
 from m4k_rt import description
 from m4k_rt.control.params import control_params, ControlConfigError, ControlParams
+from m4k_rt.schema import Field
 
 __all__ = [
     'BridgeParams', 'DERIVED', 'NODE_NAME', 'ParamError', 'ParamSpec', 'PORT_ROLES', 'SPECS',
@@ -54,18 +57,38 @@ class ParamError(ValueError):
         self.reason = reason
 
 
-@dataclasses.dataclass(frozen=True)
-class ParamSpec:
-    """How one parameter is declared and checked."""
+# Parameter -> the field of the layered configuration it is derived from (one source).
+DERIVED: dict[str, str] = {
+    'cmd_vel_timeout': 'control.cmd_vel_timeout',
+    'max_linear_velocity': 'control.linear.max_velocity',
+    'max_angular_velocity': 'control.angular.max_velocity',
+    'imu_frame': 'robot.sensors.imu.frame',
+    'laser_frame': 'robot.sensors.laser.frame',
+    'sonar_frame': 'robot.sensors.sonar.frame',
+    **{'ports.' + role: 'ports.' + role for role in PORT_ROLES},
+    'robot_description': 'robot (with control.wheel_radius and control.track_width)',
+}
 
-    name: str
-    default: Any
-    description: str
-    lo: float | None = None          # inclusive range for numbers (every element of arrays)
-    hi: float | None = None
-    read_only: bool = False
-    length: int | None = None        # required length of array parameters
-    check: Callable[[Any], str | None] | None = None   # extra check: reason or None
+_UNITS = {
+    'cmd_vel_timeout': 's', 'max_linear_velocity': 'm/s', 'max_angular_velocity': 'rad/s',
+    'odom_pose_covariance_diagonal': 'm^2, rad^2', 'odom_twist_covariance_diagonal':
+    'm^2/s^2, rad^2/s^2', 'imu_orientation_covariance_diagonal': 'rad^2',
+    'imu_angular_velocity_covariance_diagonal': 'rad^2/s^2',
+    'imu_linear_acceleration_covariance_diagonal': 'm^2/s^4', 'sonar_field_of_view': 'rad',
+    'sonar_min_range': 'm', 'sonar_max_range': 'm', 'stats_window': 's',
+    'rt_status_period': 's', 'diagnostics_period': 's', 'rt_stale_timeout': 's',
+    'relink_interval': 's', 'reset_odometry_timeout': 's',
+}
+_ROS_TYPES = {bool: 'bool', float: 'float', str: 'str', list: 'float[]'}
+
+
+def ParamSpec(name: str, default: Any, description: str, lo: float | None = None,  # noqa: N802
+              hi: float | None = None, read_only: bool = False, length: int | None = None,
+              check: Callable[[Any], str | None] | None = None) -> Field:
+    """Return the schema Field of one bridge parameter (type from its default, unit, source)."""
+    return Field(_ROS_TYPES[type(default)], default, description, unit=_UNITS.get(name, ''),
+                 lo=lo, hi=hi, read_only=read_only, length=length, check=check,
+                 derived_from=DERIVED.get(name, ''), name=name)
 
 
 def _topic(v: Any) -> str | None:
@@ -94,7 +117,7 @@ def _runtime_dir(v: Any) -> str | None:
 
 _COV = 'variance, must be >= 0'
 _CONTROL = ControlParams()   # the control section's defaults: derived parameters start there
-SPECS: tuple[ParamSpec, ...] = (
+SPECS: tuple[Field, ...] = (
     ParamSpec('runtime_dir', '', 'XDDP runtime directory holding the port sockets; empty: '
               '$M4K_RUNTIME_DIR, $XDG_RUNTIME_DIR/m4k, /run/m4k as root, else /tmp/m4k-<uid>. '
               'Must be the one the RT process uses, or no port ever links.',
@@ -184,22 +207,9 @@ SPECS: tuple[ParamSpec, ...] = (
 _BY_NAME = {s.name: s for s in SPECS}
 
 
-def spec(name: str) -> ParamSpec:
+def spec(name: str) -> Field:
     """Return the spec of parameter ``name`` (KeyError when unknown)."""
     return _BY_NAME[name]
-
-
-# Parameter -> the field of the layered configuration it is derived from (one source).
-DERIVED: dict[str, str] = {
-    'cmd_vel_timeout': 'control.cmd_vel_timeout',
-    'max_linear_velocity': 'control.linear.max_velocity',
-    'max_angular_velocity': 'control.angular.max_velocity',
-    'imu_frame': 'robot.sensors.imu.frame',
-    'laser_frame': 'robot.sensors.laser.frame',
-    'sonar_frame': 'robot.sensors.sonar.frame',
-    **{'ports.' + role: 'ports.' + role for role in PORT_ROLES},
-    'robot_description': 'robot (with control.wheel_radius and control.track_width)',
-}
 
 
 def derived_values(doc: Mapping[str, Any], base_frame: str = 'base_link') -> dict[str, Any]:
