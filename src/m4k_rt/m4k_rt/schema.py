@@ -129,24 +129,19 @@ class Field:
         return ''
 
     def expected(self) -> str:
-        """Return what a value must be, as the messages say it (``an int in 1..99``)."""
+        """Return what a value must be, as the type messages say it (``an int``)."""
         if self.expect:
             return self.expect
         if self.choices:
             what = 'one of ' + ', '.join(str(c) for c in self.choices)
         else:
             what = ' or '.join(_SCALARS[t][1] for t in self.item_types)
-            rng = self.range_text()
-            if rng:
-                what += ' in ' + rng if '..' in rng or rng[0] in '[(' else ' ' + rng
             if self.is_list:
                 what = 'a list of {}{}'.format(
                     '{} '.format(self.length) if self.length else '', what)
         return what + (' or null' if self.nullable else '')
 
-    def _scalar_ok(self, v: Any) -> bool:
-        if not any(_SCALARS[t][0](v) for t in self.item_types):
-            return False
+    def _in_range(self, v: Any) -> bool:
         if isinstance(v, (int, float)) and not isinstance(v, bool):
             if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
                 return False
@@ -155,19 +150,30 @@ class Field:
         return True
 
     def problem(self, value: Any) -> str | None:
-        """Return why ``value`` is wrong (the message after ``<path>: ``), or None."""
+        """Return why ``value`` is wrong (the message after ``<path>: ``), or None.
+
+        A wrong type says ``expected <what>, got <value>``, a value out of range ``must be
+        <range>, got <value>``; a field with ``expect`` says ``expected <expect>`` for both.
+        """
         if value is None and self.nullable:
             return None
+        items = list(value) if self.is_list and isinstance(value, (list, tuple)) else [value]
         if self.choices:
-            ok = value in self.choices and not isinstance(value, bool)
+            typed = value in self.choices and not isinstance(value, bool)
         elif self.is_list:
-            ok = (isinstance(value, (list, tuple))
-                  and (self.length is None or len(value) == self.length)
-                  and all(self._scalar_ok(v) for v in value))
+            typed = (isinstance(value, (list, tuple))
+                     and (self.length is None or len(value) == self.length)
+                     and all(any(_SCALARS[t][0](v) for t in self.item_types) for v in items))
         else:
-            ok = self._scalar_ok(value)
-        if not ok:
+            typed = any(_SCALARS[t][0](value) for t in self.item_types)
+        if not typed:
             return 'expected {}, got {!r}'.format(self.expected(), value)
+        if not all(self._in_range(v) for v in items):
+            if self.expect:
+                return 'expected {}, got {!r}'.format(self.expect, value)
+            rng = self.range_text()
+            return 'must be {}{}, got {!r}'.format(
+                'in ' if '..' in rng or rng[0] in '[(' else '', rng, value)
         return self.check(value) if self.check is not None else None
 
     def coerce(self, value: Any) -> Any:
@@ -296,10 +302,12 @@ RUNTIME: dict[str, Field] = {
         unit='s', lo=1e-6, hi=1.0, expect='seconds in 1e-6..1'),
     'stats_batch': Field(
         'int', 128, 'Timing samples per TASK_STATS datagram (also bounded by max_datagram). '
-        'Too small: more datagrams per second to the monitor.', lo=1, hi=4096),
+        'Too small: more datagrams per second to the monitor.', lo=1, hi=4096,
+        expect='an int in 1..4096'),
     'ring_capacity': Field(
         'int', 4096, 'Timing samples kept per task between two monitor batches. Too small: '
-        'samples are overwritten and rt_status misses cycles.', lo=16, hi=1 << 20),
+        'samples are overwritten and rt_status misses cycles.', lo=16, hi=1 << 20,
+        expect='an int in 16..1048576'),
     'start_delay_ms': Field(
         'float', 100.0, "The task set's first common release this long after start-up.",
         unit='ms', lo=0, hi=10000, expect='ms in 0..10000'),
@@ -312,7 +320,8 @@ RUNTIME: dict[str, Field] = {
         'scans (about 1.4 kB) never arrive.', unit='bytes', lo=64, hi=65536,
         expect='bytes in 64..65536'),
     'max_ports': Field(
-        'int', 32, 'Port numbers are 0 .. max_ports - 1.', lo=1, hi=1024),
+        'int', 32, 'Port numbers are 0 .. max_ports - 1.', lo=1, hi=1024,
+        expect='an int in 1..1024'),
 }
 
 TASK: dict[str, Field] = {
@@ -326,7 +335,7 @@ TASK: dict[str, Field] = {
         unit='ms', lo=0),
     'priority': Field(
         'int', REQUIRED, 'SCHED_FIFO priority, higher first. Must follow rate-monotonic order; '
-        'above 99 is not a valid FIFO priority.', lo=1, hi=99),
+        'above 99 is not a valid FIFO priority.', lo=1, hi=99, expect='an int in 1..99'),
     'cpu': Field(
         'int', None, 'CPU to pin the task thread to; null: no pinning. A CPU that does not '
         'exist makes start-up fail.', nullable=True, lo=0,
@@ -358,7 +367,7 @@ PORT = Field(
 
 def _dims(description: str, positive: bool = True) -> Field:
     return Field('float', REQUIRED, description, unit='m', lo=0 if positive else None,
-                 lo_open=positive, expect='a finite number' + (' > 0' if positive else ''))
+                 lo_open=positive)
 
 
 def _frame_id(v: Any) -> str | None:
@@ -375,12 +384,11 @@ ROBOT: dict[str, Field] = {
     'body.bottom': _dims('Underside of the body relative to the wheel axle (negative: '
                          'below it).', positive=False),
     'body.mass': Field('float', REQUIRED, 'Whole robot (Table 2: 30); must exceed the two '
-                       'wheels.', unit='kg', lo=0, lo_open=True,
-                       expect='a finite number > 0'),
+                       'wheels.', unit='kg', lo=0, lo_open=True),
     'wheel_width': _dims('Wheel width (radius and track: control.wheel_radius, '
                          'control.track_width).'),
     'wheel_mass': Field('float', REQUIRED, 'Each wheel, part of body.mass.', unit='kg', lo=0,
-                        lo_open=True, expect='a finite number > 0'),
+                        lo_open=True),
     'caster_radius': _dims('Two casters on the centre line; must be smaller than '
                            'control.wheel_radius.'),
     'caster_x': _dims('+-x of the casters from the axle.'),
