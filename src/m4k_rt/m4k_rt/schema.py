@@ -66,6 +66,9 @@ _SCALARS: dict[str, tuple[Callable[[Any], bool], str]] = {
 }
 
 
+_PLURAL = {'int': 'ints', 'float': 'numbers', 'str': 'strings', 'bool': 'booleans'}
+
+
 def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
 
@@ -138,7 +141,8 @@ class Field:
             what = ' or '.join(_SCALARS[t][1] for t in self.item_types)
             if self.is_list:
                 what = 'a list of {}{}'.format(
-                    '{} '.format(self.length) if self.length else '', what)
+                    '{} '.format(self.length) if self.length else '',
+                    ' or '.join(_PLURAL.get(t, t) for t in self.item_types))
         return what + (' or null' if self.nullable else '')
 
     def _in_range(self, v: Any) -> bool:
@@ -418,7 +422,7 @@ def rt_sections() -> list[Section]:
                 'stop_distance; e-stop decelerations not below the normal ones.'),
         Section('robot', 'robot (config/robot.yaml)', ROBOT,
                 'The one source of the URDF, the static transforms and the simulated '
-                "sensors' mounts. Every field is required in the layered configuration."),
+                "sensors' mounts. Every field but name is required in the layered configuration."),
     ]
 
 
