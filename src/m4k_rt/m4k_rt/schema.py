@@ -77,8 +77,8 @@ def _num(x: float) -> str:
 class Field:
     """One setting: type, default, unit, range or choices, and what a wrong value does.
 
-    ``type`` is ``bool``, ``int``, ``float``, ``str``, ``map``, ``any`` or a list of one of
-    them (``float[]``); alternatives are joined with ``|`` (``int|str``). ``lo``/``hi`` bound
+    ``type`` is ``bool``, ``int``, ``float``, ``str``, ``list``, ``map``, ``any`` or a typed
+    list (``float[]``); alternatives are joined with ``|`` (``int|str``). ``lo``/``hi`` bound
     numbers (every element of a list), exclusive when ``lo_open``/``hi_open``. ``expect``
     replaces the generated wording of ``expected <what>, got <value>``; ``check`` adds a test
     of the value that returns the whole message after ``<path>: `` (None when fine).
