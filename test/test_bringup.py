@@ -252,6 +252,20 @@ def test_bridge_started_by_hand_takes_the_derived_values_from_the_layered_config
                    'laser_frame': 'urg_link', 'ports.cmd': 'cmd'}
 
 
+@pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+def test_bringup_gives_the_bridge_the_overlays_command_timeout_and_limits(
+        procs, tmp_path, m4k_runtime_dir):
+    # One source: control.cmd_vel_timeout (and the speed limit) changed in the overlay reach the
+    # running bridge's parameters, with nothing written in an m4k_bridge section.
+    overlay = write_overlay(tmp_path, {'control': {'cmd_vel_timeout': 0.8,
+                                                   'linear': {'max_velocity': 1.25}}})
+    p = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay, extra=['--no-status'])
+    got = _remote_parameters(['cmd_vel_timeout', 'max_linear_velocity'], timeout=60.0)
+    assert got == {'cmd_vel_timeout': 0.8, 'max_linear_velocity': 1.25}
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(40) == 0, (tmp_path / 'bringup.err').read_text()[-2000:]
+
+
 @pytest.mark.parametrize('extra, field', [
     ({'m4k_bridge': {'ros__parameters': {'odom_frame': ''}}}, 'odom_frame'),
     ({'tasks': {'led': {'priority': 120}}}, 'tasks.led.priority'),
