@@ -269,6 +269,9 @@ def test_bringup_gives_the_bridge_the_overlays_command_timeout_and_limits(
 @pytest.mark.parametrize('extra, field', [
     ({'m4k_bridge': {'ros__parameters': {'odom_frame': ''}}}, 'odom_frame'),
     ({'tasks': {'led': {'priority': 120}}}, 'tasks.led.priority'),
+    ({'control': {'linear': {'max_velocity': -1}}}, 'control.linear.max_velocity: must be > 0'),
+    ({'m4k_bridge': {'ros__parameters': {'cmd_vel_timeout': 1.0}}},
+     'derived from control.cmd_vel_timeout'),
 ])
 def test_bringup_refuses_a_bad_overlay_naming_the_field(procs, tmp_path, m4k_runtime_dir,
                                                          extra, field):

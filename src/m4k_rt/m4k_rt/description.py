@@ -34,8 +34,8 @@ WHEEL_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
 _SIM_MOUNTS = {'lrf': 'laser', 'sonar': 'sonar'}
 
 
-class DescriptionError(ValueError):
-    """The robot section (or a URDF text) is wrong; the message names the field."""
+class DescriptionError(schema.ConfigError):
+    """The robot section (or a URDF text) is wrong; ``path`` names the field."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,12 +80,12 @@ class Joint(NamedTuple):
 
 
 def _error(path: str, message: str) -> DescriptionError:
-    return DescriptionError('{}: {}'.format(path, message))
+    return DescriptionError(path, message)
 
 
 def _mapping(v: Any, path: str) -> Mapping[str, Any]:
     if not isinstance(v, Mapping):
-        raise DescriptionError('{}: expected a mapping, got {!r}'.format(path, v))
+        raise DescriptionError(path, 'expected a mapping, got {!r}'.format(v))
     return v
 
 
@@ -109,11 +109,11 @@ def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
     sensors = _mapping(robot.get('sensors'), 'robot.sensors')
     missing = [s for s in SENSORS if s not in sensors]
     if missing:
-        raise DescriptionError('robot.sensors: missing {}'.format(', '.join(missing)))
+        raise DescriptionError('robot.sensors', 'missing {}'.format(', '.join(missing)))
     mounts = {s: _mount(sensors[s], 'robot.sensors.' + s) for s in SENSORS}
     frames = [m.frame for m in mounts.values()] + [base_frame]
     if len(set(frames)) != len(frames):
-        raise DescriptionError('robot.sensors: frame ids must differ from each other and from '
+        raise DescriptionError('robot.sensors', 'frame ids must differ from each other and from '
                                '{!r}, got {!r}'.format(base_frame, frames[:-1]))
     v = schema.validate_tree(schema.ROBOT, robot, 'robot', _error)
     wheel = {k: CONTROL[k].validate('control.' + k, control.get(k, CONTROL[k].default), _error)
@@ -126,10 +126,10 @@ def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
         caster_radius=v['caster_radius'], caster_x=v['caster_x'], sensors=mounts,
         base_frame=base_frame)
     if m.caster_radius >= m.wheel_radius:
-        raise DescriptionError('robot.caster_radius: must be smaller than control.wheel_radius '
+        raise DescriptionError('robot.caster_radius', 'must be smaller than control.wheel_radius '
                                '({}), got {}'.format(m.wheel_radius, m.caster_radius))
     if m.mass <= 2 * m.wheel_mass:
-        raise DescriptionError('robot.body.mass: must exceed the two wheels ({} kg), got {}'
+        raise DescriptionError('robot.body.mass', 'must exceed the two wheels ({} kg), got {}'
                                .format(2 * m.wheel_mass, m.mass))
     return m
 
@@ -254,9 +254,9 @@ def _floats(text: str | None, what: str) -> tuple[float, float, float]:
     try:
         v = tuple(float(x) for x in (text or '0 0 0').split())
     except ValueError:
-        raise DescriptionError('{}: expected three numbers, got {!r}'.format(what, text)) from None
+        raise DescriptionError(what, 'expected three numbers, got {!r}'.format(text)) from None
     if len(v) != 3 or not all(math.isfinite(x) for x in v):
-        raise DescriptionError('{}: expected three finite numbers, got {!r}'.format(what, text))
+        raise DescriptionError(what, 'expected three finite numbers, got {!r}'.format(text))
     return v[0], v[1], v[2]
 
 
@@ -265,9 +265,9 @@ def joints(text: str) -> list[Joint]:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
-        raise DescriptionError('robot_description: not valid XML: {}'.format(exc)) from None
+        raise DescriptionError('robot_description', 'not valid XML: {}'.format(exc)) from None
     if root.tag != 'robot':
-        raise DescriptionError('robot_description: root element must be <robot>, got <{}>'
+        raise DescriptionError('robot_description', 'root element must be <robot>, got <{}>'
                                .format(root.tag))
     links = {e.get('name') for e in root.findall('link')}
     out = []
@@ -275,11 +275,11 @@ def joints(text: str) -> list[Joint]:
         name, kind = j.get('name', ''), j.get('type', '')
         parent, child = j.find('parent'), j.find('child')
         if parent is None or child is None:
-            raise DescriptionError('joint {!r}: needs <parent> and <child>'.format(name))
+            raise DescriptionError('joint {!r}'.format(name), 'needs <parent> and <child>')
         p, c = parent.get('link', ''), child.get('link', '')
         if p not in links or c not in links:
-            raise DescriptionError('joint {!r}: links {!r} -> {!r} are not both defined'.format(
-                name, p, c))
+            raise DescriptionError('joint {!r}'.format(name), 'links {!r} -> {!r} are not both '
+                                   'defined'.format(p, c))
         origin = j.find('origin')
         xyz = _floats(origin.get('xyz') if origin is not None else None, name + ' origin xyz')
         rpy = _floats(origin.get('rpy') if origin is not None else None, name + ' origin rpy')
@@ -300,5 +300,5 @@ def wheel_joints(text: str) -> list[Joint]:
     by_name = {j.name: j for j in joints(text)}
     missing = [n for n in WHEEL_JOINTS if n not in by_name]
     if missing:
-        raise DescriptionError('robot_description: no joint {}'.format(', '.join(missing)))
+        raise DescriptionError('robot_description', 'no joint {}'.format(', '.join(missing)))
     return [by_name[n] for n in WHEEL_JOINTS]

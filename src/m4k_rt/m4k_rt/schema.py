@@ -35,8 +35,9 @@ __all__ = [
 class ConfigError(ValueError):
     """A configuration value is wrong; ``path`` names the field, ``value`` is what was found.
 
-    The one error of the configuration (:mod:`m4k_rt.config` re-exports it; the control
-    section's ``ControlConfigError`` is a subclass).
+    The one error of the configuration (:mod:`m4k_rt.config` re-exports it); the control
+    section's ``ControlConfigError`` and the robot description's ``DescriptionError`` are
+    subclasses, so ``except ConfigError`` catches every configuration mistake of the RT side.
     """
 
     def __init__(self, path: str, message: str, value: Any = None) -> None:

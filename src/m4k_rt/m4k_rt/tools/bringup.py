@@ -47,7 +47,7 @@ import yaml
 
 from m4k_rt import config, rosargs
 from m4k_rt.bridge import params as bridge_params
-from m4k_rt.control.params import control_params, ControlConfigError
+from m4k_rt.control.params import control_params
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
@@ -516,7 +516,7 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         cfg = config.load(overlay)
         doc = config.load_layered(overlay)
         control_params(doc.get('control'))   # the RT actuator's check, before any child runs
-    except (config.ConfigError, ControlConfigError) as exc:
+    except config.ConfigError as exc:   # ControlConfigError included
         _err('config error: {}'.format(exc))
         return CONFIG_ERROR
     try:
