@@ -458,7 +458,7 @@ def markdown(sections: Sequence[Section], preamble: str = '') -> str:
             desc = f.description
             if f.read_only:
                 desc += ' (read-only)'
-            if f.derived_from:
+            if f.derived_from and 'Derived' not in desc:
                 desc += ' Derived from `{}`.'.format(f.derived_from)
             typ = f.type + (' or null' if f.nullable else '')
             out.append('| {} | {} | {} | {} | {} | {} |'.format(

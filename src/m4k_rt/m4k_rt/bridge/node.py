@@ -83,8 +83,8 @@ def _descriptor(f: Field) -> ParameterDescriptor:
     text = f.description
     if f.unit:
         text += ' Unit: {}.'.format(f.unit)
-    if f.derived_from:
-        text += ' Default derived from {} of the layered configuration.'.format(f.derived_from)
+    if f.derived_from and 'Derived' not in text:
+        text += ' Derived from {} of the layered configuration.'.format(f.derived_from)
     d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
                             read_only=f.read_only)
     if f.lo is not None and f.hi is not None:
