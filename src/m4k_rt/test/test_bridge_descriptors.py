@@ -37,7 +37,7 @@ def test_descriptors_carry_the_schema_range_unit_read_only_and_source(bridge):
     assert 'Unit: s.' in timeout.description and 'control.cmd_vel_timeout' in timeout.description
     assert not timeout.read_only
     port = by_name['ports.cmd']
-    assert port.read_only and 'ports.cmd' in port.description
+    assert port.read_only and "the label 'cmd' of the ports section" in port.description
     cov = by_name['odom_pose_covariance_diagonal']
     assert '6 elements' in cov.additional_constraints and 'within [0.0' in \
         cov.additional_constraints
