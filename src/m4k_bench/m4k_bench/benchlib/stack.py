@@ -295,7 +295,10 @@ def ros_commander(stop: threading.Event, *, topic: str = 'cmd_vel',
     from rclpy.context import Context
 
     ctx = Context()
-    rclpy.init(context=ctx)
+    # Not this process's command line (rclpy's default): launch arguments given to the tool
+    # (a namespace, a node name) are not the stack's, and would move cmd_vel and odom away
+    # from the stack the tool started.
+    rclpy.init(context=ctx, args=[])
     node = rclpy.create_node('m4k_bench_commander', context=ctx)
     pub = node.create_publisher(Twist, topic, 10)
     start = time.monotonic() if t0 is None else t0
