@@ -283,11 +283,13 @@ def _apply_overrides(devices: dict[str, Any], args: argparse.Namespace) -> dict[
         return devices
     out = {k: dict(devices.get(k) or {'backend': 'sim'}) for k in args.device}
     for kind, section in out.items():
-        spec = registry.service(kind)
         path: str | int | None = args.port
-        if spec.bus_arg and args.bus is not None:
+        # Only a device path asks the kind's service (which field it sets): a kind whose
+        # package does not load is reported by the validation below, naming the field.
+        spec = registry.service(kind) if args.port or args.bus is not None else None
+        if spec is not None and spec.bus_arg and args.bus is not None:
             path = int(args.bus) if args.bus.isdigit() else args.bus
-        if path is not None:
+        if spec is not None and path is not None:
             section = {k: v for k, v in section.items()
                        if k in registry.COMMON_KEYS} | {spec.path_key: path}
             section['backend'] = 'real'
@@ -349,10 +351,12 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
         raw = load_raw_config(args.config, args.overlay)
         devices = _apply_overrides(raw.get('devices') or {}, args)
         cfg = dconfig.validate({'devices': devices, 'world': raw.get('world') or {}})
+        enabled = [kind for kind, section in cfg.devices.items() if section['enabled']]
+        for kind in enabled:
+            registry.service(kind)          # a kind with backends but no service: refused
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2
-    enabled = [kind for kind, section in cfg.devices.items() if section['enabled']]
     if args.print_mode and len(enabled) != 1:
         print('driver_host: --print needs exactly one enabled --device', file=sys.stderr)
         return 2
