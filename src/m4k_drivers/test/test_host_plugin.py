@@ -166,3 +166,35 @@ def test_a_device_module_that_does_not_import_is_a_usage_error(procs):
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 2
     assert re.search(r"driver_host: cannot import device module 'no_such_dev': No module", err)
+
+
+def test_a_reply_the_wire_cannot_carry_is_counted_and_the_service_goes_on(m4k_runtime_dir,
+                                                                         tmp_path):
+    import threading
+
+    import toy_device  # noqa: F401 -- registers kind toy in this process
+
+    from m4k_drivers import config as dconfig
+    from m4k_drivers.handler import State
+    cfg_path, reg = _config(tmp_path, 22)
+    section = dconfig.validate(dconfig.load_file(cfg_path)).devices['toy']
+    handler = registry.create('toy', section, registry.BuildContext())
+    stop = threading.Event()
+    rt = rt_xddp_bind(22, runtime_dir=m4k_runtime_dir)
+    svc = host.DeviceService('toy', handler, section, 22, stop, m4k_runtime_dir)
+    svc.start()
+    try:
+        _wait(rt.poll_peer, 10, 'link')
+        _wait(lambda: handler.state == State.ACTIVE, what='active')
+        reg.write_text(f'{2 ** 40}\n')            # a value REQUEST.arg (u32) cannot carry
+        rt.send(protocol.encode(K.REQUEST, 1, time.monotonic_ns(), 1, 0))
+        _wait(lambda: svc.encode_errors == 1, what='encode error counted')
+        rt.send(protocol.encode(K.REQUEST, 2, time.monotonic_ns(), 2, 5))
+        assert _recv(rt, K.REQUEST) == protocol.Request(2, 5)
+        assert svc.thread.is_alive() and svc.served == 2
+        assert handler.ticks > 0                   # the spec's tick ran while active
+    finally:
+        stop.set()
+        svc.thread.join(5)
+        rt.close()
+    assert handler.state == State.FINALIZED and reg.read_text() == '0\n'

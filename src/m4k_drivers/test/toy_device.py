@@ -3,10 +3,11 @@
 Kind ``toy``: a one-register output whose register is a file (the ``real`` backend's
 ``path``), standing in for a sysfs attribute.  The package registers, like every built-in
 device, its backend and the service that answers the RT side -- nothing in the driver host
-names it.  The service takes REQUEST(request_id, arg): it writes ``arg`` to the register, reads
-it back and answers REQUEST(request_id, value read); each loop pass while active counts a tick;
-when the RT side goes away the register goes to 0 at once (outputs safe), and deactivate does
-the same.  ``driver_host --device-module toy_device`` loads it.
+names it.  The service takes REQUEST(request_id, arg): it writes ``arg`` to the register
+(arg 0: read only), reads it back and answers REQUEST(request_id, value read); each loop pass
+while active counts a tick; when the RT side goes away the register goes to 0 at once
+(outputs safe), and deactivate does the same.  ``driver_host --device-module toy_device``
+loads it.
 """
 
 from __future__ import annotations
@@ -95,7 +96,8 @@ def _build(name: str, params: dict[str, Any], ctx: BuildContext) -> ToyHandler:
 def serve(handler: ToyHandler, msg: Any, tx: Replier) -> None:
     if handler.state != State.ACTIVE:
         return
-    handler.write(msg.arg)
+    if msg.arg:
+        handler.write(msg.arg)
     r = handler.read()
     if r.error is None:
         tx.send(Kind.REQUEST, msg.request_id, r.value)
