@@ -11,6 +11,8 @@ import os
 import re
 import time
 
+from rt_side import recv_kind, wait_linked
+
 from m4k_drivers import host, registry
 from m4k_rt import protocol
 from m4k_rt.xddp import rt_xddp_bind
@@ -93,19 +95,6 @@ def _config(tmp_path, port):
     return str(cfg), reg
 
 
-def _recv(rt, kind, timeout=10.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        data = rt.recv()
-        if data is None:
-            time.sleep(0.005)
-            continue
-        hdr, msg = protocol.decode(data)
-        if hdr.kind == kind:
-            return msg
-    raise AssertionError(f'no {kind!r} within {timeout} s')
-
-
 def _wait(pred, timeout=10.0, what='condition'):
     deadline = time.monotonic() + timeout
     while not pred():
@@ -119,25 +108,25 @@ def test_a_device_from_outside_is_served_end_to_end(procs, m4k_runtime_dir, tmp_
     proc = procs.start(['python', '-m', 'm4k_drivers.host', '--device-module', 'toy_device',
                         '--config', cfg], env=_env())
     try:
-        _wait(rt.poll_peer, 30, 'link')
-        status = _recv(rt, K.DEVICE_STATUS)
+        wait_linked(rt, 30)
+        status = recv_kind(rt, K.DEVICE_STATUS)
         assert status.device == 'toy' and status.state == protocol.DeviceState.ACTIVE
         assert reg.read_text() == '0\n'           # configure: register at the safe value
         rt.send(protocol.encode(K.REQUEST, 1, time.monotonic_ns(), 41, 1234))
-        reply = _recv(rt, K.REQUEST)
+        reply = recv_kind(rt, K.REQUEST)
         assert reply == protocol.Request(41, 1234) and reg.read_text() == '1234\n'
         # A kind the service does not take is dropped: no reply, register untouched.
         rt.send(protocol.encode(K.LED, 2, time.monotonic_ns(), 1, 2, 3, 4, 0))
         rt.send(protocol.encode(K.REQUEST, 3, time.monotonic_ns(), 42, 99))
-        assert _recv(rt, K.REQUEST) == protocol.Request(42, 99)
+        assert recv_kind(rt, K.REQUEST) == protocol.Request(42, 99)
         # The RT side goes away: the link-loss hook makes the output safe at once.
         rt.close()
         _wait(lambda: reg.read_text() == '0\n', what='safe register after RT loss')
         reg.write_text('5\n')
         rt = rt_xddp_bind(20, runtime_dir=m4k_runtime_dir)
-        _wait(rt.poll_peer, 30, 'relink')
+        wait_linked(rt, 30)
         rt.send(protocol.encode(K.REQUEST, 4, time.monotonic_ns(), 43, 77))
-        assert _recv(rt, K.REQUEST) == protocol.Request(43, 77)
+        assert recv_kind(rt, K.REQUEST) == protocol.Request(43, 77)
         assert procs.stop(proc) == 0
     finally:
         procs.stop(proc)
@@ -184,13 +173,13 @@ def test_a_reply_the_wire_cannot_carry_is_counted_and_the_service_goes_on(m4k_ru
     svc = host.DeviceService('toy', handler, section, 22, stop, m4k_runtime_dir)
     svc.start()
     try:
-        _wait(rt.poll_peer, 10, 'link')
+        wait_linked(rt, 10)
         _wait(lambda: handler.state == State.ACTIVE, what='active')
         reg.write_text(f'{2 ** 40}\n')            # a value REQUEST.arg (u32) cannot carry
         rt.send(protocol.encode(K.REQUEST, 1, time.monotonic_ns(), 1, 0))
         _wait(lambda: svc.encode_errors == 1, what='encode error counted')
         rt.send(protocol.encode(K.REQUEST, 2, time.monotonic_ns(), 2, 5))
-        assert _recv(rt, K.REQUEST) == protocol.Request(2, 5)
+        assert recv_kind(rt, K.REQUEST) == protocol.Request(2, 5)
         assert svc.thread.is_alive() and svc.served == 2
         assert handler.ticks > 0                   # the spec's tick ran while active
     finally:
