@@ -26,8 +26,9 @@ def serve(handler: LrfHandler, msg: Any, tx: Replier) -> None:
         return
     v = r.value
     g = v.geometry
+    # tolist(): Python ints in one C loop (a third of the cost of a per-value int()).
     tx.send(Kind.LASER_SCAN, g.angle_min, g.angle_increment, g.range_min, g.range_max,
-            g.scan_time, g.time_increment, v.device_stamp, [int(x) for x in v.ranges_mm],
+            g.scan_time, g.time_increment, v.device_stamp, v.ranges_mm.tolist(),
             stamp_ns=v.stamp_ns)
 
 
