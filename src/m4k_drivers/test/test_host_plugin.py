@@ -7,10 +7,13 @@ on a real XDDP port; the register file is the device's ground truth.
 """
 
 import ast
+import importlib
 import os
 import re
+import sys
 import time
 
+import pytest
 from rt_side import recv_kind, wait_linked
 
 from m4k_drivers import host, registry
@@ -157,11 +160,21 @@ def test_a_device_module_that_does_not_import_is_a_usage_error(procs):
     assert re.search(r"driver_host: cannot import device module 'no_such_dev': No module", err)
 
 
-def test_a_reply_the_wire_cannot_carry_is_counted_and_the_service_goes_on(m4k_runtime_dir,
-                                                                         tmp_path):
-    import threading
+@pytest.fixture
+def toy_kind(monkeypatch):
+    """Register kind ``toy`` in this process for one test; the registry is restored after."""
+    for name, copy in (('KIND_MODULES', dict), ('_BACKENDS', dict), ('_SERVICES', dict),
+                       ('_LOADED', set)):
+        monkeypatch.setattr(registry, name, copy(getattr(registry, name)))
+    sys.modules.pop('toy_device', None)
+    importlib.import_module('toy_device')
+    yield 'toy'
+    sys.modules.pop('toy_device', None)
 
-    import toy_device  # noqa: F401 -- registers kind toy in this process
+
+def test_a_reply_the_wire_cannot_carry_is_counted_and_the_service_goes_on(
+        toy_kind, m4k_runtime_dir, tmp_path):
+    import threading
 
     from m4k_drivers import config as dconfig
     from m4k_drivers.handler import State
@@ -187,3 +200,7 @@ def test_a_reply_the_wire_cannot_carry_is_counted_and_the_service_goes_on(m4k_ru
         svc.thread.join(5)
         rt.close()
     assert handler.state == State.FINALIZED and reg.read_text() == '0\n'
+
+
+def test_the_toy_kind_is_gone_after_its_test():
+    assert 'toy' not in registry.kinds()
