@@ -28,6 +28,7 @@ from __future__ import annotations
 import enum
 import errno as errno_mod
 import logging
+import math
 import os
 import time
 from typing import Any, Callable, NamedTuple, TypeVar
@@ -130,10 +131,20 @@ class RetryPolicy(NamedTuple):
     factor: float = 2.0
     max_s: float = 1.0
 
+    def delay(self, k: int) -> float:
+        """Return the sleep after failed attempt ``k`` (0-based), for any k.
+
+        ``factor ** k`` overflows a float at k = 1024 (factor 2): capped before it is formed.
+        """
+        if self.factor <= 1.0 or self.base_s <= 0.0:
+            return min(self.base_s, self.max_s)
+        # Smallest k at which base * factor**k reaches max_s; beyond it the delay is max_s.
+        k_max = math.ceil(math.log(max(self.max_s / self.base_s, 1.0), self.factor))
+        return min(self.base_s * self.factor ** min(k, k_max), self.max_s)
+
     def delays(self) -> list[float]:
         """Return the sleeps between attempts (one fewer than attempts)."""
-        return [min(self.base_s * self.factor ** k, self.max_s)
-                for k in range(max(self.attempts - 1, 0))]
+        return [self.delay(k) for k in range(max(self.attempts - 1, 0))]
 
 
 def retry(fn: Callable[[], T], policy: RetryPolicy, *,

@@ -42,7 +42,8 @@ __all__ = ['DEVICE_MODULES_ENV', 'DeviceService', 'format_reading', 'load_raw_co
 
 LOG = logging.getLogger('m4k_drivers.host')
 
-BRINGUP_BACKOFF = RetryPolicy(attempts=1_000_000, base_s=0.5, factor=2.0, max_s=10.0)
+# Bring-up retries for as long as the host runs: 0.5 s, 1 s, 2 s, ... then every 10 s.
+BRINGUP_BACKOFF = RetryPolicy(attempts=0, base_s=0.5, factor=2.0, max_s=10.0)
 DEVICE_MODULES_ENV = 'M4K_DEVICE_MODULES'
 
 
@@ -133,8 +134,7 @@ class DeviceService:
             self._attempt = 0
             LOG.info('%s: active', h.name)
         except DriverError as exc:
-            delays = BRINGUP_BACKOFF.delays()
-            delay = delays[min(self._attempt, len(delays) - 1)]
+            delay = BRINGUP_BACKOFF.delay(self._attempt)
             self._attempt += 1
             self._retry_at = time.monotonic() + delay
             LOG.error('%s: bring-up failed (retry in %.1f s): %s', h.name, delay, exc)

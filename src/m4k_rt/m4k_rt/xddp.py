@@ -339,12 +339,13 @@ class RtXddpSocket:
             if self._peer is not None and self._ppoll.poll(0):
                 self._drop_peer()  # hung up: let the new opener replace it right away
             if self._peer is not None:
+                # Counted before the opener is told: whoever sees XddpBusyError sees the count.
+                self.counters.busy_rejects += 1
                 try:
                     conn.send(HANDSHAKE_BUSY, _SEND_FLAGS)
                 except OSError:
                     pass
                 conn.close()
-                self.counters.busy_rejects += 1
                 continue
             try:
                 conn.setblocking(False)
