@@ -282,3 +282,16 @@ def test_point_memory_forgets_old_scans_but_keeps_the_newest():
     mem.clear()
     assert len(mem.points(0.0)) == 0
     assert len(voxel_downsample(np.array([[0.0, 0.0], [0.001, 0.0]]), 0.05)) == 1
+
+
+def test_old_odometry_brakes_earlier_for_the_goal():
+    # The same state seen through stale odometry: the robot has already gone on for ``age``
+    # at its speed, so the planner must slow down sooner (no overshoot on a loaded machine).
+    def v_at(age):
+        planner = DwaPlanner()
+        planner.set_goal(0.2, 0.0)
+        return planner.plan(0.0, (0.0, 0.0, 0.0), (0.25, 0.0), np.empty((0, 2)), age=age).v
+
+    fresh, stale = v_at(0.0), v_at(0.4)
+    assert stale < fresh
+    assert v_at(float('nan')) == fresh and v_at(-1.0) == fresh   # nonsense ages count as 0

@@ -287,6 +287,7 @@ class DwaPlanner:
         self.cfg = config or DwaConfig()
         self.goal: tuple[float, float] | None = None
         self.recoveries = 0
+        self._age = 0.0
         self._vel_hist: deque[tuple[float, float]] = deque(maxlen=3)
         self._reset_motion()
 
@@ -314,9 +315,15 @@ class DwaPlanner:
 
     # -- one control period -----------------------------------------------------------------
     def plan(self, t: float, pose: Sequence[float], velocity: Sequence[float],
-             points: np.ndarray) -> Plan:
-        """Return the command for this period from the odom pose, measured (v, w) and points."""
+             points: np.ndarray, age: float = 0.0) -> Plan:
+        """Return the command for this period from the odom pose, measured (v, w) and points.
+
+        ``age`` (s) is how old the pose and velocity already are (odometry stamp to now): on a
+        loaded machine it grows to hundreds of ms, and the robot has gone on that long at its
+        speed. It is added to ``latency`` when braking for the goal.
+        """
         cfg = self.cfg
+        self._age = min(max(float(age), 0.0), 1.0) if math.isfinite(age) else 0.0
         x, y, yaw = _finite_pose(pose, 'pose')
         try:
             v0, w0 = (float(v) for v in velocity)
@@ -420,8 +427,8 @@ class DwaPlanner:
         # Brake for the goal: no faster than what stops within the remaining distance (aiming
         # at half the tolerance), unless the window cannot slow down that much yet.
         v_goal = math.sqrt(2.0 * cfg.goal_brake * cfg.acc_v
-                           * max(gd - 0.5 * cfg.goal_tolerance - abs(start[0]) * cfg.latency,
-                                 0.0))
+                           * max(gd - 0.5 * cfg.goal_tolerance
+                                 - abs(start[0]) * (cfg.latency + self._age), 0.0))
         ok &= targets[:, 0] <= max(v_goal, float(targets[:, 0].min())) + 1e-9
         n_ok = int(ok.sum())
         if n_ok == 0:

@@ -252,9 +252,12 @@ class PlannerNode(Node):
         elif now - self._scan_mono > self.scan_timeout:
             state = 'waiting_scan'
         else:
-            x, y, yaw = self._odom[-1][1:]
+            stamp, x, y, yaw = self._odom[-1]
+            # How old the odometry is now (bridge, DDS and this executor in between).
+            age = (self.get_clock().now().nanoseconds - stamp) * 1e-9
             try:
-                plan = self.planner.plan(now, (x, y, yaw), self._vel, self.memory.points(now))
+                plan = self.planner.plan(now, (x, y, yaw), self._vel, self.memory.points(now),
+                                         age=age)
             except DwaError as exc:
                 self.errors += 1
                 self.get_logger().warn(f'planning failed, stopping: {exc}',
