@@ -125,6 +125,13 @@ def test_a_pure_protocol_module_loads_no_transport_and_no_ros(module, tmp_path):
     assert bad == [], f'{module} loads {bad}'
 
 
+def test_the_laser_package_loads_pyserial_only_through_its_backends(tmp_path):
+    # The registry imports m4k_drivers.lrf.backends; the package itself stays transport-free.
+    loaded = _loaded_by(['m4k_drivers.lrf', 'm4k_drivers.lrf.backends'], tmp_path)
+    assert not [n for n in loaded['m4k_drivers.lrf'] if _is_transport(n) or _is_ros(n)]
+    assert 'serial' in loaded['m4k_drivers.lrf.backends']
+
+
 # The bridge's pure modules and what each must not load.
 _BRIDGE_PURE = {'m4k_rt.bridge.health': _is_ros, 'm4k_rt.bridge.diagnostics': _is_ros_runtime}
 

@@ -1,53 +1,50 @@
 """driver_host: the NRT process serving every configured device to the RT process over XDDP.
 
-One thread per device (SCHED_OTHER): it brings the handler up (configure + activate, retried
-with exponential backoff while the device is missing), links its XDDP port with
-:class:`m4k_rt.xddp.NrtLink` and serves it (docs/internals.md, "Ports"):
-
-* motor  WHEEL_CMD -> DACs, then encoders -> ENCODERS; watchdog -> outputs safe
-* imu    REQUEST -> IMU (or a stream at ``rate_hz`` when ``stream: true``)
-* sonar  REQUEST -> one ping -> SONAR
-* led    LED -> strip
-* lrf    REQUEST -> LASER_SCAN (handler from m4k_drivers.lrf, loaded lazily)
-
-plus DEVICE_STATUS on every state change and every second.  When the RT side goes away the
-host keeps running and relinks; the motors are made safe at once.  SIGINT/SIGTERM deactivate
+One thread per device: it brings the handler up (configure + activate, retried with
+exponential backoff while the device is missing), links its XDDP port with
+:class:`m4k_rt.xddp.NrtLink` and serves it (docs/internals.md, "Ports").  How a device is
+served -- which datagram kinds it takes, the reply it sends, its stream rate, its watchdog and
+link-loss behaviour, its ``--print`` line -- is the :class:`m4k_drivers.registry.ServiceSpec`
+its own package registers next to its backends (e.g. :mod:`m4k_drivers.motors.service`); this
+module is the plumbing around those specs and names no device.  It sends DEVICE_STATUS on every
+state change and every second.  When the RT side goes away the host keeps running, relinks,
+and runs the device's link-loss hook (the motors go safe at once).  SIGINT/SIGTERM deactivate
 every device (motors at zero), clean up and exit 0.
 
 Bring-up without an RT process: ``driver_host --device imu --print`` prints decoded readings;
 ``--port``/``--bus`` select a real device path (and the ``real`` backend), e.g.
 ``driver_host --device lrf --port /dev/ttyACM0 --print``.  Wheel direction check on the real
 robot (on blocks): ``driver_host --device motor --jog left 0.1 --duration 2``
-(:mod:`m4k_drivers.motors.jog`; docs/real-robot.md).
+(:mod:`m4k_drivers.motors.jog`; docs/real-robot.md).  A device kind from outside this package
+is loaded with ``--device-module MOD`` (also ``$M4K_DEVICE_MODULES``, comma-separated).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
-import math
+import os
 import sys
 import threading
 import time
-from typing import Any, cast, TextIO, TYPE_CHECKING
+from typing import Any, Sequence, TextIO
 
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
-from m4k_rt import description, rosargs
+from m4k_rt import description, protocol, rosargs
+from m4k_rt.sched import SchedError, set_thread_fifo
 from m4k_rt.stopsignals import run_stoppable, StopSignals
+from m4k_rt.xddp import NrtLink
 
-if TYPE_CHECKING:  # pragma: no cover -- the host imports device packages on demand
-    from m4k_drivers.motors.handler import MotorHandler
-
-__all__ = ['DeviceService', 'format_reading', 'load_raw_config', 'main']
+__all__ = ['DEVICE_MODULES_ENV', 'DeviceService', 'format_reading', 'load_raw_config', 'main']
 
 LOG = logging.getLogger('m4k_drivers.host')
 
-# Which config field ``--port`` / ``--bus`` sets for each device kind.
-PATH_KEYS = {'lrf': 'port', 'imu': 'bus', 'sonar': 'chip', 'led': 'name'}
 # Bring-up retries for as long as the host runs: 0.5 s, 1 s, 2 s, ... then every 10 s.
 BRINGUP_BACKOFF = RetryPolicy(attempts=0, base_s=0.5, factor=2.0, max_s=10.0)
+DEVICE_MODULES_ENV = 'M4K_DEVICE_MODULES'
 
 
 def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict[str, Any]:
@@ -71,12 +68,18 @@ def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict
 
 
 class DeviceService:
-    """Serve one device handler on its XDDP port from a thread of its own."""
+    """Serve one device handler on its XDDP port from a thread of its own.
+
+    ``kind``'s :class:`~m4k_drivers.registry.ServiceSpec` says how; this class is the loop:
+    bring-up with backoff, (re)linking, decoding, DEVICE_STATUS, and the spec's hooks.  It is
+    the spec's :class:`~m4k_drivers.registry.Replier` (:meth:`send`).
+    """
 
     def __init__(self, kind: str, handler: DeviceHandler, section: dict[str, Any],
                  port: int | str, stop: threading.Event, runtime_dir: str | None = None,
                  status_period_s: float = 1.0) -> None:
         self.kind = kind
+        self.spec = registry.service(kind)
         self.handler = handler
         self.section = section
         self.port = port
@@ -88,13 +91,13 @@ class DeviceService:
         self.malformed = 0
         self.unexpected = 0
         self.served = 0
+        self.encode_errors = 0
         self._status_state: tuple[int, int] | None = None
         self._status_due = 0.0
         self._retry_at = 0.0
         self._attempt = 0
         self._lost_seen = 0
         self._links_seen = 0
-        self._scan_buf = bytearray(4096)
         self.thread = threading.Thread(target=self.run, name=f'm4k-{kind}', daemon=True)
 
     # -- plumbing -------------------------------------------------------------------------
@@ -102,15 +105,13 @@ class DeviceService:
         """Start the service thread."""
         self.thread.start()
 
-    def _send(self, kind: int, *fields: Any, stamp_ns: int | None = None) -> bool:
+    def send(self, kind: int, *fields: Any, stamp_ns: int | None = None) -> bool:
         """Send one datagram, stamped with the sample time when known, else now."""
-        from m4k_rt import protocol
         self.seq = (self.seq + 1) & 0xFFFFFFFF
         stamp = time.monotonic_ns() if stamp_ns is None else stamp_ns
-        return self.link.write(protocol.encode(kind, self.seq, stamp, *fields))
+        return bool(self.link.write(protocol.encode(kind, self.seq, stamp, *fields)))
 
     def _send_status(self, force: bool = False) -> None:
-        from m4k_rt import protocol
         h = self.handler
         now = time.monotonic()
         key = (int(h.state), h.status_level())
@@ -118,8 +119,8 @@ class DeviceService:
             return
         self._status_state = key
         self._status_due = now + self.status_period_s
-        self._send(protocol.Kind.DEVICE_STATUS, h.name[:16], int(h.state), h.status_level(),
-                   h.faults & 0xFFFFFFFF, int(h.last_error))
+        self.send(protocol.Kind.DEVICE_STATUS, h.name[:16], int(h.state), h.status_level(),
+                  h.faults & 0xFFFFFFFF, int(h.last_error))
 
     def _bring_up(self) -> None:
         """Configure + activate when due; on failure schedule the next try with backoff."""
@@ -138,20 +139,13 @@ class DeviceService:
             self._retry_at = time.monotonic() + delay
             LOG.error('%s: bring-up failed (retry in %.1f s): %s', h.name, delay, exc)
 
-    def _timeout(self) -> float:
-        if self.kind == 'motor':
-            return float(self.section.get('period_s', 0.01))
-        if self.kind == 'imu' and self.section.get('stream'):
-            return 1.0 / float(self.section.get('rate_hz', 100.0))
-        return 0.1
-
     def _set_priority(self) -> None:
-        # The motor service feeds the amplifier-enable heartbeat: starved by other load for
-        # longer than the monostable's hold, it would drop the motors of a live stack.
+        # A device that feeds a heartbeat (the motors' amplifier enable) asks for SCHED_FIFO:
+        # starved by other load for longer than the monostable's hold, it would drop the
+        # motors of a live stack.
         prio = int(self.section.get('sched_priority') or 0)
         if prio <= 0:
             return
-        from m4k_rt.sched import SchedError, set_thread_fifo
         try:
             set_thread_fifo(prio)
         except (SchedError, ValueError) as exc:
@@ -159,14 +153,16 @@ class DeviceService:
 
     def run(self) -> None:
         """Serve until the stop event is set, then deactivate and clean up."""
-        from m4k_rt.xddp import NrtLink
+        spec, h = self.spec, self.handler
+        timeout = spec.read_timeout(self.section)
+        stream = spec.stream_period(self.section)
         self._set_priority()
         self.link = NrtLink(self.port, self.runtime_dir)
         next_stream = time.monotonic()
         try:
             while not self.stop.is_set():
                 self._bring_up()
-                data = self.link.read(self._timeout())
+                data = self.link.read(timeout)
                 if self.link.lost != self._lost_seen:        # RT side went away
                     self._lost_seen = self.link.lost
                     self._on_link_lost()
@@ -174,134 +170,59 @@ class DeviceService:
                     self._links_seen = self.link.links
                     self._status_state = None
                     # Timestamped evidence for the fault tests (re-link time after a restart).
-                    LOG.info('%s: linked to the RT side (link %d)', self.handler.name,
-                             self.link.links)
+                    LOG.info('%s: linked to the RT side (link %d)', h.name, self.link.links)
                 if data is not None:
                     self._dispatch(data)
-                if self.kind == 'motor' and self.handler.state == State.ACTIVE:
-                    self.handler.poll_watchdog()              # type: ignore[attr-defined]
-                if self.kind == 'imu' and self.section.get('stream'):
+                if spec.tick is not None and h.state == State.ACTIVE:
+                    spec.tick(h)
+                if stream is not None:
                     now = time.monotonic()
                     if now >= next_stream:
-                        next_stream = now + 1.0 / float(self.section.get('rate_hz', 100.0))
-                        self._serve_imu(None)
+                        next_stream = now + stream
+                        self._serve(None)
                 self._send_status()
         except Exception:  # noqa: BLE001 - a bug must not leave the motors running
-            LOG.exception('%s: service crashed; making outputs safe', self.handler.name)
+            LOG.exception('%s: service crashed; making outputs safe', h.name)
         finally:
-            self.handler.shutdown()
+            h.shutdown()
             self.link.close()
 
     def _on_link_lost(self) -> None:
-        LOG.warning('%s: RT side gone, relinking', self.handler.name)
-        if self.kind == 'motor' and self.handler.state == State.ACTIVE:
+        h = self.handler
+        LOG.warning('%s: RT side gone, relinking', h.name)
+        if self.spec.on_link_lost is not None and h.state == State.ACTIVE:
             try:
-                self.handler.make_safe()                      # type: ignore[attr-defined]
+                self.spec.on_link_lost(h)
             except DriverError as exc:
-                self.handler.record_fault(exc)
+                h.record_fault(exc)
         self._status_state = None
 
     # -- serving --------------------------------------------------------------------------
     def _dispatch(self, data: bytes) -> None:
-        from m4k_rt import protocol
         try:
             hdr, msg = protocol.decode(data)
         except protocol.ProtocolError:
             self.malformed += 1
             return
-        expected = {'motor': protocol.Kind.WHEEL_CMD, 'led': protocol.Kind.LED}.get(
-            self.kind, protocol.Kind.REQUEST)
-        if hdr.kind != expected:
+        if hdr.kind not in self.spec.accepts:
             self.unexpected += 1
             return
         self.served += 1
-        getattr(self, f'_serve_{self.kind}')(msg)
+        self._serve(msg)
 
-    def _serve_motor(self, msg: Any) -> None:
-        from m4k_drivers.motors import WheelCommand
-        from m4k_rt import protocol
-        if self.handler.state != State.ACTIVE:
-            return
-        self.handler.write(WheelCommand(msg.left_code, msg.right_code, msg.enable))
-        r = self.handler.read()
-        if r.status == Status.OK:
-            v = r.value
-            self._send(protocol.Kind.ENCODERS, v.left_raw, v.right_raw, v.left_angle,
-                       v.right_angle, v.status, stamp_ns=v.t_ns)
-
-    def _serve_imu(self, msg: Any) -> None:
-        from m4k_rt import protocol
-        if self.handler.state != State.ACTIVE:
-            return
-        r = self.handler.read()
-        if r.status == Status.OK:
-            s = r.value
-            self._send(protocol.Kind.IMU, *s.orientation, *s.angular_velocity,
-                       *s.linear_acceleration, s.status)
-
-    def _serve_sonar(self, msg: Any) -> None:
-        from m4k_rt import protocol
-        r = self.handler.read() if self.handler.state == State.ACTIVE else None
-        if r is None or r.status != Status.OK:
-            self._send(protocol.Kind.SONAR, 0.0, protocol.SONAR_FAULT)
-            return
-        rng = r.value.range_m
-        self._send(protocol.Kind.SONAR, rng if math.isfinite(rng) else 0.0, r.value.status)
-
-    def _serve_led(self, msg: Any) -> None:
-        if self.handler.state == State.ACTIVE:
-            self.handler.write((msg.r, msg.g, msg.b, msg.brightness))
-
-    def _serve_lrf(self, msg: Any) -> None:
-        from m4k_rt import protocol
-        if self.handler.state != State.ACTIVE:
-            return
-        r = self.handler.read()
-        if r.status != Status.OK:
-            return
-        g = r.value.geometry
-        self.seq = (self.seq + 1) & 0xFFFFFFFF
+    def _serve(self, msg: Any) -> None:
         try:
-            n = protocol.encode_scan_into(
-                # Stamped at acquisition (the sensor's clock mapped onto ours), not now.
-                self._scan_buf, 0, self.seq, r.value.stamp_ns, g.angle_min,
-                g.angle_increment, g.range_min, g.range_max, g.scan_time, g.time_increment,
-                r.value.device_stamp, [int(x) for x in r.value.ranges_mm])
-        except protocol.ProtocolError as exc:
-            LOG.error('lrf: cannot encode scan: %s', exc)
-            return
-        self.link.write(memoryview(self._scan_buf)[:n])
+            self.spec.serve(self.handler, msg, self)
+        except protocol.ProtocolError as exc:     # a reading the wire cannot carry: dropped
+            self.encode_errors += 1
+            LOG.error('%s: cannot encode the reply: %s', self.handler.name, exc)
 
 
 # -- console bring-up --------------------------------------------------------------------
 def format_reading(kind: str, value: Any) -> str:
-    """Return one console line for a decoded reading."""
-    if kind == 'imu':
-        r, p, y = (math.degrees(a) for a in value.rpy)
-        g, a = value.angular_velocity, value.linear_acceleration
-        return (f'imu rpy=({r:+7.2f},{p:+7.2f},{y:+7.2f}) deg '
-                f'gyro=({g[0]:+.4f},{g[1]:+.4f},{g[2]:+.4f}) rad/s '
-                f'acc=({a[0]:+.3f},{a[1]:+.3f},{a[2]:+.3f}) m/s^2 '
-                f'T={value.temperature:.1f}C status={value.status}')
-    if kind == 'sonar':
-        names = {0: 'ok', 1: 'no echo', 2: 'timeout', 3: 'invalid'}
-        return f'sonar range={value.range_m:.3f} m status={value.status} ' \
-               f'({names.get(value.status, "?")})'
-    if kind == 'motor':
-        return (f'motor raw=({value.left_raw},{value.right_raw}) '
-                f'angle=({value.left_angle:+.4f},{value.right_angle:+.4f}) rad '
-                f'status=0x{value.status:02x}')
-    if kind == 'led':
-        from m4k_drivers.led.protocol import to_hex
-        return f'led shown={to_hex(value)}'
-    if kind == 'lrf':
-        ranges = [int(x) for x in value.ranges_mm]
-        valid = [x for x in ranges if x >= 20]
-        front = ranges[len(ranges) // 2] if ranges else 0
-        return (f'lrf seq={value.seq} n={len(ranges)} valid={len(valid)} '
-                f'min={min(valid, default=0) / 1000:.3f} m front={front / 1000:.3f} m '
-                f'stamp={value.device_stamp}')
-    return f'{kind} {value!r}'
+    """Return one console line for a decoded reading (the kind's ``--print`` format)."""
+    fmt = registry.service(kind).format
+    return fmt(value) if fmt is not None else f'{kind} {value!r}'
 
 
 def run_print(kind: str, handler: DeviceHandler, count: int, rate_hz: float,
@@ -338,7 +259,8 @@ def _parser() -> argparse.ArgumentParser:
                     help='serve only this device (repeatable)')
     ap.add_argument('--backend', help='override the backend of the selected --device')
     ap.add_argument('--port', help='device path of the selected --device (implies real)')
-    ap.add_argument('--bus', help='I2C bus number or path for --device imu (implies real)')
+    ap.add_argument('--bus', help='bus number or path of the selected --device when its '
+                    'service takes one, e.g. the I2C bus of --device imu (implies real)')
     ap.add_argument('--print', action='store_true', dest='print_mode',
                     help='print decoded readings to the console; no RT process needed')
     ap.add_argument('--count', type=int, default=0, help='--print: readings to print (0: all)')
@@ -349,6 +271,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--duration', type=float, default=1.0, help='--jog: seconds (<= 5)')
     ap.add_argument('--yes', action='store_true', help='--jog: do not ask for confirmation')
     ap.add_argument('--runtime-dir', help='XDDP runtime directory')
+    ap.add_argument('--device-module', action='append', default=[], metavar='MOD',
+                    help='import MOD first: a device package registering its backends and '
+                    'service (repeatable; also $' + DEVICE_MODULES_ENV + ')')
     ap.add_argument('-v', '--verbose', action='store_true')
     return ap
 
@@ -359,11 +284,14 @@ def _apply_overrides(devices: dict[str, Any], args: argparse.Namespace) -> dict[
     out = {k: dict(devices.get(k) or {'backend': 'sim'}) for k in args.device}
     for kind, section in out.items():
         path: str | int | None = args.port
-        if kind == 'imu' and args.bus is not None:
+        # Only a device path asks the kind's service (which field it sets): a kind whose
+        # package does not load is reported by the validation below, naming the field.
+        spec = registry.service(kind) if args.port or args.bus is not None else None
+        if spec is not None and spec.bus_arg and args.bus is not None:
             path = int(args.bus) if args.bus.isdigit() else args.bus
-        if path is not None:
+        if spec is not None and path is not None:
             section = {k: v for k, v in section.items()
-                       if k in registry.COMMON_KEYS} | {PATH_KEYS.get(kind, 'port'): path}
+                       if k in registry.COMMON_KEYS} | {spec.path_key: path}
             section['backend'] = 'real'
         if args.backend:
             section['backend'] = args.backend
@@ -371,12 +299,50 @@ def _apply_overrides(devices: dict[str, Any], args: argparse.Namespace) -> dict[
     return out
 
 
+def _import_device_modules(argv: Sequence[str] | None) -> str | None:
+    """Import the ``--device-module`` / ``$M4K_DEVICE_MODULES`` modules; return an error."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if '--ros-args' in argv:
+        argv = argv[:argv.index('--ros-args')]
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument('--device-module', action='append', default=[])
+    mods = pre.parse_known_args(argv)[0].device_module
+    mods += os.environ.get(DEVICE_MODULES_ENV, '').split(',')
+    for mod in (m.strip() for m in mods):
+        if not mod:
+            continue
+        try:
+            importlib.import_module(mod)
+        except Exception as exc:  # noqa: BLE001 -- report any plug-in failure as one line
+            return f'cannot import device module {mod!r}: {exc}'
+    return None
+
+
+def _jog_kinds() -> list[str]:
+    """Return the device kinds that offer ``--jog`` (for the usage message)."""
+    out = []
+    for kind in registry.kinds():
+        try:
+            if registry.service(kind).jog is not None:
+                out.append(kind)
+        except registry.RegistryError:      # an optional package not installed
+            pass
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the driver host (see the module docstring); return the exit code."""
+
+    def body(signals: StopSignals) -> int:
+        # Plug-in device kinds first: --device offers every registered kind.
+        error = _import_device_modules(argv)
+        if error:
+            print(f'driver_host: {error}', file=sys.stderr)
+            return 2
+        return _main(rosargs.parse_args(_parser(), argv), signals)
+
     # Every handler built is shut down on the way out: outputs safe.
-    return run_stoppable('driver_host',
-                         lambda signals: _main(rosargs.parse_args(_parser(), argv), signals),
-                         when_stopped='; outputs safe')
+    return run_stoppable('driver_host', body, when_stopped='; outputs safe')
 
 
 def _main(args: argparse.Namespace, signals: StopSignals) -> int:
@@ -385,20 +351,25 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
         raw = load_raw_config(args.config, args.overlay)
         devices = _apply_overrides(raw.get('devices') or {}, args)
         cfg = dconfig.validate({'devices': devices, 'world': raw.get('world') or {}})
+        enabled = [kind for kind, section in cfg.devices.items() if section['enabled']]
+        for kind in enabled:
+            registry.service(kind)          # a kind with backends but no service: refused
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2
-    enabled = [kind for kind, section in cfg.devices.items() if section['enabled']]
     if args.print_mode and len(enabled) != 1:
         print('driver_host: --print needs exactly one enabled --device', file=sys.stderr)
         return 2
+    jog: registry.Jog | None = None
     if args.jog is not None:
-        from m4k_drivers.motors.jog import check_jog, JogError
         try:
-            if enabled != ['motor'] or args.print_mode:
-                raise JogError('--jog needs --device motor alone (and no --print)')
-            check_jog(args.jog[0], float(args.jog[1]), args.duration)
-        except (JogError, ValueError) as exc:
+            if len(enabled) == 1 and not args.print_mode:
+                jog = registry.service(enabled[0]).jog
+            if jog is None:
+                raise ValueError(f'--jog needs --device {"|".join(_jog_kinds())} alone '
+                                 '(and no --print)')
+            jog.check(args.jog[0], float(args.jog[1]), args.duration)
+        except (ValueError, registry.RegistryError) as exc:
             print(f'driver_host: {exc}', file=sys.stderr)
             return 2
     runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
@@ -423,17 +394,14 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     if args.print_mode:
         (kind, handler), = handlers.items()
         return run_print(kind, handler, args.count, args.rate, stop)
-    if args.jog is not None:
-        from m4k_drivers.motors.jog import JogError, run_jog
+    if jog is not None:
+        (kind, handler), = handlers.items()
         try:
-            # Every backend of the motor kind builds a MotorHandler (m4k_drivers.motors).
-            motor = cast('MotorHandler', handlers['motor'])
-            return run_jog(motor, args.jog[0], float(args.jog[1]),
-                           args.duration, stop, out=sys.stdout, stdin=sys.stdin,
-                           assume_yes=args.yes)
-        except JogError as exc:
+            return jog.run(handler, args.jog[0], float(args.jog[1]), args.duration, stop,
+                           out=sys.stdout, stdin=sys.stdin, assume_yes=args.yes)
+        except ValueError as exc:           # e.g. no terminal to confirm on and no --yes
             print(f'driver_host: {exc}', file=sys.stderr)
-            handlers['motor'].shutdown()
+            handler.shutdown()
             return 2
     return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop)
 

@@ -10,6 +10,13 @@ Device packages register their backends at import time::
 so a backend's accepted fields are declared once, next to its factory.  Kinds are imported
 lazily from :data:`KIND_MODULES`, so a missing optional package (e.g. the laser) only matters
 when a config actually asks for it.
+
+Next to its backends, each kind registers the service that answers the RT side
+(:func:`register_service`, a :class:`ServiceSpec`): which datagram kinds it takes, how it
+serves one, its periodic and link-loss hooks, its ``--print`` line.  The driver host
+(:mod:`m4k_drivers.host`) is generic plumbing around these specs, so adding a device touches
+only its own package and the configuration: a kind registered by a module the host imports
+(``driver_host --device-module MOD``) is known like the built-in ones.
 """
 
 from __future__ import annotations
@@ -17,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import importlib
 import time
-from typing import Any, Callable, TYPE_CHECKING, TypeVar
+from typing import Any, Callable, Generic, Mapping, NamedTuple, Protocol, TYPE_CHECKING, TypeVar
 
 from m4k_drivers.handler import DriverError
 from m4k_rt.schema import Field, REQUIRED
@@ -27,20 +34,24 @@ if TYPE_CHECKING:  # pragma: no cover
     from m4k_drivers.world import World
 
 __all__ = [
-    'COMMON_KEYS', 'KIND_MODULES', 'BackendSpec', 'BuildContext', 'Param', 'RegistryError',
-    'backends', 'create', 'get', 'kinds', 'register',
+    'COMMON_KEYS', 'KIND_MODULES', 'BackendSpec', 'BuildContext', 'Jog', 'Param',
+    'RegistryError', 'Replier', 'ServiceSpec', 'backends', 'create', 'get', 'kinds', 'register',
+    'register_service', 'service',
 ]
 
 # A backend factory ``(name, params, ctx) -> handler``; the decorator keeps its precise type.
 _Factory = TypeVar('_Factory', bound='Callable[..., DeviceHandler]')
+# The handler class a service spec serves (MotorHandler, ImuHandler, ...).
+H = TypeVar('H', bound='DeviceHandler')
 
-# Where each device kind registers its backends; imported on first use.
+# Where each built-in device kind registers its backends and service; imported on first use.
+# A kind registered from elsewhere (a plug-in module) is added by register().
 KIND_MODULES: dict[str, str] = {
     'motor': 'm4k_drivers.motors',
     'imu': 'm4k_drivers.imu',
     'sonar': 'm4k_drivers.sonar',
     'led': 'm4k_drivers.led',
-    'lrf': 'm4k_drivers.lrf.handler',  # the package itself stays free of pyserial
+    'lrf': 'm4k_drivers.lrf.backends',  # the package itself stays free of pyserial
 }
 
 # Keys every device section may carry, whatever its backend.
@@ -139,7 +150,67 @@ class BuildContext:
         return self._world is not None
 
 
+class Replier(Protocol):
+    """Where a service sends its replies: the driver host's link to the RT side."""
+
+    def send(self, kind: int, *fields: Any, stamp_ns: int | None = None) -> bool:
+        """Encode and send one datagram (stamp: the sample time when known, else now)."""
+
+
+class Jog(NamedTuple):
+    """A device's console jog (``driver_host --jog TARGET SPEED --duration S [--yes]``).
+
+    ``check(target, speed, duration_s)`` raises ValueError naming a value outside the caps
+    (before any device is opened); ``run(handler, target, speed, duration_s, stop, out=,
+    stdin=, assume_yes=)`` brings the device up, jogs, leaves the outputs safe and returns the
+    exit code (it may raise ValueError too, e.g. a refused confirmation).
+    """
+
+    check: Callable[[str, float, float], None]
+    run: Callable[..., int]
+
+
+def _default_timeout(section: Mapping[str, Any]) -> float:
+    return 0.1
+
+
+def _no_stream(section: Mapping[str, Any]) -> float | None:
+    return None
+
+
+@dataclass(frozen=True)
+class ServiceSpec(Generic[H]):
+    """How the driver host serves one device kind to the RT side (docs/internals.md).
+
+    * ``accepts``: the datagram kinds (:class:`m4k_rt.protocol.Kind`) it takes from the RT
+      side; others are counted ``unexpected`` and dropped.
+    * ``serve(handler, msg, tx)``: answer one decoded payload (``msg`` None: a stream tick)
+      by sending the reply datagram(s) through ``tx``; called in every lifecycle state, so it
+      checks the handler's state itself.  A ``ProtocolError`` while encoding is counted.
+    * ``read_timeout(section)``: longest wait for a datagram (the loop's tick rate, s);
+      ``stream_period(section)``: s between stream ticks, None = answer requests only.
+    * ``tick(handler)``: every loop pass while ACTIVE (the motor watchdog).
+    * ``on_link_lost(handler)``: the RT side went away while ACTIVE (motors safe at once);
+      a DriverError it raises is counted as a fault.
+    * ``format(value)``: one ``--print`` line for a reading.
+    * ``path_key``: the config field ``--port`` sets (and ``--bus`` when ``bus_arg``; a
+      number is passed as an int); ``jog``: the ``--jog`` bring-up tool, if any.
+    """
+
+    accepts: frozenset[int]
+    serve: Callable[[H, Any, Replier], None]
+    format: Callable[[Any], str] | None = None
+    read_timeout: Callable[[Mapping[str, Any]], float] = _default_timeout
+    stream_period: Callable[[Mapping[str, Any]], float | None] = _no_stream
+    tick: Callable[[H], object] | None = None
+    on_link_lost: Callable[[H], object] | None = None
+    path_key: str = 'port'
+    bus_arg: bool = False
+    jog: Jog | None = None
+
+
 _BACKENDS: dict[tuple[str, str], BackendSpec] = {}
+_SERVICES: dict[str, ServiceSpec[Any]] = {}
 _LOAD_ERRORS: dict[str, str] = {}
 _LOADED: set[str] = set()
 
@@ -150,9 +221,25 @@ def register(kind: str, name: str, params: dict[str, Param] | None = None,
 
     def deco(factory: _Factory) -> _Factory:
         _BACKENDS[(kind, name)] = BackendSpec(kind, name, factory, dict(params or {}))
+        KIND_MODULES.setdefault(kind, factory.__module__)   # a plug-in kind is known now
         return factory
 
     return deco
+
+
+def register_service(kind: str, spec: ServiceSpec[Any]) -> None:
+    """Register how the driver host serves ``kind`` (next to the kind's backends)."""
+    _SERVICES[kind] = spec
+
+
+def service(kind: str) -> ServiceSpec[Any]:
+    """Return the service spec of ``kind`` (importing its package) or raise RegistryError."""
+    backends(kind)
+    spec = _SERVICES.get(kind)
+    if spec is None:
+        why = f' ({_LOAD_ERRORS[kind]})' if kind in _LOAD_ERRORS else ''
+        raise RegistryError(f'device {kind!r} registers no driver-host service{why}')
+    return spec
 
 
 def _load(kind: str) -> None:

@@ -3,6 +3,7 @@ import threading
 import time
 
 import pytest
+from rt_side import recv_kind, wait_linked
 
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
@@ -63,26 +64,6 @@ def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
     assert procs.stop(proc) == 0
 
 
-def _recv(rt, kind, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        data = rt.recv()
-        if data is None:
-            time.sleep(0.002)
-            continue
-        hdr, msg = protocol.decode(data)
-        if hdr.kind == kind:
-            return msg
-    raise AssertionError(f'no {kind!r} within {timeout} s')
-
-
-def _wait_linked(rt, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while not rt.poll_peer():
-        assert time.monotonic() < deadline, 'NRT side never linked'
-        time.sleep(0.01)
-
-
 def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, sim_robot):
     cfg = dconfig.validate({'devices': {'motor': {'backend': 'sim'}}})
     ctx = registry.BuildContext()
@@ -92,11 +73,11 @@ def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, 
     svc = DeviceService('motor', handler, cfg.devices['motor'], 2, stop, m4k_runtime_dir)
     svc.start()
     try:
-        _wait_linked(rt)
-        st = _recv(rt, protocol.Kind.DEVICE_STATUS)
+        wait_linked(rt)
+        st = recv_kind(rt, protocol.Kind.DEVICE_STATUS)
         assert st.device == 'motor'
         rt.send(protocol.encode(protocol.Kind.WHEEL_CMD, 1, time.monotonic_ns(), 700, 700, 1))
-        enc = _recv(rt, protocol.Kind.ENCODERS)
+        enc = recv_kind(rt, protocol.Kind.ENCODERS)
         assert 0 <= enc.left_raw < 4096 and enc.status & 0x10 == 0
         assert handler.codes == (700, 700)
         rt.send(b'garbage')
@@ -112,9 +93,9 @@ def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, 
             assert time.monotonic() < deadline, 'motors not made safe after RT loss'
             time.sleep(0.01)
         rt = rt_xddp_bind(2, runtime_dir=m4k_runtime_dir)
-        _wait_linked(rt, timeout=10)
+        wait_linked(rt, timeout=10)
         rt.send(protocol.encode(protocol.Kind.WHEEL_CMD, 3, time.monotonic_ns(), 600, 600, 1))
-        _recv(rt, protocol.Kind.ENCODERS)
+        recv_kind(rt, protocol.Kind.ENCODERS)
         assert svc.link.relinks >= 1
     finally:
         stop.set()
@@ -139,15 +120,15 @@ def test_sensor_and_led_services_answer(m4k_runtime_dir, sim_robot):
         s.start()
     try:
         for rt in rts.values():
-            _wait_linked(rt)
+            wait_linked(rt)
         rts['sonar'].send(protocol.encode(protocol.Kind.REQUEST, 1, 0, 1, 1))
-        sonar = _recv(rts['sonar'], protocol.Kind.SONAR)
+        sonar = recv_kind(rts['sonar'], protocol.Kind.SONAR)
         assert sonar.status == 0 and abs(sonar.range_m - 1.275) < 0.02
         rts['imu'].send(protocol.encode(protocol.Kind.REQUEST, 1, 0, 1, 0))
-        imu = _recv(rts['imu'], protocol.Kind.IMU)
+        imu = recv_kind(rts['imu'], protocol.Kind.IMU)
         assert 9.6 < imu.az < 10.0 and abs(imu.qw) > 0.99 and imu.status == 0
         rts['lrf'].send(protocol.encode(protocol.Kind.REQUEST, 1, 0, 1, 0))
-        scan = _recv(rts['lrf'], protocol.Kind.LASER_SCAN, timeout=10)
+        scan = recv_kind(rts['lrf'], protocol.Kind.LASER_SCAN, timeout=10)
         front = scan.ranges[len(scan.ranges) // 2]
         assert len(scan.ranges) > 600 and abs(front - 1500) < 60     # obstacle face, mm
         strip = sim_robot.leds          # the LED-class files the simulator watches
@@ -187,7 +168,7 @@ def test_world_report_tracks_ground_truth_and_counts_a_collision(procs, m4k_runt
     proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
                         '--device', 'motor'])
     try:
-        _wait_linked(rt, timeout=30)
+        wait_linked(rt, timeout=30)
         buf = bytearray(64)
         seq = 0
         deadline = time.monotonic() + 30

@@ -10,7 +10,8 @@ import pytest
 from m4k_drivers import registry
 from m4k_drivers.handler import DeviceNotFoundError, State, Status
 from m4k_drivers.lrf import scip
-from m4k_drivers.lrf.handler import make_lrf
+from m4k_drivers.lrf.backends import urg_opener
+from m4k_drivers.lrf.handler import LrfHandler
 from m4k_drivers.lrf.sim import RectRoom, UrgSim
 from m4k_drivers.lrf.urg import (
     UrgDriver,
@@ -231,41 +232,53 @@ def test_missing_port_error_names_the_path(tmp_path):
 
 # --- handler ------------------------------------------------------------------------------------
 
-def test_handler_sim_backend_lifecycle(room, tmp_path):
+def test_handler_lifecycle_on_an_opener_of_the_sim_pty(room, tmp_path):
     link = str(tmp_path / 'ttyACM0')
-    h = make_lrf({'backend': 'sim', 'link_path': link, 'scan_period': 0.02, 'noise_mm': 0.0,
-                  'timeout': 0.5}, world=room)
-    try:
-        h.configure()
-        assert h.state == State.INACTIVE and os.path.islink(link)
-        h.activate()
-        r1 = h.read()
-        assert r1.status == Status.OK and r1.value.fresh
-        assert int(r1.value.ranges_mm[AHEAD]) == 2000
-        assert r1.value.geometry.count == 682
-        r2 = h.read()
-        assert r2.value.fresh == (r2.value.seq != r1.value.seq)
-    finally:
-        h.shutdown()
-    assert not os.path.exists(link)
-    assert h.state == State.FINALIZED
+    with UrgSim(room, link_path=link, scan_period=0.02, noise_mm=0.0) as dev:
+        h = LrfHandler(urg_opener(link, {'timeout': 0.5}))
+        try:
+            assert h.driver is None                   # nothing opened before configure()
+            h.configure()
+            assert h.state == State.INACTIVE and h.driver.connected
+            h.activate()
+            r1 = h.read()
+            assert r1.status == Status.OK and r1.value.fresh
+            assert int(r1.value.ranges_mm[AHEAD]) == 2000
+            assert r1.value.geometry.count == 682
+            r2 = h.read()
+            assert r2.value.fresh == (r2.value.seq != r1.value.seq)
+            qt_before = dev.command_codes['QT']
+        finally:
+            h.shutdown()
+        assert h.state == State.FINALIZED and h.driver is None
+        assert dev.command_codes['QT'] > qt_before    # stream stopped, laser off on cleanup
 
 
 def test_handler_poll_mode_reads_one_gd_per_read(room):
-    h = make_lrf({'backend': 'sim', 'mode': 'poll', 'noise_mm': 0.0}, world=room)
-    try:
-        h.configure()
-        h.activate()
-        readings = [h.read() for _ in range(3)]
-        assert [r.value.seq for r in readings] == [1, 2, 3]
-        assert all(r.value.fresh for r in readings)
-        assert h.sim.command_codes['GD'] == 3
-    finally:
-        h.shutdown()
+    with UrgSim(room, noise_mm=0.0) as dev:
+        h = LrfHandler(urg_opener(dev.path, {}), mode='poll')
+        try:
+            h.configure()
+            h.activate()
+            readings = [h.read() for _ in range(3)]
+            assert [r.value.seq for r in readings] == [1, 2, 3]
+            assert all(r.value.fresh for r in readings)
+            assert dev.command_codes['GD'] == 3
+        finally:
+            h.shutdown()
 
 
-def test_handler_real_backend_with_missing_port_fails_configure(tmp_path):
-    h = make_lrf({'backend': 'real', 'port': str(tmp_path / 'ttyACM0')})
+def test_handler_rejects_an_unknown_mode():
+    with pytest.raises(ValueError, match="lrf.mode: must be one of stream, poll, got 'scan'"):
+        LrfHandler(urg_opener('/dev/ttyACM0', {}), mode='scan')
+
+
+def test_real_backend_with_missing_port_fails_configure_naming_it(tmp_path):
+    from m4k_drivers import config as dconfig
+    section = {'backend': 'real', 'port': str(tmp_path / 'ttyACM0')}
+    h = registry.create('lrf', dconfig.validate({'devices': {'lrf': section}}).devices['lrf'],
+                        registry.BuildContext())
+    assert isinstance(h, LrfHandler)
     with pytest.raises(DeviceNotFoundError, match='ttyACM0'):
         h.configure()
     assert h.state == State.ERROR

@@ -10,7 +10,8 @@ from typing import Any
 
 from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.protocol import ADDRESS, ImuSample
-from m4k_drivers.registry import BuildContext, Param, register
+from m4k_drivers.imu.service import SERVICE
+from m4k_drivers.registry import BuildContext, Param, register, register_service
 
 __all__ = ['ImuHandler', 'ImuSample']
 
@@ -46,3 +47,7 @@ def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> ImuHandl
         except OSError as exc:
             raise wrap_os_error(exc, where) from exc
     return ImuHandler(opener, name=name)
+
+
+# How the driver host answers the RT side for this kind (m4k_drivers.imu.service).
+register_service('imu', SERVICE)

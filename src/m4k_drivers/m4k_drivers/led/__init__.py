@@ -11,7 +11,8 @@ from typing import Any
 
 from m4k_drivers.led.handler import LedHandler
 from m4k_drivers.led.protocol import LedColor
-from m4k_drivers.registry import BuildContext, Param, register
+from m4k_drivers.led.service import SERVICE
+from m4k_drivers.registry import BuildContext, Param, register, register_service
 
 __all__ = ['LedColor', 'LedHandler']
 
@@ -96,3 +97,7 @@ def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandl
     root = os.path.join(ctx.sim_runtime_dir(), 'sim-sysfs')
     build = _build_pwm if params['interface'] == 'pwm' else _build_led_class
     return build(name, params | {'sysfs_root': root}, ctx)
+
+
+# How the driver host answers the RT side for this kind (m4k_drivers.led.service).
+register_service('led', SERVICE)

@@ -10,7 +10,8 @@ from typing import Any
 
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import EncoderReading, MotorHandler, WheelCommand
-from m4k_drivers.registry import BuildContext, Param, register
+from m4k_drivers.motors.service import SERVICE
+from m4k_drivers.registry import BuildContext, Param, register, register_service
 
 __all__ = ['EncoderReading', 'MotorHandler', 'WheelCommand']
 
@@ -108,3 +109,7 @@ def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHan
     runtime_dir = ctx.sim_runtime_dir()
     line = (params['heartbeat_chip'], params['heartbeat_line']) if params['heartbeat'] else None
     return MotorHandler(lambda: open_simbus_bus(runtime_dir, line), name=name, **kw)
+
+
+# How the driver host answers the RT side for this kind (m4k_drivers.motors.service).
+register_service('motor', SERVICE)

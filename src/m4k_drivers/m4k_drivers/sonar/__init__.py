@@ -8,9 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from m4k_drivers.registry import BuildContext, Param, register
+from m4k_drivers.registry import BuildContext, Param, register, register_service
 from m4k_drivers.sonar.handler import SonarHandler
 from m4k_drivers.sonar.protocol import SonarReading
+from m4k_drivers.sonar.service import SERVICE
 
 __all__ = ['SonarHandler', 'SonarReading']
 
@@ -64,3 +65,7 @@ def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> SonarHan
     runtime_dir = ctx.sim_runtime_dir()
     return _handler(name, params, lambda: open_simbus_sonar(
         runtime_dir, params['chip'], params['trigger_line'], params['echo_line']))
+
+
+# How the driver host answers the RT side for this kind (m4k_drivers.sonar.service).
+register_service('sonar', SERVICE)
