@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from typing import Any, Callable
 
+from m4k_rt import cycleprof
 from m4k_rt.protocol import decode, encode_into, MAX_DATAGRAM, ProtocolError, SEQ_MASK
 
 __all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
@@ -25,6 +26,12 @@ class PortReader:
     """Drain and decode datagrams from one RT XDDP socket."""
 
     __slots__ = ('sock', 'buf', 'view', 'length', 'received', 'budget')
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> PortReader:
+        """Return a timed reader when the cycle profile is on (decided at start-up)."""
+        if cls is PortReader and cycleprof.enabled():
+            cls = _TimedPortReader
+        return object.__new__(cls)
 
     def __init__(self, sock: Any, size: int = MAX_DATAGRAM) -> None:
         self.sock = sock
@@ -80,6 +87,12 @@ class PortWriter:
 
     __slots__ = ('sock', 'buf', 'view', 'seq', 'sent', 'dropped', 'encode_errors')
 
+    def __new__(cls, *args: Any, **kwargs: Any) -> PortWriter:
+        """Return a timed writer when the cycle profile is on (decided at start-up)."""
+        if cls is PortWriter and cycleprof.enabled():
+            cls = _TimedPortWriter
+        return object.__new__(cls)
+
     def __init__(self, sock: Any, size: int = 128) -> None:
         self.sock = sock
         self.buf = bytearray(size)
@@ -109,6 +122,49 @@ class PortWriter:
         else:
             self.dropped += 1
         return ok
+
+
+class _TimedPortReader(PortReader):
+    """A PortReader adding its time to the calling task's cycle profile (``cycleprof``)."""
+
+    __slots__ = ()
+
+    def next(self) -> tuple[Any, Any] | None:
+        t0 = _clock()
+        got = PortReader.next(self)
+        prof = cycleprof.current()
+        if prof is not None:
+            prof.drain_ns += _clock() - t0
+            prof.drain_calls += 1
+        return got
+
+
+class _TimedPortWriter(PortWriter):
+    """A PortWriter adding its time to the calling task's cycle profile (``cycleprof``)."""
+
+    __slots__ = ()
+
+    def send(self, kind: int, stamp_ns: int, *fields: Any) -> bool:
+        t0 = _clock()
+        ok = PortWriter.send(self, kind, stamp_ns, *fields)
+        self._add(t0)
+        return ok
+
+    def forward(self, data: memoryview) -> bool:
+        t0 = _clock()
+        ok = PortWriter.forward(self, data)
+        self._add(t0)
+        return ok
+
+    @staticmethod
+    def _add(t0: int) -> None:
+        prof = cycleprof.current()
+        if prof is not None:
+            prof.send_ns += _clock() - t0
+            prof.send_calls += 1
+
+
+_clock = time.monotonic_ns
 
 
 class DeviceTaskBody:
