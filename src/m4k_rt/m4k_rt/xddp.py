@@ -229,6 +229,7 @@ class RtXddpSocket:
         self._recv_flags = socket.MSG_DONTWAIT | (
             socket.MSG_TRUNC if mode == 'message' else 0)
         self._rbuf = bytearray(max_datagram)
+        self._watchers: list[Any] = []  # told (``stale = True``) when poll_fds() changes
         self._peer: socket.socket | None = None
         self._ever_linked = False
         self._inode: tuple[int, int] | None = None
@@ -324,6 +325,25 @@ class RtXddpSocket:
         peer = self._peer
         return peer.fileno() if peer is not None else self._lfd
 
+    def poll_fds(self) -> tuple[int, ...]:
+        """Return the fds to poll for anything to do: the listener and the linked peer."""
+        fds = () if self._lfd < 0 else (self._lfd,)
+        peer = self._peer
+        return fds if peer is None else fds + (peer.fileno(),)
+
+    def watch(self, watcher: Any) -> None:
+        """Set ``watcher.stale = True`` whenever :meth:`poll_fds` changes (link, drop, close).
+
+        For a poll set over several ports of one task (``tasks.portio.PortGroup``); called
+        from the owning task's thread, like every method here.
+        """
+        self._watchers.append(watcher)
+        watcher.stale = True
+
+    def _fds_changed(self) -> None:
+        for w in self._watchers:
+            w.stale = True
+
     def poll_peer(self) -> bool:
         """Accept a waiting opener (or refuse it when busy); return True when linked."""
         if self._lpoll.poll(0):
@@ -357,6 +377,7 @@ class RtXddpSocket:
             fd = conn.fileno()
             self._poll.register(fd, select.POLLIN)
             self._ppoll.register(fd, select.POLLHUP)
+            self._fds_changed()
             if self._ever_linked:
                 self.counters.peer_restarts += 1
             self._ever_linked = True
@@ -370,6 +391,7 @@ class RtXddpSocket:
         self._poll.unregister(fd)
         self._ppoll.unregister(fd)
         peer.close()
+        self._fds_changed()
         if count:
             self.counters.peer_lost += 1
 
@@ -460,6 +482,7 @@ class RtXddpSocket:
         self._poll.unregister(self._lfd)
         self._lfd = -1
         listener.close()
+        self._fds_changed()
         ours = False
         try:
             st = os.lstat(self.path)

@@ -36,7 +36,7 @@ from m4k_rt.control.base import (
     MODE_OBSTACLE,
 )
 from m4k_rt.protocol import Kind, LedSource, LEVEL_ERROR
-from m4k_rt.tasks.portio import PortReader, PortWriter
+from m4k_rt.tasks.portio import PortGroup, PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
 __all__ = ['LedBody', 'make_led', 'STATE_COLOURS']
@@ -68,6 +68,7 @@ class LedBody:
         self._dev_out = PortWriter(dev_sock)
         self._bridge_in = PortReader(bridge_sock, 256)
         self._bridge_out = PortWriter(bridge_sock)
+        self._ports = PortGroup((self._bridge_in, self._dev_in))
         self._clock = clock
         self.override: tuple[int, int, int, int] | None = None
         self.shown: tuple[int, int, int, int] = IDLE
@@ -102,6 +103,7 @@ class LedBody:
     def __call__(self, ctx: Any = None) -> None:
         """Run one LED cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
+        self._ports.poll()
         reader = self._bridge_in
         reader.start_cycle()
         while (got := reader.next()) is not None:
