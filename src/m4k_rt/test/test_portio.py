@@ -9,7 +9,14 @@ import pytest
 from m4k_rt import cycleprof
 from m4k_rt import protocol as p
 from m4k_rt.task import RtTask
-from m4k_rt.tasks.portio import PortGroup, PortReader, PortWriter
+from m4k_rt.tasks.portio import (
+    DATAGRAM,
+    NOTHING,
+    PortGroup,
+    PortReader,
+    PortWriter,
+    SOMETHING,
+)
 from m4k_rt.xddp import nrt_xddp_open
 
 
@@ -43,17 +50,17 @@ def test_group_poll_marks_only_the_ports_holding_datagrams(rig):
     cmd, motor = PortReader(rig.rt['cmd']), PortReader(rig.rt['motor'])
     group = PortGroup((motor, cmd))
     group.poll()
-    assert (motor.ready, cmd.ready) == (False, False)
+    assert (motor.ready, cmd.ready) == (NOTHING, NOTHING)
     assert _drain(motor) == [] and _drain(cmd) == []
     rig.write('cmd', p.Kind.VELOCITY_CMD, 0.5, 0.1, seq=3)
     rig.write('cmd', p.Kind.VELOCITY_CMD, 0.25, 0.0, seq=4)
     group.poll()
-    assert (motor.ready, cmd.ready) == (False, True)
+    assert (motor.ready, cmd.ready) == (NOTHING, DATAGRAM)
     got = _drain(cmd)                     # a ready port drains everything pending, in order
     assert [(h.seq, m) for h, m in got] == [(3, p.VelocityCmd(0.5, 0.1)),
                                             (4, p.VelocityCmd(0.25, 0.0))]
     group.poll()
-    assert (motor.ready, cmd.ready) == (False, False)
+    assert (motor.ready, cmd.ready) == (NOTHING, NOTHING)
 
 
 def test_a_datagram_arriving_after_the_group_poll_is_read_next_cycle(rig):
@@ -73,7 +80,7 @@ def test_group_follows_a_restarted_peer(rig, m4k_runtime_dir):
     group.poll()
     rig.nrt['motor'].close()              # the driver host dies ...
     group.poll()
-    assert motor.ready                    # ... its hang-up is something to do
+    assert motor.ready == SOMETHING       # ... its hang-up is something to do
     assert _drain(motor) == []
     assert not rig.rt['motor'].connected and rig.rt['motor'].counters.peer_lost == 1
     box = {}
@@ -83,7 +90,7 @@ def test_group_follows_a_restarted_peer(rig, m4k_runtime_dir):
     end = time.monotonic() + 5.0
     while opener.is_alive():
         group.poll()
-        if motor.ready:
+        if motor.ready == SOMETHING:
             _drain(motor)                 # the drain accepts it
         assert time.monotonic() < end
         opener.join(0.001)
@@ -91,7 +98,7 @@ def test_group_follows_a_restarted_peer(rig, m4k_runtime_dir):
     assert rig.rt['motor'].connected and rig.rt['motor'].counters.peer_restarts == 1
     rig.write('motor', p.Kind.ENCODERS, 1, 2, 0.5, 0.25, 0, seq=1)
     group.poll()                          # the new peer's fd is polled
-    assert motor.ready
+    assert motor.ready == DATAGRAM
     assert len(_drain(motor)) == 1
 
 
@@ -103,7 +110,7 @@ def test_group_of_sockets_that_cannot_be_polled_leaves_readers_draining():
     r = PortReader(Stub())
     group = PortGroup((r,))
     group.poll()
-    assert r.ready
+    assert r.ready == SOMETHING
     r.start_cycle()
     assert r.budget > 0
 
@@ -147,3 +154,15 @@ def test_unprofiled_ports_and_tasks_have_no_profile(rig):
     assert type(PortWriter(rig.rt['cmd'])) is PortWriter
     assert type(PortGroup(())) is PortGroup
     assert RtTask('plain', 10, 1_000_000, lambda ctx: None).profile is None
+
+
+def test_oversize_first_datagram_of_a_reported_port_is_dropped_and_the_next_one_read(rig):
+    motor = PortReader(rig.rt['motor'], 64)
+    group = PortGroup((motor,))
+    rig.nrt['motor'].write(bytes(100))    # larger than the reader's buffer
+    rig.write('motor', p.Kind.ENCODERS, 1, 2, 0.5, 0.25, 0, seq=5)
+    group.poll()
+    assert motor.ready == DATAGRAM
+    (h, _), = _drain(motor)
+    assert h.seq == 5
+    assert rig.rt['motor'].counters.dropped_oversize == 1

@@ -28,6 +28,11 @@ from m4k_rt.protocol import (
 
 __all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortGroup', 'PortReader', 'PortWriter']
 
+# PortReader.ready: what this cycle's PortGroup poll found on the port.
+NOTHING = 0      # nothing to do: no drain this cycle
+SOMETHING = 1    # drain as usual (also: not in a group)
+DATAGRAM = 2     # the peer is readable: the first receive needs no poll of its own
+
 # Upper bound of datagrams one body reads from one port per cycle: a flooding peer costs a
 # bounded amount of CPU; the rest waits for the next cycle (or overflows the socket buffer).
 DRAIN_MAX = 32
@@ -51,7 +56,7 @@ class PortReader:
         self.length = 0          # size of the last valid datagram (its bytes: view[:length])
         self.received = 0        # valid datagrams
         self.budget = DRAIN_MAX
-        self.ready = True        # False: this cycle's PortGroup poll found nothing here
+        self.ready = SOMETHING   # what this cycle's PortGroup poll found here
 
     def start_cycle(self) -> None:
         """Reset the per-cycle drain budget (none when the group poll found nothing)."""
@@ -62,7 +67,11 @@ class PortReader:
         sock = self.sock
         while self.budget > 0:
             self.budget -= 1
-            n = sock.recv_into(self.buf)
+            if self.ready == DATAGRAM:
+                self.ready = SOMETHING
+                n = sock.recv_ready_into(self.buf)
+            else:
+                n = sock.recv_into(self.buf)
             if n <= 0:
                 self.budget = 0
                 return None
@@ -154,11 +163,12 @@ class PortGroup:
 
     :meth:`poll` at the top of a cycle costs one system call for all the ports; a reader
     whose socket has nothing to do (no datagram, no hang-up, no opener waiting) then drains
-    nothing this cycle, without the ``poll`` its own receive would make. A reader with
-    something to do drains as before. What arrives after the group poll is read next cycle,
-    as if it had arrived after the drain. The poll set follows every peer linking and dropping
-    (``watch``). Sockets that cannot be polled together (a test's stand-ins) leave every
-    reader draining every cycle.
+    nothing this cycle, without the ``poll`` its own receive would make; a reader whose peer
+    holds a datagram receives the first one without that poll (``recv_ready_into``), then
+    drains as before; anything else (an opener, a hang-up) takes the usual drain. What arrives
+    after the group poll is read next cycle, as if it had arrived after the drain. The poll
+    set follows every peer linking and dropping (``watch``). Sockets that cannot be polled
+    together (a test's stand-ins) leave every reader draining every cycle. At most 32 ports.
     """
 
     __slots__ = ('readers', 'stale', '_poll', '_bits', '_socks')
@@ -171,6 +181,9 @@ class PortGroup:
 
     def __init__(self, readers: Sequence[PortReader]) -> None:
         self.readers = tuple(readers)
+        if len(self.readers) > 32:
+            raise ValueError('a PortGroup holds at most 32 ports, got {}'.format(
+                len(self.readers)))
         self._socks = [r.sock for r in self.readers]
         self._poll: Any = None
         self._bits: dict[int, int] = {}
@@ -183,11 +196,13 @@ class PortGroup:
     def _register(self) -> None:
         self.stale = False
         poll = select.poll()
-        bits: dict[int, int] = {}
+        bits: dict[int, int] = {}   # fd -> bit of its reader; the peers' bits shifted by 32
         for i, sock in enumerate(self._socks):
-            for fd in sock.poll_fds():
-                poll.register(fd, select.POLLIN)
-                bits[fd] = bits.get(fd, 0) | 1 << i
+            listener, peer = sock.poll_fds()
+            for fd, bit in ((listener, 1 << i), (peer, 1 << (i + 32))):
+                if fd >= 0:
+                    poll.register(fd, select.POLLIN)
+                    bits[fd] = bit
         self._poll, self._bits = poll, bits
 
     def poll(self) -> None:
@@ -200,11 +215,19 @@ class PortGroup:
         mask = 0
         if events:
             bits = self._bits
-            for fd, _ in events:
-                mask |= bits.get(fd, 0)
+            for fd, ev in events:
+                b = bits.get(fd, 0)
+                if b >> 32 and ev != _POLLIN:
+                    b >>= 32            # a peer's hang-up or error: the usual drain finds it
+                mask |= b
         bit = 1
         for r in self.readers:
-            r.ready = bool(mask & bit)
+            if mask & bit:
+                r.ready = SOMETHING
+            elif mask >> 32 & bit:
+                r.ready = DATAGRAM
+            else:
+                r.ready = NOTHING
             bit <<= 1
 
 
@@ -262,6 +285,7 @@ class _TimedPortWriter(PortWriter):
 
 
 _clock = time.monotonic_ns
+_POLLIN = select.POLLIN
 
 
 class DeviceTaskBody:
