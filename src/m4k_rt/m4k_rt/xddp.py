@@ -229,7 +229,6 @@ class RtXddpSocket:
         self._recv_flags = socket.MSG_DONTWAIT | (
             socket.MSG_TRUNC if mode == 'message' else 0)
         self._rbuf = bytearray(max_datagram)
-        self._watchers: list[Any] = []  # told (``stale = True``) when poll_fds() changes
         self._peer: socket.socket | None = None
         self._ever_linked = False
         self._inode: tuple[int, int] | None = None
@@ -325,24 +324,6 @@ class RtXddpSocket:
         peer = self._peer
         return peer.fileno() if peer is not None else self._lfd
 
-    def poll_fds(self) -> tuple[int, int]:
-        """Return (listener fd, linked peer fd) to poll for anything to do; -1 when absent."""
-        peer = self._peer
-        return self._lfd, -1 if peer is None else peer.fileno()
-
-    def watch(self, watcher: Any) -> None:
-        """Set ``watcher.stale = True`` whenever :meth:`poll_fds` changes (link, drop, close).
-
-        For a poll set over several ports of one task (``tasks.portio.PortGroup``); called
-        from the owning task's thread, like every method here.
-        """
-        self._watchers.append(watcher)
-        watcher.stale = True
-
-    def _fds_changed(self) -> None:
-        for w in self._watchers:
-            w.stale = True
-
     def poll_peer(self) -> bool:
         """Accept a waiting opener (or refuse it when busy); return True when linked."""
         if self._lpoll.poll(0):
@@ -376,7 +357,6 @@ class RtXddpSocket:
             fd = conn.fileno()
             self._poll.register(fd, select.POLLIN)
             self._ppoll.register(fd, select.POLLHUP)
-            self._fds_changed()
             if self._ever_linked:
                 self.counters.peer_restarts += 1
             self._ever_linked = True
@@ -390,7 +370,6 @@ class RtXddpSocket:
         self._poll.unregister(fd)
         self._ppoll.unregister(fd)
         peer.close()
-        self._fds_changed()
         if count:
             self.counters.peer_lost += 1
 
@@ -442,39 +421,24 @@ class RtXddpSocket:
                 return 0
             if len(events) > 1 or events[0][0] == lfd:
                 self._accept_pending()  # an opener waits (alone or next to peer data)
-            n = self._recv_peer(buf)
-            if n >= 0:
-                return n
-
-    def recv_ready_into(self, buf: bytearray | memoryview) -> int:
-        """Receive like :meth:`recv_into`, the caller's poll having just seen the peer readable.
-
-        Skips the poll of :meth:`recv_into` (one system call less): for the first datagram
-        of a port that a poll over several ports (``tasks.portio.PortGroup``) reported.
-        """
-        n = self._recv_peer(buf)
-        return n if n >= 0 else self.recv_into(buf)
-
-    def _recv_peer(self, buf: bytearray | memoryview) -> int:
-        """Receive one datagram from the peer: its length, 0 for none, -1 oversize (dropped)."""
-        peer = self._peer
-        if peer is None:
-            return 0
-        try:
-            n = peer.recv_into(buf, 0, self._recv_flags)
-        except BlockingIOError:
-            return 0
-        except OSError:  # ECONNRESET
-            self._drop_peer()
-            return 0
-        if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
-            self._drop_peer()
-            return 0
-        if n > len(buf):
-            self.counters.dropped_oversize += 1
-            return -1
-        self.counters.received += 1
-        return n
+            peer = self._peer
+            if peer is None:
+                return 0
+            try:
+                n = peer.recv_into(buf, 0, self._recv_flags)
+            except BlockingIOError:
+                return 0
+            except OSError:  # ECONNRESET
+                self._drop_peer()
+                return 0
+            if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
+                self._drop_peer()
+                return 0
+            if n > len(buf):  # discarded: look again
+                self.counters.dropped_oversize += 1
+                continue
+            self.counters.received += 1
+            return n
 
     def recv(self) -> bytes | None:
         """Receive one pending datagram as bytes, or None (allocates: not for RT loops)."""
@@ -496,7 +460,6 @@ class RtXddpSocket:
         self._poll.unregister(self._lfd)
         self._lfd = -1
         listener.close()
-        self._fds_changed()
         ours = False
         try:
             st = os.lstat(self.path)

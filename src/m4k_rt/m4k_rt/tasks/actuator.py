@@ -36,7 +36,7 @@ from m4k_rt.control.base import BaseController
 from m4k_rt.control.guard import CollisionGuard
 from m4k_rt.control.params import control_params, ControlParams
 from m4k_rt.protocol import Kind
-from m4k_rt.tasks.portio import PortGroup, PortReader, PortWriter
+from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
 __all__ = ['ActuatorBody', 'control_section', 'make_actuator', 'make_guard']
@@ -74,7 +74,6 @@ class ActuatorBody:
         self._motor_in = PortReader(motor_sock)
         self._cmd_out = PortWriter(cmd_sock)
         self._motor_out = PortWriter(motor_sock)
-        self._ports = PortGroup((self._motor_in, self._cmd_in))
         self._clock = clock
         self._odom_every = params.odom_every_n
         self._vmax = params.linear.max_velocity
@@ -101,7 +100,6 @@ class ActuatorBody:
         now = ctx.t_start if ctx is not None else self._clock()
         ctl = self.ctl
         state = self.state
-        self._ports.poll()        # one system call: which ports hold anything
         # 1. encoders replying to last cycle's WHEEL_CMD
         reader = self._motor_in
         reader.start_cycle()

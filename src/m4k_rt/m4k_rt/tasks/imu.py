@@ -45,7 +45,6 @@ class ImuBody(DeviceTaskBody):
     def __call__(self, ctx: Any = None) -> None:
         """Run one IMU cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
-        self._ports.poll()
         reader = self._dev_in
         reader.start_cycle()
         n = 0

@@ -36,7 +36,7 @@ from m4k_rt.control.base import (
     MODE_OBSTACLE,
 )
 from m4k_rt.protocol import Kind, LedSource, LEVEL_ERROR
-from m4k_rt.tasks.portio import PortGroup, PortReader, PortWriter
+from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
 __all__ = ['LedBody', 'make_led', 'STATE_COLOURS']
@@ -68,12 +68,12 @@ class LedBody:
         self._dev_out = PortWriter(dev_sock)
         self._bridge_in = PortReader(bridge_sock, 256)
         self._bridge_out = PortWriter(bridge_sock)
-        self._ports = PortGroup((self._bridge_in, self._dev_in))
         self._clock = clock
         self.override: tuple[int, int, int, int] | None = None
         self.shown: tuple[int, int, int, int] = IDLE
         self.source = SOURCE_STATE
-        self._echoed: tuple[int, int, int, int, int] | None = None
+        self._echoed: tuple[int, int, int, int] | None = None   # colour last echoed
+        self._echoed_source = SOURCE_STATE
         self._echo_ns = 0
         self.cycles = 0
         self.overrides = 0
@@ -103,7 +103,6 @@ class LedBody:
     def __call__(self, ctx: Any = None) -> None:
         """Run one LED cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
-        self._ports.poll()
         reader = self._bridge_in
         reader.start_cycle()
         while (got := reader.next()) is not None:
@@ -134,11 +133,11 @@ class LedBody:
         self.state.led_override = override is not None
         r, g, b, brightness = colour
         self._dev_out.send(_LED, now, r, g, b, brightness, source)
-        echoed = self._echoed
-        if (echoed is None or echoed[4] != source or echoed[:4] != colour
+        if (self._echoed != colour or self._echoed_source != source
                 or now - self._echo_ns >= ECHO_EVERY_NS):
             if self._bridge_out.send(_LED, now, r, g, b, brightness, source):
-                self._echoed = (r, g, b, brightness, source)
+                self._echoed = colour      # an immutable tuple: kept, not copied
+                self._echoed_source = source
                 self._echo_ns = now
         self.cycles += 1
 

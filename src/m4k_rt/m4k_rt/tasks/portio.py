@@ -9,9 +9,8 @@ number. Nothing here blocks or allocates more than the decoded NamedTuple and a 
 
 from __future__ import annotations
 
-import select
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Callable
 
 from m4k_rt import cycleprof
 from m4k_rt.protocol import (
@@ -26,12 +25,7 @@ from m4k_rt.protocol import (
     VERSION,
 )
 
-__all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortGroup', 'PortReader', 'PortWriter']
-
-# PortReader.ready: what this cycle's PortGroup poll found on the port.
-NOTHING = 0      # nothing to do: no drain this cycle
-SOMETHING = 1    # drain as usual (also: not in a group)
-DATAGRAM = 2     # the peer is readable: the first receive needs no poll of its own
+__all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
 
 # Upper bound of datagrams one body reads from one port per cycle: a flooding peer costs a
 # bounded amount of CPU; the rest waits for the next cycle (or overflows the socket buffer).
@@ -41,7 +35,7 @@ DRAIN_MAX = 32
 class PortReader:
     """Drain and decode datagrams from one RT XDDP socket."""
 
-    __slots__ = ('sock', 'buf', 'view', 'length', 'received', 'budget', 'ready')
+    __slots__ = ('sock', 'buf', 'view', 'length', 'received', 'budget')
 
     def __new__(cls, *args: Any, **kwargs: Any) -> PortReader:
         """Return a timed reader when the cycle profile is on (decided at start-up)."""
@@ -56,22 +50,17 @@ class PortReader:
         self.length = 0          # size of the last valid datagram (its bytes: view[:length])
         self.received = 0        # valid datagrams
         self.budget = DRAIN_MAX
-        self.ready = SOMETHING   # what this cycle's PortGroup poll found here
 
     def start_cycle(self) -> None:
-        """Reset the per-cycle drain budget (none when the group poll found nothing)."""
-        self.budget = DRAIN_MAX if self.ready else 0
+        """Reset the per-cycle drain budget."""
+        self.budget = DRAIN_MAX
 
     def next(self) -> tuple[Any, Any] | None:
         """Return the next valid (Header, payload), or None when drained or over budget."""
         sock = self.sock
         while self.budget > 0:
             self.budget -= 1
-            if self.ready == DATAGRAM:
-                self.ready = SOMETHING
-                n = sock.recv_ready_into(self.buf)
-            else:
-                n = sock.recv_into(self.buf)
+            n = sock.recv_into(self.buf)
             if n <= 0:
                 self.budget = 0
                 return None
@@ -158,92 +147,6 @@ class PortWriter:
         return ok
 
 
-class PortGroup:
-    """The receive ports of one body, asked in one ``poll(0)`` whether they hold anything.
-
-    :meth:`poll` at the top of a cycle costs one system call for all the ports; a reader
-    whose socket has nothing to do (no datagram, no hang-up, no opener waiting) then drains
-    nothing this cycle, without the ``poll`` its own receive would make; a reader whose peer
-    holds a datagram receives the first one without that poll (``recv_ready_into``), then
-    drains as before; anything else (an opener, a hang-up) takes the usual drain. What arrives
-    after the group poll is read next cycle, as if it had arrived after the drain. The poll
-    set follows every peer linking and dropping (``watch``). Sockets that cannot be polled
-    together (a test's stand-ins) leave every reader draining every cycle. At most 32 ports.
-    """
-
-    __slots__ = ('readers', 'stale', '_poll', '_bits', '_socks')
-
-    def __new__(cls, *args: Any, **kwargs: Any) -> PortGroup:
-        """Return a timed group when the cycle profile is on (decided at start-up)."""
-        if cls is PortGroup and cycleprof.enabled():
-            cls = _TimedPortGroup
-        return object.__new__(cls)
-
-    def __init__(self, readers: Sequence[PortReader]) -> None:
-        self.readers = tuple(readers)
-        if len(self.readers) > 32:
-            raise ValueError('a PortGroup holds at most 32 ports, got {}'.format(
-                len(self.readers)))
-        self._socks = [r.sock for r in self.readers]
-        self._poll: Any = None
-        self._bits: dict[int, int] = {}
-        self.stale = False
-        if all(callable(getattr(s, 'poll_fds', None)) and callable(getattr(s, 'watch', None))
-               for s in self._socks):
-            for sock in self._socks:
-                sock.watch(self)            # sets stale: registered at the first poll
-
-    def _register(self) -> None:
-        self.stale = False
-        poll = select.poll()
-        bits: dict[int, int] = {}   # fd -> bit of its reader; the peers' bits shifted by 32
-        for i, sock in enumerate(self._socks):
-            listener, peer = sock.poll_fds()
-            for fd, bit in ((listener, 1 << i), (peer, 1 << (i + 32))):
-                if fd >= 0:
-                    poll.register(fd, select.POLLIN)
-                    bits[fd] = bit
-        self._poll, self._bits = poll, bits
-
-    def poll(self) -> None:
-        """Find the readers with something to do this cycle (call before their drains)."""
-        if self.stale:
-            self._register()
-        if self._poll is None:
-            return
-        events = self._poll.poll(0)
-        mask = 0
-        if events:
-            bits = self._bits
-            for fd, ev in events:
-                b = bits.get(fd, 0)
-                if b >> 32 and ev != _POLLIN:
-                    b >>= 32            # a peer's hang-up or error: the usual drain finds it
-                mask |= b
-        bit = 1
-        for r in self.readers:
-            if mask & bit:
-                r.ready = SOMETHING
-            elif mask >> 32 & bit:
-                r.ready = DATAGRAM
-            else:
-                r.ready = NOTHING
-            bit <<= 1
-
-
-class _TimedPortGroup(PortGroup):
-    """A PortGroup adding its poll to the calling task's drain time (``cycleprof``)."""
-
-    __slots__ = ()
-
-    def poll(self) -> None:
-        t0 = _clock()
-        PortGroup.poll(self)
-        prof = cycleprof.current()
-        if prof is not None:
-            prof.drain_ns += _clock() - t0
-
-
 class _TimedPortReader(PortReader):
     """A PortReader adding its time to the calling task's cycle profile (``cycleprof``)."""
 
@@ -285,7 +188,6 @@ class _TimedPortWriter(PortWriter):
 
 
 _clock = time.monotonic_ns
-_POLLIN = select.POLLIN
 
 
 class DeviceTaskBody:
@@ -303,7 +205,6 @@ class DeviceTaskBody:
         self._dev_out = PortWriter(dev_sock)
         self._out = PortWriter(out_sock)
         self._out_in = PortReader(out_sock, 256)
-        self._ports = PortGroup((self._dev_in, self._out_in))
         self._clock = clock
         self.cycles = 0
         self.unexpected = 0

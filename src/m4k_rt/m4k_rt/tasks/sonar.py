@@ -54,7 +54,6 @@ class SonarBody(DeviceTaskBody):
     def __call__(self, ctx: Any = None) -> None:
         """Run one sonar cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
-        self._ports.poll()
         state = self.state
         reader = self._dev_in
         reader.start_cycle()
