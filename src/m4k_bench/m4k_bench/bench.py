@@ -10,7 +10,9 @@ root, else it says what to install), holds ``/dev/cpu_dma_latency`` at 0 µs for
    stress-ng: cyclictest alone, m4k, the baseline; the XDDP round trip on the tasks' receive
    path. Every m4k and baseline condition runs with cyclictest *concurrently*, at the
    actuator's period and priority. m4k conditions run end to end: cmd_vel over DDS -> bridge
-   -> XDDP -> actuator (+ driver_host on simulated devices);
+   -> XDDP -> actuator (+ driver_host on simulated devices). One more full-stack run per round
+   has rt_core's cycle profile on (``m4k_rt.cycleprof``): the per-task breakdown of a cycle
+   (wake, drain + decode, control, encode + send, timing record, rusage) in the report;
 2. **scaling**: the actuator alone and with the task set at 100, 250, 500 and 1000 Hz, each with
    cyclictest at the same rate;
 3. cmd_vel -> WHEEL_CMD latency.
@@ -32,7 +34,6 @@ import json
 import os
 import random
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -394,23 +395,15 @@ class Bench:
     def _floor(self, seconds: float) -> dict[str, Any] | None:
         if not self.task_rates:
             return None
+        from m4k_bench.benchlib import floor
         ts = list(self.task_rates.values())
-        argv = stack.entry_argv(
-            'm4k_bench.benchlib.floor',
-            '--periods-ms', ','.join('{:g}'.format(t['period_ns'] / 1e6) for t in ts),
-            '--priorities', ','.join(str(t['priority']) for t in ts),
-            '--offsets-ms', ','.join('{:g}'.format(t['offset_ns'] / 1e6) for t in ts),
-            '--seconds', str(seconds))
-        try:
-            p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
-                               env=self.env, check=False)
-        except subprocess.TimeoutExpired:
-            self._note('floor: timed out')
+        out = floor.run_floor_child([int(t['period_ns']) for t in ts],
+                                    [int(t['priority']) for t in ts],
+                                    [int(t['offset_ns']) for t in ts], seconds, self.env)
+        if isinstance(out, str):
+            self._note(out)
             return None
-        if p.returncode != 0 or not p.stdout.strip():
-            self._note('floor: exit {}: {}'.format(p.returncode, p.stderr.strip()[-300:]))
-            return None
-        return json.loads(p.stdout.strip().splitlines()[-1])
+        return out
 
     def _rtt(self, n: int, tag: str) -> dict[str, Any] | None:
         from m4k_bench import xddp_bench
