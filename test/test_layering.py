@@ -7,6 +7,10 @@
 * The pure protocol modules of ``m4k_drivers`` (SCIP 2.0, myAHRS+ registers, AS5045/MCP4911
   words, US-100 pulses, LED colour) load no transport (pyserial, python-periphery, smbus2,
   spidev) and no ROS: the same code runs against the real device and the simulator.
+* The pure parts of the bridge are tested without a ROS context: ``bridge.health`` (outages,
+  counters, the link / cmd_vel / device status inputs) loads no ROS at all;
+  ``bridge.diagnostics`` (RtMonitor) builds RtStatus and DiagnosticStatus, so it loads those
+  interface packages (plain rosidl classes), but never rclpy.
 
 Each module is imported in its own interpreter and ``sys.modules`` is inspected, so an import
 hidden three modules deep is found too. Modules are discovered by walking the packages, so a
@@ -30,6 +34,7 @@ _PROTOCOL_MODULES = ('m4k_drivers.lrf.scip', 'm4k_drivers.imu.protocol',
                      'm4k_drivers.motors.protocol', 'm4k_drivers.sonar.protocol',
                      'm4k_drivers.led.protocol')
 _TRANSPORTS = ('serial', 'periphery', 'smbus2', 'spidev')
+_ROS_RUNTIME = ('rclpy', 'rpyutils', 'launch', 'launch_ros')
 
 _PROBE = r"""
 import importlib, json, sys
@@ -52,8 +57,12 @@ def _modules(pkg_dir: str, pkg: str) -> list[str]:
 
 def _is_ros(name: str) -> bool:
     top = name.split('.')[0]
-    return (top in ('rclpy', 'rpyutils', 'launch', 'launch_ros') or top.startswith('rosidl')
+    return (top in _ROS_RUNTIME or top.startswith('rosidl')
             or top.endswith(('_msgs', '_srvs', '_interfaces', '_actions')))
+
+
+def _is_ros_runtime(name: str) -> bool:
+    return name.split('.')[0] in _ROS_RUNTIME
 
 
 def _is_transport(name: str) -> bool:
@@ -92,6 +101,7 @@ def test_the_classifiers_tell_ros_and_transports_apart():
     assert not _is_ros('m4k_rt.protocol') and not _is_ros('struct')
     assert _is_transport('serial.tools') and _is_transport('periphery')
     assert not _is_transport('m4k_drivers.lrf.scip')
+    assert _is_ros_runtime('rclpy.node') and not _is_ros_runtime('diagnostic_msgs.msg')
 
 
 def test_the_probe_sees_an_import_made_through_another_module(tmp_path):
@@ -112,4 +122,16 @@ def test_no_module_of_the_rt_side_loads_ros(tmp_path):
 def test_a_pure_protocol_module_loads_no_transport_and_no_ros(module, tmp_path):
     names = _loaded_by([module], tmp_path)[module]
     bad = sorted({n.split('.')[0] for n in names if _is_ros(n) or _is_transport(n)})
+    assert bad == [], f'{module} loads {bad}'
+
+
+# The bridge's pure modules and what each must not load.
+_BRIDGE_PURE = {'m4k_rt.bridge.health': _is_ros, 'm4k_rt.bridge.diagnostics': _is_ros_runtime}
+
+
+@pytest.mark.parametrize('module', sorted(_BRIDGE_PURE))
+def test_the_bridge_bookkeeping_needs_no_ros_context(module, tmp_path):
+    assert module in _modules(_RT_PKG, 'm4k_rt')
+    names = _loaded_by([module], tmp_path)[module]
+    bad = sorted({n.split('.')[0] for n in names if _BRIDGE_PURE[module](n)})
     assert bad == [], f'{module} loads {bad}'

@@ -130,14 +130,14 @@ def test_cmd_vel_is_forwarded_clamped_and_nan_rejected(harness):
     got.clear()
     assert harness.spin_until(lambda: got and got[-1][1].linear_x == 2.0,
                               each=lambda: (pub.publish(fast), drain()))
-    assert harness.bridge.counters['cmd_vel_clamped'] >= 1
+    assert harness.bridge.health.counters['cmd_vel_clamped'] >= 1
     assert all(c.linear_x in (0.25, 2.0) for _, c in got)  # clamped, never 9
 
     bad = Twist()
     bad.linear.x = math.nan
     got.clear()
     assert harness.spin_until(
-        lambda: harness.bridge.counters['cmd_vel_rejected_nonfinite'] >= 3,
+        lambda: harness.bridge.health.counters['cmd_vel_rejected_nonfinite'] >= 3,
         each=lambda: (pub.publish(bad), drain()))
     drain()
     # Only clamped commands still in flight arrive; nothing of the NaN ones is forwarded.
@@ -200,7 +200,7 @@ def test_datagrams_become_odom_imu_scan_and_sonar(harness):
 def test_malformed_datagram_is_counted_not_published(harness):
     odom = harness.collect(Odometry, 'odom')
     harness.rt.socks['cmd'].send(b'MK-garbage-datagram')
-    assert harness.spin_until(lambda: harness.bridge.counters['malformed_cmd'] >= 1)
+    assert harness.spin_until(lambda: harness.bridge.health.counters['malformed_cmd'] >= 1)
     assert not odom
 
 
@@ -304,16 +304,16 @@ def test_rt_restart_is_survived_and_reported(harness):
     rt = harness.rt
     def feed():
         return (rt.send('cmd', protocol.Kind.ODOMETRY, 1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
-    assert harness.spin_until(lambda: harness.bridge._rt_alive, each=feed)
+    assert harness.spin_until(lambda: harness.bridge.health.rt_alive, each=feed)
     harness.bridge.set_parameters([Parameter('rt_stale_timeout', value=0.3)])
     rt.close()
-    assert harness.spin_until(lambda: not harness.bridge._rt_alive)
-    assert harness.bridge._outages == 1
+    assert harness.spin_until(lambda: not harness.bridge.health.rt_alive)
+    assert harness.bridge.health.outages == 1
     rt.bind()
     odom.clear()
     assert harness.spin_until(lambda: rt.linked() and odom, each=feed)
-    assert harness.spin_until(lambda: harness.bridge._rt_alive, each=feed)
-    assert harness.bridge._last_gap_s > 0
+    assert harness.spin_until(lambda: harness.bridge.health.rt_alive, each=feed)
+    assert harness.bridge.health.last_gap_s > 0
     assert all(p.lost >= 1 for p in harness.bridge._pumps.values())
 
 

@@ -11,12 +11,14 @@ diagnostics. On shutdown it sends one zero command. ``e_stop`` (std_msgs/Bool) a
 
 Outbound, datagrams from the RT process become ``odom``, ``imu``, ``scan``, ``sonar``, and
 through :mod:`m4k_rt.bridge.tf` ``joint_states``, ``tf``, ``tf_static`` and
-``robot_description``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and,
-with the link and device health, ``diagnostics``. Port I/O runs in one thread per port
-(:mod:`m4k_rt.bridge.ports` explains why); the executor thread does all ROS work.
+``robot_description``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and, with
+the link, command and device health (:mod:`m4k_rt.bridge.health`), ``diagnostics``. Port I/O
+runs in one thread per port (:mod:`m4k_rt.bridge.ports` explains why); the executor thread
+does all ROS work.
 
 The RT process may restart at any time: each port re-links by itself, the outage is logged
-once when it starts and once when it ends, with the gap, and counted in diagnostics.
+once when it starts and once when it ends, with the gap, and counted in diagnostics
+(:class:`m4k_rt.bridge.health.BridgeHealth` keeps that state; this module only logs it).
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from m4k_msgs.msg import RtStatus
 from m4k_rt import config, description, protocol, xddp
 from m4k_rt.bridge import convert, params
 from m4k_rt.bridge.diagnostics import make_status, RtMonitor
+from m4k_rt.bridge.health import BridgeHealth, Status
 from m4k_rt.bridge.ports import PortPump
 from m4k_rt.bridge.safety import SafetyInterface
 from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
@@ -68,9 +71,6 @@ _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _CMD_VEL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 _INBOX_MAX = 4096
 _WATCH_PERIOD_S = 0.25
-# Devices the bridge sees through their data ports: role -> (device, period expected [s]).
-_DEVICE_PORTS = {'imu_out': ('imu', 0.01), 'sonar_out': ('sonar', 0.03),
-                 'lrf_out': ('lrf', 0.2), 'led_in': ('led', 1.0), 'cmd': ('motor', 0.05)}
 _TYPES = {bool: ParameterType.PARAMETER_BOOL, float: ParameterType.PARAMETER_DOUBLE,
           str: ParameterType.PARAMETER_STRING, list: ParameterType.PARAMETER_DOUBLE_ARRAY}
 
@@ -84,6 +84,10 @@ def _descriptor(s: params.ParamSpec) -> ParameterDescriptor:
     elif s.lo is not None:
         d.additional_constraints = 'every element within [{}, {}]'.format(s.lo, s.hi)
     return d
+
+
+def _diagnostic(s: Status) -> Any:
+    return make_status(s.name, s.level, s.message, s.values, hardware_id=s.hardware_id)
 
 
 class BridgeNode(Node):
@@ -100,24 +104,14 @@ class BridgeNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         p = self.p
-        self.counters: collections.Counter[str] = collections.Counter()
         self._seq = 0
         self._led_seq = 0
-        self._last_seq: dict[str, int] = {}
-        self._last_cmd_ns = 0
-        self._last_odom: protocol.Odometry | None = None
-        self._last_odom_ns = 0
-        self._led_shown: protocol.Led | None = None
         self._monitor = RtMonitor(p['stats_window'], p['rt_stale_timeout'])
         self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
-        self._rt_alive = False
-        self._outage_start_ns = time.monotonic_ns()
-        self._outage_seen_ns = 0
-        self._last_rx_seen = 0
-        self._lost_seen = 0
-        self._outages = 0
-        self._last_gap_s = 0.0
-        self._reported_errors: set[str] = set()
+        runtime_dir = p['runtime_dir'] or None
+        self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
+        # Outages, counters and the link / cmd_vel / device statuses (m4k_rt.bridge.health).
+        self.health = BridgeHealth(time.monotonic_ns(), self._runtime_dir)
 
         qos_sensor = qos_profile_sensor_data
         self._odom_pub = self.create_publisher(Odometry, p.topic('odom'), _RELIABLE)
@@ -137,8 +131,6 @@ class BridgeNode(Node):
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
-        runtime_dir = p['runtime_dir'] or None
-        self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
         self._pumps = {role: PortPump(role, p.port(role), self._deliver, runtime_dir,
                                       p['relink_interval'])
                        for role in params.PORT_ROLES}
@@ -247,20 +239,19 @@ class BridgeNode(Node):
                 linear_x, angular_z, self.p['max_linear_velocity'],
                 self.p['max_angular_velocity'])
         except convert.NonFiniteCommand as exc:
-            self.counters['cmd_vel_rejected_nonfinite'] += 1
-            self.get_logger().warning('{}: rejected ({} so far)'.format(
-                exc, self.counters['cmd_vel_rejected_nonfinite']), throttle_duration_sec=1.0)
+            n = self.health.count('cmd_vel_rejected_nonfinite')
+            self.get_logger().warning('{}: rejected ({} so far)'.format(exc, n),
+                                      throttle_duration_sec=1.0)
             return
         if clamped:
-            self.counters['cmd_vel_clamped'] += 1
+            n = self.health.count('cmd_vel_clamped')
             self.get_logger().warning(
                 'cmd_vel ({:.3f}, {:.3f}) beyond the limits ({}, {}): clamped ({} so far)'.format(
                     linear_x, angular_z, self.p['max_linear_velocity'],
-                    self.p['max_angular_velocity'], self.counters['cmd_vel_clamped']),
+                    self.p['max_angular_velocity'], n),
                 throttle_duration_sec=1.0)
         self._send_velocity(v, w)
-        self.counters['cmd_vel_forwarded'] += 1
-        self._last_cmd_ns = time.monotonic_ns()
+        self.health.on_cmd_vel_forwarded(time.monotonic_ns())
 
     def _send_velocity(self, v: float, w: float) -> None:
         self._pumps['cmd'].send(self._velocity_datagram(v, w))
@@ -274,20 +265,20 @@ class BridgeNode(Node):
         try:
             fields = convert.led_command(msg.r, msg.g, msg.b, msg.a)
         except convert.NonFiniteCommand as exc:
-            self.counters['led_rejected_nonfinite'] += 1
+            self.health.count('led_rejected_nonfinite')
             self.get_logger().warning('{}: rejected'.format(exc), throttle_duration_sec=1.0)
             return
         data = protocol.encode(protocol.Kind.LED, self._led_seq, time.monotonic_ns(), *fields)
         self._led_seq = protocol.next_seq(self._led_seq)
         self._pumps['led_in'].send(data)
-        self.counters['led_forwarded'] += 1
+        self.health.count('led_forwarded')
 
     # --- outbound: RT -> ROS --------------------------------------------------------------------
 
     def _deliver(self, role: str, data: bytes, rx_ns: int) -> None:
         """Queue a datagram from a pump thread and wake the executor (thread-safe)."""
         if len(self._inbox) >= _INBOX_MAX:
-            self.counters['inbox_overflow'] += 1
+            self.health.count('inbox_overflow')
             return
         self._inbox.append((role, data, rx_ns))
         try:
@@ -302,31 +293,23 @@ class BridgeNode(Node):
             role, data, rx_ns = self._inbox.popleft()
             self._handle(role, data, rx_ns, now_mono, now_ros)
 
-    def _track_seq(self, role: str, seq: int) -> None:
-        prev = self._last_seq.get(role)
-        if prev is not None:
-            lost = protocol.seq_gap(prev, seq)
-            if lost:
-                self.counters['lost_' + role] += lost
-        self._last_seq[role] = seq
-
     def _handle(self, role: str, data: bytes, rx_ns: int, now_mono: int, now_ros: int) -> None:
         try:
             header, payload = protocol.decode(data)
         except protocol.ProtocolError as exc:
-            self.counters['malformed_' + role] += 1
+            self.health.count('malformed_' + role)
             self.get_logger().warning('malformed datagram on port {!r}: {}'.format(role, exc),
                                       throttle_duration_sec=5.0)
             return
         if header.kind in (protocol.Kind.TASK_HEALTH, protocol.Kind.FORBIDDEN_SITE):
             self._monitor.feed(header.kind, payload, rx_ns)
             return
-        self._track_seq(role, header.seq)
+        self.health.on_seq(role, header.seq)
         stamp = convert.ros_stamp_ns(header.stamp_ns, now_mono, now_ros)
         p = self.p
         k = header.kind
         if k == protocol.Kind.ODOMETRY:
-            self._last_odom, self._last_odom_ns = payload, rx_ns
+            self.health.on_odometry(payload, rx_ns)
             self._odom_pub.publish(convert.odometry_msg(
                 payload, stamp, p['odom_frame'], p['base_frame'],
                 p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
@@ -337,24 +320,23 @@ class BridgeNode(Node):
                                   p['imu_angular_velocity_covariance_diagonal'],
                                   p['imu_linear_acceleration_covariance_diagonal'])
             if msg is None:
-                self.counters['imu_not_ready'] += 1
+                self.health.count('imu_not_ready')
             else:
                 self._imu_pub.publish(msg)
         elif k == protocol.Kind.LASER_SCAN:
             self._scan_pub.publish(convert.scan_msg(payload, stamp, p['laser_frame']))
         elif k == protocol.Kind.SONAR:
-            if payload.status > protocol.SONAR_NO_ECHO:
-                self.counters['sonar_faults'] += 1
+            self.health.on_sonar(payload.status)
             self._sonar_pub.publish(convert.sonar_msg(
                 payload, stamp, p['sonar_frame'], p['sonar_field_of_view'],
                 p['sonar_min_range'], p['sonar_max_range']))
         elif k == protocol.Kind.LED:
-            self._led_shown = payload
+            self.health.on_led_shown(payload)
         elif k == protocol.Kind.ODOM_RESET:
             if not self._safety.on_reset_ack(payload.request_id):
-                self.counters['unexpected_' + role] += 1
+                self.health.count('unexpected_' + role)
         elif not self._monitor.feed(k, payload, rx_ns, header.stamp_ns):
-            self.counters['unexpected_' + role] += 1
+            self.health.count('unexpected_' + role)
 
     # --- robot state: description, joint_states, tf (m4k_rt.bridge.tf) -----------------------
 
@@ -391,165 +373,50 @@ class BridgeNode(Node):
             self, lambda data: self._pumps['cmd'].send(data), self.p.topic('e_stop'),
             self.p['reset_odometry_timeout'])
 
-    # --- health -------------------------------------------------------------------------------
-
-    def _rt_last_rx_ns(self) -> int:
-        return max(pump.last_rx_ns for pump in self._pumps.values())
+    # --- health (m4k_rt.bridge.health) -------------------------------------------------------
 
     def _watch(self) -> None:
-        """Log RT process outages once per transition, and pump thread failures.
-
-        An outage starts when a port's link breaks (the RT side closed or died: XDDP reports
-        it at once, even if the RT process is back before the next check) or when nothing
-        arrived for ``rt_stale_timeout``; it ends with the first datagram after that.
-        """
-        now = time.monotonic_ns()
-        last = self._rt_last_rx_ns()
-        lost = sum(pump.lost for pump in self._pumps.values())
-        broke, self._lost_seen = lost > self._lost_seen, lost
-        linked = any(pump.linked for pump in self._pumps.values())
-        fresh = bool(last) and now - last < self.p['rt_stale_timeout'] * 1e9
-        if self._rt_alive and (broke or not fresh):
-            self._rt_alive = False
-            self._outages += 1
-            self._outage_start_ns = self._last_rx_seen or now
-            self._outage_seen_ns = now
-            self.get_logger().warning(
-                'lost the RT process ({}); ports re-linking, odom, imu, scan and sonar pause '
-                'until it is back'.format('link broken' if broke else 'no datagram for {} s'
-                                          .format(self.p['rt_stale_timeout'])))
-        elif not self._rt_alive and linked and fresh and last > self._outage_seen_ns:
-            self._rt_alive = True
-            gap = (last - self._outage_start_ns) * 1e-9
-            if self._outages:
-                self._last_gap_s = gap
-                self.get_logger().warning(
-                    'RT process is back after a {:.1f} s gap (outage {}); ports re-linked'.format(
-                        gap, self._outages))
+        """Log RT process outages once per transition (BridgeHealth.watch), and port failures."""
+        log = self.get_logger()
+        for event in self.health.watch(time.monotonic_ns(), self._pumps,
+                                       self.p['rt_stale_timeout']):
+            # One call site per severity: rclpy's logger refuses a call site whose severity
+            # changes between calls ('Logger severity cannot be changed between calls').
+            if event.severity == 'error':
+                log.error(event.message)
+            elif event.severity == 'warning':
+                log.warning(event.message)
             else:
-                self.get_logger().info('linked to the RT process after {:.1f} s'.format(gap))
-        self._last_rx_seen = last
+                log.info(event.message)
         self._safety.on_cmd_links(self._pumps['cmd'].links)
-        for role, pump in self._pumps.items():
-            if pump.error is not None and role not in self._reported_errors:
-                self._reported_errors.add(role)
-                self.get_logger().error('port {!r} reader failed: {!r}'.format(role, pump.error))
 
     def _publish_rt_status(self) -> None:
         now = time.monotonic_ns()
-        last = self._rt_last_rx_ns()
-        age = (now - last) * 1e-9 if last else float('inf')
-        # Fallback for an RT process whose RT_STATUS does not carry the collision guard.
-        guard = bool(self._last_odom is not None and self._last_odom.flags & protocol.ODOM_GUARD
-                     and now - self._last_odom_ns < 1e9)
-        msg = self._monitor.rt_status_msg(now, age, guard_fallback=guard)
+        h = self.health
+        msg = self._monitor.rt_status_msg(now, h.link_age_s(now, self._pumps),
+                                          guard_fallback=h.guard_fallback(now))
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.ports = self._monitor.port_msgs(now)   # the RT side's counters (PORT_STATS)
-        latch = self._safety.latch(self._last_odom, self._last_odom_ns, now)
+        latch = self._safety.latch(h.last_odom, h.last_odom_ns, now)
         msg.e_stop_active, msg.e_stop_hold = latch if latch is not None else (False, False)
         self._rt_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic_ns()
+        h = self.health
+        ports = self._pumps
+        statuses = h.device_statuses(
+            now, ports, {role: self.p['ports.' + role] for role in ports},
+            self._monitor.device_levels(now))
+        statuses.append(h.link_status(now, ports))
+        statuses.append(h.cmd_status(now, self.p['cmd_vel_timeout'],
+                                     ports['cmd'].dropped_unlinked))
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = self._monitor.task_statuses(now)
-        arr.status.extend(self._device_statuses(now))
-        arr.status.append(self._link_status(now))
-        arr.status.append(self._cmd_status(now))
-        arr.status.append(self._safety.status(self._last_odom, self._last_odom_ns, now))
+        arr.status.extend(_diagnostic(s) for s in statuses)
+        arr.status.append(self._safety.status(h.last_odom, h.last_odom_ns, now))
         self._diag_pub.publish(arr)
-
-    def _device_statuses(self, now: int) -> list:
-        """Return one DiagnosticStatus per device.
-
-        From the device's DEVICE_STATUS forwarded by the RT monitor when there is one (level
-        and state, faults, last_error, age_s from the report); only a device that never
-        reported falls back to judging by data arrival on its port. Either way the motor is
-        ERROR while the actuator flags it stale (no encoder feedback reaches the RT side).
-        """
-        reported = {name: (level, msg, values)
-                    for name, level, msg, values in self._monitor.device_levels(now)}
-        out = []
-        for role, (device, period) in _DEVICE_PORTS.items():
-            pump = self._pumps[role]
-            age = (now - pump.last_rx_ns) * 1e-9 if pump.last_rx_ns else float('inf')
-            values: dict[str, Any] = {'port': self.p['ports.' + role], 'data_age_s': age,
-                                      'received': pump.received}
-            rep = reported.pop(device, None)
-            if rep is not None:
-                level, msg = rep[0], rep[1]
-                values.update(rep[2])
-                values['source'] = 'device_status'
-            else:
-                stale_after = max(10 * period, 1.0)
-                if not self._rt_alive or age > stale_after:
-                    level, msg = protocol.LEVEL_STALE, 'no data for {:.1f} s'.format(age)
-                else:
-                    level, msg = protocol.LEVEL_OK, 'data flowing'
-                values['source'] = 'data_arrival'
-            if device == 'motor' and self._last_odom is not None and self._rt_alive:
-                values['odom_flags'] = self._last_odom.flags
-                if (self._last_odom.flags & protocol.ODOM_MOTOR_STALE
-                        and level < protocol.LEVEL_ERROR):
-                    level, msg = protocol.LEVEL_ERROR, 'motor stale (no encoder feedback)'
-            if device == 'sonar':
-                values['range_faults'] = self.counters['sonar_faults']
-            if device == 'imu':
-                values['not_ready'] = self.counters['imu_not_ready']
-            if device == 'led' and self._led_shown is not None:
-                values['shown'] = tuple(self._led_shown)
-            out.append(make_status('m4k_drivers: ' + device, level, msg, values,
-                                   hardware_id=device))
-        for name, (level, msg, values) in sorted(reported.items()):
-            values['source'] = 'device_status'
-            out.append(make_status('m4k_drivers: ' + name, level, msg, values, hardware_id=name))
-        return out
-
-    def _link_status(self, now: int) -> Any:
-        last = self._rt_last_rx_ns()
-        values: dict[str, Any] = {
-            'runtime_dir': self._runtime_dir,
-            'linked_ports': sum(p.linked for p in self._pumps.values()),
-            'outages': self._outages, 'last_gap_s': self._last_gap_s,
-            'relinks': sum(max(p.links - 1, 0) for p in self._pumps.values()),
-            # the bridge's own side of the links (RtStatus.ports holds the RT side's)
-            'bridge_sent': sum(p.sent for p in self._pumps.values()),
-            'bridge_received': sum(p.received for p in self._pumps.values()),
-            'bridge_dropped_unlinked': sum(p.dropped_unlinked for p in self._pumps.values()),
-            'bridge_dropped_overflow': sum(p.dropped_overflow for p in self._pumps.values()),
-            'last_datagram_age_s': (now - last) * 1e-9 if last else float('inf')}
-        for key in sorted(self.counters):
-            if key.startswith(('malformed_', 'lost_', 'unexpected_', 'inbox_')):
-                values[key] = self.counters[key]
-        if self._rt_alive:
-            level, msg = protocol.LEVEL_OK, 'linked'
-        elif self._outages:
-            level = protocol.LEVEL_STALE
-            msg = 'RT process lost {:.1f} s ago; re-linking'.format(
-                (now - self._outage_start_ns) * 1e-9)
-        else:
-            level = protocol.LEVEL_STALE
-            errs = {p.last_link_error for p in self._pumps.values() if p.last_link_error}
-            msg = 'waiting for the RT process' + (': ' + sorted(errs)[0] if errs else '')
-        return make_status('m4k_bridge: rt link', level, msg, values, hardware_id='m4k_rt')
-
-    def _cmd_status(self, now: int) -> Any:
-        c = self.counters
-        age = (now - self._last_cmd_ns) * 1e-9 if self._last_cmd_ns else float('inf')
-        values = {'forwarded': c['cmd_vel_forwarded'],
-                  'rejected_nonfinite': c['cmd_vel_rejected_nonfinite'],
-                  'clamped': c['cmd_vel_clamped'], 'last_cmd_age_s': age,
-                  'dropped_no_rt': self._pumps['cmd'].dropped_unlinked,
-                  'led_forwarded': c['led_forwarded'],
-                  'led_rejected_nonfinite': c['led_rejected_nonfinite']}
-        if c['cmd_vel_rejected_nonfinite'] or c['cmd_vel_clamped']:
-            level, msg = protocol.LEVEL_WARN, 'some commands rejected or clamped'
-        elif age > self.p['cmd_vel_timeout']:
-            level, msg = protocol.LEVEL_OK, 'idle (RT actuator brakes after its timeout)'
-        else:
-            level, msg = protocol.LEVEL_OK, 'commanded'
-        return make_status('m4k_bridge: cmd_vel', level, msg, values, hardware_id='m4k_bridge')
 
     # --- shutdown -------------------------------------------------------------------------------
 
