@@ -249,7 +249,9 @@ def format_breakdown(prof: dict[str, Any] | None) -> list[str]:
     if not prof or not prof.get('tasks'):
         return ['cycle breakdown: not measured']
     cols = (*cycleprof.PARTS, 'thread CPU')
-    lines = ['cycle breakdown, echo bodies (us per cycle; wake = thread CPU - timed parts)',
+    lines = ['cycle breakdown, echo bodies (us per cycle; wake = thread CPU - timed parts; '
+             'echo bodies receive and send without the timed port readers/writers, so their '
+             'I/O is in control; the robot bodies: bench, "Cycle breakdown")',
              '{:<10}'.format('task') + ''.join('{:>11}'.format(c) for c in cols)]
     for name, t in prof['tasks'].items():
         parts = t.get('parts_us') or {}
