@@ -69,19 +69,39 @@ def test_restart_delay_doubles_and_is_capped():
 
 def test_bridge_overlay_coerces_integers_and_adds_the_runtime_dir():
     doc = {'m4k_bridge': {'ros__parameters': {
-        'cmd_vel_timeout': 1, 'topics': {'odom': 'o'},
+        'stats_window': 20, 'topics': {'odom': 'o'},
         'odom_pose_covariance_diagonal': [0, 0, 1, 0, 0, 0]}}}
     out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
-    assert out['cmd_vel_timeout'] == 1.0 and isinstance(out['cmd_vel_timeout'], float)
+    assert out['stats_window'] == 20.0 and isinstance(out['stats_window'], float)
     assert out['topics'] == {'odom': 'o'} and out['runtime_dir'] == '/run/x'
     assert all(isinstance(v, float) for v in out['odom_pose_covariance_diagonal'])
 
 
 def test_bridge_overlay_names_a_bad_field():
-    doc = {'m4k_bridge': {'ros__parameters': {'max_linear_velocity': -3}}}
+    doc = {'m4k_bridge': {'ros__parameters': {'rt_stale_timeout': -3}}}
     with pytest.raises(bridge_params.ParamError) as info:
         bringup.bridge_overlay(doc, '/run/x')
-    assert info.value.name == 'max_linear_velocity'
+    assert info.value.name == 'rt_stale_timeout'
+
+
+def test_bridge_overlay_refuses_a_derived_value_set_beside_its_source():
+    doc = {'m4k_bridge': {'ros__parameters': {'cmd_vel_timeout': 1.0}}}
+    with pytest.raises(bridge_params.ParamError) as info:
+        bringup.bridge_overlay(doc, '/run/x')
+    assert info.value.name == 'cmd_vel_timeout'
+    assert 'derived from control.cmd_vel_timeout' in str(info.value)
+
+
+def test_bridge_overlay_takes_timeout_and_limits_from_the_control_section(tmp_path):
+    from m4k_rt import config
+    overlay = write_overlay(tmp_path, {'control': {
+        'cmd_vel_timeout': 0.8, 'linear': {'max_velocity': 1.25}}})
+    out = bringup.bridge_overlay(config.load_layered(overlay),
+                                 '/run/x')['m4k_bridge']['ros__parameters']
+    assert out['cmd_vel_timeout'] == 0.8 and out['max_linear_velocity'] == 1.25
+    assert out['max_angular_velocity'] == config.load_layered()['control']['angular'][
+        'max_velocity']
+    assert out['ports'] == {r: r for r in bridge_params.PORT_ROLES}
 
 
 def test_resolve_command_falls_back_to_python_m():
@@ -153,10 +173,10 @@ def test_bridge_overlay_derives_the_description_and_frames_from_the_configuratio
     assert out['laser_frame'] == 'urg' and out['imu_frame'] == 'imu_link'
     laser = {j.child: j for j in description.fixed_joints(out['robot_description'])}['urg']
     assert laser.xyz == pytest.approx((0.1, 0.0, 0.3))
-    # The overlay's own m4k_bridge section wins over the derived values.
+    # The frame has one source: the overlay's m4k_bridge section may not restate it.
     doc['m4k_bridge'] = {'ros__parameters': {'laser_frame': 'mine'}}
-    out = bringup.bridge_overlay(doc, '/run/x')['m4k_bridge']['ros__parameters']
-    assert out['laser_frame'] == 'mine'
+    with pytest.raises(bridge_params.ParamError, match='robot.sensors.laser.frame'):
+        bringup.bridge_overlay(doc, '/run/x')
 
 
 # --- processes ---------------------------------------------------------------------------------
@@ -181,9 +201,77 @@ def test_bridge_with_a_misspelt_parameter_exits_2(procs, tmp_path, m4k_runtime_d
     assert p.returncode == 2 and 'max_linear_velocty' in err and 'unknown parameter' in err
 
 
+def _remote_parameters(names, timeout=30.0):
+    """Return the m4k_bridge parameter values for ``names``, asked over DDS (rcl_interfaces)."""
+    from rcl_interfaces.srv import GetParameters
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import parameter_value_to_python
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('param_probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        client = node.create_client(GetParameters, '/m4k_bridge/get_parameters')
+        assert client.wait_for_service(timeout_sec=timeout), 'no /m4k_bridge/get_parameters'
+        future = client.call_async(GetParameters.Request(names=list(names)))
+        executor.spin_until_future_complete(future, timeout_sec=timeout)
+        assert future.done(), 'get_parameters did not answer'
+        values = [parameter_value_to_python(v) for v in future.result().values]
+        return dict(zip(names, values, strict=True))
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+def test_bridge_started_by_hand_takes_the_derived_values_from_the_layered_configuration(
+        procs, tmp_path, m4k_runtime_dir):
+    # ros2 run m4k_rt bridge, no parameters: the command timeout, limits and frames still come
+    # from the configuration (here a config directory whose control and robot sections differ).
+    import shutil
+    conf = tmp_path / 'config'
+    shutil.copytree(os.path.join(ROOT, 'config'), conf)
+    control = yaml.safe_load((conf / 'control.yaml').read_text())
+    control['control']['cmd_vel_timeout'] = 0.8
+    control['control']['angular']['max_velocity'] = 1.1
+    (conf / 'control.yaml').write_text(yaml.safe_dump(control))
+    robot = yaml.safe_load((conf / 'robot.yaml').read_text())
+    robot['robot']['sensors']['laser']['frame'] = 'urg_link'
+    (conf / 'robot.yaml').write_text(yaml.safe_dump(robot))
+    env = dict(stack_env(m4k_runtime_dir), M4K_CONFIG_DIR=str(conf))
+    p = procs.start(['python', '-m', 'm4k_rt.bridge.node'], env=env)
+    names = ['cmd_vel_timeout', 'max_angular_velocity', 'max_linear_velocity', 'laser_frame',
+             'ports.cmd']
+    got = _remote_parameters(names)
+    assert p.poll() is None
+    assert got == {'cmd_vel_timeout': 0.8, 'max_angular_velocity': 1.1,
+                   'max_linear_velocity': control['control']['linear']['max_velocity'],
+                   'laser_frame': 'urg_link', 'ports.cmd': 'cmd'}
+
+
+@pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+def test_bringup_gives_the_bridge_the_overlays_command_timeout_and_limits(
+        procs, tmp_path, m4k_runtime_dir):
+    # One source: control.cmd_vel_timeout (and the speed limit) changed in the overlay reach the
+    # running bridge's parameters, with nothing written in an m4k_bridge section.
+    overlay = write_overlay(tmp_path, {'control': {'cmd_vel_timeout': 0.8,
+                                                   'linear': {'max_velocity': 1.25}}})
+    p = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay, extra=['--no-status'])
+    got = _remote_parameters(['cmd_vel_timeout', 'max_linear_velocity'], timeout=60.0)
+    assert got == {'cmd_vel_timeout': 0.8, 'max_linear_velocity': 1.25}
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(40) == 0, (tmp_path / 'bringup.err').read_text()[-2000:]
+
+
 @pytest.mark.parametrize('extra, field', [
     ({'m4k_bridge': {'ros__parameters': {'odom_frame': ''}}}, 'odom_frame'),
     ({'tasks': {'led': {'priority': 120}}}, 'tasks.led.priority'),
+    ({'control': {'linear': {'max_velocity': -1}}}, 'control.linear.max_velocity: must be > 0'),
+    ({'m4k_bridge': {'ros__parameters': {'cmd_vel_timeout': 1.0}}},
+     'derived from control.cmd_vel_timeout'),
 ])
 def test_bringup_refuses_a_bad_overlay_naming_the_field(procs, tmp_path, m4k_runtime_dir,
                                                          extra, field):

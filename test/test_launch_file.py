@@ -81,6 +81,15 @@ def test_launch_starts_what_bringup_starts_with_the_derived_bridge_parameters(
     assert values.get('publish_robot_state', True) is True
 
 
+def test_launch_derives_the_bridge_timeout_from_the_overlays_control_section(
+        monkeypatch, tmp_path, m4k_runtime_dir):
+    overlay = tmp_path / 'o.yaml'
+    overlay.write_text(yaml.safe_dump({'control': {'cmd_vel_timeout': 0.8}}))
+    nodes = _evaluate(monkeypatch, m4k_runtime_dir, config=str(overlay))
+    bridge = nodes[[n.node_executable for n in nodes].index('bridge')]
+    assert _bridge_params(bridge)['cmd_vel_timeout'] == 0.8
+
+
 def test_sim_false_refuses_a_configuration_with_simulated_devices(monkeypatch,
                                                                   m4k_runtime_dir):
     with pytest.raises(RuntimeError, match='sim:=false but the configuration has simulated'):

@@ -84,25 +84,19 @@ class RosUser:
         raise AssertionError('timed out after {} s waiting for {}'.format(timeout, what))
 
     def wait_still(self, timeout, window=0.3, tol=0.002):
-        """Wait until odom's position stays within ``tol`` for ``window`` s; return since when.
+        """Wait until odom's position stays within ``tol`` for ``window`` s of odom time.
 
         Position, not the odom speed: the speed is differenced from 12-bit encoders and
-        carries quantization noise (and rare spikes) even at rest.
+        carries quantization noise (and rare spikes) even at rest. The window is measured on
+        the odometry's own stamps, not on this process's clock: when the odometry stream
+        stalls (a starved bridge or test process), no new samples is no evidence of rest.
         """
         odom = self.got['odom']
-        state = {'ref': None, 'since': None}
 
         def still():
-            p = odom[-1].pose.pose.position
-            now = time.monotonic()
-            ref = state['ref']
-            if ref is None or math.hypot(p.x - ref[0], p.y - ref[1]) > tol:
-                state['ref'], state['since'] = (p.x, p.y), now
-                return False
-            return now - state['since'] >= window
+            return (_stamp_ns(odom[-1]) - _still_since_stamp(odom, tol)) * 1e-9 >= window
 
         self.spin_until(still, timeout, 'the robot to stand still')
-        return state['since']
 
     def publisher(self, typ, topic):
         """Create a publisher and wait until the bridge's subscription matched it."""

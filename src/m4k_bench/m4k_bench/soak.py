@@ -230,7 +230,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise RuntimeError('the stack did not start; see {}'.format(log_path))
             time.sleep(0.2)
         stat.thread.start()
-        cmd_thread = stack.ros_commander(stop_cmd)
+        # The leak check's warm-up starts when the whole loop flows (odometry reports the
+        # commanded motion), not when the processes exist: a loaded machine can take many
+        # seconds to bring the bridge's DDS side up, and that start-up is not a leak.
+        moving = threading.Event()
+        cmd_thread = stack.ros_commander(stop_cmd, moving=moving)
+        if not moving.wait(120.0):
+            raise RuntimeError('no motion on odom 120 s after the stack started; see {}'.format(
+                log_path))
         stress_ng = tools.get('stress-ng')
         if not args.no_stress and stress_ng:
             stress = system.Stress(stress_ng, args.duration)

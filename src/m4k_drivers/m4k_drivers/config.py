@@ -8,6 +8,7 @@ Two sections::
         enabled: true   # optional, default true
         xddp_port: 3    # optional, default from DEFAULT_PORTS
         bus: 1          # backend fields, schema declared with the backend's registration
+                        # (registry.Param, validated as an m4k_rt.schema Field)
     world:              # the simulated world (m4k_drivers.world.WorldConfig.from_dict)
 
 Every error is a :class:`ConfigError` whose message starts with the dotted field name.
@@ -25,9 +26,10 @@ from m4k_drivers import registry
 from m4k_drivers.handler import DriverError
 from m4k_drivers.world import WorldConfig, WorldConfigError
 from m4k_rt.config import deep_merge as merge
+from m4k_rt.schema import Field, REQUIRED, Section
 
-__all__ = ['DEFAULT_PORTS', 'ConfigError', 'DriverConfig', 'default_config_path', 'load',
-           'load_file', 'merge', 'validate']
+__all__ = ['COMMON', 'DEFAULT_PORTS', 'ConfigError', 'DriverConfig', 'default_config_path',
+           'load', 'load_file', 'merge', 'schema_sections', 'validate']
 
 # XDDP ports of the driver-host peers (docs/internals.md, "Ports").
 DEFAULT_PORTS = {'motor': 2, 'imu': 3, 'led': 5, 'sonar': 7, 'lrf': 9}
@@ -78,18 +80,39 @@ def load_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     return data
 
 
-def _check_type(value: Any, param: registry.Param, where: str) -> Any:
-    types = param.type if isinstance(param.type, tuple) else (param.type,)
-    if float in types and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if isinstance(value, bool) and bool not in types:
-        ok = False
-    else:
-        ok = isinstance(value, types)
-    if not ok:
-        names = ' or '.join(t.__name__ for t in types)
-        raise ConfigError(f'{where}: expected {names}, got {value!r}')
-    return value
+def _error(path: str, message: str) -> ConfigError:
+    return ConfigError(f'{path}: {message}')
+
+
+def _port_or_label(v: Any) -> str | None:
+    return 'expected a port number or label, got {!r}'.format(v) if v == '' else None
+
+
+# The keys every device section has, whatever its backend (registry.COMMON_KEYS).
+COMMON: dict[str, Field] = {
+    'backend': Field('str', REQUIRED, 'Which registered backend serves the device (real '
+                     'hardware, sim on sim_robot, or an alternative interface). An unknown '
+                     'one is refused, listing the valid ones.'),
+    'enabled': Field('bool', True, 'false: the driver host does not open the device; the RT '
+                     'side reports it silent.', expect='bool'),
+    'xddp_port': Field('int|str', '<ports.kind>', 'XDDP port (number or label) of the RT peer; '
+                       'default: ports.<kind> of m4k.yaml, else DEFAULT_PORTS. A wrong one never '
+                       'links.',
+                       lo=0, expect='a port number or label', check=_port_or_label),
+}
+
+
+def schema_sections() -> list[Section]:
+    """Return one schema Section per registered (device kind, backend), for the docs."""
+    out = []
+    for kind in registry.kinds():
+        for backend in registry.backends(kind):
+            spec = registry.get(kind, backend)
+            fields = {k: f for k, f in COMMON.items() if k != 'backend'}
+            fields.update((n, p.as_field()) for n, p in spec.params.items())
+            out.append(Section(f'devices.{kind}', f'devices.{kind}, backend: {backend} '
+                               '(config/devices.yaml)', fields))
+    return out
 
 
 def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
@@ -104,15 +127,12 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
         spec = registry.get(kind, backend)
     except registry.RegistryError as exc:
         raise ConfigError(f'{where}.backend: {exc}') from None
-    out: dict[str, Any] = {'backend': backend,
-                           'enabled': section.get('enabled', True),
-                           'xddp_port': section.get('xddp_port', DEFAULT_PORTS.get(kind))}
-    if not isinstance(out['enabled'], bool):
-        raise ConfigError(f'{where}.enabled: expected bool, got {out["enabled"]!r}')
-    port = out['xddp_port']
-    if not (isinstance(port, str) and port) and not (
-            isinstance(port, int) and not isinstance(port, bool) and port >= 0):
-        raise ConfigError(f'{where}.xddp_port: expected a port number or label, got {port!r}')
+    out: dict[str, Any] = {
+        'backend': backend,
+        'enabled': COMMON['enabled'].validate(f'{where}.enabled', section.get('enabled', True),
+                                              _error),
+        'xddp_port': COMMON['xddp_port'].validate(
+            f'{where}.xddp_port', section.get('xddp_port', DEFAULT_PORTS.get(kind)), _error)}
     unknown = sorted(set(section) - set(registry.COMMON_KEYS) - set(spec.params))
     if unknown:
         valid = sorted(set(registry.COMMON_KEYS) | set(spec.params))
@@ -120,10 +140,7 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
                           f'valid: {", ".join(valid)}')
     for name, param in spec.params.items():
         if name in section:
-            out[name] = _check_type(section[name], param, f'{where}.{name}')
-            reason = param.check(out[name]) if param.check is not None else None
-            if reason:
-                raise ConfigError(f'{where}.{name}: {reason}, got {out[name]!r}')
+            out[name] = param.as_field().validate(f'{where}.{name}', section[name], _error)
         elif param.required:
             doc = f' ({param.doc})' if param.doc else ''
             raise ConfigError(f'{where}.{name}: missing, required by backend {backend!r}{doc}')

@@ -20,6 +20,7 @@ import time
 from typing import Any, Callable, TYPE_CHECKING, TypeVar
 
 from m4k_drivers.handler import DriverError
+from m4k_rt.schema import Field, REQUIRED
 
 if TYPE_CHECKING:  # pragma: no cover
     from m4k_drivers.handler import DeviceHandler
@@ -74,6 +75,21 @@ class Param:
     def required(self) -> bool:
         """Return True when the field has no default."""
         return self.default is _REQUIRED
+
+    def as_field(self) -> Field:
+        """Return this as a schema Field (m4k_rt.schema), which validates it and documents it."""
+        types = self.type if isinstance(self.type, tuple) else (self.type,)
+        names = [t.__name__ for t in types if t is not type(None)]
+        check = self.check
+
+        def full(value: Any) -> str | None:
+            reason = check(value) if check is not None else None
+            return None if reason is None else f'{reason}, got {value!r}'
+
+        return Field('|'.join(names), REQUIRED if self.required else self.default, self.doc,
+                     nullable=type(None) in types,
+                     expect=' or '.join(t.__name__ for t in types),
+                     check=full if check is not None else None)
 
 
 @dataclass(frozen=True)

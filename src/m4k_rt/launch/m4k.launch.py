@@ -7,8 +7,9 @@ Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
 ``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
 simulated robot (``sim_robot``, when ``sim`` is on), rt_core, driver_host and the bridge (node
 m4k_bridge, parameters: share/m4k_rt/config/bridge.yaml, then those derived from the
-configuration -- runtime directory, robot description, sensor frames -- and the overlay's
-``m4k_bridge:`` section, then ``bridge_params``).
+configuration -- runtime directory, command timeout, velocity limits, sensor frames, port
+labels, robot description -- and the overlay's ``m4k_bridge:`` section, then
+``bridge_params``).
 
 ``sim``: ``auto`` (default) simulates when the configuration has any ``backend: sim`` device;
 ``true`` requires such devices; ``false`` refuses a configuration that still has simulated

@@ -5,8 +5,9 @@ present) from the config directory, then an optional user overlay. Mappings merg
 lists and scalars replace. Other top-level sections belong to other components and pass
 through untouched in :attr:`RtConfig.raw`.
 
-Validation errors are :class:`ConfigError` naming the field path and showing the bad value,
-e.g. ``tasks.led.priority: expected an int in 1..99, got 120``.
+Validation goes through the schema (:mod:`m4k_rt.schema`: ``RUNTIME``, ``TASK``, ``PORT``);
+errors are :class:`ConfigError` naming the field path and showing the bad value, e.g.
+``tasks.led.priority: expected an int in 1..99, got 120``.
 """
 
 import dataclasses
@@ -15,6 +16,9 @@ import re
 from typing import Any, Callable, Mapping
 
 import yaml
+
+from m4k_rt import schema
+from m4k_rt.schema import ConfigError
 
 __all__ = [
     'ConfigError', 'LAYERS', 'RtConfig', 'RuntimeConfig', 'TaskConfig', 'deep_merge',
@@ -25,32 +29,26 @@ LAYERS = ('m4k.yaml', 'devices.yaml', 'control.yaml', 'robot.yaml')
 _LABEL = re.compile(r'^[A-Za-z_][A-Za-z0-9_]{0,31}$')
 
 
-class ConfigError(ValueError):
-    """A configuration value is wrong; ``path`` names the field, ``value`` is what was found."""
-
-    def __init__(self, path: str, message: str, value: Any = None) -> None:
-        """Build 'path: message'."""
-        super().__init__('{}: {}'.format(path, message))
-        self.path = path
-        self.value = value
+def _d(name: str) -> Any:
+    return schema.RUNTIME[name].default
 
 
 @dataclasses.dataclass(frozen=True)
 class RuntimeConfig:
-    """The ``runtime`` section."""
+    """The ``runtime`` section (defaults: :data:`m4k_rt.schema.RUNTIME`)."""
 
-    runtime_dir: str | None = None
-    group: str | None = None
-    require_rt: bool = False
-    mlockall: bool = True
-    cpu_dma_latency: bool = True
-    switch_interval_s: float = 1e-4
-    stats_batch: int = 128
-    ring_capacity: int = 4096
-    start_delay_ms: float = 100.0
-    poolsz: int = 65536
-    max_datagram: int = 4096
-    max_ports: int = 32
+    runtime_dir: str | None = _d('runtime_dir')
+    group: str | None = _d('group')
+    require_rt: bool = _d('require_rt')
+    mlockall: bool = _d('mlockall')
+    cpu_dma_latency: bool = _d('cpu_dma_latency')
+    switch_interval_s: float = _d('switch_interval_s')
+    stats_batch: int = _d('stats_batch')
+    ring_capacity: int = _d('ring_capacity')
+    start_delay_ms: float = _d('start_delay_ms')
+    poolsz: int = _d('poolsz')
+    max_datagram: int = _d('max_datagram')
+    max_ports: int = _d('max_ports')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,10 +144,6 @@ def load_layered(overlay: str | None = None, config_dir: str | None = None) -> d
 
 # --- validation -----------------------------------------------------------------------------
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
 def _is_num(v: Any) -> bool:
     return (isinstance(v, (int, float)) and not isinstance(v, bool)) and v == v
 
@@ -160,57 +154,24 @@ def _mapping(v: Any, path: str) -> Mapping[str, Any]:
     return v
 
 
-def _unknown(m: Mapping[str, Any], allowed: set[str], path: str) -> None:
-    for k in m:
-        if k not in allowed:
-            raise ConfigError('{}.{}'.format(path, k), 'unknown key (allowed: {})'.format(
-                ', '.join(sorted(allowed))), k)
-
-
-_RUNTIME_TYPES: dict[str, tuple[Callable[[Any], bool], str]] = {
-    'runtime_dir': (lambda v: v is None or (isinstance(v, str) and v != ''),
-                    'a non-empty path or null'),
-    'group': (lambda v: v is None or (isinstance(v, str) and v != ''), 'a group name or null'),
-    'require_rt': (lambda v: isinstance(v, bool), 'true or false'),
-    'mlockall': (lambda v: isinstance(v, bool), 'true or false'),
-    'cpu_dma_latency': (lambda v: isinstance(v, bool), 'true or false'),
-    'switch_interval_s': (lambda v: _is_num(v) and 1e-6 <= v <= 1.0, 'seconds in 1e-6..1'),
-    'stats_batch': (lambda v: _is_int(v) and 1 <= v <= 4096, 'an int in 1..4096'),
-    'ring_capacity': (lambda v: _is_int(v) and 16 <= v <= 1 << 20, 'an int in 16..1048576'),
-    'start_delay_ms': (lambda v: _is_num(v) and 0 <= v <= 10000, 'ms in 0..10000'),
-    'poolsz': (lambda v: _is_int(v) and 4096 <= v <= 1 << 26, 'bytes in 4096..67108864'),
-    'max_datagram': (lambda v: _is_int(v) and 64 <= v <= 65536, 'bytes in 64..65536'),
-    'max_ports': (lambda v: _is_int(v) and 1 <= v <= 1024, 'an int in 1..1024'),
-}
-
-_TASK_KEYS = {'period_ms', 'offset_ms', 'priority', 'cpu', 'body', 'ports', 'enabled',
-              'params'}
-
-
 def _parse_runtime(m: Any) -> RuntimeConfig:
     m = _mapping(m if m is not None else {}, 'runtime')
-    _unknown(m, set(_RUNTIME_TYPES), 'runtime')
-    for k, v in m.items():
-        ok, what = _RUNTIME_TYPES[k]
-        if not ok(v):
-            raise ConfigError('runtime.' + k, 'expected {}, got {!r}'.format(what, v), v)
-    vals = dict(m)
-    if 'switch_interval_s' in vals:
-        vals['switch_interval_s'] = float(vals['switch_interval_s'])
-    return RuntimeConfig(**vals)
+    schema.check_keys(m, schema.RUNTIME, 'runtime')
+    return RuntimeConfig(**{k: schema.RUNTIME[k].validate('runtime.' + k, v)
+                            for k, v in m.items()})
 
 
 def _parse_ports(m: Any, max_ports: int) -> dict[str, int]:
     m = _mapping(m, 'ports')
+    field = dataclasses.replace(schema.PORT, hi=max_ports - 1,
+                                expect='a port number in 0..{}'.format(max_ports - 1))
     seen: dict[int, str] = {}
     for label, port in m.items():
         path = 'ports.{}'.format(label)
         if not isinstance(label, str) or not _LABEL.match(label):
             raise ConfigError(path, 'label must match {}, got {!r}'.format(
                 _LABEL.pattern, label), label)
-        if not _is_int(port) or not 0 <= port < max_ports:
-            raise ConfigError(path, 'expected a port number in 0..{}, got {!r}'.format(
-                max_ports - 1, port), port)
+        field.validate(path, port)
         if port in seen:
             raise ConfigError(path, 'duplicate port {!r} (also ports.{})'.format(
                 port, seen[port]), port)
@@ -225,44 +186,32 @@ def _parse_task(name: Any, m: Any, index: int, ports: Mapping[str, int],
         raise ConfigError(path, 'task name must be 1..16 bytes of text, got {!r}'.format(
             name), name)
     m = _mapping(m, path)
-    _unknown(m, _TASK_KEYS, path)
-    for key in ('period_ms', 'priority'):
-        if key not in m:
+    schema.check_keys(m, schema.TASK, path)
+    for key, field in schema.TASK.items():
+        if field.required and key not in m:
             raise ConfigError('{}.{}'.format(path, key), 'missing')
-    period = m['period_ms']
-    if not _is_num(period) or period <= 0:
-        raise ConfigError(path + '.period_ms', 'expected a number of ms > 0, got {!r}'.format(
-            period), period)
+
+    def get(key: str, default: Any = None) -> Any:
+        field = schema.TASK[key]
+        value = m.get(key, field.default if default is None else default)
+        return field.validate('{}.{}'.format(path, key), value)
+
+    period = get('period_ms')
     offset = m.get('offset_ms', 0)
     if not _is_num(offset) or not 0 <= offset < period:
         raise ConfigError(path + '.offset_ms', 'expected ms in 0..period_ms ({!r}), '
-                          'got {!r}'.format(period, offset), offset)
-    prio = m['priority']
-    if not _is_int(prio) or not 1 <= prio <= 99:
-        raise ConfigError(path + '.priority', 'expected an int in 1..99, got {!r}'.format(
-            prio), prio)
-    cpu = m.get('cpu')
-    if cpu is not None and (not _is_int(cpu) or cpu < 0):
-        raise ConfigError(path + '.cpu', 'expected a CPU index >= 0 or null, got {!r}'.format(
-            cpu), cpu)
-    body = m.get('body', name)
-    if not isinstance(body, str) or not body:
-        raise ConfigError(path + '.body', 'expected a body name, got {!r}'.format(body), body)
+                          'got {!r}'.format(m['period_ms'], offset), offset)
+    prio = get('priority')
+    cpu = get('cpu')
+    body = get('body', name)
     if body_exists is not None and not body_exists(body):
         raise ConfigError(path + '.body', 'unknown task body {!r}'.format(body), body)
-    labels = m.get('ports', [])
-    if not isinstance(labels, list) or not all(isinstance(x, str) for x in labels):
-        raise ConfigError(path + '.ports', 'expected a list of port labels, got {!r}'.format(
-            labels), labels)
+    labels = get('ports')
     for label in labels:
         if label not in ports:
             raise ConfigError(path + '.ports', 'unknown port label {!r}'.format(label), label)
-    enabled = m.get('enabled', True)
-    if not isinstance(enabled, bool):
-        raise ConfigError(path + '.enabled', 'expected true or false, got {!r}'.format(
-            enabled), enabled)
-    params = m.get('params', {}) or {}
-    _mapping(params, path + '.params')
+    enabled = get('enabled')
+    params = schema.TASK['params'].validate(path + '.params', m.get('params') or {})
     return TaskConfig(name, index, int(round(period * 1_000_000)), prio, cpu, body,
                       tuple(labels), enabled, dict(params), int(round(offset * 1_000_000)))
 

@@ -21,6 +21,9 @@ import math
 from typing import Any, Mapping, NamedTuple
 import xml.etree.ElementTree as ET
 
+from m4k_rt import schema
+from m4k_rt.control.params import CONTROL
+
 __all__ = ['DescriptionError', 'Joint', 'Mount', 'RobotModel', 'SENSORS', 'WHEEL_JOINTS',
            'fill_sim_mounts', 'fixed_joints', 'joints', 'model', 'mount_2d', 'urdf',
            'wheel_joints']
@@ -31,8 +34,8 @@ WHEEL_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
 _SIM_MOUNTS = {'lrf': 'laser', 'sonar': 'sonar'}
 
 
-class DescriptionError(ValueError):
-    """The robot section is wrong; the message names the field."""
+class DescriptionError(schema.ConfigError):
+    """The robot section (or a URDF text) is wrong; ``path`` names the field."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,69 +79,57 @@ class Joint(NamedTuple):
     axis: tuple[float, float, float] = (1.0, 0.0, 0.0)   # URDF's default
 
 
-def _num(m: Mapping[str, Any], key: str, path: str, positive: bool = True) -> float:
-    v = m.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise DescriptionError('{}.{}: expected a finite number, got {!r}'.format(path, key, v))
-    if positive and v <= 0:
-        raise DescriptionError('{}.{}: must be > 0, got {!r}'.format(path, key, v))
-    return float(v)
+def _error(path: str, message: str) -> DescriptionError:
+    return DescriptionError(path, message)
 
 
 def _mapping(v: Any, path: str) -> Mapping[str, Any]:
     if not isinstance(v, Mapping):
-        raise DescriptionError('{}: expected a mapping, got {!r}'.format(path, v))
+        raise DescriptionError(path, 'expected a mapping, got {!r}'.format(v))
     return v
 
 
 def _mount(m: Any, path: str) -> Mount:
     m = _mapping(m, path)
-    frame = m.get('frame')
-    if not isinstance(frame, str) or not frame or any(c.isspace() for c in frame):
-        raise DescriptionError('{}.frame: expected a frame id, got {!r}'.format(path, frame))
-    pose = m.get('pose')
-    if (not isinstance(pose, list) or len(pose) != 6
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                       and math.isfinite(v) for v in pose)):
-        raise DescriptionError('{}.pose: expected [x, y, z, roll, pitch, yaw] (6 finite numbers),'
-                               ' got {!r}'.format(path, pose))
-    p = [float(v) for v in pose]
+    sensor = path.rsplit('.', 1)[-1]
+    frame = schema.ROBOT['sensors.{}.frame'.format(sensor)].validate(
+        path + '.frame', m.get('frame'), _error)
+    p = schema.ROBOT['sensors.{}.pose'.format(sensor)].validate(
+        path + '.pose', m.get('pose'), _error)
     return Mount(frame, (p[0], p[1], p[2]), (p[3], p[4], p[5]))
 
 
 def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
-    """Return the robot model of a layered configuration document (``robot:`` + ``control:``)."""
+    """Return the robot model of a layered configuration document (``robot:`` + ``control:``).
+
+    The ``robot`` section is checked against :data:`m4k_rt.schema.ROBOT` (unknown keys too).
+    """
     robot = _mapping(doc.get('robot'), 'robot')
     control = _mapping(doc.get('control') or {}, 'control')
-    body = _mapping(robot.get('body'), 'robot.body')
     sensors = _mapping(robot.get('sensors'), 'robot.sensors')
     missing = [s for s in SENSORS if s not in sensors]
     if missing:
-        raise DescriptionError('robot.sensors: missing {}'.format(', '.join(missing)))
+        raise DescriptionError('robot.sensors', 'missing {}'.format(', '.join(missing)))
     mounts = {s: _mount(sensors[s], 'robot.sensors.' + s) for s in SENSORS}
     frames = [m.frame for m in mounts.values()] + [base_frame]
     if len(set(frames)) != len(frames):
-        raise DescriptionError('robot.sensors: frame ids must differ from each other and from '
+        raise DescriptionError('robot.sensors', 'frame ids must differ from each other and from '
                                '{!r}, got {!r}'.format(base_frame, frames[:-1]))
-    name = robot.get('name', 'm4k')
-    if not isinstance(name, str) or not name:
-        raise DescriptionError('robot.name: expected a name, got {!r}'.format(name))
+    v = schema.validate_tree(schema.ROBOT, robot, 'robot', _error)
+    wheel = {k: CONTROL[k].validate('control.' + k, control.get(k, CONTROL[k].default), _error)
+             for k in ('wheel_radius', 'track_width')}
     m = RobotModel(
-        name=name, length=_num(body, 'length', 'robot.body'),
-        width=_num(body, 'width', 'robot.body'), height=_num(body, 'height', 'robot.body'),
-        bottom=_num(body, 'bottom', 'robot.body', positive=False),
-        mass=_num(body, 'mass', 'robot.body'),
-        wheel_radius=_num(control, 'wheel_radius', 'control'),
-        track_width=_num(control, 'track_width', 'control'),
-        wheel_width=_num(robot, 'wheel_width', 'robot'),
-        wheel_mass=_num(robot, 'wheel_mass', 'robot'),
-        caster_radius=_num(robot, 'caster_radius', 'robot'),
-        caster_x=_num(robot, 'caster_x', 'robot'), sensors=mounts, base_frame=base_frame)
+        name=v['name'], length=v['body.length'], width=v['body.width'],
+        height=v['body.height'], bottom=v['body.bottom'], mass=v['body.mass'],
+        wheel_radius=wheel['wheel_radius'], track_width=wheel['track_width'],
+        wheel_width=v['wheel_width'], wheel_mass=v['wheel_mass'],
+        caster_radius=v['caster_radius'], caster_x=v['caster_x'], sensors=mounts,
+        base_frame=base_frame)
     if m.caster_radius >= m.wheel_radius:
-        raise DescriptionError('robot.caster_radius: must be smaller than control.wheel_radius '
+        raise DescriptionError('robot.caster_radius', 'must be smaller than control.wheel_radius '
                                '({}), got {}'.format(m.wheel_radius, m.caster_radius))
     if m.mass <= 2 * m.wheel_mass:
-        raise DescriptionError('robot.body.mass: must exceed the two wheels ({} kg), got {}'
+        raise DescriptionError('robot.body.mass', 'must exceed the two wheels ({} kg), got {}'
                                .format(2 * m.wheel_mass, m.mass))
     return m
 
@@ -263,9 +254,9 @@ def _floats(text: str | None, what: str) -> tuple[float, float, float]:
     try:
         v = tuple(float(x) for x in (text or '0 0 0').split())
     except ValueError:
-        raise DescriptionError('{}: expected three numbers, got {!r}'.format(what, text)) from None
+        raise DescriptionError(what, 'expected three numbers, got {!r}'.format(text)) from None
     if len(v) != 3 or not all(math.isfinite(x) for x in v):
-        raise DescriptionError('{}: expected three finite numbers, got {!r}'.format(what, text))
+        raise DescriptionError(what, 'expected three finite numbers, got {!r}'.format(text))
     return v[0], v[1], v[2]
 
 
@@ -274,9 +265,9 @@ def joints(text: str) -> list[Joint]:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
-        raise DescriptionError('robot_description: not valid XML: {}'.format(exc)) from None
+        raise DescriptionError('robot_description', 'not valid XML: {}'.format(exc)) from None
     if root.tag != 'robot':
-        raise DescriptionError('robot_description: root element must be <robot>, got <{}>'
+        raise DescriptionError('robot_description', 'root element must be <robot>, got <{}>'
                                .format(root.tag))
     links = {e.get('name') for e in root.findall('link')}
     out = []
@@ -284,11 +275,11 @@ def joints(text: str) -> list[Joint]:
         name, kind = j.get('name', ''), j.get('type', '')
         parent, child = j.find('parent'), j.find('child')
         if parent is None or child is None:
-            raise DescriptionError('joint {!r}: needs <parent> and <child>'.format(name))
+            raise DescriptionError('joint {!r}'.format(name), 'needs <parent> and <child>')
         p, c = parent.get('link', ''), child.get('link', '')
         if p not in links or c not in links:
-            raise DescriptionError('joint {!r}: links {!r} -> {!r} are not both defined'.format(
-                name, p, c))
+            raise DescriptionError('joint {!r}'.format(name), 'links {!r} -> {!r} are not both '
+                                   'defined'.format(p, c))
         origin = j.find('origin')
         xyz = _floats(origin.get('xyz') if origin is not None else None, name + ' origin xyz')
         rpy = _floats(origin.get('rpy') if origin is not None else None, name + ' origin rpy')
@@ -309,5 +300,5 @@ def wheel_joints(text: str) -> list[Joint]:
     by_name = {j.name: j for j in joints(text)}
     missing = [n for n in WHEEL_JOINTS if n not in by_name]
     if missing:
-        raise DescriptionError('robot_description: no joint {}'.format(', '.join(missing)))
+        raise DescriptionError('robot_description', 'no joint {}'.format(', '.join(missing)))
     return [by_name[n] for n in WHEEL_JOINTS]

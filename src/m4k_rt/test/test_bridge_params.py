@@ -17,12 +17,49 @@ def _yaml_params():
     return doc, params.check_section(doc)
 
 
-def test_bridge_yaml_holds_exactly_the_declared_defaults():
+def test_bridge_yaml_holds_exactly_the_declared_defaults_of_the_bridges_own_parameters():
     _, found = _yaml_params()
-    assert set(found) == {s.name for s in params.SPECS}
-    for s in params.SPECS:
+    own = [s for s in params.SPECS if s.name not in params.DERIVED]
+    assert set(found) == {s.name for s in own}      # derived values have one source elsewhere
+    for s in own:
         assert found[s.name] == s.default, s.name
         assert type(found[s.name]) is type(s.default), s.name
+
+
+def test_derived_values_follow_the_layered_configuration():
+    from m4k_rt import config
+    doc = config.deep_merge(config.load_layered(), {
+        'control': {'cmd_vel_timeout': 0.8, 'linear': {'max_velocity': 1.2},
+                    'angular': {'max_velocity': 0.9}},
+        'robot': {'sensors': {'imu': {'frame': 'ahrs', 'pose': [0, 0, 0.1, 0, 0, 0]}}}})
+    out = params.derived_values(doc)
+    assert set(out) == set(params.DERIVED)
+    assert (out['cmd_vel_timeout'], out['max_linear_velocity'], out['max_angular_velocity']) \
+        == (0.8, 1.2, 0.9)
+    assert out['imu_frame'] == 'ahrs' and out['laser_frame'] == 'laser'
+    assert out['ports.cmd'] == 'cmd' and '<link name="ahrs"' in out['robot_description']
+    # The static defaults of the derived parameters are the shipped configuration's values.
+    shipped = params.derived_values(config.load_layered())
+    for name, value in shipped.items():
+        if name != 'robot_description':
+            assert params.spec(name).default == value, name
+
+
+def test_derived_values_name_the_source_of_a_bad_value():
+    with pytest.raises(params.ParamError) as info:
+        params.derived_values({'control': {'cmd_vel_timeout': 90.0}})
+    assert info.value.name == 'cmd_vel_timeout'
+    assert 'within [0.0, 60.0]' in info.value.reason
+    assert 'derived from control.cmd_vel_timeout' in info.value.reason
+    with pytest.raises(params.ParamError, match="no label 'lrf_out'"):
+        params.derived_values({'ports': {r: i for i, r in enumerate(params.PORT_ROLES[:-1])}})
+
+
+def test_derived_parameters_may_not_be_set_beside_their_source():
+    with pytest.raises(params.ParamError) as info:
+        params.check_not_derived(['stats_window', 'max_linear_velocity'])
+    assert info.value.name == 'max_linear_velocity'
+    assert 'control.linear.max_velocity' in info.value.reason
 
 
 def test_defaults_validate_and_types_are_ros_friendly():

@@ -282,8 +282,14 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
 
 
 def ros_commander(stop: threading.Event, *, topic: str = 'cmd_vel',
-                  t0: float | None = None) -> threading.Thread:
-    """Start a thread publishing the velocity profile as Twist at 20 Hz until ``stop``."""
+                  t0: float | None = None,
+                  moving: threading.Event | None = None) -> threading.Thread:
+    """Start a thread publishing the velocity profile as Twist at 20 Hz until ``stop``.
+
+    With ``moving``, the thread also takes ``odom`` and sets the event at the first odometry
+    that reports motion: the whole loop (cmd_vel -> bridge -> RT -> drivers -> RT -> bridge ->
+    odom) is flowing.
+    """
     from geometry_msgs.msg import Twist
     import rclpy
     from rclpy.context import Context
@@ -293,6 +299,18 @@ def ros_commander(stop: threading.Event, *, topic: str = 'cmd_vel',
     node = rclpy.create_node('m4k_bench_commander', context=ctx)
     pub = node.create_publisher(Twist, topic, 10)
     start = time.monotonic() if t0 is None else t0
+    executor = None
+    if moving is not None:
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import qos_profile_sensor_data
+
+        def on_odom(msg: Odometry) -> None:
+            if abs(msg.twist.twist.linear.x) > 1e-3 or abs(msg.twist.twist.angular.z) > 1e-3:
+                moving.set()
+        node.create_subscription(Odometry, 'odom', on_odom, qos_profile_sensor_data)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
 
     def run() -> None:
         msg = Twist()
@@ -303,8 +321,17 @@ def ros_commander(stop: threading.Event, *, topic: str = 'cmd_vel',
                 msg.linear.x, msg.angular.z = v, w
                 pub.publish(msg)
                 nxt += CMD_PERIOD_S
-                stop.wait(max(0.0, nxt - time.monotonic()))
+                while True:          # serve odom while waiting for the next command
+                    left = nxt - time.monotonic()
+                    if left <= 0 or stop.is_set():
+                        break
+                    if executor is None or moving is None or moving.is_set():
+                        stop.wait(left)
+                    else:
+                        executor.spin_once(timeout_sec=left)
         finally:
+            if executor is not None:
+                executor.shutdown()
             node.destroy_node()
             ctx.try_shutdown()
 

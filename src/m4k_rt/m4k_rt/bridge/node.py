@@ -33,6 +33,7 @@ from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
+    IntegerRange,
     ParameterDescriptor,
     ParameterType,
     SetParametersResult,
@@ -59,6 +60,7 @@ from m4k_rt.bridge.ports import PortPump
 from m4k_rt.bridge.safety import SafetyInterface
 from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt.bridge.tf import RobotStatePublisher
+from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['BridgeNode', 'main', 'param_files']
@@ -71,18 +73,31 @@ _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _CMD_VEL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 _INBOX_MAX = 4096
 _WATCH_PERIOD_S = 0.25
-_TYPES = {bool: ParameterType.PARAMETER_BOOL, float: ParameterType.PARAMETER_DOUBLE,
-          str: ParameterType.PARAMETER_STRING, list: ParameterType.PARAMETER_DOUBLE_ARRAY}
+_TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
+          'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
+          'float[]': ParameterType.PARAMETER_DOUBLE_ARRAY}
 
 
-def _descriptor(s: params.ParamSpec) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=s.name, type=_TYPES[type(s.default)],
-                            description=s.description, read_only=s.read_only)
-    if isinstance(s.default, float) and s.lo is not None and s.hi is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float(s.lo),
-                                                     to_value=float(s.hi), step=0.0)]
-    elif s.lo is not None:
-        d.additional_constraints = 'every element within [{}, {}]'.format(s.lo, s.hi)
+def _descriptor(f: Field) -> ParameterDescriptor:
+    """Return the ROS descriptor of a schema Field: type, range, read-only, unit, source."""
+    text = f.description
+    if f.unit:
+        text += ' Unit: {}.'.format(f.unit)
+    if f.derived_from and 'Derived' not in text:
+        text += ' Derived from {} of the layered configuration.'.format(f.derived_from)
+    d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
+                            read_only=f.read_only)
+    if f.lo is not None and f.hi is not None:
+        if f.type == 'float':
+            d.floating_point_range = [FloatingPointRange(from_value=float(f.lo),
+                                                         to_value=float(f.hi), step=0.0)]
+        elif f.type == 'int':
+            d.integer_range = [IntegerRange(from_value=int(f.lo), to_value=int(f.hi), step=1)]
+        else:
+            d.additional_constraints = 'every element within [{}, {}]'.format(f.lo, f.hi)
+    if f.length is not None:
+        d.additional_constraints = ' '.join(filter(None, (
+            '{} elements;'.format(f.length), d.additional_constraints)))
     return d
 
 
@@ -166,15 +181,34 @@ class BridgeNode(Node):
     # --- parameters ---------------------------------------------------------------------------
 
     def _declare(self) -> params.BridgeParams:
+        """Declare every parameter; derived ones default to the layered configuration's values.
+
+        Bringup and the launch file pass the derived values; started by hand (``ros2 run``)
+        the node computes them itself from the layered configuration, so both get the same.
+        """
         values = {}
-        for s in params.SPECS:
+
+        def declare(s: Field, default: Any) -> None:
             try:
-                self.declare_parameter(s.name, s.default, _descriptor(s))
+                self.declare_parameter(s.name, default, _descriptor(s))
             except InvalidParameterTypeException as exc:
                 raise params.ParamError(s.name, str(exc)) from None
             except (InvalidParameterValueException, ParameterException) as exc:
                 raise params.ParamError(s.name, str(exc)) from None
             values[s.name] = self.get_parameter(s.name).value
+
+        for s in params.SPECS:
+            if s.name not in params.DERIVED:
+                declare(s, s.default)
+        try:
+            doc = config.load_layered()
+        except config.ConfigError as exc:
+            raise params.ParamError('<config>', 'cannot load the layered configuration the '
+                                    'derived parameters come from: {}'.format(exc)) from None
+        self._derived = params.derived_values(doc, values['base_frame'])
+        for s in params.SPECS:
+            if s.name in params.DERIVED:
+                declare(s, self._derived.get(s.name, s.default))
         return params.from_values({k: list(v) if not isinstance(v, (str, bool, float, int))
                                    else v for k, v in values.items()})
 
@@ -347,15 +381,12 @@ class BridgeNode(Node):
         is generated from) is unusable.
         """
         p = self.p
-        urdf = p['robot_description']
+        urdf = p['robot_description'] or self._derived.get('robot_description', '')
         try:
-            if not urdf:
-                urdf = description.urdf(description.model(config.load_layered(),
-                                                          p['base_frame']))
             state = RobotStatePublisher(self, urdf, p['odom_frame'], p['base_frame'],
                                         p['publish_tf'], p['publish_robot_state'],
                                         p.topic('joint_states'), p.topic('robot_description'))
-        except (description.DescriptionError, config.ConfigError) as exc:
+        except description.DescriptionError as exc:
             raise params.ParamError('robot_description', str(exc)) from None
         missing = [p[f] for f in ('base_frame', 'laser_frame', 'imu_frame', 'sonar_frame')
                    if p[f] not in state.links]

@@ -1,10 +1,20 @@
 """Parameters of the ``m4k_bridge`` node: one table of specs, pure validation (no rclpy).
 
-Every parameter is declared from :data:`SPECS` (name, default, unit-bearing description,
-range, read-only flag, extra check). ``config/bridge.yaml`` carries the same defaults under
-``m4k_bridge: ros__parameters:``; a test keeps the two in step. :func:`validate` is what the
-node's on-set-parameters callback and the start-up check both call, so a value is refused
-with the same reason whether it comes from a parameter file or ``ros2 param set``.
+Every parameter is declared from :data:`SPECS`, schema Fields (:mod:`m4k_rt.schema`: name,
+type, default, unit, description, range, read-only flag, extra check, derived source); the
+node builds its ParameterDescriptors from them. ``config/bridge.yaml`` carries the defaults of
+the bridge's own parameters under ``m4k_bridge: ros__parameters:``; a test keeps the two in
+step.
+:func:`validate` is what the node's on-set-parameters callback and the start-up check both
+call, so a value is refused with the same reason whether it comes from a parameter file or
+``ros2 param set``.
+
+Parameters that restate a physical value of the layered configuration (:data:`DERIVED`: the
+command timeout, velocity limits, sensor frames, port labels, robot description) have one
+source, that configuration: :func:`derived_values` computes them from the merged document.
+Bringup and the launch file pass them; a bridge started by hand loads the layered
+configuration for them. They are not in ``bridge.yaml``, and the ``m4k_bridge:`` section of a
+user overlay may not set them (:func:`check_not_derived` names the field to set instead).
 
 Parameters that pick resources at start-up (runtime directory, ports, topic names, message
 type of ``cmd_vel``, static sensor poses) are read-only: changing them would need a restart.
@@ -18,10 +28,14 @@ import math
 import re
 from typing import Any, Callable, Mapping
 
+from m4k_rt import description
+from m4k_rt.control.params import control_params, ControlConfigError, ControlParams
+from m4k_rt.schema import Field
+
 __all__ = [
-    'BridgeParams', 'NODE_NAME', 'ParamError', 'ParamSpec', 'PORT_ROLES', 'SPECS',
-    'TOPIC_ROLES', 'check_section', 'flatten_section', 'from_values', 'nest', 'parse_port',
-    'spec', 'validate',
+    'BridgeParams', 'DERIVED', 'NODE_NAME', 'ParamError', 'ParamSpec', 'PORT_ROLES', 'SPECS',
+    'TOPIC_ROLES', 'check_not_derived', 'check_section', 'derived_values', 'flatten_section',
+    'from_values', 'nest', 'parse_port', 'spec', 'validate',
 ]
 
 NODE_NAME = 'm4k_bridge'
@@ -43,18 +57,38 @@ class ParamError(ValueError):
         self.reason = reason
 
 
-@dataclasses.dataclass(frozen=True)
-class ParamSpec:
-    """How one parameter is declared and checked."""
+# Parameter -> the field of the layered configuration it is derived from (one source).
+DERIVED: dict[str, str] = {
+    'cmd_vel_timeout': 'control.cmd_vel_timeout',
+    'max_linear_velocity': 'control.linear.max_velocity',
+    'max_angular_velocity': 'control.angular.max_velocity',
+    'imu_frame': 'robot.sensors.imu.frame',
+    'laser_frame': 'robot.sensors.laser.frame',
+    'sonar_frame': 'robot.sensors.sonar.frame',
+    **{'ports.' + role: 'ports.' + role for role in PORT_ROLES},
+    'robot_description': 'robot (with control.wheel_radius and control.track_width)',
+}
 
-    name: str
-    default: Any
-    description: str
-    lo: float | None = None          # inclusive range for numbers (every element of arrays)
-    hi: float | None = None
-    read_only: bool = False
-    length: int | None = None        # required length of array parameters
-    check: Callable[[Any], str | None] | None = None   # extra check: reason or None
+_UNITS = {
+    'cmd_vel_timeout': 's', 'max_linear_velocity': 'm/s', 'max_angular_velocity': 'rad/s',
+    'odom_pose_covariance_diagonal': 'm^2, rad^2', 'odom_twist_covariance_diagonal':
+    'm^2/s^2, rad^2/s^2', 'imu_orientation_covariance_diagonal': 'rad^2',
+    'imu_angular_velocity_covariance_diagonal': 'rad^2/s^2',
+    'imu_linear_acceleration_covariance_diagonal': 'm^2/s^4', 'sonar_field_of_view': 'rad',
+    'sonar_min_range': 'm', 'sonar_max_range': 'm', 'stats_window': 's',
+    'rt_status_period': 's', 'diagnostics_period': 's', 'rt_stale_timeout': 's',
+    'relink_interval': 's', 'reset_odometry_timeout': 's',
+}
+_ROS_TYPES = {bool: 'bool', float: 'float', str: 'str', list: 'float[]'}
+
+
+def ParamSpec(name: str, default: Any, description: str, lo: float | None = None,  # noqa: N802
+              hi: float | None = None, read_only: bool = False, length: int | None = None,
+              check: Callable[[Any], str | None] | None = None) -> Field:
+    """Return the schema Field of one bridge parameter (type from its default, unit, source)."""
+    return Field(_ROS_TYPES[type(default)], default, description, unit=_UNITS.get(name, ''),
+                 lo=lo, hi=hi, read_only=read_only, length=length, check=check,
+                 derived_from=DERIVED.get(name, ''), name=name)
 
 
 def _topic(v: Any) -> str | None:
@@ -82,13 +116,16 @@ def _runtime_dir(v: Any) -> str | None:
 
 
 _COV = 'variance, must be >= 0'
-SPECS: tuple[ParamSpec, ...] = (
+_CONTROL = ControlParams()   # the control section's defaults: derived parameters start there
+SPECS: tuple[Field, ...] = (
     ParamSpec('runtime_dir', '', 'XDDP runtime directory holding the port sockets; empty: '
               '$M4K_RUNTIME_DIR, $XDG_RUNTIME_DIR/m4k, /run/m4k as root, else /tmp/m4k-<uid>. '
               'Must be the one the RT process uses, or no port ever links.',
               read_only=True, check=_runtime_dir),
-    *(ParamSpec('ports.' + role, role, 'XDDP port label (or number) of the RT side for {!r}; '
-                'must match config/m4k.yaml ports.'.format(role), read_only=True, check=_port)
+    *(ParamSpec('ports.' + role, role, 'XDDP port label (or number) of the RT side for {!r}. '
+                'Derived: the label {!r} of the ports section (config/m4k.yaml); a wrong one '
+                'never links, and the bridge reports the RT process lost.'.format(role, role),
+                read_only=True, check=_port)
       for role in PORT_ROLES),
     *(ParamSpec('topics.' + role, role, 'Topic name for {}; relative so namespaces and '
                 'remaps apply.'.format(role), read_only=True, check=_topic)
@@ -96,21 +133,28 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec('use_stamped_vel', False, 'Subscribe cmd_vel as geometry_msgs/TwistStamped '
               'instead of Twist (Nav2 and teleop publish Twist; ros2_controllers on Jazzy '
               'TwistStamped). A publisher of the other type never matches.', read_only=True),
-    ParamSpec('cmd_vel_timeout', 0.5, 'Seconds after the last cmd_vel after which the input '
-              'is reported idle in diagnostics. The RT actuator brakes on its own '
-              'control.cmd_vel_timeout; the bridge never repeats or synthesizes commands. '
-              'Keep both equal.', lo=0.0, hi=60.0),
-    ParamSpec('max_linear_velocity', 2.0, 'Linear speed limit [m/s]; cmd_vel beyond it is '
-              'clamped and counted (the RT limiter applies its own limits as well).',
+    ParamSpec('cmd_vel_timeout', _CONTROL.cmd_vel_timeout, 'Seconds after the last cmd_vel '
+              'after which the input is reported idle in diagnostics. Derived: '
+              'control.cmd_vel_timeout, on which the RT actuator brakes (the bridge never '
+              'repeats or synthesizes commands); a different value makes diagnostics call the '
+              'input idle before or after the robot brakes.', lo=0.0, hi=60.0),
+    ParamSpec('max_linear_velocity', _CONTROL.linear.max_velocity, 'Linear speed limit [m/s]; '
+              'cmd_vel beyond it is clamped and counted. Derived: control.linear.max_velocity '
+              '(the RT limiter applies it again); lower it at run time to slow a session down.',
               lo=0.0, hi=10.0),
-    ParamSpec('max_angular_velocity', 1.5, 'Angular speed limit [rad/s]; cmd_vel beyond it is '
-              'clamped and counted.', lo=0.0, hi=20.0),
+    ParamSpec('max_angular_velocity', _CONTROL.angular.max_velocity, 'Angular speed limit '
+              '[rad/s]; cmd_vel beyond it is clamped and counted. Derived: '
+              'control.angular.max_velocity.', lo=0.0, hi=20.0),
     ParamSpec('odom_frame', 'odom', 'Frame id of odometry (REP-105 odom).', check=_frame),
-    ParamSpec('base_frame', 'base_link', 'Child frame id of odometry (REP-105 base_link).',
-              check=_frame),
-    ParamSpec('imu_frame', 'imu_link', 'Frame id of imu messages (REP-145).', check=_frame),
-    ParamSpec('laser_frame', 'laser', 'Frame id of scan messages.', check=_frame),
-    ParamSpec('sonar_frame', 'sonar_link', 'Frame id of sonar messages.', check=_frame),
+    ParamSpec('base_frame', 'base_link', 'Child frame id of odometry (REP-105 base_link) and '
+              'root link of the generated robot description.', check=_frame),
+    ParamSpec('imu_frame', 'imu_link', 'Frame id of imu messages (REP-145). Derived: '
+              'robot.sensors.imu.frame, a link of robot_description; another value does not '
+              'connect to odom in tf.', check=_frame),
+    ParamSpec('laser_frame', 'laser', 'Frame id of scan messages. Derived: '
+              'robot.sensors.laser.frame.', check=_frame),
+    ParamSpec('sonar_frame', 'sonar_link', 'Frame id of sonar messages. Derived: '
+              'robot.sensors.sonar.frame.', check=_frame),
     ParamSpec('publish_tf', True, 'Broadcast odom -> base_link on tf. Turn off when another '
               'node (an EKF fusing odom and imu) publishes that transform.', read_only=True),
     ParamSpec('publish_robot_state', True, "Do robot_state_publisher's job: the description's "
@@ -119,9 +163,9 @@ SPECS: tuple[ParamSpec, ...] = (
               read_only=True),
     ParamSpec('robot_description', '', 'URDF published on robot_description (transient '
               'local); its fixed joints are the tf_static transforms and its wheel joints '
-              'name joint_states. Empty: generated from the layered configuration '
-              '(config/robot.yaml + control.wheel_radius/track_width), as bringup and the '
-              'launch file pass it.', read_only=True),
+              'name joint_states. Derived: generated from the layered configuration '
+              '(config/robot.yaml + control.wheel_radius/track_width); empty: the same.',
+              read_only=True),
     ParamSpec('odom_pose_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
               'Diagonal of the odometry pose covariance (x, y, z [m^2], roll, pitch, yaw '
               '[rad^2]); huge values mark the unobserved planar-robot axes. ' + _COV,
@@ -163,9 +207,55 @@ SPECS: tuple[ParamSpec, ...] = (
 _BY_NAME = {s.name: s for s in SPECS}
 
 
-def spec(name: str) -> ParamSpec:
+def spec(name: str) -> Field:
     """Return the spec of parameter ``name`` (KeyError when unknown)."""
     return _BY_NAME[name]
+
+
+def derived_values(doc: Mapping[str, Any], base_frame: str = 'base_link') -> dict[str, Any]:
+    """Return the :data:`DERIVED` parameters of a merged configuration document.
+
+    Sections the document lacks give nothing (``control`` its defaults, as the RT actuator
+    uses them). Raise :class:`ParamError` naming the parameter and the source field when the
+    source is unusable.
+    """
+    out: dict[str, Any] = {}
+    try:
+        control = control_params(doc.get('control'))
+    except ControlConfigError as exc:
+        raise ParamError('cmd_vel_timeout', 'derived from the control section: {}'.format(
+            exc)) from None
+    out['cmd_vel_timeout'] = control.cmd_vel_timeout
+    out['max_linear_velocity'] = control.linear.max_velocity
+    out['max_angular_velocity'] = control.angular.max_velocity
+    ports = doc.get('ports')
+    if isinstance(ports, Mapping):
+        for role in PORT_ROLES:
+            if role not in ports:
+                raise ParamError('ports.' + role, 'the ports section (config/m4k.yaml) has no '
+                                 'label {!r}, which the RT side binds for the bridge'.format(role))
+            out['ports.' + role] = role
+    if 'robot' in doc:
+        try:
+            robot = description.model(doc, base_frame)
+        except description.DescriptionError as exc:
+            raise ParamError('robot_description', str(exc)) from None
+        out['robot_description'] = description.urdf(robot)
+        for sensor in description.SENSORS:
+            out['{}_frame'.format(sensor)] = robot.sensors[sensor].frame
+    for name, value in out.items():
+        reason = validate(name, value)
+        if reason is not None:
+            raise ParamError(name, '{} (derived from {})'.format(reason, DERIVED[name]))
+    return out
+
+
+def check_not_derived(names: Any) -> None:
+    """Raise ParamError for the first derived parameter in ``names``, naming its source."""
+    for name in names:
+        if name in DERIVED:
+            raise ParamError(name, 'derived from {} of the layered configuration: set it '
+                             'there (one source per value)'.format(DERIVED[name]))
 
 
 def _kind(v: Any) -> str:

@@ -1,38 +1,140 @@
 """Control parameters: the ``control:`` section of ``config/control.yaml``, validated (pure).
 
-``control_params(mapping)`` turns the parsed section into frozen dataclasses and raises
-``ControlConfigError`` naming the offending field with its dotted path (e.g.
-``control.linear.max_acceleration``) and the bad value. Unknown keys are errors too:
-a misspelt key would otherwise silently keep a default.
+:data:`CONTROL` is the section's schema (:class:`m4k_rt.schema.Field`: type, default, unit,
+range or choices, what a wrong value does); ``control_params(mapping)`` validates a parsed
+section against it into frozen dataclasses (whose defaults are the table's) and raises
+``ControlConfigError`` naming the offending field with its dotted path and the bad value, e.g.
+``control.linear.max_acceleration: expected a number > 0, got -1``. Unknown keys are errors
+too: a misspelt key would otherwise silently keep a default.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-import math
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from m4k_rt.control.guard import STALE_POLICIES
 from m4k_rt.control.pid import ANTI_WINDUP_MODES
+from m4k_rt.schema import ConfigError, Field, validate_tree
 
 # Longest speed window in samples (1 s at the 10 ms actuator period): the ring is preallocated.
 MAX_SPEED_WINDOW = 100
 
 
-class ControlConfigError(ValueError):
+class ControlConfigError(ConfigError):
     """A control parameter is missing, of the wrong type or out of range; ``field`` names it."""
 
     def __init__(self, field_path: str, message: str) -> None:
-        super().__init__(f'{field_path}: {message}')
+        super().__init__(field_path, message)
         self.field = field_path
+
+
+def _pos(unit: str, default: float | None, description: str, nullable: bool = False,
+         hi: float | None = None) -> Field:
+    return Field('float', default, description, unit=unit, lo=0, lo_open=True, hi=hi,
+                 nullable=nullable)
+
+
+def _nonneg(unit: str, default: float | None, description: str,
+            nullable: bool = False) -> Field:
+    return Field('float', default, description, unit=unit, lo=0, nullable=nullable)
+
+
+def _axis(name: str, unit: str, vel: float, acc: float, dec: float | None) -> dict[str, Field]:
+    p = name + '.'
+    return {
+        p + 'max_velocity': _pos(
+            unit, vel, "Speed limit; commands beyond it are clamped (also the bridge's "
+            'max_{}_velocity). Above what the motors reach, the PI saturates.'.format(name)),
+        p + 'max_acceleration': _pos(
+            unit + '/s', acc, 'Acceleration limit of the ramp. Too high: wheel slip and '
+            'current peaks; too low: sluggish response.'),
+        p + 'max_deceleration': _pos(
+            unit + '/s', dec, 'Deceleration limit (braking on timeout too); null: '
+            'max_acceleration. Too low lengthens every stop.', nullable=True),
+        p + 'max_jerk': _pos(
+            unit + '/s^2', None, 'Jerk limit; null: none. Low values smooth the ramp and '
+            'lengthen stops.', nullable=True),
+    }
+
+
+CONTROL: dict[str, Field] = {
+    'wheel_radius': _pos('m', 0.1016, 'Wheel radius (Table 2: 20.32 cm diameter). Wrong: '
+                         'odometry and commanded speeds scale by the error.'),
+    'track_width': _pos('m', 0.40, 'Wheel centre to wheel centre. Wrong: turn rates and '
+                        'odometry heading scale by the error.'),
+    'gear_ratio': _pos('', 12.0, 'Motor turns per wheel turn (Table 2).'),
+    'full_scale_wheel_speed': _pos(
+        'rad/s', 19.685, 'Wheel speed at DAC code 1023 (feed-forward). Wrong: the PI must '
+        'make up the difference, with overshoot.'),
+    'max_wheel_speed': _pos('rad/s', None, 'Wheel command saturation; null: '
+                            'full_scale_wheel_speed.', nullable=True),
+    'cmd_vel_timeout': _nonneg(
+        's', 0.5, 'Without VELOCITY_CMD this long, the actuator brakes at the deceleration '
+        "limit; 0 = off (the robot keeps the last command forever). The bridge's "
+        'cmd_vel_timeout is derived from it.'),
+    'motor_timeout': _pos('s', 0.1, 'Without valid ENCODERS this long the motor is stale: '
+                          'outputs zero, disabled.'),
+    'odom_every_n': Field('int', 5, 'ODOMETRY every n-th actuator cycle (5 x 10 ms = 50 ms, '
+                          'the paper). Larger: coarser odom for Nav2.', lo=1),
+    'odom_velocity_window': Field(
+        'int', 5, 'Encoder samples the published twist is differenced over (1 = 10 ms: noisy '
+        'with a 12-bit encoder).', lo=1, hi=MAX_SPEED_WINDOW),
+    'speed_feedback_window': Field(
+        'int', 2, 'Samples the PI wheel speed is differenced over. Longer: less DAC chatter, '
+        'more lag and overshoot.', lo=1, hi=MAX_SPEED_WINDOW),
+    'speed_filter_alpha': Field(
+        'float', 1.0, 'EMA weight of a new wheel-speed sample for the PI; 1 = no filter. Low '
+        'values add lag.', lo=0, lo_open=True, hi=1.0),
+    **_axis('linear', 'm/s', 2.0, 0.37, 0.37),
+    **_axis('angular', 'rad/s', 1.5, 1.85, None),
+    'e_stop.linear_deceleration': _pos(
+        'm/s^2', None, 'Latched e-stop ramp; null: linear.max_deceleration. Below it is '
+        'refused (the e-stop may not stop later than a stale command).', nullable=True),
+    'e_stop.angular_deceleration': _pos(
+        'rad/s^2', None, 'Latched e-stop ramp; null: the angular maximum deceleration.',
+        nullable=True),
+    'pi.kp': _nonneg('1/(rad/s)', 0.02, 'Proportional gain of the wheel-speed PI '
+                     '(normalized command per rad/s). Too high: oscillation.'),
+    'pi.ki': _nonneg('1/rad', 0.4, 'Integral gain. Too high: overshoot; 0: steady-state '
+                     'error under load.'),
+    'pi.kff': _nonneg('1/(rad/s)', None, 'Feed-forward gain; null: 1 / '
+                      'full_scale_wheel_speed.', nullable=True),
+    'pi.anti_windup': Field('str', 'clamping', 'Integrator anti-windup at saturation.',
+                            choices=ANTI_WINDUP_MODES),
+    'pi.kt': _nonneg('', None, 'Back-calculation tracking gain; null: ki / kp.',
+                     nullable=True),
+    'guard.enabled': Field('bool', True, 'Collision guard on forward motion. false: the '
+                           'robot drives into what its sensors see.'),
+    'guard.stop_distance': _nonneg('m', 0.35, 'Closer than this (from the sensor), forward '
+                                   'velocity is 0 this cycle; too small to brake in: contact.'),
+    'guard.release_margin': _nonneg('m', 0.05, 'Hysteresis: released above stop_distance + '
+                                    'margin; 0 lets noise toggle the guard.'),
+    'guard.slow_distance': _nonneg('m', 0.0, 'Linear slow-down zone when > stop_distance; '
+                                   '0 = off. Must exceed stop_distance.'),
+    'guard.front_sector_deg': _pos('deg', 30.0, 'Laser sector (centred ahead) whose minimum '
+                                   'feeds the guard; at most the 240 deg scan.', hi=240.0),
+    'guard.use_sonar': Field('bool', True, 'Feed the sonar to the guard.'),
+    'guard.use_laser': Field('bool', True, "Feed the laser's front sector to the guard."),
+    'guard.sonar_timeout': _pos('s', 0.2, 'Without a valid sonar reading this long the sonar '
+                                'is stale (see stale_policy).'),
+    'guard.laser_timeout': _pos('s', 0.5, 'Without a scan this long the laser is stale.'),
+    'guard.stale_policy': Field('str', 'stop', 'stop: a stale sensor counts as an obstacle '
+                                '(fail-safe); ignore: drive on without it.',
+                                choices=STALE_POLICIES),
+}
+
+
+def _d(name: str) -> Any:
+    return CONTROL[name].default
 
 
 @dataclass(frozen=True)
 class AxisLimits:
     """Limits of one axis (linear in m/s, m/s^2, m/s^3 or angular in rad/s, ...)."""
 
-    max_velocity: float = 2.0
-    max_acceleration: float = 0.37
+    max_velocity: float = _d('linear.max_velocity')
+    max_acceleration: float = _d('linear.max_acceleration')
     max_deceleration: float | None = None   # None: same as max_acceleration
     max_jerk: float | None = None           # None: no jerk limit
 
@@ -41,27 +143,27 @@ class AxisLimits:
 class PiGains:
     """Wheel-speed PI gains (normalized command per rad/s)."""
 
-    kp: float = 0.02
-    ki: float = 0.4
-    kff: float | None = None    # None: 1 / full_scale_wheel_speed
-    anti_windup: str = 'clamping'
-    kt: float | None = None     # back-calculation tracking gain; None: ki / kp
+    kp: float = _d('pi.kp')
+    ki: float = _d('pi.ki')
+    kff: float | None = _d('pi.kff')    # None: 1 / full_scale_wheel_speed
+    anti_windup: str = _d('pi.anti_windup')
+    kt: float | None = _d('pi.kt')      # back-calculation tracking gain; None: ki / kp
 
 
 @dataclass(frozen=True)
 class GuardParams:
     """Collision guard settings (see ``control.guard``)."""
 
-    enabled: bool = True
-    stop_distance: float = 0.35
-    release_margin: float = 0.05
-    slow_distance: float = 0.0
-    front_sector_deg: float = 30.0
-    use_sonar: bool = True
-    use_laser: bool = True
-    sonar_timeout: float = 0.2
-    laser_timeout: float = 0.5
-    stale_policy: str = 'stop'
+    enabled: bool = _d('guard.enabled')
+    stop_distance: float = _d('guard.stop_distance')
+    release_margin: float = _d('guard.release_margin')
+    slow_distance: float = _d('guard.slow_distance')
+    front_sector_deg: float = _d('guard.front_sector_deg')
+    use_sonar: bool = _d('guard.use_sonar')
+    use_laser: bool = _d('guard.use_laser')
+    sonar_timeout: float = _d('guard.sonar_timeout')
+    laser_timeout: float = _d('guard.laser_timeout')
+    stale_policy: str = _d('guard.stale_policy')
 
 
 @dataclass(frozen=True)
@@ -77,23 +179,30 @@ def _axis_deceleration(limits: AxisLimits) -> float:
             else limits.max_deceleration)
 
 
+def _group(cls: Any, flat: Mapping[str, Any], prefix: str) -> Any:
+    return cls(**{k[len(prefix) + 1:]: v for k, v in flat.items()
+                  if k.startswith(prefix + '.')})
+
+
 @dataclass(frozen=True)
 class ControlParams:
-    """All parameters of the base controller."""
+    """All parameters of the base controller (defaults: :data:`CONTROL`)."""
 
-    wheel_radius: float = 0.1016
-    track_width: float = 0.40
-    gear_ratio: float = 12.0
-    full_scale_wheel_speed: float = 19.685  # wheel rad/s at DAC full scale (2 m/s top speed)
-    max_wheel_speed: float | None = None    # wheel command saturation; None: full scale
-    cmd_vel_timeout: float = 0.5            # s; 0 disables the stale-command brake
-    motor_timeout: float = 0.1              # s without ENCODERS -> motor stale
-    odom_every_n: int = 5
-    odom_velocity_window: int = 5           # samples the published twist is differenced over
-    speed_feedback_window: int = 2          # samples the PI's wheel speeds are differenced over
-    speed_filter_alpha: float = 1.0         # EMA weight of a new wheel-speed sample; 1 = off
-    linear: AxisLimits = field(default_factory=AxisLimits)
-    angular: AxisLimits = field(default_factory=lambda: AxisLimits(1.5, 1.85, None, None))
+    wheel_radius: float = _d('wheel_radius')
+    track_width: float = _d('track_width')
+    gear_ratio: float = _d('gear_ratio')
+    full_scale_wheel_speed: float = _d('full_scale_wheel_speed')
+    max_wheel_speed: float | None = _d('max_wheel_speed')   # None: full scale
+    cmd_vel_timeout: float = _d('cmd_vel_timeout')          # s; 0 disables the brake
+    motor_timeout: float = _d('motor_timeout')
+    odom_every_n: int = _d('odom_every_n')
+    odom_velocity_window: int = _d('odom_velocity_window')
+    speed_feedback_window: int = _d('speed_feedback_window')
+    speed_filter_alpha: float = _d('speed_filter_alpha')
+    linear: AxisLimits = field(default_factory=lambda: _group(
+        AxisLimits, {k: f.default for k, f in CONTROL.items()}, 'linear'))
+    angular: AxisLimits = field(default_factory=lambda: _group(
+        AxisLimits, {k: f.default for k, f in CONTROL.items()}, 'angular'))
     pi: PiGains = field(default_factory=PiGains)
     guard: GuardParams = field(default_factory=GuardParams)
     e_stop: EStopParams = field(default_factory=EStopParams)
@@ -122,128 +231,20 @@ class ControlParams:
                 else self.max_wheel_speed)
 
 
-def _number(path: str, value: Any, *, minimum: float | None = None, positive: bool = False,
-            optional: bool = False, integer: bool = False) -> Any:
-    if value is None and optional:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ControlConfigError(path, f'expected a number, got {value!r}')
-    if integer and not isinstance(value, int):
-        raise ControlConfigError(path, f'expected an integer, got {value!r}')
-    if not math.isfinite(value):
-        raise ControlConfigError(path, f'must be finite, got {value!r}')
-    if positive and value <= 0:
-        raise ControlConfigError(path, f'must be > 0, got {value!r}')
-    if minimum is not None and value < minimum:
-        raise ControlConfigError(path, f'must be >= {minimum}, got {value!r}')
-    return value if integer else float(value)
-
-
-def _section(path: str, value: Any, cls: type) -> dict[str, Any]:
-    if value is None:
-        return {}
-    if not isinstance(value, Mapping):
-        raise ControlConfigError(path, f'expected a mapping, got {value!r}')
-    known = {f.name for f in fields(cls)}
-    for key in value:
-        if key not in known:
-            raise ControlConfigError(f'{path}.{key}', f'unknown key (known: {sorted(known)})')
-    return dict(value)
-
-
-def _axis(path: str, raw: Any, default: AxisLimits) -> AxisLimits:
-    d = _section(path, raw, AxisLimits)
-    out = {}
-    for f in fields(AxisLimits):
-        optional = f.name in ('max_deceleration', 'max_jerk')
-        out[f.name] = _number(f'{path}.{f.name}', d.get(f.name, getattr(default, f.name)),
-                              positive=True, optional=optional)
-    return AxisLimits(**out)
-
-
-def _choice(path: str, value: Any, choices: tuple[str, ...]) -> str:
-    if value not in choices:
-        raise ControlConfigError(path, f'must be one of {choices}, got {value!r}')
-    return str(value)  # one of ``choices``
-
-
-def _flag(path: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ControlConfigError(path, f'expected true or false, got {value!r}')
-    return value
-
-
 def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> ControlParams:
     """Validate the ``control:`` mapping and return ``ControlParams`` (defaults fill gaps)."""
-    d = _section(path, section, ControlParams)
-    base = ControlParams()
-    p = f'{path}.pi'
-    pi_raw = _section(p, d.get('pi'), PiGains)
-    pi = PiGains(
-        kp=_number(f'{p}.kp', pi_raw.get('kp', base.pi.kp), minimum=0.0),
-        ki=_number(f'{p}.ki', pi_raw.get('ki', base.pi.ki), minimum=0.0),
-        kff=_number(f'{p}.kff', pi_raw.get('kff', base.pi.kff), minimum=0.0, optional=True),
-        anti_windup=_choice(f'{p}.anti_windup', pi_raw.get('anti_windup', base.pi.anti_windup),
-                            ANTI_WINDUP_MODES),
-        kt=_number(f'{p}.kt', pi_raw.get('kt', base.pi.kt), minimum=0.0, optional=True),
-    )
+    flat = validate_tree(CONTROL, section, path, ControlConfigError)
+    params = ControlParams(
+        **{k: v for k, v in flat.items() if '.' not in k},
+        linear=_group(AxisLimits, flat, 'linear'), angular=_group(AxisLimits, flat, 'angular'),
+        pi=_group(PiGains, flat, 'pi'), guard=_group(GuardParams, flat, 'guard'),
+        e_stop=_group(EStopParams, flat, 'e_stop'))
+    guard = params.guard
     g = f'{path}.guard'
-    g_raw = _section(g, d.get('guard'), GuardParams)
-    gd = base.guard
-
-    def gnum(name: str, **kw: Any) -> float:
-        value: float = _number(f'{g}.{name}', g_raw.get(name, getattr(gd, name)), **kw)
-        return value
-
-    guard = GuardParams(
-        enabled=_flag(f'{g}.enabled', g_raw.get('enabled', gd.enabled)),
-        stop_distance=gnum('stop_distance', minimum=0.0),
-        release_margin=gnum('release_margin', minimum=0.0),
-        slow_distance=gnum('slow_distance', minimum=0.0),
-        front_sector_deg=gnum('front_sector_deg', positive=True),
-        use_sonar=_flag(f'{g}.use_sonar', g_raw.get('use_sonar', gd.use_sonar)),
-        use_laser=_flag(f'{g}.use_laser', g_raw.get('use_laser', gd.use_laser)),
-        sonar_timeout=gnum('sonar_timeout', positive=True),
-        laser_timeout=gnum('laser_timeout', positive=True),
-        stale_policy=_choice(f'{g}.stale_policy', g_raw.get('stale_policy', gd.stale_policy),
-                             STALE_POLICIES),
-    )
-    if guard.front_sector_deg > 240.0:
-        raise ControlConfigError(f'{g}.front_sector_deg',
-                                 f'must be <= 240 (the scan width), got '
-                                 f'{guard.front_sector_deg!r}')
     if guard.slow_distance and guard.slow_distance <= guard.stop_distance:
         raise ControlConfigError(f'{g}.slow_distance',
                                  f'must be 0 (off) or > stop_distance ({guard.stop_distance!r}), '
                                  f'got {guard.slow_distance!r}')
-
-    e = f'{path}.e_stop'
-    e_raw = _section(e, d.get('e_stop'), EStopParams)
-    e_stop = EStopParams(**{
-        f.name: _number(f'{e}.{f.name}', e_raw.get(f.name), positive=True, optional=True)
-        for f in fields(EStopParams)})
-
-    def num(name: str, **kw: Any) -> Any:
-        return _number(f'{path}.{name}', d.get(name, getattr(base, name)), **kw)
-
-    params = ControlParams(
-        wheel_radius=num('wheel_radius', positive=True),
-        track_width=num('track_width', positive=True),
-        gear_ratio=num('gear_ratio', positive=True),
-        full_scale_wheel_speed=num('full_scale_wheel_speed', positive=True),
-        max_wheel_speed=num('max_wheel_speed', positive=True, optional=True),
-        cmd_vel_timeout=num('cmd_vel_timeout', minimum=0.0),
-        motor_timeout=num('motor_timeout', positive=True),
-        odom_every_n=num('odom_every_n', minimum=1, integer=True),
-        odom_velocity_window=num('odom_velocity_window', minimum=1, integer=True),
-        speed_feedback_window=num('speed_feedback_window', minimum=1, integer=True),
-        speed_filter_alpha=num('speed_filter_alpha', positive=True),
-        linear=_axis(f'{path}.linear', d.get('linear'), base.linear),
-        angular=_axis(f'{path}.angular', d.get('angular'), base.angular),
-        pi=pi,
-        guard=guard,
-        e_stop=e_stop,
-    )
     # An e-stop that brakes more gently than a stale command would stop the robot later than
     # losing the operator's link does.
     for axis, value, normal in (
@@ -252,15 +253,7 @@ def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> 
              _axis_deceleration(params.angular))):
         if value is not None and value < normal:
             raise ControlConfigError(
-                f'{e}.{axis}_deceleration',
+                f'{path}.e_stop.{axis}_deceleration',
                 f'must be >= {axis}.max_deceleration ({normal!r}: the e-stop may not brake '
                 f'more gently than a stale command), got {value!r}')
-    for name in ('odom_velocity_window', 'speed_feedback_window'):
-        if getattr(params, name) > MAX_SPEED_WINDOW:
-            raise ControlConfigError(f'{path}.{name}',
-                                     f'must be <= {MAX_SPEED_WINDOW} samples, '
-                                     f'got {getattr(params, name)!r}')
-    if params.speed_filter_alpha > 1.0:
-        raise ControlConfigError(f'{path}.speed_filter_alpha',
-                                 f'must be in (0, 1], got {params.speed_filter_alpha!r}')
     return params

@@ -5,8 +5,9 @@ Starts the children -- ``sim_robot`` (the simulated robot, when any device's bac
 ``rt_core``, ``driver_host`` (every device simulated unless the configuration says otherwise)
 and the ROS ``bridge`` -- each with the user overlay (``--config FILE``): rt_core and
 sim_robot ``--config``/``--overlay``, driver_host ``--overlay``, and for the bridge the
-overlay's ``m4k_bridge: ros__parameters:`` section, extracted into a temporary parameter file
-passed after ``config/bridge.yaml``. Executables come from the ament index
+overlay's ``m4k_bridge: ros__parameters:`` section plus the parameters derived from the
+layered configuration (:func:`bridge_overlay`), in a temporary parameter file passed after
+``config/bridge.yaml``. Executables come from the ament index
 (``<prefix>/lib/<pkg>/<exe>``), else ``python -m <module>``.
 
 Supervision: a child that dies is restarted after an exponential backoff (0.5 s doubling to
@@ -44,8 +45,9 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 import yaml
 
-from m4k_rt import config, description, rosargs
+from m4k_rt import config, rosargs
 from m4k_rt.bridge import params as bridge_params
+from m4k_rt.control.params import control_params
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
@@ -115,10 +117,11 @@ def _coerce(name: str, value: Any) -> Any:
 def bridge_overlay(doc: Mapping[str, Any] | None, runtime_dir: str) -> dict[str, Any]:
     """Return the bridge parameter document for a (validated) layered config and runtime dir.
 
-    Derived from the configuration: the robot description (URDF of ``robot:`` +
-    ``control:``) and the sensor frames (``robot.sensors.*.frame``), unless the overlay's
-    ``m4k_bridge:`` section sets them. The ``ros2 launch`` file calls this too, so both start
-    the bridge alike. Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad parameter.
+    The overlay's ``m4k_bridge:`` section, plus every parameter derived from the
+    configuration (:data:`m4k_rt.bridge.params.DERIVED`: command timeout, velocity limits,
+    sensor frames, port labels, robot description) -- which that section may not set: each
+    value has one source. The ``ros2 launch`` file calls this too, so both start the bridge
+    alike. Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad parameter.
     """
     section: dict[str, Any] = {}
     if doc and bridge_params.NODE_NAME in doc:
@@ -127,16 +130,9 @@ def bridge_overlay(doc: Mapping[str, Any] | None, runtime_dir: str) -> dict[str,
         section = {k: _coerce(k, v) for k, v in flat.items()}
         bridge_params.check_section({bridge_params.NODE_NAME: {
             'ros__parameters': bridge_params.nest(section)}})
-    if doc and 'robot' in doc:
-        base = section.get('base_frame', bridge_params.spec('base_frame').default)
-        try:
-            robot = description.model(doc, base)
-        except description.DescriptionError as exc:
-            raise bridge_params.ParamError('robot_description', str(exc)) from None
-        section.setdefault('robot_description', description.urdf(robot))
-        for sensor, name in (('laser', 'laser_frame'), ('imu', 'imu_frame'),
-                             ('sonar', 'sonar_frame')):
-            section.setdefault(name, robot.sensors[sensor].frame)
+        bridge_params.check_not_derived(section)
+    base = section.get('base_frame', bridge_params.spec('base_frame').default)
+    section.update(bridge_params.derived_values(doc or {}, base))
     section['runtime_dir'] = runtime_dir
     return {bridge_params.NODE_NAME: {'ros__parameters': bridge_params.nest(section)}}
 
@@ -519,7 +515,8 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
     try:
         cfg = config.load(overlay)
         doc = config.load_layered(overlay)
-    except config.ConfigError as exc:
+        control_params(doc.get('control'))   # the RT actuator's check, before any child runs
+    except config.ConfigError as exc:   # ControlConfigError included
         _err('config error: {}'.format(exc))
         return CONFIG_ERROR
     try:
