@@ -54,7 +54,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=240,
                           stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert '[1/14] set-up' in proc.stderr            # plain progress lines (not a TTY)
+    assert '[1/15] set-up' in proc.stderr            # plain progress lines (not a TTY)
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
@@ -78,6 +78,14 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
         assert set(rnd[cond]['hardening']) >= {'ok', 'policy', 'mem_locked', 'degraded'}
         assert rnd[cond]['cpu_per_cycle_us'] is not None
     assert rnd['floor']['cpu_per_cycle_us'] > 0
+    # the profiled run: rt_core's cycle breakdown of every task, aggregated and reported
+    prof = rnd['m4k_profiled']['cycle_profile']['tasks']
+    assert {'actuator', 'imu', 'led', 'sonar', 'lrf', 'monitor'} <= set(prof)
+    assert set(prof['actuator']['parts_us']) == {'wake', 'drain', 'control', 'send', 'record',
+                                                 'rusage'}
+    assert prof['actuator']['cycles'] > 0 and prof['actuator']['send_calls'] > 0
+    bd = summ['loop_cost']['breakdown']
+    assert bd['tasks']['actuator']['drain']['n'] == 1 and bd['all']['send']['n'] == 1
     if shutil.which('stress-ng'):
         assert rnd['m4k_stress']['samples'] > 0 and rnd['baseline_stress']['samples'] > 0
     if shutil.which('cyclictest'):
@@ -93,5 +101,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     report = (out / 'report.md').read_text()
     assert '![Fig. 10 periodicity](fig10_periodicity.png)' in report
     assert '## Timing analysis per task (paper Table 1)' in report
+    assert 'Cycle breakdown, measured inside the loop' in report
+    assert '| **all, weighted by rate** |' in report
     assert summ['machine']['kernel'] in report
     assert os.path.basename(os.readlink(latest)) == os.path.basename(summ['run']['results_dir'])

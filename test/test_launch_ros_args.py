@@ -45,6 +45,7 @@ TOOLS = {
     'fuzz': (['--count', '1', '--seed', '1', '--ports', 'cmd', '--quiet-s', '0.5', '--results',
               '{tmp}/fuzz'], None, r'\ncmd +1 +1 .* ok\n'),
     'core_bench': (['--duration', '0.2', '--rtt', '10'], 0, r'task machinery per cycle'),
+    'loop_ab': (['--variant', 'x={tmp}'], 2, r'expected NAME=DIR with DIR/m4k_rt'),
     'bench': (['--duration', '-1'], 2, r'must be > 0 s, got -1.0'),      # its own check
     'demo': (['--timeout', '-1'], 2, r'demo: bad arguments: timeout -1.0'),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],

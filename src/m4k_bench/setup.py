@@ -34,6 +34,7 @@ setup(
             'soak = m4k_bench.soak:main',
             'fuzz = m4k_bench.fuzz:main',
             'baseline = m4k_bench.baseline:main',
+            'loop_ab = m4k_bench.loop_ab:main',
         ],
     },
 )

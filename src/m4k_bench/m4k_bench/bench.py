@@ -10,7 +10,9 @@ root, else it says what to install), holds ``/dev/cpu_dma_latency`` at 0 µs for
    stress-ng: cyclictest alone, m4k, the baseline; the XDDP round trip on the tasks' receive
    path. Every m4k and baseline condition runs with cyclictest *concurrently*, at the
    actuator's period and priority. m4k conditions run end to end: cmd_vel over DDS -> bridge
-   -> XDDP -> actuator (+ driver_host on simulated devices);
+   -> XDDP -> actuator (+ driver_host on simulated devices). One more full-stack run per round
+   has rt_core's cycle profile on (``m4k_rt.cycleprof``): the per-task breakdown of a cycle
+   (wake, drain + decode, control, encode + send, timing record, rusage) in the report;
 2. **scaling**: the actuator alone and with the task set at 100, 250, 500 and 1000 Hz, each with
    cyclictest at the same rate;
 3. cmd_vel -> WHEEL_CMD latency.
@@ -32,7 +34,6 @@ import json
 import os
 import random
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -43,7 +44,7 @@ import numpy as np
 from m4k_bench.benchlib import analysis, plots, report, rounds, stack, system
 from m4k_bench.benchlib import progress as progress_mod
 from m4k_rt import config as rt_config_mod
-from m4k_rt import rosargs
+from m4k_rt import cycleprof, rosargs
 
 __all__ = ['main', 'plan_durations']
 
@@ -63,7 +64,7 @@ QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt
 # One round, in this order (reversed every other round).
 CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_alone', 'baseline_idle',
               'ct_stress', 'm4k_stress', 'baseline_stress')
-PHASES = ('floor', *CONDITIONS, 'rtt', 'scaling', 'cmdlat')
+PHASES = ('floor', *CONDITIONS, 'breakdown', 'rtt', 'scaling', 'cmdlat')
 
 
 def plan_durations(quick: bool, duration: float | None, condition: float | None,
@@ -87,6 +88,7 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     per_cond = plan['condition_s'] + WARMUP_S + 5.0
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)
     per_round += 0 if 'floor' in skip else plan['floor_s'] + 2.0
+    per_round += 0 if 'breakdown' in skip else per_cond
     per_round += 0 if 'rtt' in skip else plan['rtt_n'] * 2 * 1e-4 + 2.0
     total = plan['rounds'] * per_round
     total += 0 if 'scaling' in skip else 2 * len(RATES_HZ) * (plan['scaling_s'] + WARMUP_S + 5)
@@ -160,6 +162,14 @@ def _periods(series: Any) -> np.ndarray:
     return np.diff(start)[consecutive]
 
 
+def _read_json(path: str) -> Any:
+    try:
+        with open(path, encoding='utf-8') as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
 def _link_latest(root: str, outdir: str) -> None:
     link = os.path.join(root, 'latest')
     tmp = link + '.tmp'
@@ -226,7 +236,8 @@ class Bench:
         self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
         os.environ.update({k: self.env[k] for k in ('ROS_DOMAIN_ID',
                                                     'ROS_AUTOMATIC_DISCOVERY_RANGE')})
-        per_round = len([c for c in ('floor', *CONDITIONS, 'rtt') if c not in self.skip])
+        per_round = len([c for c in ('floor', *CONDITIONS, 'breakdown', 'rtt')
+                         if c not in self.skip])
         steps = 2 + self.plan['rounds'] * per_round + (
             0 if 'scaling' in self.skip else 2 * len(args.rates_hz)) + (
             0 if 'cmdlat' in self.skip else 1)
@@ -285,10 +296,14 @@ class Bench:
 
     def _m4k(self, key: str, tag: str, seconds: float, *, tasks: str | None = None,
              period_ns: int = PERIOD_NS, with_ct: bool = True,
-             rt_config: str | None = None) -> dict[str, Any] | None:
+             rt_config: str | None = None, profile: bool = False) -> dict[str, Any] | None:
         ct = _Concurrent(seconds + WARMUP_S, period_ns // 1000, with_ct and self.has_ct)
+        env = self.env
+        prof_path = os.path.join(self.outdir, 'raw', tag + '_cycle_profile.json')
+        if profile:     # rt_core times the parts of every cycle (m4k_rt.cycleprof)
+            env = dict(env, **{cycleprof.ENV: os.path.abspath(prof_path)})
         run = stack.run_m4k(seconds + WARMUP_S, self._rundir(tag), self.logs, tag, tasks=tasks,
-                            driver_host=self.has_host, env=self.env,
+                            driver_host=self.has_host, env=env,
                             progress=self.progress.update,
                             rt_config=rt_config if rt_config else self.args.rt_config,
                             on_started=ct.start)
@@ -324,6 +339,12 @@ class Bench:
             if tasks is None else None,
         )
         res['stalls'] = self._stalls(res, ct_res, period_ns)
+        if profile:
+            res['cycle_profile'] = _read_json(prof_path)
+            if res['cycle_profile'] is None:
+                self._note('{}: rt_core wrote no cycle profile'.format(tag))
+            else:
+                self.summ['files'].append(os.path.relpath(prof_path, self.outdir))
         if key == 'm4k_idle':
             self.tables[tag] = summ
         self.periods.setdefault(key, []).append(_periods(run.recorder.tasks[ACTUATOR]))
@@ -374,23 +395,15 @@ class Bench:
     def _floor(self, seconds: float) -> dict[str, Any] | None:
         if not self.task_rates:
             return None
+        from m4k_bench.benchlib import floor
         ts = list(self.task_rates.values())
-        argv = stack.entry_argv(
-            'm4k_bench.benchlib.floor',
-            '--periods-ms', ','.join('{:g}'.format(t['period_ns'] / 1e6) for t in ts),
-            '--priorities', ','.join(str(t['priority']) for t in ts),
-            '--offsets-ms', ','.join('{:g}'.format(t['offset_ns'] / 1e6) for t in ts),
-            '--seconds', str(seconds))
-        try:
-            p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
-                               env=self.env, check=False)
-        except subprocess.TimeoutExpired:
-            self._note('floor: timed out')
+        out = floor.run_floor_child([int(t['period_ns']) for t in ts],
+                                    [int(t['priority']) for t in ts],
+                                    [int(t['offset_ns']) for t in ts], seconds, self.env)
+        if isinstance(out, str):
+            self._note(out)
             return None
-        if p.returncode != 0 or not p.stdout.strip():
-            self._note('floor: exit {}: {}'.format(p.returncode, p.stderr.strip()[-300:]))
-            return None
-        return json.loads(p.stdout.strip().splitlines()[-1])
+        return out
 
     def _rtt(self, n: int, tag: str) -> dict[str, Any] | None:
         from m4k_bench import xddp_bench
@@ -478,6 +491,10 @@ class Bench:
                     rnd[cond] = fn()
             else:
                 rnd[cond] = fn()
+        if 'breakdown' not in self.skip:
+            p.phase(pre + 'm4k full stack, idle, cycle breakdown (profiled)', run_s)
+            rnd['m4k_profiled'] = self._m4k('m4k_profiled', 'r{}_m4k_profiled'.format(k),
+                                            cond_s, with_ct=False, profile=True)
         if 'rtt' not in self.skip:
             p.phase(pre + "XDDP round trip, tasks' receive path ({} each)".format(
                 plan['rtt_n']))

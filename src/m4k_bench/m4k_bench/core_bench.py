@@ -7,7 +7,10 @@ One run prints, side by side (ratios in one run matter on a noisy VM, absolute n
 2. the same task with the full five-task set (echo bodies, NRT echo peers in this process);
 3. ``cyclictest -m -p 90 -i 10000`` for the same time, as the C baseline;
 4. the XDDP round trip (:func:`m4k_bench.xddp_bench.run_rtt`) when available;
-5. the per-cycle cost of the task machinery itself (timer bookkeeping, ring, rusage).
+5. the per-cycle cost of the task machinery itself (timer bookkeeping, ring, rusage);
+6. the cycle breakdown of every task of the set (:mod:`m4k_rt.cycleprof`, one more run of
+   the echo set with the profile on): wake, drain + decode, control, encode + send, record,
+   rusage, in µs per cycle.
 
 ``run()`` returns everything as a dict for the full bench tool. This is a benchmark, not a test.
 """
@@ -25,7 +28,7 @@ from typing import Any, cast, Sequence
 
 import numpy as np
 
-from m4k_rt import config, recorder, rosargs, timing, xddp
+from m4k_rt import config, cycleprof, recorder, rosargs, timing, xddp
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.echo import EchoPeer
 from m4k_rt.timerfd import TimerFd
@@ -38,8 +41,11 @@ WARMUP_CYCLES = 1  # a task's first cycle runs every code path for the first tim
 
 
 def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
-             focus: str = 'actuator') -> dict[str, Any]:
-    """Run ``rt_core --echo`` for ``duration_s`` with echo peers; return the focus task's stats."""
+             focus: str = 'actuator', profile: bool = False) -> dict[str, Any]:
+    """Run ``rt_core --echo`` for ``duration_s`` with echo peers; return the focus task's stats.
+
+    ``profile``: rt_core times the parts of every cycle; the breakdown is ``cycle_profile``.
+    """
     cfg = config.load()
     chosen = [t for t in cfg.tasks if task_names is None or t.name in task_names]
     labels = [lb for t in chosen if t.body != 'monitor' for lb in t.ports]
@@ -47,6 +53,9 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
     if task_names:
         argv += ['--tasks', ','.join(task_names)]
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir)
+    prof_path = os.path.join(os.path.dirname(runtime_dir), 'cycle_profile.json')
+    if profile:
+        env[cycleprof.ENV] = prof_path
     rec = recorder.Recorder(warmup_cycles=WARMUP_CYCLES)
     with EchoPeer(labels, runtime_dir):
         link = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
@@ -72,7 +81,12 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
             link.close()
     summ = rec.summary()
     focus_t = next((t for t in summ['tasks'] if t['name'] == focus), None)
+    prof = None
+    if profile and os.path.exists(prof_path):
+        with open(prof_path, encoding='utf-8') as f:
+            prof = json.load(f)
     return {'tasks': [t['name'] for t in summ['tasks']], 'exit_code': proc.returncode,
+            'cycle_profile': prof,
             'focus': focus, 'latency_us': focus_t and focus_t['latency_us'],
             'jitter_us': focus_t and focus_t['jitter_us'],
             'response_us': focus_t and focus_t['response_us'],
@@ -164,6 +178,7 @@ def run(duration_s: float = 10.0, rtt_n: int = 2000) -> dict[str, Any]:
         res: dict[str, Any] = {'duration_s': duration_s}
         res['alone'] = run_core(duration_s, rdir, ['actuator'])
         res['full_set'] = run_core(duration_s, rdir, None)
+        res['breakdown'] = run_core(duration_s, rdir, None, profile=True)['cycle_profile']
         res['cyclictest'] = run_cyclictest(duration_s)
         try:
             from m4k_bench import xddp_bench
@@ -225,7 +240,26 @@ def format_report(res: dict[str, Any]) -> str:
     m = res['machinery']
     lines.append('task machinery per cycle: {:.2f} us (median of 5 runs; min {:.2f})'.format(
         m['per_cycle_us_median'], m['per_cycle_us_min']))
+    lines += format_breakdown(res.get('breakdown'))
     return '\n'.join(lines) + '\n'
+
+
+def format_breakdown(prof: dict[str, Any] | None) -> list[str]:
+    """Format an rt_core cycle profile (``m4k_rt.cycleprof``) as a table, µs per cycle."""
+    if not prof or not prof.get('tasks'):
+        return ['cycle breakdown: not measured']
+    cols = (*cycleprof.PARTS, 'thread CPU')
+    lines = ['cycle breakdown, echo bodies (us per cycle; wake = thread CPU - timed parts; '
+             'echo bodies receive and send without the timed port readers/writers, so their '
+             'I/O is in control; the robot bodies: bench, "Cycle breakdown")',
+             '{:<10}'.format('task') + ''.join('{:>11}'.format(c) for c in cols)]
+    for name, t in prof['tasks'].items():
+        parts = t.get('parts_us') or {}
+        vals = [parts.get(k) for k in cycleprof.PARTS] + [t.get('thread_cpu_per_cycle_us')]
+        lines.append('{:<10}'.format(name) + ''.join(
+            '{:>11.1f}'.format(v) if isinstance(v, (int, float)) else '{:>11}'.format('-')
+            for v in vals))
+    return lines
 
 
 def main(argv: Sequence[str] | None = None) -> int:

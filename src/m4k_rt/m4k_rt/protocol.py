@@ -499,6 +499,21 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
 )}
 
 _HEADER = struct.Struct(HEADER_FORMAT)
+_unpack_header = _HEADER.unpack_from
+_tuple_new = tuple.__new__
+_isfinite = math.isfinite
+# The short decode path (decode_from): kind -> (Kind, datagram size, payload unpack_from,
+# payload class, float fields [start, stop), ranges), for fixed layouts without text fields.
+_FAST: dict[int, tuple[Kind, int, Any, Any, int, int, tuple[tuple[int, float, float], ...]]] = {
+    k: (sp.kind, sp.full.size, sp.payload.unpack_from, sp.type, sp.floats[0], sp.floats[1],
+        sp.ranges)
+    for k, sp in _SPECS.items() if sp.item is None and not sp.string and not sp.texts}
+# The short encode path (PortWriter.send): kind -> (pack_into of header + payload, size), for
+# the same kinds; ``pack_into(buf, offset, MAGIC, VERSION, kind, seq, stamp_ns, *fields)``
+# writes what ``encode_into`` writes.
+FIXED_PACKERS: dict[int, tuple[Any, int]] = {
+    k: (sp.full.pack_into, sp.full.size) for k, sp in _SPECS.items()
+    if sp.item is None and not sp.string and not sp.texts}
 _SCAN = _SPECS[Kind.LASER_SCAN]
 _STATS = _SPECS[Kind.TASK_STATS]
 _SITE = _SPECS[Kind.FORBIDDEN_SITE]
@@ -508,7 +523,10 @@ MAX_SCAN_RANGES = _SCAN.max_items
 MAX_STATS_SAMPLES = _STATS.max_items
 _LITTLE_ENDIAN = sys.byteorder == 'little'
 _U16_CACHE: dict[int, struct.Struct] = {}
-_ENCODE_ERRORS = (struct.error, OverflowError, TypeError, ValueError)
+# What struct's pack_into raises for fields it cannot pack (encode_into turns it into a
+# ProtocolError 'encode'; a FIXED_PACKERS caller catches it itself).
+PACK_ERRORS = (struct.error, OverflowError, TypeError, ValueError)
+_ENCODE_ERRORS = PACK_ERRORS
 
 
 def _u16_array(count: int) -> struct.Struct:
@@ -756,7 +774,39 @@ def _decode_name(spec: _Spec, raw: bytes) -> str:
 
 def decode(data: bytes | bytearray | memoryview) -> tuple[Header, Any]:
     """Validate and decode one datagram into its Header and payload NamedTuple."""
-    n = len(data)
+    return decode_from(data, len(data))
+
+
+def decode_from(buf: bytes | bytearray | memoryview, n: int) -> tuple[Header, Any]:
+    """Validate and decode the datagram held in the first ``n`` bytes of ``buf``.
+
+    The receive path of RT loops: no slice of the receive buffer is made. Fixed-layout kinds
+    without text fields (every kind a task receives each cycle) take a short path that accepts
+    exactly what the full validation accepts and builds the same tuples; anything else, and
+    every datagram that fails a check, goes through the full validation, which raises the
+    precise :class:`ProtocolError`.
+    """
+    if not 0 <= n <= len(buf):
+        raise ProtocolError('length', 'datagram length {!r} outside the {}-byte buffer'.format(
+            n, len(buf)))
+    if n >= HEADER_SIZE:
+        magic, version, kind, seq, stamp_ns = _unpack_header(buf)
+        fast = _FAST.get(kind)
+        if fast is not None and magic == MAGIC and version == VERSION:
+            kind_e, size, unpack, cls, f0, f1, ranges = fast
+            if n == size:
+                values = unpack(buf, HEADER_SIZE)
+                if f0 == f1 or all(map(_isfinite, values[f0:f1])):
+                    for i, lo, hi in ranges:
+                        if not lo <= values[i] <= hi:
+                            break
+                    else:
+                        return (_tuple_new(Header, (kind_e, seq, stamp_ns)),
+                                _tuple_new(cls, values))
+    return _decode_checked(buf, n)
+
+
+def _decode_checked(data: bytes | bytearray | memoryview, n: int) -> tuple[Header, Any]:
     if n < HEADER_SIZE:
         raise ProtocolError('short', 'datagram of {} bytes is shorter than the {}-byte '
                             'header'.format(n, HEADER_SIZE))

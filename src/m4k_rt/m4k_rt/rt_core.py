@@ -16,13 +16,14 @@ import argparse
 import dataclasses
 import fcntl
 import importlib
+import json
 import math
 import os
 import sys
 import threading
 from typing import Any, Mapping, Sequence
 
-from m4k_rt import config, modeswitch, protocol, rosargs, sched, tasks, timing
+from m4k_rt import config, cycleprof, modeswitch, protocol, rosargs, sched, tasks, timing
 from m4k_rt.stopsignals import run_stoppable, StopSignals
 from m4k_rt.task import RtTask
 from m4k_rt.tasks import register_body
@@ -216,14 +217,17 @@ class StatsShipper:
             ru = t.rusage
             cpu = -1 if t.cpu is None else t.cpu
             ring = t.ring
+            cap = ring.capacity
+            rel, start, t_end, exp = ring.t_rel, ring.t_start, ring.t_end, ring.expirations
             while True:
                 count = min(self.batch, end - first)
                 size = protocol.encode_task_stats_head_into(
                     buf, 0, self.seq, now, self._names[i], t.index, t.priority, cpu,
                     t.period_ns, t.cycles & 0xFFFFFFFF, ru.nvcsw, ru.nivcsw, ru.minflt,
                     t.sites.total, count)
-                for s in range(first, first + count):
-                    pack(buf, size, *ring.row(s))
+                for s in range(first, first + count):   # straight from the ring's arrays
+                    k = s % cap
+                    pack(buf, size, rel[k], start[k], t_end[k], exp[k])
                     size += step
                 self._send(size, _TO_ALL)
                 first += count
@@ -303,6 +307,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--body-module', action='append', default=[], metavar='MOD',
                     help='import MOD first (it may call register_body); also $' +
                     BODY_MODULES_ENV)
+    ap.add_argument('--cycle-profile', metavar='FILE', default=cycleprof.env_path(),
+                    help='time the parts of every task cycle (m4k_rt.cycleprof) and write '
+                    'the breakdown as JSON to FILE at exit; also $' + cycleprof.ENV)
     return rosargs.parse_args(ap, argv)
 
 
@@ -344,6 +351,7 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         _err('config error: {}'.format(exc))
         return 2
     rt = cfg.runtime
+    cycleprof.enable(bool(args.cycle_profile))  # before any task, reader or writer is built
     from m4k_rt import xddp  # bound here so a config error exits before any socket work
     try:
         runtime_dir = xddp.ensure_runtime_dir(rt.runtime_dir, rt.group)
@@ -445,10 +453,29 @@ def _serve(args: argparse.Namespace, shared: SharedState) -> int:
              'invol {nivcsw} pf {minflt}/{majflt}'.format(**c)
              + ('' if not t.last_error else ' last error {!r} at {}'.format(
                  t.last_error, t.last_error_site)))
+    if args.cycle_profile:
+        _write_profile(args.cycle_profile, shared.tasks)
     if stuck:
         _err('tasks did not stop in time: {}'.format(', '.join(stuck)))
         return 1
     return 0
+
+
+def _write_profile(path: str, rt_tasks: Sequence[RtTask]) -> None:
+    """Write every task's cycle breakdown (µs per cycle) as JSON; one line each to stderr."""
+    out = {'tasks': {t.name: dict(t.profile.summary(), period_ns=t.period_ns)
+                     for t in rt_tasks if t.profile is not None}}
+    for name, s in out['tasks'].items():
+        _err('task {}: cycle profile (us per cycle) {}, thread CPU {}'.format(
+            name, ' '.join('{} {:.1f}'.format(k, v) for k, v in s.get('parts_us', {}).items()),
+            'n/a' if s.get('thread_cpu_per_cycle_us') is None
+            else '{:.1f}'.format(s['thread_cpu_per_cycle_us'])))
+    try:
+        with open(path, 'w', encoding='utf-8') as f:
+            json.dump(out, f, indent=1)
+            f.write('\n')
+    except OSError as exc:
+        _err('cannot write the cycle profile to {}: {}'.format(path, exc))
 
 
 if __name__ == '__main__':

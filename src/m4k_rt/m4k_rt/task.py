@@ -16,7 +16,7 @@ import signal
 import threading
 from typing import Callable
 
-from m4k_rt import modeswitch, sched, timing
+from m4k_rt import cycleprof, modeswitch, sched, timing
 from m4k_rt.timerfd import monotonic_ns, TimerFd
 
 __all__ = [
@@ -82,6 +82,8 @@ class RtTask:
         self.ring = timing.SampleRing(ring_capacity)
         self.sites = modeswitch.SiteTable(site_capacity)
         self.rusage = modeswitch.ThreadRusage()
+        # The cycle breakdown (m4k_rt.cycleprof), when profiling was switched on before.
+        self.profile = cycleprof.CycleProfile() if cycleprof.enabled() else None
         self.cycles = 0
         self.overruns = 0
         self.deadline_misses = 0
@@ -164,6 +166,7 @@ class RtTask:
             self._tfd = tfd
         self.t_rel = first - self.period_ns
         self.rusage.start()
+        cycleprof.bind(self.profile)
         self._ready.set()
         modeswitch.enter_rt(self.sites)
         try:
@@ -175,6 +178,8 @@ class RtTask:
             pass
         finally:
             self.rusage.update(self.cycles)
+            if self.profile is not None:
+                self.profile.cpu_mark(self.cycles)  # the last reading, for slow tasks too
             modeswitch.leave_rt()
             with self._tfd_lock:
                 self._tfd = None
@@ -226,8 +231,15 @@ class RtTask:
                 self.deadline_misses += 1
             self.cycles += 1
             if not self.cycles & _RUSAGE_MASK:
-                self.rusage.update(self.cycles)
+                self._refresh_rusage()
             self._open = False
+            prof = self.profile
+            if prof is not None:
+                prof.body_ns += t_end - self.t_start
+                prof.record_ns += monotonic_ns() - t_end
+                prof.cycles += 1
+                if self.cycles == 1:
+                    prof.cpu_mark(1)  # the first CPU reading: after the warm-up cycle
         if self._stop:
             raise TaskStopped
         tfd = self._tfd
@@ -246,6 +258,16 @@ class RtTask:
             self.overruns += exp - 1
             return exp - 1
         return 0
+
+    def _refresh_rusage(self) -> None:
+        prof = self.profile
+        if prof is None:
+            self.rusage.update(self.cycles)
+            return
+        t0 = monotonic_ns()
+        self.rusage.update(self.cycles)
+        prof.rusage_ns += monotonic_ns() - t0
+        prof.cpu_mark(self.cycles)
 
     def counters(self) -> dict[str, object]:
         """Return a snapshot of the task's counters (NRT use)."""

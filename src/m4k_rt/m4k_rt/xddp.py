@@ -414,42 +414,32 @@ class RtXddpSocket:
         discarded and counted ``dropped_oversize``; in stream mode up to ``len(buf)`` bytes
         are returned.
         """
+        poll = self._poll.poll
+        lfd = self._lfd
         while True:
-            events = self._poll.poll(0)  # one syscall and no exception when idle
+            events = poll(0)  # one syscall and no exception when idle
             if not events:
                 return 0
-            n = self._take(buf, events)
-            if n >= 0:
-                return n
-
-    def _take(self, buf: bytearray | memoryview, events: list[tuple[int, int]]) -> int:
-        """Handle ready ``events``: accept an opener, receive one datagram.
-
-        Return its length, 0 when nothing was received, -1 when an oversize datagram was
-        discarded (the caller may look again).
-        """
-        for fd, _ in events:
-            if fd == self._lfd:
-                self._accept_pending()
-                break
-        peer = self._peer
-        if peer is None:
-            return 0
-        try:
-            n = peer.recv_into(buf, 0, self._recv_flags)
-        except BlockingIOError:
-            return 0
-        except OSError:  # ECONNRESET
-            self._drop_peer()
-            return 0
-        if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
-            self._drop_peer()
-            return 0
-        if n > len(buf):
-            self.counters.dropped_oversize += 1
-            return -1
-        self.counters.received += 1
-        return n
+            if len(events) > 1 or events[0][0] == lfd:
+                self._accept_pending()  # an opener waits (alone or next to peer data)
+            peer = self._peer
+            if peer is None:
+                return 0
+            try:
+                n = peer.recv_into(buf, 0, self._recv_flags)
+            except BlockingIOError:
+                return 0
+            except OSError:  # ECONNRESET
+                self._drop_peer()
+                return 0
+            if n == 0:  # EOF (empty datagrams are never sent by our endpoints)
+                self._drop_peer()
+                return 0
+            if n > len(buf):  # discarded: look again
+                self.counters.dropped_oversize += 1
+                continue
+            self.counters.received += 1
+            return n
 
     def recv(self) -> bytes | None:
         """Receive one pending datagram as bytes, or None (allocates: not for RT loops)."""

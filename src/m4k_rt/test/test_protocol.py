@@ -464,6 +464,45 @@ def test_mutated_valid_datagrams_raise_only_protocol_error(kind, data):
     _decode_or_protocol_error(bytes(good))
 
 
+def _outcome(fn, *args):
+    try:
+        header, payload = fn(*args)
+    except ProtocolError as exc:
+        return 'error', exc.reason, str(exc)
+    return 'ok', header, type(header.kind), payload, type(payload)
+
+
+@settings(max_examples=examples(500))
+@given(kind=st.sampled_from(list(Kind)), data=st.data())
+def test_decode_from_a_receive_buffer_agrees_with_the_full_validation(kind, data):
+    # decode_from's short path must accept exactly what the full validation accepts and build
+    # equal tuples of the same types; the datagram sits in a larger buffer with stale bytes
+    # after it, as in a task's receive buffer.
+    good = bytearray(p.encode(kind, 7, -3, *EXAMPLES[kind]))
+    op = data.draw(st.sampled_from(['keep', 'flip', 'truncate', 'extend', 'nonfinite']))
+    if op == 'flip':
+        bit = data.draw(st.integers(0, len(good) * 8 - 1))
+        good[bit // 8] ^= 1 << (bit % 8)
+    elif op == 'truncate':
+        good = good[:data.draw(st.integers(0, len(good) - 1))]
+    elif op == 'extend':
+        good += data.draw(st.binary(min_size=1, max_size=16))
+    elif op == 'nonfinite' and len(good) >= p.HEADER_SIZE + 8:
+        at = data.draw(st.integers(p.HEADER_SIZE, len(good) - 8))
+        struct.pack_into('<d', good, at, data.draw(st.sampled_from([math.nan, math.inf])))
+    buf = bytearray(data.draw(st.binary(min_size=len(good) + 1, max_size=len(good) + 40)))
+    buf[:len(good)] = good
+    expected = _outcome(p._decode_checked, bytes(good), len(good))
+    assert _outcome(p.decode_from, buf, len(good)) == expected
+    assert _outcome(p.decode, bytes(good)) == expected
+
+
+def test_decode_from_refuses_a_length_beyond_the_buffer():
+    with pytest.raises(ProtocolError) as exc:
+        p.decode_from(bytearray(8), 9)
+    assert exc.value.reason == 'length'
+
+
 # ---- sequence numbers ----
 
 @pytest.mark.parametrize(('prev', 'cur', 'gap'), [

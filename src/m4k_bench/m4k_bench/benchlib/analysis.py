@@ -284,7 +284,49 @@ def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         for name, v in (_get(r, 'm4k_idle', 'task_response_p50_us') or {}).items():
             bodies.setdefault(name, []).append(v)
     return {'m4k_cpu_per_cycle_us': spread(m4k), 'floor_cpu_per_cycle_us': spread(floor),
-            'body_response_p50_us': {k: spread(v) for k, v in bodies.items()}}
+            'body_response_p50_us': {k: spread(v) for k, v in bodies.items()},
+            'breakdown': cycle_breakdown(rounds_)}
+
+
+def cycle_breakdown(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
+    """Return the per-task cycle breakdown of the profiled runs, median over the rounds.
+
+    Per task: the rate, every part of ``m4k_rt.cycleprof.PARTS`` and the thread CPU per cycle
+    (µs, as spreads). ``all`` weighs the tasks by their rates: what one average task cycle of
+    the process is made of; ``process_cpu_per_cycle_us`` is the profiled run's process CPU
+    per cycle (the unprofiled one is ``m4k_cpu_per_cycle_us``).
+    """
+    from m4k_bench.benchlib.rounds import spread
+    from m4k_rt.cycleprof import PARTS
+    per: dict[str, dict[str, list[Any]]] = {}
+    weighted: dict[str, list[Any]] = {}
+    proc: list[Any] = []
+    for r in rounds_:
+        run = r.get('m4k_profiled') or {}
+        prof = _get(run, 'cycle_profile', 'tasks')
+        if not prof:
+            continue
+        proc.append(run.get('cpu_per_cycle_us'))
+        tot: dict[str, float] = {}
+        rate_sum = 0.0
+        for name, t in prof.items():
+            rate = 1e9 / t['period_ns'] if t.get('period_ns') else 0.0
+            row = per.setdefault(name, {})
+            row.setdefault('rate_hz', []).append(rate)
+            parts = t.get('parts_us') or {}
+            for k in (*PARTS, 'thread_cpu_per_cycle_us'):
+                v = parts.get(k) if k in PARTS else t.get(k)
+                row.setdefault(k, []).append(v)
+                if isinstance(v, (int, float)):
+                    tot[k] = tot.get(k, 0.0) + v * rate
+            rate_sum += rate
+        for k, v in tot.items():
+            weighted.setdefault(k, []).append(v / rate_sum if rate_sum else None)
+    if not per:
+        return None
+    return {'tasks': {n: {k: spread(v) for k, v in row.items()} for n, row in per.items()},
+            'all': {k: spread(v) for k, v in weighted.items()},
+            'process_cpu_per_cycle_us': spread(proc)}
 
 
 def median_round_table(rounds_: Sequence[Mapping[str, Any]],

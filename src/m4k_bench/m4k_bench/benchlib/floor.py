@@ -28,7 +28,7 @@ from typing import Sequence
 from m4k_rt import sched, timing
 from m4k_rt.timerfd import monotonic_ns, TimerFd
 
-__all__ = ['main', 'run_floor']
+__all__ = ['main', 'run_floor', 'run_floor_child']
 
 
 def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict) -> None:
@@ -95,6 +95,30 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
             'process_cpu_s': time.process_time() - cpu0, 'wall_s': wall, 'seconds': seconds,
             'mem_locked': rep.mem_locked, 'fifo': all(o.get('fifo') for o in outs),
             'threads': [dict(o, period_ns=p) for o, p in zip(outs, periods_ns, strict=True)]}
+
+
+def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
+                    offsets_ns: Sequence[int], seconds: float,
+                    env: dict[str, str] | None = None) -> dict | str:
+    """Run the floor in a child process (hardened like rt_core); return its JSON or why not."""
+    import subprocess
+
+    from m4k_bench.benchlib import stack
+    argv = stack.entry_argv(
+        'm4k_bench.benchlib.floor',
+        '--periods-ms', ','.join('{:g}'.format(p / 1e6) for p in periods_ns),
+        '--priorities', ','.join(str(p) for p in priorities),
+        '--offsets-ms', ','.join('{:g}'.format(o / 1e6) for o in offsets_ns),
+        '--seconds', str(seconds))
+    try:
+        p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
+                           env=env, check=False)
+    except subprocess.TimeoutExpired:
+        return 'floor: timed out'
+    if p.returncode != 0 or not p.stdout.strip():
+        return 'floor: exit {}: {}'.format(p.returncode, p.stderr.strip()[-300:])
+    out: dict = json.loads(p.stdout.strip().splitlines()[-1])
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:

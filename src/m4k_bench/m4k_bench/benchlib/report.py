@@ -195,6 +195,7 @@ def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
         brows.append(['bookkeeping (no wait)', '{} µs'.format(_f(bk['per_cycle_us_median'],
                                                                    2))])
     lines += _table(['Part', 'µs per cycle'], brows)
+    lines += _breakdown(lc.get('breakdown'))
     parts = lc.get('parts_us') or {}
     if parts:
         lines += ['', 'The parts of a cycle, each timed alone on the real objects '
@@ -205,6 +206,34 @@ def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
                                                          'encode_send', 'timing_record',
                                                          'rusage')]])
     return lines
+
+
+_PART_LABELS = {'wake': 'wake', 'drain': 'drain + decode', 'control': 'control',
+                'send': 'encode + send', 'record': 'timing record', 'rusage': 'rusage'}
+
+
+def _breakdown(bd: Mapping[str, Any] | None) -> list[str]:
+    """Return the per-task cycle breakdown table of the profiled runs (µs per cycle)."""
+    if not bd:
+        return []
+    from m4k_rt.cycleprof import PARTS
+
+    def med(sp: Mapping[str, Any] | None) -> str:
+        return _f(sp.get('median'), 1) if sp else '-'
+    rows = [[name, med(t.get('rate_hz'))] + [med(t.get(p)) for p in PARTS]
+            + [med(t.get('thread_cpu_per_cycle_us'))]
+            for name, t in (bd.get('tasks') or {}).items()]
+    a = bd.get('all') or {}
+    rows.append(['**all, weighted by rate**', ''] + [med(a.get(p)) for p in PARTS]
+                + [med(a.get('thread_cpu_per_cycle_us'))])
+    lines = ['', 'Cycle breakdown, measured inside the loop (`m4k_rt.cycleprof`, one profiled '
+             'full-stack run per round, median over the rounds; µs per cycle). The body parts '
+             "are timed with the clock around the ports' readers and writers; wake = the "
+             "thread's CPU per cycle minus the timed parts (timer wait system call, switch, GIL, "
+             'loop lines). Process CPU per cycle of the profiled runs: {} µs.'.format(
+                 _sp(bd.get('process_cpu_per_cycle_us'), 1)), '']
+    return lines + _table(['Task', 'rate (Hz)'] + [_PART_LABELS[p] for p in PARTS]
+                          + ['thread CPU'], rows)
 
 
 def _scaling(summ: Mapping[str, Any]) -> list[str]:

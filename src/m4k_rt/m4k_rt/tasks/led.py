@@ -72,7 +72,8 @@ class LedBody:
         self.override: tuple[int, int, int, int] | None = None
         self.shown: tuple[int, int, int, int] = IDLE
         self.source = SOURCE_STATE
-        self._echoed: tuple[int, int, int, int, int] | None = None
+        self._echoed: tuple[int, int, int, int] | None = None   # colour last echoed
+        self._echoed_source = SOURCE_STATE
         self._echo_ns = 0
         self.cycles = 0
         self.overrides = 0
@@ -132,11 +133,11 @@ class LedBody:
         self.state.led_override = override is not None
         r, g, b, brightness = colour
         self._dev_out.send(_LED, now, r, g, b, brightness, source)
-        echoed = self._echoed
-        if (echoed is None or echoed[4] != source or echoed[:4] != colour
+        if (self._echoed != colour or self._echoed_source != source
                 or now - self._echo_ns >= ECHO_EVERY_NS):
             if self._bridge_out.send(_LED, now, r, g, b, brightness, source):
-                self._echoed = (r, g, b, brightness, source)
+                self._echoed = colour      # an immutable tuple: kept, not copied
+                self._echoed_source = source
                 self._echo_ns = now
         self.cycles += 1
 

@@ -12,7 +12,18 @@ from __future__ import annotations
 import time
 from typing import Any, Callable
 
-from m4k_rt.protocol import decode, encode_into, MAX_DATAGRAM, ProtocolError, SEQ_MASK
+from m4k_rt import cycleprof
+from m4k_rt.protocol import (
+    decode_from,
+    encode_into,
+    FIXED_PACKERS,
+    MAGIC,
+    MAX_DATAGRAM,
+    PACK_ERRORS,
+    ProtocolError,
+    SEQ_MASK,
+    VERSION,
+)
 
 __all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
 
@@ -25,6 +36,12 @@ class PortReader:
     """Drain and decode datagrams from one RT XDDP socket."""
 
     __slots__ = ('sock', 'buf', 'view', 'length', 'received', 'budget')
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> PortReader:
+        """Return a timed reader when the cycle profile is on (decided at start-up)."""
+        if cls is PortReader and cycleprof.enabled():
+            cls = _TimedPortReader
+        return object.__new__(cls)
 
     def __init__(self, sock: Any, size: int = MAX_DATAGRAM) -> None:
         self.sock = sock
@@ -48,7 +65,7 @@ class PortReader:
                 self.budget = 0
                 return None
             try:
-                result = decode(self.view[:n])
+                result = decode_from(self.buf, n)
             except ProtocolError:
                 sock.count_malformed()
                 continue
@@ -80,6 +97,12 @@ class PortWriter:
 
     __slots__ = ('sock', 'buf', 'view', 'seq', 'sent', 'dropped', 'encode_errors')
 
+    def __new__(cls, *args: Any, **kwargs: Any) -> PortWriter:
+        """Return a timed writer when the cycle profile is on (decided at start-up)."""
+        if cls is PortWriter and cycleprof.enabled():
+            cls = _TimedPortWriter
+        return object.__new__(cls)
+
     def __init__(self, sock: Any, size: int = 128) -> None:
         self.sock = sock
         self.buf = bytearray(size)
@@ -91,13 +114,26 @@ class PortWriter:
 
     def send(self, kind: int, stamp_ns: int, *fields: Any) -> bool:
         """Encode one datagram and send it; return False when it was not sent (counted)."""
-        try:
-            n = encode_into(self.buf, 0, kind, self.seq, stamp_ns, *fields)
-        except ProtocolError:
-            self.encode_errors += 1
-            return False
+        fixed = FIXED_PACKERS.get(kind)
+        if fixed is not None:   # every kind a task sends: one pack_into, the bytes of encode_into
+            pack, n = fixed
+            try:
+                pack(self.buf, 0, MAGIC, VERSION, kind, self.seq, stamp_ns, *fields)
+            except PACK_ERRORS:
+                self.encode_errors += 1
+                return False
+        else:
+            try:
+                n = encode_into(self.buf, 0, kind, self.seq, stamp_ns, *fields)
+            except ProtocolError:
+                self.encode_errors += 1
+                return False
         self.seq = (self.seq + 1) & SEQ_MASK
-        return self._count(self.sock.send(self.view[:n]))
+        if self.sock.send(self.view[:n]):
+            self.sent += 1
+            return True
+        self.dropped += 1
+        return False
 
     def forward(self, data: memoryview) -> bool:
         """Send already validated datagram bytes unchanged (the sender's seq and stamp kept)."""
@@ -109,6 +145,49 @@ class PortWriter:
         else:
             self.dropped += 1
         return ok
+
+
+class _TimedPortReader(PortReader):
+    """A PortReader adding its time to the calling task's cycle profile (``cycleprof``)."""
+
+    __slots__ = ()
+
+    def next(self) -> tuple[Any, Any] | None:
+        t0 = _clock()
+        got = PortReader.next(self)
+        prof = cycleprof.current()
+        if prof is not None:
+            prof.drain_ns += _clock() - t0
+            prof.drain_calls += 1
+        return got
+
+
+class _TimedPortWriter(PortWriter):
+    """A PortWriter adding its time to the calling task's cycle profile (``cycleprof``)."""
+
+    __slots__ = ()
+
+    def send(self, kind: int, stamp_ns: int, *fields: Any) -> bool:
+        t0 = _clock()
+        ok = PortWriter.send(self, kind, stamp_ns, *fields)
+        self._add(t0)
+        return ok
+
+    def forward(self, data: memoryview) -> bool:
+        t0 = _clock()
+        ok = PortWriter.forward(self, data)
+        self._add(t0)
+        return ok
+
+    @staticmethod
+    def _add(t0: int) -> None:
+        prof = cycleprof.current()
+        if prof is not None:
+            prof.send_ns += _clock() - t0
+            prof.send_calls += 1
+
+
+_clock = time.monotonic_ns
 
 
 class DeviceTaskBody:
