@@ -9,44 +9,12 @@ started before sim_robot (the devices' sim-bus peer), then sim_robot.
 
 import signal
 import subprocess
-import threading
 
-from wsenv import stack_env, start_sim_robot
+from wsenv import LineWatch, stack_env, start_sim_robot
 
 from m4k_drivers.handler import RetryPolicy
 
 TIMEOUT_S = 60.0  # bounds on waiting for lines; a healthy run needs a few seconds
-
-
-class Lines:
-    """Collect a process's stderr lines in a thread; wait for a line (event, not time)."""
-
-    def __init__(self, stream):
-        self.lines = []
-        self._cond = threading.Condition()
-        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
-        self._thread.start()
-
-    def _read(self, stream):
-        for line in stream:
-            with self._cond:
-                self.lines.append(line)
-                self._cond.notify_all()
-
-    def count(self, text):
-        with self._cond:
-            return sum(text in ln for ln in self.lines)
-
-    def wait_count(self, text, n):
-        with self._cond:
-            ok = self._cond.wait_for(lambda: sum(text in ln for ln in self.lines) >= n,
-                                     TIMEOUT_S)
-            assert ok, 'fewer than {} {!r} lines in:\n{}'.format(
-                n, text, ''.join(self.lines)[-3000:])
-
-    def text(self):
-        self._thread.join(TIMEOUT_S)
-        return ''.join(self.lines)
 
 
 def test_backoff_delay_is_defined_for_any_attempt():
@@ -61,18 +29,18 @@ def test_a_device_missing_at_start_comes_up_when_it_appears(procs, m4k_runtime_d
     host = procs.start(['python', '-m', 'm4k_drivers.host', '--runtime-dir', m4k_runtime_dir,
                         '--device', 'imu', '--device', 'sonar'], env=env,
                        stdout=subprocess.DEVNULL)
-    lines = Lines(host.stderr)
+    lines = LineWatch(host.stderr, TIMEOUT_S)
     # No simulator yet: each device's bring-up fails and is retried with backoff (0.5 s, 1 s).
     for dev in ('imu', 'sonar'):
-        lines.wait_count('{}: bring-up failed (retry in'.format(dev), 2)
-    assert lines.count('service crashed') == 0, lines.text()[-3000:]
+        lines.wait_for('{}: bring-up failed (retry in'.format(dev), 2)
+    assert lines.count('service crashed') == 0, ''.join(lines.lines)[-3000:]
     assert host.poll() is None
     # The devices appear: both come up without restarting the host.
     start_sim_robot(procs, env, m4k_runtime_dir)
     for dev in ('imu', 'sonar'):
-        lines.wait_count('{}: active'.format(dev), 1)
+        lines.wait_for('{}: active'.format(dev))
     host.send_signal(signal.SIGTERM)
     assert host.wait(TIMEOUT_S) == 0
-    text = lines.text()
+    text = lines.close()
     assert 'service crashed' not in text, text[-3000:]
     assert 'driver_host: stopped (SIGTERM); outputs safe' in text

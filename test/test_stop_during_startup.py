@@ -12,11 +12,10 @@ and after a start-up line the process prints (config read, children starting). N
 
 import os
 import signal
-import threading
 import time
 
 import pytest
-from wsenv import stack_env
+from wsenv import LineWatch, stack_env
 import yaml
 
 from m4k_rt.stopsignals import blocked_stop_signals
@@ -54,37 +53,6 @@ def _argv(name, tmp_path, runtime_dir):
     return argv
 
 
-class LineWatch:
-    """Collect a process's stderr; let the test wait for a line (event, not time)."""
-
-    def __init__(self, stream):
-        self.lines = []
-        self._cond = threading.Condition()
-        self._done = False
-        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
-        self._thread.start()
-
-    def _read(self, stream):
-        for line in stream:
-            with self._cond:
-                self.lines.append(line)
-                self._cond.notify_all()
-        with self._cond:
-            self._done = True
-            self._cond.notify_all()
-
-    def wait_for(self, text, timeout=TIMEOUT_S):
-        with self._cond:
-            ok = self._cond.wait_for(
-                lambda: self._done or any(text in ln for ln in self.lines), timeout)
-            assert ok and any(text in ln for ln in self.lines), \
-                'no {!r} in:\n{}'.format(text, ''.join(self.lines)[-3000:])
-
-    def close(self):
-        self._thread.join(TIMEOUT_S)
-        return ''.join(self.lines)
-
-
 def _start(procs, name, tmp_path, runtime_dir, blocked):
     kwargs = {'env': stack_env(runtime_dir), 'stdout': open(os.devnull, 'w')}
     if blocked:  # as bringup starts its children
@@ -93,7 +61,7 @@ def _start(procs, name, tmp_path, runtime_dir, blocked):
     else:
         p = procs.start(_argv(name, tmp_path, runtime_dir), **kwargs)
     kwargs['stdout'].close()
-    return p, LineWatch(p.stderr)
+    return p, LineWatch(p.stderr, TIMEOUT_S)
 
 
 def _assert_clean_stop(p, watch, name):

@@ -2,6 +2,7 @@
 
 import json
 import os
+import threading
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -74,3 +75,49 @@ def ground_truth_live(runtime_dir: str) -> dict | None:
         return read_truth(runtime_dir)
     except (OSError, ValueError):
         return None
+
+
+class LineWatch:
+    """Collect a process's output lines in a thread; let a test wait for lines (event, not time).
+
+    ``timeout`` bounds every wait: generous, a healthy run never comes near it.
+    """
+
+    def __init__(self, stream, timeout: float = 60.0) -> None:
+        self.lines: list[str] = []
+        self.timeout = timeout
+        self._cond = threading.Condition()
+        self._done = False
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            with self._cond:
+                self.lines.append(line)
+                self._cond.notify_all()
+        with self._cond:
+            self._done = True
+            self._cond.notify_all()
+
+    def count(self, text: str) -> int:
+        """Return how many lines so far contain ``text``."""
+        with self._cond:
+            return self.count_locked(text)
+
+    def wait_for(self, text: str, n: int = 1) -> None:
+        """Wait until ``n`` lines contain ``text``; fail with the output's tail otherwise."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._done or self.count_locked(text) >= n,
+                                self.timeout)
+            assert self.count_locked(text) >= n, 'fewer than {} {!r} lines in:\n{}'.format(
+                n, text, ''.join(self.lines)[-3000:])
+
+    def count_locked(self, text: str) -> int:
+        """Like :meth:`count`, for a caller that holds the lock."""
+        return sum(text in ln for ln in self.lines)
+
+    def close(self) -> str:
+        """Wait for the stream's end; return the whole output."""
+        self._thread.join(self.timeout)
+        return ''.join(self.lines)
