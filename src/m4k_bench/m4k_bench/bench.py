@@ -13,8 +13,8 @@ root, else it says what to install), holds ``/dev/cpu_dma_latency`` at 0 µs for
    -> XDDP -> actuator (+ driver_host on simulated devices). One more full-stack run per round
    has rt_core's cycle profile on (``m4k_rt.cycleprof``): the per-task breakdown of a cycle
    (wake, drain + decode, control, encode + send, timing record, rusage) in the report;
-2. **scaling**: the actuator alone and with the task set at 100, 250, 500 and 1000 Hz, each with
-   cyclictest at the same rate;
+2. **scaling**, in every round (the rates reversed every other round): the actuator alone and
+   with the task set at 100, 250, 500 and 1000 Hz, each with cyclictest at the same rate;
 3. cmd_vel -> WHEEL_CMD latency.
 
 Every ratio is computed per round and reported as the median with min-max over the rounds;
@@ -57,7 +57,7 @@ WARMUP_S = 1.0
 RATES_HZ = (100, 250, 500, 1000)
 PUBLISH_DIR = os.path.join('docs', 'results', 'bench')
 
-FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 10.0, 'rtt_n': 2000,
+FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 6.0, 'rtt_n': 2000,
         'cmd_trials': 60}
 QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt_n': 500,
          'cmd_trials': 10}
@@ -90,8 +90,9 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     per_round += 0 if 'floor' in skip else plan['floor_s'] + 2.0
     per_round += 0 if 'breakdown' in skip else per_cond
     per_round += 0 if 'rtt' in skip else plan['rtt_n'] * 2 * 1e-4 + 2.0
+    per_round += 0 if 'scaling' in skip else 2 * len(RATES_HZ) * (
+        plan['scaling_s'] + WARMUP_S + 5)
     total = plan['rounds'] * per_round
-    total += 0 if 'scaling' in skip else 2 * len(RATES_HZ) * (plan['scaling_s'] + WARMUP_S + 5)
     total += 0 if 'cmdlat' in skip else plan['cmd_trials'] * 0.4 + 10.0
     return total
 
@@ -238,9 +239,8 @@ class Bench:
                                                     'ROS_AUTOMATIC_DISCOVERY_RANGE')})
         per_round = len([c for c in ('floor', *CONDITIONS, 'breakdown', 'rtt')
                          if c not in self.skip])
-        steps = 2 + self.plan['rounds'] * per_round + (
-            0 if 'scaling' in self.skip else 2 * len(args.rates_hz)) + (
-            0 if 'cmdlat' in self.skip else 1)
+        per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz)
+        steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1)
         self.progress = progress_mod.Progress(steps)
         self.periods: dict[str, list[np.ndarray]] = {}
         self.tables: dict[str, Any] = {}          # per round: the m4k_idle recorder summary
@@ -438,8 +438,6 @@ class Bench:
                 self.summ['cpu_dma_latency'] = {'held': dma.held, 'error': dma.error}
                 for k in range(plan['rounds']):
                     self._round(k)
-                if 'scaling' not in self.skip:
-                    self._scaling()
                 if 'cmdlat' not in self.skip:
                     p.phase('cmd_vel -> WHEEL_CMD latency ({} trials)'.format(
                         plan['cmd_trials']))
@@ -499,22 +497,29 @@ class Bench:
             p.phase(pre + "XDDP round trip, tasks' receive path ({} each)".format(
                 plan['rtt_n']))
             rnd['rtt'] = self._rtt(plan['rtt_n'], 'r{}_rtt'.format(k))
+        if 'scaling' not in self.skip:
+            self._scaling(k)
 
-    def _scaling(self) -> None:
-        rows = []
+    def _scaling(self, k: int) -> None:
+        """Round ``k`` of the scaling sweep: every rate, alone and with the task set."""
+        rows = self.summ.setdefault('scaling', [])
         s = self.plan['scaling_s']
-        for hz in self.args.rates_hz:
+        rates = list(self.args.rates_hz)
+        if k % 2:
+            rates.reverse()
+        pre = 'round {}/{}: '.format(k + 1, self.plan['rounds'])
+        for hz in rates:
             period_ms = 1000.0 / hz
             overlay = self._overlay(period_ms)
             for tasks, label in ((ACTUATOR, 'alone'), (None, 'task set')):
-                self.progress.phase('scaling: actuator at {} Hz, {}'.format(hz, label),
+                self.progress.phase(pre + 'scaling: actuator at {} Hz, {}'.format(hz, label),
                                     s + WARMUP_S + 3.0)
-                r = self._m4k('scaling', 'scale_{}hz_{}'.format(
-                    hz, 'alone' if tasks else 'set'), s, tasks=tasks,
+                r = self._m4k('scaling', 'r{}_scale_{}hz_{}'.format(
+                    k, hz, 'alone' if tasks else 'set'), s, tasks=tasks,
                     period_ns=int(round(1e9 / hz)), rt_config=overlay)
                 ct = (r or {}).get('cyclictest') or {}
                 lat = (r or {}).get('latency_us') or {}
-                rows.append({'rate_hz': hz, 'set': label,
+                rows.append({'round': k, 'rate_hz': hz, 'set': label,
                              'release_p99_us': lat.get('p99'),
                              'release_p999_us': lat.get('p999'),
                              'cyclictest_p99_us': ct.get('p99'),
@@ -523,7 +528,6 @@ class Bench:
                              'overruns': (r or {}).get('overruns'),
                              'deadline_misses': (r or {}).get('deadline_misses'),
                              'hardening_ok': (r or {}).get('hardening', {}).get('ok')})
-        self.summ['scaling'] = rows
 
     def _cmdlat(self, trials: int) -> None:
         from m4k_bench.benchlib import cmdlat

@@ -112,6 +112,7 @@ class SimRobot:
         self.cfg = cfg
         self.runtime_dir = runtime_dir
         self.report_path = report_path
+        self.report_error: str | None = None   # the failure last logged (logged once)
         self.sleep = sleep       # waits on ``clock`` (sonar echoes); tests pass a fake pair
         self.world = World(cfg.world, clock=clock)
         self.spi: dict[str, Any] = {}
@@ -216,7 +217,15 @@ class SimRobot:
                 json.dump(self.truth(), f)
             os.replace(tmp, self.report_path)
         except OSError as exc:
-            LOG.warning('world report %s: %s', self.report_path, exc)
+            # Rewritten every 100 ms: log a failure once, not ten times a second.
+            if str(exc) != self.report_error:
+                LOG.warning('world report %s: %s (not logged again until it changes)',
+                            self.report_path, exc)
+                self.report_error = str(exc)
+            return
+        if self.report_error is not None:
+            LOG.info('world report %s: written again', self.report_path)
+            self.report_error = None
 
     # -- running -------------------------------------------------------------------------
     def start(self) -> SimRobot:

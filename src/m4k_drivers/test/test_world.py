@@ -195,3 +195,32 @@ def test_wheel_angle_between_steps_is_the_angle_at_that_time():
     assert w.wheel_angle_at(RIGHT, 200_500_000) == pytest.approx(w.wheel_angle_at(LEFT))
     with pytest.raises(ValueError, match='side must be'):
         w.wheel_angle_at(2)
+
+
+def test_world_report_failure_is_logged_once_and_recovery_once(m4k_runtime_dir, tmp_path,
+                                                               caplog):
+    """The report is rewritten every 100 ms: a missing directory must not flood the log."""
+    import json
+    import logging
+
+    from m4k_drivers.sim_robot import SimRobot
+    from m4k_rt.xddp import ensure_runtime_dir
+    cfg = dconfig.validate({'devices': {'imu': {'backend': 'sim'}}})
+    rd = ensure_runtime_dir(m4k_runtime_dir)
+    where = tmp_path / 'gone'
+    robot = SimRobot(cfg, rd, str(where / 'world.json'))   # not started: writes by hand
+    try:
+        with caplog.at_level(logging.INFO, logger='m4k_drivers.sim_robot'):
+            for _ in range(5):
+                robot.write_report()
+            failures = [r for r in caplog.records if 'world report' in r.getMessage()]
+            assert len(failures) == 1 and failures[0].levelno == logging.WARNING
+            assert 'No such file or directory' in failures[0].getMessage()
+            where.mkdir()
+            robot.write_report()
+            robot.write_report()
+    finally:
+        robot.close()
+    msgs = [r.getMessage() for r in caplog.records if 'world report' in r.getMessage()]
+    assert len(msgs) == 2 and msgs[1].endswith('written again')
+    assert len(json.loads((where / 'world.json').read_text())['pose']) == 3

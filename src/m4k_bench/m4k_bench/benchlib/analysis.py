@@ -23,7 +23,8 @@ from m4k_rt import recorder, timing
 __all__ = [
     'RATIOS', 'RATIO_KEYS', 'Ratio', 'TARGETS', 'Target', 'condition_summary',
     'evaluate_targets', 'hardened_rounds', 'interference', 'load_samples_csv', 'loop_cost',
-    'median_round_table', 'ratio', 'round_ratios', 'series_from_rows', 'stats_dict',
+    'median_round_table', 'ratio', 'round_ratios', 'scaling_summary', 'series_from_rows',
+    'stats_dict',
     'trim_warmup',
 ]
 
@@ -255,7 +256,8 @@ def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, A
         if t.key == 'scaling_1khz_release_p99_over_cyclictest':
             label = 'actuator alone at 1 kHz: release p99 ÷ concurrent cyclictest p99 at 1 kHz'
             sp = spread([r.get('ratio_p99') for r in scaling
-                         if r.get('rate_hz') == 1000 and r.get('set') == 'alone'])
+                         if r.get('rate_hz') == 1000 and r.get('set') == 'alone'
+                         and r.get('hardening_ok') is not False])
         else:
             entry = ratios.get(t.key) or {}
             label = entry.get('label', t.key)
@@ -268,6 +270,39 @@ def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, A
         rows.append({'key': t.key, 'label': label, 'target': '{} {:g}×'.format(t.op, t.limit),
                      'spread': sp, 'met': met})
     return rows
+
+
+SCALING_FIELDS = ('release_p99_us', 'release_p999_us', 'cyclictest_p99_us', 'ratio_p99',
+                  'cpu_per_cycle_us')
+
+
+def scaling_summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Return one row per (rate, task set): each field's spread over the rounds.
+
+    ``rows`` are the per-round scaling runs. A run whose RT hardening failed is left out of
+    the spreads (it is not an m4k run) and counted in ``degraded``; overruns and deadline
+    misses are summed over every run.
+    """
+    from m4k_bench.benchlib.rounds import spread
+    keys: list[tuple[Any, Any]] = []
+    for r in rows:
+        k = (r.get('rate_hz'), r.get('set'))
+        if k not in keys:
+            keys.append(k)
+    keys.sort(key=lambda k: (k[0] or 0, str(k[1])))
+    out = []
+    for hz, label in keys:
+        sel = [r for r in rows if r.get('rate_hz') == hz and r.get('set') == label]
+        ok = [r for r in sel if r.get('hardening_ok') is not False]
+        row: dict[str, Any] = {'rate_hz': hz, 'set': label, 'runs': len(sel),
+                               'degraded': len(sel) - len(ok)}
+        for f in SCALING_FIELDS:
+            row[f] = spread([r.get(f) for r in ok])
+        for f in ('overruns', 'deadline_misses'):
+            vals = [r.get(f) for r in sel if isinstance(r.get(f), int)]
+            row[f] = sum(vals) if vals else None
+        out.append(row)
+    return out
 
 
 def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

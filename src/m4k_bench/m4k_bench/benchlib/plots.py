@@ -74,21 +74,47 @@ def fig10(periods_ns: Mapping[str, Sequence[int] | np.ndarray], nominal_ns: int,
 
 
 def scaling(rows: Sequence[Mapping[str, object]], path: str) -> str:
-    """Write the scaling figure: release p99 vs cyclictest p99, and CPU per cycle, per rate."""
+    """Write the scaling figure: release p99 vs cyclictest p99, and CPU per cycle, per rate.
+
+    ``rows`` are the per-round runs; each point is the median over the rounds, the bar its
+    min-max.
+    """
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
+    from m4k_bench.benchlib.analysis import scaling_summary
+
+    def med(sel: Sequence[Mapping[str, object]],
+            key: str) -> tuple[list[float], list[list[float]]]:
+        y: list[float] = []
+        err: list[list[float]] = [[], []]
+        for r in sel:
+            sp = r.get(key)
+            if isinstance(sp, Mapping):
+                m = float(sp['median'])
+                y.append(m)
+                err[0].append(m - float(sp['min']))
+                err[1].append(float(sp['max']) - m)
+            else:
+                y.append(np.nan)
+                err[0].append(0.0)
+                err[1].append(0.0)
+        return y, err
+
+    summary = scaling_summary(rows)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
-    for label, style in (('alone', 'o-'), ('task set', 's--')):
-        sel = [r for r in rows if r.get('set') == label]
+    for label, style, colour in (('alone', 'o-', '#1f77b4'), ('task set', 's--', '#2ca02c')):
+        sel = [r for r in summary if r.get('set') == label]
         hz = [r['rate_hz'] for r in sel]
-        ax1.plot(hz, [r.get('release_p99_us') or np.nan for r in sel], style,
-                 label='actuator release p99, {}'.format(label))
-        ax1.plot(hz, [r.get('cyclictest_p99_us') or np.nan for r in sel], style, alpha=0.45,
-                 label='concurrent cyclictest p99 ({})'.format(label))
-        ax2.plot(hz, [r.get('cpu_per_cycle_us') or np.nan for r in sel], style,
-                 label='CPU per cycle, {}'.format(label))
+        for ax, key, alpha, text in (
+                (ax1, 'release_p99_us', 1.0, 'actuator release p99, {}'),
+                (ax1, 'cyclictest_p99_us', 0.45, 'concurrent cyclictest p99 ({})'),
+                (ax2, 'cpu_per_cycle_us', 1.0, 'CPU per cycle, {}')):
+            y, err = med(sel, key)
+            ax.errorbar(hz, y, yerr=err, fmt=style, color=colour, alpha=alpha, capsize=3,
+                        label=text.format(label))
+    n = max((int(r.get('runs') or 0) for r in summary), default=0)
     for ax in (ax1, ax2):
         ax.set_xscale('log')
         ax.set_xticks([100, 250, 500, 1000])
@@ -97,9 +123,10 @@ def scaling(rows: Sequence[Mapping[str, object]], path: str) -> str:
         ax.grid(True, which='both', alpha=0.3)
         ax.legend(fontsize=8)
     ax1.set_ylabel('µs')
-    ax1.set_title('(a) release latency p99 vs cyclictest at the same rate')
+    ax1.set_title('(a) release latency p99 vs cyclictest at the same rate\n'
+                  '(median, bars min–max over {} rounds)'.format(n), fontsize=10)
     ax2.set_ylabel('µs of CPU per task cycle')
-    ax2.set_title('(b) RT process CPU per cycle')
+    ax2.set_title('(b) RT process CPU per cycle\n(median, bars min–max)', fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

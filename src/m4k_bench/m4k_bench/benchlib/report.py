@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
+from m4k_bench.benchlib import analysis
 from m4k_bench.benchlib.analysis import RATIOS
 from m4k_rt import recorder
 
@@ -237,18 +238,28 @@ def _breakdown(bd: Mapping[str, Any] | None) -> list[str]:
 
 
 def _scaling(summ: Mapping[str, Any]) -> list[str]:
-    rows = [[r['rate_hz'], r['set'], _f(r['release_p99_us']), _f(r['release_p999_us']),
-             _f(r['cyclictest_p99_us']), _f(r['ratio_p99'], 2), _f(r['cpu_per_cycle_us']),
-             '{} / {}'.format(r.get('overruns', '-'), r.get('deadline_misses', '-')),
-             _f(r.get('hardening_ok'))]
-            for r in summ.get('scaling') or []]
+    def sp(v: Any, digits: int = 1) -> str:
+        if not isinstance(v, Mapping):
+            return '-'
+        return '{} ({}–{})'.format(_f(v['median'], digits), _f(v['min'], digits),
+                                   _f(v['max'], digits))
+
+    rows = [[r['rate_hz'], r['set'], sp(r['release_p99_us']), sp(r['release_p999_us']),
+             sp(r['cyclictest_p99_us']), sp(r['ratio_p99'], 2), sp(r['cpu_per_cycle_us']),
+             '{} / {}'.format(_f(r.get('overruns')), _f(r.get('deadline_misses'))),
+             '{}{}'.format(r['runs'], ' ({} degraded)'.format(r['degraded'])
+                           if r['degraded'] else '')]
+            for r in analysis.scaling_summary(summ.get('scaling') or [])]
     lines = ['## Scaling: the actuator at 100, 250, 500 and 1000 Hz', '']
     if not rows:
         return lines + ['Not measured.']
-    lines += ['![scaling](scaling.png)', '']
+    lines += ['One run per rate and task set in every round, the rates in reverse order every '
+              'other round. Median (min–max) over the hardened runs; overruns and deadline '
+              'misses summed over all runs. Per-run figures: `summary.json` → `scaling`.', '',
+              '![scaling](scaling.png)', '']
     return lines + _table(['Rate (Hz)', 'Tasks', 'release p99 (µs)', 'release p99.9 (µs)',
                            'cyclictest p99 at that rate (µs)', 'p99 ratio',
-                           'CPU per cycle (µs)', 'overruns / misses', 'hardened'], rows)
+                           'CPU per cycle (µs)', 'overruns / misses', 'runs'], rows)
 
 
 def _rtt(summ: Mapping[str, Any]) -> list[str]:
