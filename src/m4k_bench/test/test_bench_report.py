@@ -98,6 +98,30 @@ def test_readme_snippet_has_the_spread_and_the_machine():
     text = report.readme_snippet(_summary())
     assert '1.40 (1.40–1.40, n=1)' in text and '6.18.0-test' in text
     assert 'make bench QUICK=1' in text and 'plain-ROS ÷ m4k jitter p99, stress-ng' in text
+    assert '**Table 1**' not in text                # no task measured: no table
+
+
+def test_readme_snippet_has_a_compact_table1_and_both_utilization_tests():
+    s = _summary()
+    lat = {'n': 10, 'p50': 40.0, 'p99': 100.0, 'max': 13000.0}
+    resp = {'n': 10, 'p50': 80.0, 'p99': 150.0, 'max': 400.0}
+    s['table1'] = {
+        'tasks': [{'name': 'imu', 'priority': 85, 'period_ms': 10.0, 'cycles': 3100,
+                   'latency_us': lat, 'response_us': resp, 'overruns': 1,
+                   'deadline_misses': 0}],
+        'rta': [{'name': 'imu', 'response_us': None, 'deadline_us': 10000.0,
+                 'schedulable': False}],
+        'rta_p999': [{'name': 'imu', 'response_us': 1108.4, 'deadline_us': 10000.0,
+                      'schedulable': True}],
+        'utilization': {'per_task': {'imu': 0.04}, 'total': 0.04,
+                        'liu_layland_bound': 1.0, 'verdict': 'schedulable'}}
+    s['table1_round'] = 3
+    text = report.readme_snippet(s)
+    assert 'round 3 of the full stack' in text
+    assert ('| imu | 85 | 10 | 3100 | 80.0 / 150.0 / 400.0 | 40.0 / 100.0 / 13000.0 | 1 / 0 '
+            '| no (> 10000) | yes (1108) |') in text
+    assert 'Σ C/T = 4.00 % against the Liu–Layland bound 100.0 % for 1 tasks' in text
+    assert 'p99.9 response' not in text             # no p99.9 utilization given
 
 
 def test_report_renders_an_empty_summary():

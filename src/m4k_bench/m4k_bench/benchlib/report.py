@@ -396,6 +396,50 @@ def readme_snippet(summ: Mapping[str, Any]) -> str:
     lc = summ.get('loop_cost') or {}
     lines += ['', 'CPU per task cycle: m4k {} µs, Python floor {} µs.'.format(
         _sp(lc.get('m4k_cpu_per_cycle_us'), 1), _sp(lc.get('floor_cpu_per_cycle_us'), 1))]
+    lines += _table1_compact(summ)
     if summ.get('scaling'):
         lines += ['', '![scaling](docs/results/bench/scaling.png)']
     return '\n'.join(lines) + '\n'
+
+
+def _table1_compact(summ: Mapping[str, Any]) -> list[str]:
+    """Return the median round's Table 1, one row per task, and both utilization tests."""
+    t1 = summ.get('table1') or {}
+    tasks = t1.get('tasks') or []
+    if not tasks:
+        return []
+    rta = {r['name']: r for r in t1.get('rta') or []}
+    rta9 = {r['name']: r for r in t1.get('rta_p999') or []}
+
+    def stats(d: Any) -> str:
+        if not isinstance(d, Mapping) or not d.get('n'):
+            return '-'
+        return ' / '.join(_f(d.get(k)) for k in ('p50', 'p99', 'max'))
+
+    def sched(r: Any) -> str:
+        if not r:
+            return '-'
+        if r.get('response_us') is None:     # the iteration passed the deadline
+            return 'no (> {})'.format(_f(r.get('deadline_us'), 0))
+        return '{} ({})'.format('yes' if r.get('schedulable') else 'no',
+                                _f(r.get('response_us'), 0))
+
+    rows = [[t['name'], t['priority'], _f(t['period_ms'], 0), t.get('cycles', '-'),
+             stats(t.get('response_us')), stats(t.get('latency_us')),
+             '{} / {}'.format(t.get('overruns', '-'), t.get('deadline_misses', '-')),
+             sched(rta.get(t['name'])), sched(rta9.get(t['name']))]
+            for t in tasks]
+    lines = ['', "**Table 1** (the paper's timing analysis per task), round {} of the full "
+             'stack, idle — the round whose actuator release p99 is the median. Times in µs, '
+             'p50 / p99 / max; RTA = response-time analysis with release jitter, '
+             'worst-case response in brackets:'.format(summ.get('table1_round')), '']
+    lines += _table(['Task', 'Prio', 'Period (ms)', 'Cycles', 'Response', 'Release latency',
+                     'Overruns / misses', 'RTA on max', 'RTA on p99.9'], rows)
+    for key, label in (('utilization', 'max'), ('utilization_p999', 'p99.9')):
+        u = t1.get(key)
+        if u:
+            lines += ['', 'Utilization test on the {} response: Σ C/T = {} % against the '
+                      'Liu–Layland bound {} % for {} tasks: {}.'.format(
+                          label, _f(100.0 * u['total'], 2), _f(100.0 * u['liu_layland_bound']),
+                          len(u.get('per_task') or {}), u.get('verdict'))]
+    return lines
