@@ -122,7 +122,8 @@ def scaling(rows: Sequence[Mapping[str, object]], path: str) -> str:
         ax.set_xlabel('actuator rate (Hz)')
         ax.grid(True, which='both', alpha=0.3)
         ax.legend(fontsize=8)
-    ax1.set_ylabel('µs')
+    ax1.set_yscale('log')      # one round's host stall would flatten every other point
+    ax1.set_ylabel('µs (log)')
     ax1.set_title('(a) release latency p99 vs cyclictest at the same rate\n'
                   '(median, bars min–max over {} rounds)'.format(n), fontsize=10)
     ax2.set_ylabel('µs of CPU per task cycle')
