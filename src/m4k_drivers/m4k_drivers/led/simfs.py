@@ -16,7 +16,9 @@ multicolor.rst, Documentation/ABI/testing/sysfs-class-pwm): a multicolor channel
 (a ``multi_intensity`` without one value per ``multi_index`` entry, values above
 ``max_brightness``, a ``duty_cycle`` longer than the ``period``) cannot be refused by a plain
 file: it is counted in ``errors`` with the reason in ``last_error``, and the output keeps its
-previous level, as after a rejected write.
+previous level, as after a rejected write. A rejected write is counted once, like the one EINVAL
+the kernel returns for it: polls that find the same files unchanged (same contents, same
+modification stamps) do not count it again; a new write, even of the same bad value, does.
 """
 
 from __future__ import annotations
@@ -70,6 +72,7 @@ class SysfsLeds:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._fifos: dict[str, tuple[int, int]] = {}     # name -> (read fd, keep-open write fd)
+        self._rejected: dict[str, tuple[Any, ...]] = {}  # site -> the files it was counted for
 
     # -- the tree -------------------------------------------------------------------------
     def start(self, period_s: float = 0.02) -> SysfsLeds:
@@ -115,6 +118,21 @@ class SysfsLeds:
         self.errors += 1
         self.last_error = why
 
+    def _reject(self, site: str, paths: list[str], texts: list[str], why: str) -> None:
+        """Count a rejected write at ``site`` once: not again while its files are unchanged."""
+        stamps: list[tuple[int, int, int] | None] = []
+        for path in paths:
+            try:
+                st = os.stat(path)
+                stamps.append((st.st_mtime_ns, st.st_ctime_ns, st.st_size))
+            except OSError:
+                stamps.append(None)
+        sig = (tuple(texts), tuple(stamps))
+        if self._rejected.get(site) == sig:
+            return
+        self._rejected[site] = sig
+        self._error(why)
+
     def _exports(self) -> None:
         for name, make in (('export', True), ('unexport', False)):
             if name not in self._fifos:
@@ -149,23 +167,25 @@ class SysfsLeds:
             shutil.rmtree(d, ignore_errors=True)
 
     def _led_class(self) -> tuple[float, float, float] | None:
-        bri_text = _read(os.path.join(self.led_dir, 'brightness'))
-        multi_text = _read(os.path.join(self.led_dir, 'multi_intensity'))
+        paths = [os.path.join(self.led_dir, a) for a in ('brightness', 'multi_intensity')]
+        bri_text, multi_text = texts = [_read(path) for path in paths]
         if not bri_text or not multi_text:
             return None      # truncated by open() and not written yet: look again next poll
         try:
             bri = int(bri_text)
             values = [int(v) for v in multi_text.split()]
         except ValueError as exc:
-            self._error(f'LED class: {exc}')
+            self._reject('led_class', paths, texts, f'LED class: {exc}')
             return None
         if len(values) != len(self.order):
-            self._error(f'multi_intensity: {len(values)} values for multi_index '
-                        f'{" ".join(self.order)!r}')
+            self._reject('led_class', paths, texts,
+                         f'multi_intensity: {len(values)} values for multi_index '
+                         f'{" ".join(self.order)!r}')
             return None
         if not 0 <= bri <= self.max_brightness or any(
                 not 0 <= v <= self.max_brightness for v in values):
-            self._error(f'LED class: value above max_brightness {self.max_brightness}')
+            self._reject('led_class', paths, texts,
+                         f'LED class: value above max_brightness {self.max_brightness}')
             return None
         by_color = dict(zip(self.order, values, strict=True))
         m = float(self.max_brightness)
@@ -178,21 +198,23 @@ class SysfsLeds:
             if not os.path.isdir(d):
                 out.append(0.0)
                 continue
-            texts = [_read(os.path.join(d, a))
-                     for a in ('period', 'duty_cycle', 'enable', 'polarity')]
+            paths = [os.path.join(d, a) for a in ('period', 'duty_cycle', 'enable', 'polarity')]
+            texts = [_read(path) for path in paths]
             if not all(texts):
                 return None  # a write in progress (truncated, not written): next poll
+            site = f'pwm{ch}'
             try:
                 period, duty, enable = (int(t) for t in texts[:3])
             except ValueError as exc:
-                self._error(f'pwm{ch}: {exc}')
+                self._reject(site, paths, texts, f'pwm{ch}: {exc}')
                 return None
             polarity = texts[3]
             if duty > period:
-                self._error(f'pwm{ch}: duty_cycle {duty} > period {period} (EINVAL)')
+                self._reject(site, paths, texts,
+                             f'pwm{ch}: duty_cycle {duty} > period {period} (EINVAL)')
                 return None
             if polarity not in ('normal', 'inversed'):
-                self._error(f'pwm{ch}: polarity {polarity!r}')
+                self._reject(site, paths, texts, f'pwm{ch}: polarity {polarity!r}')
                 return None
             level = duty / period if enable and period > 0 else 0.0
             if enable and polarity == 'inversed':
