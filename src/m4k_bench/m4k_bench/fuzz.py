@@ -262,9 +262,12 @@ def _fuzz_port(obs: fuzzlinks.Observer, turn: _Turn, env: Mapping[str, str],
                 _say('  {}: {} taken by the RT side, {:.0f} s'.format(label, taken, now - t0))
             if exp is not None and taken >= exp.sent and settled_at is None:
                 settled_at = obs.batches
-            # One more full batch after the last datagram was taken: the owning body has
-            # finished the cycle that drained it, so its unexpected count is final.
-            if settled_at is not None and obs.batches >= settled_at + 1:
+            # The batch that showed the last datagram taken may still be open here (its
+            # RT_STATUS not read yet), and its TASK_HEALTH may have been taken on the other
+            # CPU while the owning body was between draining (PORT_STATS counts) and adding
+            # up its unexpected count. Two more closed batches: the second was composed a
+            # whole monitor period after the drain, when that body's cycle had long ended.
+            if settled_at is not None and obs.batches >= settled_at + 2:
                 break
     finally:
         if sender is not None:
