@@ -284,15 +284,11 @@ def scaling_summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     misses are summed over every run.
     """
     from m4k_bench.benchlib.rounds import spread
-    keys: list[tuple[Any, Any]] = []
+    groups: dict[tuple[Any, Any], list[Mapping[str, Any]]] = {}
     for r in rows:
-        k = (r.get('rate_hz'), r.get('set'))
-        if k not in keys:
-            keys.append(k)
-    keys.sort(key=lambda k: (k[0] or 0, str(k[1])))
+        groups.setdefault((r.get('rate_hz'), r.get('set')), []).append(r)
     out = []
-    for hz, label in keys:
-        sel = [r for r in rows if r.get('rate_hz') == hz and r.get('set') == label]
+    for (hz, label), sel in sorted(groups.items(), key=lambda g: (g[0][0] or 0, str(g[0][1]))):
         ok = [r for r in sel if r.get('hardening_ok') is not False]
         row: dict[str, Any] = {'rate_hz': hz, 'set': label, 'runs': len(sel),
                                'degraded': len(sel) - len(ok)}

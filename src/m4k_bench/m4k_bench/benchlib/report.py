@@ -238,14 +238,8 @@ def _breakdown(bd: Mapping[str, Any] | None) -> list[str]:
 
 
 def _scaling(summ: Mapping[str, Any]) -> list[str]:
-    def sp(v: Any, digits: int = 1) -> str:
-        if not isinstance(v, Mapping):
-            return '-'
-        return '{} ({}–{})'.format(_f(v['median'], digits), _f(v['min'], digits),
-                                   _f(v['max'], digits))
-
-    rows = [[r['rate_hz'], r['set'], sp(r['release_p99_us']), sp(r['release_p999_us']),
-             sp(r['cyclictest_p99_us']), sp(r['ratio_p99'], 2), sp(r['cpu_per_cycle_us']),
+    rows = [[r['rate_hz'], r['set'], _sp(r['release_p99_us'], 1), _sp(r['release_p999_us'], 1),
+             _sp(r['cyclictest_p99_us'], 1), _sp(r['ratio_p99']), _sp(r['cpu_per_cycle_us'], 1),
              '{} / {}'.format(_f(r.get('overruns')), _f(r.get('deadline_misses'))),
              '{}{}'.format(r['runs'], ' ({} degraded)'.format(r['degraded'])
                            if r['degraded'] else '')]
