@@ -43,6 +43,7 @@ LOG = logging.getLogger('m4k_drivers.sim_robot')
 URG_LINK = 'sim-urg'          # <runtime_dir>/sim-urg -> /dev/pts/N of the simulated URG
 SYSFS_DIR = 'sim-sysfs'       # <runtime_dir>/sim-sysfs: the LED class and PWM files
 REPORT_PERIOD_S = 0.1
+EVENT_PERIOD_S = 0.02         # world events (unplug a sensor) take effect within this
 
 
 class _EchoLine:
@@ -108,8 +109,12 @@ class SimRobot:
     def __init__(self, cfg: dconfig.DriverConfig, runtime_dir: str,
                  report_path: str | None = None, *,
                  clock: Callable[[], int] = time.monotonic_ns,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+                 sleep: Callable[[float], None] = time.sleep,
+                 heights: dict[str, float] | None = None) -> None:
         self.cfg = cfg
+        # Height above the floor of each sensor (robot.sensors.<laser|sonar>.pose z): an
+        # obstacle lower than a sensor is under its beam. None: every obstacle is seen.
+        self.heights = dict(heights or {})
         self.runtime_dir = runtime_dir
         self.report_path = report_path
         self.report_error: str | None = None   # the failure last logged (logged once)
@@ -122,6 +127,7 @@ class SimRobot:
         self.urg: Any = None
         self.sonar_trigger: Any = None
         self.leds: Any = None
+        self.events: list[dict[str, Any]] = []    # the world events applied: what, when
         self.sims = [k for k, s in cfg.devices.items() if s['enabled'] and s['backend'] == 'sim']
         for kind in self.sims:
             build = getattr(self, f'_build_{kind}', None)
@@ -150,7 +156,7 @@ class SimRobot:
         from m4k_drivers.sonar.sim import FakeEchoLine, FakeTriggerLine
         echo = FakeEchoLine(self.world.clock, self.sleep)
         trig = FakeTriggerLine(self.world, echo, s['mount'], s['fov_deg'], s['noise_sd'],
-                               s['temperature_c'])
+                               s['temperature_c'], self.heights.get('sonar', 0.0))
         self.sonar_trigger = trig        # fault injection (tests): ``dead``
         self.gpio[(s['chip'], s['trigger_line'])] = _OutputLine(trig)
         self.gpio[(s['chip'], s['echo_line'])] = _EchoLine(echo)
@@ -160,11 +166,36 @@ class SimRobot:
         link = s.get('link_path') or os.path.join(self.runtime_dir, URG_LINK)
         args = {k: s[k] for k in ('mount', 'noise_mm', 'seed', 'scan_period', 'timestamp_start')
                 if s.get(k) is not None}
-        self.urg = UrgSim(self.world, link_path=link, **args)
+        self.urg = UrgSim(self.world, link_path=link, height=self.heights.get('laser', 0.0),
+                          **args)
 
     def _build_led(self, s: dict[str, Any]) -> None:
         from m4k_drivers.led.simfs import SysfsLeds
         self.leds = SysfsLeds(os.path.join(self.runtime_dir, SYSFS_DIR), s, self.world.clock)
+
+    def apply_events(self) -> None:
+        """Apply the world events whose moment came (``world.events``: unplug a sensor).
+
+        Unplugged is what the hardware does: the US-100 never answers a trigger (no edge), the
+        URG's tty goes away (EIO, the link dangles), the myAHRS+ no longer acknowledges its
+        I2C address (EREMOTEIO).
+        """
+        self.world.now()
+        for ev in self.world.take_events():
+            done = False
+            if ev.unplug == 'sonar' and self.sonar_trigger is not None:
+                self.sonar_trigger.dead = done = True
+            elif ev.unplug == 'lrf' and self.urg is not None:
+                self.urg.unplug()
+                done = True
+            elif ev.unplug == 'imu':
+                for bus in self.i2c.values():
+                    done = bool(bus.devices) or done
+                    bus.devices.clear()
+            self.events.append({'unplug': ev.unplug, 't_ns': self.world.t_ns,
+                                'applied': done})
+            LOG.info('world event: %s unplugged%s', ev.unplug,
+                     '' if done else ' (not simulated here: nothing to unplug)')
 
     def _open(self, spec: dict[str, Any]) -> tuple[str, Any]:
         bus = spec.get('bus')
@@ -204,6 +235,9 @@ class SimRobot:
             'motor_volts': [self.world.motor_voltage(0), self.world.motor_voltage(1)],
             'collisions': st.collisions, 'contacts': st.collisions,
             'in_contact': st.in_contact, 'led': self.leds.shown() if self.leds else None,
+            'travelled': self.world.travelled, 'min_clearance': self.world.min_clearance,
+            'clearance': self.world.clearance(st.pose),
+            'obstacle_offsets': self.world.obstacle_offsets(), 'events': list(self.events),
         }
 
     def write_report(self) -> None:
@@ -241,8 +275,14 @@ class SimRobot:
 
     def run(self, stop: threading.Event) -> None:
         """Keep the world and the report current until ``stop`` is set."""
-        while not stop.wait(REPORT_PERIOD_S):
-            self.write_report()
+        n = 0
+        while not stop.wait(EVENT_PERIOD_S):
+            if self.world.config.events:
+                self.apply_events()
+            n += 1
+            if n * EVENT_PERIOD_S >= REPORT_PERIOD_S - 1e-9:
+                n = 0
+                self.write_report()
 
     def close(self) -> None:
         """Stop serving; write a last report."""
@@ -252,6 +292,23 @@ class SimRobot:
         if self.leds is not None:
             self.leds.close()
         self.write_report()
+
+
+def _sensor_heights(raw: dict[str, Any]) -> dict[str, float]:
+    """Return the laser's and the sonar's height above the floor from the robot section.
+
+    The pose z is in base_link, on the wheel axle: the axle is one wheel radius above the
+    floor (``control.wheel_radius``).
+    """
+    out: dict[str, float] = {}
+    try:
+        axle = float((raw.get('control') or {}).get('wheel_radius', 0.0) or 0.0)
+        sensors = raw['robot']['sensors']
+        for name in ('laser', 'sonar'):
+            out[name] = axle + float(sensors[name]['pose'][2])
+    except (KeyError, TypeError, IndexError, ValueError):
+        pass     # no robot section (a bare devices file): every obstacle is seen
+    return out
 
 
 def wait_ready(runtime_dir: str, timeout_s: float = 10.0) -> bool:
@@ -321,7 +378,7 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
             return 0
         report = args.world_report or os.path.join(runtime_dir, 'world.json')
         try:
-            robot = SimRobot(cfg, runtime_dir, report).start()
+            robot = SimRobot(cfg, runtime_dir, report, heights=_sensor_heights(raw)).start()
         except (ValueError, OSError) as exc:
             print(f'sim_robot: {exc}', file=sys.stderr)
             return 2

@@ -33,6 +33,8 @@ import zlib
 
 import numpy as np
 
+from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
+
 __all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'World', 'WorldConfig',
            'WorldConfigError']
 
@@ -132,15 +134,20 @@ class WorldConfig:
     robot: RobotParams = field(default_factory=RobotParams)
     seed: int = 0
     step_s: float = 0.001
+    # Parallel to ``obstacles`` (empty: every obstacle tall, normal and still; m4k_drivers.scene)
+    surfaces: tuple[Surface, ...] = ()
+    paths: tuple[Path | None, ...] = ()
+    events: tuple[Event, ...] = ()
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = 'world') -> WorldConfig:
         """Build from the YAML ``world:`` section, naming the bad field on error."""
         data = dict(data or {})
-        unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s'}
+        unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s',
+                               'events'}
         if unknown:
             raise WorldConfigError(f'{where}: unknown field(s) {sorted(unknown)!r}; valid: '
-                                   'walls, obstacles, start, robot, seed, step_s')
+                                   'walls, obstacles, start, robot, seed, step_s, events')
         cfg = cls()
         walls = data.get('walls')
         if walls is not None:
@@ -159,14 +166,22 @@ class WorldConfig:
             if not isinstance(obs, list):
                 raise WorldConfigError(f'{where}.obstacles: expected a list of polygons, '
                                        f'got {obs!r}')
-            polys = []
-            for i, poly in enumerate(obs):
-                if not isinstance(poly, list) or len(poly) < 3:
-                    raise WorldConfigError(f'{where}.obstacles[{i}]: expected a polygon of at '
-                                           f'least 3 [x, y] points, got {poly!r}')
-                polys.append(tuple(_point(p, f'{where}.obstacles[{i}][{j}]')
-                                   for j, p in enumerate(poly)))
+            polys, surfaces, paths = [], [], []
+            for i, entry in enumerate(obs):
+                try:
+                    poly, surface, path = parse_obstacle(entry, f'{where}.obstacles[{i}]')
+                except SceneError as exc:
+                    raise WorldConfigError(str(exc)) from None
+                polys.append(poly)
+                surfaces.append(surface)
+                paths.append(path)
+            cfg = replace(cfg, surfaces=tuple(surfaces), paths=tuple(paths))
             cfg = replace(cfg, obstacles=tuple(polys))
+        if 'events' in data:
+            try:
+                cfg = replace(cfg, events=parse_events(data['events'], f'{where}.events'))
+            except SceneError as exc:
+                raise WorldConfigError(str(exc)) from None
         if 'start' in data:
             cfg = replace(cfg, start=Pose(*_numbers(data['start'], 3, f'{where}.start')))
         if 'robot' in data:
@@ -196,6 +211,19 @@ def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
     return ax * by - ay * bx
 
 
+def _point_seg(px: float, py: float, seg: np.ndarray) -> np.ndarray:
+    """Return the distance from (px, py) to each segment (rows x1, y1, x2, y2)."""
+    ax, ay = seg[:, 0], seg[:, 1]
+    bx, by = seg[:, 2] - ax, seg[:, 3] - ay
+    ll = bx * bx + by * by
+    with np.errstate(divide='ignore', invalid='ignore'):
+        u = np.clip(np.where(ll > 0, ((px - ax) * bx + (py - ay) * by) / ll, 0.0), 0.0, 1.0)
+    return np.hypot(ax + u * bx - px, ay + u * by - py)
+
+
+SURFACE_CODES = {'normal': 0, 'soft': 1, 'glass': 2, 'black': 3}
+
+
 class World:
     """Thread-safe simulated room + robot, advanced lazily to the caller's monotonic time."""
 
@@ -206,9 +234,30 @@ class World:
         self.clock = clock
         self._lock = threading.RLock()
         segs = [tuple(s) for s in self.config.walls]
-        for poly in self.config.obstacles:
+        height, kind, self._moving = [math.inf] * len(segs), [0] * len(segs), []
+        surfaces = self.config.surfaces or (Surface(),) * len(self.config.obstacles)
+        paths = self.config.paths or (None,) * len(self.config.obstacles)
+        for i, poly in enumerate(self.config.obstacles):
+            rows = list(range(len(segs), len(segs) + len(poly)))
             segs += [(*poly[i], *poly[(i + 1) % len(poly)]) for i in range(len(poly))]
-        self._seg = np.array(segs, dtype=float).reshape(-1, 4)
+            height += [surfaces[i].height] * len(poly)
+            kind += [SURFACE_CODES[surfaces[i].kind]] * len(poly)
+            if paths[i] is not None:
+                self._moving.append((i, rows, paths[i]))
+        self._seg0 = np.array(segs, dtype=float).reshape(-1, 4)   # the outlines at rest
+        self._seg = self._seg0.copy()                             # where they are now
+        self._seg_height = np.array(height, dtype=float)
+        self._seg_kind = np.array(kind, dtype=np.int64)
+        self._polys = [np.array(p, dtype=float).reshape(-1, 2) for p in self.config.obstacles]
+        self._offsets = [(0.0, 0.0)] * len(self.config.obstacles)
+        self._path_t0: dict[int, int] = {}     # obstacle index -> world ns its path started
+        self.travelled = 0.0                   # m the robot truly covered (path length)
+        self._moving_since: int | None = None  # world ns the robot first moved
+        self.events_due: list[Event] = []      # events whose moment came (sim_robot takes them)
+        self._events = list(self.config.events)
+        self.min_clearance = math.inf          # smallest footprint clearance seen (checked 5 ms)
+        self._clear_every = max(1, round(0.005 / self.config.step_s))
+        self._steps = 0
         self._step_ns = round(self.config.step_s * 1e9)
         self._t_ns = clock() if t0_ns is None else t0_ns
         self._pose = self.config.start
@@ -278,6 +327,9 @@ class World:
 
     # -- dynamics -------------------------------------------------------------------------
     def _step(self, dt: float) -> None:
+        self._steps += 1
+        if self._moving or self._events:
+            self._scene_step()
         rob = self.robot
         decay = math.exp(-dt / rob.motor_tau_s)
         old = self._wheel_speed
@@ -285,6 +337,13 @@ class World:
         volts = self._volts if until is None or self._t_ns < until else (0.0, 0.0)
         if old[0] == 0.0 and old[1] == 0.0 and volts[0] == 0.0 and volts[1] == 0.0:
             self._accel = 0.0
+            if self._moving:       # a moving obstacle may walk into the robot at rest
+                hit = self.collides(self._pose)
+                if hit and not self.in_contact:
+                    self.collisions += 1
+                self.in_contact = hit
+                if self._steps % self._clear_every == 0:
+                    self._track_clearance()
             return
         new = []
         for side in (LEFT, RIGHT):
@@ -313,12 +372,71 @@ class World:
             self._v = self._w = 0.0
         else:
             self.in_contact = False
+            self.travelled += math.hypot(cand.x - self._pose.x, cand.y - self._pose.y)
+            if self._moving_since is None and self.travelled > 0.005:
+                self._moving_since = self._t_ns
             self._pose = cand
             self._wheel_speed = new
             self._wheel_angle[0] += mean_l * dt
             self._wheel_angle[1] += mean_r * dt
             self._v, self._w = v, w
         self._accel = (self._v - v_old) / dt
+        if self._steps % self._clear_every == 0:
+            self._track_clearance()
+
+    # -- the scene: moving obstacles, events, clearance ----------------------------------
+    def _moving_s(self) -> float | None:
+        return None if self._moving_since is None else (self._t_ns - self._moving_since) * 1e-9
+
+    def _scene_step(self) -> None:
+        moving_s = self._moving_s()
+        for i, rows, path in self._moving:
+            t0 = self._path_t0.get(i)
+            if t0 is None:
+                if not path.start.reached(self.travelled, moving_s):
+                    continue
+                t0 = self._path_t0[i] = self._t_ns
+            dx, dy = path.offset((self._t_ns - t0) * 1e-9)
+            self._offsets[i] = (dx, dy)
+            self._seg[rows] = self._seg0[rows] + (dx, dy, dx, dy)
+            self._polys[i] = np.asarray(self.config.obstacles[i], dtype=float) + (dx, dy)
+        if self._events:
+            due = [e for e in self._events if e.at.reached(self.travelled, moving_s)]
+            for e in due:
+                self._events.remove(e)
+                self.events_due.append(e)
+
+    def take_events(self) -> list[Event]:
+        """Return (and forget) the events whose moment has come."""
+        with self._lock:
+            out, self.events_due = self.events_due, []
+            return out
+
+    def obstacle_offsets(self) -> list[tuple[float, float]]:
+        """Return each obstacle's present offset from its outline at rest."""
+        with self._lock:
+            return list(self._offsets)
+
+    def _track_clearance(self) -> None:
+        c = self.clearance(self._pose)
+        if c < self.min_clearance:
+            self.min_clearance = c
+
+    def clearance(self, pose: Pose) -> float:
+        """Return the distance from the footprint at ``pose`` to the nearest surface (0: touching)."""
+        if self.collides(pose):
+            return 0.0
+        corners = self.footprint(pose)
+        seg = self._seg
+        best = math.inf
+        # corner -> segment and segment end -> footprint edge: the minimum of two segments'
+        # distance when they do not cross.
+        for px, py in corners:
+            best = min(best, float(_point_seg(px, py, seg).min()))
+        edges = np.hstack([corners, np.roll(corners, -1, axis=0)])
+        for x, y in np.vstack([seg[:, :2], seg[:, 2:]]):
+            best = min(best, float(_point_seg(x, y, edges).min()))
+        return best
 
     def footprint(self, pose: Pose) -> np.ndarray:
         """Return the 4 footprint corners (4x2) of the robot body at ``pose``."""
@@ -344,7 +462,7 @@ class World:
         if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0)):
             return True
         # An obstacle entirely inside the footprint crosses no edge: test one of its vertices.
-        return any(self._inside(corners, poly[0]) for poly in self.config.obstacles)
+        return any(self._inside(corners, poly[0]) for poly in self._polys)
 
     @staticmethod
     def _inside(convex: np.ndarray, p: Sequence[float]) -> bool:
@@ -396,21 +514,56 @@ class World:
         c, s = math.cos(th), math.sin(th)
         return Pose(x + c * mx - s * my, y + s * mx + c * my, th + myaw)
 
-    def raycast_many(self, origin: Sequence[float], angles: Any,
-                     max_range: float) -> np.ndarray:
-        """Return the distance along each world-frame angle to the nearest surface (inf: none)."""
+    def _cast(self, origin: Sequence[float], angles: Any, max_range: float,
+              seen: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Return (distance, segment index or -1) of the nearest hit along each angle."""
         ang = np.atleast_1d(np.asarray(angles, dtype=float))
+        seg = self._seg
         dx, dy = np.cos(ang)[:, None], np.sin(ang)[:, None]
-        px, py = self._seg[None, :, 0] - origin[0], self._seg[None, :, 1] - origin[1]
-        sx = self._seg[None, :, 2] - self._seg[None, :, 0]
-        sy = self._seg[None, :, 3] - self._seg[None, :, 1]
+        px, py = seg[None, :, 0] - origin[0], seg[None, :, 1] - origin[1]
+        sx = seg[None, :, 2] - seg[None, :, 0]
+        sy = seg[None, :, 3] - seg[None, :, 1]
         denom = _cross(dx, dy, sx, sy)
         with np.errstate(divide='ignore', invalid='ignore'):
             t = _cross(px, py, sx, sy) / denom
             u = _cross(px, py, dx, dy) / denom
         hit = (np.abs(denom) > 1e-12) & (t >= 0.0) & (u >= 0.0) & (u <= 1.0) & (t <= max_range)
-        dist = np.where(hit, t, np.inf).min(axis=1)
-        return dist
+        if seen is not None:
+            hit &= seen[None, :]
+        d = np.where(hit, t, np.inf)
+        idx = d.argmin(axis=1)
+        dist = d[np.arange(len(ang)), idx]
+        return dist, np.where(np.isfinite(dist), idx, -1)
+
+    def raycast_many(self, origin: Sequence[float], angles: Any,
+                     max_range: float) -> np.ndarray:
+        """Return the distance along each world-frame angle to the nearest surface (inf: none)."""
+        return self._cast(origin, angles, max_range, None)[0]
+
+    def laser_cast(self, origin: Sequence[float], angles: Any, max_range: float,
+                   z: float) -> tuple[np.ndarray, np.ndarray]:
+        """Return (distance, black) per ray of a laser plane at height ``z``.
+
+        Glass is transparent to it and obstacles lower than ``z`` are under it; ``black`` marks
+        the rays that end on a black surface (too little light back: an error code).
+        """
+        with self._lock:
+            seen = (self._seg_height > z) & (self._seg_kind != SURFACE_CODES['glass'])
+            dist, idx = self._cast(origin, angles, max_range, seen)
+            black = (idx >= 0) & (self._seg_kind[np.maximum(idx, 0)] == SURFACE_CODES['black'])
+        return dist, black
+
+    def sonar_cast(self, origin: Sequence[float], angle: float, half_angle: float,
+                   max_range: float, z: float, rays: int = 9) -> float:
+        """Return the nearest echo in a sonar cone at height ``z`` (inf: no echo).
+
+        A soft surface is hit but sends nothing back: the ray ends there without an echo.
+        """
+        fan = np.linspace(angle - half_angle, angle + half_angle, max(rays, 1))
+        with self._lock:
+            dist, idx = self._cast(origin, fan, max_range, self._seg_height > z)
+            soft = (idx >= 0) & (self._seg_kind[np.maximum(idx, 0)] == SURFACE_CODES['soft'])
+        return float(np.where(soft, np.inf, dist).min())
 
     def raycast(self, origin: Sequence[float], angle: float, max_range: float) -> float:
         """Return the distance from ``origin`` along world ``angle`` to a surface (inf: none)."""

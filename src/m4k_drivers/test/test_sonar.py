@@ -17,7 +17,8 @@ def test_speed_of_sound_hand_values():
     (0.01, 0.0, 1.6565, p.STATUS_OK),                  # 331.3 * 0.01 / 2
     (2 / 343.2166, 20.0, 1.0, p.STATUS_OK),
     (0.0001, 20.0, 0.01716, p.STATUS_FAULT),           # 1.7 cm < 2 cm: too close, invalid
-    (0.038, 20.0, 6.5211, p.STATUS_FAULT),             # the long no-echo pulse: invalid
+    (0.038, 20.0, 6.5211, p.STATUS_NO_ECHO),           # the long no-echo pulse: nothing in 4.5 m
+    (0.0263, 20.0, 4.5132, p.STATUS_NO_ECHO),          # just beyond 4.5 m: nothing within range
 ])
 def test_pulse_to_range(width, temp, rng, status):
     r = p.pulse_to_range(width, temp)
@@ -69,17 +70,34 @@ def test_sim_sonar_obstacle_in_cone():
     assert r.range_m == pytest.approx(1.5 - 0.225, abs=1e-6)
 
 
-def test_sim_sonar_no_echo_beyond_max_range_is_invalid_not_free():
+def test_sim_sonar_no_echo_beyond_max_range_is_nothing_in_range_not_a_fault():
+    # A hall: nothing within 4.5 m. The US-100 answers with its long no-echo pulse -- a valid
+    # "nothing in range", not a fault (a fault would freeze the guard in every open space).
     world, clock, sonar = _sim(WorldConfig(walls=((6.0, -3.0, 6.0, 3.0),), obstacles=()))
     r = sonar.measure()
-    assert r.status == p.STATUS_FAULT and r.status != p.STATUS_NO_ECHO
+    assert r.status == p.STATUS_NO_ECHO
     h = SonarHandler(lambda: sonar)
     h.configure()
     h.activate()
-    assert h.read().value.status == p.STATUS_FAULT
-    assert h.invalid == 1 and h.no_echo == 0
-    assert h.faults == 1 and h.status_level() == 1       # visible in DEVICE_STATUS
+    assert h.read().value.status == p.STATUS_NO_ECHO
+    assert h.invalid == 0 and h.no_echo == 1 and h.faults == 0
     h.shutdown()
+
+
+def test_sim_sonar_soft_surface_gives_no_echo_low_box_is_seen_under_the_laser():
+    soft = {'obstacles': [{'polygon': [[1.0, -0.5], [1.2, -0.5], [1.2, 0.5], [1.0, 0.5]],
+                           'surface': 'soft'}], 'walls': [[6.0, -3.0, 6.0, 3.0]]}
+    world, clock, sonar = _sim(WorldConfig.from_dict(soft))
+    assert sonar.measure().status == p.STATUS_NO_ECHO        # absorbed: nothing comes back
+    low = {'obstacles': [{'polygon': [[1.0, -0.5], [1.2, -0.5], [1.2, 0.5], [1.0, 0.5]],
+                          'height': 0.25}], 'walls': [[6.0, -3.0, 6.0, 3.0]]}
+    world = World(WorldConfig.from_dict(low), clock=clock, t0_ns=0)
+    assert world.sonar_cast((0.225, 0.0), 0.0, 0.13, 4.5, 0.2) == pytest.approx(0.775)
+    assert world.sonar_cast((0.225, 0.0), 0.0, 0.13, 4.5, 0.3) == float('inf')   # beam above it
+
+
+def test_pulse_shorter_than_min_range_is_a_fault():
+    assert p.pulse_to_range(0.00005).status == p.STATUS_FAULT
 
 
 def test_sim_sonar_short_trigger_is_ignored_and_times_out():

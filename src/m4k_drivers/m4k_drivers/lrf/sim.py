@@ -45,6 +45,7 @@ URG04LX_VV: dict[str, str] = {
 MAX_STEP = 768            # highest step a request may name (spec table: URG-04LX step E)
 FAR_CODE = 0              # no surface within DMAX: "possibly at 22 m"
 NEAR_CODE = 1             # closer than DMIN: too little usable reflected light
+LOW_LIGHT_CODE = 2        # a black surface: "reflected light has low intensity" (Table 3)
 DEAD_ZONE_CODE = 19       # steps outside AMIN..AMAX: non-measurable
 OUT_LIMIT = 1 << 20       # bytes queued for a reader that does not read; beyond: dropped
 
@@ -97,7 +98,7 @@ class UrgSim:
     def __init__(self, world: ScanWorld, *, link_path: str | None = None,
                  mount: Sequence[float] = (0.0, 0.0, 0.0), noise_mm: float = 0.0, seed: int = 0,
                  scan_period: float | None = None, timestamp_start: int = 0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, height: float = 0.0) -> None:
         if not 0 <= timestamp_start < scip.TIMESTAMP_MODULO:
             raise ValueError(f'timestamp_start {timestamp_start!r} is not a 24-bit value')
         if noise_mm < 0 or not math.isfinite(noise_mm):
@@ -105,6 +106,7 @@ class UrgSim:
         self.world = world
         self.link_path = link_path
         self.mount = tuple(float(v) for v in mount)
+        self.height = float(height)     # m above the floor of the scan plane
         self.noise_mm = noise_mm
         self.spec = scip.SensorSpec.from_params(URG04LX_PP)
         self.scan_period = 60.0 / self.spec.scan_rpm if scan_period is None else scan_period
@@ -227,7 +229,12 @@ class UrgSim:
         origin = (x + c * mx - s * my, y + s * mx + c * my)
         steps = np.arange(start, end + 1)
         angles = yaw + myaw + (steps - self.spec.afrt) * 2.0 * math.pi / self.spec.ares
-        dist = np.asarray(self.world.raycast_many(origin, angles, self.spec.dmax / 1000.0))
+        cast = getattr(self.world, 'laser_cast', None)
+        if callable(cast):    # surfaces: glass passes the beam, black returns too little light
+            dist, black = cast(origin, angles, self.spec.dmax / 1000.0, self.height)
+        else:
+            dist = np.asarray(self.world.raycast_many(origin, angles, self.spec.dmax / 1000.0))
+            black = np.zeros(dist.shape, dtype=bool)
         mm = dist * 1000.0
         if self.noise_mm:
             mm = mm + self._rng.normal(0.0, self.noise_mm, mm.shape)
@@ -236,6 +243,7 @@ class UrgSim:
         out[finite] = np.rint(mm[finite]).astype(np.int64)
         out[finite & (out > self.spec.dmax)] = FAR_CODE
         out[finite & (out < self.spec.dmin)] = NEAR_CODE
+        out[black] = LOW_LIGHT_CODE
         out[(steps < self.spec.amin) | (steps > self.spec.amax)] = DEAD_ZONE_CODE
         group = max(cluster, 1)
         if group > 1:

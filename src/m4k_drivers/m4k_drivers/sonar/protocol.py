@@ -2,12 +2,25 @@
 
 Trigger: a high pulse of at least 10 us on TRIG starts one measurement.  The sensor sends a
 40 kHz burst, raises ECHO, and lowers it when the echo returns: range = c * width / 2 with the
-speed of sound c = 331.3 * sqrt(1 + T / 273.15) m/s.  Usable range 0.02-4.5 m.  A pulse
-outside that range is an unmeasurable echo -- no echo heard (a soft or angled surface), or too
-close -- and is reported INVALID (``STATUS_FAULT``, NaN on /sonar), never as the maximum range:
-"no echo" must not mean free space.  No edge at all within the timeout means the sensor did
-not answer (``STATUS_TIMEOUT``).  ``STATUS_NO_ECHO`` stays in the datagram vocabulary but the
-US-100 drivers never report it.  Status codes are the SONAR datagram's (docs/internals.md).
+speed of sound c = 331.3 * sqrt(1 + T / 273.15) m/s.  Usable range 0.02-4.5 m.
+
+What a pulse means (the HC-SR04-compatible GPIO mode; the module lowers ECHO after ~38 ms when
+no echo came back -- "If no echo is received the 'Echo' output will go LOW after 38ms"):
+
+* width within 0.02-4.5 m -> ``STATUS_OK``, the range;
+* longer than 4.5 m (up to the echo timeout) -> ``STATUS_NO_ECHO``: nothing within 4.5 m. This is
+  the sensor's normal answer in a hall or a corridor, a valid reading (REP-117 +inf on /sonar)
+  that keeps the guard's sonar fresh. A surface the burst does not come back from (a curtain,
+  an oblique wall) looks the same: the laser is the guard's other witness;
+* shorter than 0.02 m, zero, negative or not finite -> ``STATUS_FAULT``: no real echo is that
+  short (the transducers ring for longer), so the reading is impossible, as is one taken across
+  a clock step (:mod:`m4k_drivers.sonar.real`);
+* no edge at all within ``ECHO_TIMEOUT_S`` -> ``STATUS_TIMEOUT``: the sensor did not answer
+  (unplugged, dead).
+
+FAULT and TIMEOUT do not refresh the guard: after ``control.guard.sonar_timeout`` the sonar is
+stale and the guard's ``stale_policy`` applies (default stop).  Status codes are the SONAR
+datagram's (docs/internals.md; docs/sensor-outcomes.md has the whole table).
 """
 
 from __future__ import annotations
@@ -28,9 +41,9 @@ ECHO_TIMEOUT_S = 0.06        # > the ~38 ms "no echo" pulse HC-SR04-style module
 
 # The SONAR datagram's status codes (m4k_rt.protocol).
 STATUS_OK = SONAR_OK              # range valid
-STATUS_NO_ECHO = SONAR_NO_ECHO    # "nothing within range": never claimed by the US-100 drivers
+STATUS_NO_ECHO = SONAR_NO_ECHO    # "nothing within range": the long no-echo pulse
 STATUS_TIMEOUT = SONAR_TIMEOUT    # no edges: sensor not answering
-STATUS_FAULT = SONAR_FAULT        # invalid: unmeasurable echo, clock step, inconsistent edges
+STATUS_FAULT = SONAR_FAULT        # invalid: impossible width, clock step
 
 
 class Edge(NamedTuple):
@@ -60,8 +73,10 @@ def pulse_to_range(width_s: float | None, temp_c: float = 20.0,
     if not math.isfinite(width_s) or width_s <= 0.0:
         return SonarReading(0.0, STATUS_FAULT)
     rng = speed_of_sound(temp_c) * width_s / 2.0
-    if rng < min_m or rng > max_m:
-        return SonarReading(rng, STATUS_FAULT)        # unmeasurable echo: invalid
+    if rng < min_m:
+        return SonarReading(rng, STATUS_FAULT)        # shorter than any real echo: impossible
+    if rng > max_m:
+        return SonarReading(rng, STATUS_NO_ECHO)      # the no-echo pulse: nothing within max_m
     return SonarReading(rng, STATUS_OK)
 
 

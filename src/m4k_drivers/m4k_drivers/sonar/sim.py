@@ -59,8 +59,10 @@ class FakeTriggerLine:
     """The TRIG output: a >= 10 us high pulse makes the simulated sensor fire."""
 
     def __init__(self, world: World, echo: FakeEchoLine, mount: Sequence[float],
-                 fov_deg: float = 15.0, noise_sd: float = 0.003, temp_c: float = 20.0) -> None:
+                 fov_deg: float = 15.0, noise_sd: float = 0.003, temp_c: float = 20.0,
+                 height: float = 0.0) -> None:
         self.world, self.echo, self.mount = world, echo, tuple(mount)
+        self.height = float(height)     # m above the floor of the transducers
         self.half_angle = math.radians(fov_deg) / 2.0
         self.noise_sd, self.temp_c = noise_sd, temp_c
         self.rng = world.rng('sonar')
@@ -87,7 +89,8 @@ class FakeTriggerLine:
         if self.dead:
             return
         pose = self.world.sensor_pose(self.mount)
-        dist = self.world.cone_cast((pose.x, pose.y), pose.yaw, self.half_angle, p.MAX_RANGE_M)
+        dist = self.world.sonar_cast((pose.x, pose.y), pose.yaw, self.half_angle, p.MAX_RANGE_M,
+                                     self.height)
         if math.isfinite(dist):
             dist = max(0.0, dist + float(self.rng.normal(0.0, self.noise_sd)))
             pulse = p.range_to_pulse(dist, self.temp_c)
