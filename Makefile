@@ -4,6 +4,8 @@
 #   make test                         lint + colcon test of every package + workspace tests
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
+#   make scenarios [ONLY='a b'] [SHORT=1]  config/scenarios/*.yaml on the whole stack, judged on
+#                                     ground truth -> docs/results/scenarios/ (about 6 min)
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
 #   make fuzz [COUNT=100000] [SEED=n] [SECONDS_PER_PORT=18]  random and mutated datagrams at every
 #                                     XDDP port of a real rt_core (about 10 min), then every
@@ -15,7 +17,7 @@ SOURCES := $(shell find src config compat -type f -not -path '*/__pycache__/*' -
 BUILD_STAMP := install/.m4k-build-stamp
 COLCON_FLAGS := --event-handlers console_cohesion- status- --metas colcon.meta
 
-.PHONY: setup build test lint run bench demo soak fuzz clean
+.PHONY: setup build test lint run bench demo scenarios soak fuzz clean
 
 setup:
 	@tools/setup.sh
@@ -45,6 +47,10 @@ bench: build
 
 demo: build
 	@$(ENV); demo
+
+scenarios: build
+	@$(ENV); M4K_CONFIG_DIR=$(CURDIR)/config scenarios config/scenarios $(if $(ONLY),--only $(ONLY),) \
+	  $(if $(SHORT),--short,)
 
 soak: build
 	@$(ENV); soak $(if $(DURATION),--duration $(DURATION),)

@@ -35,6 +35,7 @@ setup(
             'fuzz = m4k_bench.fuzz:main',
             'baseline = m4k_bench.baseline:main',
             'loop_ab = m4k_bench.loop_ab:main',
+            'scenarios = m4k_bench.scenarios:main',
         ],
     },
 )

@@ -1,4 +1,4 @@
-"""What a simulated world holds besides walls: obstacle surfaces and heights, moving obstacles, events.
+"""What a simulated world holds besides walls: surfaces, heights, moving obstacles, events.
 
 An obstacle in ``world.obstacles`` is either a plain polygon (``[[x, y], ...]``: a tall, ordinary
 surface every sensor sees) or a mapping::
@@ -61,7 +61,7 @@ class Surface:
 
 @dataclass(frozen=True)
 class Start:
-    """When a path or an event begins: robot travelled >= ``travelled`` and >= ``after`` s moving."""
+    """When a path or an event begins: the robot covered ``travelled`` m, moved ``after`` s."""
 
     travelled: float = 0.0
     after: float = 0.0
@@ -126,7 +126,7 @@ def _path(v: Any, where: str) -> Path:
             raise SceneError(f'{where}.waypoints[{i}]: expected [t, dx, dy], got {w!r}')
         rows.append(tuple(_num(x, f'{where}.waypoints[{i}]') for x in w))
     ts = [r[0] for r in rows]
-    if ts[0] < 0 or any(b <= a for a, b in zip(ts, ts[1:])):
+    if ts[0] < 0 or any(b <= a for a, b in zip(ts, ts[1:], strict=False)):
         raise SceneError(f'{where}.waypoints: times must start >= 0 and increase, got {ts!r}')
     return Path(_start(v.get('start'), f'{where}.start'), tuple(ts),
                 tuple(r[1] for r in rows), tuple(r[2] for r in rows))

@@ -237,6 +237,7 @@ class SimRobot:
             'in_contact': st.in_contact, 'led': self.leds.shown() if self.leds else None,
             'travelled': self.world.travelled, 'min_clearance': self.world.min_clearance,
             'clearance': self.world.clearance(st.pose),
+            'front_clearance': self.world.front_clearance(st.pose),
             'obstacle_offsets': self.world.obstacle_offsets(), 'events': list(self.events),
         }
 

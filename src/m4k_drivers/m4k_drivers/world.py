@@ -234,7 +234,8 @@ class World:
         self.clock = clock
         self._lock = threading.RLock()
         segs = [tuple(s) for s in self.config.walls]
-        height, kind, self._moving = [math.inf] * len(segs), [0] * len(segs), []
+        height, kind = [math.inf] * len(segs), [0] * len(segs)
+        self._moving: list[tuple[int, list[int], Path]] = []
         surfaces = self.config.surfaces or (Surface(),) * len(self.config.obstacles)
         paths = self.config.paths or (None,) * len(self.config.obstacles)
         for i, poly in enumerate(self.config.obstacles):
@@ -242,8 +243,9 @@ class World:
             segs += [(*poly[i], *poly[(i + 1) % len(poly)]) for i in range(len(poly))]
             height += [surfaces[i].height] * len(poly)
             kind += [SURFACE_CODES[surfaces[i].kind]] * len(poly)
-            if paths[i] is not None:
-                self._moving.append((i, rows, paths[i]))
+            path = paths[i]
+            if path is not None:
+                self._moving.append((i, rows, path))
         self._seg0 = np.array(segs, dtype=float).reshape(-1, 4)   # the outlines at rest
         self._seg = self._seg0.copy()                             # where they are now
         self._seg_height = np.array(height, dtype=float)
@@ -270,6 +272,7 @@ class World:
         self._accel = 0.0
         self.collisions = 0
         self.in_contact = False
+        self.min_clearance = self.clearance(self._pose)
         if self.collides(self._pose):
             raise WorldConfigError(f'world.start: the robot footprint at {tuple(self._pose)!r} '
                                    'overlaps a wall or an obstacle')
@@ -422,8 +425,23 @@ class World:
         if c < self.min_clearance:
             self.min_clearance = c
 
+    def front_clearance(self, pose: Pose, max_range: float = 10.0) -> float:
+        """Return how far ahead of the footprint's front face the nearest surface is (any surface).
+
+        Rays along the heading from five points across the front face: what a guard would have
+        to see, whatever the sensors make of it.
+        """
+        hl, hw = self.robot.length_m / 2.0, self.robot.width_m / 2.0
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        best = math.inf
+        with self._lock:
+            for k in np.linspace(-hw, hw, 5):
+                o = (pose.x + c * hl - s * k, pose.y + s * hl + c * k)
+                best = min(best, float(self._cast(o, [pose.yaw], max_range, None)[0][0]))
+        return best
+
     def clearance(self, pose: Pose) -> float:
-        """Return the distance from the footprint at ``pose`` to the nearest surface (0: touching)."""
+        """Return the distance from the footprint at ``pose`` to the nearest surface (0: touch)."""
         if self.collides(pose):
             return 0.0
         corners = self.footprint(pose)

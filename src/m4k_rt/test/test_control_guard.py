@@ -100,15 +100,15 @@ def test_front_sector_minimum_skips_error_codes_and_out_of_sector():
     assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(1.2)
 
 
-def test_front_sector_nothing_in_range_is_inf_error_codes_only_is_blind_nan():
+def test_front_sector_nothing_in_range_and_error_codes_only_are_inf():
     from m4k_rt.control.guard import FrontSector
     sector = FrontSector(30.0)
     # code 0: "object possibly at 22 m" -- nothing within 5.6 m: free, like the sonar's no echo
     assert sector.minimum(-2.0, 0.01, 0.02, 5.6, [0] * 401) == INF
-    assert sector.minimum(-2.0, 0.01, 0.02, 5.6, [2] * 200 + [0] + [2] * 200) == INF
-    # only error codes ahead (a black surface: low intensity): the laser cannot vouch -> NaN
-    assert math.isnan(sector.minimum(-2.0, 0.01, 0.02, 5.6, [2] * 401))
-    assert math.isnan(sector.minimum(-2.0, 0.01, 0.02, 5.6, [1] * 401))
-    assert math.isnan(sector.minimum(1.0, 0.01, 0.02, 5.6, [500] * 10))   # sector not scanned
+    # only error codes ahead (a black surface: low intensity): measured nothing, like a sonar
+    # no echo off a curtain -- the other sensor is the witness
+    assert sector.minimum(-2.0, 0.01, 0.02, 5.6, [2] * 401) == INF
+    assert sector.minimum(-2.0, 0.01, 0.02, 5.6, [1] * 401) == INF
+    assert sector.minimum(1.0, 0.01, 0.02, 5.6, [500] * 10) == INF   # sector not scanned
     with pytest.raises(GuardError, match='front_sector_deg'):
         FrontSector(0.0)

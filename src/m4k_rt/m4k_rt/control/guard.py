@@ -132,18 +132,13 @@ class FrontSector:
     """Minimum range of a laser scan inside a sector centred straight ahead (angle 0).
 
     Ranges are the LASER_SCAN's millimetres; values below 20 are URG error codes and values
-    outside [range_min, range_max] are not measurements. What the sector says, like the sonar:
-
-    * the smallest valid range, when there is one;
-    * ``math.inf`` -- nothing within range -- when there is none but at least one step reported
-      code 0 ("object possibly at 22 m": nothing within 5.6 m) or a range beyond range_max;
-    * ``math.nan`` -- the laser cannot vouch for the way ahead -- when every step of the sector
-      is an error code (black or shiny surfaces, too close) or the scan does not cover the
-      sector: the caller does not refresh the laser's freshness, so a laser blind ahead goes
-      stale and the guard's stale policy applies (as for a sonar fault).
-
-    The index window is computed once per scan geometry and cached, so a scan costs one short
-    loop over the sector only.
+    outside [range_min, range_max] are not measurements -- both are skipped. A sector without a
+    single valid point reports ``math.inf`` (nothing seen): code 0 is "nothing within 5.6 m",
+    and the other codes (a black or shiny surface) measured nothing -- the laser's counterpart
+    of the sonar's no echo, which is also inf and fresh. The scan itself answered, so the laser
+    stays fresh; only no scan at all (unplugged, no answer) makes it stale. A surface one sensor
+    cannot measure is the other's to see (docs/sensor-outcomes.md). The index window is computed
+    once per scan geometry and cached, so a scan costs one short loop over the sector only.
     """
 
     __slots__ = ('half_width', '_key', '_i0', '_i1')
@@ -172,21 +167,15 @@ class FrontSector:
 
     def minimum(self, angle_min: float, angle_increment: float, range_min: float,
                 range_max: float, ranges_mm: tuple[int, ...] | list[int]) -> float:
-        """Return the smallest valid range (m) in the sector, inf (nothing), nan (blind)."""
+        """Return the smallest valid range (m) in the sector, ``math.inf`` if none."""
         i0, i1 = self.window(angle_min, angle_increment, len(ranges_mm))
         lo = range_min * 1000.0
         if lo < 20.0:
             lo = 20.0
         hi = range_max * 1000.0
         best = math.inf
-        far = False
         for i in range(i0, i1 + 1):
             r = ranges_mm[i]
-            if lo <= r <= hi:
-                if r < best:
-                    best = r
-            elif r == 0 or r > hi:     # code 0 / beyond range: nothing within range there
-                far = True
-        if best != math.inf:
-            return best * 0.001
-        return math.inf if far else math.nan
+            if lo <= r <= hi and r < best:
+                best = r
+        return best * 0.001 if best != math.inf else math.inf

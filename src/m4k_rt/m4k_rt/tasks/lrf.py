@@ -5,11 +5,8 @@ Ports: ``lrf`` (driver host: REQUEST out, LASER_SCAN and DEVICE_STATUS in) and `
 replying to the previous REQUEST (the URG-04LX takes 100 ms per scan, well inside the 200 ms
 period), forwards it unchanged (its stamp and device stamp are the measurement's), computes
 the minimum range of the front sector (``control.guard.front_sector_deg``) for the actuator's
-collision guard, then sends this cycle's REQUEST. A scan whose sector holds no valid point but
-reports nothing within range there (code 0) gives ``inf`` and refreshes ``laser_rx_ns``, as the
-sonar's no echo does; a sector of error codes only (blind: black, shiny, too close) refreshes
-nothing and is counted in ``blind``, so a laser blind ahead goes stale as a sonar fault does
-(docs/sensor-outcomes.md).
+collision guard, then sends this cycle's REQUEST. A scan whose sector holds no valid point
+reports ``inf`` (nothing seen) but still refreshes ``laser_rx_ns``: the laser is alive.
 """
 
 from __future__ import annotations
@@ -41,13 +38,11 @@ class LrfBody(DeviceTaskBody):
         super().__init__(dev_sock, out_sock, state, clock)
         self.sector = FrontSector(front_sector_deg)
         self.scans = 0
-        self.blind = 0       # scans whose front sector held only error codes (not fresh)
 
     @property
     def counters(self) -> Mapping[str, int]:
         """Return a snapshot of the body's counters (NRT use)."""
-        return {'cycles': self.cycles, 'scans': self.scans, 'blind': self.blind,
-                'unexpected': self.unexpected,
+        return {'cycles': self.cycles, 'scans': self.scans, 'unexpected': self.unexpected,
                 'forwarded': self._out.sent, 'forward_dropped': self._out.dropped,
                 'requests': self._dev_out.sent}
 
@@ -61,14 +56,11 @@ class LrfBody(DeviceTaskBody):
             hdr, msg = got
             if hdr.kind == _SCAN:
                 self._out.forward(reader.raw())
-                front = self.sector.minimum(msg.angle_min, msg.angle_increment,
-                                            msg.range_min, msg.range_max, msg.ranges)
+                state.laser_front_min = self.sector.minimum(
+                    msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
+                    msg.ranges)
+                state.laser_rx_ns = now
                 self.scans += 1
-                if front != front:          # NaN: every step ahead an error code -- blind
-                    self.blind += 1
-                else:
-                    state.laser_front_min = front
-                    state.laser_rx_ns = now
             elif hdr.kind == _DEVICE_STATUS:
                 state.record_device_status('lrf', msg, now)
             else:

@@ -1,0 +1,90 @@
+"""scenarios: the robot in every world, judged on the simulator's ground truth.
+
+``make scenarios`` / ``scenarios [FILE_OR_DIR ...] [--short] [--only NAME ...] [--results DIR]``
+runs each scenario (:mod:`.spec`: world overlay, scripted commander, faults, expected outcome)
+on a fresh stack (:mod:`.run`), prints a progress line per scenario, and writes
+``<results>/README.md`` (the table) and ``<results>/<name>.png`` (world, obstacles' paths, the
+robot's true path). Default: every ``*.yaml`` of ``<config dir>/scenarios``. Exit 0 when every
+scenario passed, 1 otherwise, 2 on a bad scenario file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Sequence
+
+__all__ = ['main']
+
+
+def _default_dir() -> str:
+    from m4k_rt import config
+    return os.path.join(config.find_config_dir(), 'scenarios')
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the suite; return the exit code."""
+    ap = argparse.ArgumentParser(prog='scenarios', description=__doc__.split('\n\n')[0])
+    ap.add_argument('paths', nargs='*', help='scenario files or directories (default: '
+                    '<config dir>/scenarios)')
+    ap.add_argument('--only', nargs='+', metavar='NAME', help='run only these scenarios')
+    ap.add_argument('--short', action='store_true', help='the short versions (as the tests)')
+    ap.add_argument('--results', default=os.path.join('docs', 'results', 'scenarios'),
+                    metavar='DIR', help='where the table and plots go (default: '
+                    'docs/results/scenarios)')
+    args = ap.parse_args(argv)
+    from m4k_bench.scenarios import report, spec
+    from m4k_bench.scenarios.run import run_scenario
+    scs: list[spec.Scenario] = []
+    try:
+        for p in args.paths or [_default_dir()]:
+            scs += spec.load_dir(p) if os.path.isdir(p) else [spec.load(p)]
+    except (OSError, spec.ScenarioError) as exc:
+        print(f'scenarios: {exc}', file=sys.stderr)
+        return 2
+    if args.only:
+        scs = [s for s in scs if s.name in args.only]
+    os.makedirs(args.results, exist_ok=True)
+    results = []
+    t_all = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix='m4k-scenarios-') as work:
+        for i, sc in enumerate(scs, 1):
+            t0 = time.monotonic()
+            print(f'[{i}/{len(scs)}] {sc.name}: {sc.description}', file=sys.stderr, flush=True)
+            res = run_scenario(sc, work, short=args.short,
+                               progress=lambda m: print('    ' + m, file=sys.stderr, flush=True))
+            results.append(res)
+            report.plot(sc, res, os.path.join(args.results, f'{sc.name}.png'), sc.world)
+            verdict = 'PASS' if res.passed else 'FAIL (' + '; '.join(res.failures) + ')'
+            print(f'    {verdict}: {res.travelled:.2f} m of {res.commanded:.2f} m, min clearance '
+                  f'{res.min_clearance:.3f} m, contacts {res.contacts}, stop '
+                  f'{res.stop_s if res.stop_s is None else round(res.stop_s, 3)} s '
+                  f'[{time.monotonic() - t0:.0f} s]', file=sys.stderr, flush=True)
+            if not res.passed and res.log_tail:
+                print('    bringup log tail:\n      ' + res.log_tail.replace('\n', '\n      '),
+                      file=sys.stderr)
+    try:
+        rev = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True,
+                             text=True, check=False).stdout.strip() or '?'
+    except OSError:
+        rev = '?'
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
+    header = (f'# Scenario suite ({"short" if args.short else "full"} versions)\n\n'
+              f'`make scenarios` at {rev}, {stamp}, {time.monotonic() - t_all:.0f} s. Every '
+              f"number is the simulator's ground truth (sim_truth), never odometry. Bounds from "
+              f'config/ (m4k_bench.scenarios.bounds); the scenarios are config/scenarios/*.yaml; '
+              f'one plot per scenario beside this file.')
+    with open(os.path.join(args.results, 'README.md'), 'w', encoding='utf-8') as f:
+        f.write(report.table(results, header))
+    n_ok = sum(r.passed for r in results)
+    print(f'scenarios: {n_ok}/{len(results)} passed; {args.results}/README.md', file=sys.stderr)
+    return 0 if n_ok == len(results) else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

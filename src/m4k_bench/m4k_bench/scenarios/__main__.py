@@ -1,0 +1,7 @@
+"""python -m m4k_bench.scenarios: the suite (see the package docstring)."""
+
+import sys
+
+from m4k_bench.scenarios import main
+
+sys.exit(main())

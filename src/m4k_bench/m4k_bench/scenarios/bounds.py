@@ -1,0 +1,89 @@
+"""The bounds a scenario is judged against, derived from config/ (never tuned to a run).
+
+* distance: the true path within ``v^2 / (2 a)`` of the commanded distance -- what the speed
+  limiter's ramps may take or give (``control.linear.max_acceleration`` / ``max_deceleration``);
+* stop time, from the moment the robot must react (the *trigger*) to the first ground-truth
+  sample at rest (< ``REST_V``), for each cause:
+
+  =====================  ==================================================  ==================
+  cause                  latency before the guard / watchdog acts             trigger
+  =====================  ==================================================  ==================
+  sonar                  2 sonar periods (pipelined ping) + 1 actuator        front clearance <
+                                                                              stop_distance -
+                                                                              (front - sonar x)
+  laser                  2 lrf periods + one URG scan (60 / SCAN rpm)          same, laser x
+                         + 1 actuator
+  sonar_unplugged        sonar_timeout + 2 sonar periods + echo timeout       the unplug
+                         + 1 actuator
+  laser_unplugged        laser_timeout + 1 lrf period + 1 actuator            the unplug
+  bridge_killed          cmd_vel_timeout + 2 actuator                         the kill
+  driver_host_killed     heartbeat_hold_s (the amplifiers lose enable), then  the kill
+                         the wheels coast: motor_tau * ln(v / REST_V)
+  =====================  ==================================================  ==================
+
+  plus the braking ``v / max_deceleration`` (the guard's stop bypasses the ramp, so this bounds
+  it from above) and one ground-truth sample period (the runner's resolution).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+from typing import Any, Mapping
+
+from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
+
+__all__ = ['Bounds', 'REST_V', 'SAMPLE_S', 'bounds']
+
+REST_V = 0.01        # m/s: at rest on ground truth
+SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
+URG_SCAN_S = 0.1     # URG-04LX: 600 rpm (PP SCAN)
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """What one scenario is held to."""
+
+    distance_tol: float           # m
+    stop_s: float | None          # s from trigger to rest
+    trigger_clearance: float | None   # m ahead of the front face (obstacle stops)
+
+
+def _period(raw: Mapping[str, Any], task: str) -> float:
+    return float(raw['tasks'][task]['period_ms']) / 1000.0
+
+
+def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
+    """Return the bounds for forward speed ``v`` and stop ``cause`` from the layered config."""
+    from m4k_rt.control.params import control_params
+    p = control_params(raw.get('control'))
+    accel = p.linear.max_acceleration
+    decel = p.linear.max_deceleration or accel
+    tol = v * v / (2.0 * min(accel, decel))
+    ta = _period(raw, 'actuator')
+    brake = v / decel + SAMPLE_S
+    g = p.guard
+    robot = raw.get('robot') or {}
+    front = float(robot.get('body', {}).get('length', 0.45)) / 2.0
+    sensors = robot.get('sensors', {})
+    trigger = None
+    stop: float | None = None
+    if cause == 'sonar':
+        trigger = g.stop_distance - (front - float(sensors['sonar']['pose'][0]))
+        stop = 2 * _period(raw, 'sonar') + ta + brake
+    elif cause == 'laser':
+        trigger = g.stop_distance - (front - float(sensors['laser']['pose'][0]))
+        stop = 2 * _period(raw, 'lrf') + URG_SCAN_S + ta + brake
+    elif cause == 'sonar_unplugged':
+        stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + brake
+    elif cause == 'laser_unplugged':
+        stop = g.laser_timeout + _period(raw, 'lrf') + ta + brake
+    elif cause == 'bridge_killed':
+        stop = p.cmd_vel_timeout + 2 * ta + brake
+    elif cause == 'driver_host_killed':
+        motor = (raw.get('devices') or {}).get('motor') or {}
+        tau = float(((raw.get('world') or {}).get('robot') or {}).get('motor_tau_s', 0.08))
+        hold = float(motor.get('heartbeat_hold_s', 0.05)) if motor.get('heartbeat', True) \
+            else math.inf
+        stop = hold + tau * math.log(max(v, REST_V) / REST_V) + SAMPLE_S
+    return Bounds(tol, stop, trigger)

@@ -1,0 +1,278 @@
+"""Run one scenario on the whole stack and judge it on the simulator's ground truth.
+
+``bringup --python-m --config <overlay>`` starts sim_robot + rt_core + driver_host + bridge with
+the scenario's world merged over config/; the runner is a plain ROS user: it waits for ``odom``
+and ``scan``, publishes the scenario's ``cmd_vel`` segments at 20 Hz (then zero), kills the
+processes the scenario names (kill -9; bringup restarts them) when the robot has truly covered
+the distance given, and samples the simulator's truth over its socket every 20 ms (pose, speed,
+distance travelled, clearance, contacts, the moving obstacles' offsets, world events). The
+verdict never reads odometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any, Callable
+
+import yaml
+
+from m4k_bench.scenarios.bounds import bounds, REST_V, SAMPLE_S
+from m4k_bench.scenarios.spec import Scenario
+from m4k_rt import config
+
+__all__ = ['Result', 'run_scenario']
+
+STARTUP_TIMEOUT_S = 60.0
+SETTLE_S = 2.0            # after the last command: zero commands while the robot comes to rest
+CMD_PERIOD_S = 0.05
+
+
+@dataclass
+class Result:
+    """What one run measured and the verdict."""
+
+    name: str
+    expected: str
+    commanded: float
+    travelled: float = math.nan
+    min_clearance: float = math.nan
+    contacts: int = -1
+    stop_s: float | None = None
+    stop_bound_s: float | None = None
+    distance_tol: float = math.nan
+    failures: list[str] = field(default_factory=list)
+    samples: list[dict[str, Any]] = field(default_factory=list)
+    log_tail: str = ''
+
+    @property
+    def passed(self) -> bool:
+        """Return True when every check held."""
+        return not self.failures
+
+
+def _bringup_argv(overlay: str) -> list[str]:
+    exe = shutil.which('bringup')
+    argv = [exe] if exe else [sys.executable, '-m', 'm4k_rt.tools.bringup']
+    return argv + ['--python-m', '--config', overlay]
+
+
+def _stop(proc: subprocess.Popen[bytes], timeout: float = 20.0) -> None:
+    for sig, wait in ((signal.SIGINT, timeout), (signal.SIGKILL, 5.0)):
+        if proc.poll() is not None:
+            return
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(wait)
+        except subprocess.TimeoutExpired:
+            pass
+
+
+class _Ros:
+    """The runner's ROS side: cmd_vel out, odom/scan seen."""
+
+    def __init__(self) -> None:
+        from geometry_msgs.msg import Twist
+        from nav_msgs.msg import Odometry
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import LaserScan
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, args=[])
+        self.node = rclpy.create_node('m4k_scenario', context=self.ctx)
+        self.twist = Twist()
+        self.pub = self.node.create_publisher(Twist, 'cmd_vel', 10)
+        self.odom = self.scan = 0
+        self.node.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
+        self.node.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+
+    def _on_odom(self, msg: Any) -> None:
+        self.odom += 1
+
+    def _on_scan(self, msg: Any) -> None:
+        self.scan += 1
+
+    def spin(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            self.ex.spin_once(timeout_sec=left)
+
+    def send(self, v: float, w: float) -> None:
+        self.twist.linear.x, self.twist.angular.z = float(v), float(w)
+        self.pub.publish(self.twist)
+
+    def close(self) -> None:
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self.ctx.try_shutdown()
+
+
+def _truth(runtime_dir: str) -> dict[str, Any] | None:
+    from m4k_drivers.simbus import read_truth
+    try:
+        return read_truth(runtime_dir, timeout_s=1.0)
+    except (OSError, ValueError):
+        return None
+
+
+def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
+                 progress: Callable[[str], None] = lambda s: None,
+                 env: dict[str, str] | None = None) -> Result:
+    """Run ``sc`` once (``short``: the test's version) and return the judged result.
+
+    ``env``: the stack's environment (default this process's); the runtime directory and the
+    world report are the run's own, always.
+    """
+    from m4k_bench.soak import children
+    overlay = dict(sc.overlay, world=sc.world)
+    os.makedirs(work_dir, exist_ok=True)
+    overlay_path = os.path.join(work_dir, f'{sc.name}.overlay.yaml')
+    with open(overlay_path, 'w', encoding='utf-8') as f:
+        yaml.safe_dump(overlay, f)
+    raw = config.load_layered(overlay_path, (env or os.environ).get('M4K_CONFIG_DIR'))
+    cmds = sc.scaled(short)
+    v = max((abs(c.v) for c in cmds), default=0.0)
+    b = bounds(raw, v, sc.stop)
+    res = Result(sc.name, sc.expected(), sc.commanded_distance(short), distance_tol=b.distance_tol,
+                 stop_bound_s=b.stop_s)
+    runtime_dir = tempfile.mkdtemp(prefix=f'm4k-scen-{sc.name}-')
+    env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir,
+               M4K_WORLD_REPORT=os.path.join(runtime_dir, 'world.json'))
+    env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    os.environ.setdefault('ROS_DOMAIN_ID', env['ROS_DOMAIN_ID'])
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    log_path = os.path.join(work_dir, f'{sc.name}.bringup.log')
+    log = open(log_path, 'wb')  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(_bringup_argv(overlay_path), stdout=log, stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+    ros = _Ros()
+    try:
+        end = time.monotonic() + STARTUP_TIMEOUT_S
+        while time.monotonic() < end and (ros.odom == 0 or ros.scan == 0):
+            if proc.poll() is not None:
+                break
+            ros.spin(0.1)
+        if ros.odom == 0 or ros.scan == 0:
+            res.failures.append(f'the stack did not come up (odom {ros.odom}, scan {ros.scan})')
+            return res
+        ros.spin(1.0)          # every sensor has reported: the guard is fresh
+        progress(f'{sc.name}: stack up, driving {res.commanded:.2f} m commanded')
+        _drive(sc, cmds, ros, runtime_dir, proc.pid, res, children)
+    finally:
+        ros.close()
+        _stop(proc)
+        log.close()
+        with open(log_path, 'rb') as f:
+            res.log_tail = b'\n'.join(f.read().splitlines()[-15:]).decode(errors='replace')
+        shutil.rmtree(runtime_dir, ignore_errors=True)
+    _judge(sc, res, b)
+    return res
+
+
+def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: int, res: Result,
+           children: Callable[[int], dict[str, int]]) -> None:
+    plan = [(c.v, c.w, c.t) for c in cmds] + [(0.0, 0.0, SETTLE_S)]
+    faults = list(sc.faults)
+    t_seg = time.monotonic()
+    nxt_cmd = nxt_sample = t_seg
+    seg = 0
+    while seg < len(plan):
+        now = time.monotonic()
+        v, w, dur = plan[seg]
+        if now - t_seg >= dur:
+            seg, t_seg = seg + 1, t_seg + dur
+            continue
+        if now >= nxt_cmd:
+            ros.send(v, w)
+            nxt_cmd += CMD_PERIOD_S
+        if now >= nxt_sample:
+            nxt_sample += SAMPLE_S
+            t = _truth(runtime_dir)
+            if t is not None:
+                res.samples.append(t)
+                for f in list(faults):
+                    if t['travelled'] >= f.travelled:
+                        pid = children(bringup_pid).get(f.kill)
+                        if pid:
+                            t_kill = time.monotonic_ns()
+                            os.kill(pid, signal.SIGKILL)
+                            res.samples[-1] = dict(t, killed=f.kill, kill_ns=t_kill)
+                            faults.remove(f)
+        ros.spin(max(0.0, min(nxt_cmd, nxt_sample) - time.monotonic()))
+    # at rest? keep sampling (zero commands) up to a few more seconds until it is
+    end = time.monotonic() + 5.0
+    while time.monotonic() < end:
+        ros.send(0.0, 0.0)
+        t = _truth(runtime_dir)
+        if t is not None:
+            res.samples.append(t)
+            if abs(t['v']) < REST_V and abs(t['w']) < 0.02:
+                break
+        ros.spin(SAMPLE_S)
+    for f in faults:
+        res.failures.append(f'fault kill {f.kill} at {f.travelled} m never happened')
+
+
+def _judge(sc: Scenario, res: Result, b: Any) -> None:
+    s = res.samples
+    if not s:
+        res.failures.append('no ground truth sampled')
+        return
+    last = s[-1]
+    res.travelled = float(last['travelled'])
+    res.min_clearance = min(float(x['min_clearance']) for x in s)
+    res.contacts = int(last['contacts'])
+    if res.contacts:
+        res.failures.append(f'{res.contacts} contact(s)')
+    if not res.min_clearance > 0.0:
+        res.failures.append(f'minimum clearance {res.min_clearance:.3f} m')
+    if sc.distance and abs(res.travelled - res.commanded) > b.distance_tol:
+        res.failures.append(f'travelled {res.travelled:.3f} m, commanded {res.commanded:.3f} m '
+                            f'(tolerance {b.distance_tol:.3f} m)')
+    if sc.distance_m is not None and abs(res.travelled - sc.distance_m) > b.distance_tol:
+        res.failures.append(f'travelled {res.travelled:.3f} m, expected {sc.distance_m:.3f} m '
+                            f'(tolerance {b.distance_tol:.3f} m)')
+    if sc.stop:
+        t0 = _trigger_ns(sc, s, b)
+        if t0 is None:
+            res.failures.append(f'stop ({sc.stop}): its trigger never happened')
+            return
+        rest = next((x for x in s if x['t_ns'] >= t0 and abs(x['v']) < REST_V), None)
+        if rest is None:
+            res.failures.append(f'stop ({sc.stop}): never at rest after the trigger')
+            return
+        res.stop_s = (rest['t_ns'] - t0) / 1e9
+        if b.stop_s is not None and res.stop_s > b.stop_s:
+            res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
+
+
+def _trigger_ns(sc: Scenario, s: list[dict[str, Any]], b: Any) -> int | None:
+    """Return when the robot had to start stopping (ground-truth clock)."""
+    if sc.stop in ('sonar', 'laser'):
+        hit = next((x for x in s if x['front_clearance'] < b.trigger_clearance), None)
+        return None if hit is None else int(hit['t_ns'])
+    if sc.stop in ('sonar_unplugged', 'laser_unplugged'):
+        want = 'sonar' if sc.stop == 'sonar_unplugged' else 'lrf'
+        for x in s:
+            for e in x.get('events', []):
+                if e['unplug'] == want:
+                    return int(e['t_ns'])
+        return None
+    want = 'bridge' if sc.stop == 'bridge_killed' else 'driver_host'
+    hit = next((x for x in s if x.get('killed') == want), None)
+    return None if hit is None else int(hit['kill_ns'])
