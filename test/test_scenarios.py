@@ -15,6 +15,7 @@ from m4k_bench.scenarios import spec
 from m4k_bench.scenarios.run import run_scenario
 
 pytest.importorskip('rclpy')
+pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its transport sockets for the process
 
 SCENARIOS = spec.load_dir(os.path.join(ROOT, 'config', 'scenarios'))
 

@@ -95,9 +95,11 @@ def test_front_sector_minimum_skips_error_codes_and_out_of_sector():
     ranges[120 + 10] = 7                # +10 deg: URG error code, not a distance
     ranges[120 - 15] = 1200             # -15 deg: on the sector edge, counted
     assert sector.window(angle_min, inc, 241) == (105, 135)
-    assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(1.2)
+    # the distance ahead along the heading: 1.2 m at 15 deg is 1.2 cos 15 ahead
+    ahead = 1.2 * math.cos(math.radians(15.0))
+    assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(ahead)
     ranges[120] = 6000                  # beyond range_max: not a measurement
-    assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(1.2)
+    assert sector.minimum(angle_min, inc, 0.02, 5.6, ranges) == pytest.approx(ahead)
 
 
 def test_front_sector_nothing_in_range_and_error_codes_only_are_inf():
@@ -112,3 +114,22 @@ def test_front_sector_nothing_in_range_and_error_codes_only_are_inf():
     assert sector.minimum(1.0, 0.01, 0.02, 5.6, [500] * 10) == INF   # sector not scanned
     with pytest.raises(GuardError, match='front_sector_deg'):
         FrontSector(0.0)
+
+
+def test_front_sector_measures_from_the_front_face_not_the_laser():
+    from m4k_rt.control.guard import front_offset, FrontSector
+    robot = {'body': {'length': 0.45}, 'sensors': {'laser': {'pose': [0.0, 0, 0.2, 0, 0, 0]},
+                                                   'sonar': {'pose': [0.225, 0, 0.1, 0, 0, 0]}}}
+    assert front_offset(robot, 'laser') == pytest.approx(0.225)
+    assert front_offset(robot, 'sonar') == 0.0
+    assert front_offset({}, 'laser') == 0.0                      # no robot section: as measured
+    sector = FrontSector(30.0, 0.225)
+    inc = math.radians(1.0)
+    ranges = [3000] * 241
+    ranges[120] = 575                   # straight ahead, 0.575 m from the laser: 0.35 m gap
+    assert sector.minimum(math.radians(-120.0), inc, 0.02, 5.6, ranges) == pytest.approx(0.35)
+    ranges[120], ranges[130] = 3000, 600    # 10 deg off: 0.6 cos 10 - 0.225 ahead of the face
+    assert sector.minimum(math.radians(-120.0), inc, 0.02, 5.6, ranges) == pytest.approx(
+        0.6 * math.cos(math.radians(10)) - 0.225)
+    ranges[130] = 100                   # inside the body's length: touching, 0
+    assert sector.minimum(math.radians(-120.0), inc, 0.02, 5.6, ranges) == 0.0

@@ -9,9 +9,8 @@
   cause                  latency before the guard / watchdog acts             trigger
   =====================  ==================================================  ==================
   sonar                  2 sonar periods (pipelined ping) + 1 actuator        front clearance <
-                                                                              stop_distance -
-                                                                              (front - sonar x)
-  laser                  2 lrf periods + one URG scan (60 / SCAN rpm)          same, laser x
+                                                                              stop_distance
+  laser                  2 lrf periods + one URG scan (60 / SCAN rpm)          the same
                          + 1 actuator
   sonar_unplugged        sonar_timeout + 2 sonar periods + echo timeout       the unplug
                          + 1 actuator
@@ -63,16 +62,13 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     ta = _period(raw, 'actuator')
     brake = v / decel + SAMPLE_S
     g = p.guard
-    robot = raw.get('robot') or {}
-    front = float(robot.get('body', {}).get('length', 0.45)) / 2.0
-    sensors = robot.get('sensors', {})
     trigger = None
     stop: float | None = None
     if cause == 'sonar':
-        trigger = g.stop_distance - (front - float(sensors['sonar']['pose'][0]))
+        trigger = g.stop_distance       # the guard measures from the body's front face
         stop = 2 * _period(raw, 'sonar') + ta + brake
     elif cause == 'laser':
-        trigger = g.stop_distance - (front - float(sensors['laser']['pose'][0]))
+        trigger = g.stop_distance
         stop = 2 * _period(raw, 'lrf') + URG_SCAN_S + ta + brake
     elif cause == 'sonar_unplugged':
         stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + brake

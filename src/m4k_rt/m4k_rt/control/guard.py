@@ -19,12 +19,16 @@ rotation and reversing stay allowed so the robot can turn or back away from the 
   vouch for free space it cannot see. With ``'ignore'`` a stale sensor is left out (if every
   sensor is stale the guard does not limit at all); ``stale`` still reports it.
 
-Distances are as measured by each sensor (the configured distances are from the sensor).
+Distances are ahead of the robot's front face: each sensor's range is reduced by how far the
+front face is ahead of the sensor (:func:`front_offset`; 0 for the US-100 on the front, 0.225 m
+for the URG on top of the body's centre), so ``stop_distance`` means the same gap in front of
+the body whichever sensor sees the obstacle.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 STALE_POLICIES = ('stop', 'ignore')
 
@@ -128,6 +132,21 @@ class CollisionGuard:
         return math.inf
 
 
+def front_offset(robot: Any, sensor: str) -> float:
+    """Return how far the body's front face is ahead of ``sensor`` (the robot: section), m.
+
+    ``robot.body.length / 2 - robot.sensors.<sensor>.pose[0]``, never below 0 (a sensor ahead of
+    the body sees from its own position); 0 when the section does not say (a bare test config).
+    """
+    try:
+        front = float(robot['body']['length']) / 2.0
+        x = float(robot['sensors'][sensor]['pose'][0])
+    except (KeyError, TypeError, IndexError, ValueError):
+        return 0.0
+    off = front - x
+    return off if math.isfinite(off) and off > 0.0 else 0.0
+
+
 class FrontSector:
     """Minimum range of a laser scan inside a sector centred straight ahead (angle 0).
 
@@ -141,15 +160,19 @@ class FrontSector:
     once per scan geometry and cached, so a scan costs one short loop over the sector only.
     """
 
-    __slots__ = ('half_width', '_key', '_i0', '_i1')
+    __slots__ = ('half_width', 'offset_mm', '_key', '_i0', '_i1', '_cos')
 
-    def __init__(self, width_deg: float) -> None:
+    def __init__(self, width_deg: float, offset: float = 0.0) -> None:
         if not (isinstance(width_deg, (int, float)) and 0.0 < width_deg <= 360.0):
             raise GuardError(f'front_sector_deg must be in (0, 360], got {width_deg!r}')
+        if not (isinstance(offset, (int, float)) and math.isfinite(offset) and offset >= 0.0):
+            raise GuardError(f'laser front offset must be a finite number >= 0, got {offset!r}')
         self.half_width = math.radians(width_deg) / 2.0
+        self.offset_mm = float(offset) * 1000.0   # the front face is this far ahead of the laser
         self._key: tuple[float, float, int] | None = None
         self._i0 = 0
         self._i1 = -1
+        self._cos: list[float] = []
 
     def window(self, angle_min: float, angle_increment: float, count: int) -> tuple[int, int]:
         """Return the inclusive index range (i0, i1) of the sector (i1 < i0 when empty)."""
@@ -163,19 +186,31 @@ class FrontSector:
                 i1 = math.floor((self.half_width - angle_min) / angle_increment + 1e-9)
                 self._i0 = max(0, i0)
                 self._i1 = min(count - 1, i1)
+            self._cos = [math.cos(angle_min + i * angle_increment)
+                         for i in range(self._i0, self._i1 + 1)]
         return self._i0, self._i1
 
     def minimum(self, angle_min: float, angle_increment: float, range_min: float,
                 range_max: float, ranges_mm: tuple[int, ...] | list[int]) -> float:
-        """Return the smallest valid range (m) in the sector, ``math.inf`` if none."""
+        """Return the smallest distance (m) ahead of the front face in the sector, inf if none.
+
+        Each valid range is projected on the heading (r cos a) less the front offset: the gap
+        between the body's front face and the point, 0 at the least.
+        """
         i0, i1 = self.window(angle_min, angle_increment, len(ranges_mm))
         lo = range_min * 1000.0
         if lo < 20.0:
             lo = 20.0
         hi = range_max * 1000.0
         best = math.inf
+        cos = self._cos
+        off = self.offset_mm
         for i in range(i0, i1 + 1):
             r = ranges_mm[i]
-            if lo <= r <= hi and r < best:
-                best = r
-        return best * 0.001 if best != math.inf else math.inf
+            if lo <= r <= hi:
+                d = r * cos[i - i0] - off
+                if d < best:
+                    best = d
+        if best == math.inf:
+            return math.inf
+        return best * 0.001 if best > 0.0 else 0.0

@@ -106,8 +106,9 @@ CONTROL: dict[str, Field] = {
                      nullable=True),
     'guard.enabled': Field('bool', True, 'Collision guard on forward motion. false: the '
                            'robot drives into what its sensors see.'),
-    'guard.stop_distance': _nonneg('m', 0.35, 'Closer than this (from the sensor), forward '
-                                   'velocity is 0 this cycle; too small to brake in: contact.'),
+    'guard.stop_distance': _nonneg('m', 0.35, 'Closer than this ahead of the front face '
+                                   '(any sensor), forward velocity is 0 this cycle; too small '
+                                   'to brake in: contact.'),
     'guard.release_margin': _nonneg('m', 0.05, 'Hysteresis: released above stop_distance + '
                                     'margin; 0 lets noise toggle the guard.'),
     'guard.slow_distance': _nonneg('m', 0.0, 'Linear slow-down zone when > stop_distance; '

@@ -170,15 +170,20 @@ def control_section(task: Any, shared: Any) -> Any:
     The section is returned as parsed from YAML, unvalidated: the control parameter parser
     checks it (a non-mapping is a configuration error there).
     """
+    return raw_section(task, shared, 'control')
+
+
+def raw_section(task: Any, shared: Any, name: str) -> Any:
+    """Find the raw ``name:`` section: task params, then the shared config, else None."""
     params = getattr(task, 'params', None) or {}
-    if 'control' in params:
-        return params['control']
+    if name in params:
+        return params[name]
     for holder in (shared, getattr(shared, 'config', None)):
         raw = getattr(holder, 'raw', None)
-        if isinstance(raw, Mapping) and 'control' in raw:
-            return raw['control']
-        if isinstance(holder, Mapping) and 'control' in holder:
-            return holder['control']
+        if isinstance(raw, Mapping) and name in raw:
+            return raw[name]
+        if isinstance(holder, Mapping) and name in holder:
+            return holder[name]
     return None
 
 

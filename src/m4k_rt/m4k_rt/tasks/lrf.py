@@ -4,9 +4,10 @@ Ports: ``lrf`` (driver host: REQUEST out, LASER_SCAN and DEVICE_STATUS in) and `
 (bridge: LASER_SCAN out). Pipeline like the other device tasks: each cycle drains the scan
 replying to the previous REQUEST (the URG-04LX takes 100 ms per scan, well inside the 200 ms
 period), forwards it unchanged (its stamp and device stamp are the measurement's), computes
-the minimum range of the front sector (``control.guard.front_sector_deg``) for the actuator's
-collision guard, then sends this cycle's REQUEST. A scan whose sector holds no valid point
-reports ``inf`` (nothing seen) but still refreshes ``laser_rx_ns``: the laser is alive.
+the minimum distance ahead of the body's front face in the front sector
+(``control.guard.front_sector_deg``) for the actuator's collision guard, then sends this cycle's
+REQUEST. A scan whose sector holds no valid point reports ``inf`` (nothing seen) but still
+refreshes ``laser_rx_ns``: the laser is alive.
 """
 
 from __future__ import annotations
@@ -14,10 +15,10 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
-from m4k_rt.control.guard import FrontSector
+from m4k_rt.control.guard import front_offset, FrontSector
 from m4k_rt.control.params import control_params
 from m4k_rt.protocol import Kind
-from m4k_rt.tasks.actuator import control_section
+from m4k_rt.tasks.actuator import control_section, raw_section
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -34,9 +35,9 @@ class LrfBody(DeviceTaskBody):
 
     def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
                  front_sector_deg: float = 30.0,
-                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns, front: float = 0.0) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
-        self.sector = FrontSector(front_sector_deg)
+        self.sector = FrontSector(front_sector_deg, front)
         self.scans = 0
 
     @property
@@ -74,4 +75,5 @@ def make_lrf(task: Any, ports: Mapping[str, Any], shared: Any) -> LrfBody:
     """Build the LRF body from its ``lrf``/``lrf_out`` ports and the guard's sector width."""
     params = control_params(control_section(task, shared))
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
-                   params.guard.front_sector_deg)
+                   params.guard.front_sector_deg,
+                   front=front_offset(raw_section(task, shared, 'robot'), 'laser'))

@@ -8,7 +8,8 @@ collision guard, forwards it unchanged, then sends this cycle's trigger.
 
 What reaches the guard:
 
-* status OK -> ``sonar_range`` = the range, ``sonar_rx_ns`` = now;
+* status OK -> ``sonar_range`` = the range less how far the body's front face is ahead of the
+  sonar (``guard.front_offset``: 0 on the front face), ``sonar_rx_ns`` = now;
 * status NO_ECHO (nothing within range) -> ``sonar_range`` = inf, stamp refreshed: a valid
   "free ahead" reading;
 * status TIMEOUT / FAULT -> counted, the stamp is *not* refreshed. Repeated failures make the
@@ -22,7 +23,9 @@ import math
 import time
 from typing import Any, Callable, Mapping
 
+from m4k_rt.control.guard import front_offset
 from m4k_rt.protocol import Kind, SONAR_NO_ECHO, SONAR_OK
+from m4k_rt.tasks.actuator import raw_section
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -39,8 +42,9 @@ class SonarBody(DeviceTaskBody):
     """Per-cycle body of the sonar task."""
 
     def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
-                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns, front: float = 0.0) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
+        self.front = front     # m the body's front face is ahead of the sonar
         self.readings = 0
         self.failed = 0
 
@@ -63,7 +67,8 @@ class SonarBody(DeviceTaskBody):
                 status = msg.status
                 state.sonar_status = status
                 if status == SONAR_OK:
-                    state.sonar_range = msg.range_m
+                    d = msg.range_m - self.front
+                    state.sonar_range = d if d > 0.0 else 0.0
                     state.sonar_rx_ns = now
                     self.readings += 1
                 elif status == SONAR_NO_ECHO:
@@ -84,4 +89,5 @@ class SonarBody(DeviceTaskBody):
 
 def make_sonar(task: Any, ports: Mapping[str, Any], shared: Any) -> SonarBody:
     """Build the sonar body from its ``sonar``/``sonar_out`` ports."""
-    return SonarBody(ports['sonar'], ports['sonar_out'], robot_state(shared))
+    return SonarBody(ports['sonar'], ports['sonar_out'], robot_state(shared),
+                     front=front_offset(raw_section(task, shared, 'robot'), 'sonar'))
