@@ -12,7 +12,7 @@
    stops planner and stack, and writes ``results/demo-<UTC>/`` (``results/demo-latest`` links
    to it): ``fig9a_trajectory.png``, ``fig9b_velocity.png``, ``trajectory.csv``,
    ``summary.json``, ``report.md``, the processes' logs and the whole run's ROS topics as
-   MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_rt.bag.record`).
+   MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_bridge.bag.record`).
 
 Contacts: sim_robot keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
 the simulated world's collision counter and true pose; that is the verdict's evidence. The
@@ -134,7 +134,7 @@ class _Child:
 
 def _bringup_argv(overlay: str | None, python_m: bool) -> list[str]:
     exe = None if python_m else shutil.which('bringup')
-    argv = [exe] if exe else [sys.executable, '-m', 'm4k_rt.tools.bringup']
+    argv = [exe] if exe else [sys.executable, '-m', 'm4k_bringup.bringup']
     if python_m:
         argv.append('--python-m')
     return argv + (['--config', overlay] if overlay else [])
@@ -577,7 +577,7 @@ def main(argv: Sequence[str] | None = None) -> int:
          f'{env["M4K_RUNTIME_DIR"]}')
     env['M4K_WORLD_REPORT'] = os.path.join(out_dir, WORLD_REPORT)
     rec = Recorder()
-    bag = _Child('record', [sys.executable, '-m', 'm4k_rt.bag.record', '-o',
+    bag = _Child('record', [sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
                             os.path.join(out_dir, 'bag')],
                  os.path.join(out_dir, 'record.log'), env)
     stack = _Child('bringup', _bringup_argv(args.config, args.python_m),

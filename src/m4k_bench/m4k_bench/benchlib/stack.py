@@ -119,7 +119,7 @@ def start_sim_robot(runtime_dir: str, log_dir: str, name: str,
 
     Raise RuntimeError (with the log tail) when it exits or stays silent.
     """
-    from m4k_rt.tools import bringup
+    from m4k_bringup import bringup
     spec = bringup.sim_robot_spec(runtime_dir)
     child = Child(name + '.sim_robot', entry_argv(spec.module, *spec.args), log_dir, env)
     deadline = time.monotonic() + timeout_s
@@ -172,7 +172,7 @@ def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], 
                                     log_dir, env)
     if bridge:
         kids['bridge'] = Child(name + '.bridge', entry_argv(
-            'm4k_rt.bridge.node', '--ros-args', '-p',
+            'm4k_bridge.node', '--ros-args', '-p',
             'ports.status:={}'.format(UNUSED_STATUS_LABEL)), log_dir, env)
     return kids
 
