@@ -48,6 +48,7 @@ import yaml
 from m4k_bridge import params as bridge_params
 from m4k_rt import config, rosargs
 from m4k_rt.control.params import control_params
+from m4k_rt.proc import stop_process
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
@@ -266,19 +267,11 @@ class Child:
         self.next_start = 0.0
         if proc is None:
             return None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.console.line('bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
-                    self.spec.name, timeout))
-                proc.kill()
-                proc.wait(5.0)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)  # anything it left in its group
-        except (ProcessLookupError, PermissionError):
-            pass
+        # The process only: it stops its own children in order (a group signal would not).
+        stop_process(proc, signal.SIGTERM, timeout, group=False, close_streams=False,
+                     on_escalate=lambda t: self.console.line(
+                         'bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
+                             self.spec.name, t)))
         self._finish()
         self.last_rc = proc.returncode
         self.proc = None
