@@ -31,7 +31,7 @@ import time
 from typing import Any, Sequence, TextIO
 
 from m4k_drivers import config as dconfig
-from m4k_drivers import registry
+from m4k_drivers import registry, safety
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, protocol, rosargs
 from m4k_rt.sched import SchedError, set_thread_fifo
@@ -354,6 +354,12 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
         enabled = [kind for kind, section in cfg.devices.items() if section['enabled']]
         for kind in enabled:
             registry.service(kind)          # a kind with backends but no service: refused
+        # Serving the RT side drives the robot: refuse real motors without their protections
+        # (one device's --print / --jog bring-up drives nothing on the RT's behalf).
+        refusal = None if args.print_mode or args.jog is not None else safety.unsafe_mix(
+            raw | {'devices': devices})
+        if refusal:
+            raise dconfig.ConfigError(refusal)
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2
