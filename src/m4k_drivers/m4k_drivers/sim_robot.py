@@ -159,7 +159,8 @@ class SimRobot:
     def _build_lrf(self, s: dict[str, Any]) -> None:
         from m4k_drivers.lrf.sim import UrgSim
         link = s.get('link_path') or os.path.join(self.runtime_dir, URG_LINK)
-        args = {k: s[k] for k in ('mount', 'noise_mm', 'seed', 'scan_period', 'timestamp_start')
+        args = {k: s[k] for k in ('mount', 'noise_mm', 'seed', 'scan_period', 'timestamp_start',
+                                     'transfer_bps')
                 if s.get(k) is not None}
         self.urg = UrgSim(self.world, link_path=link, **args)
 
