@@ -21,8 +21,9 @@ its bytes are released after the transfer time (``transfer_bps`` bits per second
 byte).  So a scan arrives (end + 1) / ARES x scan_period + transfer after its stamp -- about
 71 ms + 21 ms for AMAX 725 -- like the real URG, and a driver that takes the arrival as the
 stamp is that late.  Fault hooks: corrupt the sums of the next N scans, inject stray bytes,
-unplug and replug. Simplification: SCIP 1.1 is not emulated; the sim only remembers whether the SCIP2.0
-switch was sent (first switch answers ``0``, later ones ``0E`` as a device already in SCIP 2.0).
+unplug and replug. Simplification: SCIP 1.1 is not emulated; the sim only remembers whether the
+SCIP2.0 switch was sent (first switch answers ``0``, later ones ``0E`` as a device already in
+SCIP 2.0).
 
 All pty fds are opened and closed by the sim's own thread (or before it starts / after it
 stops), so unplugging never closes an fd under a running ``select``.
