@@ -90,6 +90,7 @@ class DeviceService:
         self.seq = 0
         self.malformed = 0
         self.unexpected = 0
+        self.stale = 0
         self.served = 0
         self.encode_errors = 0
         self._status_state: tuple[int, int] | None = None
@@ -206,6 +207,15 @@ class DeviceService:
             return
         if hdr.kind not in self.spec.accepts:
             self.unexpected += 1
+            return
+        max_age = self.spec.max_age(self.section)
+        if max_age is not None and time.monotonic_ns() - hdr.stamp_ns > max_age * 1e9:
+            # Queued while this host stalled: replaying it would drive (and re-enable the
+            # amplifier) on a command the RT side has long replaced.
+            self.stale += 1
+            if self.stale == 1 or self.stale % 100 == 0:
+                LOG.warning('%s: dropped %d datagram(s) older than %.3f s (a stall?)',
+                            self.handler.name, self.stale, max_age)
             return
         self.served += 1
         self._serve(msg)
