@@ -46,6 +46,7 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 import yaml
 
 from m4k_bridge import params as bridge_params
+from m4k_drivers import simbus
 from m4k_rt import config, rosargs
 from m4k_rt.control.params import control_params
 from m4k_rt.proc import stop_process
@@ -59,7 +60,6 @@ __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 
 STABLE_S = 30.0           # a child running this long has its backoff reset
 STOP_TIMEOUT_S = 8.0      # per child, then SIGKILL
 CONFIG_ERROR = 2
-SIM_BUS_SOCKET = 'sim-bus.sock'   # m4k_drivers.simbus.SOCKET_NAME
 
 
 @dataclasses.dataclass(frozen=True)
@@ -366,7 +366,7 @@ def sim_ready(runtime_dir: str) -> bool:
     """Return True when a simulator accepts connections on ``runtime_dir``'s sim-bus socket."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        sock.connect(os.path.join(runtime_dir, SIM_BUS_SOCKET))
+        sock.connect(os.path.join(runtime_dir, simbus.SOCKET_NAME))
         return True
     except OSError:
         return False
