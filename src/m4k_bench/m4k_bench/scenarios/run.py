@@ -61,7 +61,7 @@ class Result:
 
 def _bringup_argv(overlay: str) -> list[str]:
     exe = shutil.which('bringup')
-    argv = [exe] if exe else [sys.executable, '-m', 'm4k_rt.tools.bringup']
+    argv = [exe] if exe else [sys.executable, '-m', 'm4k_bringup.bringup']
     return argv + ['--python-m', '--config', overlay]
 
 

@@ -1,0 +1,226 @@
+"""record: write ROS 2 topics to an MCAP file that ``ros2 bag`` and Foxglove read.
+
+``ros2 run m4k_bridge record [TOPIC ...] [-o DIR] [--duration S]`` (or ``python -m
+m4k_bridge.bag.record``). Without topics it records every m4k topic: the bridge's (``config/
+bridge.yaml`` names), ``tf``, ``tf_static``, ``joint_states``, ``robot_description`` and the
+planner's ``planner_state``. A topic is subscribed as soon as the graph shows a publisher of
+it (so the recorder may start before the robot), with the publisher's reliability and
+durability (``tf_static`` and ``robot_description`` are transient local, the sensors best
+effort), and its messages are stored as received: serialized CDR, no decoding and re-encoding.
+
+The file follows the MCAP ``ros2`` profile as rosbag2 (Jazzy) writes it: profile ``ros2``,
+schemas ``ros2msg`` with the nested definitions (:mod:`m4k_bridge.bag.msgdef`), channels ``cdr``
+with the ``offered_qos_profiles`` and ``topic_type_hash`` metadata, zstd chunks and a summary.
+It goes to ``DIR/<DIR name>_0.mcap`` (DIR defaults to ``m4k_<UTC time>``); ``ros2 bag info``
+and ``ros2 bag play`` take the file, and ``ros2 bag reindex DIR`` adds the ``metadata.yaml``
+that ``ros2 bag`` wants for a directory. SIGINT / SIGTERM (or ``--duration``) end the
+recording: the file is finished (summary and index written) before the exit. Exit codes: 0
+done, 1 nothing could be written, 2 bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib
+import os
+import signal
+import sys
+import time
+from typing import Any, Sequence
+
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+import rclpy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from m4k_bridge import params as bridge_params
+from m4k_bridge.bag.msgdef import message_definition, MsgDefError, split_type, type_hash
+
+__all__ = ['DEFAULT_TOPICS', 'Recorder', 'main', 'qos_yaml']
+
+# Everything the m4k stack publishes or takes (relative names: the recorder's namespace applies).
+DEFAULT_TOPICS = tuple(bridge_params.spec('topics.' + role).default
+                       for role in bridge_params.TOPIC_ROLES) + (
+    'tf', 'tf_static', 'joint_states', 'robot_description', 'planner_state')
+_GRAPH_PERIOD_S = 0.5
+_DEPTH = 100
+
+
+def qos_yaml(profiles: Sequence[Any]) -> str:
+    """Return rosbag2's ``offered_qos_profiles`` YAML for the publishers' QoS profiles."""
+    out = []
+    for q in profiles:
+        out.append(
+            '- history: {}\n  depth: {}\n  reliability: {}\n  durability: {}\n'
+            '  deadline:\n    sec: {}\n    nsec: {}\n  lifespan:\n    sec: {}\n    nsec: {}\n'
+            '  liveliness: {}\n  liveliness_lease_duration:\n    sec: {}\n    nsec: {}\n'
+            '  avoid_ros_namespace_conventions: {}'.format(
+                int(q.history), q.depth, int(q.reliability), int(q.durability),
+                *_sec_nsec(q.deadline), *_sec_nsec(q.lifespan), int(q.liveliness),
+                *_sec_nsec(q.liveliness_lease_duration),
+                'true' if q.avoid_ros_namespace_conventions else 'false'))
+    return '\n'.join(out) + '\n' if out else '[]'
+
+
+def _sec_nsec(duration: Any) -> tuple[int, int]:
+    ns = int(duration.nanoseconds)
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def _message_class(type_name: str) -> Any:
+    package, name = split_type(type_name)
+    return getattr(importlib.import_module(package + '.msg'), name)
+
+
+def _subscription_qos(profiles: Sequence[Any]) -> QoSProfile:
+    # Like rosbag2: reliable only when every publisher offers it (a reliable subscription
+    # does not match a best-effort publisher), transient local only when every one offers it.
+    reliable = bool(profiles) and all(
+        q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
+    latched = bool(profiles) and all(
+        q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
+    return QoSProfile(
+        depth=_DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                    else DurabilityPolicy.VOLATILE))
+
+
+class Recorder:
+    """Subscribe to topics as they appear and write their serialized messages to MCAP."""
+
+    def __init__(self, node: Any, path: str, topics: Sequence[str]) -> None:
+        self.node = node
+        self.path = path
+        self.topics = [node.resolve_topic_name(t) for t in topics]
+        self._file = open(path, 'wb')
+        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self._writer.start(profile='ros2', library='m4k_rt record')
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self.counts: dict[str, int] = {}
+        self.skipped: dict[str, str] = {}
+        self._subs: list[Any] = []
+        self._finished = False
+        self.poll_graph()
+        self._timer = node.create_timer(_GRAPH_PERIOD_S, self.poll_graph)
+
+    def poll_graph(self) -> None:
+        """Subscribe to every wanted topic that now has a publisher of a known type."""
+        types = dict(self.node.get_topic_names_and_types())
+        for topic in self.topics:
+            if topic in self._channels or topic in self.skipped or topic not in types:
+                continue
+            infos = self.node.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            type_name = types[topic][0]
+            try:
+                self._subscribe(topic, type_name, infos)
+            except (MsgDefError, ImportError, AttributeError, ValueError) as exc:
+                self.skipped[topic] = str(exc)
+                self.node.get_logger().warning('not recording {}: {}'.format(topic, exc))
+
+    def _subscribe(self, topic: str, type_name: str, infos: Sequence[Any]) -> None:
+        msg_type = _message_class(type_name)
+        schema_id = self._schemas.get(type_name)
+        if schema_id is None:
+            schema_id = self._writer.register_schema(
+                name=type_name, encoding=SchemaEncoding.ROS2,
+                data=message_definition(type_name).encode())
+            self._schemas[type_name] = schema_id
+        profiles = [i.qos_profile for i in infos]
+        hashes = {str(i.topic_type_hash) for i in infos}
+        digest = hashes.pop() if len(hashes) == 1 else type_hash(type_name)
+        channel_id = self._writer.register_channel(
+            topic=topic, message_encoding=MessageEncoding.CDR, schema_id=schema_id,
+            metadata={'offered_qos_profiles': qos_yaml(profiles),
+                      'topic_type_hash': digest if digest.startswith('RIHS') else ''})
+        self._channels[topic] = channel_id
+        self.counts[topic] = 0
+        self._subs.append(self.node.create_subscription(
+            msg_type, topic, lambda data, t=topic: self._write(t, data),
+            _subscription_qos(profiles), raw=True))
+        self.node.get_logger().info('recording {} ({})'.format(topic, type_name))
+
+    def _write(self, topic: str, data: bytes) -> None:
+        if self._finished:
+            return
+        now = time.time_ns()
+        seq = self.counts[topic]
+        self._writer.add_message(channel_id=self._channels[topic], log_time=now, data=data,
+                                 publish_time=now, sequence=seq)
+        self.counts[topic] = seq + 1
+
+    def finish(self) -> None:
+        """Write the summary and close the file (idempotent)."""
+        if self._finished:
+            return
+        self._finished = True
+        self._timer.cancel()
+        self._writer.finish()
+        self._file.close()
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog='record', description=__doc__.split('\n\n')[0])
+    ap.add_argument('topics', nargs='*', help='topics to record (default: every m4k topic)')
+    ap.add_argument('-o', '--output', help='output directory (default: m4k_<UTC time>)')
+    ap.add_argument('--duration', type=float, default=0.0,
+                    help='stop after this many seconds (default: until SIGINT/SIGTERM)')
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Record until SIGINT/SIGTERM or ``--duration``; return the exit code."""
+    args_all = list(sys.argv if argv is None else ['record', *argv])
+    ros_args = rclpy.utilities.remove_ros_args(args_all)[1:]
+    args = _parser().parse_args(ros_args)
+    if not args.duration >= 0.0:
+        print('record: --duration must be >= 0, got {!r}'.format(args.duration),
+              file=sys.stderr)
+        return 2
+    out_dir = args.output or 'm4k_' + datetime.datetime.now(datetime.timezone.utc).strftime(
+        '%Y_%m_%d-%H_%M_%S')
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        print('record: cannot create {!r}: {} (errno {})'.format(out_dir, exc.strerror,
+                                                                 exc.errno), file=sys.stderr)
+        return 1
+    path = os.path.join(out_dir, os.path.basename(os.path.normpath(out_dir)) + '_0.mcap')
+    stop = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: stop.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=args_all, signal_handler_options=SignalHandlerOptions.NO)
+    node = rec = None
+    try:
+        node = rclpy.create_node('m4k_record')
+        try:
+            rec = Recorder(node, path, args.topics or DEFAULT_TOPICS)
+        except OSError as exc:
+            print('record: cannot write {!r}: {} (errno {})'.format(path, exc.strerror,
+                                                                    exc.errno), file=sys.stderr)
+            return 1
+        node.get_logger().info('writing {}'.format(path))
+        end = time.monotonic() + args.duration if args.duration else None
+        while not stop and (end is None or time.monotonic() < end):
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        if rec is not None:
+            rec.finish()
+            total = sum(rec.counts.values())
+            print('record: {} messages on {} topics -> {}'.format(
+                total, len(rec.counts), path), file=sys.stderr)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

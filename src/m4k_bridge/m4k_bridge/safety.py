@@ -1,0 +1,200 @@
+"""The bridge's e-stop and odometry-reset interface (topic ``e_stop``, ``~/reset_odometry``).
+
+The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagram on the
+``cmd`` port, the same ordered port as the velocity commands, and the RT actuator latches it
+(``m4k_rt.control.estop``), so the stop holds when this bridge dies. What the bridge adds:
+
+* the subscription: reliable, volatile, depth 10 -- it matches volatile publishers and
+  transient-local ("latched") ones alike (a transient-local subscription would refuse
+  volatile publishers);
+* re-sending an engaged e-stop when the ``cmd`` port re-links (a restarted RT process starts
+  unlatched; the operator's last word was "stop");
+* with ``use_stamped_vel``, :class:`CommandStampGate` drops TwistStamped commands stamped no
+  later than the newest command seen before the last release, so a command held up in a queue
+  (or re-sent) from before the release cannot restart the robot. The rule compares the
+  sender's stamps with each other, never with this machine's clock, so a laptop whose clock is
+  off still works. Unstamped (zero) commands pass: there is nothing to judge them by;
+* the state the RT side reports (ODOMETRY flags E_STOP / HOLD) in ``rt_status`` and in the
+  diagnostic ``m4k_bridge: e_stop``;
+* ``~/reset_odometry`` (std_srvs/Trigger): an ODOM_RESET request with a fresh id, answered
+  success only when the actuator's ODOM_RESET acknowledgement with that id comes back (the
+  pose is zero from that cycle's ODOMETRY on), else success=false after
+  ``reset_odometry_timeout`` with the reason.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from m4k_bridge.diagnostics import make_status
+from m4k_rt import protocol
+
+__all__ = ['CommandStampGate', 'SafetyInterface', 'E_STOP_QOS']
+
+E_STOP_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+_FRESH_NS = 1_000_000_000    # ODOMETRY flags older than this tell nothing about the latch
+
+
+class CommandStampGate:
+    """Refuse stamped commands from before the last e-stop release (pure)."""
+
+    __slots__ = ('newest_ns', 'floor_ns', 'rejected')
+
+    def __init__(self) -> None:
+        self.newest_ns = 0      # newest command stamp seen
+        self.floor_ns = 0       # commands stamped at or before this are from before a release
+        self.rejected = 0
+
+    def accept(self, stamp_ns: int) -> bool:
+        """Return whether a command stamped ``stamp_ns`` (0: unstamped) may be forwarded."""
+        if stamp_ns <= 0:
+            return True
+        if stamp_ns <= self.floor_ns:
+            self.rejected += 1
+            return False
+        if stamp_ns > self.newest_ns:
+            self.newest_ns = stamp_ns
+        return True
+
+    def released(self) -> None:
+        """Note an e-stop release: only commands stamped after every earlier one pass now."""
+        self.floor_ns = self.newest_ns
+
+
+def latch_state(flags: int | None) -> tuple[bool, bool]:
+    """Return (e-stop engaged, holding for a fresh command) from ODOMETRY flags (None: unknown)."""
+    if flags is None:
+        return False, False
+    return bool(flags & protocol.ODOM_E_STOP), bool(flags & protocol.ODOM_HOLD)
+
+
+class SafetyInterface:
+    """E-stop topic, reset service and their state, attached to the bridge node."""
+
+    def __init__(self, node: Any, send_cmd: Any, topic: str, reset_timeout: float) -> None:
+        """Create the subscription and the service; ``send_cmd(bytes)`` writes to ``cmd``."""
+        self.node = node
+        self._send = send_cmd
+        self.reset_timeout = reset_timeout
+        self.gate = CommandStampGate()
+        self.requested: bool | None = None     # last e_stop value received (None: none yet)
+        self.e_stop_messages = 0
+        self.resets_ok = 0
+        self.resets_failed = 0
+        self._seq = 0
+        self._reset_id = 0
+        self._pending: dict[int, Future] = {}
+        self._links_seen = 0
+        node.create_subscription(Bool, topic, self._on_e_stop, E_STOP_QOS)
+        # The service callback awaits the acknowledgement, which the node's default
+        # (mutually exclusive) group delivers: in that group it would block its own answer.
+        self._group = ReentrantCallbackGroup()
+        node.create_service(Trigger, '~/reset_odometry', self._on_reset_odometry,
+                            callback_group=self._group)
+
+    # --- e-stop ---------------------------------------------------------------------------------
+
+    def _datagram(self, kind: int, *fields: Any) -> bytes:
+        data = protocol.encode(kind, self._seq, time.monotonic_ns(), *fields)
+        self._seq = protocol.next_seq(self._seq)
+        return data
+
+    def _on_e_stop(self, msg: Bool) -> None:
+        engage = bool(msg.data)
+        self.e_stop_messages += 1
+        if engage != self.requested:
+            self.node.get_logger().warning(
+                'e_stop {}: sent to the RT actuator'.format(
+                    'ENGAGED' if engage else 'released (the robot moves again only on a '
+                    'newer cmd_vel)'))
+        if not engage:
+            self.gate.released()
+        self.requested = engage
+        self._send(self._datagram(protocol.Kind.E_STOP, 1 if engage else 0))
+
+    def on_cmd_links(self, links: int) -> None:
+        """Re-send an engaged e-stop after the ``cmd`` port re-linked (call periodically)."""
+        if links != self._links_seen:
+            self._links_seen = links
+            if self.requested and links > 0:
+                self._send(self._datagram(protocol.Kind.E_STOP, 1))
+
+    # --- odometry reset -------------------------------------------------------------------------
+
+    async def _on_reset_odometry(self, request: Trigger.Request,
+                                 response: Trigger.Response) -> Trigger.Response:
+        self._reset_id = (self._reset_id + 1) & protocol.SEQ_MASK
+        rid = self._reset_id
+        done = Future()
+        self._pending[rid] = done
+        timer = self.node.create_timer(
+            self.reset_timeout, lambda: done.done() or done.set_result(False),
+            callback_group=self._group)
+        try:
+            self._send(self._datagram(protocol.Kind.ODOM_RESET, rid))
+            ok = await done
+        finally:
+            timer.cancel()
+            self.node.destroy_timer(timer)
+            self._pending.pop(rid, None)
+        response.success = bool(ok)
+        if ok:
+            self.resets_ok += 1
+            response.message = 'odometry pose zeroed by the RT actuator (request {})'.format(rid)
+        else:
+            self.resets_failed += 1
+            response.message = ('no acknowledgement from the RT actuator within {} s (request '
+                                '{}): is the RT process running and the cmd port linked? The '
+                                'pose may or may not have been reset'.format(
+                                    self.reset_timeout, rid))
+            self.node.get_logger().warning('reset_odometry: ' + response.message)
+        return response
+
+    def on_reset_ack(self, request_id: int) -> bool:
+        """Complete the request ``request_id``; return False when none was waiting for it."""
+        fut = self._pending.get(request_id)
+        if fut is None or fut.done():
+            return False
+        fut.set_result(True)
+        return True
+
+    # --- state ----------------------------------------------------------------------------------
+
+    def latch(self, odom: protocol.Odometry | None, odom_rx_ns: int,
+              now_ns: int) -> tuple[bool, bool] | None:
+        """Return the RT latch (engaged, holding) from fresh ODOMETRY, else None (unknown)."""
+        if odom is None or now_ns - odom_rx_ns > _FRESH_NS:
+            return None
+        return latch_state(odom.flags)
+
+    def status(self, odom: protocol.Odometry | None, odom_rx_ns: int, now_ns: int) -> Any:
+        """Return the ``m4k_bridge: e_stop`` DiagnosticStatus."""
+        latch = self.latch(odom, odom_rx_ns, now_ns)
+        values = {'requested': {None: 'none', True: 'engaged', False: 'released'}[self.requested],
+                  'rt_latch': 'unknown' if latch is None else
+                  'engaged' if latch[0] else 'holding' if latch[1] else 'clear',
+                  'e_stop_messages': self.e_stop_messages,
+                  'stale_commands_rejected': self.gate.rejected,
+                  'odometry_resets': self.resets_ok, 'odometry_resets_failed': self.resets_failed}
+        if latch is None:
+            if self.requested:
+                level, msg = protocol.LEVEL_ERROR, ('e-stop requested but the RT actuator does '
+                                                    'not report (no fresh odometry)')
+            else:
+                level, msg = protocol.LEVEL_STALE, 'RT actuator not reporting'
+        elif latch[0]:
+            level, msg = protocol.LEVEL_WARN, 'e-stop latched in the RT actuator'
+        elif self.requested:
+            level, msg = protocol.LEVEL_ERROR, 'e-stop requested, RT actuator not latched yet'
+        elif latch[1]:
+            level, msg = protocol.LEVEL_OK, 'released; stopped until a newer cmd_vel'
+        else:
+            level, msg = protocol.LEVEL_OK, 'clear'
+        return make_status('m4k_bridge: e_stop', level, msg, values, hardware_id='m4k_rt')

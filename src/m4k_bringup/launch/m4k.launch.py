@@ -1,0 +1,154 @@
+"""Launch the m4k stack with ros2 launch (needs launch/launch_ros: a full ROS 2 install).
+
+    ros2 launch m4k_bringup m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
+        [sim:=auto|true|false] [robot_state_publisher:=false|true] [bridge_params:=FILE]
+
+Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
+``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
+simulated robot (``sim_robot``, when ``sim`` is on), rt_core, driver_host and the bridge (node
+m4k_bridge, parameters: share/m4k_bringup/config/bridge.yaml, then those derived from the
+configuration -- runtime directory, command timeout, velocity limits, sensor frames, port
+labels, robot description -- and the overlay's ``m4k_bridge:`` section, then
+``bridge_params``).
+
+``sim``: ``auto`` (default) simulates when the configuration has any ``backend: sim`` device;
+``true`` requires such devices; ``false`` refuses a configuration that still has simulated
+devices (give ``config:=`` an overlay with the real backends) -- so a real robot never runs with
+a simulated sensor by mistake.
+
+``robot_state_publisher:=true`` starts robot_state_publisher (a full ROS install has it) with
+the same URDF, and turns the bridge's own static transforms off (``publish_robot_state``), so
+no transform has two publishers. For supervision with restarts and the live status line use
+``bringup`` instead.
+"""
+
+import os
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessIO
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+_TRUE = ('true', '1', 'yes', 'on')
+_FALSE = ('false', '0', 'no', 'off')
+
+
+def _flag(context, name, allow_auto=False):
+    """Return True/False (or None for 'auto') of a boolean launch argument."""
+    value = LaunchConfiguration(name).perform(context).strip().lower()
+    if value in _TRUE:
+        return True
+    if value in _FALSE:
+        return False
+    if allow_auto and value == 'auto':
+        return None
+    raise RuntimeError('{}:={!r}: expected true or false{}'.format(
+        name, value, ' or auto' if allow_auto else ''))
+
+
+def _installed(package, executable):
+    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    try:
+        prefix = get_package_prefix(package)
+    except PackageNotFoundError:
+        return False
+    return os.access(os.path.join(prefix, 'lib', package, executable), os.X_OK)
+
+
+def _nodes(context, *args, **kwargs):
+    """Build the actions once the launch arguments are known (bringup's plan, as ROS nodes)."""
+    from m4k_bridge import params as bridge_params
+    from m4k_bringup import bringup
+    from m4k_rt import config, xddp
+
+    arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
+    overlay = os.path.abspath(arg('config')) if arg('config') else None
+    namespace = arg('namespace')
+    sim = _flag(context, 'sim', allow_auto=True)
+    with_rsp = _flag(context, 'robot_state_publisher')
+
+    cfg = config.load(overlay)                       # ConfigError names the field
+    doc = config.load_layered(overlay)
+    simulated = bringup.uses_sim(doc)
+    if sim is False and simulated:
+        raise RuntimeError('sim:=false but the configuration has simulated devices (backend: '
+                           'sim); give config:= an overlay with their real backends')
+    if sim is True and not simulated:
+        raise RuntimeError('sim:=true but no device has backend: sim in the configuration')
+    runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
+    bridge_doc = bringup.bridge_overlay(doc, runtime_dir)
+    bridge_values = bridge_params.flatten_section(bridge_doc)
+    if with_rsp:
+        bridge_values['publish_robot_state'] = False
+    bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
+    # sim_robot first (the world outlives a driver-host restart, as the real robot would).
+    specs = bringup.child_specs(overlay, '', bridge_yaml, runtime_dir, sim=simulated)
+    env = {'M4K_RUNTIME_DIR': runtime_dir, 'PYTHONUNBUFFERED': '1'}
+    actions = []
+    sim_node = None
+    for spec in specs:
+        if spec.executable == 'bridge':
+            params = [bridge_yaml, bridge_values]
+            if arg('bridge_params'):
+                params.append(os.path.abspath(arg('bridge_params')))
+            actions.append(Node(package=spec.package, executable=spec.executable,
+                                name=bridge_params.NODE_NAME, namespace=namespace,
+                                parameters=params, additional_env=env, output='screen',
+                                respawn=True, respawn_delay=1.0))
+        else:
+            node = Node(package=spec.package, executable=spec.executable, name=spec.name,
+                        arguments=list(spec.args), additional_env=env, output='screen',
+                        respawn=True, respawn_delay=1.0)
+            if spec.executable == 'sim_robot':
+                sim_node = node
+            else:
+                actions.append(node)
+    if with_rsp:
+        if not _installed('robot_state_publisher', 'robot_state_publisher'):
+            raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
+                               'installed (a full ROS install has it; without it the bridge '
+                               'publishes the transforms itself)')
+        actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
+                            namespace=namespace, output='screen', parameters=[
+                                {'robot_description': bridge_values['robot_description']}]))
+    if sim_node is None:
+        return actions
+    ready = _once_ready(actions)
+    return [sim_node, RegisterEventHandler(OnProcessIO(
+        target_action=sim_node, on_stdout=ready, on_stderr=ready))]
+
+
+def _once_ready(actions, marker=b'simulating '):
+    """Return an IO handler that starts ``actions`` once, when sim_robot says it serves.
+
+    As bringup waits for the sim-bus before starting the driver host: devices configured
+    against a simulator that is not listening yet would fail their configure.
+    """
+    state = {'done': False}
+
+    def handler(event):
+        if state['done'] or marker not in event.text:
+            return None
+        state['done'] = True
+        return actions
+
+    return handler
+
+
+def generate_launch_description():
+    """Return the launch description of the m4k stack."""
+    return LaunchDescription([
+        DeclareLaunchArgument('config', default_value='',
+                              description='user overlay YAML, as bringup --config'),
+        DeclareLaunchArgument('bridge_params', default_value='',
+                              description='extra ROS parameter file for m4k_bridge (last)'),
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='ROS namespace of the bridge topics'),
+        DeclareLaunchArgument('sim', default_value='auto',
+                              description='auto | true | false: start the simulated robot'),
+        DeclareLaunchArgument('robot_state_publisher', default_value='false',
+                              description='start robot_state_publisher (full ROS install) '
+                              'instead of the bridge publishing the static transforms'),
+        OpaqueFunction(function=_nodes),
+    ])
