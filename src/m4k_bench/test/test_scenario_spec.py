@@ -1,0 +1,61 @@
+"""Scenario files: validation naming the field, expectations in words, bounds from config/."""
+
+import os
+
+import pytest
+
+from m4k_bench.scenarios import bounds, spec
+from m4k_rt import config
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
+    __file__)))))
+GOOD = {'world': {'obstacles': []}, 'commands': [{'v': 0.25, 't': 4.0}, {'w': 0.5, 't': 2.0}],
+        'expect': {'distance': 'commanded'}, 'short': 0.5}
+
+
+def test_a_scenario_commands_and_short_version():
+    sc = spec.parse(dict(GOOD), 'x.yaml')
+    assert sc.name == 'x' and sc.distance and sc.stop is None
+    assert sc.commanded_distance() == pytest.approx(1.0)
+    assert sc.commanded_distance(short=True) == pytest.approx(0.5)
+    assert sc.expected() == 'commanded distance; no contact'
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'commands': []}, r'x\.yaml\.commands'),
+    ({'commands': [{'v': 'fast', 't': 1}]}, r'commands\[0\]\.v'),
+    ({'expect': {'stop': 'bumper'}}, r'expect\.stop'),
+    ({'expect': {}}, r'expect'),
+    ({'faults': [{'kill': 'rt_core', 'at': {'travelled': 1}}]}, r'faults\[0\]'),
+    ({'colour': 'red'}, r'unknown field'),
+    ({'config': {'world': {}}}, r'x\.yaml\.config'),
+])
+def test_bad_scenarios_name_the_field(change, message):
+    with pytest.raises(spec.ScenarioError, match=message):
+        spec.parse(dict(GOOD, **change), 'x.yaml')
+
+
+def test_a_bad_world_is_refused_when_loading(tmp_path):
+    path = tmp_path / 'w.yaml'
+    path.write_text('commands: [{v: 0.1, t: 1}]\nexpect: {distance: commanded}\n'
+                    'world: {obstacles: [{polygon: [[0, 0], [1, 0], [1, 1]], surface: fog}]}\n')
+    with pytest.raises(spec.ScenarioError, match=r'w\.yaml: world\.obstacles\[0\]\.surface'):
+        spec.load(str(path))
+
+
+def test_the_shipped_suite_loads():
+    scs = spec.load_dir(os.path.join(ROOT, 'config', 'scenarios'))
+    assert len(scs) >= 16 and len({s.name for s in scs}) == len(scs)
+
+
+def test_bounds_follow_config():
+    raw = config.load_layered(None, os.path.join(ROOT, 'config'))
+    b = bounds.bounds(raw, 0.25, 'sonar')
+    # v^2 / 2a with 0.37 m/s^2; stop: 2 x 30 ms sonar + 10 ms actuator + v/0.37 + 20 ms sample
+    assert b.distance_tol == pytest.approx(0.25 ** 2 / (2 * 0.37))
+    assert b.stop_s == pytest.approx(0.06 + 0.01 + 0.25 / 0.37 + 0.02)
+    assert b.trigger_clearance == pytest.approx(0.35)
+    slower = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
+                                                               sonar_timeout=1.0)))
+    assert (bounds.bounds(slower, 0.25, 'sonar_unplugged').stop_s
+            - bounds.bounds(raw, 0.25, 'sonar_unplugged').stop_s) == pytest.approx(0.8)
