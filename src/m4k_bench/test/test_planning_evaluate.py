@@ -67,3 +67,11 @@ def test_densify_keeps_segment_ends_and_spacing():
     assert np.diff(pts[:, 0]).max() <= 0.1 + 1e-12
     with pytest.raises(EvaluateError, match='spacing'):
         densify([(0, 0, 1, 0)], 0.0)
+
+
+def test_world_geometry_takes_scene_obstacles_at_rest():
+    from m4k_bench.planning.evaluate import WorldGeometry
+    geom = WorldGeometry.from_config({'obstacles': [
+        [[1.0, 0.0], [1.2, 0.0], [1.1, 0.2]],
+        {'polygon': [[2.0, 0.0], [2.2, 0.0], [2.1, 0.2]], 'surface': 'glass', 'height': 0.5}]})
+    assert geom.obstacles[1][0] == (2.0, 0.0) and len(geom.obstacles) == 2

@@ -79,6 +79,8 @@ class WorldGeometry:
         if not isinstance(raw_obs, list):
             raise EvaluateError(f'world.obstacles: expected a list of polygons, got {raw_obs!r}')
         for i, poly in enumerate(raw_obs):
+            if isinstance(poly, Mapping):    # {polygon, height, surface, path}: its outline
+                poly = poly.get('polygon')   # at rest (m4k_drivers.scene)
             if not isinstance(poly, (list, tuple)) or len(poly) < 3:
                 raise EvaluateError(f'world.obstacles[{i}]: expected >= 3 points, got {poly!r}')
             obstacles.append(tuple(_floats(p, 2, f'world.obstacles[{i}][{j}]')  # type: ignore
