@@ -33,11 +33,10 @@ Events (``world.events``) change the simulated hardware during a drive, executed
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 import math
 from typing import Any
-
-import numpy as np
 
 __all__ = ['EVENT_TARGETS', 'Event', 'Path', 'Start', 'SURFACES', 'Surface', 'TALL',
            'parse_events', 'parse_obstacle']
@@ -82,7 +81,15 @@ class Path:
 
     def offset(self, t_s: float) -> tuple[float, float]:
         """Return the offset ``t_s`` seconds after the start (held before and after)."""
-        return (float(np.interp(t_s, self.t, self.dx)), float(np.interp(t_s, self.t, self.dy)))
+        t = self.t
+        if t_s <= t[0]:
+            return self.dx[0], self.dy[0]
+        if t_s >= t[-1]:
+            return self.dx[-1], self.dy[-1]
+        k = bisect.bisect_right(t, t_s) - 1      # called every 1 ms step: no numpy here
+        f = (t_s - t[k]) / (t[k + 1] - t[k])
+        return (self.dx[k] + f * (self.dx[k + 1] - self.dx[k]),
+                self.dy[k] + f * (self.dy[k + 1] - self.dy[k]))
 
 
 @dataclass(frozen=True)

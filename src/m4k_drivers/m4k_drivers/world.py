@@ -254,7 +254,8 @@ class World:
         self._seg = self._seg0.copy()                             # where they are now
         self._seg_height = np.array(height, dtype=float)
         self._seg_kind = np.array(kind, dtype=np.int64)
-        self._polys = [np.array(p, dtype=float).reshape(-1, 2) for p in self.config.obstacles]
+        self._poly0 = [np.array(p, dtype=float).reshape(-1, 2) for p in self.config.obstacles]
+        self._polys = list(self._poly0)
         self._offsets = [(0.0, 0.0)] * len(self.config.obstacles)
         self._path_t0: dict[int, int] = {}     # obstacle index -> world ns its path started
         self.travelled = 0.0                   # m the robot truly covered (path length)
@@ -409,9 +410,11 @@ class World:
                     continue
                 t0 = self._path_t0[i] = self._t_ns
             dx, dy = path.offset((self._t_ns - t0) * 1e-9)
+            if (dx, dy) == self._offsets[i]:
+                continue                 # standing (before its first or after its last point)
             self._offsets[i] = (dx, dy)
             self._seg[rows] = self._seg0[rows] + (dx, dy, dx, dy)
-            self._polys[i] = np.asarray(self.config.obstacles[i], dtype=float) + (dx, dy)
+            self._polys[i] = self._poly0[i] + (dx, dy)
         if self._events:
             due = [e for e in self._events if e.at.reached(self.travelled, moving_s)]
             for e in due:

@@ -17,11 +17,14 @@
   laser_unplugged        laser_timeout + 1 lrf period + 1 actuator            the unplug
   bridge_killed          cmd_vel_timeout + 2 actuator                         the kill
   driver_host_killed     heartbeat_hold_s (the amplifiers lose enable), then  the kill
-                         the wheels coast: motor_tau * ln(v / REST_V)
+                         the wheels coast on friction: v / world.robot.
+                         coast_decel_mps2 (no braking: this replaces the
+                         v / max_deceleration below)
   =====================  ==================================================  ==================
 
-  plus the braking ``v / max_deceleration`` (the guard's stop bypasses the ramp, so this bounds
-  it from above) and one ground-truth sample period (the runner's resolution).
+  plus (but for the coasting driver host) the braking ``v / max_deceleration`` (the guard's stop
+  bypasses the ramp, so this bounds it from above) and one ground-truth sample period (the
+  runner's resolution).
 """
 
 from __future__ import annotations
@@ -77,9 +80,11 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     elif cause == 'bridge_killed':
         stop = p.cmd_vel_timeout + 2 * ta + brake
     elif cause == 'driver_host_killed':
+        from m4k_drivers.world import RobotParams
         motor = (raw.get('devices') or {}).get('motor') or {}
-        tau = float(((raw.get('world') or {}).get('robot') or {}).get('motor_tau_s', 0.08))
+        coast = float(((raw.get('world') or {}).get('robot') or {}).get(
+            'coast_decel_mps2', RobotParams.coast_decel_mps2))
         hold = float(motor.get('heartbeat_hold_s', 0.05)) if motor.get('heartbeat', True) \
             else math.inf
-        stop = hold + tau * math.log(max(v, REST_V) / REST_V) + SAMPLE_S
+        stop = hold + v / coast + SAMPLE_S
     return Bounds(tol, stop, trigger)

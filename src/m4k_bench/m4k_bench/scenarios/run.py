@@ -20,6 +20,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from typing import Any, Callable
 
@@ -184,24 +185,35 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
     return res
 
 
+def _commander(ros: _Ros, plan: list[tuple[float, float, float]], done: threading.Event,
+               stop: threading.Event) -> threading.Thread:
+    """Publish the plan's segments at 20 Hz on their own clock (never held up by sampling)."""
+    def run() -> None:
+        t_seg = nxt = time.monotonic()
+        for v, w, dur in plan:
+            while not stop.is_set() and time.monotonic() - t_seg < dur:
+                ros.send(v, w)
+                nxt += CMD_PERIOD_S
+                stop.wait(max(0.0, nxt - time.monotonic()))
+            t_seg += dur
+        done.set()
+        while not stop.is_set():          # zero until the runner has seen the robot at rest
+            ros.send(0.0, 0.0)
+            stop.wait(CMD_PERIOD_S)
+    th = threading.Thread(target=run, name='scenario-cmd_vel', daemon=True)
+    th.start()
+    return th
+
+
 def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: int, res: Result,
            children: Callable[[int], dict[str, int]]) -> None:
     plan = [(c.v, c.w, c.t) for c in cmds] + [(0.0, 0.0, SETTLE_S)]
     faults = list(sc.faults)
-    t_seg = time.monotonic()
-    nxt_cmd = nxt_sample = t_seg
-    seg = 0
-    while seg < len(plan):
-        now = time.monotonic()
-        v, w, dur = plan[seg]
-        if now - t_seg >= dur:
-            seg, t_seg = seg + 1, t_seg + dur
-            continue
-        if now >= nxt_cmd:
-            ros.send(v, w)
-            nxt_cmd += CMD_PERIOD_S
-        if now >= nxt_sample:
-            nxt_sample += SAMPLE_S
+    done, stop = threading.Event(), threading.Event()
+    th = _commander(ros, plan, done, stop)
+    try:
+        nxt = time.monotonic()
+        while not done.is_set():
             t = _truth(runtime_dir)
             if t is not None:
                 res.samples.append(t)
@@ -213,17 +225,20 @@ def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: in
                             os.kill(pid, signal.SIGKILL)
                             res.samples[-1] = dict(t, killed=f.kill, kill_ns=t_kill)
                             faults.remove(f)
-        ros.spin(max(0.0, min(nxt_cmd, nxt_sample) - time.monotonic()))
-    # at rest? keep sampling (zero commands) up to a few more seconds until it is
-    end = time.monotonic() + 5.0
-    while time.monotonic() < end:
-        ros.send(0.0, 0.0)
-        t = _truth(runtime_dir)
-        if t is not None:
-            res.samples.append(t)
-            if abs(t['v']) < REST_V and abs(t['w']) < 0.02:
-                break
-        ros.spin(SAMPLE_S)
+            nxt += SAMPLE_S
+            ros.spin(max(0.0, nxt - time.monotonic()))
+        # at rest? keep sampling (zero commands) up to a few more seconds until it is
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end:
+            t = _truth(runtime_dir)
+            if t is not None:
+                res.samples.append(t)
+                if abs(t['v']) < REST_V and abs(t['w']) < 0.02:
+                    break
+            ros.spin(SAMPLE_S)
+    finally:
+        stop.set()
+        th.join(5.0)
     for f in faults:
         res.failures.append(f'fault kill {f.kill} at {f.travelled} m never happened')
 
