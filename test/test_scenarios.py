@@ -36,3 +36,17 @@ def test_scenario(sc, tmp_path, m4k_runtime_dir):
                         f'contacts {res.contacts}, stop {res.stop_s} s / {res.stop_bound_s})\n'
                         f'{res.log_tail}')
     assert res.contacts == 0 and res.min_clearance > 0.0
+
+
+def test_the_judge_sees_a_contact_when_the_guard_is_off(tmp_path, m4k_runtime_dir):
+    """A negative control: with the guard disabled the robot drives into a wall 1 m ahead.
+
+    The same judge must fail it on ground truth (contacts, zero clearance) -- the suite's
+    passes are not a judge that cannot fail.
+    """
+    sc = spec.parse({'world': {'walls': {'rectangle': [-1.0, -2.0, 1.2, 2.0]}, 'obstacles': []},
+                     'commands': [{'v': 0.25, 't': 6.0}], 'expect': {'stop': 'sonar'},
+                     'config': {'control': {'guard': {'enabled': False}}}}, 'guard_off.yaml')
+    res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
+    assert res.contacts >= 1 and res.min_clearance == 0.0
+    assert not res.passed and any('contact' in f for f in res.failures)

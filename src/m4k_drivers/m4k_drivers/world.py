@@ -350,6 +350,8 @@ class World:
                 hit = self.collides(self._pose)
                 if hit and not self.in_contact:
                     self.collisions += 1
+                if hit:
+                    self.min_clearance = 0.0
                 self.in_contact = hit
                 if self._steps % self._clear_every == 0:
                     self._track_clearance()
@@ -381,6 +383,7 @@ class World:
             if not self.in_contact:
                 self.collisions += 1
             self.in_contact = True
+            self.min_clearance = 0.0      # touching: the step into the surface is not taken
             self._wheel_speed = [0.0, 0.0]
             self._v = self._w = 0.0
         else:

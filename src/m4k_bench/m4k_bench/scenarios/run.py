@@ -33,7 +33,7 @@ from m4k_rt import config
 __all__ = ['Result', 'run_scenario']
 
 STARTUP_TIMEOUT_S = 60.0
-SETTLE_S = 2.0            # after the last command: zero commands while the robot comes to rest
+SETTLE_S = 1.0            # after the last command: zero commands, then sampled until at rest
 CMD_PERIOD_S = 0.05
 
 
@@ -171,7 +171,7 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
         if ros.odom == 0 or ros.scan == 0:
             res.failures.append(f'the stack did not come up (odom {ros.odom}, scan {ros.scan})')
             return res
-        ros.spin(1.0)          # every sensor has reported: the guard is fresh
+        ros.spin(0.5)          # every sensor has reported: the guard is fresh
         progress(f'{sc.name}: stack up, driving {res.commanded:.2f} m commanded')
         _drive(sc, cmds, ros, runtime_dir, proc.pid, res, children)
     finally:
