@@ -133,7 +133,9 @@ def test_iio_backend_reads_raw_times_scale(tmp_path):
     dev = IioSonar(str(tmp_path))
     assert dev.measure() == pytest.approx((1.234, p.STATUS_OK))
     (tmp_path / 'in_distance_raw').write_text('5000\n')
-    assert dev.measure().status == p.STATUS_FAULT       # unmeasurable: invalid, not free
+    assert dev.measure().status == p.STATUS_NO_ECHO     # beyond 4.5 m: nothing in range
+    (tmp_path / 'in_distance_raw').write_text('10\n')
+    assert dev.measure().status == p.STATUS_FAULT       # 1 cm: shorter than any echo
     dev.close()
 
 

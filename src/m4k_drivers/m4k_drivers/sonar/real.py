@@ -228,8 +228,10 @@ class IioSonar:
             rng = int(text.strip()) * self.scale
         except ValueError as exc:
             raise DriverError(f'{self.raw_path}: not an integer: {text!r}') from exc
-        if not p.MIN_RANGE_M <= rng <= p.MAX_RANGE_M:
-            return p.SonarReading(rng, p.STATUS_FAULT)   # unmeasurable, never "free"
+        if rng < p.MIN_RANGE_M:
+            return p.SonarReading(rng, p.STATUS_FAULT)     # shorter than any echo: impossible
+        if rng > p.MAX_RANGE_M:
+            return p.SonarReading(rng, p.STATUS_NO_ECHO)   # the no-echo pulse, timed by the kernel
         return p.SonarReading(rng, p.STATUS_OK)
 
     def close(self) -> None:
