@@ -36,7 +36,7 @@ from typing import Any, Iterator
 import pytest
 
 __all__ = ['pytest_configure', 'pytest_runtest_setup', 'pytest_runtest_logreport',
-           'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
+           'pytest_collectreport', 'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
            'child_pids', 'socket_fds', 'examples', 'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
@@ -109,6 +109,18 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """Remember every skip for the skip policy."""
     if report.skipped and not hasattr(report, 'wasxfail'):
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(
+            report.longrepr)
+        _session_skips.append((report.nodeid, reason))
+
+
+def pytest_collectreport(report: pytest.CollectReport) -> None:
+    """Remember a collection-time skip (module-level ``pytest.skip``, ``importorskip``).
+
+    Such a skip never reaches :func:`pytest_runtest_logreport`: every test of the module
+    vanishes at collection, so without this the skip policy never saw it.
+    """
+    if report.skipped:
         reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(
             report.longrepr)
         _session_skips.append((report.nodeid, reason))
