@@ -11,7 +11,7 @@ import shutil
 import subprocess
 import sys
 
-from m4k_bench.benchlib import analysis
+from m4k_bench.benchlib import analysis, system
 
 SCALING_KEY = 'scaling_1khz_release_p99_over_cyclictest'
 
@@ -45,6 +45,10 @@ def check_verdicts_follow_the_measurements(summ):
 
 
 def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
+    # The references are not optional: without them the targets have no denominator. setup
+    # installs them as root (tools/setup.sh); a missing one fails here, naming the package.
+    for tool, package in system.TOOL_PACKAGES.items():
+        assert shutil.which(tool), f'{tool} missing: apt-get install {package} (tools/setup.sh)'
     results = tmp_path / 'results'
     publish = tmp_path / 'published'
     argv = [sys.executable, '-c', 'import sys; from m4k_bench.bench import main; '
@@ -86,12 +90,10 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     assert prof['actuator']['cycles'] > 0 and prof['actuator']['send_calls'] > 0
     bd = summ['loop_cost']['breakdown']
     assert bd['tasks']['actuator']['drain']['n'] == 1 and bd['all']['send']['n'] == 1
-    if shutil.which('stress-ng'):
-        assert rnd['m4k_stress']['samples'] > 0 and rnd['baseline_stress']['samples'] > 0
-    if shutil.which('cyclictest'):
-        assert rnd['ct_idle']['latency_us']['n'] > 0
-        assert rnd['m4k_idle']['cyclictest']['n'] > 0        # ran concurrently
-        assert rnd['baseline_idle']['cyclictest']['n'] > 0
+    assert rnd['m4k_stress']['samples'] > 0 and rnd['baseline_stress']['samples'] > 0
+    assert rnd['ct_idle']['latency_us']['n'] > 0
+    assert rnd['m4k_idle']['cyclictest']['n'] > 0        # ran concurrently
+    assert rnd['baseline_idle']['cyclictest']['n'] > 0
     assert rnd['rtt']['xddp']['n'] == 200 and rnd['rtt']['raw']['n'] == 200
     assert [r['rate_hz'] for r in summ['scaling']] == [500, 500]
     assert summ['cmd_latency']['trials'] + summ['cmd_latency']['lost'] == 3, \

@@ -67,3 +67,17 @@ def test_an_importorskip_at_collection_fails_the_runner(tmp_path):
 def test_a_module_that_runs_passes_the_runner(tmp_path):
     r = _run_ci(tmp_path, 'def test_x():\n    pass\n')
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_a_missing_ros_package_skip_is_accepted_only_where_the_package_is_missing(monkeypatch):
+    skip = [('t.py::d', 'Skipped: ' + testing._NEEDS_PKG + 'robot_state_publisher')]
+    monkeypatch.setattr(testing, 'ros_package_available', lambda name: False)
+    assert testing.forbidden_skips(skip, 0) == []
+    monkeypatch.setattr(testing, 'ros_package_available',
+                        lambda name: name == 'robot_state_publisher')
+    assert testing.forbidden_skips(skip, 0) == skip
+
+
+def test_the_ament_index_answers_for_a_package_it_has_and_one_it_lacks():
+    assert testing.ros_package_available('m4k_rt')
+    assert not testing.ros_package_available('m4k_no_such_package')
