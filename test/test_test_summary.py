@@ -30,14 +30,16 @@ def test_skipped_tests_are_reported_apart_from_passed(tmp_path):
     _junit(tmp_path, passed=7, failed=0, skipped=5)
     r = _summary(tmp_path)
     assert r.returncode == 0, r.stderr
-    assert r.stdout.splitlines()[-1] == 'm4k: 7 passed, 5 skipped, 0 failed, 0 errors (12 collected)'
+    assert r.stdout.splitlines()[-1] == (
+        'm4k: 7 passed, 5 skipped, 0 failed, 0 errors (12 collected)')
 
 
 def test_a_failure_fails_the_summary(tmp_path):
     _junit(tmp_path, passed=3, failed=1, skipped=2)
     r = _summary(tmp_path)
     assert r.returncode != 0
-    assert r.stdout.splitlines()[-1] == 'm4k: 3 passed, 2 skipped, 1 failed, 0 errors (6 collected)'
+    assert r.stdout.splitlines()[-1] == (
+        'm4k: 3 passed, 2 skipped, 1 failed, 0 errors (6 collected)')
 
 
 def test_only_skips_is_no_pass(tmp_path):
