@@ -40,7 +40,8 @@ import pytest
 
 __all__ = ['pytest_configure', 'pytest_runtest_setup', 'pytest_runtest_logreport',
            'pytest_collectreport', 'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir',
-           'procs', 'ProcessGroup', 'child_pids', 'socket_fds', 'examples', 'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
+           'procs', 'ProcessGroup', 'child_pids', 'socket_fds', 'examples',
+           'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
