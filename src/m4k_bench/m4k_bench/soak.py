@@ -11,7 +11,8 @@ Verdicts (a benchmark's, printed and written, not asserted): no crash (no child 
 bringup ran to the end), no leak (each process's RSS slope after ``--warmup`` within a
 limit scaled to the window, :func:`leak_verdict`), and for every task, overruns + deadline
 misses <= cyclictest's samples later than one period in the same run (:func:`late_verdict`):
-a wake-up later than a period is an overrun in m4k (never a deadline miss), so both count against the machine's late samples.
+a wake-up later than a period is an overrun in m4k (never a deadline miss), so both count
+against the machine's late samples.
 
 Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log.
 
