@@ -37,7 +37,7 @@ def check_verdicts_follow_the_measurements(summ):
         if t.key == SCALING_KEY:
             for r in scaling:
                 if r.get('rate_hz') == 1000 and r.get('set') == 'alone':
-                    r['ratio_p99'] = other
+                    r['ratio_p99_stricter'] = other
         else:
             ratios[t.key]['spread'] = dict(sp, median=other)
         again = {r['key']: r for r in analysis.evaluate_targets(ratios, scaling)}[t.key]
@@ -82,6 +82,13 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
         assert set(rnd[cond]['hardening']) >= {'ok', 'policy', 'mem_locked', 'degraded'}
         assert rnd[cond]['cpu_per_cycle_us'] is not None
     assert rnd['floor']['cpu_per_cycle_us'] > 0
+    # the paired run: rt_core and the floor in one window, beside the stack and cyclictest
+    paired = rnd['m4k_floor_paired']
+    assert paired['floor']['cpu_per_cycle_us'] > 0 and paired['cpu_per_cycle_us'] > 0
+    assert paired['cyclictest']['n'] > 0
+    assert summ['ratios']['cpu_per_cycle_over_floor']['values'][0] is not None
+    assert {t['key']: t for t in summ['targets']}['release_p99_stricter_idle']['of'][
+        'alone'] is not None
     # the profiled run: rt_core's cycle breakdown of every task, aggregated and reported
     prof = rnd['m4k_profiled']['cycle_profile']['tasks']
     assert {'actuator', 'imu', 'led', 'sonar', 'lrf', 'monitor'} <= set(prof)
