@@ -58,7 +58,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=240,
                           stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert '[1/15] set-up' in proc.stderr            # plain progress lines (not a TTY)
+    assert '[1/16] set-up' in proc.stderr            # plain progress lines (not a TTY)
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
