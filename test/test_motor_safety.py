@@ -16,6 +16,7 @@ the command source on the ``cmd`` port (VELOCITY_CMD 0.25 m/s at 20 Hz, as the b
 * a driver-host restart keeps the world: the pose goes on from where it was.
 """
 
+import math
 import os
 import signal
 import threading
@@ -113,6 +114,11 @@ def _coast_bound_s(cfg, v0):
     return hold + v0 / decel
 
 
+def _braked_bound_s(cfg, v0):
+    """Return the motor lag's time from ``v0`` to STOPPED at 0 V, enable on (the watchdog)."""
+    return cfg.world.robot.motor_tau_s * math.log(v0 / STOPPED)
+
+
 def test_kill_driver_host_heartbeat_stops_the_robot(stack, procs):
     s = stack(heartbeat=True)
     before = _drive(s)
@@ -151,8 +157,8 @@ def test_kill_rt_core_watchdog_zeroes_the_dacs(stack, procs):
     assert before['motor_enabled'] and not before['heartbeat']
     motor = s['cfg'].devices['motor']
     watchdog_s = motor['period_s'] * motor['watchdog_periods']      # config/devices.yaml
-    bound_s = watchdog_s + _coast_bound_s(s['cfg'], 1.2 * before['v']) - motor[
-        'heartbeat_hold_s']                                          # no hold: no heartbeat
+    # 0 V on the armature with the enable on: the motor lag brakes it (not a coast)
+    bound_s = watchdog_s + _braked_bound_s(s['cfg'], 1.2 * before['v'])
     t_kill = time.monotonic_ns()
     os.kill(s['core'].pid, signal.SIGKILL)
     after = _wait_sim_time(s['rd'], t_kill + int(bound_s * 1e9))
