@@ -59,3 +59,10 @@ def test_bounds_follow_config():
                                                                sonar_timeout=1.0)))
     assert (bounds.bounds(slower, 0.25, 'sonar_unplugged').stop_s
             - bounds.bounds(raw, 0.25, 'sonar_unplugged').stop_s) == pytest.approx(0.8)
+
+
+def test_heading_hold_segments():
+    sc = spec.parse(dict(GOOD, commands=[{'v': 0.5, 't': 2.0, 'heading': 'hold'}]), 'x.yaml')
+    assert sc.commands[0].hold and sc.scaled(True)[0].hold
+    with pytest.raises(spec.ScenarioError, match=r'commands\[0\]'):
+        spec.parse(dict(GOOD, commands=[{'v': 0.5, 'w': 0.1, 't': 2, 'heading': 'hold'}]), 'x')

@@ -3,9 +3,10 @@
 ``make scenarios`` / ``scenarios [FILE_OR_DIR ...] [--short] [--only NAME ...] [--results DIR]``
 runs each scenario (:mod:`.spec`: world overlay, scripted commander, faults, expected outcome)
 on a fresh stack (:mod:`.run`), prints a progress line per scenario, and writes
-``<results>/README.md`` (the table) and ``<results>/<name>.png`` (world, obstacles' paths, the
-robot's true path). Default: every ``*.yaml`` of ``<config dir>/scenarios``. Exit 0 when every
-scenario passed, 1 otherwise, 2 on a bad scenario file.
+``<results>/README.md`` (the table), ``<results>/<name>.png`` (world, obstacles' paths, the
+robot's true path) and ``<results>/<name>.csv`` (the ground-truth samples, every 20 ms).
+Default: every ``*.yaml`` of ``<config dir>/scenarios``. Exit 0 when every scenario passed, 1
+otherwise, 2 on a bad scenario file.
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                progress=lambda m: print('    ' + m, file=sys.stderr, flush=True))
             results.append(res)
             report.plot(sc, res, os.path.join(args.results, f'{sc.name}.png'), sc.world)
+            report.write_csv(res, os.path.join(args.results, f'{sc.name}.csv'))
             verdict = 'PASS' if res.passed else 'FAIL (' + '; '.join(res.failures) + ')'
             print(f'    {verdict}: {res.travelled:.2f} m of {res.commanded:.2f} m, min clearance '
                   f'{res.min_clearance:.3f} m, contacts {res.contacts}, stop '

@@ -9,7 +9,7 @@ from typing import Any, Sequence
 from m4k_bench.scenarios.run import Result
 from m4k_bench.scenarios.spec import Scenario
 
-__all__ = ['plot', 'table']
+__all__ = ['plot', 'table', 'write_csv']
 
 _COLOURS = {'normal': '0.25', 'soft': 'tab:orange', 'glass': 'tab:cyan', 'black': 'black'}
 
@@ -30,6 +30,20 @@ def table(results: Sequence[Result], header: str = '') -> str:
         lines.append(f'| {r.name} | {r.expected} | {r.commanded:.2f} | {_f(r.travelled)} | '
                      f'{_f(r.min_clearance)} | {r.contacts} | {stop} | {verdict} |')
     return '\n'.join(lines) + '\n'
+
+
+CSV_KEYS = ('t', 'x', 'y', 'theta', 'v', 'w', 'wheel_speed_left', 'wheel_speed_right',
+            'travelled', 'clearance', 'front_clearance', 'min_clearance', 'contacts')
+
+
+def write_csv(res: Result, path: str) -> None:
+    """Write the ground-truth samples of one run (one row per 20 ms sample)."""
+    import csv
+    with open(path, 'w', encoding='utf-8', newline='') as f:
+        out = csv.writer(f)
+        out.writerow(CSV_KEYS)
+        for s in res.samples:
+            out.writerow([s.get(k, '') for k in CSV_KEYS])
 
 
 def _walls(world: dict[str, Any]) -> list[tuple[float, ...]]:

@@ -96,6 +96,7 @@ class _Ros:
         self.twist = Twist()
         self.pub = self.node.create_publisher(Twist, 'cmd_vel', 10)
         self.odom = self.scan = 0
+        self.yaw: float | None = None       # the robot's own heading (odometry), for ``hold``
         self.node.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
         self.node.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data)
         self.ex = SingleThreadedExecutor(context=self.ctx)
@@ -103,6 +104,8 @@ class _Ros:
 
     def _on_odom(self, msg: Any) -> None:
         self.odom += 1
+        q = msg.pose.pose.orientation
+        self.yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
     def _on_scan(self, msg: Any) -> None:
         self.scan += 1
@@ -185,13 +188,26 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
     return res
 
 
-def _commander(ros: _Ros, plan: list[tuple[float, float, float]], done: threading.Event,
+HOLD_GAIN = 1.0           # rad/s per rad of heading error (heading: hold)
+HOLD_MAX_W = 0.3          # rad/s
+
+
+def _commander(ros: _Ros, plan: list[tuple[float, float, float, bool]], done: threading.Event,
                stop: threading.Event) -> threading.Thread:
-    """Publish the plan's segments at 20 Hz on their own clock (never held up by sampling)."""
+    """Publish the plan's segments at 20 Hz on their own clock (never held up by sampling).
+
+    A ``hold`` segment steers on the odometry heading (the robot's own estimate, as a
+    navigation stack would; the verdict stays on ground truth): w = -gain * error.
+    """
     def run() -> None:
         t_seg = nxt = time.monotonic()
-        for v, w, dur in plan:
+        for v, w, dur, hold in plan:
+            target = ros.yaw
             while not stop.is_set() and time.monotonic() - t_seg < dur:
+                yaw = ros.yaw
+                if hold and target is not None and yaw is not None:
+                    err = math.remainder(yaw - target, 2.0 * math.pi)
+                    w = max(-HOLD_MAX_W, min(HOLD_MAX_W, -HOLD_GAIN * err))
                 ros.send(v, w)
                 nxt += CMD_PERIOD_S
                 stop.wait(max(0.0, nxt - time.monotonic()))
@@ -207,7 +223,7 @@ def _commander(ros: _Ros, plan: list[tuple[float, float, float]], done: threadin
 
 def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: int, res: Result,
            children: Callable[[int], dict[str, int]]) -> None:
-    plan = [(c.v, c.w, c.t) for c in cmds] + [(0.0, 0.0, SETTLE_S)]
+    plan = [(c.v, c.w, c.t, c.hold) for c in cmds] + [(0.0, 0.0, SETTLE_S, False)]
     faults = list(sc.faults)
     done, stop = threading.Event(), threading.Event()
     th = _commander(ros, plan, done, stop)

@@ -6,7 +6,9 @@ A scenario is one YAML file (``config/scenarios/*.yaml`` ships the suite; write 
     description: 1.2 m x 15 m corridor driven end to end
     world: {walls: [...], obstacles: [...], events: [...]}   # merged over config/ world:
     commands:                           # cmd_vel segments, published at 20 Hz, then zero
-      - {v: 0.25, w: 0.0, t: 12.0}      # m/s, rad/s, s
+      - {v: 0.25, w: 0.0, t: 12.0}      # m/s, rad/s, s: open loop
+      - {v: 0.5, t: 27.0, heading: hold}  # steer on odometry to keep the segment's first
+                                        # heading, as a navigation stack would (w = -1.0 * err)
     faults:                             # processes the runner kills -9 (bringup restarts them)
       - {kill: driver_host, at: {travelled: 1.0}}   # driver_host | bridge
     expect:                             # written before the run
@@ -45,11 +47,12 @@ class ScenarioError(ValueError):
 
 @dataclass(frozen=True)
 class Command:
-    """One cmd_vel segment."""
+    """One cmd_vel segment; ``hold``: steer to keep the odometry heading of its start."""
 
     v: float
     w: float
     t: float
+    hold: bool = False
 
 
 @dataclass(frozen=True)
@@ -79,7 +82,7 @@ class Scenario:
     def scaled(self, short: bool) -> tuple[Command, ...]:
         """Return the commands, durations scaled for the short (test) version."""
         k = self.short if short else 1.0
-        return tuple(Command(c.v, c.w, c.t * k) for c in self.commands)
+        return tuple(Command(c.v, c.w, c.t * k, c.hold) for c in self.commands)
 
     def commanded_distance(self, short: bool = False) -> float:
         """Return the path length the commands ask for, m."""
@@ -119,11 +122,14 @@ def parse(doc: Any, where: str) -> Scenario:
         raise ScenarioError(f'{where}.commands: expected a list of {{v, w, t}}, got {cmds_raw!r}')
     cmds = []
     for i, c in enumerate(cmds_raw):
-        if not isinstance(c, dict) or set(c) - {'v', 'w', 't'} or 't' not in c:
-            raise ScenarioError(f'{where}.commands[{i}]: expected {{v, w, t}}, got {c!r}')
+        if not isinstance(c, dict) or set(c) - {'v', 'w', 't', 'heading'} or 't' not in c \
+                or c.get('heading', 'hold') != 'hold' or ('heading' in c and 'w' in c):
+            raise ScenarioError(f'{where}.commands[{i}]: expected {{v, w, t}} or {{v, t, '
+                                f'heading: hold}}, got {c!r}')
         cmds.append(Command(_num(c.get('v', 0.0), f'{where}.commands[{i}].v'),
                             _num(c.get('w', 0.0), f'{where}.commands[{i}].w'),
-                            _num(c['t'], f'{where}.commands[{i}].t', 0.0)))
+                            _num(c['t'], f'{where}.commands[{i}].t', 0.0),
+                            c.get('heading') == 'hold'))
     faults = []
     for i, f in enumerate(doc.get('faults') or []):
         if not isinstance(f, dict) or set(f) != {'kill', 'at'} or f['kill'] not in KILLABLE \
