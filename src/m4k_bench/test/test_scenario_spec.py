@@ -51,9 +51,9 @@ def test_the_shipped_suite_loads():
 def test_bounds_follow_config():
     raw = config.load_layered(None, os.path.join(ROOT, 'config'))
     b = bounds.bounds(raw, 0.25, 'sonar')
-    # v^2 / 2a with 0.37 m/s^2; stop: 2 x 30 ms sonar + 10 ms actuator + v/0.37 + 20 ms sample
+    # v^2 / 2a with 0.37 m/s^2; stop: 2 x 30 ms sonar + 10 ms actuator + v/0.37
     assert b.distance_tol == pytest.approx(0.25 ** 2 / (2 * 0.37))
-    assert b.stop_s == pytest.approx(0.06 + 0.01 + 0.25 / 0.37 + 0.02)
+    assert b.stop_s == pytest.approx(0.06 + 0.01 + 0.25 / 0.37)
     assert b.trigger_clearance == pytest.approx(0.35)
     slower = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
                                                                sonar_timeout=1.0)))

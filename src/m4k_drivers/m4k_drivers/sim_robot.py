@@ -241,9 +241,11 @@ class SimRobot:
             'motor_volts': [self.world.motor_voltage(0), self.world.motor_voltage(1)],
             'collisions': st.collisions, 'contacts': st.collisions,
             'in_contact': st.in_contact, 'led': self.leds.shown() if self.leds else None,
-            'travelled': self.world.travelled, 'min_clearance': self.world.min_clearance,
-            'clearance': self.world.clearance(st.pose),
-            'front_clearance': self.world.front_clearance(st.pose),
+            # clearances in m; null when nothing is there at all (JSON has no infinity)
+            'rest_since_ns': self.world.rest_since_ns,
+            'travelled': self.world.travelled, 'min_clearance': _finite(self.world.min_clearance),
+            'clearance': _finite(self.world.clearance(st.pose)),
+            'front_clearance': _finite(self.world.front_clearance(st.pose)),
             'obstacle_offsets': self.world.obstacle_offsets(), 'events': list(self.events),
         }
 
@@ -299,6 +301,10 @@ class SimRobot:
         if self.leds is not None:
             self.leds.close()
         self.write_report()
+
+
+def _finite(v: float) -> float | None:
+    return v if math.isfinite(v) else None
 
 
 def _sensor_heights(raw: dict[str, Any]) -> dict[str, float]:

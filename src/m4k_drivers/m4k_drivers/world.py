@@ -42,6 +42,7 @@ __all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'World', 'World
            'WorldConfigError']
 
 LEFT, RIGHT = 0, 1
+REST_V = 0.01        # m/s: below this the robot is at rest (truth's rest_since_ns)
 
 
 class WorldConfigError(ValueError):
@@ -267,6 +268,7 @@ class World:
         self._steps = 0
         self._step_ns = round(self.config.step_s * 1e9)
         self._t_ns = clock() if t0_ns is None else t0_ns
+        self.rest_since_ns: int | None = self._t_ns   # since when |v| < REST_V (None: moving)
         self._pose = self.config.start
         self._wheel_speed = [0.0, 0.0]
         self._wheel_angle = [0.0, 0.0]
@@ -346,6 +348,8 @@ class World:
         volts = self._volts if enabled else (0.0, 0.0)
         if old[0] == 0.0 and old[1] == 0.0 and volts[0] == 0.0 and volts[1] == 0.0:
             self._accel = 0.0
+            if self.rest_since_ns is None:
+                self.rest_since_ns = self._t_ns
             if self._moving:       # a moving obstacle may walk into the robot at rest
                 hit = self.collides(self._pose)
                 if hit and not self.in_contact:
@@ -397,6 +401,10 @@ class World:
             self._wheel_angle[1] += mean_r * dt
             self._v, self._w = v, w
         self._accel = (self._v - v_old) / dt
+        if abs(self._v) >= REST_V:
+            self.rest_since_ns = None
+        elif self.rest_since_ns is None:
+            self.rest_since_ns = self._t_ns + self._step_ns    # at rest from the step's end
         if self._steps % self._clear_every == 0:
             self._track_clearance()
 

@@ -162,3 +162,23 @@ def test_unplug_events_make_the_devices_do_what_unplugged_hardware_does(m4k_runt
 def test_no_echo_pulse_of_the_sim_is_nothing_in_range():
     from m4k_drivers.sonar.sim import NO_ECHO_PULSE_S
     assert p.pulse_to_range(NO_ECHO_PULSE_S).status == p.STATUS_NO_ECHO
+
+
+def test_the_world_stamps_when_the_robot_came_to_rest():
+    clock = Clock()
+    w = World(WorldConfig.from_dict({'walls': HALL, 'obstacles': []}), clock=clock, t0_ns=0)
+    assert w.rest_since_ns == 0
+    w.set_motor_voltage(LEFT, 6.0)
+    w.set_motor_voltage(RIGHT, 6.0)
+    clock.t = 1_000_000_000
+    w.advance_to(clock.t)
+    assert w.rest_since_ns is None
+    w.set_motor_voltage(LEFT, 0.0)
+    w.set_motor_voltage(RIGHT, 0.0)
+    clock.t = 3_000_000_000
+    w.advance_to(clock.t)
+    t_rest = w.rest_since_ns
+    assert t_rest is not None and 1_000_000_000 < t_rest < 3_000_000_000
+    clock.t = 4_000_000_000
+    w.advance_to(clock.t)
+    assert w.rest_since_ns == t_rest        # still at rest since then

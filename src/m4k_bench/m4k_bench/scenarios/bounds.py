@@ -3,7 +3,7 @@
 * distance: the true path within ``v^2 / (2 a)`` of the commanded distance -- what the speed
   limiter's ramps may take or give (``control.linear.max_acceleration`` / ``max_deceleration``);
 * stop time, from the moment the robot must react (the *trigger*) to the first ground-truth
-  sample at rest (< ``REST_V``), for each cause:
+  instant at rest (< ``REST_V``, the simulator's ``rest_since_ns``), for each cause:
 
   =====================  ==================================================  ==================
   cause                  latency before the guard / watchdog acts             trigger
@@ -23,8 +23,8 @@
   =====================  ==================================================  ==================
 
   plus (but for the coasting driver host) the braking ``v / max_deceleration`` (the guard's stop
-  bypasses the ramp, so this bounds it from above) and one ground-truth sample period (the
-  runner's resolution).
+  bypasses the ramp, so this bounds it from above). The rest instant is the simulator's own
+  (``rest_since_ns``, 1 ms steps), not the runner's sampling.
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ import math
 from typing import Any, Mapping
 
 from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
+from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
 __all__ = ['Bounds', 'REST_V', 'SAMPLE_S', 'bounds']
 
-REST_V = 0.01        # m/s: at rest on ground truth
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
 URG_SCAN_S = 0.1     # URG-04LX: 600 rpm (PP SCAN)
 
@@ -63,7 +63,7 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     decel = p.linear.max_deceleration or accel
     tol = v * v / (2.0 * min(accel, decel))
     ta = _period(raw, 'actuator')
-    brake = v / decel + SAMPLE_S
+    brake = v / decel
     g = p.guard
     trigger = None
     stop: float | None = None
@@ -86,5 +86,5 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
             'coast_decel_mps2', RobotParams.coast_decel_mps2))
         hold = float(motor.get('heartbeat_hold_s', 0.05)) if motor.get('heartbeat', True) \
             else math.inf
-        stop = hold + v / coast + SAMPLE_S
+        stop = hold + v / coast
     return Bounds(tol, stop, trigger)

@@ -266,7 +266,7 @@ def _judge(sc: Scenario, res: Result, b: Any) -> None:
         return
     last = s[-1]
     res.travelled = float(last['travelled'])
-    res.min_clearance = min(float(x['min_clearance']) for x in s)
+    res.min_clearance = min(_m(x['min_clearance']) for x in s)
     res.contacts = int(last['contacts'])
     if res.contacts:
         res.failures.append(f'{res.contacts} contact(s)')
@@ -283,19 +283,27 @@ def _judge(sc: Scenario, res: Result, b: Any) -> None:
         if t0 is None:
             res.failures.append(f'stop ({sc.stop}): its trigger never happened')
             return
-        rest = next((x for x in s if x['t_ns'] >= t0 and abs(x['v']) < REST_V), None)
+        # The simulator stamps when the robot came to rest (1 ms steps): the first sample
+        # after the trigger that reports rest says since when, whatever the sampling jitter.
+        rest = next((x for x in s if x['t_ns'] >= t0 and x.get('rest_since_ns') is not None),
+                    None)
         if rest is None:
             res.failures.append(f'stop ({sc.stop}): never at rest after the trigger')
             return
-        res.stop_s = (rest['t_ns'] - t0) / 1e9
+        res.stop_s = max(int(rest['rest_since_ns']) - t0, 0) / 1e9
         if b.stop_s is not None and res.stop_s > b.stop_s:
             res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
+
+
+def _m(v: float | None) -> float:
+    """Return a truth clearance in m (null: nothing there, inf)."""
+    return math.inf if v is None else float(v)
 
 
 def _trigger_ns(sc: Scenario, s: list[dict[str, Any]], b: Any) -> int | None:
     """Return when the robot had to start stopping (ground-truth clock)."""
     if sc.stop in ('sonar', 'laser'):
-        hit = next((x for x in s if x['front_clearance'] < b.trigger_clearance), None)
+        hit = next((x for x in s if _m(x['front_clearance']) < b.trigger_clearance), None)
         return None if hit is None else int(hit['t_ns'])
     if sc.stop in ('sonar_unplugged', 'laser_unplugged'):
         want = 'sonar' if sc.stop == 'sonar_unplugged' else 'lrf'
