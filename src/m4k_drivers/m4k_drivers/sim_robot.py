@@ -298,7 +298,8 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
     try:
         raw = load_raw_config(args.config, args.overlay)
         cfg = dconfig.validate({'devices': raw.get('devices') or {},
-                                'world': raw.get('world') or {}})
+                                'world': raw.get('world') or {}},
+                               control=raw.get('control') or {})
         runtime_dir = xddp.ensure_runtime_dir(
             args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir'))
     except (dconfig.ConfigError, ValueError) as exc:
