@@ -15,7 +15,8 @@ section the driver host reads (one configuration); the robot itself is ``world.r
 robot *as built*, whose unset fields take the ``control:`` values (wheel radius, track, full
 scale), so a scenario can build a robot unlike its configuration (what ``calibrate`` finds).
 Because the world lives here, killing or restarting the driver host leaves the robot as the
-real one would be left -- DACs latched -- and never resets the pose.  Ground truth: ``sim_truth`` asks over the socket and prints JSON;
+real one would be left -- DACs latched -- and never resets the pose.  Ground truth:
+``sim_truth`` asks over the socket and prints JSON;
 ``--world-report FILE`` (default ``$M4K_WORLD_REPORT``, else ``<runtime_dir>/world.json``)
 is rewritten 10 times a second and at exit.  SIGINT/SIGTERM stop it (exit 0); exit 2 is a
 configuration error or another sim_robot on the runtime directory.
