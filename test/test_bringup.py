@@ -13,11 +13,11 @@ import pytest
 from wsenv import ROOT, stack_env
 import yaml
 
-from m4k_rt.bridge import params as bridge_params
+from m4k_bridge import params as bridge_params
+from m4k_bringup import bringup
 from m4k_rt.testing import child_pids
-from m4k_rt.tools import bringup
 
-LAUNCH = os.path.join(ROOT, 'src', 'm4k_rt', 'launch', 'm4k.launch.py')
+LAUNCH = os.path.join(ROOT, 'src', 'm4k_bringup', 'launch', 'm4k.launch.py')
 BASE_OVERLAY = {'runtime': {'mlockall': False, 'cpu_dma_latency': False,
                             'start_delay_ms': 10}}
 
@@ -34,7 +34,7 @@ def start_bringup(procs, tmp_path, runtime_dir, overlay, tag='bringup', extra=()
     out = open(tmp_path / (tag + '.out'), 'w')
     err = open(tmp_path / (tag + '.err'), 'w')
     try:
-        return procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+        return procs.start(['python', '-m', 'm4k_bringup.bringup', '--python-m', '--config',
                             overlay, '--status-interval', '1', *extra],
                            env=stack_env(runtime_dir), stdout=out, stderr=err)
     finally:
@@ -185,7 +185,7 @@ def test_bridge_with_a_bad_parameter_file_exits_2_naming_the_field(procs, tmp_pa
                                                                      m4k_runtime_dir):
     bad = tmp_path / 'bad.yaml'
     bad.write_text('m4k_bridge:\n  ros__parameters:\n    cmd_vel_timeout: -4.0\n')
-    p = procs.start(['python', '-m', 'm4k_rt.bridge.node', '--ros-args', '--params-file',
+    p = procs.start(['python', '-m', 'm4k_bridge.node', '--ros-args', '--params-file',
                      str(bad)], env=stack_env(m4k_runtime_dir))
     _, err = p.communicate(timeout=30)
     assert p.returncode == 2, err
@@ -195,7 +195,7 @@ def test_bridge_with_a_bad_parameter_file_exits_2_naming_the_field(procs, tmp_pa
 def test_bridge_with_a_misspelt_parameter_exits_2(procs, tmp_path, m4k_runtime_dir):
     bad = tmp_path / 'typo.yaml'
     bad.write_text('m4k_bridge:\n  ros__parameters:\n    max_linear_velocty: 1.0\n')
-    p = procs.start(['python', '-m', 'm4k_rt.bridge.node', '--ros-args', '--params-file',
+    p = procs.start(['python', '-m', 'm4k_bridge.node', '--ros-args', '--params-file',
                      str(bad)], env=stack_env(m4k_runtime_dir))
     _, err = p.communicate(timeout=30)
     assert p.returncode == 2 and 'max_linear_velocty' in err and 'unknown parameter' in err
@@ -229,7 +229,7 @@ def _remote_parameters(names, timeout=30.0):
 @pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
 def test_bridge_started_by_hand_takes_the_derived_values_from_the_layered_configuration(
         procs, tmp_path, m4k_runtime_dir):
-    # ros2 run m4k_rt bridge, no parameters: the command timeout, limits and frames still come
+    # ros2 run m4k_bridge bridge, no parameters: the command timeout, limits and frames still come
     # from the configuration (here a config directory whose control and robot sections differ).
     import shutil
     conf = tmp_path / 'config'
@@ -242,7 +242,7 @@ def test_bridge_started_by_hand_takes_the_derived_values_from_the_layered_config
     robot['robot']['sensors']['laser']['frame'] = 'urg_link'
     (conf / 'robot.yaml').write_text(yaml.safe_dump(robot))
     env = dict(stack_env(m4k_runtime_dir), M4K_CONFIG_DIR=str(conf))
-    p = procs.start(['python', '-m', 'm4k_rt.bridge.node'], env=env)
+    p = procs.start(['python', '-m', 'm4k_bridge.node'], env=env)
     names = ['cmd_vel_timeout', 'max_angular_velocity', 'max_linear_velocity', 'laser_frame',
              'ports.cmd']
     got = _remote_parameters(names)

@@ -5,6 +5,7 @@ import os
 from wsenv import ROOT
 import yaml
 
+from m4k_bringup.configdoc import all_sections
 from m4k_rt import schema
 
 DOC = os.path.join(ROOT, 'docs', 'configuration.md')
@@ -13,14 +14,14 @@ DOC = os.path.join(ROOT, 'docs', 'configuration.md')
 def test_committed_configuration_doc_is_the_generated_one():
     with open(DOC, encoding='utf-8') as f:
         committed = f.read()
-    generated = schema.markdown(schema.all_sections())
+    generated = schema.markdown(all_sections())
     assert committed == generated, (
         'docs/configuration.md is stale: regenerate it with '
-        '`python -m m4k_rt.schema --markdown > docs/configuration.md`')
+        '`config_doc --markdown > docs/configuration.md`')
 
 
 def test_every_field_is_documented_with_a_description():
-    sections = schema.all_sections()
+    sections = all_sections()
     titles = {s.title.split(' ')[0] for s in sections}
     assert {'runtime', 'tasks.<name>', 'ports', 'control', 'robot', 'm4k_bridge',
             'devices.motor,', 'devices.lrf,'} <= titles

@@ -75,7 +75,7 @@ def test_demo_reaches_the_goal_around_the_obstacle_without_contact(procs, tmp_pa
     report = (run / 'report.md').read_text()
     assert 'PASS' in report and 'Fig. 9' in report
 
-    # The run is also recorded as MCAP (m4k_rt.bag.record): the planner's commands and odom.
+    # The run is also recorded as MCAP (m4k_bridge.bag.record): the planner's commands and odom.
     with open(run / 'bag' / 'bag_0.mcap', 'rb') as f:
         summary = make_reader(f).get_summary()
     counts = {ch.topic: summary.statistics.channel_message_counts.get(cid, 0)

@@ -126,10 +126,10 @@ def test_e_stop_stops_within_its_bound_ignores_commands_and_needs_a_fresh_one(
 
     # the latch lives in the RT actuator: the bridge dies, bringup starts a new one (which was
     # never asked to stop), commands flow through it -- the robot stays stopped
-    bridge = [pid for pid in child_pids(proc.pid) if 'm4k_rt.bridge.node' in cmdline(pid)]
+    bridge = [pid for pid in child_pids(proc.pid) if 'm4k_bridge.node' in cmdline(pid)]
     assert len(bridge) == 1
     os.kill(bridge[0], signal.SIGKILL)
-    user.spin_until(lambda: any('m4k_rt.bridge.node' in cmdline(pid) and pid != bridge[0]
+    user.spin_until(lambda: any('m4k_bridge.node' in cmdline(pid) and pid != bridge[0]
                                 for pid in child_pids(proc.pid)), 30, 'a new bridge', each=send)
     n_status = len(user.got['rt_status'])
     user.spin_until(lambda: len(user.got['rt_status']) > n_status + 1

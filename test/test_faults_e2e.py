@@ -132,7 +132,7 @@ class Probe:
 def _start_bringup(procs, tmp_path, overlay, runtime_dir):
     """Start bringup with ``overlay`` in the test's runtime dir; its log in bringup.log."""
     with open(tmp_path / 'bringup.log', 'w') as log:
-        return procs.start(['python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config',
+        return procs.start(['python', '-m', 'm4k_bringup.bringup', '--python-m', '--config',
                             str(overlay), '--status-interval', '1'], env=stack_env(runtime_dir),
                            stdout=log, stderr=subprocess.STDOUT)
 

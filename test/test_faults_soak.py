@@ -11,12 +11,12 @@ import os
 import subprocess
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from wsenv import PYTHON_PACKAGES, ROOT
 
 
 def test_short_soak_runs_clean_and_writes_its_report(tmp_path):
     env = dict(os.environ, M4K_CONFIG_DIR=os.path.join(ROOT, 'config'))
-    src = [os.path.join(ROOT, 'src', p) for p in ('m4k_rt', 'm4k_drivers', 'm4k_bench')]
+    src = [os.path.join(ROOT, 'src', p) for p in PYTHON_PACKAGES]
     env['PYTHONPATH'] = os.pathsep.join(
         src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
     over = tmp_path / 'o.yaml'

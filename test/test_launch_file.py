@@ -1,4 +1,4 @@
-"""src/m4k_rt/launch/m4k.launch.py evaluated by the real launch/launch_ros, and run by ros2 launch.
+"""src/m4k_bringup/launch/m4k.launch.py, evaluated by the real launch/launch_ros and ros2 launch.
 
 launch, launch_ros and ros2cli are not on PyPI: on the wheels path these tests are skipped
 with that reason. They run under a full ROS install, or with the ros-verify environment's
@@ -24,7 +24,7 @@ try:  # the ros2cli marker skips every test here, with the reason, when these ar
 except ImportError:
     launch = None
 
-LAUNCH = os.path.join(ROOT, 'src', 'm4k_rt', 'launch', 'm4k.launch.py')
+LAUNCH = os.path.join(ROOT, 'src', 'm4k_bringup', 'launch', 'm4k.launch.py')
 pytestmark = [pytest.mark.ros2cli, pytest.mark.allow_leaks('fds')]
 
 
@@ -114,7 +114,7 @@ def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_d
     ros2 = shutil.which('ros2') or ''
     assert ros2 and 'tools/bin' not in ros2, 'ros2launch imports but the real ros2 is not on PATH'
     log = open(tmp_path / 'launch.log', 'w')
-    proc = procs.start(['ros2', 'launch', 'm4k_rt', 'm4k.launch.py'],
+    proc = procs.start(['ros2', 'launch', 'm4k_bringup', 'm4k.launch.py'],
                        env=dict(stack_env(m4k_runtime_dir)), stdout=log, stderr=log)
     log.close()
     context = rclpy.context.Context()

@@ -22,7 +22,7 @@ import rclpy
 from wsenv import ROOT, stack_env
 import yaml
 
-from m4k_rt.tools import bringup
+from m4k_bringup import bringup
 
 NS = '/m4k_launch_test'
 # Servers: the output line that says "up" (None: an rclpy node, found in the ROS graph).

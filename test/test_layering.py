@@ -1,40 +1,44 @@
 """The layering the packages state, checked on what a fresh interpreter actually loads.
 
-* The RT side -- every module of ``m4k_rt`` except the ROS bridge and bringup -- never loads
-  rclpy, the rosidl runtime or any ROS interface package, directly or through another module.
-  That is the Python analogue of Xenomai's "no Linux call in primary mode": a task body that
-  touched ROS would take the GIL for milliseconds on the ROS side's behalf.
+* **No ROS below the bridge.** Every module of ``m4k_rt`` (the RT core) and ``m4k_drivers``
+  (the driver host, the device handlers, sim_robot) never loads rclpy, launch, the rosidl
+  runtime or any ROS interface package, directly or through another module -- no exemption
+  list. That is the Python analogue of Xenomai's "no Linux call in primary mode": a task body
+  that touched ROS would take the GIL for milliseconds on the ROS side's behalf.
+* **No upward import.** A module of an m4k package loads only the m4k packages its
+  ``package.xml`` declares (``exec_depend``), so a wrong-way dependency needs a package.xml
+  change to exist; and the declared dependencies themselves form no circle.
 * The pure protocol modules of ``m4k_drivers`` (SCIP 2.0, myAHRS+ registers, AS5045/MCP4911
   words, US-100 pulses, LED colour) load no transport (pyserial, python-periphery, smbus2,
   spidev) and no ROS: the same code runs against the real device and the simulator.
-* The pure parts of the bridge are tested without a ROS context: ``bridge.health`` (outages,
-  counters, the link / cmd_vel / device status inputs) loads no ROS at all;
-  ``bridge.diagnostics`` (RtMonitor) builds RtStatus and DiagnosticStatus, so it loads those
+* The pure parts of the bridge are tested without a ROS context: ``m4k_bridge.health`` loads no
+  ROS at all; ``m4k_bridge.diagnostics`` builds RtStatus and DiagnosticStatus, so it loads those
   interface packages (plain rosidl classes), but never rclpy.
 
 Each module is imported in its own interpreter and ``sys.modules`` is inspected, so an import
-hidden three modules deep is found too. Modules are discovered by walking the packages, so a
-new module is covered without editing this file.
+hidden three modules deep is found too; a function-local import is caught statically by ruff's
+banned-import rule (``src/m4k_rt/ruff.toml``, ``src/m4k_drivers/ruff.toml``). Modules are
+discovered by walking the packages, so a new module is covered without editing this file.
 """
 
+import ast
 from concurrent.futures import ThreadPoolExecutor
 import json
 import os
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 
 import pytest
-from wsenv import ROOT, stack_env
+from wsenv import PYTHON_PACKAGES, ROOT, stack_env
 
-_RT_PKG = os.path.join(ROOT, 'src', 'm4k_rt', 'm4k_rt')
-_DRV_PKG = os.path.join(ROOT, 'src', 'm4k_drivers', 'm4k_drivers')
-# The ROS face of m4k_rt: allowed to speak ROS.
-_RT_ROS_FACE = ('m4k_rt.bridge', 'm4k_rt.bag', 'm4k_rt.tools.bringup')
 _PROTOCOL_MODULES = ('m4k_drivers.lrf.scip', 'm4k_drivers.imu.protocol',
                      'm4k_drivers.motors.protocol', 'm4k_drivers.sonar.protocol',
                      'm4k_drivers.led.protocol')
 _TRANSPORTS = ('serial', 'periphery', 'smbus2', 'spidev')
 _ROS_RUNTIME = ('rclpy', 'rpyutils', 'launch', 'launch_ros')
+_ROS_FREE_PACKAGES = ('m4k_rt', 'm4k_drivers')
+_M4K = PYTHON_PACKAGES + ('m4k_msgs',)
 
 _PROBE = r"""
 import importlib, json, sys
@@ -82,17 +86,23 @@ def _loaded_by(modules: list[str], tmp_path) -> dict[str, list[str]]:
         return dict(pool.map(probe, modules))
 
 
-def _rt_side() -> list[str]:
-    return [m for m in _modules(_RT_PKG, 'm4k_rt')
-            if not any(m == f or m.startswith(f + '.') for f in _RT_ROS_FACE)]
+def _pkg_modules(pkg: str) -> list[str]:
+    return _modules(os.path.join(ROOT, 'src', pkg, pkg), pkg)
 
 
-def test_module_discovery_sees_the_rt_core_and_the_ros_face():
-    everything = _modules(_RT_PKG, 'm4k_rt')
-    assert 'm4k_rt.rt_core' in everything and 'm4k_rt.bridge.node' in everything
-    rt = _rt_side()
+def _declared_deps(pkg: str) -> set[str]:
+    root = ET.parse(os.path.join(ROOT, 'src', pkg, 'package.xml')).getroot()
+    return {e.text.strip() for tag in ('depend', 'exec_depend', 'build_depend')
+            for e in root.findall(tag) if e.text}
+
+
+def test_module_discovery_sees_every_package_and_the_driver_host():
+    rt, drv = _pkg_modules('m4k_rt'), _pkg_modules('m4k_drivers')
     assert 'm4k_rt.rt_core' in rt and 'm4k_rt.xddp' in rt and 'm4k_rt.protocol' in rt
-    assert not [m for m in rt if m.startswith('m4k_rt.bridge')]
+    assert 'm4k_drivers.host' in drv and 'm4k_drivers.sim_robot' in drv
+    assert not [m for m in rt if 'bridge' in m or 'bringup' in m]
+    assert 'm4k_bridge.node' in _pkg_modules('m4k_bridge')
+    assert 'm4k_bringup.bringup' in _pkg_modules('m4k_bringup')
 
 
 def test_the_classifiers_tell_ros_and_transports_apart():
@@ -106,16 +116,83 @@ def test_the_classifiers_tell_ros_and_transports_apart():
 
 def test_the_probe_sees_an_import_made_through_another_module(tmp_path):
     # The bridge node loads rclpy only through its own imports: the probe must see it.
-    loaded = _loaded_by(['m4k_rt.bridge.node'], tmp_path)['m4k_rt.bridge.node']
+    loaded = _loaded_by(['m4k_bridge.node'], tmp_path)['m4k_bridge.node']
     assert 'rclpy' in loaded and 'm4k_msgs' in loaded
 
 
-def test_no_module_of_the_rt_side_loads_ros(tmp_path):
-    loaded = _loaded_by(_rt_side(), tmp_path)
+@pytest.mark.parametrize('pkg', _ROS_FREE_PACKAGES)
+def test_no_module_of_the_rt_core_or_the_drivers_loads_ros(pkg, tmp_path):
+    loaded = _loaded_by(_pkg_modules(pkg), tmp_path)
     offenders = {m: sorted({n.split('.')[0] for n in names if _is_ros(n)})
                  for m, names in loaded.items()}
     offenders = {m: ros for m, ros in offenders.items() if ros}
-    assert offenders == {}, f'RT-side modules that load ROS: {offenders}'
+    assert offenders == {}, f'{pkg} modules that load ROS: {offenders}'
+
+
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES)
+def test_a_package_loads_only_the_m4k_packages_its_package_xml_declares(pkg, tmp_path):
+    allowed = (_declared_deps(pkg) & set(_M4K)) | {pkg}
+    loaded = _loaded_by(_pkg_modules(pkg), tmp_path)
+    upward = {m: sorted({n.split('.')[0] for n in names} & set(_M4K) - allowed)
+              for m, names in loaded.items()}
+    upward = {m: pkgs for m, pkgs in upward.items() if pkgs}
+    assert upward == {}, f'{pkg} modules loading undeclared m4k packages: {upward}'
+
+
+def _imported_names(path: str) -> set[str]:
+    """Return every module name an import statement of ``path`` names, function-local too."""
+    with open(path, encoding='utf-8') as f:
+        tree = ast.parse(f.read(), path)
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+    return names
+
+
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES)
+def test_no_import_statement_names_an_undeclared_m4k_package(pkg):
+    # The probe above sees what importing a module loads; a lazy import inside a function is
+    # only seen here, by reading every import statement of the package's modules.
+    allowed = (_declared_deps(pkg) & set(_M4K)) | {pkg}
+    bad = {}
+    root = os.path.join(ROOT, 'src', pkg, pkg)
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = [d for d in dirnames if d != '__pycache__']
+        for f in filenames:
+            if f.endswith('.py'):
+                path = os.path.join(dirpath, f)
+                wrong = {n.split('.')[0] for n in _imported_names(path)} & set(_M4K) - allowed
+                if wrong:
+                    bad[os.path.relpath(path, ROOT)] = sorted(wrong)
+    assert bad == {}, f'{pkg}: imports of m4k packages its package.xml does not declare: {bad}'
+
+
+def test_the_import_reader_sees_a_function_local_import(tmp_path):
+    src = tmp_path / 'm.py'
+    src.write_text('def f():\n    from m4k_bringup import bringup\n    import m4k_bridge.node\n')
+    assert _imported_names(str(src)) == {'m4k_bringup', 'm4k_bridge.node'}
+
+
+def test_the_declared_dependencies_form_no_circle():
+    deps = {p: _declared_deps(p) & set(PYTHON_PACKAGES) for p in PYTHON_PACKAGES}
+    order: list[str] = []
+    while deps:
+        ready = sorted(p for p, d in deps.items() if d <= set(order))
+        assert ready, f'dependency circle among {sorted(deps)}: {deps}'
+        order += ready
+        for p in ready:
+            del deps[p]
+    assert order.index('m4k_rt') < order.index('m4k_drivers') < order.index('m4k_bringup')
+    assert order.index('m4k_bridge') < order.index('m4k_bringup')
+
+
+def test_the_ros_free_packages_declare_no_ros_runtime():
+    for pkg in _ROS_FREE_PACKAGES:
+        ros = sorted(d for d in _declared_deps(pkg) if _is_ros(d))
+        assert ros == [], f'{pkg}/package.xml declares ROS runtime dependencies {ros}'
 
 
 @pytest.mark.parametrize('module', _PROTOCOL_MODULES)
@@ -133,12 +210,12 @@ def test_the_laser_package_loads_pyserial_only_through_its_backends(tmp_path):
 
 
 # The bridge's pure modules and what each must not load.
-_BRIDGE_PURE = {'m4k_rt.bridge.health': _is_ros, 'm4k_rt.bridge.diagnostics': _is_ros_runtime}
+_BRIDGE_PURE = {'m4k_bridge.health': _is_ros, 'm4k_bridge.diagnostics': _is_ros_runtime}
 
 
 @pytest.mark.parametrize('module', sorted(_BRIDGE_PURE))
 def test_the_bridge_bookkeeping_needs_no_ros_context(module, tmp_path):
-    assert module in _modules(_RT_PKG, 'm4k_rt')
+    assert module in _pkg_modules('m4k_bridge')
     names = _loaded_by([module], tmp_path)[module]
     bad = sorted({n.split('.')[0] for n in names if _BRIDGE_PURE[module](n)})
     assert bad == [], f'{module} loads {bad}'

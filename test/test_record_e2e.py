@@ -32,7 +32,7 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
     out = tmp_path / 'run1'
     err = tmp_path / 'record.err'
     with open(err, 'w') as f:
-        rec = procs.start(['python', '-m', 'm4k_rt.bag.record', '-o', str(out)],
+        rec = procs.start(['python', '-m', 'm4k_bridge.bag.record', '-o', str(out)],
                           env=stack_env(m4k_runtime_dir), stdout=f, stderr=f)
     _wait_text(user, err, ('recording /odom', 'recording /scan', 'recording /imu'), 30)
     user.spin_for(2.5)

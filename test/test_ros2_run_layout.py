@@ -9,7 +9,8 @@ import pytest
 
 @pytest.mark.parametrize('pkg,exe', [
     ('m4k_rt', 'rt_core'), ('m4k_drivers', 'driver_host'), ('m4k_bench', 'bench'),
-    ('m4k_bench', 'baseline'),
+    ('m4k_bench', 'baseline'), ('m4k_bringup', 'bringup'), ('m4k_bridge', 'record'),
+    ('m4k_bringup', 'config_doc'),
 ])
 def test_ros2_run_starts_the_installed_executable(pkg, exe):
     ros2 = shutil.which('ros2')

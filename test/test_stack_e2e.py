@@ -391,7 +391,7 @@ def test_bridge_survives_an_rt_core_restart_and_reports_the_gap(stack):
     assert values['outages'] == '1' and float(values['last_gap_s']) > 0
 
     # The reverse: the bridge restarts while the RT process keeps running.
-    os.kill(pid_of('m4k_rt.bridge.node'), signal.SIGKILL)
+    os.kill(pid_of('m4k_bridge.node'), signal.SIGKILL)
     user.spin_until(lambda: 'bridge restarted' in err(), 15, 'the bridge restart')
     user.got['odom'].clear()
     user.spin_until(lambda: user.got['odom'], 30, 'odom from the restarted bridge')

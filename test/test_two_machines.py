@@ -156,7 +156,7 @@ def test_cut_link_stops_the_robot_and_restoring_it_does_not_restart_it(
     env = _net_env(stack_env(m4k_runtime_dir))
     overlay = write_overlay(tmp_path, {'world': {'start': START}})
     robot = procs.start(link.argv(link.robot, [
-        'python', '-m', 'm4k_rt.tools.bringup', '--python-m', '--config', overlay,
+        'python', '-m', 'm4k_bringup.bringup', '--python-m', '--config', overlay,
         '--no-status']), env=env, stdout=open(tmp_path / 'bringup.out', 'w'),
         stderr=open(tmp_path / 'bringup.err', 'w'))
     laptop = procs.start(link.argv(link.laptop, [

@@ -11,8 +11,8 @@ from ament_index_python.packages import get_package_prefix, get_package_share_di
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PYTHON_PACKAGES = ('m4k_rt', 'm4k_drivers', 'm4k_bench')
-CONFIG_PACKAGES = ('m4k_rt', 'm4k_drivers')  # m4k_bench reads config/ through them
+PYTHON_PACKAGES = ('m4k_rt', 'm4k_drivers', 'm4k_bridge', 'm4k_bringup', 'm4k_bench')
+CONFIG_PACKAGES = ('m4k_bringup',)  # the one install of config/; the others find it there
 
 
 def _console_scripts(pkg: str) -> list[str]:
@@ -41,7 +41,7 @@ def test_setup_cfg_installs_scripts_into_lib_pkg(pkg):
     assert cfg['develop']['script_dir'] == f'$base/lib/{pkg}'
 
 
-@pytest.mark.parametrize('pkg', ('m4k_rt', 'm4k_drivers', 'm4k_bench', 'm4k_msgs'))
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES + ('m4k_msgs',))
 def test_package_xml_has_valid_maintainer_email(pkg):
     # An invalid email makes colcon treat the package as plain python (no ament index).
     root = ET.parse(os.path.join(ROOT, 'src', pkg, 'package.xml')).getroot()

@@ -6,6 +6,8 @@ import threading
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# The workspace's Python packages, lowest layer first.
+PYTHON_PACKAGES = ('m4k_rt', 'm4k_drivers', 'm4k_bridge', 'm4k_bringup', 'm4k_bench')
 
 
 def stack_env(runtime_dir: str) -> dict[str, str]:
@@ -16,7 +18,7 @@ def stack_env(runtime_dir: str) -> dict[str, str]:
     repository's ``config/``.
     """
     env = dict(os.environ)
-    src = [os.path.join(ROOT, 'src', p) for p in ('m4k_rt', 'm4k_drivers', 'm4k_bench')]
+    src = [os.path.join(ROOT, 'src', p) for p in PYTHON_PACKAGES]
     env['PYTHONPATH'] = os.pathsep.join(
         src + [x for x in env.get('PYTHONPATH', '').split(os.pathsep) if x])
     env['M4K_RUNTIME_DIR'] = runtime_dir

@@ -23,7 +23,7 @@ if [[ -f $_m4k_root/install/local_setup.bash ]]; then
   source "$_m4k_root/install/local_setup.bash"
 fi
 # The console scripts by name too (`bringup`, `rt_stat`, ...), as `ros2 run <pkg> <exe>` would.
-for _m4k_pkg in m4k_rt m4k_drivers m4k_bench; do
+for _m4k_pkg in m4k_rt m4k_drivers m4k_bridge m4k_bringup m4k_bench; do
   [[ -d $_m4k_root/install/$_m4k_pkg/lib/$_m4k_pkg ]] \
     && export PATH=$_m4k_root/install/$_m4k_pkg/lib/$_m4k_pkg:$PATH
 done

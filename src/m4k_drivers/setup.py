@@ -1,14 +1,8 @@
 """Package m4k_drivers (ament_python): NRT device handlers, simulated world, driver host."""
 
-from glob import glob
-import os
-
 from setuptools import find_packages, setup
 
 package_name = 'm4k_drivers'
-here = os.path.dirname(os.path.abspath(__file__))
-config_files = sorted(
-    os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', '*.yaml')))
 
 setup(
     name=package_name,
@@ -18,7 +12,6 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', config_files),
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

@@ -254,8 +254,8 @@ def _main(argv: Sequence[str] | None, stop: Any) -> int:
     from rclpy.task import Future
     from rclpy.utilities import remove_ros_args
 
+    from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
     from m4k_rt import config as rtconfig
-    from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
     from m4k_rt.control import control_params
 
     args_all = sys.argv if argv is None else ['baseline', *argv]

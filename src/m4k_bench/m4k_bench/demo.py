@@ -12,7 +12,7 @@
    stops planner and stack, and writes ``results/demo-<UTC>/`` (``results/demo-latest`` links
    to it): ``fig9a_trajectory.png``, ``fig9b_velocity.png``, ``trajectory.csv``,
    ``summary.json``, ``report.md``, the processes' logs and the whole run's ROS topics as
-   MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_rt.bag.record`).
+   MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_bridge.bag.record`).
 
 Contacts: sim_robot keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
 the simulated world's collision counter and true pose; that is the verdict's evidence. The
@@ -57,6 +57,7 @@ from m4k_bench.planning.evaluate import (
     WorldGeometry,
 )
 from m4k_rt import config, description, rosargs
+from m4k_rt.proc import stop_process
 
 __all__ = ['main', 'pose_rate']
 
@@ -106,23 +107,10 @@ class _Child:
 
     def stop(self, timeout: float) -> int | None:
         """SIGINT the process group, wait, then SIGKILL; return the exit code."""
-        for sig, wait in ((signal.SIGINT, timeout), (signal.SIGKILL, 5.0)):
-            if self.proc.poll() is not None:
-                break
-            try:
-                os.killpg(self.proc.pid, sig)
-            except ProcessLookupError:
-                break
-            try:
-                self.proc.wait(wait)
-            except subprocess.TimeoutExpired:
-                _log(f'{self.name} did not stop within {wait:g} s')
-        try:  # grandchildren left behind, if any
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
+        rc = stop_process(self.proc, signal.SIGINT, timeout, on_escalate=lambda t: _log(
+            f'{self.name} did not stop within {t:g} s'))
         self._log.close()
-        return self.proc.returncode
+        return rc
 
     def tail(self, n: int = 15) -> str:
         try:
@@ -134,7 +122,7 @@ class _Child:
 
 def _bringup_argv(overlay: str | None, python_m: bool) -> list[str]:
     exe = None if python_m else shutil.which('bringup')
-    argv = [exe] if exe else [sys.executable, '-m', 'm4k_rt.tools.bringup']
+    argv = [exe] if exe else [sys.executable, '-m', 'm4k_bringup.bringup']
     if python_m:
         argv.append('--python-m')
     return argv + (['--config', overlay] if overlay else [])
@@ -577,7 +565,7 @@ def main(argv: Sequence[str] | None = None) -> int:
          f'{env["M4K_RUNTIME_DIR"]}')
     env['M4K_WORLD_REPORT'] = os.path.join(out_dir, WORLD_REPORT)
     rec = Recorder()
-    bag = _Child('record', [sys.executable, '-m', 'm4k_rt.bag.record', '-o',
+    bag = _Child('record', [sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
                             os.path.join(out_dir, 'bag')],
                  os.path.join(out_dir, 'record.log'), env)
     stack = _Child('bringup', _bringup_argv(args.config, args.python_m),

@@ -37,11 +37,12 @@ from typing import Any, Sequence
 from m4k_bench import core_bench
 from m4k_bench.benchlib import stack, system
 from m4k_rt import config, recorder, rosargs, xddp
+from m4k_rt.proc import stop_process
 
 __all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
 
 NAMES = {'rt_core': 'm4k_rt.rt_core', 'driver_host': 'm4k_drivers.host',
-         'bridge': 'm4k_rt.bridge'}
+         'bridge': 'm4k_bridge'}
 LEAK_ABS_KIB = 2048
 LEAK_REL = 0.03
 
@@ -204,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     log_path = os.path.join(outdir, 'bringup.log')
     hist_path = os.path.join(outdir, 'cyclictest.hist')
-    argv_bu = [sys.executable, '-m', 'm4k_rt.tools.bringup', '--python-m',
+    argv_bu = [sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
                '--status-interval', '10'] + (['--config', args.config] if args.config else [])
     _log('{} s (warm-up {} s), stress {}, results {}'.format(
         args.duration, warmup, 'off' if args.no_stress else 'on', outdir))
@@ -288,13 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 ct.wait()
         stat.close()
         bu_rc = bu.poll()
-        if bu_rc is None:
-            bu.send_signal(signal.SIGINT)
-            try:
-                bu.wait(60)
-            except subprocess.TimeoutExpired:
-                os.killpg(bu.pid, signal.SIGKILL)
-                bu.wait()
+        stop_process(bu, signal.SIGINT, 60, group=False)
         shutil.rmtree(tmp, ignore_errors=True)
     log_text = open(log_path, errors='replace').read()
     summary['bringup_exit'] = bu.returncode

@@ -26,6 +26,7 @@ from m4k_drivers import registry
 from m4k_drivers.handler import DriverError
 from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
 from m4k_rt.config import deep_merge as merge
+from m4k_rt.config import find_config_dir
 from m4k_rt.schema import Field, REQUIRED, Section
 
 __all__ = ['COMMON', 'DEFAULT_PORTS', 'ConfigError', 'DriverConfig', 'default_config_path',
@@ -49,18 +50,11 @@ class DriverConfig:
 
 
 def default_config_path() -> Path:
-    """Return ``$M4K_DEVICES_CONFIG``, else the installed share dir copy, else the repo copy."""
+    """Return ``$M4K_DEVICES_CONFIG``, else ``devices.yaml`` in the config directory."""
     env = os.environ.get('M4K_DEVICES_CONFIG')
     if env:
         return Path(env)
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        share = Path(get_package_share_directory('m4k_drivers')) / 'config' / 'devices.yaml'
-        if share.is_file():
-            return share
-    except Exception:  # noqa: BLE001 - ament index absent or package not installed
-        pass
-    return Path(__file__).resolve().parents[3] / 'config' / 'devices.yaml'
+    return Path(find_config_dir()) / 'devices.yaml'
 
 
 def load_file(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -84,14 +84,21 @@ class RtConfig:
         raise KeyError(name)
 
 
+CONFIG_PACKAGE = 'm4k_bringup'   # the package whose share directory holds config/
+
+
 def find_config_dir() -> str:
-    """Return the config directory: $M4K_CONFIG_DIR, the ament share dir, or the repo's."""
+    """Return the config directory: $M4K_CONFIG_DIR, the ament share dir, or the repo's.
+
+    The one install of ``config/`` is ``m4k_bringup``'s share directory (found by the ament
+    index, a data lookup: nothing of m4k_bringup is imported).
+    """
     env = os.environ.get('M4K_CONFIG_DIR')
     if env:
         return env
     try:
         from ament_index_python.packages import get_package_share_directory
-        share = os.path.join(get_package_share_directory('m4k_rt'), 'config')
+        share = os.path.join(get_package_share_directory(CONFIG_PACKAGE), 'config')
         if os.path.isfile(os.path.join(share, LAYERS[0])):
             return share
     except Exception:  # noqa: BLE001 -- not installed through ament: use the source tree

@@ -35,7 +35,7 @@ SCAN_ERROR_CODE_MAX = 19  # ranges (mm) below 20 are URG error codes, not distan
 # The one table of URG range error codes (LASER_SCAN ranges below 20 mm), from Hokuyo's
 # "Communication Protocol Specification For SCIP2.0" (C-42-03320B), Table 3 "ERROR CODES
 # (URG-04LX, UBG-04LX-F01, UHG-08LX)"; 3..5 are not in the table. The driver names them in
-# logs (m4k_drivers.lrf.scip) and the bridge maps them (m4k_rt.bridge.convert).
+# logs (m4k_drivers.lrf.scip) and the bridge maps them (m4k_bridge.convert).
 SCAN_ERROR_CODES: dict[int, str] = {
     0: 'detected object is possibly at 22 m',
     1: 'reflected light has low intensity',

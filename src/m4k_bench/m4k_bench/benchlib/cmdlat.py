@@ -132,7 +132,7 @@ def run_cmd_latency(trials: int, runtime_dir: str, log_dir: str, *,
     xddp.ensure_runtime_dir(runtime_dir)
     rt = Child('cmdlat.rt_core', entry_argv('m4k_rt.rt_core', '--tasks', 'actuator'), log_dir,
                env)
-    bridge = Child('cmdlat.bridge', entry_argv('m4k_rt.bridge.node'), log_dir, env)
+    bridge = Child('cmdlat.bridge', entry_argv('m4k_bridge.node'), log_dir, env)
     probe = MotorProbe(runtime_dir).start()
     ctx = Context()
     rclpy.init(context=ctx)

@@ -32,6 +32,7 @@ from typing import Any, Callable, Sequence
 
 from m4k_bench.benchlib import system
 from m4k_rt import protocol, recorder, xddp
+from m4k_rt.proc import stop_process
 
 __all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
            'ros_commander', 'start_sim_robot', 'start_stack', 'velocity_profile']
@@ -87,15 +88,10 @@ class Child:
 
     def stop(self, grace_s: float = 8.0) -> int:
         """SIGTERM, wait ``grace_s``, then SIGKILL; return the exit code."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(grace_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        rc = stop_process(self.proc, signal.SIGTERM, grace_s, group=False)
         self._log.close()
-        return self.proc.returncode
+        assert rc is not None, f'{self.name} survived SIGKILL'
+        return rc
 
     def wait(self, timeout: float) -> int | None:
         """Wait up to ``timeout`` s for the exit; return the code or None."""
@@ -119,7 +115,7 @@ def start_sim_robot(runtime_dir: str, log_dir: str, name: str,
 
     Raise RuntimeError (with the log tail) when it exits or stays silent.
     """
-    from m4k_rt.tools import bringup
+    from m4k_bringup import bringup
     spec = bringup.sim_robot_spec(runtime_dir)
     child = Child(name + '.sim_robot', entry_argv(spec.module, *spec.args), log_dir, env)
     deadline = time.monotonic() + timeout_s
@@ -172,7 +168,7 @@ def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], 
                                     log_dir, env)
     if bridge:
         kids['bridge'] = Child(name + '.bridge', entry_argv(
-            'm4k_rt.bridge.node', '--ros-args', '-p',
+            'm4k_bridge.node', '--ros-args', '-p',
             'ports.status:={}'.format(UNUSED_STATUS_LABEL)), log_dir, env)
     return kids
 

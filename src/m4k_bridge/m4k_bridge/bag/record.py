@@ -1,7 +1,7 @@
 """record: write ROS 2 topics to an MCAP file that ``ros2 bag`` and Foxglove read.
 
-``ros2 run m4k_rt record [TOPIC ...] [-o DIR] [--duration S]`` (or ``python -m
-m4k_rt.bag.record``). Without topics it records every m4k topic: the bridge's (``config/
+``ros2 run m4k_bridge record [TOPIC ...] [-o DIR] [--duration S]`` (or ``python -m
+m4k_bridge.bag.record``). Without topics it records every m4k topic: the bridge's (``config/
 bridge.yaml`` names), ``tf``, ``tf_static``, ``joint_states``, ``robot_description`` and the
 planner's ``planner_state``. A topic is subscribed as soon as the graph shows a publisher of
 it (so the recorder may start before the robot), with the publisher's reliability and
@@ -9,7 +9,7 @@ durability (``tf_static`` and ``robot_description`` are transient local, the sen
 effort), and its messages are stored as received: serialized CDR, no decoding and re-encoding.
 
 The file follows the MCAP ``ros2`` profile as rosbag2 (Jazzy) writes it: profile ``ros2``,
-schemas ``ros2msg`` with the nested definitions (:mod:`m4k_rt.bag.msgdef`), channels ``cdr``
+schemas ``ros2msg`` with the nested definitions (:mod:`m4k_bridge.bag.msgdef`), channels ``cdr``
 with the ``offered_qos_profiles`` and ``topic_type_hash`` metadata, zstd chunks and a summary.
 It goes to ``DIR/<DIR name>_0.mcap`` (DIR defaults to ``m4k_<UTC time>``); ``ros2 bag info``
 and ``ros2 bag play`` take the file, and ``ros2 bag reindex DIR`` adds the ``metadata.yaml``
@@ -35,8 +35,8 @@ import rclpy
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from m4k_rt.bag.msgdef import message_definition, MsgDefError, split_type, type_hash
-from m4k_rt.bridge import params as bridge_params
+from m4k_bridge import params as bridge_params
+from m4k_bridge.bag.msgdef import message_definition, MsgDefError, split_type, type_hash
 
 __all__ = ['DEFAULT_TOPICS', 'Recorder', 'main', 'qos_yaml']
 

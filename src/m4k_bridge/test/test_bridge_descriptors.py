@@ -4,9 +4,9 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 
+from m4k_bridge import params
+from m4k_bridge.node import BridgeNode
 from m4k_rt import config
-from m4k_rt.bridge import params
-from m4k_rt.bridge.node import BridgeNode
 
 pytestmark = pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
 

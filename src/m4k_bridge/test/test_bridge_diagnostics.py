@@ -2,8 +2,8 @@
 
 import pytest
 
+from m4k_bridge.diagnostics import degraded_reasons, make_status, RtMonitor, TaskWindow
 from m4k_rt import protocol
-from m4k_rt.bridge.diagnostics import degraded_reasons, make_status, RtMonitor, TaskWindow
 
 P = 10_000_000
 

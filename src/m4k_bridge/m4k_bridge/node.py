@@ -7,18 +7,18 @@ The bridge does not repeat commands: when cmd_vel stops, the RT actuator brakes 
 ``control.cmd_vel_timeout``; the bridge's ``cmd_vel_timeout`` only labels the input idle in
 diagnostics. On shutdown it sends one zero command. ``e_stop`` (std_msgs/Bool) and the
 ``~/reset_odometry`` service (std_srvs/Trigger) go to the RT actuator on the same ``cmd`` port
-(:mod:`m4k_rt.bridge.safety`: the latch itself lives in the RT process).
+(:mod:`m4k_bridge.safety`: the latch itself lives in the RT process).
 
 Outbound, datagrams from the RT process become ``odom``, ``imu``, ``scan``, ``sonar``, and
-through :mod:`m4k_rt.bridge.tf` ``joint_states``, ``tf``, ``tf_static`` and
+through :mod:`m4k_bridge.tf` ``joint_states``, ``tf``, ``tf_static`` and
 ``robot_description``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and, with
-the link, command and device health (:mod:`m4k_rt.bridge.health`), ``diagnostics``. Port I/O
-runs in one thread per port (:mod:`m4k_rt.bridge.ports` explains why); the executor thread
+the link, command and device health (:mod:`m4k_bridge.health`), ``diagnostics``. Port I/O
+runs in one thread per port (:mod:`m4k_bridge.ports` explains why); the executor thread
 does all ROS work.
 
 The RT process may restart at any time: each port re-links by itself, the outage is logged
 once when it starts and once when it ends, with the gap, and counted in diagnostics
-(:class:`m4k_rt.bridge.health.BridgeHealth` keeps that state; this module only logs it).
+(:class:`m4k_bridge.health.BridgeHealth` keeps that state; this module only logs it).
 """
 
 from __future__ import annotations
@@ -51,15 +51,15 @@ from sensor_msgs.msg import Imu, LaserScan, Range
 from std_msgs.msg import ColorRGBA
 import yaml
 
+from m4k_bridge import convert, params
+from m4k_bridge.diagnostics import make_status, RtMonitor
+from m4k_bridge.health import BridgeHealth, Status
+from m4k_bridge.ports import PortPump
+from m4k_bridge.safety import SafetyInterface
+from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
+from m4k_bridge.tf import RobotStatePublisher
 from m4k_msgs.msg import RtStatus
 from m4k_rt import config, description, protocol, xddp
-from m4k_rt.bridge import convert, params
-from m4k_rt.bridge.diagnostics import make_status, RtMonitor
-from m4k_rt.bridge.health import BridgeHealth, Status
-from m4k_rt.bridge.ports import PortPump
-from m4k_rt.bridge.safety import SafetyInterface
-from m4k_rt.bridge.shutdown import spin_until_shutdown, stop_aware_start
-from m4k_rt.bridge.tf import RobotStatePublisher
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
@@ -111,7 +111,7 @@ class BridgeNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         """Declare and check parameters, open the ports, create publishers and timers.
 
-        Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad parameter.
+        Raise :class:`m4k_bridge.params.ParamError` naming a bad parameter.
         """
         super().__init__(params.NODE_NAME, **kwargs)
         self._ready = False
@@ -125,7 +125,7 @@ class BridgeNode(Node):
         self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
         runtime_dir = p['runtime_dir'] or None
         self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
-        # Outages, counters and the link / cmd_vel / device statuses (m4k_rt.bridge.health).
+        # Outages, counters and the link / cmd_vel / device statuses (m4k_bridge.health).
         self.health = BridgeHealth(time.monotonic_ns(), self._runtime_dir)
 
         qos_sensor = qos_profile_sensor_data
@@ -372,7 +372,7 @@ class BridgeNode(Node):
         elif not self._monitor.feed(k, payload, rx_ns, header.stamp_ns):
             self.health.count('unexpected_' + role)
 
-    # --- robot state: description, joint_states, tf (m4k_rt.bridge.tf) -----------------------
+    # --- robot state: description, joint_states, tf (m4k_bridge.tf) -----------------------
 
     def _setup_robot_state(self) -> RobotStatePublisher:
         """Publish the robot description and create the tf / joint_states publishers.
@@ -396,7 +396,7 @@ class BridgeNode(Node):
                 'to {!r} in tf'.format(missing, p['odom_frame']))
         return state
 
-    # --- e-stop and odometry reset (m4k_rt.bridge.safety) ---------------------------------
+    # --- e-stop and odometry reset (m4k_bridge.safety) ---------------------------------
 
     def _init_safety(self) -> None:
         # Created before the pumps: it only needs the send path, which exists at first use.
@@ -404,7 +404,7 @@ class BridgeNode(Node):
             self, lambda data: self._pumps['cmd'].send(data), self.p.topic('e_stop'),
             self.p['reset_odometry_timeout'])
 
-    # --- health (m4k_rt.bridge.health) -------------------------------------------------------
+    # --- health (m4k_bridge.health) -------------------------------------------------------
 
     def _watch(self) -> None:
         """Log RT process outages once per transition (BridgeHealth.watch), and port failures."""

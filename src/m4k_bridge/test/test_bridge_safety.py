@@ -2,8 +2,8 @@
 
 import pytest
 
+from m4k_bridge.safety import CommandStampGate, latch_state
 from m4k_rt import protocol as p
-from m4k_rt.bridge.safety import CommandStampGate, latch_state
 
 
 def test_stamped_command_from_before_the_release_is_dropped():
@@ -37,7 +37,7 @@ def _call_reset(ack):
     from rclpy.executors import SingleThreadedExecutor
     from std_srvs.srv import Trigger
 
-    from m4k_rt.bridge.safety import SafetyInterface
+    from m4k_bridge.safety import SafetyInterface
 
     context = rclpy.context.Context()
     rclpy.init(context=context)

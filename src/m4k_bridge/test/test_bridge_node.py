@@ -15,10 +15,10 @@ from sensor_msgs.msg import Imu, JointState, LaserScan, Range
 from std_msgs.msg import ColorRGBA, String
 from tf2_msgs.msg import TFMessage
 
+from m4k_bridge import params
+from m4k_bridge.node import BridgeNode, param_files
 from m4k_msgs.msg import RtStatus
 from m4k_rt import protocol, xddp
-from m4k_rt.bridge import params
-from m4k_rt.bridge.node import BridgeNode, param_files
 
 PORTS = {'status': 0, 'cmd': 1, 'imu_out': 4, 'led_in': 6, 'sonar_out': 8, 'lrf_out': 10}
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
@@ -363,7 +363,7 @@ def test_param_files_are_found_on_the_command_line():
     assert param_files(argv) == ['a.yaml', 'b.yaml']
 
 
-# --- robot state: joint_states, tf, tf_static, robot_description (m4k_rt.bridge.tf) ----------
+# --- robot state: joint_states, tf, tf_static, robot_description (m4k_bridge.tf) ----------
 
 _LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)

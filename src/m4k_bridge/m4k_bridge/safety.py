@@ -33,8 +33,8 @@ from rclpy.task import Future
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from m4k_bridge.diagnostics import make_status
 from m4k_rt import protocol
-from m4k_rt.bridge.diagnostics import make_status
 
 __all__ = ['CommandStampGate', 'SafetyInterface', 'E_STOP_QOS']
 

@@ -8,9 +8,9 @@ from dataclasses import dataclass
 
 import pytest
 
+from m4k_bridge import params
+from m4k_bridge.health import BridgeHealth, DEVICE_PORTS, STALE_FLOOR_S, STALE_PERIODS
 from m4k_rt import protocol
-from m4k_rt.bridge import params
-from m4k_rt.bridge.health import BridgeHealth, DEVICE_PORTS, STALE_FLOOR_S, STALE_PERIODS
 
 S = 1_000_000_000
 STALE_S = 3.0

@@ -45,9 +45,11 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 
 import yaml
 
+from m4k_bridge import params as bridge_params
+from m4k_drivers import simbus
 from m4k_rt import config, rosargs
-from m4k_rt.bridge import params as bridge_params
 from m4k_rt.control.params import control_params
+from m4k_rt.proc import stop_process
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
@@ -58,7 +60,6 @@ __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 
 STABLE_S = 30.0           # a child running this long has its backoff reset
 STOP_TIMEOUT_S = 8.0      # per child, then SIGKILL
 CONFIG_ERROR = 2
-SIM_BUS_SOCKET = 'sim-bus.sock'   # m4k_drivers.simbus.SOCKET_NAME
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,10 +119,10 @@ def bridge_overlay(doc: Mapping[str, Any] | None, runtime_dir: str) -> dict[str,
     """Return the bridge parameter document for a (validated) layered config and runtime dir.
 
     The overlay's ``m4k_bridge:`` section, plus every parameter derived from the
-    configuration (:data:`m4k_rt.bridge.params.DERIVED`: command timeout, velocity limits,
+    configuration (:data:`m4k_bridge.params.DERIVED`: command timeout, velocity limits,
     sensor frames, port labels, robot description) -- which that section may not set: each
     value has one source. The ``ros2 launch`` file calls this too, so both start the bridge
-    alike. Raise :class:`m4k_rt.bridge.params.ParamError` naming a bad parameter.
+    alike. Raise :class:`m4k_bridge.params.ParamError` naming a bad parameter.
     """
     section: dict[str, Any] = {}
     if doc and bridge_params.NODE_NAME in doc:
@@ -266,19 +267,11 @@ class Child:
         self.next_start = 0.0
         if proc is None:
             return None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.console.line('bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
-                    self.spec.name, timeout))
-                proc.kill()
-                proc.wait(5.0)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)  # anything it left in its group
-        except (ProcessLookupError, PermissionError):
-            pass
+        # The process only: it stops its own children in order (a group signal would not).
+        stop_process(proc, signal.SIGTERM, timeout, group=False, close_streams=False,
+                     on_escalate=lambda t: self.console.line(
+                         'bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
+                             self.spec.name, t)))
         self._finish()
         self.last_rc = proc.returncode
         self.proc = None
@@ -373,7 +366,7 @@ def sim_ready(runtime_dir: str) -> bool:
     """Return True when a simulator accepts connections on ``runtime_dir``'s sim-bus socket."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        sock.connect(os.path.join(runtime_dir, SIM_BUS_SOCKET))
+        sock.connect(os.path.join(runtime_dir, simbus.SOCKET_NAME))
         return True
     except OSError:
         return False
@@ -398,7 +391,7 @@ def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
     return [sim_robot_spec(runtime_dir, overlay)] * sim + [
         ChildSpec('rt_core', 'm4k_rt', 'rt_core', 'm4k_rt.rt_core', rt_args),
         ChildSpec('driver_host', 'm4k_drivers', 'driver_host', 'm4k_drivers.host', host_args),
-        ChildSpec('bridge', 'm4k_rt', 'bridge', 'm4k_rt.bridge.node',
+        ChildSpec('bridge', 'm4k_bridge', 'bridge', 'm4k_bridge.node',
                   ('--ros-args', '--params-file', bridge_yaml, '--params-file',
                    bridge_params_file)),
     ]

@@ -1,10 +1,10 @@
-"""m4k_rt.bag.msgdef: ros2msg schema texts with nested definitions, and RIHS01 hashes."""
+"""m4k_bridge.bag.msgdef: ros2msg schema texts with nested definitions, and RIHS01 hashes."""
 
 import json
 
 import pytest
 
-from m4k_rt.bag import msgdef
+from m4k_bridge.bag import msgdef
 
 
 @pytest.fixture

@@ -27,8 +27,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from m4k_bridge import convert
 from m4k_rt import description, protocol
-from m4k_rt.bridge import convert
 
 try:
     from tf2_msgs.msg import TFMessage

@@ -8,9 +8,9 @@ not ready), and from them the inputs of the ``m4k_bridge: rt link``, ``m4k_bridg
 ``m4k_drivers: <device>`` diagnostics.
 
 :class:`BridgeHealth` is fed plain values -- CLOCK_MONOTONIC nanoseconds passed in, the ports'
-counters (anything shaped like :class:`PortState`, :class:`m4k_rt.bridge.ports.PortPump`
+counters (anything shaped like :class:`PortState`, :class:`m4k_bridge.ports.PortPump`
 among them), decoded payloads -- and returns :class:`Event` (what to log, at which severity)
-and :class:`Status` (what :func:`m4k_rt.bridge.diagnostics.make_status` turns into a
+and :class:`Status` (what :func:`m4k_bridge.diagnostics.make_status` turns into a
 DiagnosticStatus). Tests drive its time and its links without a ROS context.
 """
 
@@ -248,7 +248,7 @@ class BridgeHealth:
         """Return one status per device.
 
         ``reported``: (device, level, message, values) from the forwarded DEVICE_STATUS
-        (:meth:`m4k_rt.bridge.diagnostics.RtMonitor.device_levels`); a device with a report
+        (:meth:`m4k_bridge.diagnostics.RtMonitor.device_levels`); a device with a report
         takes its level, message and values, only a device that never reported is judged by
         data arrival on its port (STALE after ``STALE_PERIODS`` expected periods, at least
         ``STALE_FLOOR_S``, or while the RT process is lost). Either way the motor is ERROR

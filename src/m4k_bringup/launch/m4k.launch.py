@@ -1,12 +1,12 @@
 """Launch the m4k stack with ros2 launch (needs launch/launch_ros: a full ROS 2 install).
 
-    ros2 launch m4k_rt m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
+    ros2 launch m4k_bringup m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
         [sim:=auto|true|false] [robot_state_publisher:=false|true] [bridge_params:=FILE]
 
 Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
 ``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
 simulated robot (``sim_robot``, when ``sim`` is on), rt_core, driver_host and the bridge (node
-m4k_bridge, parameters: share/m4k_rt/config/bridge.yaml, then those derived from the
+m4k_bridge, parameters: share/m4k_bringup/config/bridge.yaml, then those derived from the
 configuration -- runtime directory, command timeout, velocity limits, sensor frames, port
 labels, robot description -- and the overlay's ``m4k_bridge:`` section, then
 ``bridge_params``).
@@ -58,9 +58,9 @@ def _installed(package, executable):
 
 def _nodes(context, *args, **kwargs):
     """Build the actions once the launch arguments are known (bringup's plan, as ROS nodes)."""
+    from m4k_bridge import params as bridge_params
+    from m4k_bringup import bringup
     from m4k_rt import config, xddp
-    from m4k_rt.bridge import params as bridge_params
-    from m4k_rt.tools import bringup
 
     arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     overlay = os.path.abspath(arg('config')) if arg('config') else None

@@ -2,7 +2,7 @@
 
 import pytest
 
-from m4k_rt.bridge.shutdown import spin_until_shutdown
+from m4k_bridge.shutdown import spin_until_shutdown
 
 
 class _Context:

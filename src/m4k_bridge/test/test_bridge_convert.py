@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 import pytest
 from sensor_msgs.msg import Range
 
+from m4k_bridge import convert
 from m4k_rt import protocol
-from m4k_rt.bridge import convert
 
 
 def test_ros_stamp_subtracts_datagram_age():

@@ -6,7 +6,7 @@ import os
 import pytest
 import yaml
 
-from m4k_rt.bridge import params
+from m4k_bridge import params
 
 BRIDGE_YAML = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'config', 'bridge.yaml')
 

@@ -1,0 +1,1 @@
+"""Recording runs as MCAP (``ros2 run m4k_bridge record``) without a ROS install."""

@@ -1,0 +1,46 @@
+"""Gather every package's configuration sections and print ``docs/configuration.md``.
+
+The RT side, the driver host and the bridge each declare their settings next to their code
+(:mod:`m4k_rt.schema`, ``m4k_drivers.registry.Param``, :data:`m4k_bridge.params.SPECS`); this
+module sits above all three, so gathering them here needs no upward import anywhere.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Sequence
+
+from m4k_bridge import params as bridge_params
+from m4k_drivers.config import schema_sections
+from m4k_rt import schema
+
+
+def all_sections() -> list[schema.Section]:
+    """Return every section: the RT side's, each device backend's and the bridge's."""
+    sections = schema.rt_sections()
+    sections += schema_sections()
+    sections.append(schema.Section(
+        'm4k_bridge', 'm4k_bridge ROS parameters (config/bridge.yaml)',
+        {s.name: s for s in bridge_params.SPECS},
+        'Declared with these descriptors (`ros2 param describe /m4k_bridge <name>`). Derived '
+        'parameters are not in bridge.yaml: bringup, the launch file and a bridge started by '
+        'hand compute them from the layered configuration.'))
+    return sections
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the configuration reference (``--markdown``)."""
+    ap = argparse.ArgumentParser(prog='config_doc', description='The m4k configuration schema.')
+    ap.add_argument('--markdown', action='store_true',
+                    help='print docs/configuration.md (every field of every section)')
+    args = ap.parse_args(argv)
+    if not args.markdown:
+        ap.print_help()
+        return 0
+    sys.stdout.write(schema.markdown(all_sections()))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
