@@ -204,7 +204,7 @@ def identify(rig: runs.MotorRig, steps: list[str], args: argparse.Namespace, ctl
         op.confirm(f'Straight run: mark the axle centre on the floor; the robot drives forward '
                    f'about {args.distance:.2f} m (clear path, 0.5 m beyond). Go?')
         dl, dr = runs.straight(rig, args.distance, radius, args.speed,
-                               limit_s=10.0 + 4.0 * args.distance / max(args.speed, 0.02))
+                               limit_s=_time_limit(args.distance, radius, args.speed, ctl))
         enc = 0.5 * (dl + dr) * radius
         d = op.number(f'Measured distance travelled by the axle centre, m (encoders with the '
                       f'configured radius say {enc:.4f})', enc)
@@ -219,8 +219,9 @@ def identify(rig: runs.MotorRig, steps: list[str], args: argparse.Namespace, ctl
             plan = sign * args.turns * 2.0 * math.pi
             op.confirm(f'Turn: mark the heading on the floor; the robot turns in place '
                        f'{args.turns} full turn(s) {name}. Go?')
+            arc = abs(plan) * ctl.track_width / 2.0             # m each wheel rolls
             dl, dr = runs.turn(rig, plan, radius, ctl.track_width, args.speed,
-                               limit_s=10.0 + 40.0 * args.turns / max(args.speed, 0.02))
+                               limit_s=_time_limit(arc, radius, args.speed, ctl))
             enc = math.degrees((dr - dl) * radius / ctl.track_width) * sign
             deg = op.number(f'Measured angle turned {name}, degrees (360 per full turn; '
                             f'encoders with the configured track say {enc:.1f})', enc)
@@ -231,6 +232,12 @@ def identify(rig: runs.MotorRig, steps: list[str], args: argparse.Namespace, ctl
         res['track_width'] = sum(tracks) / len(tracks)
         op.say(f'turn: track_width {res["track_width"]:.5f} m (ccw {tracks[0]:.5f}, cw '
                f'{tracks[1]:.5f}; configured {ctl.track_width:.5f})')
+
+
+def _time_limit(distance_m: float, radius_m: float, speed: float, ctl: Any) -> float:
+    """Return a run's time limit: 3x the time at the configured full scale, plus 3 s."""
+    rim = speed * ctl.full_scale_wheel_speed * radius_m         # m/s, by the configuration
+    return 3.0 + 3.0 * distance_m / rim
 
 
 def _hold(rig: runs.MotorRig, seconds: float, op: Operator, when: str) -> dict[str, Any]:

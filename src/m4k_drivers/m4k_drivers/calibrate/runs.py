@@ -5,9 +5,10 @@ WHEEL_CMD with enable = 1 per actuator period, so the driver watchdog is fed and
 amplifier-enable heartbeat toggles: the amplifier is *on*, also during a zero hold), and reads
 both encoders after each command.  Bounds: every command is within +/-``MAX_SPEED`` of full
 scale (refused, not clamped), every run has a time limit, the straight run and the turns stop
-at their planned wheel travel.  :class:`MotorRig` is a context manager: on leaving it --
-normally, on an exception, on Ctrl-C (the ``stop`` event) -- both wheels get code 512 and the
-handler is shut down (outputs safe).
+at their planned wheel travel and abort when the wheels stop making progress under drive (a
+stuck encoder would otherwise let them run on to the time limit).  :class:`MotorRig` is a
+context manager: on leaving it -- normally, on an exception, on Ctrl-C (the ``stop`` event) --
+both wheels get code 512 and the handler is shut down (outputs safe).
 """
 
 from __future__ import annotations
@@ -176,6 +177,22 @@ def sweep(rig: MotorRig, max_speed: float, levels: int, settle_s: float,
     return out
 
 
+class _Progress:
+    """Abort a run whose wheels stop making progress (a stuck encoder, a stalled drive)."""
+
+    def __init__(self, what: str, t0: float, window_s: float = 1.0, min_rad: float = 0.05):
+        self.what, self.window_s, self.min_rad = what, window_s, min_rad
+        self.mark_t, self.mark = t0 + window_s, 0.0     # the first window includes the ramp
+
+    def check(self, t: float, done: float) -> None:
+        if t < self.mark_t:
+            return
+        if done - self.mark < self.min_rad:
+            raise Aborted(f'{self.what}: the wheels moved {done - self.mark:.3f} rad in '
+                          f'{self.window_s:.1f} s under drive: encoder or drive fault')
+        self.mark_t, self.mark = t + self.window_s, done
+
+
 def _ramp(t: float, remaining: float, full: float, ramp_s: float, slow_at: float) -> float:
     """Return the command fraction of ``full``: ramp up over ``ramp_s``, slow near the end."""
     return full * max(0.5, min(1.0, t / ramp_s, remaining / slow_at if slow_at > 0 else 1.0))
@@ -193,6 +210,7 @@ def straight(rig: MotorRig, distance_m: float, radius_m: float, speed: float,
     target = distance_m / radius_m                    # rad of wheel
     full = speed * fit.DAC_SPAN
     t0 = rig.clock()
+    progress = _Progress('straight run', t0)
     s = start
     while True:
         dl, dr = s.left - start.left, s.right - start.right
@@ -201,6 +219,7 @@ def straight(rig: MotorRig, distance_m: float, radius_m: float, speed: float,
             break
         if rig.clock() - t0 > limit_s:
             raise Aborted(f'straight run: not there after {limit_s:.0f} s')
+        progress.check(rig.clock(), done)
         x = _ramp(rig.clock() - t0, target - done, full, 0.5, 0.15 * target)
         corr = 40.0 * (dl - dr)                       # codes per rad of angle mismatch
         _, s = rig.command(_code(x - corr / 2), _code(x + corr / 2))
@@ -216,6 +235,7 @@ def turn(rig: MotorRig, heading_rad: float, radius_m: float, track_m: float, spe
     sign = 1.0 if heading_rad > 0 else -1.0
     full = speed * fit.DAC_SPAN
     t0 = rig.clock()
+    progress = _Progress('turn', t0)
     s = start
     while True:
         dl, dr = s.left - start.left, s.right - start.right
@@ -224,6 +244,7 @@ def turn(rig: MotorRig, heading_rad: float, radius_m: float, track_m: float, spe
             break
         if rig.clock() - t0 > limit_s:
             raise Aborted(f'turn: not there after {limit_s:.0f} s')
+        progress.check(rig.clock(), done)
         x = _ramp(rig.clock() - t0, target - done, full, 0.5, 0.15 * target)
         corr = 40.0 * 0.5 * (dl + dr)                 # keep the axle centre where it is
         _, s = rig.command(_code(-sign * x - corr), _code(sign * x - corr))
