@@ -12,7 +12,9 @@ what it does not model:
 * dynamics: a first-order lag ``tau`` from command to wheel speed.  It comes from the wheel
   *angle* (integrated, so little noise): after a step from a steady speed ``w1`` to ``w2`` at
   ``t0`` the angle approaches the line ``theta(t0) + w2 (t - t0) - (w2 - w1) tau``, so the
-  gap at ``t0`` between the two plateaus' fitted lines is ``(w2 - w1) * tau``;
+  gap at ``t0`` between the two plateaus' fitted lines is ``(w2 - w1) * tau``.  ``t0`` is when
+  the host wrote the command, so the lag includes the command path's latency -- which the
+  speed loop sees as well;
 * geometry: radius = measured distance / mean wheel angle of a straight run; track width =
   radius * (right - left wheel angle) / measured heading change of an in-place turn.
 
