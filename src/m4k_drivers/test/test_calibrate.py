@@ -12,6 +12,7 @@ import json
 import math
 import os
 import signal
+import subprocess
 import threading
 import time
 
@@ -24,6 +25,7 @@ from m4k_drivers.simbus import read_truth
 from m4k_rt import config as rtconfig
 from m4k_rt.control.params import control_params
 
+CALIBRATE = ['python', '-m', 'm4k_drivers.calibrate.cli']   # `ros2 run m4k_drivers calibrate`
 R_CFG, TRACK_CFG = 0.1016, 0.40
 TRUE = {'wheel_diameter_m': 2 * R_CFG * 0.97, 'track_width_m': TRACK_CFG * 1.05,
         'top_speed_mps': 2.1, 'amp_offset_left_v': 0.3, 'amp_offset_right_v': -1.2,
@@ -43,7 +45,8 @@ def as_built(tmp_path, m4k_runtime_dir, procs):
         'world': {'walls': {'rectangle': [-6.0, -6.0, 6.0, 6.0]}, 'obstacles': [],
                   'robot': {k: TRUE[k] for k in TRUE if k not in ('supply_v', 'motor_tau_s')}},
     }))
-    sim = procs.start(['sim_robot', '--overlay', str(overlay), '--runtime-dir', m4k_runtime_dir,
+    sim = procs.start(['python', '-m', 'm4k_drivers.sim_robot', '--overlay', str(overlay),
+                       '--runtime-dir', m4k_runtime_dir,
                        '--world-report', str(tmp_path / 'world.json')])
     if not wait_ready(m4k_runtime_dir, 20.0):
         procs.stop(sim)
@@ -103,9 +106,9 @@ def _unwrapped(start, end, plan):
 
 
 def _run_calibration(procs, overlay, rd, out, report):
-    proc = procs.start(['calibrate', '--overlay', overlay, '--runtime-dir', rd, '--output', out,
+    proc = procs.start([*CALIBRATE, '--overlay', overlay, '--runtime-dir', rd, '--output', out,
                         '--report', report, '--levels', '5', '--hold', '1.5'],
-                       stdin=__import__('subprocess').PIPE, text=True)
+                       stdin=subprocess.PIPE, text=True)
     talk = Dialogue(proc)
     start = None
     prompts = []
@@ -175,7 +178,7 @@ def test_calibrate_recovers_the_true_robot_not_the_configured_one(tmp_path, as_b
 def test_sigint_mid_sweep_stops_the_motors_and_writes_nothing(tmp_path, as_built, procs):
     overlay, rd = as_built
     out = tmp_path / 'calibrated.yaml'
-    proc = procs.start(['calibrate', '--overlay', overlay, '--runtime-dir', rd, '--output',
+    proc = procs.start([*CALIBRATE, '--overlay', overlay, '--runtime-dir', rd, '--output',
                         str(out), '--steps', 'sweep', '--yes'])
     deadline = time.monotonic() + 60
     while abs(read_truth(rd)['w']) < 0.5:                # turning in place: sweep under way
