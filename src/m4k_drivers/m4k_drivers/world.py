@@ -13,8 +13,11 @@ wheel speeds of the step.  A step whose new footprint would touch a wall or an o
 taken: the robot stops, the wheels stall, and ``collisions`` counts the contact onset.
 
 The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md): while
-it is off the armatures get no drive and the wheels coast down through the same first-order
-lag towards zero, whatever the DACs hold.  ``set_enable_until`` sets the time the enable stays
+it is off the amplifier's outputs float, so no current flows -- no drive and no back-EMF
+braking either -- and the wheels coast, slowed by friction alone (rolling resistance and the
+gearbox): a constant deceleration ``coast_decel_mps2`` of each wheel's rim speed, whatever the
+DACs hold.  (Enabled, the amplifier drives each motor to its target speed through the motor
+lag ``motor_tau_s``, braking included.)  ``set_enable_until`` sets the time the enable stays
 on; ``None`` (the default) is an enable strapped on.  While enabled, each amplifier adds its
 input offset (``amp_offset_left_v``/``amp_offset_right_v``: the zero error a DAC zero trim
 cancels) and the motor has a dead band (``deadband_v``: static friction, no motion below it,
@@ -72,6 +75,7 @@ class RobotParams:
     top_speed_mps: float = 2.0
     motor_tau_s: float = 0.08
     supply_v: float = 24.0
+    coast_decel_mps2: float = 0.3     # enable off: friction only (rolling + gearbox), m/s^2
     amp_offset_left_v: float = 0.0      # amplifier input offset, armature volts (any sign)
     amp_offset_right_v: float = 0.0
     deadband_v: float = 0.0             # armature volts the motor needs before it turns
@@ -348,8 +352,12 @@ class World:
             return
         new = []
         for side in (LEFT, RIGHT):
-            target = targets[side]
-            w_new = target + (old[side] - target) * decay
+            if enabled:
+                target = targets[side]
+                w_new = target + (old[side] - target) * decay
+            else:    # coasting: friction takes a fixed rim speed per second, down to rest
+                w_new = math.copysign(max(abs(old[side]) - rob.coast_decel_mps2
+                                          / rob.wheel_radius_m * dt, 0.0), old[side])
             new.append(0.0 if abs(w_new) < 1e-9 else w_new)
         mean_l = 0.5 * (old[0] + new[0])
         mean_r = 0.5 * (old[1] + new[1])
