@@ -198,12 +198,20 @@ def test_sigint_mid_sweep_stops_the_motors_and_writes_nothing(tmp_path, as_built
 
 @pytest.mark.parametrize('args, message', [
     (['--max-speed', '0.5'], '--max-speed: must be in [0.02, 0.3]'),
+    (['--overlay', 'HEARTBEAT_OFF'], 'devices.motor.heartbeat: False refused with real motors'),
     (['--distance', '5'], '--distance: must be in [0.2, 3.0]'),
     (['--steps', 'zero,dance'], "--steps: unknown ['dance']"),
 ])
 def test_out_of_bounds_arguments_are_refused_before_anything_moves(tmp_path, capsys, args,
                                                                    message):
     from m4k_drivers.calibrate import cli
+    if 'HEARTBEAT_OFF' in args:             # real motors (paths never opened), enable strapped
+        overlay = tmp_path / 'strapped.yaml'
+        overlay.write_text(yaml.safe_dump({'devices': {'motor': {
+            'backend': 'real', 'heartbeat': False, 'left_dac': '/nonexistent/spidev0.0',
+            'right_dac': '/nonexistent/spidev0.1', 'left_enc': '/nonexistent/spidev1.0',
+            'right_enc': '/nonexistent/spidev1.1'}}}))
+        args = ['--overlay', str(overlay)]
     rc = cli.main(['--output', str(tmp_path / 'o.yaml'), *args])
     assert rc == 2 and message in capsys.readouterr().err
     assert not (tmp_path / 'o.yaml').exists()

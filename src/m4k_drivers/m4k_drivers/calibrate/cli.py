@@ -85,7 +85,10 @@ class Operator:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog='calibrate', description=__doc__.split('\n\n')[0],
+    doc = __doc__.split('\n\n')
+    summary = doc[0].split(': ', 1)[1]
+    ap = argparse.ArgumentParser(prog='calibrate', description=summary[0].upper() + summary[1:],
+                                 epilog='\n\n'.join(doc[1:]),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--config', help='devices YAML file (default: the layered m4k config)')
     ap.add_argument('--overlay', help='your robot overlay (merged into the output)')
@@ -150,6 +153,14 @@ def _main(args: argparse.Namespace, stop: threading.Event) -> int:
         raw = load_raw_config(args.config, args.overlay)
         cfg = dconfig.validate({'devices': {'motor': (raw.get('devices') or {}).get('motor')
                                             or {'backend': 'sim'}}})
+        motor = cfg.devices['motor']
+        if motor['backend'] == 'real' and not motor['heartbeat'] \
+                and not motor.get('external_stop'):
+            # A crash mid-run would leave the DACs latched at a run's code, the enable on.
+            raise ValueError('devices.motor.heartbeat: False refused with real motors: '
+                             'calibrate drives them, and a dead process would leave them '
+                             'driven; set heartbeat: true, or devices.motor.external_stop: true '
+                             'if the hardware stops them on its own')
         ctl = control_params(raw.get('control'))
         ctx = registry.BuildContext(runtime_dir=args.runtime_dir or (
             raw.get('runtime') or {}).get('runtime_dir'))
