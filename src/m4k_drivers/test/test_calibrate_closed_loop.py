@@ -10,6 +10,7 @@ calibrated overlay, and the ground truth says which one does what it is told.
 """
 
 import argparse
+import io
 import math
 import threading
 
@@ -61,7 +62,7 @@ class TruthOperator(cli.Operator):
     """The person with the tape measure: marks at every confirmation, measures on the truth."""
 
     def __init__(self, world):
-        super().__init__(None, open('/dev/null', 'w'), assume_yes=True)
+        super().__init__(io.StringIO(), io.StringIO(), assume_yes=True)
         self.world = world
         self.mark = None
 
