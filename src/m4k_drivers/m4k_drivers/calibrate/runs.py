@@ -24,13 +24,14 @@ from m4k_drivers.calibrate import fit
 from m4k_drivers.handler import DriverError, Status
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
+from m4k_rt.protocol import EncoderStatus
 
 __all__ = ['MAX_SPEED', 'Aborted', 'MotorRig', 'Sample', 'Sweep', 'hold', 'straight', 'sweep',
            'turn']
 
 MAX_SPEED = 0.3               # fraction of full scale, any run (0.6 m/s rim speed on the M4K)
 STOP_SPEED = 0.05             # rad/s: a wheel slower than this counts as stopped
-_BAD = p.STATUS_LEFT_FRAME | p.STATUS_RIGHT_FRAME | p.STATUS_LEFT_JUMP | p.STATUS_RIGHT_JUMP
+_BAD = EncoderStatus.INVALID           # frame or jump error on either wheel: angles untrusted
 
 
 class Aborted(RuntimeError):
