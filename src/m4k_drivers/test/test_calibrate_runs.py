@@ -64,6 +64,21 @@ def test_an_encoder_fault_mid_run_aborts_with_the_motors_at_zero():
     assert not world.drive_enabled() or world.motor_voltage(0) == 0.0
 
 
+def test_an_isolated_bad_reading_is_skipped_not_fatal():
+    rig, world, bus, _ = _rig()
+    with rig:
+        rig.run_for(600, 424, 0.3)
+        dev = bus['bus'].encoders[0].dev
+        dev.fault = {'lin': True}                       # two readings with invalid angles
+        _, a = rig.command(600, 424)
+        _, b = rig.command(600, 424)
+        dev.fault = None
+        t0, samples = rig.run_for(600, 424, 0.3)
+    assert rig.bad_samples == 2 and a is b              # the last good reading, repeated
+    assert len({s.t for s in samples}) == len(samples) and samples[-1].t - t0 >= 0.3
+    assert _dac_codes(bus) == [512, 512]
+
+
 def test_a_stop_request_aborts_and_zeroes():
     rig, world, bus, stop = _rig()
     with pytest.raises(runs.Aborted, match='stopped'):

@@ -31,6 +31,7 @@ __all__ = ['MAX_SPEED', 'Aborted', 'MotorRig', 'Sample', 'Sweep', 'hold', 'strai
 
 MAX_SPEED = 0.3               # fraction of full scale, any run (0.6 m/s rim speed on the M4K)
 STOP_SPEED = 0.05             # rad/s: a wheel slower than this counts as stopped
+BAD_RUN_MAX = 5               # encoder readings with frame/jump errors in a row: a fault
 _BAD = EncoderStatus.INVALID           # frame or jump error on either wheel: angles untrusted
 
 
@@ -57,6 +58,8 @@ class MotorRig:
         self.clock = clock
         self.period = handler.period_s
         self.last: Sample | None = None
+        self.bad_samples = 0             # encoder readings skipped (frame or jump error)
+        self.bad_run = 0
         self._next = 0.0
 
     def __enter__(self) -> MotorRig:
@@ -80,7 +83,8 @@ class MotorRig:
     def command(self, left: int, right: int) -> tuple[float, Sample]:
         """Write one WHEEL_CMD (enable on), read the encoders, wait for the next period.
 
-        Return the time the command was written and the reading after it.
+        Return the time the command was written and the reading after it (the last good one
+        when this one had a frame or jump error).
         """
         for code in (left, right):
             if abs(code - p.DAC_ZERO) > MAX_SPEED * fit.DAC_SPAN + 0.5:
@@ -95,14 +99,23 @@ class MotorRig:
         if r.status != Status.OK:
             raise Aborted(f'encoder read failed: {self.handler.last_exception}')
         if r.value.status & _BAD:
-            raise Aborted(f'encoder frame/jump error (status 0x{r.value.status:02x}): '
-                          f'{self.handler.last_exception}')
-        self.last = Sample(r.value.t_ns * 1e-9, r.value.left_angle, r.value.right_angle)
+            # One bad frame, or a reading whose host stamp came late (a busy machine makes an
+            # honest step look like a jump), is skipped as the RT side skips it; a run of them
+            # is a fault.
+            self.bad_samples += 1
+            self.bad_run += 1
+            if self.bad_run >= BAD_RUN_MAX or self.last is None:
+                raise Aborted(f'encoder frame/jump error (status 0x{r.value.status:02x}, '
+                              f'{self.bad_run} in a row): {self.handler.last_exception}')
+        else:
+            self.bad_run = 0
+            self.last = Sample(r.value.t_ns * 1e-9, r.value.left_angle, r.value.right_angle)
         self._next += self.period
         now = self.clock()
         if self._next < now:                 # late (busy machine): do not try to catch up
             self._next = now
         self.stop.wait(self._next - now)
+        assert self.last is not None
         return t_cmd, self.last
 
     def run_for(self, left: int, right: int, seconds: float) -> tuple[float, list[Sample]]:
@@ -110,7 +123,11 @@ class MotorRig:
         t0, first = self.command(left, right)
         out = [first]
         while out[-1].t - t0 < seconds:
-            out.append(self.command(left, right)[1])
+            s = self.command(left, right)[1]
+            if s is not out[-1]:          # a skipped reading repeats the last good one
+                out.append(s)
+            elif self.clock() - t0 > seconds + 1.0:
+                raise Aborted('no valid encoder reading')
         return t0, out
 
     def wait_stopped(self, limit_s: float = 3.0, still_s: float = 0.3) -> Sample:
