@@ -201,6 +201,7 @@ def test_sigint_mid_sweep_stops_the_motors_and_writes_nothing(tmp_path, as_built
     (['--overlay', 'HEARTBEAT_OFF'], 'devices.motor.heartbeat: False refused with real motors'),
     (['--distance', '5'], '--distance: must be in [0.2, 3.0]'),
     (['--steps', 'zero,dance'], "--steps: unknown ['dance']"),
+    (['--report', '/nonexistent/dir/r.json'], "--report: directory '/nonexistent/dir' does not"),
 ])
 def test_out_of_bounds_arguments_are_refused_before_anything_moves(tmp_path, capsys, args,
                                                                    message):

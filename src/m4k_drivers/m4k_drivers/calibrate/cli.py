@@ -130,6 +130,11 @@ def _check(args: argparse.Namespace) -> list[str]:
                             ('--lambda', args.lam, 0.05, 1.0)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
             raise ValueError(f'{name}: must be in [{lo}, {hi}], got {v!r}')
+    for name, path in (('--output', args.output), ('--report', args.report)):
+        where = os.path.dirname(os.path.abspath(path)) if path else None
+        if where is not None and not os.path.isdir(where):
+            # Found out before the robot moves, not after a quarter of an hour of runs.
+            raise ValueError(f'{name}: directory {where!r} does not exist')
     return [s for s in STEPS if s in steps]
 
 
@@ -182,6 +187,7 @@ def _main(args: argparse.Namespace, stop: threading.Event) -> int:
                    'motors may turn now?')
         with runs.MotorRig(handler, stop) as rig:
             identify(rig, steps, args, ctl, op, res)
+        res['encoder_readings_skipped'] = rig.bad_samples
     except (runs.Aborted, fit.FitError, DriverError) as exc:
         print(f'calibrate: {exc}; motors at zero, nothing written', file=sys.stderr)
         return 1
