@@ -242,7 +242,9 @@ def test_reset_odometry_is_callable_as_a_service(live):
             await c.until(lambda: '/m4k_bridge/reset_odometry' in c.services, 'the service')
             svc = c.services['/m4k_bridge/reset_odometry']
             assert svc['type'] == 'std_srvs/srv/Trigger'
-            assert svc['responseSchema'].split() == ['bool', 'success', 'string', 'message']
+            fields = [ln.split('#')[0].split() for ln in svc['responseSchema'].splitlines()]
+            assert [f for f in fields if f] == [['bool', 'success'], ['string', 'message']]
+            assert svc['requestSchema'] == ''
             enc = b'cdr'
             await ws.send(struct.pack('<BIII', 0x02, svc['id'], 42, len(enc)) + enc
                           + serialize_message(Trigger.Request()))
@@ -269,9 +271,11 @@ def _stalled_client(port, topics_channels):
     assert head.startswith(b'HTTP/1.1 101'), head
     text = json.dumps({'op': 'subscribe', 'subscriptions': [
         {'id': i, 'channelId': ch} for i, ch in enumerate(topics_channels)]}).encode()
-    assert len(text) < 126
-    # A masked text frame (client frames must be masked; a zero mask leaves the bytes as they are).
-    s.sendall(bytes([0x81, 0x80 | len(text)]) + b'\x00\x00\x00\x00' + text)
+    assert len(text) < 1 << 16
+    # A masked text frame (client frames must be masked; a zero mask leaves the bytes as they
+    # are), its length in the 16-bit extended field.
+    s.sendall(bytes([0x81, 0x80 | 126]) + struct.pack('>H', len(text)) + b'\x00\x00\x00\x00'
+              + text)
     return s
 
 
@@ -297,7 +301,9 @@ def test_a_stalled_client_is_dropped_for_and_never_slows_the_others(live):
         async with connect('ws://127.0.0.1:{}'.format(port), subprotocols=[SUBPROTOCOL]) as ws:
             c = Client(ws)
             got = await c.subscribe(['/odom', '/diagnostics'])
-            ids = [c.channels[t]['id'] for t in ('/scan', '/odom', '/tf', '/imu')]
+            heavy = ('/scan', '/odom', '/tf', '/imu')
+            await c.until(lambda: all(t in c.channels for t in heavy), 'the sensor channels')
+            ids = [c.channels[t]['id'] for t in heavy]
             stalled = _stalled_client(port, ids)
             try:
                 def values():
@@ -307,8 +313,8 @@ def test_a_stalled_client_is_dropped_for_and_never_slows_the_others(live):
                               'drops for the stalled client')
                 rss0, dropped0 = _rss_kib(fox[0]), int(values()['dropped_total'])
                 odom0 = len(got['/odom'])
-                await c.until(lambda: int(values()['dropped_total']) > dropped0 + 2000,
-                              '2000 more drops')
+                await c.until(lambda: int(values()['dropped_total']) > dropped0 + 300,
+                              '300 more drops')
                 v, level = _server_values(got['/diagnostics'])
                 assert level == 1 and v['clients'] == '2'
                 stalled_row = [val for key, val in v.items() if key.startswith('client ')
@@ -318,7 +324,8 @@ def test_a_stalled_client_is_dropped_for_and_never_slows_the_others(live):
                                                      stalled_row[0])[0]]
                 assert queued[0] <= int(v['max_queue_messages'])
                 assert queued[1] <= int(v['max_queue_bytes'])
-                # 2000 dropped frames held would be megabytes more; the queue bound holds.
+                # A sanity bound on the process (the strict memory test is the server's own,
+                # src/m4k_bridge/test/test_foxglove_server.py, with megabyte frames).
                 assert _rss_kib(fox[0]) - rss0 < 16 * 1024
                 # The reading client kept getting odometry all along, in order.
                 new = got['/odom'][odom0:]

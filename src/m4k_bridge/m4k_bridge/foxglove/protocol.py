@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import struct
 from typing import Any, Callable, Mapping, Sequence
 
@@ -165,14 +166,16 @@ def service_definitions(type_name: str, share: Callable[[str], str] = _default_s
     package, name = parts[0], parts[2]
     with open(os.path.join(share(package), 'srv', name + '.srv'), encoding='utf-8') as f:
         text = f.read()
-    halves = text.split('\n---')
+    halves = re.split(r'^---[ \t]*$', text, flags=re.MULTILINE)
     if len(halves) != 2:
-        raise ValueError('{}: expected one --- separator'.format(type_name))
-    return (_with_dependencies(halves[0], package, share),
-            _with_dependencies(halves[1].lstrip('-\n'), package, share))
+        raise ValueError('{}: expected one --- separator line'.format(type_name))
+    return (_with_dependencies(halves[0].strip('\n'), package, share),
+            _with_dependencies(halves[1].strip('\n'), package, share))
 
 
 def _with_dependencies(text: str, package: str, share: Callable[[str], str]) -> str:
+    if not text.strip():
+        return ''          # an empty request or response (std_srvs/Trigger's request)
     out = [text.rstrip('\n')]
     seen: set[str] = set()
     stack = list(reversed(dependencies(text, package)))
