@@ -26,7 +26,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Bool
 from test_bringup import cmdline, start_bringup, write_overlay
 from websockets.asyncio.client import connect
-from wsenv import ground_truth
+from wsenv import ground_truth, ROOT
 
 from m4k_rt.testing import child_pids
 
@@ -142,6 +142,10 @@ def test_a_late_joiner_gets_odom_scan_and_the_latched_tf_tree_and_model(live):
             await c.until(lambda: c.info is not None, 'serverInfo')
             assert {'clientPublish', 'services'} <= set(c.info['capabilities'])
             assert 'cdr' in c.info['supportedEncodings']
+            # Every topic the shipped layout shows is served (what it publishes, the teleop
+            # test publishes as its panels do).
+            reads, _ = _layout_topics(_layout())
+            await c.until(lambda: reads <= set(c.channels), 'the layout topics')
             got = await c.subscribe(['/odom', '/scan', '/tf_static', '/robot_description'])
             await c.until(lambda: len(got['/odom']) >= 5 and len(got['/scan']) >= 2
                           and got['/tf_static'] and got['/robot_description'], 'messages')
@@ -163,6 +167,42 @@ def test_a_late_joiner_gets_odom_scan_and_the_latched_tf_tree_and_model(live):
     assert not [s for s in c.statuses if s['level'] == 2], c.statuses
 
 
+LAYOUT = os.path.join(ROOT, 'config', 'foxglove', 'm4k_layout.json')
+
+
+def _layout():
+    with open(LAYOUT, encoding='utf-8') as f:
+        return json.load(f)
+
+
+def _layout_topics(doc):
+    """Return the topics the layout's panels read, and {topic: type} of what they publish."""
+    cfg = doc['configById']
+    reads = {cfg['3D!m4k']['layers']['urdf']['topic'], *cfg['3D!m4k']['topics']}
+    for key, panel in cfg.items():
+        if key.startswith('Plot!'):
+            reads |= {p['value'].split('.', 1)[0] for p in panel['paths']}
+        elif key.startswith('DiagnosticSummary!'):
+            reads.add(panel['topicToRender'])
+    writes = {cfg['Teleop!m4k']['topic']: 'geometry_msgs/msg/Twist'}
+    writes.update({p['topicName']: p['datatype'] for k, p in cfg.items()
+                   if k.startswith('Publish!')})
+    return reads, writes
+
+
+def test_the_layout_names_every_panel_it_places():
+    doc = _layout()
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node['first']) + leaves(
+            node['second'])
+
+    assert sorted(leaves(doc['layout'])) == sorted(doc['configById'])
+    reads, writes = _layout_topics(doc)
+    assert {'/scan', '/odom', '/robot_description', '/diagnostics'} <= reads
+    assert writes == {'/cmd_vel': 'geometry_msgs/msg/Twist', '/e_stop': 'std_msgs/msg/Bool'}
+
+
 def _share(pkg):
     from ament_index_python.packages import get_package_share_directory
     return get_package_share_directory(pkg)
@@ -177,11 +217,11 @@ def test_teleop_on_cmd_vel_drives_the_robot_and_e_stop_stops_it(live):
         async with connect('ws://127.0.0.1:{}'.format(port), subprotocols=[SUBPROTOCOL]) as ws:
             c = Client(ws)
             await c.until(lambda: '/odom' in c.channels, 'the graph')
+            # As the layout's teleop and e-stop panels advertise.
+            _, writes = _layout_topics(_layout())
             await ws.send(json.dumps({'op': 'advertise', 'channels': [
-                {'id': 1, 'topic': '/cmd_vel', 'encoding': 'cdr',
-                 'schemaName': 'geometry_msgs/msg/Twist'},
-                {'id': 2, 'topic': '/e_stop', 'encoding': 'cdr',
-                 'schemaName': 'std_msgs/msg/Bool'}]}))
+                {'id': i, 'topic': t, 'encoding': 'cdr', 'schemaName': writes[t]}
+                for i, t in ((1, '/cmd_vel'), (2, '/e_stop'))]}))
             forward = b'\x01' + struct.pack('<I', 1) + serialize_message(
                 Twist(linear=Vector3(x=0.2)))
 
