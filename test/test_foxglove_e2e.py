@@ -272,7 +272,7 @@ def test_refuses_a_topic_outside_client_topics_and_unknown_channels(live):
     _run(main())
 
 
-def test_reset_odometry_is_callable_as_a_service(live):
+def test_reset_odometry_is_callable_and_the_bridge_parameters_readable(live):
     port, _, _ = live
     from std_srvs.srv import Trigger
 
@@ -292,6 +292,22 @@ def test_reset_odometry_is_callable_as_a_service(live):
             sid, call, encoding, payload = c.responses[0]
             assert (sid, call, encoding) == (svc['id'], 42, 'cdr')
             assert deserialize_message(payload, Trigger.Response).success is True
+            # The bridge's parameters, read through the parameters capability.
+            values = {}
+            deadline = time.monotonic() + WAIT_S
+            while '/m4k_bridge.odom_frame' not in values:
+                assert time.monotonic() < deadline, 'no bridge parameters'
+                await ws.send(json.dumps({'op': 'getParameters', 'parameterNames': [],
+                                          'id': 'q'}))
+                await c.until(lambda: c.texts[-1]['op'] == 'parameterValues', 'the values')
+                reply = c.texts[-1]
+                assert reply['id'] == 'q'
+                values = {p['name']: p for p in reply['parameters']}
+            assert values['/m4k_bridge.odom_frame']['value'] == 'odom'
+            assert values['/m4k_bridge.topics.cmd_vel']['value'] == 'cmd_vel'
+            assert values['/m4k_bridge.rt_status_period'] == {
+                'name': '/m4k_bridge.rt_status_period', 'value': 1.0, 'type': 'float64'}
+            assert values['/m4k_foxglove.address']['value'] == '127.0.0.1'
 
     _run(main())
 
