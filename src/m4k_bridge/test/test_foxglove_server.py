@@ -227,3 +227,9 @@ def test_service_definitions_split_the_srv_and_append_dependencies(tmp_path):
     assert resp == 'bool ok\n'
     with pytest.raises(ValueError, match='not a service type'):
         protocol.service_definitions('p/msg/S')
+
+
+def test_a_port_in_use_is_a_clear_error(server):
+    other = Server(Handler(), '127.0.0.1', server.port)
+    with pytest.raises(OSError, match='address already in use'):
+        other.start()
