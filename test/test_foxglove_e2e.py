@@ -53,9 +53,11 @@ def _log_port(path, deadline):
 
 
 @pytest.fixture
-def live(procs, tmp_path, m4k_runtime_dir):
+def live(procs, tmp_path, m4k_runtime_dir, request):
     """The stack with the live view on a free port; yield (port, runtime dir, bringup)."""
-    overlay = write_overlay(tmp_path, {'world': {'start': START}})
+    extra = {'world': {'start': START}}
+    extra.update(getattr(request, 'param', {}))
+    overlay = write_overlay(tmp_path, extra)
     proc = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay,
                          extra=['--no-status', '--foxglove', '--foxglove-port', '0'])
     try:
@@ -250,6 +252,43 @@ def test_teleop_on_cmd_vel_drives_the_robot_and_e_stop_stops_it(live):
             assert not [s for s in c.statuses if s['level'] == 2], c.statuses
 
     _run(main())
+
+
+@pytest.mark.parametrize('live', [{'control': {'cmd_vel_timeout': 0.0}}], indirect=True)
+def test_a_teleop_client_that_disconnects_leaves_the_robot_stopped(live):
+    # With the RT command timeout off the robot would keep its last command forever (up to
+    # the collision guard at the wall, metres ahead): only the zero Twist the server publishes
+    # when the client's cmd_vel channel goes away stops it, within its braking distance plus
+    # the delivery delay (0.5 m at 0.2 m/s is 2 s of delay; the wall is 3.5 m away).
+    port, runtime_dir, _ = live
+    start = ground_truth(runtime_dir)
+
+    async def main():
+        ws = await connect('ws://127.0.0.1:{}'.format(port), subprotocols=[SUBPROTOCOL])
+        c = Client(ws)
+        await c.until(lambda: c.info is not None, 'serverInfo')
+        await ws.send(json.dumps({'op': 'advertise', 'channels': [
+            {'id': 1, 'topic': '/cmd_vel', 'encoding': 'cdr',
+             'schemaName': 'geometry_msgs/msg/Twist'}]}))
+        forward = b'\x01' + struct.pack('<I', 1) + serialize_message(
+            Twist(linear=Vector3(x=0.2)))
+        deadline = time.monotonic() + WAIT_S
+        while ground_truth(runtime_dir)['pose'][0] - start['pose'][0] < 0.2:
+            assert time.monotonic() < deadline, 'the robot did not drive'
+            await ws.send(forward)
+            await c.pump(0.1)
+        await ws.send(forward)
+        ws.transport.abort()          # the connection drops: no close, no unadvertise
+        return ground_truth(runtime_dir)
+
+    gone = asyncio.run(main())
+    deadline = time.monotonic() + WAIT_S
+    while abs(ground_truth(runtime_dir)['v']) > 0.005:
+        assert time.monotonic() < deadline, 'the robot did not stop'
+        time.sleep(0.1)
+    rest = ground_truth(runtime_dir)
+    assert rest['pose'][0] - gone['pose'][0] < 0.5, (gone['pose'], rest['pose'])
+    assert rest['collisions'] == 0
 
 
 def test_refuses_a_topic_outside_client_topics_and_unknown_channels(live):
