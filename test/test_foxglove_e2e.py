@@ -331,6 +331,12 @@ def test_reset_odometry_is_callable_and_the_bridge_parameters_readable(live):
             sid, call, encoding, payload = c.responses[0]
             assert (sid, call, encoding) == (svc['id'], 42, 'cdr')
             assert deserialize_message(payload, Trigger.Response).success is True
+            # A request in an encoding the server did not offer fails with the reason.
+            await ws.send(struct.pack('<BIII', 0x02, svc['id'], 43, 4) + b'json' + b'{}')
+            await c.until(lambda: c.texts[-1]['op'] == 'serviceCallFailure', 'the failure')
+            failure = c.texts[-1]
+            assert (failure['serviceId'], failure['callId']) == (svc['id'], 43)
+            assert "encoding 'json' not supported" in failure['message']
             # The bridge's parameters, read through the parameters capability.
             values = {}
             deadline = time.monotonic() + WAIT_S

@@ -319,24 +319,28 @@ class FoxgloveNode(Node):
 
     def _call(self, client: int, sid: int, call_id: int, encoding: str, payload: bytes) -> None:
         cli, cls, name = self._svc[sid]
+
+        def fail(why: str) -> None:
+            self.server.send_text(client, fp.service_call_failure(
+                sid, call_id, '{}: {}'.format(name, why)))
+
         if encoding != 'cdr':
-            self.server.send_text(client, fp.status(2, '{}: encoding {!r} not supported, use '
-                                                       'cdr'.format(name, encoding)))
+            fail('encoding {!r} not supported, use cdr'.format(encoding))
             return
         try:
             request = deserialize_message(payload, cls.Request)
         except Exception as exc:  # noqa: BLE001 -- rclpy raises a private error type
             self.bad_client_messages += 1
-            self.server.send_text(client, fp.status(2, '{}: bad request: {}'.format(name, exc)))
+            fail('bad request: {}'.format(exc))
             return
         if not cli.service_is_ready():
-            self.server.send_text(client, fp.status(2, '{}: no server'.format(name)))
+            fail('no server')
             return
 
         def done(fut: Any) -> None:
             res = fut.result()
             if res is None:
-                self.server.send_text(client, fp.status(2, '{}: call failed'.format(name)))
+                fail('call failed')
                 return
             self.server.send_binary(client, fp.service_call_response(
                 sid, call_id, 'cdr', serialize_message(res)))

@@ -24,7 +24,8 @@ __all__ = [
     'CLIENT_SERVICE_CALL_REQUEST', 'ProtocolError', 'SUBPROTOCOL', 'advertise',
     'advertise_services', 'message_data', 'parameter_value', 'parameter_values',
     'parse_client_message_data', 'parse_service_call_request', 'server_info',
-    'service_call_response', 'service_definitions', 'status', 'unadvertise',
+    'service_call_failure', 'service_call_response', 'service_definitions', 'status',
+    'unadvertise',
 ]
 
 SUBPROTOCOL = 'foxglove.websocket.v1'
@@ -75,6 +76,12 @@ def unadvertise(channel_ids: Sequence[int]) -> str:
 def advertise_services(services: Sequence[Mapping[str, Any]]) -> str:
     """Return an ``advertiseServices`` message (id, name, type, requestSchema, responseSchema)."""
     return _json({'op': 'advertiseServices', 'services': [dict(s) for s in services]})
+
+
+def service_call_failure(service_id: int, call_id: int, message: str) -> str:
+    """Return a ``serviceCallFailure`` message (a call that got no response, and why)."""
+    return _json({'op': 'serviceCallFailure', 'serviceId': int(service_id),
+                  'callId': int(call_id), 'message': message})
 
 
 def message_data(subscription_id: int, receive_ns: int, payload: bytes) -> bytes:
