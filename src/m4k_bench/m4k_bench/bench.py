@@ -62,7 +62,7 @@ FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 6.0, 'rt
 QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt_n': 500,
          'cmd_trials': 10}
 # One round, in this order (reversed every other round).
-CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_alone', 'baseline_idle',
+CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_live', 'm4k_alone', 'baseline_idle',
               'ct_stress', 'm4k_stress', 'baseline_stress')
 PHASES = ('floor', *CONDITIONS, 'breakdown', 'rtt', 'scaling', 'cmdlat')
 
@@ -296,7 +296,8 @@ class Bench:
 
     def _m4k(self, key: str, tag: str, seconds: float, *, tasks: str | None = None,
              period_ns: int = PERIOD_NS, with_ct: bool = True,
-             rt_config: str | None = None, profile: bool = False) -> dict[str, Any] | None:
+             rt_config: str | None = None, profile: bool = False,
+             live: bool = False) -> dict[str, Any] | None:
         ct = _Concurrent(seconds + WARMUP_S, period_ns // 1000, with_ct and self.has_ct)
         env = self.env
         prof_path = os.path.join(self.outdir, 'raw', tag + '_cycle_profile.json')
@@ -306,7 +307,7 @@ class Bench:
                             driver_host=self.has_host, env=env,
                             progress=self.progress.update,
                             rt_config=rt_config if rt_config else self.args.rt_config,
-                            on_started=ct.start)
+                            on_started=ct.start, live=live)
         ct_res = ct.join()
         for e in run.errors:
             self._note('{}: {}'.format(tag, e))
@@ -321,6 +322,8 @@ class Bench:
         status = summ.get('rt_status')
         rates = [1e9 / (t['period_ms'] * 1e6) for t in summ['tasks'] if t['period_ms'] > 0]
         res = dict(act)
+        if run.live_view is not None:
+            res['live_view'] = run.live_view
         res.update(
             hardening=rounds.hardening_label(status),
             cyclictest=ct_res,
@@ -466,6 +469,8 @@ class Bench:
             'ct_idle': ('cyclictest alone, idle', lambda: self._cyclictest_alone(cond_s)),
             'm4k_idle': ('m4k full stack, idle', lambda: self._m4k(
                 'm4k_idle', 'r{}_m4k_idle'.format(k), cond_s)),
+            'm4k_live': ('m4k full stack + live view with a viewer, idle', lambda: self._m4k(
+                'm4k_live', 'r{}_m4k_live'.format(k), cond_s, live=True)),
             'm4k_alone': ('m4k actuator alone, idle', lambda: self._m4k(
                 'm4k_alone', 'r{}_m4k_alone'.format(k), cond_s, tasks=ACTUATOR)),
             'baseline_idle': ('plain-ROS baseline, idle', lambda: self._baseline(

@@ -166,6 +166,9 @@ RATIOS: tuple[Ratio, ...] = (
     Ratio('release_p999_over_cyclictest_stress', 'actuator release p99.9 ÷ concurrent '
           'cyclictest p99.9, stress-ng', ('m4k_stress', 'latency_us', 'p999'),
           ('m4k_stress', 'cyclictest', 'p999')),
+    Ratio('live_view_over_idle_p99', 'actuator release p99 with the live view and a viewer '
+          '÷ without, idle', ('m4k_live', 'latency_us', 'p99'),
+          ('m4k_idle', 'latency_us', 'p99')),
     Ratio('five_tasks_over_alone_p99', 'actuator release p99, five tasks ÷ alone',
           ('m4k_idle', 'latency_us', 'p99'), ('m4k_alone', 'latency_us', 'p99')),
     Ratio('xddp_rtt_p50_over_raw', "XDDP round trip p50 (tasks' receive path) ÷ raw socket",
@@ -184,7 +187,7 @@ RATIOS: tuple[Ratio, ...] = (
           ('ct_idle', 'latency_us', 'p99')),
 )
 RATIO_KEYS = tuple(r.key for r in RATIOS)
-M4K_CONDITIONS = ('m4k_idle', 'm4k_alone', 'm4k_stress')
+M4K_CONDITIONS = ('m4k_idle', 'm4k_live', 'm4k_alone', 'm4k_stress')
 
 
 def hardened_rounds(rounds_: Sequence[Mapping[str, Any]]) -> tuple[list[dict[str, Any]],
