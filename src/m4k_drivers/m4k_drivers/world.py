@@ -87,6 +87,8 @@ class RobotParams:
         Full scale is the wheel speed at code 1023, so the top speed is that times the radius.
         """
         base = cls()
+        if control is not None and not isinstance(control, dict):
+            raise WorldConfigError(f'control: expected a mapping, got {control!r}')
         vals: dict[str, float] = {}
         for key in ('wheel_radius', 'track_width', 'gear_ratio', 'full_scale_wheel_speed'):
             v = (control or {}).get(key)

@@ -76,6 +76,8 @@ def test_the_simulated_robot_is_the_configured_one_unless_world_robot_says_other
     assert built.world.robot.wheel_radius_m == pytest.approx(0.1)
     with pytest.raises(WorldConfigError, match=r'control\.wheel_radius: must be a number > 0'):
         RobotParams.from_control({'wheel_radius': -1})
+    with pytest.raises(dconfig.ConfigError, match=r'control: expected a mapping'):
+        dconfig.validate({}, control=[0.1])
 
 
 @pytest.mark.parametrize('robot, message', [
@@ -108,3 +110,13 @@ def test_amplifier_offset_and_dead_band_on_ground_truth():
     world.now()
     assert world.state().wheel_speed[RIGHT] == pytest.approx((6.0 + 0.3 - 0.9) / 24.0 * maxw,
                                                              rel=1e-6)
+
+
+def test_sim_robot_refuses_a_control_section_it_cannot_build_a_robot_from(tmp_path, capsys,
+                                                                          m4k_runtime_dir):
+    from m4k_drivers import sim_robot
+    overlay = tmp_path / 'bad.yaml'
+    overlay.write_text('control: {wheel_radius: big}\n')
+    assert sim_robot.main(['--overlay', str(overlay), '--runtime-dir', m4k_runtime_dir,
+                           '--priority', '0']) == 2
+    assert "control.wheel_radius: must be a number > 0, got 'big'" in capsys.readouterr().err
