@@ -10,6 +10,9 @@ here = os.path.dirname(os.path.abspath(__file__))
 # The workspace-level config/ is the single source of defaults; this package is its one install.
 config_files = sorted(
     os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', '*.yaml')))
+layout_files = sorted(  # the Foxglove layout of the live view (ros2 run m4k_bridge foxglove)
+    os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', 'foxglove',
+                                                        '*.json')))
 launch_files = sorted(os.path.relpath(p, here) for p in glob(os.path.join(here, 'launch', '*.py')))
 
 setup(
@@ -21,6 +24,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', config_files),
+        ('share/' + package_name + '/config/foxglove', layout_files),
         ('share/' + package_name + '/launch', launch_files),
     ],
     install_requires=['setuptools'],
