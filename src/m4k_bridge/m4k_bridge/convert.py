@@ -6,7 +6,8 @@ only, not the client library), or plain tuples for the reverse direction. Conven
 
 * REP-103 units and axes, REP-105 frames (odom -> base_link), REP-145 for the IMU (a
   covariance whose first element is -1 marks an absent quantity);
-* REP-117 for invalid ranges: +inf = nothing within range, NaN = erroneous reading;
+* REP-117 for invalid ranges: +inf = nothing within range, NaN = erroneous reading (the
+  scan; a sonar reading that is not a range is dropped instead, :func:`sonar_msg`);
 * stamps: datagrams carry the sender's CLOCK_MONOTONIC; :func:`ros_stamp_ns` moves that
   instant onto the ROS clock by the age of the datagram, so a message is stamped when it was
   measured, not when the bridge got round to it.
@@ -193,12 +194,22 @@ def scan_msg(scan: protocol.LaserScan, stamp_ns: int, frame_id: str) -> LaserSca
 
 
 def sonar_msg(sonar: protocol.Sonar, stamp_ns: int, frame_id: str, field_of_view: float,
-              min_range: float, max_range: float) -> Range:
-    """Build sensor_msgs/Range (ULTRASOUND).
+              min_range: float, max_range: float, no_echo: str = 'inf') -> Range | None:
+    """Build sensor_msgs/Range (ULTRASOUND), or None when the reading must not be published.
 
-    No echo within range -> +inf; timeout or fault -> NaN (REP-117), so a consumer can tell
-    "free ahead" from "sensor broken".
+    No echo within range -> +inf (REP-117, ``no_echo='inf'``) or ``max_range``
+    (``no_echo='max_range'``: what Nav2's range layer clears with ``clear_on_max_reading``).
+    A timeout, a fault or a non-finite range gives None: Nav2's range layer lets NaN through
+    its ``<`` / ``>`` checks, so an erroneous reading is dropped (the caller counts it).
     """
+    if sonar.status == protocol.SONAR_OK:
+        if not math.isfinite(sonar.range_m):
+            return None
+        value = sonar.range_m
+    elif sonar.status == protocol.SONAR_NO_ECHO:
+        value = max_range if no_echo == 'max_range' else math.inf
+    else:
+        return None
     msg = Range()
     msg.header.stamp = time_msg(stamp_ns)
     msg.header.frame_id = frame_id
@@ -206,12 +217,7 @@ def sonar_msg(sonar: protocol.Sonar, stamp_ns: int, frame_id: str, field_of_view
     msg.field_of_view = field_of_view
     msg.min_range = min_range
     msg.max_range = max_range
-    if sonar.status == protocol.SONAR_OK:
-        msg.range = sonar.range_m
-    elif sonar.status == protocol.SONAR_NO_ECHO:
-        msg.range = math.inf
-    else:
-        msg.range = math.nan
+    msg.range = value
     return msg
 
 

@@ -175,9 +175,9 @@ class BaseController:
         """Latch (True) or release (False) the e-stop; takes effect at the next ``step``."""
         self.estop.set(engage)
 
-    def reset_pose(self) -> None:
-        """Zero the odometry pose (x, y, yaw); speeds and the encoder baseline are kept."""
-        self.odom.set_pose()
+    def reset_pose(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> None:
+        """Set the odometry pose (zero by default); speeds and the encoder baseline are kept."""
+        self.odom.set_pose(x, y, yaw)
         self.pose_resets += 1
 
     def encoders(self, left_angle: float, right_angle: float, stamp_ns: int, rx_ns: int,
