@@ -10,6 +10,13 @@ here = os.path.dirname(os.path.abspath(__file__))
 # The workspace-level config/ is the single source of defaults; this package is its one install.
 config_files = sorted(
     os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', '*.yaml')))
+# Recipes for the stack around the base (Nav2, slam_toolbox, RViz, ...): config/<tool>/.
+config_dir = os.path.join(here, '..', '..', 'config')
+recipe_dirs = sorted(os.path.basename(d) for d in glob(os.path.join(config_dir, '*'))
+                     if os.path.isdir(d))
+recipes = [('share/{}/config/{}'.format(package_name, d),
+            sorted(os.path.relpath(p, here) for p in glob(os.path.join(config_dir, d, '*'))))
+           for d in recipe_dirs]
 launch_files = sorted(os.path.relpath(p, here) for p in glob(os.path.join(here, 'launch', '*.py')))
 
 setup(
@@ -22,6 +29,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', config_files),
         ('share/' + package_name + '/launch', launch_files),
+        *recipes,
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

@@ -194,10 +194,11 @@ def scan_msg(scan: protocol.LaserScan, stamp_ns: int, frame_id: str) -> LaserSca
 
 
 def sonar_msg(sonar: protocol.Sonar, stamp_ns: int, frame_id: str, field_of_view: float,
-              min_range: float, max_range: float, no_echo: str = 'inf') -> Range | None:
+              min_range: float, max_range: float,
+              no_echo: str = 'positive_infinity') -> Range | None:
     """Build sensor_msgs/Range (ULTRASOUND), or None when the reading must not be published.
 
-    No echo within range -> +inf (REP-117, ``no_echo='inf'``) or ``max_range``
+    No echo within range -> +inf (REP-117, ``no_echo='positive_infinity'``) or ``max_range``
     (``no_echo='max_range'``: what Nav2's range layer clears with ``clear_on_max_reading``).
     A timeout, a fault or a non-finite range gives None: Nav2's range layer lets NaN through
     its ``<`` / ``>`` checks, so an erroneous reading is dropped (the caller counts it).

@@ -45,7 +45,7 @@ TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 
 # Topics whose ROS convention is absolute (tf2_ros, robot_state_publisher and the diagnostic
 # aggregator use /tf, /tf_static, /diagnostics): a namespace must not split them off.
 _ABSOLUTE_TOPICS = {'diagnostics': '/diagnostics'}
-SONAR_NO_ECHO = ('inf', 'max_range')
+SONAR_NO_ECHO = ('positive_infinity', 'max_range')
 
 _TOPIC = re.compile(r'^~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 _FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
@@ -228,7 +228,8 @@ SPECS: tuple[Field, ...] = (
               lo=0.01, hi=math.pi),
     ParamSpec('sonar_min_range', 0.02, 'Sonar minimum range [m] (US-100: 2 cm).',
               lo=0.0, hi=10.0),
-    ParamSpec('sonar_no_echo', 'inf', "What sonar range says 'nothing within range': 'inf' "
+    ParamSpec('sonar_no_echo', 'positive_infinity', "What sonar range says 'nothing within "
+              "range': 'positive_infinity' "
               "(REP-117 +inf; Nav2's range layer ignores such a reading) or 'max_range' "
               "(sonar_max_range, which Nav2's range layer clears with clear_on_max_reading: "
               'true). Faulty readings (timeout, bad echo) are never published: dropped and '

@@ -453,7 +453,7 @@ def test_frames_changed_at_run_time_reach_odom_and_tf(harness):
     assert (odom[-1].header.frame_id, odom[-1].child_frame_id) == ('world_odom', 'base_link')
 
 
-@pytest.mark.parametrize('no_echo', ['inf', 'max_range'])
+@pytest.mark.parametrize('no_echo', ['positive_infinity', 'max_range'])
 def test_sonar_never_publishes_nan(m4k_runtime_dir, no_echo):
     h = Harness(m4k_runtime_dir, [Parameter('sonar_no_echo', value=no_echo)])
     try:
@@ -466,7 +466,7 @@ def test_sonar_never_publishes_nan(m4k_runtime_dir, no_echo):
         assert h.spin_until(lambda: len(sonar) >= 3 and
                             h.bridge.health.counters['sonar_dropped'] >= 6, each=feed)
         assert not any(math.isnan(m.range) for m in sonar)
-        want = math.inf if no_echo == 'inf' else sonar[-1].max_range
+        want = math.inf if no_echo == 'positive_infinity' else sonar[-1].max_range
         assert all(m.range == want for m in sonar)
     finally:
         h.close()
