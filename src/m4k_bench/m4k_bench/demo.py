@@ -57,6 +57,7 @@ from m4k_bench.planning.evaluate import (
     WorldGeometry,
 )
 from m4k_rt import config, description, rosargs
+from m4k_rt.proc import stop_process
 
 __all__ = ['main', 'pose_rate']
 
@@ -106,23 +107,10 @@ class _Child:
 
     def stop(self, timeout: float) -> int | None:
         """SIGINT the process group, wait, then SIGKILL; return the exit code."""
-        for sig, wait in ((signal.SIGINT, timeout), (signal.SIGKILL, 5.0)):
-            if self.proc.poll() is not None:
-                break
-            try:
-                os.killpg(self.proc.pid, sig)
-            except ProcessLookupError:
-                break
-            try:
-                self.proc.wait(wait)
-            except subprocess.TimeoutExpired:
-                _log(f'{self.name} did not stop within {wait:g} s')
-        try:  # grandchildren left behind, if any
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
+        rc = stop_process(self.proc, signal.SIGINT, timeout, on_escalate=lambda t: _log(
+            f'{self.name} did not stop within {t:g} s'))
         self._log.close()
-        return self.proc.returncode
+        return rc
 
     def tail(self, n: int = 15) -> str:
         try:

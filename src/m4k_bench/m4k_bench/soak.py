@@ -37,6 +37,7 @@ from typing import Any, Sequence
 from m4k_bench import core_bench
 from m4k_bench.benchlib import stack, system
 from m4k_rt import config, recorder, rosargs, xddp
+from m4k_rt.proc import stop_process
 
 __all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
 
@@ -288,13 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 ct.wait()
         stat.close()
         bu_rc = bu.poll()
-        if bu_rc is None:
-            bu.send_signal(signal.SIGINT)
-            try:
-                bu.wait(60)
-            except subprocess.TimeoutExpired:
-                os.killpg(bu.pid, signal.SIGKILL)
-                bu.wait()
+        stop_process(bu, signal.SIGINT, 60, group=False)
         shutil.rmtree(tmp, ignore_errors=True)
     log_text = open(log_path, errors='replace').read()
     summary['bringup_exit'] = bu.returncode

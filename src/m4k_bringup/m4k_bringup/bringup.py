@@ -46,8 +46,10 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 import yaml
 
 from m4k_bridge import params as bridge_params
+from m4k_drivers import simbus
 from m4k_rt import config, rosargs
 from m4k_rt.control.params import control_params
+from m4k_rt.proc import stop_process
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
@@ -58,7 +60,6 @@ __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 
 STABLE_S = 30.0           # a child running this long has its backoff reset
 STOP_TIMEOUT_S = 8.0      # per child, then SIGKILL
 CONFIG_ERROR = 2
-SIM_BUS_SOCKET = 'sim-bus.sock'   # m4k_drivers.simbus.SOCKET_NAME
 
 
 @dataclasses.dataclass(frozen=True)
@@ -267,19 +268,11 @@ class Child:
         self.next_start = 0.0
         if proc is None:
             return None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.console.line('bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
-                    self.spec.name, timeout))
-                proc.kill()
-                proc.wait(5.0)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)  # anything it left in its group
-        except (ProcessLookupError, PermissionError):
-            pass
+        # The process only: it stops its own children in order (a group signal would not).
+        stop_process(proc, signal.SIGTERM, timeout, group=False, close_streams=False,
+                     on_escalate=lambda t: self.console.line(
+                         'bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
+                             self.spec.name, t)))
         self._finish()
         self.last_rc = proc.returncode
         self.proc = None
@@ -374,7 +367,7 @@ def sim_ready(runtime_dir: str) -> bool:
     """Return True when a simulator accepts connections on ``runtime_dir``'s sim-bus socket."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        sock.connect(os.path.join(runtime_dir, SIM_BUS_SOCKET))
+        sock.connect(os.path.join(runtime_dir, simbus.SOCKET_NAME))
         return True
     except OSError:
         return False

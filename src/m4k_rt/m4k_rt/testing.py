@@ -35,6 +35,8 @@ from typing import Any, Iterator
 
 import pytest
 
+from m4k_rt.proc import stop_process
+
 __all__ = ['pytest_configure', 'pytest_runtest_setup', 'pytest_runtest_logreport',
            'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
            'child_pids', 'socket_fds', 'examples', 'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
@@ -239,24 +241,9 @@ class ProcessGroup:
     def stop(self, proc: subprocess.Popen, sig: int = signal.SIGTERM,
              timeout: float = 10.0) -> int:
         """Signal the process's group, wait, escalate to SIGKILL; return the exit code."""
-        if proc.poll() is None:
-            try:
-                os.killpg(proc.pid, sig)
-            except ProcessLookupError:
-                pass
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)  # grandchildren, if any survived
-        except (ProcessLookupError, PermissionError):
-            pass
-        for stream in (proc.stdout, proc.stderr, proc.stdin):
-            if stream is not None:
-                stream.close()
-        return proc.returncode
+        rc = stop_process(proc, sig, timeout)
+        assert rc is not None, f'{proc.args!r} survived SIGKILL'
+        return rc
 
     def stop_all(self) -> None:
         """Stop every process started through this group."""

@@ -32,6 +32,7 @@ from typing import Any, Callable, Sequence
 
 from m4k_bench.benchlib import system
 from m4k_rt import protocol, recorder, xddp
+from m4k_rt.proc import stop_process
 
 __all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
            'ros_commander', 'start_sim_robot', 'start_stack', 'velocity_profile']
@@ -87,15 +88,10 @@ class Child:
 
     def stop(self, grace_s: float = 8.0) -> int:
         """SIGTERM, wait ``grace_s``, then SIGKILL; return the exit code."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(grace_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        rc = stop_process(self.proc, signal.SIGTERM, grace_s, group=False)
         self._log.close()
-        return self.proc.returncode
+        assert rc is not None, f'{self.name} survived SIGKILL'
+        return rc
 
     def wait(self, timeout: float) -> int | None:
         """Wait up to ``timeout`` s for the exit; return the code or None."""

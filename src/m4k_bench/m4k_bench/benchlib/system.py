@@ -19,6 +19,8 @@ import sys
 import time
 from typing import Any, Callable
 
+from m4k_rt.proc import stop_process
+
 __all__ = ['DmaLatency', 'STRESS_ARGS', 'Stress', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
            'machine_info', 'proc_cpu_seconds']
 
@@ -88,19 +90,8 @@ class Stress:
         if proc is None:
             return
         self.proc = None
-        for sig, wait in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
-            try:
-                os.killpg(proc.pid, sig)
-            except ProcessLookupError:
-                break
-            try:
-                proc.wait(wait)
-                # workers may outlive the parent briefly: the group is gone when killpg fails
-                time.sleep(0.2)
-            except subprocess.TimeoutExpired:
-                continue
-        if proc.poll() is None:
-            proc.wait()
+        # SIGTERM to the group; the final group SIGKILL ends workers that outlive the parent
+        stop_process(proc, signal.SIGTERM, 5.0)
 
 
 class DmaLatency:
