@@ -190,3 +190,39 @@ def test_odom_reset_is_acknowledged_with_its_id_and_the_pose_is_zero(rig):
     assert kinds[0] == p.Kind.ODOM_RESET and got[0][1] == p.OdomReset(77)
     odom = [m for h, m in got if h.kind == p.Kind.ODOMETRY][0]
     assert odom.x < 0.02                   # at most five cycles of motion since the reset
+
+
+def test_set_pose_is_acknowledged_with_the_pose_as_set(rig):
+    body, motor = _build(rig)
+    t = _cycle(rig, body, motor, PERIOD)
+    rig.read_all('cmd')
+    rig.write('cmd', p.Kind.SET_POSE, 9, 1.5, -2.0, 7.0)      # yaw wraps into (-pi, pi]
+    t = _cycle(rig, body, motor, t)
+    got = rig.read_all('cmd')
+    assert got[0][0].kind == p.Kind.SET_POSE
+    ack = got[0][1]
+    assert (ack.request_id, ack.x, ack.y) == (9, 1.5, -2.0)
+    assert ack.yaw == pytest.approx(7.0 - 2 * math.pi)
+    for _ in range(6):                       # ODOMETRY goes out every odom_every_n cycles
+        t = _cycle(rig, body, motor, t)
+    odom = [m for h, m in got + rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY][-1]
+    assert (odom.x, odom.y) == pytest.approx((1.5, -2.0), abs=1e-6)
+
+
+def test_applied_velocity_is_what_the_actuator_drives_after_limits_and_e_stop(rig):
+    body, motor = _build(rig)
+    t = _cycle(rig, body, motor, PERIOD)
+    for _ in range(10):                      # 5 m/s asked: the limiter ramps at 0.37 m/s^2
+        rig.write('cmd', p.Kind.VELOCITY_CMD, 5.0, 0.0)
+        t = _cycle(rig, body, motor, t)
+    applied = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.APPLIED_VELOCITY]
+    assert applied and all(0.0 < a.linear_x <= 0.37 * 0.01 * 10 + 1e-9 for a in applied[1:])
+    # sent with each ODOMETRY: the ramp's value of that cycle, rising, never the 5 m/s asked
+    assert [a.linear_x for a in applied] == sorted(a.linear_x for a in applied)
+    assert 0.0 < applied[-1].linear_x <= body.ctl.v
+    rig.write('cmd', p.Kind.E_STOP, 1)
+    for _ in range(20):
+        rig.write('cmd', p.Kind.VELOCITY_CMD, 5.0, 0.0)
+        t = _cycle(rig, body, motor, t)
+    applied = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.APPLIED_VELOCITY]
+    assert applied[-1] == p.AppliedVelocity(0.0, 0.0)   # the latch, whatever is commanded
