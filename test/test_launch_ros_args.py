@@ -48,6 +48,7 @@ TOOLS = {
     'loop_ab': (['--variant', 'x={tmp}'], 2, r'expected NAME=DIR with DIR/m4k_rt'),
     'bench': (['--duration', '-1'], 2, r'must be > 0 s, got -1.0'),      # its own check
     'demo': (['--timeout', '-1'], 2, r'demo: bad arguments: timeout -1.0'),
+    'config_doc': (['--markdown'], 0, r'## runtime \(config/m4k.yaml\)'),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),
 }

@@ -13,7 +13,7 @@ from typing import Sequence
 
 from m4k_bridge import params as bridge_params
 from m4k_drivers.config import schema_sections
-from m4k_rt import schema
+from m4k_rt import rosargs, schema
 
 
 def all_sections() -> list[schema.Section]:
@@ -34,7 +34,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog='config_doc', description='The m4k configuration schema.')
     ap.add_argument('--markdown', action='store_true',
                     help='print docs/configuration.md (every field of every section)')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)   # launch_ros's --ros-args section accepted
     if not args.markdown:
         ap.print_help()
         return 0

@@ -31,7 +31,7 @@ import time
 from typing import Any, Sequence, TextIO
 
 from m4k_drivers import config as dconfig
-from m4k_drivers import registry
+from m4k_drivers import registry, safety
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, protocol, rosargs
 from m4k_rt.sched import SchedError, set_thread_fifo
@@ -90,6 +90,7 @@ class DeviceService:
         self.seq = 0
         self.malformed = 0
         self.unexpected = 0
+        self.stale = 0
         self.served = 0
         self.encode_errors = 0
         self._status_state: tuple[int, int] | None = None
@@ -206,6 +207,15 @@ class DeviceService:
             return
         if hdr.kind not in self.spec.accepts:
             self.unexpected += 1
+            return
+        max_age = self.spec.max_age(self.section)
+        if max_age is not None and time.monotonic_ns() - hdr.stamp_ns > max_age * 1e9:
+            # Queued while this host stalled: replaying it would drive (and re-enable the
+            # amplifier) on a command the RT side has long replaced.
+            self.stale += 1
+            if self.stale == 1 or self.stale % 100 == 0:
+                LOG.warning('%s: dropped %d datagram(s) older than %.3f s (a stall?)',
+                            self.handler.name, self.stale, max_age)
             return
         self.served += 1
         self._serve(msg)
@@ -354,6 +364,12 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
         enabled = [kind for kind, section in cfg.devices.items() if section['enabled']]
         for kind in enabled:
             registry.service(kind)          # a kind with backends but no service: refused
+        # Serving the RT side drives the robot: refuse real motors without their protections
+        # (one device's --print / --jog bring-up drives nothing on the RT's behalf).
+        refusal = None if args.print_mode or args.jog is not None else safety.unsafe_mix(
+            raw | {'devices': devices})
+        if refusal:
+            raise dconfig.ConfigError(refusal)
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2

@@ -192,6 +192,9 @@ class ServiceSpec(Generic[H]):
     * ``tick(handler)``: every loop pass while ACTIVE (the motor watchdog).
     * ``on_link_lost(handler)``: the RT side went away while ACTIVE (motors safe at once);
       a DriverError it raises is counted as a fault.
+    * ``max_age(section)``: oldest datagram (its header stamp, the sender's CLOCK_MONOTONIC) still
+      served, s; older ones are counted ``stale`` and dropped (None: any age).  The motors
+      set two periods, so commands queued during a driver-host stall are not replayed.
     * ``format(value)``: one ``--print`` line for a reading.
     * ``path_key``: the config field ``--port`` sets (and ``--bus`` when ``bus_arg``; a
       number is passed as an int); ``jog``: the ``--jog`` bring-up tool, if any.
@@ -202,6 +205,7 @@ class ServiceSpec(Generic[H]):
     format: Callable[[Any], str] | None = None
     read_timeout: Callable[[Mapping[str, Any]], float] = _default_timeout
     stream_period: Callable[[Mapping[str, Any]], float | None] = _no_stream
+    max_age: Callable[[Mapping[str, Any]], float | None] = _no_stream
     tick: Callable[[H], object] | None = None
     on_link_lost: Callable[[H], object] | None = None
     path_key: str = 'port'

@@ -33,6 +33,7 @@ import time
 from typing import Any, Callable
 
 from m4k_drivers import config as dconfig
+from m4k_drivers import safety
 from m4k_drivers.simbus import read_truth, SimBusServer, socket_path
 from m4k_drivers.world import World
 from m4k_rt import rosargs
@@ -158,7 +159,8 @@ class SimRobot:
     def _build_lrf(self, s: dict[str, Any]) -> None:
         from m4k_drivers.lrf.sim import UrgSim
         link = s.get('link_path') or os.path.join(self.runtime_dir, URG_LINK)
-        args = {k: s[k] for k in ('mount', 'noise_mm', 'seed', 'scan_period', 'timestamp_start')
+        args = {k: s[k] for k in ('mount', 'noise_mm', 'seed', 'scan_period', 'timestamp_start',
+                                     'transfer_bps')
                 if s.get(k) is not None}
         self.urg = UrgSim(self.world, link_path=link, **args)
 
@@ -184,6 +186,10 @@ class SimRobot:
             if key not in self.gpio:
                 raise OSError(errno.ENOENT, f'no simulated line {key[1]} on {key[0]!r}')
             return f'{key[0]}:{key[1]}', self.gpio[key]
+        if bus == 'sysfs':
+            if self.leds is None:
+                raise OSError(errno.ENOENT, 'no simulated sysfs (the LED is not simulated)')
+            return 'sysfs', self.leds
         raise OSError(errno.EINVAL, f'unknown sim-bus bus {bus!r}')
 
     # -- truth -------------------------------------------------------------------------
@@ -297,6 +303,9 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
     from m4k_rt.rt_core import InstanceLock, LockError
     try:
         raw = load_raw_config(args.config, args.overlay)
+        refusal = safety.unsafe_mix(raw)     # a simulated sensor beside real motors
+        if refusal:
+            raise dconfig.ConfigError(refusal)
         cfg = dconfig.validate({'devices': raw.get('devices') or {},
                                 'world': raw.get('world') or {}})
         runtime_dir = xddp.ensure_runtime_dir(

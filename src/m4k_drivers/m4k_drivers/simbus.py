@@ -16,6 +16,8 @@ Clients here (one per kernel interface the real backends use):
 * :class:`SpiClient` -- ``transfer(bytes) -> bytes``, ``close()``  (periphery.SPI's subset)
 * :class:`I2cClient` -- smbus2.SMBus's ``read_byte_data``, ``read_i2c_block_data``,
   ``write_byte_data``, ``i2c_rdwr``, ``close`` plus :meth:`I2cClient.read_burst` (any length)
+* :class:`SysfsWriter` -- one ``write(path, text)`` of a sysfs attribute, refused with the
+  kernel's errno (the simulated PWM chip: :meth:`m4k_drivers.led.simfs.SysfsLeds.write_attr`)
 * :class:`GpioClient` -- periphery.GPIO's ``write``, ``read``, ``poll``, ``read_event``,
   ``close``; events carry CLOCK_MONOTONIC nanosecond timestamps
 """
@@ -33,6 +35,7 @@ from typing import Any, Callable, NamedTuple
 
 __all__ = [
     'GpioClient', 'GpioEvent', 'I2cClient', 'Op', 'SOCKET_NAME', 'SimBusServer', 'SpiClient',
+    'SysfsWriter',
     'read_truth', 'socket_path',
 ]
 
@@ -58,6 +61,7 @@ class Op:
     GPIO_READ = 0x06     # '' -> u8 level
     GPIO_EVENT = 0x07    # i64 timeout ns -> '' (none) or u8 edge + u64 timestamp ns
     TRUTH = 0x08         # '' -> JSON ground truth (no OPEN needed)
+    SYSFS_WRITE = 0x09   # UTF-8 path + NUL + text -> '' (errno as the kernel's store())
 
 
 EDGES = {1: 'rising', 2: 'falling'}
@@ -198,6 +202,35 @@ class I2cClient:
     def close(self) -> None:
         """Release the bus."""
         self._conn.close()
+
+
+class SysfsWriter:
+    """Sysfs attribute writes applied by sim_robot's simulated kernel (connects on first use).
+
+    Called like :func:`m4k_drivers.led.real.write_attr`; a refused write raises the OSError the
+    kernel would return for it.  ``close()`` releases the connection.
+    """
+
+    def __init__(self, runtime_dir: str) -> None:
+        self.runtime_dir = runtime_dir
+        self._conn: _Connection | None = None
+
+    def __call__(self, path: str, text: str) -> None:
+        """Write ``text`` to the attribute ``path`` (OSError as the kernel refuses it)."""
+        if self._conn is None:
+            self._conn = _Connection(self.runtime_dir, {'bus': 'sysfs'})
+        try:
+            self._conn.call(Op.SYSFS_WRITE, path.encode() + b'\0' + text.encode())
+        except OSError as exc:
+            if exc.errno == errno.EIO:       # the simulator went away: reconnect next time
+                self.close()
+            raise OSError(exc.errno, exc.strerror, path) from None
+
+    def close(self) -> None:
+        """Release the connection (the next write reconnects)."""
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
 
 
 class GpioEvent(NamedTuple):
@@ -415,4 +448,8 @@ class SimBusServer:
             if realtime:    # what a line request with EVENT_CLOCK_REALTIME reports
                 stamp += time.time_ns() - time.monotonic_ns()
             return _EVENT.pack(EDGE_CODES[ev[0]], stamp)
+        if op == Op.SYSFS_WRITE:
+            path, _, text = payload.partition(b'\0')
+            device.write_attr(path.decode(), text.decode())
+            return b''
         raise OSError(errno.EOPNOTSUPP, f'unknown sim-bus op 0x{op:02x}')

@@ -13,8 +13,11 @@ wheel speeds of the step.  A step whose new footprint would touch a wall or an o
 taken: the robot stops, the wheels stall, and ``collisions`` counts the contact onset.
 
 The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md): while
-it is off the armatures get no drive and the wheels coast down through the same first-order
-lag towards zero, whatever the DACs hold.  ``set_enable_until`` sets the time the enable stays
+it is off the amplifier's outputs float, so no current flows -- no drive and no back-EMF
+braking either -- and the wheels coast, slowed by friction alone (rolling resistance and the
+gearbox): a constant deceleration ``coast_decel_mps2`` of each wheel's rim speed, whatever the
+DACs hold.  (Enabled, the amplifier drives each motor to its target speed through the motor
+lag ``motor_tau_s``, braking included.)  ``set_enable_until`` sets the time the enable stays
 on; ``None`` (the default) is an enable strapped on.
 
 Time is advanced lazily to the caller's CLOCK_MONOTONIC (``advance_to``/``now``); every
@@ -63,6 +66,7 @@ class RobotParams:
     top_speed_mps: float = 2.0
     motor_tau_s: float = 0.08
     supply_v: float = 24.0
+    coast_decel_mps2: float = 0.3     # enable off: friction only (rolling + gearbox), m/s^2
 
     @property
     def wheel_radius_m(self) -> float:
@@ -282,14 +286,19 @@ class World:
         decay = math.exp(-dt / rob.motor_tau_s)
         old = self._wheel_speed
         until = self._enable_until_ns
-        volts = self._volts if until is None or self._t_ns < until else (0.0, 0.0)
+        enabled = until is None or self._t_ns < until
+        volts = self._volts if enabled else (0.0, 0.0)
         if old[0] == 0.0 and old[1] == 0.0 and volts[0] == 0.0 and volts[1] == 0.0:
             self._accel = 0.0
             return
         new = []
         for side in (LEFT, RIGHT):
-            target = volts[side] / rob.supply_v * rob.max_wheel_rad_s
-            w_new = target + (old[side] - target) * decay
+            if enabled:
+                target = volts[side] / rob.supply_v * rob.max_wheel_rad_s
+                w_new = target + (old[side] - target) * decay
+            else:    # coasting: friction takes a fixed rim speed per second, down to rest
+                w_new = math.copysign(max(abs(old[side]) - rob.coast_decel_mps2
+                                          / rob.wheel_radius_m * dt, 0.0), old[side])
             new.append(0.0 if abs(w_new) < 1e-9 else w_new)
         mean_l = 0.5 * (old[0] + new[0])
         mean_r = 0.5 * (old[1] + new[1])

@@ -107,6 +107,37 @@ def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, 
     assert world.motor_voltage(0) == 0.0 and world.motor_voltage(1) == 0.0
 
 
+def test_a_wheel_cmd_older_than_two_periods_is_dropped_not_replayed(m4k_runtime_dir, sim_robot):
+    # After a driver-host stall the socket holds commands the RT side sent long ago: replayed,
+    # each would drive the DACs and toggle the heartbeat, re-enabling a dropped amplifier.
+    cfg = dconfig.validate({'devices': {'motor': {'backend': 'sim'}}})
+    handler = registry.create('motor', cfg.devices['motor'], registry.BuildContext())
+    stop = threading.Event()
+    rt = rt_xddp_bind(2, runtime_dir=m4k_runtime_dir)
+    svc = DeviceService('motor', handler, cfg.devices['motor'], 2, stop, m4k_runtime_dir)
+    svc.start()
+    try:
+        wait_linked(rt)
+        recv_kind(rt, protocol.Kind.DEVICE_STATUS)
+        edges = sim_robot.enable.edges
+        old = time.monotonic_ns() - round(3 * cfg.devices['motor']['period_s'] * 1e9)
+        for seq in (1, 2, 3):
+            rt.send(protocol.encode(protocol.Kind.WHEEL_CMD, seq, old, 900, 900, 1))
+        deadline = time.monotonic() + 5
+        while svc.stale < 3:
+            assert time.monotonic() < deadline, f'stale {svc.stale}, served {svc.served}'
+            time.sleep(0.01)
+        assert svc.served == 0 and handler.codes == (512, 512)
+        assert sim_robot.enable.edges == edges and not sim_robot.world.drive_enabled()
+        rt.send(protocol.encode(protocol.Kind.WHEEL_CMD, 4, time.monotonic_ns(), 700, 700, 1))
+        recv_kind(rt, protocol.Kind.ENCODERS)          # a fresh one is served
+        assert handler.codes == (700, 700) and svc.served == 1
+    finally:
+        stop.set()
+        svc.thread.join(5)
+        rt.close()
+
+
 def test_sensor_and_led_services_answer(m4k_runtime_dir, sim_robot):
     kinds = (('sonar', 7), ('led', 5), ('imu', 3), ('lrf', 9))
     cfg = dconfig.validate({'devices': {k: {'backend': 'sim'} for k, _ in kinds}})

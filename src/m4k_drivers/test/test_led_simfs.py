@@ -120,3 +120,61 @@ def test_pwm_backend_unchanged_on_the_simulated_tree(leds):
     out.close()                                      # duty 0, disabled (left exported)
     assert sim.poll() == (0.0, 0.0, 0.0)
     assert sim.errors == 0, sim.last_error
+
+
+def _refused(sim, path, text):
+    import errno
+    with pytest.raises(OSError) as info:
+        sim.write_attr(path, text)
+    return info.value.errno == errno.EINVAL or info.value.errno
+
+
+def test_a_fresh_export_refuses_every_apply_until_a_period_is_written(leds):
+    # Strict kernels (pwm_apply_state before mid-2024): a state with period 0 is EINVAL, so a
+    # fresh export (period 0) refuses enable 0, enable 1, a duty cycle and a polarity alike.
+    import errno
+    sim = leds(interface='pwm', chip=0, channels=[0, 1, 2])
+    sim.write_attr(os.path.join(sim.chip_dir, 'export'), '2\n')
+    ch = os.path.join(sim.chip_dir, 'pwm2')
+    assert open(os.path.join(ch, 'period')).read().strip() == '0'
+    for attr, text in (('enable', '0'), ('enable', '1'), ('duty_cycle', '0'),
+                       ('duty_cycle', '10'), ('polarity', 'normal'), ('period', '0')):
+        assert _refused(sim, os.path.join(ch, attr), text) is True, (attr, text)
+    assert _refused(sim, os.path.join(sim.chip_dir, 'export'), '2') == errno.EBUSY
+    sim.write_attr(os.path.join(ch, 'period'), '1000\n')
+    assert _refused(sim, os.path.join(ch, 'duty_cycle'), '1001') is True
+    for attr, text in (('duty_cycle', '500'), ('enable', '1')):
+        sim.write_attr(os.path.join(ch, attr), text + '\n')
+    assert sim.poll() == pytest.approx((0.0, 0.0, 0.5))
+    assert _refused(sim, os.path.join(ch, 'polarity'), 'inversed') == errno.EBUSY
+
+
+def test_a_period_0_left_enabled_in_the_files_is_counted_as_einval(leds):
+    sim = leds(interface='pwm', chip=0, channels=[0, 1, 2])
+    _write(os.path.join(sim.chip_dir, 'export'), '0')
+    sim.poll()
+    _write(os.path.join(sim.chip_dir, 'pwm0', 'enable'), '1')
+    sim.poll()
+    assert sim.errors == 1 and 'period 0' in sim.last_error
+
+
+def test_pwm_backend_configures_a_fresh_export_on_a_strict_kernel(leds):
+    sim = leds(interface='pwm', chip=0, channels=[0, 1, 2])
+    writes = []
+
+    def write(path, text):
+        writes.append((os.path.basename(path), text.strip()))
+        sim.write_attr(path, text)
+    out = PwmOutput(0, [0, 1, 2], 1_000_000, root=os.path.dirname(sim.chip_dir), write=write)
+    assert writes[:2] == [('export', '0'), ('period', '1000000')]
+    out.show(p.LedColor(255, 0, 128, 255))
+    assert sim.poll() == pytest.approx((1.0, 0.0, 128 / 255), abs=1e-3)
+    out.close()
+    # Configured again over a previous user's long duty (10 ms period at 8 ms): still valid.
+    for ch in (0, 1, 2):
+        d = os.path.join(sim.chip_dir, f'pwm{ch}')
+        for attr, text in (('period', '10000000'), ('duty_cycle', '8000000'), ('enable', '1')):
+            sim.write_attr(os.path.join(d, attr), text)
+    out = PwmOutput(0, [0, 1, 2], 1_000_000, root=os.path.dirname(sim.chip_dir), write=write)
+    out.close()
+    assert sim.poll() == (0.0, 0.0, 0.0) and sim.errors == 0, sim.last_error

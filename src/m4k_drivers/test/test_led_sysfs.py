@@ -3,7 +3,8 @@
 The PWM tree is written through :class:`FakePwmKernel`, which plays drivers/pwm/sysfs.c: a write
 is parsed whole, applied to the channel's state and refused like the kernel refuses it
 (duty_cycle > period: EINVAL, on a duty_cycle write and on a period write; polarity change while
-enabled: EBUSY; enable with period 0: EINVAL; export creates the channel directory).
+enabled: EBUSY; any apply while the period is 0 -- enable 0 or 1, a duty cycle, a polarity --
+EINVAL, as pwm_apply_state() of the strict kernels; export creates the channel directory).
 """
 
 import errno
@@ -73,15 +74,17 @@ class FakePwmKernel:
                 period = n
             else:
                 duty = n
-            if duty > period:                          # pwm_apply_state(): duty <= period
+            if duty > period or period == 0:           # pwm_apply_state(): duty <= period
                 self._refuse(path, errno.EINVAL)
         elif attr == 'enable':
             if value not in ('0', '1'):
                 self._refuse(path, errno.EINVAL)
-            if value == '1' and period == 0:
+            if period == 0:                            # pwm_apply_state(): !period
                 self._refuse(path, errno.EINVAL)
         elif attr == 'polarity':
             if value not in ('normal', 'inversed'):
+                self._refuse(path, errno.EINVAL)
+            if period == 0:
                 self._refuse(path, errno.EINVAL)
             if enabled and value != st['polarity']:
                 self._refuse(path, errno.EBUSY)

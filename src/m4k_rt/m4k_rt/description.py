@@ -152,8 +152,11 @@ def mount_2d(doc: Mapping[str, Any], sensor: str) -> list[float]:
 def fill_sim_mounts(doc: Mapping[str, Any]) -> dict[str, Any]:
     """Return ``doc`` with ``devices.<lrf|sonar>.mount`` taken from the robot section if unset.
 
-    A mount written in the device section wins (a deliberate test of a mis-mounted sensor);
-    a document without a robot section is returned unchanged.
+    Only a section whose backend is ``sim`` gets one: the mount is where sim_robot's simulated
+    sensor sees the world from, a field of the ``sim`` backend alone; a real sensor is where it
+    is bolted, and the real backends' schemas rightly refuse the key.  A mount written in the
+    device section wins (a deliberate test of a mis-mounted sensor); a document without a
+    robot section is returned unchanged.
     """
     out = copy.deepcopy(dict(doc))
     devices = out.get('devices')
@@ -161,7 +164,8 @@ def fill_sim_mounts(doc: Mapping[str, Any]) -> dict[str, Any]:
         return out
     for kind, sensor in _SIM_MOUNTS.items():
         section = devices.get(kind)
-        if isinstance(section, dict) and 'mount' not in section:
+        if (isinstance(section, dict) and section.get('backend') == 'sim'
+                and 'mount' not in section):
             section['mount'] = mount_2d(out, sensor)
     return out
 

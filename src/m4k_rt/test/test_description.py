@@ -100,3 +100,21 @@ def test_a_bad_robot_section_names_the_field(doc, patch, field):
 def test_an_unusable_description_is_refused(text, words):
     with pytest.raises(description.DescriptionError, match=words):
         description.wheel_joints(text)
+
+
+@pytest.mark.parametrize('kind, section', [
+    ('lrf', {'backend': 'real', 'port': '/dev/ttyACM0'}),
+    ('sonar', {'backend': 'gpio', 'chip': '/dev/gpiochip0', 'trigger_line': 23,
+               'echo_line': 24}),
+    ('sonar', {'backend': 'iio', 'device': '/sys/bus/iio/devices/iio:device0'}),
+])
+def test_a_real_sensor_gets_no_simulated_mount(doc, kind, section):
+    # README "On the real robot": the overlay replaces the backend; the mount is a field of the
+    # sim backend only (the real schemas refuse it), so it must not be added.
+    real = config.deep_merge(doc, {'devices': {kind: section}})
+    real['devices'][kind] = section
+    out = description.fill_sim_mounts(real)
+    assert 'mount' not in out['devices'][kind]
+    other = 'sonar' if kind == 'lrf' else 'lrf'
+    assert out['devices'][other]['mount'] == description.mount_2d(doc, {
+        'lrf': 'laser', 'sonar': 'sonar'}[other])

@@ -76,8 +76,10 @@ def _build_pwm(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandl
 
     from m4k_drivers.led.real import PwmOutput
     root = os.path.join(params['sysfs_root'], 'class', 'pwm')
+    write = params.get('_write')
     return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns'],
-                                        params['polarity'], root), name=name)
+                                        params['polarity'], root,
+                                        **({'write': write()} if write else {})), name=name)
 
 
 @register('led', 'sim', params={
@@ -94,9 +96,15 @@ def _build_pwm(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandl
 })
 def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
     import os
-    root = os.path.join(ctx.sim_runtime_dir(), 'sim-sysfs')
-    build = _build_pwm if params['interface'] == 'pwm' else _build_led_class
-    return build(name, params | {'sysfs_root': root}, ctx)
+    runtime_dir = ctx.sim_runtime_dir()
+    root = os.path.join(runtime_dir, 'sim-sysfs')
+    if params['interface'] == 'pwm':
+        # PWM attribute writes go to sim_robot's simulated kernel, which refuses them as a
+        # strict kernel does (a plain file cannot fail a write): m4k_drivers.led.simfs.
+        from m4k_drivers.simbus import SysfsWriter
+        return _build_pwm(name, params | {'sysfs_root': root,
+                                          '_write': lambda: SysfsWriter(runtime_dir)}, ctx)
+    return _build_led_class(name, params | {'sysfs_root': root}, ctx)
 
 
 # How the driver host answers the RT side for this kind (m4k_drivers.led.service).

@@ -171,14 +171,31 @@ class SysfsPwmChannel:
         self._set(os.path.join(self.dir, attr), value)
 
     def configure(self, period_ns: int, polarity: str = 'normal') -> None:
-        """Disable, duty 0, period, polarity, enable: valid whatever the previous state."""
+        """Period, disable, duty 0, period, polarity, enable: valid whatever the previous state.
+
+        Every write is applied by ``pwm_apply_state()``, which on strict kernels (Raspberry Pi
+        5.10..6.6) refuses any state with period 0 with EINVAL -- even ``enable 0``.  A fresh
+        export has period 0, so the period goes first when it reads 0 (duty is 0 then, so
+        any period > 0 is valid); otherwise duty 0 first, because the present duty may be
+        longer than the new period.
+        """
         if polarity not in POLARITIES:
             raise ValueError(f'PWM polarity must be one of {POLARITIES}, got {polarity!r}')
+        if self.read('period') == '0':
+            self.set('period', period_ns)
         self.set('enable', 0)
         self.set('duty_cycle', 0)          # first: the kernel rejects duty > a shorter period
         self.set('period', period_ns)
         self.set('polarity', polarity)     # only while disabled on most controllers
         self.set('enable', 1)
+
+    def read(self, attr: str) -> str:
+        """Return one attribute of the channel, stripped ('' when unreadable)."""
+        try:
+            with open(os.path.join(self.dir, attr), encoding='ascii') as fh:
+                return fh.read().strip()
+        except (OSError, UnicodeDecodeError):
+            return ''
 
     def off(self) -> None:
         """Duty 0, then disable (never raises: cleanup)."""
@@ -201,6 +218,7 @@ class PwmOutput:
             raise ValueError(f'PWM period_ns must be a positive int, got {period_ns!r}')
         self.where = os.path.join(root, f'pwmchip{chip}')
         self.period_ns = period_ns
+        self._write = write
         self.pwms: list[SysfsPwmChannel] = []
         try:
             for ch in channels:
@@ -221,3 +239,6 @@ class PwmOutput:
         for pwm in self.pwms:
             pwm.off()
         self.pwms = []
+        close = getattr(self._write, 'close', None)
+        if close is not None:
+            close()                        # a sim-bus writer's connection

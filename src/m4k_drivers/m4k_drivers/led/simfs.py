@@ -19,10 +19,22 @@ file: it is counted in ``errors`` with the reason in ``last_error``, and the out
 previous level, as after a rejected write. A rejected write is counted once, like the one EINVAL
 the kernel returns for it: polls that find the same files unchanged (same contents, same
 modification stamps) do not count it again; a new write, even of the same bad value, does.
+
+Plain files cannot fail a write, so the PWM attributes are also reachable the way the kernel
+applies them: :meth:`SysfsLeds.write_attr` (sim_robot serves it on the sim-bus, op
+``SYSFS_WRITE``; the ``sim`` LED backend writes PWM attributes through it) parses one write,
+applies it to the channel's state like ``drivers/pwm/sysfs.c`` + ``pwm_apply_state()`` of the
+strict kernels (Raspberry Pi 5.10..6.6; relaxed only by a mid-2024 patch) and raises
+``OSError`` as they do: EINVAL for any apply while ``period`` is 0 -- a fresh export has period
+0, so ``enable``, ``duty_cycle`` and ``polarity`` are all refused until a period is written --
+and for ``duty_cycle > period``; EBUSY for a polarity change while enabled; EINVAL for an
+unparsable value, EBUSY for exporting an exported channel.  Polling the files also counts an
+enabled channel or a duty cycle above 0 with period 0 as the EINVAL it would have been.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import threading
@@ -166,6 +178,56 @@ class SysfsLeds:
         elif not make:
             shutil.rmtree(d, ignore_errors=True)
 
+    def write_attr(self, path: str, text: str) -> None:
+        """Apply one write to a PWM file under this tree as a strict kernel does (OSError)."""
+        rel = os.path.relpath(os.path.realpath(path), os.path.realpath(self.chip_dir))
+        value = text.strip()
+        parts = rel.split(os.sep)
+        with self._lock:
+            if rel in ('export', 'unexport'):
+                try:
+                    ch = int(value)
+                except ValueError:
+                    raise OSError(errno.EINVAL, os.strerror(errno.EINVAL), path) from None
+                d = os.path.join(self.chip_dir, f'pwm{ch}')
+                if not 0 <= ch <= max(self.channels) or (rel == 'unexport'
+                                                         and not os.path.isdir(d)):
+                    raise OSError(errno.EINVAL, os.strerror(errno.EINVAL), path)
+                if rel == 'export' and os.path.isdir(d):
+                    raise OSError(errno.EBUSY, os.strerror(errno.EBUSY), path)
+                self._export(rel, rel == 'export', value)
+                return
+            attrs = ('period', 'duty_cycle', 'enable', 'polarity')
+            if len(parts) != 2 or not parts[0].startswith('pwm') or parts[1] not in attrs:
+                raise OSError(errno.EACCES, os.strerror(errno.EACCES), path)
+            d = os.path.join(self.chip_dir, parts[0])
+            if not os.path.isdir(d):
+                raise OSError(errno.ENOENT, os.strerror(errno.ENOENT), path)
+            st = {a: _read(os.path.join(d, a)) for a in attrs}
+            self._apply(st, parts[1], value, path)
+            _write(os.path.join(d, parts[1]), value)
+
+    @staticmethod
+    def _apply(st: dict[str, str], attr: str, value: str, path: str) -> None:
+        """Raise the OSError ``pwm_apply_state`` (strict kernels) gives this write, if any."""
+        def refuse(err: int) -> None:
+            raise OSError(err, os.strerror(err), path)
+        new = dict(st, **{attr: value})
+        if attr == 'polarity':
+            if value not in ('normal', 'inversed'):
+                refuse(errno.EINVAL)
+            if st['enable'] == '1' and value != st['polarity']:
+                refuse(errno.EBUSY)
+        try:
+            period, duty, enable = int(new['period']), int(new['duty_cycle']), int(new['enable'])
+        except ValueError:
+            refuse(errno.EINVAL)
+        if min(period, duty) < 0 or enable not in (0, 1):
+            refuse(errno.EINVAL)
+        # pwm_apply_state(): "if (!state->period || state->duty_cycle > state->period)".
+        if period == 0 or duty > period:
+            refuse(errno.EINVAL)
+
     def _led_class(self) -> tuple[float, float, float] | None:
         paths = [os.path.join(self.led_dir, a) for a in ('brightness', 'multi_intensity')]
         bri_text, multi_text = texts = [_read(path) for path in paths]
@@ -209,6 +271,10 @@ class SysfsLeds:
                 self._reject(site, paths, texts, f'pwm{ch}: {exc}')
                 return None
             polarity = texts[3]
+            if period == 0 and (enable or duty > 0):
+                self._reject(site, paths, texts,
+                             f'pwm{ch}: enable {enable} duty_cycle {duty} with period 0 (EINVAL)')
+                return None
             if duty > period:
                 self._reject(site, paths, texts,
                              f'pwm{ch}: duty_cycle {duty} > period {period} (EINVAL)')

@@ -37,6 +37,8 @@ _SIM = {
     'scan_period': Param((float, type(None)), None, 's per scan (default: 60/SCAN rpm)'),
     'mount': Param(list, [0.0, 0.0, 0.0], 'sensor pose in base_link: x m, y m, yaw rad'),
     'timestamp_start': Param(int, 0, 'initial 24-bit device ms counter (test wrap-around)'),
+    'transfer_bps': Param(float, 1_000_000.0, 'link data rate of the simulated URG, bit/s (10 '
+                          'bits a byte): a scan leaves this long after its sweep'),
 }
 _DRIVER_KEYS = ('baudrate', 'timeout', 'error_limit', 'start_step', 'end_step', 'cluster')
 

@@ -10,9 +10,20 @@ Commands: SCIP2.0, VV, PP, II, BM, QT, RS, TM, GD/GS, MD/MS (anything else: stat
 time-adjust mode everything but TM). Ranges come
 from ray casting a world (:class:`ScanWorld`: the shared :class:`m4k_drivers.world.World`, or
 :class:`RectRoom` for standalone tests). Timestamps come from a 24-bit ms counter that can start
-near its wrap. Fault hooks: corrupt the sums of the next N scans, inject stray bytes, unplug and
-replug. Simplification: SCIP 1.1 is not emulated; the sim only remembers whether the SCIP2.0
-switch was sent (first switch answers ``0``, later ones ``0E`` as a device already in SCIP 2.0).
+near its wrap.
+
+Timing, as the real sensor: the mirror turns continuously (``scan_period`` per turn, ``ARES``
+steps); a scan's timestamp is the device counter when the mirror passes step 0 (the start of
+the sweep, :data:`STAMP_STEP`); step ``i`` is measured ``i`` step periods later, each with the
+robot pose of that instant (interpolated between the poses sampled at the start and the end of
+the sweep); the response is formatted once the mirror has passed the last requested step and
+its bytes are released after the transfer time (``transfer_bps`` bits per second, 10 bits a
+byte).  So a scan arrives (end + 1) / ARES x scan_period + transfer after its stamp -- about
+71 ms + 21 ms for AMAX 725 -- like the real URG, and a driver that takes the arrival as the
+stamp is that late.  Fault hooks: corrupt the sums of the next N scans, inject stray bytes,
+unplug and replug. Simplification: SCIP 1.1 is not emulated; the sim only remembers whether the
+SCIP2.0 switch was sent (first switch answers ``0``, later ones ``0E`` as a device already in
+SCIP 2.0).
 
 All pty fds are opened and closed by the sim's own thread (or before it starts / after it
 stops), so unplugging never closes an fd under a running ``select``.
@@ -47,6 +58,9 @@ FAR_CODE = 0              # no surface within DMAX: "possibly at 22 m"
 NEAR_CODE = 1             # closer than DMIN: too little usable reflected light
 DEAD_ZONE_CODE = 19       # steps outside AMIN..AMAX: non-measurable
 OUT_LIMIT = 1 << 20       # bytes queued for a reader that does not read; beyond: dropped
+STAMP_STEP = 0            # the step a scan's timestamp refers to (the start of the sweep)
+TRANSFER_BPS = 1_000_000  # effective link rate: USB full speed CDC-ACM, ~1 Mbit/s of data
+ORIGIN_CHUNK = 32         # steps sharing one interpolated sensor origin (yaw is per step)
 
 
 class ScanWorld(Protocol):
@@ -97,11 +111,15 @@ class UrgSim:
     def __init__(self, world: ScanWorld, *, link_path: str | None = None,
                  mount: Sequence[float] = (0.0, 0.0, 0.0), noise_mm: float = 0.0, seed: int = 0,
                  scan_period: float | None = None, timestamp_start: int = 0,
+                 transfer_bps: float = TRANSFER_BPS,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if not 0 <= timestamp_start < scip.TIMESTAMP_MODULO:
             raise ValueError(f'timestamp_start {timestamp_start!r} is not a 24-bit value')
         if noise_mm < 0 or not math.isfinite(noise_mm):
             raise ValueError(f'noise_mm must be finite and >= 0, got {noise_mm!r}')
+        if not transfer_bps > 0:
+            raise ValueError(f'transfer_bps must be > 0, got {transfer_bps!r}')
+        self.transfer_bps = float(transfer_bps)
         self.world = world
         self.link_path = link_path
         self.mount = tuple(float(v) for v in mount)
@@ -204,10 +222,19 @@ class UrgSim:
         """Attach a fresh pty (a power-cycled device) and re-point the link to it."""
         self._request('replug')
 
-    def device_timestamp(self) -> int:
-        """Return the device's 24-bit ms counter now."""
-        elapsed_ms = int((self._clock() - self._t0) * 1000.0)
+    def device_timestamp(self, at: float | None = None) -> int:
+        """Return the device's 24-bit ms counter now (or at clock time ``at``)."""
+        elapsed_ms = math.floor(((self._clock() if at is None else at) - self._t0) * 1000.0)
         return (self._ts_start + elapsed_ms) % scip.TIMESTAMP_MODULO
+
+    @property
+    def step_period(self) -> float:
+        """Return the time the mirror takes per step, s."""
+        return self.scan_period / self.spec.ares
+
+    def transfer_time(self, nbytes: int) -> float:
+        """Return the time ``nbytes`` take on the link, s (10 bits a byte)."""
+        return nbytes * 10.0 / self.transfer_bps
 
     def render_scan(self, command: str, start: int, end: int, cluster: int, *,
                     interval: int = 0, remaining: int = 0, tag: bytes = b'') -> bytes:
@@ -216,18 +243,44 @@ class UrgSim:
         return scip.format_scan(command, start, end, cluster, self.device_timestamp(), ranges,
                                 interval=interval, remaining=remaining, tag=tag)
 
-    def measure(self, start: int, end: int, cluster: int = 1) -> np.ndarray:
-        """Ray cast steps ``start..end`` (merged by ``cluster``) into ranges in mm/codes."""
+    def _sample_pose(self) -> tuple[float, tuple[float, float, float]]:
+        """Return (clock time, robot pose) now, the shared world advanced to this instant."""
         now = getattr(self.world, 'now', None)
         if callable(now):
             now()                       # advance the shared world's dynamics to this instant
         x, y, yaw = self.world.pose()
-        mx, my, myaw = self.mount
-        c, s = math.cos(yaw), math.sin(yaw)
-        origin = (x + c * mx - s * my, y + s * mx + c * my)
+        return self._clock(), (float(x), float(y), float(yaw))
+
+    def measure(self, start: int, end: int, cluster: int = 1,
+                sweep: tuple[float, Sequence[float], float, Sequence[float]] | None = None
+                ) -> np.ndarray:
+        """Ray cast steps ``start..end`` (merged by ``cluster``) into ranges in mm/codes.
+
+        ``sweep`` = (t0, pose0, t1, pose1): the sweep passed :data:`STAMP_STEP` at ``t0`` and
+        the robot pose is linear between the two samples, so step ``i`` sees the world from
+        the pose at ``t0 + (i - STAMP_STEP) * step_period``.  Without it: the pose now.
+        """
         steps = np.arange(start, end + 1)
+        if sweep is None:
+            t, pose = self._sample_pose()
+            sweep = (t, pose, t, pose)
+        t0, p0, t1, p1 = sweep
+        ts = t0 + (steps - STAMP_STEP) * self.step_period
+        f = np.clip((ts - t0) / (t1 - t0), 0.0, None) if t1 > t0 else np.zeros(steps.shape)
+        x = p0[0] + f * (p1[0] - p0[0])
+        y = p0[1] + f * (p1[1] - p0[1])
+        dyaw = math.remainder(p1[2] - p0[2], 2.0 * math.pi)
+        yaw = p0[2] + f * dyaw
+        mx, my, myaw = self.mount
+        c, s = np.cos(yaw), np.sin(yaw)
+        ox, oy = x + c * mx - s * my, y + s * mx + c * my
         angles = yaw + myaw + (steps - self.spec.afrt) * 2.0 * math.pi / self.spec.ares
-        dist = np.asarray(self.world.raycast_many(origin, angles, self.spec.dmax / 1000.0))
+        dist = np.empty(steps.shape)
+        for i in range(0, steps.size, ORIGIN_CHUNK):
+            j = min(i + ORIGIN_CHUNK, steps.size)
+            mid = (i + j - 1) // 2
+            dist[i:j] = np.asarray(self.world.raycast_many(
+                (float(ox[mid]), float(oy[mid])), angles[i:j], self.spec.dmax / 1000.0))
         mm = dist * 1000.0
         if self.noise_mm:
             mm = mm + self._rng.normal(0.0, self.noise_mm, mm.shape)
@@ -252,6 +305,7 @@ class UrgSim:
         self._laser = False
         self.time_adjust = False               # TM0 .. TM2 (SCIP 2.0 spec 8.6)
         self._stream: dict[str, Any] | None = None
+        self._sweeps: list[dict[str, Any]] = []   # sweeps measured or in transfer, in order
         self._inbuf = bytearray()
         self._out = bytearray()
         self._t0 = self._clock()
@@ -326,8 +380,12 @@ class UrgSim:
 
     def _serve_once(self) -> None:
         timeout = 0.5
-        if self._stream is not None and self._master >= 0:
-            timeout = max(0.0, min(timeout, self._stream['due'] - self._clock()))
+        if self._master >= 0:
+            events = [sw['at'] for sw in self._sweeps]
+            if self._stream is not None:
+                events.append(self._stream['due'])
+            if events:
+                timeout = max(0.0, min(timeout, min(events) - self._clock()))
         rlist = [self._wake_r] + ([self._master] if self._master >= 0 else [])
         wlist = [self._master] if self._master >= 0 and self._out else []
         readable, writable, _ = select.select(rlist, wlist, [], timeout)
@@ -349,6 +407,7 @@ class UrgSim:
             self._handle_input()
         if self._stream is not None and self._clock() >= self._stream['due']:
             self._emit_stream_scan()
+        self._advance_sweeps()
         if self._out:
             try:
                 n = os.write(self._master, self._out)
@@ -426,6 +485,7 @@ class UrgSim:
         elif code in ('QT', 'RS') and not args:
             self._laser = False
             self._stream = None
+            self._sweeps = [sw for sw in self._sweeps if sw['data'] is not None]   # sent on
             if code == 'RS':
                 self._t0, self._ts_start = self._clock(), 0
             self._reply(echo, '00')
@@ -489,8 +549,8 @@ class UrgSim:
             self._reply(echo, status)
             return
         start, end, cluster = int(args[0:4]), int(args[4:8]), int(args[8:10])
-        self._send(self.render_scan(code, start, end, cluster, tag=tag), scan=True)
-        self.scans_sent += 1
+        # The answer is the next sweep: measured from step 0 on, sent after its last step.
+        self._begin_sweep(code, start, end, cluster, tag=tag)
 
     def _md(self, echo: bytes, code: str, args: str, tag: bytes) -> None:
         if len(args) != 13:
@@ -523,11 +583,39 @@ class UrgSim:
             return
         st['skipped'] = 0
         remaining = max(st['count'] - st['sent'] - 1, 0) if st['count'] else 0
-        data = self.render_scan(st['code'], st['start'], st['end'], st['cluster'],
-                                interval=st['interval'], remaining=remaining, tag=st['tag'])
-        self._send(data, scan=True)
-        self.scans_sent += 1
+        self._begin_sweep(st['code'], st['start'], st['end'], st['cluster'],
+                          interval=st['interval'], remaining=remaining, tag=st['tag'])
         st['sent'] += 1
         if st['count'] and st['sent'] >= st['count']:
             self._stream = None
             self._laser = False                # the device switches the laser off when done
+
+    def _begin_sweep(self, code: str, start: int, end: int, cluster: int, *,
+                     interval: int = 0, remaining: int = 0, tag: bytes = b'') -> None:
+        """Start measuring a scan now: stamp at step 0, complete after step ``end``."""
+        t0, pose0 = self._sample_pose()
+        self._sweeps.append({
+            'code': code, 'start': start, 'end': end, 'cluster': cluster,
+            'interval': interval, 'remaining': remaining, 'tag': tag,
+            'stamp': self.device_timestamp(t0), 't0': t0, 'pose0': pose0,
+            'at': t0 + (end + 1 - STAMP_STEP) * self.step_period, 'data': None,
+        })
+
+    def _advance_sweeps(self) -> None:
+        """Format the sweeps past their last step; release the ones whose transfer is done."""
+        now = self._clock()
+        while self._sweeps and self._sweeps[0]['at'] <= now:
+            sw = self._sweeps[0]
+            if sw['data'] is None:
+                t1, pose1 = self._sample_pose()
+                ranges = self.measure(sw['start'], sw['end'], sw['cluster'],
+                                      (sw['t0'], sw['pose0'], t1, pose1))
+                data = scip.format_scan(sw['code'], sw['start'], sw['end'], sw['cluster'],
+                                        sw['stamp'], ranges, interval=sw['interval'],
+                                        remaining=sw['remaining'], tag=sw['tag'])
+                sw['data'] = data
+                sw['at'] = max(sw['at'], now) + self.transfer_time(len(data))
+                continue
+            self._sweeps.pop(0)
+            self._send(sw['data'], scan=True)
+            self.scans_sent += 1

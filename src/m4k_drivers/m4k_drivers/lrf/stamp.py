@@ -1,19 +1,28 @@
 """Scan acquisition stamps from the URG's own ms counter (pure: numbers in, numbers out).
 
-The URG stamps each scan with its 24-bit millisecond timer at step 0 (SCIP 2.0 spec
-C-42-03320B, "Time Stamp").  A scan reaches the host one transfer later, and USB, the kernel
-and the reader thread add a delay that varies from scan to scan but is never negative.  So,
-as urg_node2 does, the host-receive time minus the sensor time is an upper bound of the clock
-offset, and the *smallest* such difference over a window is the best estimate of it (the
-scan that was delayed least).  The two clocks drift (the sensor's crystal, tens of ppm), so
-the estimator also tracks the slope of that lower envelope: it takes the minimum over each
-half of the window and fits the line through the two minima.
+The URG stamps each scan with its 24-bit millisecond timer as the mirror passes the reference
+step -- taken here as step 0, the start of the sweep (SCIP 2.0 spec C-42-03320B, "Time Stamp";
+urg_node2's ``get_angular_time_offset`` reads it as the direction straight behind the sensor,
+128 steps earlier on the URG-04LX: docs/real-robot.md).  The scan is sent only once the mirror
+has passed the last requested step, and it takes its transfer time on the link; USB, the kernel
+and the reader thread add a delay that varies from scan to scan but is never negative.
+
+So host receive minus sensor stamp = clock offset + a *constant* latency (sweep to the last
+step + transfer, ~90 ms for AMAX 725) + a variable delay.  The smallest such difference over
+a window (the scan delayed least) removes the variable part only: the lower envelope, whose
+slope tracks the drift of the two clocks (the sensor's crystal, tens of ppm): the minimum over
+each half of the window, the line through the two minima.  The constant part is removed as
+urg_node2's ``calibrate_system_latency`` does: :meth:`ScanStamper.calibrate` takes the clock
+offset measured at connect in time-adjust mode (TM0, TM1 request/reply midpoints, TM2); while
+the first window fills, the latency is the envelope minus that offset, then it is frozen and
+the envelope carries the drift.  A sensor that refuses TM falls back on ``known_latency_ns``
+(the driver sets the sweep term it knows from the scan geometry; the transfer stays in).
 
 ``ScanStamper.update(sensor_ms, host_ns)`` takes the *unwrapped* sensor time
 (:class:`m4k_drivers.lrf.scip.TimestampUnwrapper` handles the 24-bit wrap every 4.66 h) and the
 host CLOCK_MONOTONIC when the scan was received, and returns the host time at which step 0 was
 measured; it is never later than the receive time.  ``reset()`` after a reconnect (the sensor
-timer may have restarted).
+timer may have restarted); it forgets the calibration too.
 """
 
 from __future__ import annotations
@@ -37,13 +46,23 @@ class ScanStamper:
         self.offset_ns = 0
         self.drift = 0.0
         self._ref_ns = 0
+        self.known_latency_ns = 0                 # used without a calibration
+        self.clock_offset_ns: int | None = None   # host - sensor, from calibrate()
+        self.latency_ns: int | None = None        # envelope - clock offset (frozen when full)
 
     def reset(self) -> None:
-        """Forget the history (new connection, or the sensor timer was reset)."""
+        """Forget the history and the calibration (new connection, or a sensor timer reset)."""
         self._pairs.clear()
         self.offset_ns = 0
         self.drift = 0.0
         self._ref_ns = 0
+        self.clock_offset_ns = None
+        self.latency_ns = None
+
+    def calibrate(self, clock_offset_ns: int) -> None:
+        """Take ``host ns - sensor ns`` measured directly (TM1 at connect) as the clock offset."""
+        self.clock_offset_ns = int(clock_offset_ns)
+        self.latency_ns = None
 
     @property
     def samples(self) -> int:
@@ -70,4 +89,11 @@ class ScanStamper:
         # The lower envelope, extrapolated from the newer minimum to this scan; a scan can
         # not have been measured after it arrived, whatever the estimate says.
         offset = self.offset_ns + round(self.drift * (sensor_ns - self._ref_ns))
-        return min(sensor_ns + offset, host_ns)
+        if self.clock_offset_ns is None:
+            latency = self.known_latency_ns
+            self.latency_ns = None
+        else:
+            if self.latency_ns is None or len(self._pairs) < self.window:
+                self.latency_ns = offset - self.clock_offset_ns
+            latency = self.latency_ns
+        return min(sensor_ns + offset - latency, host_ns)

@@ -3,8 +3,12 @@
 Connect sequence: ``SCIP2.0`` (answer ``0`` = switched, ``0E``/``0D`` = already in SCIP 2.0),
 ``QT`` (stops a stream a previous client left running; its leftovers are skipped; a sensor
 left in time-adjust mode refuses it with ``0E`` and is taken out of it with ``TM2`` first), ``VV``,
-``PP`` (the scan geometry comes from these parameters, never from constants), ``II``, ``BM``
-(laser on; ``02`` = already on).
+``PP`` (the scan geometry comes from these parameters, never from constants), ``II``, the
+clock calibration (``TM0``, ``TM1`` x 8: the sensor's ms counter against the midpoint of each
+request/reply, the quickest reply kept; ``TM2``: :mod:`m4k_drivers.lrf.stamp`; a sensor that
+refuses TM is stamped from the scan geometry alone, with a warning), ``BM`` (laser on; ``02``
+= already on).  Stamps refer to step 0 (the sensor's reference point); a scan's ``stamp_ns``
+is when its first value (step ``start``) was measured.
 
 Two ways to read: :meth:`UrgDriver.get_scan` polls one GD scan; :meth:`UrgDriver.start_stream`
 sends an endless MD request and a reader thread keeps the latest scan (``latest``/``wait_scan``).
@@ -45,6 +49,7 @@ from m4k_drivers.lrf import scip
 from m4k_drivers.lrf.stamp import ScanStamper
 
 _ALREADY_SCIP2 = ('0', '00', '0D', '0E')
+TM_SAMPLES = 8          # TM1 exchanges at connect; the one with the shortest round trip wins
 
 
 class UrgError(DriverError):
@@ -232,10 +237,47 @@ class UrgDriver:
         except (scip.ScipError, ValueError) as exc:
             raise UrgProtocolError(f'URG on {self.port!r}: {exc}') from exc
         self.status = scip.parse_params(self._command(scip.build_command('II'), 'II'))
-        self._command(scip.build_command('BM'), 'BM', ('00', '02'))
         self._unwrap.reset()
         self._stamper.reset()
+        g = self.geometry
+        # Without a calibration, at least the sweep from step 0 past the last step is known.
+        self._stamper.known_latency_ns = round((g.end + 1) * g.time_increment / g.cluster * 1e9)
+        self._calibrate_clock()
+        self._command(scip.build_command('BM'), 'BM', ('00', '02'))
         self._stats.consecutive_errors = 0
+
+    def _calibrate_clock(self) -> None:
+        """Measure host - sensor clock offset in time-adjust mode (TM0, TM1 x N, TM2)."""
+        try:
+            self._command(scip.build_command('TM0'), 'TM', ('00', '02'))
+        except UrgProtocolError as exc:
+            self.log.warning('URG on %s refuses time adjust (%s): scan stamps carry the '
+                             'transfer delay', self.port, exc)
+            return
+        best: tuple[int, int] | None = None      # (round trip ns, offset ns)
+        try:
+            for _ in range(TM_SAMPLES):
+                t0 = time.monotonic_ns()
+                resp = self._command(scip.build_command('TM1'), 'TM')
+                t1 = time.monotonic_ns()
+                if not resp.lines:
+                    raise UrgProtocolError(f'URG on {self.port!r}: TM1 reply without a time')
+                try:
+                    raw = scip.decode(resp.lines[0])
+                    sensor_ms = self._unwrap.update(raw)
+                except ValueError as exc:
+                    raise UrgProtocolError(f'URG on {self.port!r}: TM1: {exc}') from exc
+                # Both the TM1 time and scan stamps are the same floored ms counter: the
+                # floor's half-ms bias cancels between them.
+                sample = (t1 - t0, (t0 + t1) // 2 - sensor_ms * 1_000_000)
+                if best is None or sample[0] < best[0]:
+                    best = sample
+        finally:
+            self._command(scip.build_command('TM2'), 'TM', ('00', '03'))
+        if best is not None:
+            self._stamper.calibrate(best[1])
+            self.log.debug('URG on %s: clock offset %d ns (round trip %d ns)', self.port,
+                           best[1], best[0])
 
     # -- request / response -----------------------------------------------------------------
     def _write(self, data: bytes) -> None:

@@ -75,6 +75,10 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
                   '(driven: both outputs latch together)', _check_ldac),
     'ldac_chip': Param((str, type(None)), None, "gpiochip of /LDAC when ldac is 'gpio'"),
     'ldac_line': Param((int, type(None)), None, "line offset of /LDAC when ldac is 'gpio'"),
+    'external_stop': Param(bool, False, 'true: the hardware stops the motors by itself when '
+                           'commands stop (hold-to-run switch in series with the enable, or '
+                           "the amplifier's own command timeout); only then are heartbeat: "
+                           'false and control.cmd_vel_timeout: 0 accepted (m4k_drivers.safety)'),
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
     from m4k_drivers.motors.real import open_real_bus, open_real_enable
@@ -84,6 +88,12 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
                    or params['ldac_line'] < 0):
         raise ValueError(f"devices.{name}.ldac: 'gpio' needs ldac_chip and ldac_line (>= 0), "
                          f"got chip={params['ldac_chip']!r} line={params['ldac_line']!r}")
+    if driven and params['heartbeat'] and (params['ldac_chip'], params['ldac_line']) == (
+            params['heartbeat_chip'], params['heartbeat_line']):
+        # One line cannot be both: every heartbeat toggle would latch the DACs mid-update.
+        raise ValueError(f"devices.{name}.ldac_line: {params['ldac_line']!r} is also the "
+                         f"heartbeat line on {params['heartbeat_chip']!r}; wire /LDAC to "
+                         'another line (or tie it low)')
 
     def opener() -> Any:
         return open_real_bus(params['left_dac'], params['right_dac'], params['left_enc'],

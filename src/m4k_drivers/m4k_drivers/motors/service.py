@@ -2,8 +2,9 @@
 
 The service also owns the motors' two safety duties in the host: the watchdog (polled every
 loop pass: no WHEEL_CMD for ``watchdog_periods`` -> outputs safe until a fresh command) and
-outputs safe at once when the RT side goes away.  The service thread's loop runs at the
-actuator period (``period_s``) so the watchdog fires on time.
+outputs safe at once when the RT side goes away.  WHEEL_CMDs older than two periods (stamped
+by the RT side) are dropped, not replayed: a stalled host resumes on the newest command.
+The service thread's loop runs at the actuator period (``period_s``) so the watchdog fires on time.
 """
 
 from __future__ import annotations
@@ -42,8 +43,16 @@ def _period(section: Mapping[str, Any]) -> float:
     return float(section.get('period_s', 0.01))
 
 
+def _max_age(section: Mapping[str, Any]) -> float:
+    # A WHEEL_CMD older than two actuator periods has been replaced by a newer one (or the RT
+    # side stopped sending): after a stall the queue is dropped, not replayed, so a dead
+    # command never toggles the heartbeat back on.  Same host, same CLOCK_MONOTONIC.
+    return 2.0 * _period(section)
+
+
 SERVICE: ServiceSpec[MotorHandler] = ServiceSpec(
     accepts=frozenset({Kind.WHEEL_CMD}), serve=serve, format=format_reading,
     # The RT side gone: nobody commands the motors any more, so zero both DACs at once.
-    read_timeout=_period, tick=MotorHandler.poll_watchdog, on_link_lost=MotorHandler.make_safe,
+    read_timeout=_period, max_age=_max_age, tick=MotorHandler.poll_watchdog,
+    on_link_lost=MotorHandler.make_safe,
     jog=Jog(jog.check_jog, jog.run_jog))

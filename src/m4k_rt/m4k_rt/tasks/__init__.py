@@ -2,9 +2,10 @@
 
 A body factory is called once at start-up, in the RT process, before the tasks start::
 
-    factory(task: config.TaskConfig, ports: dict[str, RtXddpSocket], shared) -> body
+    factory(task: config.TaskConfig, ports: Mapping[str, RtPort], shared) -> body
 
-and returns the per-cycle callable ``body(ctx)`` (``ctx`` is the :class:`~m4k_rt.task.RtTask`).
+and returns the per-cycle callable ``body(ctx)`` (``ctx``: a CycleContext, the RtTask). The
+interfaces are typed Protocols (:mod:`m4k_rt.tasks.interfaces`), so strict mypy checks bodies.
 Names resolve in this order: bodies registered with :func:`register_body` (rt_core registers
 ``monitor``; tests and ``--body-module`` plug-ins register their own), then a module
 ``m4k_rt.tasks.<name>`` exposing ``make_<name>`` (imported lazily, at start-up only).
@@ -12,12 +13,13 @@ Names resolve in this order: bodies registered with :func:`register_body` (rt_co
 
 import importlib
 import importlib.util
-from typing import Any, Callable, cast, Mapping
+from typing import cast
+
+from m4k_rt.tasks.interfaces import BodyFactory
 
 __all__ = ['BodyFactory', 'BodyError', 'body_exists', 'get_factory', 'register_body',
            'registered']
 
-BodyFactory = Callable[[Any, Mapping[str, Any], Any], Callable[[Any], object]]
 
 _registry: dict[str, BodyFactory] = {}
 

@@ -34,10 +34,12 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
+from m4k_rt.config import TaskConfig
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.guard import CollisionGuard
 from m4k_rt.control.params import control_params, ControlParams
 from m4k_rt.protocol import Kind
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -67,7 +69,7 @@ def make_guard(params: ControlParams) -> CollisionGuard:
 class ActuatorBody:
     """The actuator task's per-cycle body (see the module docstring for the pipeline)."""
 
-    def __init__(self, cmd_sock: Any, motor_sock: Any, state: RobotState,
+    def __init__(self, cmd_sock: RtPort, motor_sock: RtPort, state: RobotState,
                  params: ControlParams, period_s: float,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         self.params = params
@@ -99,7 +101,7 @@ class ActuatorBody:
                 'e_stop_engagements': c.estop.engagements, 'e_stop_releases': c.estop.releases,
                 'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets}
 
-    def __call__(self, ctx: Any = None) -> None:
+    def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one actuator cycle (``ctx.t_start`` is the cycle's start time when given)."""
         now = ctx.t_start if ctx is not None else self._clock()
         ctl = self.ctl
@@ -173,7 +175,7 @@ class ActuatorBody:
         state.actuator_cycles = self.cycles
 
 
-def control_section(task: Any, shared: Any) -> Any:
+def control_section(task: TaskConfig, shared: Any) -> Any:
     """Find the raw ``control:`` section: task params, then the shared config, else None.
 
     The section is returned as parsed from YAML, unvalidated: the control parameter parser
@@ -191,7 +193,7 @@ def control_section(task: Any, shared: Any) -> Any:
     return None
 
 
-def make_actuator(task: Any, ports: Mapping[str, Any], shared: Any) -> ActuatorBody:
+def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> ActuatorBody:
     """Build the actuator body from its task config, its ``cmd``/``motor`` ports and state."""
     params = control_params(control_section(task, shared))
     return ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params,

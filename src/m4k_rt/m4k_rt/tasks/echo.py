@@ -12,7 +12,9 @@ import threading
 from typing import Any, Mapping, Sequence
 
 from m4k_rt import protocol, rosargs
+from m4k_rt.config import TaskConfig
 from m4k_rt.stopsignals import StopSignals
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 
 __all__ = ['EchoBody', 'EchoPeer', 'main', 'make_echo']
 
@@ -22,7 +24,7 @@ _REQUEST = protocol.Kind.REQUEST
 class EchoBody:
     """Per-cycle echo: drain replies, send one REQUEST per port."""
 
-    def __init__(self, socks: Sequence[Any], index: int, max_datagram: int = 4096) -> None:
+    def __init__(self, socks: Sequence[RtPort], index: int, max_datagram: int = 4096) -> None:
         """Preallocate the receive and send buffers."""
         self.socks = list(socks)
         self.index = index
@@ -36,7 +38,7 @@ class EchoBody:
         self.replies = 0
         self.malformed = 0
 
-    def __call__(self, ctx: Any) -> None:
+    def __call__(self, ctx: CycleContext) -> None:
         """Run one cycle."""
         buf, view = self._rbuf, self._rview
         for s in self.socks:
@@ -60,7 +62,7 @@ class EchoBody:
                 self.dropped += 1
 
 
-def make_echo(task: Any, ports: Mapping[str, Any], shared: Any) -> EchoBody:
+def make_echo(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> EchoBody:
     """Build the echo body over all of the task's ports."""
     max_dg = getattr(getattr(getattr(shared, 'config', None), 'runtime', None),
                      'max_datagram', 4096)

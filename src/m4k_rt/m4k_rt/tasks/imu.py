@@ -13,7 +13,9 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
+from m4k_rt.config import TaskConfig
 from m4k_rt.protocol import Kind
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -27,7 +29,7 @@ _REQUEST = Kind.REQUEST
 class ImuBody(DeviceTaskBody):
     """Per-cycle body of the IMU task."""
 
-    def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
+    def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: RobotState,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
         self._latest = bytearray(len(self._dev_in.buf))
@@ -42,7 +44,7 @@ class ImuBody(DeviceTaskBody):
                 'unexpected': self.unexpected, 'forwarded': self._out.sent,
                 'forward_dropped': self._out.dropped, 'requests': self._dev_out.sent}
 
-    def __call__(self, ctx: Any = None) -> None:
+    def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one IMU cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
         reader = self._dev_in
@@ -68,6 +70,6 @@ class ImuBody(DeviceTaskBody):
         self.cycles += 1
 
 
-def make_imu(task: Any, ports: Mapping[str, Any], shared: Any) -> ImuBody:
+def make_imu(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> ImuBody:
     """Build the IMU body from its ``imu``/``imu_out`` ports."""
     return ImuBody(ports['imu'], ports['imu_out'], robot_state(shared))

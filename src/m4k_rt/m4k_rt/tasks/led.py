@@ -28,6 +28,7 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
+from m4k_rt.config import TaskConfig
 from m4k_rt.control.base import (
     MODE_BRAKING,
     MODE_DRIVING,
@@ -36,6 +37,7 @@ from m4k_rt.control.base import (
     MODE_OBSTACLE,
 )
 from m4k_rt.protocol import Kind, LedSource, LEVEL_ERROR
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -61,7 +63,7 @@ _DEVICE_STATUS = Kind.DEVICE_STATUS
 class LedBody:
     """Per-cycle body of the LED task."""
 
-    def __init__(self, dev_sock: Any, bridge_sock: Any, state: RobotState,
+    def __init__(self, dev_sock: RtPort, bridge_sock: RtPort, state: RobotState,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         self.state = state
         self._dev_in = PortReader(dev_sock, 256)
@@ -100,7 +102,7 @@ class LedBody:
             return DRIVING
         return IDLE
 
-    def __call__(self, ctx: Any = None) -> None:
+    def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one LED cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
         reader = self._bridge_in
@@ -142,6 +144,6 @@ class LedBody:
         self.cycles += 1
 
 
-def make_led(task: Any, ports: Mapping[str, Any], shared: Any) -> LedBody:
+def make_led(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LedBody:
     """Build the LED body from its ``led``/``led_in`` ports."""
     return LedBody(ports['led'], ports['led_in'], robot_state(shared))

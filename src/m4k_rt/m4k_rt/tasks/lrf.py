@@ -14,10 +14,12 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
+from m4k_rt.config import TaskConfig
 from m4k_rt.control.guard import FrontSector
 from m4k_rt.control.params import control_params
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.actuator import control_section
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -32,7 +34,7 @@ _REQUEST = Kind.REQUEST
 class LrfBody(DeviceTaskBody):
     """Per-cycle body of the LRF task."""
 
-    def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
+    def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: RobotState,
                  front_sector_deg: float = 30.0,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
@@ -46,7 +48,7 @@ class LrfBody(DeviceTaskBody):
                 'forwarded': self._out.sent, 'forward_dropped': self._out.dropped,
                 'requests': self._dev_out.sent}
 
-    def __call__(self, ctx: Any = None) -> None:
+    def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one LRF cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
         state = self.state
@@ -70,7 +72,7 @@ class LrfBody(DeviceTaskBody):
         self.cycles += 1
 
 
-def make_lrf(task: Any, ports: Mapping[str, Any], shared: Any) -> LrfBody:
+def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfBody:
     """Build the LRF body from its ``lrf``/``lrf_out`` ports and the guard's sector width."""
     params = control_params(control_section(task, shared))
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),

@@ -24,6 +24,7 @@ from m4k_rt.protocol import (
     SEQ_MASK,
     VERSION,
 )
+from m4k_rt.tasks.interfaces import RtPort
 
 __all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
 
@@ -43,7 +44,7 @@ class PortReader:
             cls = _TimedPortReader
         return object.__new__(cls)
 
-    def __init__(self, sock: Any, size: int = MAX_DATAGRAM) -> None:
+    def __init__(self, sock: RtPort, size: int = MAX_DATAGRAM) -> None:
         self.sock = sock
         self.buf = bytearray(size)
         self.view = memoryview(self.buf)
@@ -103,7 +104,7 @@ class PortWriter:
             cls = _TimedPortWriter
         return object.__new__(cls)
 
-    def __init__(self, sock: Any, size: int = 128) -> None:
+    def __init__(self, sock: RtPort, size: int = 128) -> None:
         self.sock = sock
         self.buf = bytearray(size)
         self.view = memoryview(self.buf)
@@ -198,7 +199,7 @@ class DeviceTaskBody:
     what the bridge sends there anyway).
     """
 
-    def __init__(self, dev_sock: Any, out_sock: Any, state: Any,
+    def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: Any,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         self.state = state
         self._dev_in = PortReader(dev_sock)

@@ -22,7 +22,9 @@ import math
 import time
 from typing import Any, Callable, Mapping
 
+from m4k_rt.config import TaskConfig
 from m4k_rt.protocol import Kind, SONAR_NO_ECHO, SONAR_OK
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
 
@@ -38,7 +40,7 @@ _INF = math.inf
 class SonarBody(DeviceTaskBody):
     """Per-cycle body of the sonar task."""
 
-    def __init__(self, dev_sock: Any, out_sock: Any, state: RobotState,
+    def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: RobotState,
                  clock: Callable[[], int] = time.monotonic_ns) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
         self.readings = 0
@@ -51,7 +53,7 @@ class SonarBody(DeviceTaskBody):
                 'unexpected': self.unexpected, 'forwarded': self._out.sent,
                 'triggers': self._dev_out.sent}
 
-    def __call__(self, ctx: Any = None) -> None:
+    def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one sonar cycle."""
         now = ctx.t_start if ctx is not None else self._clock()
         state = self.state
@@ -82,6 +84,6 @@ class SonarBody(DeviceTaskBody):
         self.cycles += 1
 
 
-def make_sonar(task: Any, ports: Mapping[str, Any], shared: Any) -> SonarBody:
+def make_sonar(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> SonarBody:
     """Build the sonar body from its ``sonar``/``sonar_out`` ports."""
     return SonarBody(ports['sonar'], ports['sonar_out'], robot_state(shared))
