@@ -11,7 +11,7 @@ import shutil
 import subprocess
 import sys
 
-from m4k_bench.benchlib import analysis
+from m4k_bench.benchlib import analysis, system
 
 SCALING_KEY = 'scaling_1khz_release_p99_over_cyclictest'
 
@@ -37,7 +37,7 @@ def check_verdicts_follow_the_measurements(summ):
         if t.key == SCALING_KEY:
             for r in scaling:
                 if r.get('rate_hz') == 1000 and r.get('set') == 'alone':
-                    r['ratio_p99'] = other
+                    r['ratio_p99_stricter'] = other
         else:
             ratios[t.key]['spread'] = dict(sp, median=other)
         again = {r['key']: r for r in analysis.evaluate_targets(ratios, scaling)}[t.key]
@@ -45,6 +45,10 @@ def check_verdicts_follow_the_measurements(summ):
 
 
 def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
+    # The references are not optional: without them the targets have no denominator. setup
+    # installs them as root (tools/setup.sh); a missing one fails here, naming the package.
+    for tool, package in system.TOOL_PACKAGES.items():
+        assert shutil.which(tool), f'{tool} missing: apt-get install {package} (tools/setup.sh)'
     results = tmp_path / 'results'
     publish = tmp_path / 'published'
     argv = [sys.executable, '-c', 'import sys; from m4k_bench.bench import main; '
@@ -54,7 +58,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=240,
                           stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert '[1/15] set-up' in proc.stderr            # plain progress lines (not a TTY)
+    assert '[1/16] set-up' in proc.stderr            # plain progress lines (not a TTY)
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
@@ -78,6 +82,13 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
         assert set(rnd[cond]['hardening']) >= {'ok', 'policy', 'mem_locked', 'degraded'}
         assert rnd[cond]['cpu_per_cycle_us'] is not None
     assert rnd['floor']['cpu_per_cycle_us'] > 0
+    # the paired run: rt_core and the floor in one window, beside the stack and cyclictest
+    paired = rnd['m4k_floor_paired']
+    assert paired['floor']['cpu_per_cycle_us'] > 0 and paired['cpu_per_cycle_us'] > 0
+    assert paired['cyclictest']['n'] > 0
+    assert summ['ratios']['cpu_per_cycle_over_floor']['values'][0] is not None
+    assert {t['key']: t for t in summ['targets']}['release_p99_stricter_idle']['of'][
+        'alone'] is not None
     # the profiled run: rt_core's cycle breakdown of every task, aggregated and reported
     prof = rnd['m4k_profiled']['cycle_profile']['tasks']
     assert {'actuator', 'imu', 'led', 'sonar', 'lrf', 'monitor'} <= set(prof)
@@ -86,12 +97,10 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     assert prof['actuator']['cycles'] > 0 and prof['actuator']['send_calls'] > 0
     bd = summ['loop_cost']['breakdown']
     assert bd['tasks']['actuator']['drain']['n'] == 1 and bd['all']['send']['n'] == 1
-    if shutil.which('stress-ng'):
-        assert rnd['m4k_stress']['samples'] > 0 and rnd['baseline_stress']['samples'] > 0
-    if shutil.which('cyclictest'):
-        assert rnd['ct_idle']['latency_us']['n'] > 0
-        assert rnd['m4k_idle']['cyclictest']['n'] > 0        # ran concurrently
-        assert rnd['baseline_idle']['cyclictest']['n'] > 0
+    assert rnd['m4k_stress']['samples'] > 0 and rnd['baseline_stress']['samples'] > 0
+    assert rnd['ct_idle']['latency_us']['n'] > 0
+    assert rnd['m4k_idle']['cyclictest']['n'] > 0        # ran concurrently
+    assert rnd['baseline_idle']['cyclictest']['n'] > 0
     assert rnd['rtt']['xddp']['n'] == 200 and rnd['rtt']['raw']['n'] == 200
     assert [r['rate_hz'] for r in summ['scaling']] == [500, 500]
     assert summ['cmd_latency']['trials'] + summ['cmd_latency']['lost'] == 3, \

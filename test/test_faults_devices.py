@@ -21,6 +21,7 @@ from m4k_drivers.host import DeviceService, load_raw_config
 from m4k_drivers.motors import protocol as mp
 from m4k_drivers.sim_robot import SimRobot
 from m4k_rt import protocol, xddp
+from m4k_rt.protocol import EncoderStatus
 
 K = protocol.Kind
 PORTS = {'motor': 2, 'imu': 3, 'sonar': 7, 'lrf': 9}
@@ -179,7 +180,7 @@ def test_encoder_frame_errors_and_jumps_are_flagged_never_fresh_angles(rig):
     while not bad and time.monotonic() < end:
         bad = _of(K.ENCODERS, r.run(0.1, K.WHEEL_CMD, (512, 512, 1)))
     enc.fault = None
-    assert bad and all(m.status & mp.STATUS_LEFT_FRAME for m in bad)
+    assert bad and all(m.status & EncoderStatus.LEFT_FRAME for m in bad)
     assert len({m.left_angle for m in bad}) == 1, 'a bad frame must not move the angle'
     real_raw = enc.raw
     enc.raw = lambda: (real_raw() + 2048) % mp.ENC_COUNTS   # half a turn: a jump
@@ -188,7 +189,7 @@ def test_encoder_frame_errors_and_jumps_are_flagged_never_fresh_angles(rig):
     while not jumped and time.monotonic() < end:
         jumped = _of(K.ENCODERS, r.run(0.05, K.WHEEL_CMD, (512, 512, 1)))
     enc.raw = real_raw
-    assert jumped and jumped[0].status & mp.STATUS_LEFT_JUMP
+    assert jumped and jumped[0].status & EncoderStatus.LEFT_JUMP
     assert jumped[0].left_angle == bad[-1].left_angle
     assert r.handler.faults - faults0 >= len(bad) + 1
     after = r.run(1.2, K.WHEEL_CMD, (512, 512, 1))

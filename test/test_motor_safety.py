@@ -10,10 +10,13 @@ the command source on the ``cmd`` port (VELOCITY_CMD 0.25 m/s at 20 Hz, as the b
   from the configuration: devices.motor.heartbeat_hold_s, world.robot.coast_decel_mps2);
 * the same with ``heartbeat: false`` (enable strapped on): the DACs hold their word and the
   robot keeps driving nobody commands -- the hazard the heartbeat exists for;
-* kill -9 rt_core: the driver host's watchdog writes the zero code (0 V on both armatures);
+* kill -9 rt_core with the heartbeat off: the driver host's watchdog writes the zero code (0 V
+  on both armatures) and the robot stops by ``watchdog + tau * ln(v / 0.01)`` after the kill
+  (``period_s * watchdog_periods`` and ``tau`` from config/; simulated time);
 * a driver-host restart keeps the world: the pose goes on from where it was.
 """
 
+import math
 import os
 import signal
 import threading
@@ -111,6 +114,11 @@ def _coast_bound_s(cfg, v0):
     return hold + v0 / decel
 
 
+def _braked_bound_s(cfg, v0):
+    """Return the motor lag's time from ``v0`` to STOPPED at 0 V, enable on (the watchdog)."""
+    return cfg.world.robot.motor_tau_s * math.log(v0 / STOPPED)
+
+
 def test_kill_driver_host_heartbeat_stops_the_robot(stack, procs):
     s = stack(heartbeat=True)
     before = _drive(s)
@@ -143,12 +151,21 @@ def test_kill_driver_host_without_heartbeat_keeps_driving(stack, procs):
 
 
 def test_kill_rt_core_watchdog_zeroes_the_dacs(stack, procs):
-    s = stack(heartbeat=True)
-    _drive(s)
+    """With the heartbeat off (enable strapped on) only the watchdog can stop the robot."""
+    s = stack(heartbeat=False)
+    before = _drive(s)
+    assert before['motor_enabled'] and not before['heartbeat']
+    motor = s['cfg'].devices['motor']
+    watchdog_s = motor['period_s'] * motor['watchdog_periods']      # config/devices.yaml
+    # 0 V on the armature with the enable on: the motor lag brakes it (not a coast)
+    bound_s = watchdog_s + _braked_bound_s(s['cfg'], 1.2 * before['v'])
+    t_kill = time.monotonic_ns()
     os.kill(s['core'].pid, signal.SIGKILL)
-    after = _wait_truth(s['rd'], lambda t: abs(t['v']) < STOPPED, 10.0, 'robot stopped')
-    # the watchdog wrote the zero code (0 V armature), the driver host is alive
-    _wait_truth(s['rd'], lambda t: t['motor_volts'] == [0.0, 0.0], 5.0, 'DACs at code 512')
+    after = _wait_sim_time(s['rd'], t_kill + int(bound_s * 1e9))
+    # the watchdog wrote the zero code (0 V armature); the enable never dropped
+    assert after['motor_volts'] == [0.0, 0.0], (bound_s, after)
+    assert after['motor_enabled'], after
+    assert abs(after['v']) < STOPPED, (bound_s, after)
     assert s['host'].poll() is None
     assert after['collisions'] == 0
 

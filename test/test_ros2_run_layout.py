@@ -21,11 +21,28 @@ def test_ros2_run_starts_the_installed_executable(pkg, exe):
     assert 'usage:' in out.stdout.lower()
 
 
-def test_ros2_run_names_a_missing_executable():
+# What ros2cli's ros2run (Jazzy, 0.36) says, and tools/bin/ros2 with it: exit 1, the message
+# on stderr's last line -- "No executable found" does not name the executable.
+def test_ros2_run_says_no_executable_found_for_a_missing_executable():
     out = subprocess.run(['ros2', 'run', 'm4k_rt', 'no_such_exe'], capture_output=True,
                          text=True, timeout=60)
-    assert out.returncode != 0
-    assert 'no_such_exe' in out.stderr
+    assert out.returncode == 1, out
+    assert out.stderr.strip().splitlines()[-1] == 'No executable found', out.stderr
+
+
+def test_ros2_run_says_which_package_is_missing():
+    out = subprocess.run(['ros2', 'run', 'm4k_no_such_pkg', 'x'], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 1, out
+    assert out.stderr.strip().splitlines()[-1] == "Package 'm4k_no_such_pkg' not found", \
+        out.stderr
+
+
+def test_ros2_pkg_prefix_of_a_missing_package_fails():
+    out = subprocess.run(['ros2', 'pkg', 'prefix', 'm4k_no_such_pkg'], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 1, out
+    assert out.stderr.strip().splitlines()[-1] == 'Package not found', out.stderr
 
 
 def test_ros2_pkg_prefix_points_at_the_install_space():

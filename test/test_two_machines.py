@@ -33,7 +33,7 @@ from m4k_rt.control.params import control_params
 
 pytestmark = [
     pytest.mark.allow_leaks('fds'),
-    pytest.mark.skipif(os.geteuid() != 0, reason='network namespaces need root'),
+    pytest.mark.needs_root('network namespaces (ip netns, veth pairs)'),
     pytest.mark.skipif(shutil.which('ip') is None, reason='iproute2 (ip) is not installed'),
 ]
 

@@ -24,11 +24,6 @@ python -m pytest test -q -p no:cacheprovider -m 'not hardware' \
   --junitxml=build/workspace_test/test_results/workspace/pytest.xml || rc=1
 
 echo "== summary =="
-colcon test-result --test-result-base build --verbose || rc=1
-total=$(colcon test-result --test-result-base build 2>/dev/null | sed -nE 's/^Summary: ([0-9]+) tests.*/\1/p')
-if [[ -z $total || $total -eq 0 ]]; then
-  echo 'm4k: no test ran -- failing' >&2
-  rc=1
-fi
+tools/test-summary.sh build || rc=1
 [[ $rc -eq 0 ]] && echo 'm4k: all tests passed' || echo 'm4k: TESTS FAILED' >&2
 exit $rc

@@ -43,6 +43,24 @@ pyver=$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')
 "$PY" -c 'import sysconfig, os, sys; sys.exit(0 if os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")) else 1)' \
   || die "Python headers for $pyver not found -- install them: sudo apt-get install python${pyver}-dev"
 
+# The bench's reference tools (m4k_bench.benchlib.system.TOOL_PACKAGES): `make test`'s bench
+# smoke test needs them, `make bench`/`soak` compare against them. Installed here as root where
+# apt works; otherwise one line saying how (the smoke test then fails naming them).
+bench_missing=()
+command -v cyclictest >/dev/null 2>&1 || bench_missing+=(rt-tests)
+command -v stress-ng >/dev/null 2>&1 || bench_missing+=(stress-ng)
+if (( ${#bench_missing[@]} )); then
+  if [[ $(id -u) -eq 0 ]] && command -v apt-get >/dev/null 2>&1; then
+    say "installing ${bench_missing[*]} (cyclictest, stress-ng: the bench's references)"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get install -y -qq "${bench_missing[@]}" >/dev/null 2>&1 \
+      || { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq "${bench_missing[@]}" >/dev/null 2>&1; } \
+      || say "warning: could not install ${bench_missing[*]}: run 'apt-get install ${bench_missing[*]}' as root"
+  else
+    say "warning: ${bench_missing[*]} missing (the bench smoke test fails without them): sudo apt-get install ${bench_missing[*]}"
+  fi
+fi
+
 reqs=requirements.txt
 [[ $ros_mode == system ]] && reqs=requirements-system-ros.txt
 want="$ros_mode $pyver $(sha256sum "$reqs" tools/setup.sh | sha256sum | cut -c1-16)"

@@ -64,7 +64,8 @@ QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt
 # One round, in this order (reversed every other round).
 CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_alone', 'baseline_idle',
               'ct_stress', 'm4k_stress', 'baseline_stress')
-PHASES = ('floor', *CONDITIONS, 'breakdown', 'rtt', 'scaling', 'cmdlat')
+SCALING_TARGET_HZ = 1000   # the scaling target's rate (analysis.TARGETS)
+PHASES = ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt', 'scaling', 'cmdlat')
 
 
 def plan_durations(quick: bool, duration: float | None, condition: float | None,
@@ -89,9 +90,10 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)
     per_round += 0 if 'floor' in skip else plan['floor_s'] + 2.0
     per_round += 0 if 'breakdown' in skip else per_cond
+    per_round += 0 if 'floor_paired' in skip else per_cond
     per_round += 0 if 'rtt' in skip else plan['rtt_n'] * 2 * 1e-4 + 2.0
     per_round += 0 if 'scaling' in skip else 2 * len(RATES_HZ) * (
-        plan['scaling_s'] + WARMUP_S + 5)
+        plan['scaling_s'] + WARMUP_S + 5) + plan['scaling_s'] + 3
     total = plan['rounds'] * per_round
     total += 0 if 'cmdlat' in skip else plan['cmd_trials'] * 0.4 + 10.0
     return total
@@ -180,6 +182,43 @@ def _link_latest(root: str, outdir: str) -> None:
     os.replace(tmp, link)
 
 
+def _both(a: Callable[[], None], b: Callable[[], None]) -> Callable[[], None]:
+    """Return a callable that calls ``a`` then ``b``."""
+    def call() -> None:
+        a()
+        b()
+    return call
+
+
+class _FloorBeside:
+    """The Python floor in a thread, started with the measured run (``seconds`` 0: off).
+
+    Run beside the stack and the concurrent cyclictest, the floor pays for the same co-load
+    as rt_core does in the same window, so the loop-cost ratio compares like with like.
+    """
+
+    def __init__(self, bench: 'Bench', seconds: float, probe: bool = False) -> None:
+        self.bench = bench
+        self.seconds = seconds
+        self.probe = probe
+        self.result: dict[str, Any] | None = None
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        if self.seconds <= 0 or self._thread is not None:
+            return
+        self._thread = threading.Thread(target=self._run, name='bench-floor', daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        self.result = self.bench._floor(self.seconds, self.probe)
+
+    def join(self) -> dict[str, Any] | None:
+        if self._thread is not None:
+            self._thread.join(self.seconds + 90.0)
+        return self.result
+
+
 class _Concurrent:
     """cyclictest in a thread, started by ``start()`` (called when the measured run starts)."""
 
@@ -237,9 +276,10 @@ class Bench:
         self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
         os.environ.update({k: self.env[k] for k in ('ROS_DOMAIN_ID',
                                                     'ROS_AUTOMATIC_DISCOVERY_RANGE')})
-        per_round = len([c for c in ('floor', *CONDITIONS, 'breakdown', 'rtt')
+        per_round = len([c for c in ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt')
                          if c not in self.skip])
-        per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz)
+        per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz) + (
+            SCALING_TARGET_HZ in args.rates_hz)
         steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1)
         self.progress = progress_mod.Progress(steps)
         self.periods: dict[str, list[np.ndarray]] = {}
@@ -296,8 +336,10 @@ class Bench:
 
     def _m4k(self, key: str, tag: str, seconds: float, *, tasks: str | None = None,
              period_ns: int = PERIOD_NS, with_ct: bool = True,
-             rt_config: str | None = None, profile: bool = False) -> dict[str, Any] | None:
+             rt_config: str | None = None, profile: bool = False,
+             floor_beside: bool = False, probe: bool = False) -> dict[str, Any] | None:
         ct = _Concurrent(seconds + WARMUP_S, period_ns // 1000, with_ct and self.has_ct)
+        fl = _FloorBeside(self, seconds if floor_beside else 0.0, probe)
         env = self.env
         prof_path = os.path.join(self.outdir, 'raw', tag + '_cycle_profile.json')
         if profile:     # rt_core times the parts of every cycle (m4k_rt.cycleprof)
@@ -306,8 +348,9 @@ class Bench:
                             driver_host=self.has_host, env=env,
                             progress=self.progress.update,
                             rt_config=rt_config if rt_config else self.args.rt_config,
-                            on_started=ct.start)
+                            on_started=_both(ct.start, fl.start))
         ct_res = ct.join()
+        fl_res = fl.join()
         for e in run.errors:
             self._note('{}: {}'.format(tag, e))
         warm = analysis.trim_warmup(run.recorder.tasks.values(), int(WARMUP_S * 1e9))
@@ -339,6 +382,8 @@ class Bench:
             if tasks is None else None,
         )
         res['stalls'] = self._stalls(res, ct_res, period_ns)
+        if floor_beside:
+            res['floor'] = fl_res
         if profile:
             res['cycle_profile'] = _read_json(prof_path)
             if res['cycle_profile'] is None:
@@ -386,20 +431,22 @@ class Bench:
         self.periods.setdefault(key, []).append(_periods(series))
         return c
 
-    def _cyclictest_alone(self, seconds: float) -> dict[str, Any] | None:
-        ct = _Concurrent(seconds, PERIOD_NS // 1000, self.has_ct)
+    def _cyclictest_alone(self, seconds: float,
+                          period_us: int = PERIOD_NS // 1000) -> dict[str, Any] | None:
+        ct = _Concurrent(seconds, period_us, self.has_ct)
         ct.start()
         r = ct.join()
         return None if r is None else {'latency_us': r} if 'error' not in r else r
 
-    def _floor(self, seconds: float) -> dict[str, Any] | None:
+    def _floor(self, seconds: float, probe: bool = False) -> dict[str, Any] | None:
         if not self.task_rates:
             return None
         from m4k_bench.benchlib import floor
         ts = list(self.task_rates.values())
         out = floor.run_floor_child([int(t['period_ns']) for t in ts],
                                     [int(t['priority']) for t in ts],
-                                    [int(t['offset_ns']) for t in ts], seconds, self.env)
+                                    [int(t['offset_ns']) for t in ts], seconds, self.env,
+                                    probe=probe)
         if isinstance(out, str):
             self._note(out)
             return None
@@ -489,10 +536,17 @@ class Bench:
                     rnd[cond] = fn()
             else:
                 rnd[cond] = fn()
+        if 'floor_paired' not in self.skip:
+            p.phase(pre + 'm4k full stack, idle, with the Python floor beside it', run_s)
+            rnd['m4k_floor_paired'] = self._m4k(
+                'm4k_floor_paired', 'r{}_m4k_floor_paired'.format(k), cond_s, floor_beside=True)
         if 'breakdown' not in self.skip:
             p.phase(pre + 'm4k full stack, idle, cycle breakdown (profiled)', run_s)
+            # A probed floor beside it: the cold/warm A-B of one decode inside a periodic
+            # loop, next to the same stack (floor.py --probe).
             rnd['m4k_profiled'] = self._m4k('m4k_profiled', 'r{}_m4k_profiled'.format(k),
-                                            cond_s, with_ct=False, profile=True)
+                                            cond_s, with_ct=False, profile=True,
+                                            floor_beside=True, probe=True)
         if 'rtt' not in self.skip:
             p.phase(pre + "XDDP round trip, tasks' receive path ({} each)".format(
                 plan['rtt_n']))
@@ -511,6 +565,13 @@ class Bench:
         for hz in rates:
             period_ms = 1000.0 / hz
             overlay = self._overlay(period_ms)
+            # cyclictest alone at the target's rate, the same round: the stricter denominator
+            ct_alone: dict[str, Any] = {}
+            if hz == SCALING_TARGET_HZ:
+                self.progress.phase(pre + 'scaling: cyclictest alone at {} Hz'.format(hz),
+                                    s + 3.0)
+                ct_alone = (self._cyclictest_alone(s, int(round(1e6 / hz))) or {}).get(
+                    'latency_us') or {}
             for tasks, label in ((ACTUATOR, 'alone'), (None, 'task set')):
                 self.progress.phase(pre + 'scaling: actuator at {} Hz, {}'.format(hz, label),
                                     s + WARMUP_S + 3.0)
@@ -524,10 +585,16 @@ class Bench:
                              'release_p999_us': lat.get('p999'),
                              'cyclictest_p99_us': ct.get('p99'),
                              'ratio_p99': analysis.ratio(lat.get('p99'), ct.get('p99')),
+                             'cyclictest_alone_p99_us': ct_alone.get('p99'),
+                             'ratio_p99_alone': analysis.ratio(lat.get('p99'),
+                                                               ct_alone.get('p99')),
                              'cpu_per_cycle_us': (r or {}).get('cpu_per_cycle_us'),
                              'overruns': (r or {}).get('overruns'),
                              'deadline_misses': (r or {}).get('deadline_misses'),
                              'hardening_ok': (r or {}).get('hardening', {}).get('ok')})
+                row = rows[-1]
+                both = (row['ratio_p99'], row['ratio_p99_alone'])
+                row['ratio_p99_stricter'] = None if None in both else max(both)
 
     def _cmdlat(self, trials: int) -> None:
         from m4k_bench.benchlib import cmdlat

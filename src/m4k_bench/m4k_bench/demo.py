@@ -15,7 +15,8 @@
    MCAP in ``bag/bag_0.mcap`` (:mod:`m4k_bridge.bag.record`).
 
 Contacts: sim_robot keeps ``world.json`` (``--world-report`` / ``M4K_WORLD_REPORT``) with
-the simulated world's collision counter and true pose; that is the verdict's evidence. The
+the simulated world's collision counter and true pose; that is the verdict's evidence, and
+without it the demo fails (no silent fall-back to the odometry). The
 footprint clearance along the recorded odometry against the room geometry
 (:mod:`m4k_bench.planning.evaluate`) is reported beside it as the robot's own view.
 
@@ -59,7 +60,7 @@ from m4k_bench.planning.evaluate import (
 from m4k_rt import config, description, rosargs
 from m4k_rt.proc import stop_process
 
-__all__ = ['main', 'pose_rate']
+__all__ = ['judge', 'main', 'pose_rate']
 
 STARTUP_TIMEOUT_S = 45.0
 STOP_TIMEOUT_S = 20.0
@@ -399,6 +400,25 @@ def _world_truth(path: str) -> dict[str, Any] | None:
         return None
 
 
+def judge(goal_reached: bool, truth: dict[str, Any] | None) -> dict[str, Any]:
+    """Return the demo's verdict: the goal reached and no contact in the simulator's truth.
+
+    The contact count comes from the simulator only (its collision counter, ground-truth
+    footprint). Without the world report there is no evidence of "no contact": the demo
+    fails, saying so -- the clearance along the odometry is the robot judging itself, and
+    stays in the summary as ``odom_contacts`` only.
+    """
+    if truth is None:
+        return {'contacts': None, 'passed': False,
+                'contacts_source': 'none: the simulator wrote no world report',
+                'failure': 'no ground truth: the simulator wrote no world report '
+                           f'({WORLD_REPORT}); contacts cannot be judged'}
+    n = int(truth['collisions']) + (1 if truth['in_contact'] else 0)
+    return {'contacts': n, 'passed': bool(goal_reached and n == 0), 'failure': None,
+            'contacts_source': 'the simulator: world report (collision counter of the '
+                               'simulated world, ground-truth footprint)'}
+
+
 def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], tolerance: float,
              max_v: float, out_dir: str, timed_out: bool) -> dict[str, Any]:
     geom = WorldGeometry.from_config(raw.get('world'))
@@ -413,23 +433,15 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
     period_ms = float(((raw.get('tasks') or {}).get('actuator') or {}).get('period_ms', 10))
     twist_ms = period_ms * int((raw.get('control') or {}).get('odom_velocity_window', 1))
     err = float(math.hypot(goal[0] - final[1], goal[1] - final[2]))
-    n_contacts = contacts(clear)
     truth = _world_truth(os.path.join(out_dir, WORLD_REPORT))
-    if truth is not None:
-        # The simulator's own contact counter is the evidence; the clearance along the
-        # odometry stays in the summary as the robot's view of the same drive.
-        source = ('the simulator: driver host world report (collision counter of the '
-                  'simulated world, ground-truth footprint)')
-        n_contacts = int(truth['collisions']) + (1 if truth['in_contact'] else 0)
-    else:
-        source = ('footprint clearance along the recorded odometry against the world: '
-                  'geometry of the configuration (no world report from the driver host)')
+    goal_reached = bool(len(odom) and err <= tolerance)
+    verdict = judge(goal_reached, truth)
     summary: dict[str, Any] = {
-        'goal_reached': bool(len(odom) and err <= tolerance),
+        'goal_reached': goal_reached,
         'final_error_m': round(err, 4),
         'min_clearance_m': round(float(clear.min()), 4) if len(clear) else None,
-        'contacts': n_contacts,
-        'contacts_source': source,
+        'contacts': verdict['contacts'],
+        'contacts_source': verdict['contacts_source'],
         'true_final_pose_world': [round(float(v), 4) for v in truth['pose']] if truth else None,
         'final_pose_world_odom': [round(float(v), 4) for v in world[-1]] if len(world) else None,
         'odom_contacts': contacts(clear),
@@ -454,7 +466,9 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
     gap, dyaw = _odom_vs_truth(world[-1], truth) if len(world) else (None, None)
     summary['odom_vs_truth_m'] = None if gap is None else round(gap, 4)
     summary['odom_vs_truth_yaw_deg'] = None if dyaw is None else round(dyaw, 3)
-    summary['passed'] = bool(summary['goal_reached'] and n_contacts == 0)
+    summary['passed'] = verdict['passed']
+    if verdict['failure']:
+        summary['failure'] = verdict['failure']
     _write_csv(os.path.join(out_dir, 'trajectory.csv'), odom, world, ref, clear, v_pose)
     summary['figures'] = [os.path.basename(p) for p in _plots(
         out_dir, geom, world, odom, cmd, v_pose, goal_w, tolerance, max_v, twist_ms)]
@@ -593,6 +607,8 @@ def main(argv: Sequence[str] | None = None) -> int:
          f"{_truth_line(summary)}, peak velocity {summary['peak_v_mps']:.3f} m/s (twist), "
          f"{summary['peak_v_pose_rate_mps']:.3f} m/s (pose rate), "
          f"{summary['duration_s']:.1f} s -> {out_dir}")
+    if summary.get('failure'):
+        _log('FAIL: ' + summary['failure'])
     if rc:
         return rc
     return 0 if summary['passed'] else 1

@@ -88,3 +88,43 @@ def test_fuzz_port_judgement_names_every_counter_that_disagrees():
     assert fuzz.judge_port(e, 96, 4, 50, 19) == [
         'oversize: expected 3, counted 4', 'unexpected: expected 20, counted 19',
         'received: expected 97, counted 96']
+
+
+def _rss(rate_kib_s, seconds, base=80_000, every=5.0, noise=(0, 12, -8, 4)):
+    """An RSS series sampled every ``every`` s: a steady leak plus a little sampling noise."""
+    n = int(seconds / every) + 1
+    return [(i * every, int(base + rate_kib_s * i * every + noise[i % len(noise)]))
+            for i in range(n)]
+
+
+def test_a_20_kib_per_s_leak_fails_the_short_soak():
+    # A 60 s soak with a 15 s warm-up judges 45 s: 900 KiB of growth, under the old fixed
+    # 2 MiB limit; as a slope it is 1200 KiB/min against a limit of 256 KiB / 45 s.
+    v = soak.leak_verdict(_rss(20.0, 60), 15.0)
+    assert v['verdict'] == 'GROWING'
+    assert v['slope_kib_per_min'] == pytest.approx(1200.0, rel=0.02)
+    assert v['limit_kib_per_min'] == pytest.approx(256.0 / 45.0 * 60.0)
+
+
+def test_a_20_kib_per_s_leak_fails_the_long_soak_and_a_flat_process_passes():
+    assert soak.leak_verdict(_rss(20.0, 600), 60.0)['verdict'] == 'GROWING'
+    assert soak.leak_verdict(_rss(0.0, 600), 60.0)['verdict'] == 'flat'
+    assert soak.leak_verdict(_rss(0.0, 60), 15.0)['verdict'] == 'flat'
+
+
+def test_the_slope_limit_tightens_with_the_window_down_to_the_floor():
+    # 1 KiB/s: tolerated as one step over 45 s (limit 5.7 KiB/s), a leak over 540 s
+    # (limit max(0.5, 0.47) = 0.5 KiB/s).
+    assert soak.leak_verdict(_rss(1.0, 60), 15.0)['verdict'] == 'flat'
+    long = soak.leak_verdict(_rss(1.0, 600), 60.0)
+    assert long['verdict'] == 'GROWING'
+    assert long['limit_kib_per_min'] == pytest.approx(soak.LEAK_SLOPE_KIB_S * 60.0)
+
+
+def test_one_allocator_step_in_a_short_window_is_not_a_leak():
+    series = [(t, k + (200 if t >= 30 else 0)) for t, k in _rss(0.0, 60)]
+    assert soak.leak_verdict(series, 15.0)['verdict'] == 'flat'
+
+
+def test_too_few_samples_give_no_verdict():
+    assert soak.leak_verdict(_rss(20.0, 60), 55.0)['verdict'] == 'too short'

@@ -21,9 +21,10 @@ from m4k_drivers.imu import protocol as p
 from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice
 from m4k_rt import protocol as wire
+from m4k_rt.protocol import ImuStatus
 from m4k_rt.testing import examples
 
-STATUSES = {p.STATUS_OK, p.STATUS_NOT_READY, p.STATUS_BAD_QUATERNION}
+STATUSES = {ImuStatus.OK, ImuStatus.NOT_READY, ImuStatus.BAD_QUATERNION}
 
 
 def check_blocks(b1: bytes, b2: bytes, ready: bool) -> p.ImuSample | None:
@@ -39,9 +40,9 @@ def check_blocks(b1: bytes, b2: bytes, ready: bool) -> p.ImuSample | None:
     assert all(math.isfinite(v) for v in flat), s
     assert s.status in STATUSES
     if not ready:
-        assert s.status == p.STATUS_NOT_READY
+        assert s.status == ImuStatus.NOT_READY
     norm = math.sqrt(sum(q * q for q in s.orientation))
-    if s.status == p.STATUS_OK:
+    if s.status == ImuStatus.OK:
         assert abs(norm - 1.0) < 1e-9
     assert norm == 0.0 or abs(norm - 1.0) < 1e-9  # renormalised, or all-zero (flagged)
     # What the driver host sends: it must always be a decodable IMU datagram.
@@ -67,9 +68,9 @@ def test_wrong_burst_lengths_are_protocol_errors(b1, b2):
 def test_zero_and_extreme_quaternions_are_flagged_not_published_as_ok():
     zero = bytes(p.BLOCK2_LEN)
     s = check_blocks(bytes(p.BLOCK1_LEN), zero, True)
-    assert s.status == p.STATUS_BAD_QUATERNION
+    assert s.status == ImuStatus.BAD_QUATERNION
     extreme = b'\x00' * 6 + b'\xff\x7f' * 4  # |q| = 2
-    assert check_blocks(bytes(p.BLOCK1_LEN), extreme, True).status == p.STATUS_BAD_QUATERNION
+    assert check_blocks(bytes(p.BLOCK1_LEN), extreme, True).status == ImuStatus.BAD_QUATERNION
 
 
 class FlakyBus:
@@ -131,8 +132,8 @@ def test_i2c_errors_and_short_reads_are_counted_and_never_a_value():
     assert 'flaky:i2c@0x20' in str(results[3].error)
     assert h.faults == 3 and h.state == State.ACTIVE and h.status_level() == 1
     # 0xFF everywhere is a legal register image: decoded, finite, its quaternion flagged.
-    assert results[5].value.status == p.STATUS_BAD_QUATERNION
-    assert h.read().value.status == p.STATUS_OK   # recovered without a reconfigure
+    assert results[5].value.status == ImuStatus.BAD_QUATERNION
+    assert h.read().value.status == ImuStatus.OK   # recovered without a reconfigure
     h.shutdown()
     assert bus.closed
 

@@ -16,6 +16,7 @@ from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice, open_real_i2c
 from m4k_drivers.imu.sim import FakeMyAhrsBus
 from m4k_drivers.world import World, WorldConfig
+from m4k_rt.protocol import ImuStatus
 
 # Hand-made registers 0x22..0x35: acc (2048, 0, -2048), gyro (0, 0, 1638), magnet
 # (100, -200, 300), temperature 4096 -- all int16 little-endian.
@@ -56,13 +57,13 @@ def test_to_ros_flips_y_and_z():
     assert qz == pytest.approx(-math.sqrt(0.5)) and qw == pytest.approx(math.sqrt(0.5))
     # the quaternion and the Euler yaw describe the same heading
     assert 2 * math.atan2(qz, qw) == pytest.approx(r.rpy[2], abs=1e-3)
-    assert r.status == p.STATUS_OK
+    assert r.status == ImuStatus.OK
 
 
 def test_to_ros_flags_bad_quaternion_and_not_ready():
     bad = BLOCK2[:6] + bytes(8)                       # quaternion all zero
-    assert p.to_ros(p.decode_blocks(BLOCK1, bad)).status == p.STATUS_BAD_QUATERNION
-    assert p.to_ros(p.decode_blocks(BLOCK1, BLOCK2), ready=False).status == p.STATUS_NOT_READY
+    assert p.to_ros(p.decode_blocks(BLOCK1, bad)).status == ImuStatus.BAD_QUATERNION
+    assert p.to_ros(p.decode_blocks(BLOCK1, BLOCK2), ready=False).status == ImuStatus.NOT_READY
 
 
 def test_decode_rejects_short_burst():

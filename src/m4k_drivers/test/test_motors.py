@@ -8,6 +8,7 @@ from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.real import open_real_bus
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig
+from m4k_rt.protocol import EncoderStatus
 
 
 # -- MCP4911 frames (hand-computed: bit15 /A-B=0, bit14 BUF, bit13 /GA, bit12 /SHDN, D9..D0<<2)
@@ -172,7 +173,7 @@ def test_mag_out_of_range_is_accepted_with_a_diagnostics_warning():
         h.write(WheelCommand(600, 600, 1))
         r = h.read()
         assert r.status == Status.OK
-        assert not r.value.status & (p.STATUS_LEFT_FRAME | p.STATUS_RIGHT_FRAME)
+        assert not r.value.status & (EncoderStatus.LEFT_FRAME | EncoderStatus.RIGHT_FRAME)
     assert r.value.left_angle > 0                       # the angle is used, the wheel moves
     assert h.mag_warnings == [3, 0]
     assert h.faults == 1 and h.status_level() == 1      # one warning per episode
@@ -322,11 +323,11 @@ def test_watchdog_makes_outputs_safe_until_fresh_command():
     h.write(WheelCommand(600, 600, 1))
     clock.t += 50_000_000
     r = h.read()
-    assert r.status == Status.OK and not r.value.status & p.STATUS_SAFE
+    assert r.status == Status.OK and not r.value.status & EncoderStatus.SAFE
     assert h.codes == (600, 600)
     clock.t += 60_000_000                           # 110 ms since the command > 100 ms
     r = h.read()
-    assert r.value.status & p.STATUS_SAFE
+    assert r.value.status & EncoderStatus.SAFE
     assert h.codes == (512, 512) and h.watchdog_trips == 1
     clock.t += 100_000_000
     assert not h.poll_watchdog()                    # stays safe, no repeated trips
@@ -342,7 +343,8 @@ def test_encoder_frame_fault_sets_status_bit_keeps_angle():
     h.bus.encoders[RIGHT].dev.fault = {'cof': True}
     r = h.read()
     assert r.status == Status.OK
-    assert r.value.status & p.STATUS_RIGHT_FRAME and not r.value.status & p.STATUS_LEFT_FRAME
+    assert r.value.status & EncoderStatus.RIGHT_FRAME
+    assert not r.value.status & EncoderStatus.LEFT_FRAME
     assert h.faults == 1
     h.shutdown()
 

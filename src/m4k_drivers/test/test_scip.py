@@ -195,9 +195,8 @@ def test_laser_off_status_raises_status_error_with_meaning():
 
 def test_range_error_codes_are_documented():
     from m4k_rt import protocol
-    assert scip.RANGE_ERROR_CODES is protocol.SCAN_ERROR_CODES      # one owner of the table
-    assert set(scip.RANGE_ERROR_CODES) == set(range(20))
-    assert scip.RANGE_ERROR_CODES[6] == 'others'                    # spec Table 3, not "far"
+    assert set(protocol.SCAN_ERROR_CODES) == set(range(20))
+    assert protocol.SCAN_ERROR_CODES[6] == 'others'                    # spec Table 3, not "far"
     assert 'non-measurable' in scip.range_error_meaning(19)
     with pytest.raises(ValueError, match='20'):
         scip.range_error_meaning(20)

@@ -11,6 +11,9 @@ Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. Wha
 * The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
 * The ``ros2cli`` marker for tests that need launch/launch_ros/ros2cli (not on PyPI): skipped,
   saying so, where they do not import; the skip policy accepts that skip only there.
+* The ``needs_ros_package(name)`` marker for tests that need a ROS package PyPI lacks (e.g.
+  robot_state_publisher): skipped, naming it, where the ament index does not have it; the skip
+  policy accepts that skip only where the package really is missing.
 * The ``needs_root(reason)`` marker: skipped, saying why, when not root -- and the skip policy:
   under the test runner (``M4K_CI=1``) a run fails when a test was skipped that could have run
   here (any skip as root; any skip other than ``needs_root`` otherwise), so a missing
@@ -38,8 +41,9 @@ import pytest
 from m4k_rt.proc import stop_process
 
 __all__ = ['pytest_configure', 'pytest_runtest_setup', 'pytest_runtest_logreport',
-           'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir', 'procs', 'ProcessGroup',
-           'child_pids', 'socket_fds', 'examples', 'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
+           'pytest_collectreport', 'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir',
+           'procs', 'ProcessGroup', 'child_pids', 'socket_fds', 'examples',
+           'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -51,6 +55,7 @@ HYPOTHESIS_PROFILE_ENV = 'M4K_HYPOTHESIS_PROFILE'
 FUZZ_FACTOR = 20  # ``fuzz`` runs this many times each test's example count
 _NEEDS_ROOT = 'needs root: '
 _NEEDS_ROS2CLI = 'needs ros2cli/launch (not on PyPI: a full ROS install or the ros-verify env): '
+_NEEDS_PKG = 'needs the ROS package (not on PyPI, not in the ament index here): '
 _session_skips: list[tuple[str, str]] = []
 
 
@@ -89,6 +94,8 @@ def pytest_configure(config: pytest.Config) -> None:
         'markers', 'allow_leaks(kinds): tolerate leftovers of the given kinds '
         "('fds' for in-process DDS transports); state why in the test")
     config.addinivalue_line(
+        'markers', 'needs_ros_package(name): skipped, naming it, where the ament index lacks it')
+    config.addinivalue_line(
         'markers', 'needs_root(reason): skipped, with the reason, when not run as root')
 
 
@@ -99,6 +106,19 @@ def ros2cli_available() -> bool:
     return all(importlib.util.find_spec(m) is not None for m in ('launch_ros', 'ros2launch'))
 
 
+def ros_package_available(name: str) -> bool:
+    """Return True when the ament index knows the ROS package ``name``."""
+    try:
+        from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    except ImportError:
+        return False
+    try:
+        get_package_prefix(name)
+    except PackageNotFoundError:
+        return False
+    return True
+
+
 def pytest_runtest_setup(item: pytest.Item) -> None:
     """Skip needs_root tests when not root, ros2cli tests without ros2cli; say why."""
     marker = item.get_closest_marker('needs_root')
@@ -106,6 +126,9 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
         pytest.skip(_NEEDS_ROOT + (marker.args[0] if marker.args else 'privileged test'))
     if item.get_closest_marker('ros2cli') is not None and not ros2cli_available():
         pytest.skip(_NEEDS_ROS2CLI + 'launch_ros/ros2launch do not import here')
+    for marker in item.iter_markers('needs_ros_package'):
+        if not ros_package_available(marker.args[0]):
+            pytest.skip(_NEEDS_PKG + marker.args[0])
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
@@ -116,17 +139,37 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
         _session_skips.append((report.nodeid, reason))
 
 
+def pytest_collectreport(report: pytest.CollectReport) -> None:
+    """Remember a collection-time skip (module-level ``pytest.skip``, ``importorskip``).
+
+    Such a skip never reaches :func:`pytest_runtest_logreport`: every test of the module
+    vanishes at collection, so without this the skip policy never saw it.
+    """
+    if report.skipped:
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(
+            report.longrepr)
+        _session_skips.append((report.nodeid, reason))
+
+
 def forbidden_skips(skips: list[tuple[str, str]], euid: int) -> list[tuple[str, str]]:
     """Return the skips the runner does not accept (pure: the policy itself).
 
     As root every test can run here, so every skip is refused; otherwise only the
     ``needs_root`` skips are accepted. A ``ros2cli`` skip is accepted only where launch_ros
-    and ros2launch really do not import (not on PyPI).
+    and ros2launch really do not import (not on PyPI), a ``needs_ros_package`` skip only where
+    the ament index really lacks the package.
     """
     ros2cli = ros2cli_available()
-    return [(node, why) for node, why in skips
-            if not (why.removeprefix('Skipped: ').startswith(_NEEDS_ROS2CLI) and not ros2cli)
-            and (euid == 0 or not why.removeprefix('Skipped: ').startswith(_NEEDS_ROOT))]
+
+    def accepted(why: str) -> bool:
+        why = why.removeprefix('Skipped: ')
+        if why.startswith(_NEEDS_ROS2CLI):
+            return not ros2cli
+        if why.startswith(_NEEDS_PKG):
+            return not ros_package_available(why.removeprefix(_NEEDS_PKG).split()[0])
+        return euid != 0 and why.startswith(_NEEDS_ROOT)
+
+    return [(node, why) for node, why in skips if not accepted(why)]
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:

@@ -1,6 +1,8 @@
 """The shared test machinery's policies: which skips the runner refuses, which profile runs."""
 
 import os
+import subprocess
+import sys
 
 from hypothesis import settings
 
@@ -34,3 +36,48 @@ def test_a_ros2cli_skip_is_accepted_only_where_ros2cli_does_not_import(monkeypat
     assert testing.forbidden_skips(skip, 0) == []
     monkeypatch.setattr(testing, 'ros2cli_available', lambda: True)
     assert testing.forbidden_skips(skip, 0) == skip
+
+
+def _run_ci(tmp_path, module_text):
+    """Run pytest under the runner's policy (M4K_CI=1) on one module; return the result."""
+    (tmp_path / 'conftest.py').write_text('from m4k_rt.testing import *  # noqa: F401,F403\n')
+    (tmp_path / 'test_mod.py').write_text(module_text)
+    env = dict(os.environ, M4K_CI='1')
+    return subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
+                           str(tmp_path)], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_a_module_level_skip_fails_the_runner(tmp_path):
+    r = _run_ci(tmp_path, 'import pytest\n'
+                'pytest.skip("no frobnicator here", allow_module_level=True)\n'
+                'def test_x():\n    pass\n')
+    assert r.returncode != 0, r.stdout + r.stderr
+    assert 'm4k skip policy' in r.stderr and 'no frobnicator here' in r.stderr, r.stderr
+
+
+def test_an_importorskip_at_collection_fails_the_runner(tmp_path):
+    r = _run_ci(tmp_path, 'import pytest\n'
+                'pytest.importorskip("m4k_no_such_module_anywhere")\n'
+                'def test_x():\n    pass\n')
+    assert r.returncode != 0, r.stdout + r.stderr
+    assert 'm4k_no_such_module_anywhere' in r.stderr, r.stderr
+
+
+def test_a_module_that_runs_passes_the_runner(tmp_path):
+    r = _run_ci(tmp_path, 'def test_x():\n    pass\n')
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_a_missing_ros_package_skip_is_accepted_only_where_the_package_is_missing(monkeypatch):
+    skip = [('t.py::d', 'Skipped: ' + testing._NEEDS_PKG + 'robot_state_publisher')]
+    monkeypatch.setattr(testing, 'ros_package_available', lambda name: False)
+    assert testing.forbidden_skips(skip, 0) == []
+    monkeypatch.setattr(testing, 'ros_package_available',
+                        lambda name: name == 'robot_state_publisher')
+    assert testing.forbidden_skips(skip, 0) == skip
+
+
+def test_the_ament_index_answers_for_a_package_it_has_and_one_it_lacks():
+    assert testing.ros_package_available('m4k_rt')
+    assert not testing.ros_package_available('m4k_no_such_package')

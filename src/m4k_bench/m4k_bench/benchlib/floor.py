@@ -8,6 +8,13 @@ same periods, priorities and phases as the task set, in a process hardened like 
 run) is the least any Python task loop can cost on this machine; the bench reports m4k's CPU per
 cycle divided by it.
 
+With ``--probe`` every cycle also runs one probe call twice after the wake -- decoding a
+VELOCITY_CMD datagram with ``protocol.decode_from``, as the actuator does -- and times each call
+with the thread's CPU clock: the first call is the cold one (the first code after the sleep, as
+in a task), the second the same code warm. The medians of both over the run test the "cold
+caches after every sleep" hypothesis inside a periodic loop (a probed floor's CPU per cycle is
+not the floor's; the bench runs it apart).
+
 Run as a child process (``python -m m4k_bench.benchlib.floor --periods-ms 10,10,20 ...``); it
 prints one JSON line: CPU µs per cycle, cycles and thread CPU per thread, and the release
 latency (µs, from the missed release, as cyclictest) per thread.
@@ -23,7 +30,7 @@ import os
 import sys
 import threading
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 from m4k_rt import sched, timing
 from m4k_rt.timerfd import monotonic_ns, TimerFd
@@ -31,7 +38,20 @@ from m4k_rt.timerfd import monotonic_ns, TimerFd
 __all__ = ['main', 'run_floor', 'run_floor_child']
 
 
-def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict) -> None:
+def _probe_call() -> Callable[[], object]:
+    """Return the probe: decode one VELOCITY_CMD datagram (the actuator's receive path)."""
+    from m4k_rt import protocol
+    buf = bytearray(protocol.encode(protocol.Kind.VELOCITY_CMD, 1, 1, 0.25, 0.0))
+    n = len(buf)
+    decode = protocol.decode_from
+
+    def call() -> object:
+        return decode(buf, n)
+    return call
+
+
+def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
+          probe: bool = False) -> None:
     try:
         sched.set_thread_fifo(priority)
         out['fifo'] = True
@@ -48,12 +68,20 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict)
     clock = monotonic_ns
     cpu = time.thread_time_ns
     c0 = 0
+    call = _probe_call() if probe else None
+    cold_a, warm_a = array('q', bytes(8 * cap)), array('q', bytes(8 * cap))
     try:
         while n < cap:
             if n == 1:
                 c0 = cpu()                    # after the first wake: start-up not counted
             exp = read()                      # wake + read
             t = clock()                       # clock read
+            if call is not None:
+                p0 = cpu()
+                call()                        # cold: the first code after the sleep
+                p1 = cpu()
+                call()                        # warm: the same code again, same cycle
+                cold_a[n], warm_a[n] = p1 - p0, cpu() - p1
             rel += exp * period_ns
             rel_a[n], start_a[n], exp_a[n] = rel, t, exp
             n += 1
@@ -62,6 +90,11 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict)
         c1 = cpu()
     finally:
         tfd.close()
+    if call is not None and n > 2:
+        cold = timing.describe([v * 1e-3 for v in cold_a[1:n]])
+        warm = timing.describe([v * 1e-3 for v in warm_a[1:n]])
+        out['probe_us'] = {'cold_p50': cold.p50, 'warm_p50': warm.p50,
+                           'cold_p99': cold.p99, 'warm_p99': warm.p99, 'n': n - 1}
     lat = timing.release_latency(rel_a[:n], start_a[:n], exp_a[:n], period_ns) * 1e-3
     stats = timing.describe(lat)
     out.update(cycles=n, cpu_ns=c1 - c0, cpu_cycles=n - 1,
@@ -70,7 +103,7 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict)
 
 
 def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
-              offsets_ns: Sequence[int], seconds: float) -> dict:
+              offsets_ns: Sequence[int], seconds: float, probe: bool = False) -> dict:
     """Run one bare loop per period for ``seconds`` in this process; return the measurements."""
     rep = sched.harden(priority=max(priorities), cpu_dma_latency=False)
     gc.collect()
@@ -80,7 +113,8 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     base = timing.first_release(now + 200_000_000, max(periods_ns))
     stop = base + int(seconds * 1e9)
     outs: list[dict] = [{} for _ in periods_ns]
-    threads = [threading.Thread(target=_loop, args=(p, pr, base + o, stop, out), daemon=True)
+    threads = [threading.Thread(target=_loop, args=(p, pr, base + o, stop, out, probe),
+                                daemon=True)
                for p, pr, o, out in zip(periods_ns, priorities, offsets_ns, outs, strict=True)]
     cpu0 = time.process_time()
     t0 = time.monotonic()
@@ -91,15 +125,27 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     wall = time.monotonic() - t0
     cpu_ns = sum(o.get('cpu_ns', 0) for o in outs)
     cycles = sum(o.get('cpu_cycles', 0) for o in outs)
+    probes = [o['probe_us'] for o in outs if 'probe_us' in o]
     return {'cpu_per_cycle_us': cpu_ns * 1e-3 / cycles if cycles else None,
+            'probe_us': _weighted_probe(probes) if probes else None,
             'process_cpu_s': time.process_time() - cpu0, 'wall_s': wall, 'seconds': seconds,
             'mem_locked': rep.mem_locked, 'fifo': all(o.get('fifo') for o in outs),
             'threads': [dict(o, period_ns=p) for o, p in zip(outs, periods_ns, strict=True)]}
 
 
+def _weighted_probe(probes: Sequence[dict]) -> dict:
+    """Return the threads' probe medians weighted by their cycles, and cold ÷ warm."""
+    total = sum(p['n'] for p in probes)
+    out = {k: sum(p[k] * p['n'] for p in probes) / total
+           for k in ('cold_p50', 'warm_p50', 'cold_p99', 'warm_p99')}
+    out['cold_over_warm_p50'] = out['cold_p50'] / out['warm_p50'] if out['warm_p50'] else None
+    out['n'] = total
+    return out
+
+
 def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
                     offsets_ns: Sequence[int], seconds: float,
-                    env: dict[str, str] | None = None) -> dict | str:
+                    env: dict[str, str] | None = None, probe: bool = False) -> dict | str:
     """Run the floor in a child process (hardened like rt_core); return its JSON or why not."""
     import subprocess
 
@@ -109,7 +155,7 @@ def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
         '--periods-ms', ','.join('{:g}'.format(p / 1e6) for p in periods_ns),
         '--priorities', ','.join(str(p) for p in priorities),
         '--offsets-ms', ','.join('{:g}'.format(o / 1e6) for o in offsets_ns),
-        '--seconds', str(seconds))
+        '--seconds', str(seconds), *(['--probe'] if probe else []))
     try:
         p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
                            env=env, check=False)
@@ -128,6 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--priorities', required=True, help='comma list of priorities')
     ap.add_argument('--offsets-ms', default='', help='comma list of release offsets (ms)')
     ap.add_argument('--seconds', type=float, default=5.0)
+    ap.add_argument('--probe', action='store_true',
+                    help='time a cold and a warm decode in every cycle (the cache A-B)')
     args = ap.parse_args(argv)
     periods = [int(float(x) * 1e6) for x in args.periods_ms.split(',')]
     prios = [int(x) for x in args.priorities.split(',')]
@@ -135,7 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else [0] * len(periods)
     if not len(periods) == len(prios) == len(offs):
         ap.error('--periods-ms, --priorities and --offsets-ms differ in length')
-    json.dump(run_floor(periods, prios, offs, args.seconds), sys.stdout)
+    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe), sys.stdout)
     sys.stdout.write('\n')
     sys.stdout.flush()
     os._exit(0)  # daemon timer threads: leave at once

@@ -73,12 +73,6 @@ TEMP_C = 200.0 / FULL
 EULER_DEG = 180.0 / FULL
 QUAT = 1.0 / FULL
 
-# IMU datagram status: m4k_rt.protocol.ImuStatus owns it (docs/internals.md IMU.status).
-STATUS_OK = ImuStatus.OK
-STATUS_NOT_READY = ImuStatus.NOT_READY
-STATUS_BAD_QUATERNION = ImuStatus.BAD_QUATERNION
-
-
 class DeviceSample(NamedTuple):
     """One sample in the myAHRS+ board frame (x fwd, y right, z down), SI units."""
 
@@ -151,11 +145,11 @@ def to_ros(sample: DeviceSample, ready: bool = True) -> ImuSample:
     qx, qy, qz, qw = sample.quaternion
     roll, pitch, yaw = sample.euler
     norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    status = STATUS_OK
+    status = ImuStatus.OK
     if not ready:
-        status = STATUS_NOT_READY
+        status = ImuStatus.NOT_READY
     elif abs(norm - 1.0) > 0.05:
-        status = STATUS_BAD_QUATERNION
+        status = ImuStatus.BAD_QUATERNION
     if norm > 0.0:   # renormalise the 16-bit quantisation (|q| = 1 +/- 1e-4)
         qx, qy, qz, qw = qx / norm, qy / norm, qz / norm, qw / norm
     return ImuSample((qx, -qy, -qz, qw), (gx, -gy, -gz), (ax, -ay, -az),

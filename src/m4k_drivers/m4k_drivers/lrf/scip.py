@@ -12,7 +12,7 @@ Wire format, as in the SCIP 2.0 communication protocol specification (C-42-03320
 * Numbers are 2/3/4 characters of 6 bits each, each character = value + 0x30, most significant
   first. Range data (GD/MD: 3 chars, GS/MS: 2 chars) come as 64-character blocks + sum per line; a
   value may be split across two lines, so the blocks are concatenated before decoding.
-* Ranges are millimetres; values below 20 are error codes (``RANGE_ERROR_CODES``).
+* Ranges are millimetres; values below 20 are error codes (``SCAN_ERROR_CODES``).
 * Timestamps are a 24-bit millisecond counter (4 characters) that wraps every ~4.66 h.
 
 Errors: ``ScipError`` (ValueError) is the base; ``ScipFormatError`` malformed bytes,
@@ -38,9 +38,6 @@ TIMESTAMP_BITS = 24
 TIMESTAMP_MODULO = 1 << TIMESTAMP_BITS
 RANGE_ERROR_LIMIT = 20           # range values below this are error codes, not distances
 
-# URG-04LX / UBG-04LX-F01 / UHG-08LX error codes (SCIP 2.0 spec C-42-03320B, Table 3): one
-# table for the driver and the bridge, kept in m4k_rt.protocol.
-RANGE_ERROR_CODES = SCAN_ERROR_CODES
 
 # Statuses common to every command when the command itself is refused (spec section 9).
 _INVALID_COMMAND = {
@@ -211,9 +208,9 @@ def status_meaning(command: str, status: str) -> str:
 
 def range_error_meaning(code: int) -> str:
     """Return the meaning of a range value below 20 (an URG-04LX error code)."""
-    if code not in RANGE_ERROR_CODES:
+    if code not in SCAN_ERROR_CODES:
         raise ValueError(f'{code!r} is a distance, not an error code (codes are 0..19)')
-    return RANGE_ERROR_CODES[code]
+    return SCAN_ERROR_CODES[code]
 
 
 # --- commands -----------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from typing import Any, Callable, NamedTuple, Sequence
 from m4k_drivers.handler import DeviceHandler, DeviceIdentityError, DriverError
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.real import MotorBus
+from m4k_rt.protocol import EncoderStatus
 
 __all__ = ['EncoderReading', 'MotorHandler', 'WheelCommand']
 
@@ -41,8 +42,8 @@ class EncoderReading(NamedTuple):
     t_ns: int
 
 
-_FRAME_BITS = (p.STATUS_LEFT_FRAME, p.STATUS_RIGHT_FRAME)
-_JUMP_BITS = (p.STATUS_LEFT_JUMP, p.STATUS_RIGHT_JUMP)
+_FRAME_BITS = (EncoderStatus.LEFT_FRAME, EncoderStatus.RIGHT_FRAME)
+_JUMP_BITS = (EncoderStatus.LEFT_JUMP, EncoderStatus.RIGHT_JUMP)
 
 
 class MotorHandler(DeviceHandler):
@@ -141,9 +142,9 @@ class MotorHandler(DeviceHandler):
                 self.record_fault(exc)
                 status |= _FRAME_BITS[side]
         if self.safe:
-            status |= p.STATUS_SAFE
+            status |= EncoderStatus.SAFE
         if self.write_error:
-            status |= p.STATUS_WRITE_ERROR
+            status |= EncoderStatus.WRITE_ERROR
         # The sample time is when the wheels were read (the mean of the two transfers), not
         # when the reading is sent: the RT odometry divides angle steps by stamp steps, and a
         # send delayed by a busy interpreter would otherwise show up as a speed spike.

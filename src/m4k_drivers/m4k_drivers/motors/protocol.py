@@ -54,7 +54,7 @@ from typing import NamedTuple, TypeGuard
 
 from m4k_drivers.handler import DeviceProtocolError
 from m4k_rt.control.dac import code_to_command, command_to_code  # the one owner
-from m4k_rt.protocol import DAC_MAX, DAC_ZERO, EncoderStatus  # DAC codes 0..1023, 512 = 0
+from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # DAC codes 0..1023, 512 = 0
 
 __all__ = [
     'DAC_MAX', 'DAC_ZERO', 'DeviceProtocolError', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame',
@@ -64,8 +64,6 @@ __all__ = [
     'command_to_code', 'decode_dac', 'decode_encoder', 'encode_dac', 'encode_encoder',
     'DAC_TRIM_MAX', 'LEAD_BITS_MAX', 'check_lead_bits', 'check_sign_pair', 'check_trim_pair',
     'check_zero_pair', 'mag_out_of_range', 'trim_dac_code', 'wheel_raw',
-    'STATUS_LEFT_FRAME', 'STATUS_RIGHT_FRAME', 'STATUS_LEFT_JUMP', 'STATUS_RIGHT_JUMP',
-    'STATUS_SAFE', 'STATUS_WRITE_ERROR',
 ]
 
 DAC_BITS = 10
@@ -78,14 +76,6 @@ ENC_READ_LEN = 3
 RAD_PER_COUNT = 2.0 * math.pi / ENC_COUNTS
 LEAD_BITS_MAX = ENC_READ_LEN * 8 - ENC_FRAME_BITS      # 6: the frame must fit in the read
 DAC_TRIM_MAX = 64                                      # zero trim limit, codes (12.5 % span)
-
-# ENCODERS.status bits: m4k_rt.protocol.EncoderStatus owns them (docs/internals.md).
-STATUS_LEFT_FRAME = EncoderStatus.LEFT_FRAME
-STATUS_RIGHT_FRAME = EncoderStatus.RIGHT_FRAME
-STATUS_LEFT_JUMP = EncoderStatus.LEFT_JUMP
-STATUS_RIGHT_JUMP = EncoderStatus.RIGHT_JUMP
-STATUS_SAFE = EncoderStatus.SAFE
-STATUS_WRITE_ERROR = EncoderStatus.WRITE_ERROR
 
 
 class EncoderFrameError(DeviceProtocolError):
