@@ -1,5 +1,6 @@
 # m4k -- one entry point. Every target sets the workspace up first (idempotent, seconds when done).
-#   make run [CONFIG=my_robot.yaml]   the robot stack on simulated hardware (Ctrl-C stops it)
+#   make run [CONFIG=my_robot.yaml] [FOXGLOVE=1]   the robot stack on simulated hardware (Ctrl-C
+#                                     stops it); FOXGLOVE=1 adds the live view on localhost:8765
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
@@ -38,7 +39,7 @@ test: build
 	@tools/run-tests.sh
 
 run: build
-	@$(ENV); bringup $(if $(CONFIG),--config $(CONFIG),)
+	@$(ENV); bringup $(if $(CONFIG),--config $(CONFIG),) $(if $(FOXGLOVE),--foxglove,)
 
 bench: build
 	@$(ENV); bench $(if $(QUICK),--quick,) $(if $(DURATION),--duration $(DURATION),) $(if $(ROUNDS),--rounds $(ROUNDS),)

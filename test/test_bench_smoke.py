@@ -58,7 +58,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=240,
                           stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert '[1/16] set-up' in proc.stderr            # plain progress lines (not a TTY)
+    assert '[1/17] set-up' in proc.stderr            # plain progress lines (not a TTY)
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
@@ -78,7 +78,9 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     for cond in ('m4k_idle', 'm4k_alone', 'baseline_idle'):
         c = rnd[cond]
         assert c['samples'] > 0 and c['jitter_us']['n'] > 0, cond
-    for cond in ('m4k_idle', 'm4k_alone'):
+    # the live view's condition: the stack measured with a viewer reading every channel
+    assert rnd['m4k_live']['samples'] > 0 and rnd['m4k_live']['live_view']['messages'] > 0
+    for cond in ('m4k_idle', 'm4k_live', 'm4k_alone'):
         assert set(rnd[cond]['hardening']) >= {'ok', 'policy', 'mem_locked', 'degraded'}
         assert rnd[cond]['cpu_per_cycle_us'] is not None
     assert rnd['floor']['cpu_per_cycle_us'] > 0

@@ -122,6 +122,15 @@ def test_child_specs_pass_the_overlay_the_way_each_child_takes_it():
                                 '/tmp/p.yaml')
 
 
+def test_the_live_view_is_the_last_child_and_listens_where_it_is_told():
+    specs = bringup.child_specs(None, '/p', '/b', '/r', sim=False, foxglove='127.0.0.1')
+    assert [s.name for s in specs] == ['rt_core', 'driver_host', 'bridge', 'foxglove']
+    assert specs[-1].module == 'm4k_bridge.foxglove.node'     # stopped first, before the bridge
+    assert specs[-1].args == ('--ros-args', '-p', 'address:=127.0.0.1', '-p', 'port:=8765')
+    assert bringup._parse_args([]).foxglove is False
+    assert bringup._parse_args(['--foxglove']).foxglove_address == '127.0.0.1'
+
+
 def _timing(samples, avg, jmax):
     return types.SimpleNamespace(samples=samples, avg=avg, max=jmax)
 

@@ -104,6 +104,14 @@ def test_robot_state_publisher_takes_over_the_static_transforms(monkeypatch, m4k
     assert _bridge_params(nodes[exes.index('bridge')])['publish_robot_state'] is False
 
 
+def test_foxglove_true_adds_the_live_view_on_localhost(monkeypatch, m4k_runtime_dir):
+    assert 'foxglove' not in [n.node_executable for n in _evaluate(monkeypatch,
+                                                                   m4k_runtime_dir)]
+    nodes = _evaluate(monkeypatch, m4k_runtime_dir, foxglove='true')
+    live = [n for n in nodes if n.node_executable == 'foxglove']
+    assert len(live) == 1 and live[0].node_package == 'm4k_bridge'
+
+
 def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_dir):
     from nav_msgs.msg import Odometry
     import rclpy

@@ -81,7 +81,7 @@ say "installing pinned requirements from $reqs (first run: about a minute)"
 "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$reqs" 2>&1 \
   | grep -v "is ignored: it is neither a file nor a directory" >&2 || true
 "$VENV/bin/python" -m pip check >/dev/null 2>&1 || say "warning: 'pip check' reports conflicts"
-"$VENV/bin/python" -c 'import yaml, serial, smbus2, periphery, numpy, pytest' \
+"$VENV/bin/python" -c 'import yaml, serial, smbus2, periphery, numpy, pytest, websockets' \
   || die "the requirements did not install; see the pip output above"
 
 if [[ $ros_mode == wheels ]]; then

@@ -31,6 +31,7 @@ setup(
             'core_bench = m4k_bench.core_bench:main',
             'xddp_bench = m4k_bench.xddp_bench:main',
             'demo = m4k_bench.demo:main',
+            'liveview = m4k_bench.liveview:main',
             'soak = m4k_bench.soak:main',
             'fuzz = m4k_bench.fuzz:main',
             'baseline = m4k_bench.baseline:main',

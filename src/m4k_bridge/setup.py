@@ -24,6 +24,7 @@ setup(
         'console_scripts': [
             'bridge = m4k_bridge.node:main',
             'record = m4k_bridge.bag.record:main',
+            'foxglove = m4k_bridge.foxglove.node:main',
         ],
     },
 )

@@ -10,13 +10,15 @@ here = os.path.dirname(os.path.abspath(__file__))
 # The workspace-level config/ is the single source of defaults; this package is its one install.
 config_files = sorted(
     os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', '*.yaml')))
-# Recipes for the stack around the base (Nav2, slam_toolbox, RViz, ...): config/<tool>/.
+layout_files = sorted(  # the Foxglove layout of the live view (ros2 run m4k_bridge foxglove)
+    os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', 'foxglove',
+                                                        '*.json')))
+# Recipes for the stack around the base (docs/nav2.md): config/<tool>/.
 config_dir = os.path.join(here, '..', '..', 'config')
-recipe_dirs = sorted(os.path.basename(d) for d in glob(os.path.join(config_dir, '*'))
-                     if os.path.isdir(d))
 recipes = [('share/{}/config/{}'.format(package_name, d),
             sorted(os.path.relpath(p, here) for p in glob(os.path.join(config_dir, d, '*'))))
-           for d in recipe_dirs]
+           for d in ('rviz', 'nav2', 'slam_toolbox', 'twist_mux', 'robot_localization',
+                     'diagnostics')]
 launch_files = sorted(os.path.relpath(p, here) for p in glob(os.path.join(here, 'launch', '*.py')))
 
 setup(
@@ -28,6 +30,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', config_files),
+        ('share/' + package_name + '/config/foxglove', layout_files),
         ('share/' + package_name + '/launch', launch_files),
         *recipes,
     ],

@@ -25,6 +25,7 @@ setup(
             'driver_host = m4k_drivers.host:main',
             'sim_robot = m4k_drivers.sim_robot:main',
             'sim_truth = m4k_drivers.sim_robot:truth_main',
+            'calibrate = m4k_drivers.calibrate.cli:main',
         ],
     },
 )

@@ -62,7 +62,7 @@ FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 6.0, 'rt
 QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt_n': 500,
          'cmd_trials': 10}
 # One round, in this order (reversed every other round).
-CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_alone', 'baseline_idle',
+CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_live', 'm4k_alone', 'baseline_idle',
               'ct_stress', 'm4k_stress', 'baseline_stress')
 SCALING_TARGET_HZ = 1000   # the scaling target's rate (analysis.TARGETS)
 PHASES = ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt', 'scaling', 'cmdlat')
@@ -337,7 +337,8 @@ class Bench:
     def _m4k(self, key: str, tag: str, seconds: float, *, tasks: str | None = None,
              period_ns: int = PERIOD_NS, with_ct: bool = True,
              rt_config: str | None = None, profile: bool = False,
-             floor_beside: bool = False, probe: bool = False) -> dict[str, Any] | None:
+             floor_beside: bool = False, probe: bool = False,
+             live: bool = False) -> dict[str, Any] | None:
         ct = _Concurrent(seconds + WARMUP_S, period_ns // 1000, with_ct and self.has_ct)
         fl = _FloorBeside(self, seconds if floor_beside else 0.0, probe)
         env = self.env
@@ -348,7 +349,7 @@ class Bench:
                             driver_host=self.has_host, env=env,
                             progress=self.progress.update,
                             rt_config=rt_config if rt_config else self.args.rt_config,
-                            on_started=_both(ct.start, fl.start))
+                            on_started=_both(ct.start, fl.start), live=live)
         ct_res = ct.join()
         fl_res = fl.join()
         for e in run.errors:
@@ -364,6 +365,8 @@ class Bench:
         status = summ.get('rt_status')
         rates = [1e9 / (t['period_ms'] * 1e6) for t in summ['tasks'] if t['period_ms'] > 0]
         res = dict(act)
+        if run.live_view is not None:
+            res['live_view'] = run.live_view
         res.update(
             hardening=rounds.hardening_label(status),
             cyclictest=ct_res,
@@ -513,6 +516,8 @@ class Bench:
             'ct_idle': ('cyclictest alone, idle', lambda: self._cyclictest_alone(cond_s)),
             'm4k_idle': ('m4k full stack, idle', lambda: self._m4k(
                 'm4k_idle', 'r{}_m4k_idle'.format(k), cond_s)),
+            'm4k_live': ('m4k full stack + live view with a viewer, idle', lambda: self._m4k(
+                'm4k_live', 'r{}_m4k_live'.format(k), cond_s, live=True)),
             'm4k_alone': ('m4k actuator alone, idle', lambda: self._m4k(
                 'm4k_alone', 'r{}_m4k_alone'.format(k), cond_s, tasks=ACTUATOR)),
             'baseline_idle': ('plain-ROS baseline, idle', lambda: self._baseline(

@@ -2,6 +2,7 @@
 
     ros2 launch m4k_bringup m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
         [sim:=auto|true|false] [robot_state_publisher:=false|true] [bridge_params:=FILE]
+        [foxglove:=false|true] [foxglove_address:=127.0.0.1]
 
 Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
 ``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
@@ -21,7 +22,9 @@ the same URDF, and turns the bridge's own static transforms and robot_descriptio
 (``publish_robot_state``), so no transform and no description has two publishers. With
 ``namespace:=r1`` both the bridge (odom -> base_footprint, wheels) and robot_state_publisher
 (the fixed joints) publish on the absolute /tf and /tf_static: one tree from odom to every
-sensor. For supervision with restarts and the live status line use
+sensor. ``foxglove:=true`` starts the live view (``ros2 run m4k_bridge foxglove``: the Foxglove
+WebSocket protocol on port 8765, on ``foxglove_address``, localhost by default since the
+protocol has no authentication). For supervision with restarts and the live status line use
 ``bringup`` instead.
 """
 
@@ -107,6 +110,10 @@ def _nodes(context, *args, **kwargs):
                 sim_node = node
             else:
                 actions.append(node)
+    if _flag(context, 'foxglove'):
+        actions.append(Node(package='m4k_bridge', executable='foxglove', name='m4k_foxglove',
+                            namespace=namespace, output='screen', parameters=[
+                                {'address': arg('foxglove_address')}]))
     if with_rsp:
         if not _installed('robot_state_publisher', 'robot_state_publisher'):
             raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
@@ -157,5 +164,10 @@ def generate_launch_description():
         DeclareLaunchArgument('robot_state_publisher', default_value='false',
                               description='start robot_state_publisher (full ROS install) '
                               'instead of the bridge publishing the static transforms'),
+        DeclareLaunchArgument('foxglove', default_value='false',
+                              description='serve the live view (Foxglove WebSocket, port 8765)'),
+        DeclareLaunchArgument('foxglove_address', default_value='127.0.0.1',
+                              description='address of the live view; 0.0.0.0 serves the LAN '
+                              'without authentication'),
         OpaqueFunction(function=_nodes),
     ])

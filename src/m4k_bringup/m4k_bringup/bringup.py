@@ -54,8 +54,8 @@ from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
 
 __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
-           'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready', 'sim_robot_spec',
-           'uses_sim']
+           'foxglove_spec', 'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready',
+           'sim_robot_spec', 'uses_sim']
 
 STABLE_S = 30.0           # a child running this long has its backoff reset
 STOP_TIMEOUT_S = 8.0      # per child, then SIGKILL
@@ -382,25 +382,37 @@ def uses_sim(doc: Mapping[str, Any] | None) -> bool:
                for s in devices.values())
 
 
+def foxglove_spec(address: str = '127.0.0.1', port: int = 8765) -> ChildSpec:
+    """Return how to run the Foxglove WebSocket server (the live view) on ``address:port``."""
+    return ChildSpec('foxglove', 'm4k_bridge', 'foxglove', 'm4k_bridge.foxglove.node',
+                     ('--ros-args', '-p', 'address:=' + address, '-p', 'port:={:d}'.format(port)))
+
+
 def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
-                runtime_dir: str, sim: bool = True, namespace: str = '') -> list[ChildSpec]:
+                runtime_dir: str, sim: bool = True, foxglove: str | None = None,
+                foxglove_port: int = 8765, namespace: str = '') -> list[ChildSpec]:
     """Return the children with their arguments, in start order (sim_robot first if ``sim``).
 
-    ``namespace``: ROS namespace of the bridge (its topics; /tf, /tf_static and /diagnostics
-    stay absolute).
+    ``foxglove``: the address to serve the live view on (None: no live view), on
+    ``foxglove_port``; it starts last and so stops first. ``namespace``: ROS namespace of the
+    bridge and the live view (their topics; /tf, /tf_static and /diagnostics stay absolute).
     """
     ns_args: tuple[str, ...] = ('-r', '__ns:=/' + namespace.strip('/')) if namespace else ()
     rt_args: tuple[str, ...] = ('--config', overlay) if overlay else ()
     host_args: tuple[str, ...] = ('--runtime-dir', runtime_dir)
     if overlay:
         host_args += ('--overlay', overlay)
+    live = []
+    if foxglove:
+        spec = foxglove_spec(foxglove, foxglove_port)
+        live = [dataclasses.replace(spec, args=spec.args + ns_args)]
     return [sim_robot_spec(runtime_dir, overlay)] * sim + [
         ChildSpec('rt_core', 'm4k_rt', 'rt_core', 'm4k_rt.rt_core', rt_args),
         ChildSpec('driver_host', 'm4k_drivers', 'driver_host', 'm4k_drivers.host', host_args),
         ChildSpec('bridge', 'm4k_bridge', 'bridge', 'm4k_bridge.node',
                   ('--ros-args', *ns_args, '--params-file', bridge_yaml, '--params-file',
                    bridge_params_file)),
-    ]
+    ] + live
 
 
 # --- status line ------------------------------------------------------------------------------
@@ -500,6 +512,13 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--namespace', default='', metavar='NS', help='ROS namespace of the '
                     'bridge (as ros2 launch ... namespace:=NS); /tf, /tf_static and '
                     '/diagnostics stay absolute')
+    ap.add_argument('--foxglove', action='store_true', help='serve the live view to Foxglove '
+                    '(WebSocket protocol, port 8765, localhost only: use an SSH tunnel)')
+    ap.add_argument('--foxglove-address', metavar='ADDR', default='127.0.0.1',
+                    help='address the live view listens on; 0.0.0.0 serves the LAN WITHOUT '
+                    'AUTHENTICATION (anyone who reaches it can drive the robot: firewall it)')
+    ap.add_argument('--foxglove-port', metavar='PORT', type=int, default=8765,
+                    help='port of the live view (0: any free port, logged)')
     return rosargs.parse_args(ap, argv)
 
 
@@ -561,7 +580,8 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
     console = Console(sys.stdout, sys.stderr, sys.stdout.isatty())
     children = [Child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,
-                                     args.namespace)]
+                                     args.foxglove_address if args.foxglove else None,
+                                     args.foxglove_port, args.namespace)]
     sup = Supervisor(children, console, args.max_restarts)
     status = None
     try:

@@ -24,7 +24,7 @@ from typing import Any
 
 from m4k_drivers import registry
 from m4k_drivers.handler import DriverError
-from m4k_drivers.world import WorldConfig, WorldConfigError
+from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
 from m4k_rt.config import deep_merge as merge
 from m4k_rt.config import find_config_dir
 from m4k_rt.schema import Field, REQUIRED, Section
@@ -143,8 +143,12 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
     return out
 
 
-def validate(doc: dict[str, Any]) -> DriverConfig:
-    """Validate a whole document with ``devices:`` and ``world:`` sections."""
+def validate(doc: dict[str, Any], control: dict[str, Any] | None = None) -> DriverConfig:
+    """Validate a whole document with ``devices:`` and ``world:`` sections.
+
+    ``control`` (the stack's ``control:`` section) gives the simulated robot's defaults, so
+    the simulator is the configured robot unless ``world.robot`` says how it was built.
+    """
     unknown = sorted(set(doc) - {'devices', 'world'})
     if unknown:
         raise ConfigError(f'unknown top-level section(s) {unknown!r}; valid: devices, world')
@@ -159,7 +163,8 @@ def validate(doc: dict[str, Any]) -> DriverConfig:
         out[kind] = validate_device(kind, section, f'devices.{kind}')
     world_raw = doc.get('world') or {}
     try:
-        world = WorldConfig.from_dict(world_raw)
+        robot = RobotParams.from_control(control) if control is not None else None
+        world = WorldConfig.from_dict(world_raw, robot=robot)
     except WorldConfigError as exc:
         raise ConfigError(str(exc)) from None
     return DriverConfig(out, world, world_raw)

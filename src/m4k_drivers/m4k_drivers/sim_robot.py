@@ -11,9 +11,12 @@ It plays the hardware the driver host talks to, and nothing else reaches the wor
 * LED class and sysfs PWM: files in ``<runtime_dir>/sim-sysfs`` it polls (``led.simfs``).
 
 Every device whose ``devices.<kind>.backend`` is ``sim`` is simulated, configured by the same
-section the driver host reads (one configuration).  Because the world lives here, killing or
-restarting the driver host leaves the robot as the real one would be left -- DACs latched --
-and never resets the pose.  Ground truth: ``sim_truth`` asks over the socket and prints JSON;
+section the driver host reads (one configuration); the robot itself is ``world.robot``, the
+robot *as built*, whose unset fields take the ``control:`` values (wheel radius, track, full
+scale), so a scenario can build a robot unlike its configuration (what ``calibrate`` finds).
+Because the world lives here, killing or restarting the driver host leaves the robot as the
+real one would be left -- DACs latched -- and never resets the pose.  Ground truth:
+``sim_truth`` asks over the socket and prints JSON;
 ``--world-report FILE`` (default ``$M4K_WORLD_REPORT``, else ``<runtime_dir>/world.json``)
 is rewritten 10 times a second and at exit.  SIGINT/SIGTERM stop it (exit 0); exit 2 is a
 configuration error or another sim_robot on the runtime directory.
@@ -307,7 +310,8 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
         if refusal:
             raise dconfig.ConfigError(refusal)
         cfg = dconfig.validate({'devices': raw.get('devices') or {},
-                                'world': raw.get('world') or {}})
+                                'world': raw.get('world') or {}},
+                               control=raw.get('control') or {})
         runtime_dir = xddp.ensure_runtime_dir(
             args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir'))
     except (dconfig.ConfigError, ValueError) as exc:

@@ -18,7 +18,16 @@ braking either -- and the wheels coast, slowed by friction alone (rolling resist
 gearbox): a constant deceleration ``coast_decel_mps2`` of each wheel's rim speed, whatever the
 DACs hold.  (Enabled, the amplifier drives each motor to its target speed through the motor
 lag ``motor_tau_s``, braking included.)  ``set_enable_until`` sets the time the enable stays
-on; ``None`` (the default) is an enable strapped on.
+on; ``None`` (the default) is an enable strapped on.  While enabled, each amplifier adds its
+input offset (``amp_offset_left_v``/``amp_offset_right_v``: the zero error a DAC zero trim
+cancels) and the motor has a dead band (``deadband_v``: static friction, no motion below it,
+the speed line shifted by it above).
+
+``world.robot`` is the robot *as built*, the simulator's truth: a field not set there takes the
+configuration's value (:meth:`RobotParams.from_control`: ``control.wheel_radius``,
+``track_width``, ``gear_ratio``, ``full_scale_wheel_speed``), so by default the simulated robot
+is the configured one, and a scenario that sets e.g. ``wheel_diameter_m`` builds a robot whose
+configuration is wrong (what ``calibrate`` identifies).
 
 Time is advanced lazily to the caller's CLOCK_MONOTONIC (``advance_to``/``now``); every
 access is under one lock.  Noise streams come from :meth:`World.rng`, seeded from the world
@@ -67,6 +76,45 @@ class RobotParams:
     motor_tau_s: float = 0.08
     supply_v: float = 24.0
     coast_decel_mps2: float = 0.3     # enable off: friction only (rolling + gearbox), m/s^2
+    amp_offset_left_v: float = 0.0      # amplifier input offset, armature volts (any sign)
+    amp_offset_right_v: float = 0.0
+    deadband_v: float = 0.0             # armature volts the motor needs before it turns
+
+    @classmethod
+    def from_control(cls, control: dict[str, Any] | None) -> RobotParams:
+        """Return the robot the ``control:`` section describes (unset keys: the defaults).
+
+        Full scale is the wheel speed at code 1023, so the top speed is that times the radius.
+        """
+        base = cls()
+        if control is not None and not isinstance(control, dict):
+            raise WorldConfigError(f'control: expected a mapping, got {control!r}')
+        vals: dict[str, float] = {}
+        for key in ('wheel_radius', 'track_width', 'gear_ratio', 'full_scale_wheel_speed'):
+            v = (control or {}).get(key)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                    math.isfinite(v) and v > 0):
+                raise WorldConfigError(f'control.{key}: must be a number > 0, got {v!r}')
+            vals[key] = float(v)
+        radius = vals.get('wheel_radius', base.wheel_radius_m)
+        out = replace(base, wheel_diameter_m=2.0 * radius,
+                      track_width_m=vals.get('track_width', base.track_width_m),
+                      gear_ratio=vals.get('gear_ratio', base.gear_ratio))
+        if 'full_scale_wheel_speed' in vals:
+            out = replace(out, top_speed_mps=vals['full_scale_wheel_speed'] * radius)
+        return out
+
+    def amp_offset_v(self, side: int) -> float:
+        """Return one amplifier's input offset in armature volts."""
+        return self.amp_offset_right_v if side == RIGHT else self.amp_offset_left_v
+
+    def drive_target(self, side: int, volts: float) -> float:
+        """Return the steady wheel speed (rad/s) the armature drive ``volts`` leads to."""
+        u = volts + self.amp_offset_v(side)
+        excess = max(abs(u) - self.deadband_v, 0.0)
+        return math.copysign(excess, u) / self.supply_v * self.max_wheel_rad_s
 
     @property
     def wheel_radius_m(self) -> float:
@@ -138,14 +186,18 @@ class WorldConfig:
     step_s: float = 0.001
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any] | None, where: str = 'world') -> WorldConfig:
-        """Build from the YAML ``world:`` section, naming the bad field on error."""
+    def from_dict(cls, data: dict[str, Any] | None, where: str = 'world',
+                  robot: RobotParams | None = None) -> WorldConfig:
+        """Build from the YAML ``world:`` section, naming the bad field on error.
+
+        ``robot`` is the base the ``robot:`` keys override (default: the paper's M4K).
+        """
         data = dict(data or {})
         unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s'}
         if unknown:
             raise WorldConfigError(f'{where}: unknown field(s) {sorted(unknown)!r}; valid: '
                                    'walls, obstacles, start, robot, seed, step_s')
-        cfg = cls()
+        cfg = cls() if robot is None else cls(robot=robot)
         walls = data.get('walls')
         if walls is not None:
             if isinstance(walls, dict) and set(walls) == {'rectangle'}:
@@ -181,7 +233,14 @@ class WorldConfig:
                                        f'{sorted(names)}, got {rob!r}')
             vals = {k: _numbers([v], 1, f'{where}.robot.{k}')[0] for k, v in rob.items()}
             for k, v in vals.items():
-                if v <= 0:
+                if k.startswith('amp_offset_'):
+                    if abs(v) >= cfg.robot.supply_v:
+                        raise WorldConfigError(f'{where}.robot.{k}: must be within the supply '
+                                               f'(+/-{cfg.robot.supply_v} V), got {v!r}')
+                elif k == 'deadband_v':
+                    if v < 0:
+                        raise WorldConfigError(f'{where}.robot.{k}: must be >= 0, got {v!r}')
+                elif v <= 0:
                     raise WorldConfigError(f'{where}.robot.{k}: must be > 0, got {v!r}')
             cfg = replace(cfg, robot=replace(cfg.robot, **vals))
         if 'seed' in data:
@@ -287,14 +346,16 @@ class World:
         old = self._wheel_speed
         until = self._enable_until_ns
         enabled = until is None or self._t_ns < until
-        volts = self._volts if enabled else (0.0, 0.0)
-        if old[0] == 0.0 and old[1] == 0.0 and volts[0] == 0.0 and volts[1] == 0.0:
+        # Disabled: no drive at all (the amplifier's input offset goes with it).
+        targets = [rob.drive_target(side, self._volts[side]) if enabled else 0.0
+                   for side in (LEFT, RIGHT)]
+        if old[0] == 0.0 and old[1] == 0.0 and targets[0] == 0.0 and targets[1] == 0.0:
             self._accel = 0.0
             return
         new = []
         for side in (LEFT, RIGHT):
             if enabled:
-                target = volts[side] / rob.supply_v * rob.max_wheel_rad_s
+                target = targets[side]
                 w_new = target + (old[side] - target) * decay
             else:    # coasting: friction takes a fixed rim speed per second, down to rest
                 w_new = math.copysign(max(abs(old[side]) - rob.coast_decel_mps2

@@ -167,6 +167,9 @@ RATIOS: tuple[Ratio, ...] = (
     Ratio('release_p999_over_cyclictest_stress', 'actuator release p99.9 ÷ concurrent '
           'cyclictest p99.9, stress-ng', ('m4k_stress', 'latency_us', 'p999'),
           ('m4k_stress', 'cyclictest', 'p999')),
+    Ratio('live_view_over_idle_p99', 'actuator release p99 with the live view and a viewer '
+          '÷ without, idle', ('m4k_live', 'latency_us', 'p99'),
+          ('m4k_idle', 'latency_us', 'p99')),
     Ratio('five_tasks_over_alone_p99', 'actuator release p99, five tasks ÷ alone',
           ('m4k_idle', 'latency_us', 'p99'), ('m4k_alone', 'latency_us', 'p99')),
     Ratio('xddp_rtt_p50_over_raw', "XDDP round trip p50 (tasks' receive path) ÷ raw socket",
@@ -228,7 +231,7 @@ def stricter_values(a: Sequence[float | None], b: Sequence[float | None]) -> lis
     """Return the larger ratio of each round (the smaller denominator); None if one is."""
     return [max(x, y) if x is not None and y is not None else None
             for x, y in zip(a, b, strict=True)]
-M4K_CONDITIONS = ('m4k_idle', 'm4k_alone', 'm4k_stress', 'm4k_floor_paired')
+M4K_CONDITIONS = ('m4k_idle', 'm4k_live', 'm4k_alone', 'm4k_stress', 'm4k_floor_paired')
 
 
 def hardened_rounds(rounds_: Sequence[Mapping[str, Any]]) -> tuple[list[dict[str, Any]],

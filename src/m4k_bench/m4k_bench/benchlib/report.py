@@ -19,6 +19,7 @@ __all__ = ['CONDITION_LABELS', 'method_lines', 'readme_snippet', 'render']
 
 CONDITION_LABELS = {
     'm4k_idle': 'm4k full stack, idle',
+    'm4k_live': 'm4k full stack + live view viewer, idle',
     'm4k_alone': 'm4k actuator alone, idle',
     'm4k_stress': 'm4k full stack, stress-ng',
     'baseline_idle': 'plain ROS, idle',

@@ -30,7 +30,7 @@ import threading
 import time
 from typing import Any, Callable, Sequence
 
-from m4k_bench.benchlib import system
+from m4k_bench.benchlib import liveclient, system
 from m4k_rt import protocol, recorder, xddp
 from m4k_rt.proc import stop_process
 
@@ -140,6 +140,7 @@ class M4kRun:
         self.host_exit: int | None = None
         self.commands_sent = 0
         self.odometry_received = 0
+        self.live_view: dict[str, Any] | None = None   # the m4k_live viewer's counts
         self.errors: list[str] = []
 
 
@@ -148,7 +149,8 @@ UNUSED_STATUS_LABEL = 'bench_unused'
 
 def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], *,
                 tasks: str | None = None, driver_host: bool = True, bridge: bool = True,
-                rt_config: str | None = None) -> dict[str, Child]:
+                rt_config: str | None = None, live_port: int | None = None
+                ) -> dict[str, Child]:
     """Start the robot stack for one measurement; return its children by role.
 
     sim_robot first (with the driver host; RuntimeError when it does not come up), rt_core
@@ -170,6 +172,10 @@ def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], 
         kids['bridge'] = Child(name + '.bridge', entry_argv(
             'm4k_bridge.node', '--ros-args', '-p',
             'ports.status:={}'.format(UNUSED_STATUS_LABEL)), log_dir, env)
+    if bridge and live_port is not None:    # the live view (Foxglove WebSocket), on localhost
+        kids['foxglove'] = Child(name + '.foxglove', entry_argv(
+            'm4k_bridge.foxglove.node', '--ros-args', '-p', 'port:={:d}'.format(live_port)),
+            log_dir, env)
     return kids
 
 
@@ -178,22 +184,26 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
             progress: Callable[[str], None] | None = None,
             env: dict[str, str] | None = None, start_timeout_s: float = 30.0,
             rt_config: str | None = None, e2e: bool = True,
-            on_started: Callable[[], None] | None = None) -> M4kRun:
+            on_started: Callable[[], None] | None = None, live: bool = False) -> M4kRun:
     """Run the stack for ``duration_s`` of task time, recording the status port.
 
     The CPU window starts when the first TASK_STATS batch arrives (tasks running, imports
     done; ``on_started`` is called then) and ends ``duration_s`` later, just before rt_core
-    is stopped.
+    is stopped. ``live``: the live view runs too, with a viewer reading every channel
+    (:mod:`m4k_bench.benchlib.liveclient`); its counts are ``live_view``.
     """
     out = M4kRun()
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     xddp.ensure_runtime_dir(runtime_dir)
+    live_port = liveclient.free_port() if live and e2e else None
     try:
         kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks,
-                           driver_host=driver_host, bridge=e2e, rt_config=rt_config)
+                           driver_host=driver_host, bridge=e2e, rt_config=rt_config,
+                           live_port=live_port)
     except RuntimeError as exc:
         out.errors.append(str(exc))
         return out
+    viewer = liveclient.LiveClient(live_port) if live_port is not None else None
     rt = kids['rt_core']
     status = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
     cmd = None if e2e else xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
@@ -259,6 +269,10 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
         stop_cmd.set()
         if commander is not None:
             commander.join(5.0)
+        if viewer is not None:
+            out.live_view = viewer.stop()
+            if out.live_view['error'] or not out.live_view['messages']:
+                out.errors.append('live view: no messages ({})'.format(out.live_view['error']))
         status.close()
         if cmd is not None:
             cmd.close()

@@ -1,0 +1,403 @@
+"""foxglove: serve the robot's ROS graph to Foxglove over the WebSocket protocol (v1).
+
+``ros2 run m4k_bridge foxglove [--ros-args -p port:=8765 -p address:=127.0.0.1]`` (node
+``m4k_foxglove``; ``bringup --foxglove``, ``ros2 launch m4k_bringup m4k.launch.py
+foxglove:=true``). Every topic of the graph that matches ``topic_whitelist`` is subscribed
+as soon as it has a publisher, with the publishers' QoS (reliable only when every publisher
+is, transient local only when every one is: sensors best effort, ``tf_static`` and
+``robot_description`` latched), and served as a ``cdr`` channel with the ``ros2msg`` schema
+the MCAP recorder writes (:mod:`m4k_bridge.bag.msgdef`): serialized CDR as received, never
+decoded. The last messages of latched topics are kept and sent to a client when it
+subscribes, so a late joiner gets the TF tree and the URDF.
+
+Capabilities: ``clientPublish`` (CDR) on the topics of ``client_topics`` only (default the
+bridge's inputs ``cmd_vel``, ``e_stop``, ``led``): Foxglove's teleop panel drives the robot;
+when a client's Twist channel goes away (unadvertised, disconnected) one zero Twist follows,
+so the robot does not coast on the last command until the command timeout. ``parameters``
+(read-only): the parameters of the bridge node (``bridge_node``) and this node, named
+``<node>.<parameter>``. ``services``: every service of the graph matching
+``service_whitelist`` (parameter and type-description services are left out), e.g. the
+bridge's ``~/reset_odometry``.
+
+Security: the protocol has no authentication: anyone who reaches the port sees the robot and,
+with ``clientPublish``, drives it. The server therefore listens on 127.0.0.1 by default; reach
+it with an SSH tunnel (``ssh -L 8765:localhost:8765 robot``). ``address:=0.0.0.0`` serves the
+LAN -- only behind a firewall that admits the operators' machines.
+
+Diagnostics (``m4k_foxglove: server`` on ``diagnostics``, each ``diagnostics_period``):
+clients, messages sent and dropped (each client's data queue is bounded by
+``max_queue_messages`` and ``max_queue_bytes``; the oldest frame is dropped and counted when a
+client reads slower than the data comes), WARN while a client is dropping.
+"""
+
+from __future__ import annotations
+
+import collections
+import importlib
+import re
+import sys
+import threading
+from typing import Any, Callable, Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray
+import rclpy
+from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
+
+from m4k_bridge.bag.msgdef import message_definition, MsgDefError
+from m4k_bridge.diagnostics import make_status
+from m4k_bridge.foxglove import protocol as fp
+from m4k_bridge.foxglove.server import Server
+from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
+from m4k_rt.stopsignals import StopSignals
+
+__all__ = ['FoxgloveNode', 'main', 'subscription_qos']
+
+NODE_NAME = 'm4k_foxglove'
+_ACTIONS_MAX = 1000          # client requests waiting for the ROS thread
+_SKIP_SERVICE_PACKAGES = ('rcl_interfaces', 'type_description_interfaces')
+_TWISTS = ('geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped')
+
+
+def subscription_qos(profiles: Sequence[Any]) -> QoSProfile:
+    """Return the QoS to subscribe with, from the publishers' (as rosbag2 does).
+
+    Reliable only when every publisher offers it (a reliable reader does not match a
+    best-effort writer); transient local only when every one offers it.
+    """
+    reliable = bool(profiles) and all(
+        q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
+    latched = bool(profiles) and all(
+        q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
+    return QoSProfile(
+        depth=10 if latched else 20,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def full_type(name: str, kind: str = 'msg') -> str:
+    """Return ``pkg/<kind>/Name`` for ``pkg/Name`` or ``pkg/<kind>/Name``."""
+    parts = name.split('/')
+    if len(parts) == 2:
+        return '{}/{}/{}'.format(parts[0], kind, parts[1])
+    if len(parts) == 3 and parts[1] == kind:
+        return name
+    raise ValueError('not a {} type name: {!r}'.format(kind, name))
+
+
+def _interface_class(type_name: str) -> Any:
+    pkg, kind, name = type_name.split('/')
+    return getattr(importlib.import_module('{}.{}'.format(pkg, kind)), name)
+
+
+class FoxgloveNode(Node):
+    """The rclpy side: graph discovery, subscriptions, client publishers, services."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        d = self.declare_parameter
+        self.address = str(d('address', '127.0.0.1').value)
+        port = int(d('port', 8765).value)
+        self.topic_whitelist = [re.compile(p) for p in d('topic_whitelist', ['.*']).value]
+        self.service_whitelist = [re.compile(p) for p in d('service_whitelist', ['.*']).value]
+        self.client_topics = {self.resolve_topic_name(t) for t in
+                              d('client_topics', ['cmd_vel', 'e_stop', 'led']).value}
+        bridge = str(d('bridge_node', 'm4k_bridge').value)
+        max_msgs = int(d('max_queue_messages', 200).value)
+        max_bytes = int(d('max_queue_bytes', 8 << 20).value)
+        graph_period = float(d('graph_period', 1.0).value)
+        diag_period = float(d('diagnostics_period', 1.0).value)
+        self._subs: dict[str, tuple[int, Any, str]] = {}   # topic -> (channel, sub, type)
+        self._skipped: set[str] = set()
+        self._pubs: dict[tuple[int, int], tuple[Any, Any, str]] = {}
+        self._service_ids: dict[str, int] = {}
+        self._svc: dict[int, tuple[Any, Any, str]] = {}     # id -> (client, class, name)
+        self._actions: collections.deque[Callable[[], None]] = collections.deque()
+        self._actions_lock = threading.Lock()
+        self.actions_dropped = 0
+        self.bad_client_messages = 0
+        self._last_dropped = 0
+        self._bridge_params = AsyncParameterClient(self, bridge)
+        self._wake = self.create_guard_condition(self._run_actions)
+        self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.server = Server(self, self.address, port,
+                             name='m4k ' + self.get_fully_qualified_name(),
+                             capabilities=('clientPublish', 'parameters', 'services'),
+                             encodings=('cdr',), max_queue_messages=max_msgs,
+                             max_queue_bytes=max_bytes)
+        self.server.start()
+        self.get_logger().info('Foxglove WebSocket server on ws://{}:{} ({})'.format(
+            self.address, self.server.port, 'localhost only; use an SSH tunnel' if
+            self.address in ('127.0.0.1', 'localhost', '::1') else
+            'NO AUTHENTICATION: anyone on this network can drive the robot'))
+        self.poll_graph()
+        self.create_timer(graph_period, self.poll_graph)
+        self.create_timer(diag_period, self.publish_diagnostics)
+
+    def destroy_node(self) -> None:
+        """Stop the server (closing every connection), then the node."""
+        self.server.stop()
+        super().destroy_node()
+
+    # --- graph -> channels -------------------------------------------------------------------
+    def poll_graph(self) -> None:
+        """Serve new topics and services of the graph; unadvertise topics that have gone."""
+        types = dict(self.get_topic_names_and_types())
+        for topic in list(self._subs):
+            if topic not in types:
+                channel, sub, _ = self._subs.pop(topic)
+                self.destroy_subscription(sub)
+                self.server.remove_channel(channel)
+        for topic, names in types.items():
+            if topic in self._subs or topic in self._skipped or not names:
+                continue
+            if not any(p.fullmatch(topic) for p in self.topic_whitelist):
+                continue
+            infos = self.get_publishers_info_by_topic(topic)
+            if infos:
+                self._serve_topic(topic, names[0], [i.qos_profile for i in infos])
+        self._poll_services()
+
+    def _serve_topic(self, topic: str, type_name: str, profiles: list[Any]) -> None:
+        try:
+            cls = _interface_class(full_type(type_name))
+            schema = message_definition(type_name)
+        except (MsgDefError, ImportError, AttributeError, ValueError) as exc:
+            self._skipped.add(topic)
+            self.get_logger().warning('not serving {}: {}'.format(topic, exc))
+            return
+        qos = subscription_qos(profiles)
+        latched = qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+        channel = self.server.add_channel(topic, full_type(type_name), schema)
+
+        def forward(data: bytes) -> None:
+            self.server.publish(channel, data, latched=latched)
+
+        sub = self.create_subscription(cls, topic, forward, qos, raw=True)
+        self._subs[topic] = (channel, sub, full_type(type_name))
+
+    def _poll_services(self) -> None:
+        new = []
+        for name, types in self.get_service_names_and_types():
+            if name in self._service_ids or not types:
+                continue
+            tname = types[0]
+            if tname.split('/')[0] in _SKIP_SERVICE_PACKAGES or not any(
+                    p.fullmatch(name) for p in self.service_whitelist):
+                continue
+            try:
+                req, resp = fp.service_definitions(tname)
+                cls = _interface_class(tname)
+            except (OSError, LookupError, ImportError, AttributeError, ValueError) as exc:
+                self.get_logger().warning('not serving service {}: {}'.format(name, exc))
+                self._service_ids[name] = 0
+                continue
+            sid = len(self._svc) + 1
+            self._service_ids[name] = sid
+            self._svc[sid] = (self.create_client(cls, name), cls, name)
+            new.append({'id': sid, 'name': name, 'type': tname, 'requestSchema': req,
+                        'responseSchema': resp})
+        if new:
+            self.server.set_services(new)
+
+    # --- what clients send (server thread -> ROS thread) -------------------------------------
+    def _post(self, action: Callable[[], None]) -> None:
+        with self._actions_lock:
+            if len(self._actions) >= _ACTIONS_MAX:
+                self.actions_dropped += 1
+                return
+            self._actions.append(action)
+        self._wake.trigger()
+
+    def _run_actions(self) -> None:
+        while True:
+            with self._actions_lock:
+                if not self._actions:
+                    return
+                action = self._actions.popleft()
+            action()
+
+    def on_client_advertise(self, client: int, channel: dict[str, Any]) -> str | None:
+        """Accept a CDR channel on an allowed topic; the publisher is made on the ROS thread."""
+        try:
+            topic = self.resolve_topic_name(str(channel['topic']))
+            tname = full_type(str(channel['schemaName']))
+            cls = _interface_class(tname)
+        except (KeyError, ValueError, ImportError, AttributeError) as exc:
+            return '{}: cannot publish: {}'.format(channel.get('topic'), exc)
+        if topic not in self.client_topics:
+            return '{}: clients may publish only on {}'.format(
+                topic, ', '.join(sorted(self.client_topics)))
+        graph = dict(self.get_topic_names_and_types()).get(topic, [])
+        if graph and tname not in graph:
+            return '{}: the graph has it as {}, not {}'.format(topic, graph[0], tname)
+        key = (client, int(channel['id']))
+        self._post(lambda: self._make_publisher(key, topic, cls, tname))
+        return None
+
+    def _make_publisher(self, key: tuple[int, int], topic: str, cls: Any, tname: str) -> None:
+        # Reliable matches every reader; transient local only when a reader asks for it.
+        latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                      for i in self.get_subscriptions_info_by_topic(topic))
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                         else DurabilityPolicy.VOLATILE)
+        self._pubs[key] = (self.create_publisher(cls, topic, qos), cls, tname)
+        self.get_logger().info('client {} publishes {} on {}'.format(key[0], tname, topic))
+
+    def on_client_unadvertise(self, client: int, channel_id: int) -> None:
+        """Destroy the client's publisher (after one zero Twist for a velocity channel)."""
+        self._post(lambda: self._drop_publisher((client, channel_id)))
+
+    def _drop_publisher(self, key: tuple[int, int]) -> None:
+        entry = self._pubs.pop(key, None)
+        if entry is None:
+            return
+        pub, cls, tname = entry
+        if tname in _TWISTS:
+            pub.publish(cls())          # zero velocity: the robot stops with its client
+        self.destroy_publisher(pub)
+
+    def on_client_message(self, client: int, channel_id: int, payload: bytes) -> None:
+        """Publish a client's CDR message (decoded to check it, then published by rclpy)."""
+        self._post(lambda: self._publish((client, channel_id), payload))
+
+    def _publish(self, key: tuple[int, int], payload: bytes) -> None:
+        entry = self._pubs.get(key)
+        if entry is None:
+            return
+        pub, cls, tname = entry
+        try:
+            msg = deserialize_message(payload, cls)
+        except Exception as exc:  # noqa: BLE001 -- rclpy raises a private error type
+            self.bad_client_messages += 1
+            self.server.send_text(key[0], fp.status(2, 'not a CDR {}: {}'.format(tname, exc)))
+            return
+        pub.publish(msg)
+
+    def on_get_parameters(self, client: int, names: list[str], request_id: str | None) -> None:
+        """Reply with the bridge's and this node's parameters (``names`` empty: all)."""
+        self._post(lambda: self._get_parameters(client, names, request_id))
+
+    def _get_parameters(self, client: int, names: list[str], request_id: str | None) -> None:
+        own = [('{}.{}'.format(self.get_fully_qualified_name(), n), self.get_parameter(n).value)
+               for n in sorted(self.list_parameters([], 0).names)]
+        bridge = self._bridge_params.remote_node_name
+        prefix = bridge if bridge.startswith('/') else '{}/{}'.format(
+            self.get_namespace().rstrip('/'), bridge)
+
+        def reply(values: list[tuple[str, Any]]) -> None:
+            out = [(n, v) for n, v in own + values if not names or n in names]
+            self.server.send_text(client, fp.parameter_values(out, request_id))
+
+        if not self._bridge_params.services_are_ready():
+            reply([])
+            return
+
+        def got_list(fut: Any) -> None:
+            listed = sorted(fut.result().result.names) if fut.result() else []
+            if not listed:
+                reply([])
+                return
+
+            def got_values(fut2: Any) -> None:
+                res = fut2.result()
+                vals = [parameter_value_to_python(v) for v in res.values] if res else []
+                reply([('{}.{}'.format(prefix, n), v) for n, v in zip(listed, vals, strict=False)])
+
+            self._bridge_params.get_parameters(listed).add_done_callback(got_values)
+
+        self._bridge_params.list_parameters().add_done_callback(got_list)
+
+    def on_service_call(self, client: int, service_id: int, call_id: int, encoding: str,
+                        payload: bytes) -> None:
+        """Call a ROS service with a CDR request; the response goes back as CDR."""
+        self._post(lambda: self._call(client, service_id, call_id, encoding, payload))
+
+    def _call(self, client: int, sid: int, call_id: int, encoding: str, payload: bytes) -> None:
+        cli, cls, name = self._svc[sid]
+
+        def fail(why: str) -> None:
+            self.server.send_text(client, fp.service_call_failure(
+                sid, call_id, '{}: {}'.format(name, why)))
+
+        if encoding != 'cdr':
+            fail('encoding {!r} not supported, use cdr'.format(encoding))
+            return
+        try:
+            request = deserialize_message(payload, cls.Request)
+        except Exception as exc:  # noqa: BLE001 -- rclpy raises a private error type
+            self.bad_client_messages += 1
+            fail('bad request: {}'.format(exc))
+            return
+        if not cli.service_is_ready():
+            fail('no server')
+            return
+
+        def done(fut: Any) -> None:
+            res = fut.result()
+            if res is None:
+                fail('call failed')
+                return
+            self.server.send_binary(client, fp.service_call_response(
+                sid, call_id, 'cdr', serialize_message(res)))
+
+        cli.call_async(request).add_done_callback(done)
+
+    # --- diagnostics -------------------------------------------------------------------------
+    def publish_diagnostics(self) -> None:
+        """Publish the server's status: clients, sent, queued and dropped messages."""
+        stats = self.server.stats()
+        dropped = self.server.dropped_departed + sum(s.dropped for s in stats)
+        values: dict[str, Any] = {
+            'address': '{}:{}'.format(self.address, self.server.port), 'clients': len(stats),
+            'clients_total': self.server.clients_total, 'channels': len(self._subs),
+            'dropped_total': dropped, 'client_requests_dropped': self.actions_dropped,
+            'bad_client_messages': self.bad_client_messages,
+            'max_queue_messages': self.server.max_queue_messages,
+            'max_queue_bytes': self.server.max_queue_bytes}
+        for s in stats:
+            values['client {} ({})'.format(s.id, s.address)] = (
+                'subscriptions {} sent {} dropped {} queued {} ({} bytes)'.format(
+                    s.subscriptions, s.sent, s.dropped, s.queued, s.queued_bytes))
+        dropping = dropped > self._last_dropped
+        self._last_dropped = dropped
+        msg = '{} client(s){}'.format(len(stats), '; a client reads slower than the data '
+                                      'comes: dropping' if dropping else '')
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [make_status('m4k_foxglove: server', 1 if dropping else 0, msg, values,
+                                  hardware_id='m4k_foxglove')]
+        self._diag_pub.publish(arr)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run the Foxglove server node until SIGINT/SIGTERM; exit code 1 if it cannot listen."""
+    stop = StopSignals().install()
+    argv = list(sys.argv if args is None else args)
+    rclpy.init(args=argv)
+    node = None
+    try:
+        try:
+            if not stop.stopping:
+                node = stop_aware_start(FoxgloveNode, stop)
+        except OSError as exc:
+            sys.stderr.write('{}: cannot listen: {}\n'.format(NODE_NAME, exc))
+            return 1
+        if node is not None and not stop.stopping:
+            spin_until_shutdown(lambda: rclpy.spin(node), node.context)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        stop.restore()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,235 @@
+"""m4k_bridge.foxglove.server without ROS: clients written from the protocol spec.
+
+The reading client uses the plain ``websockets`` client; the stalled one is a raw socket that
+does the RFC 6455 handshake, subscribes and never reads again. Frames are built and parsed
+here with ``struct`` from the spec's tables, not with :mod:`m4k_bridge.foxglove.protocol`.
+"""
+
+import asyncio
+import base64
+import json
+import os
+import re
+import socket
+import struct
+import threading
+import time
+
+import pytest
+from websockets.asyncio.client import connect
+from websockets.exceptions import InvalidStatus
+
+from m4k_bridge.foxglove import protocol
+from m4k_bridge.foxglove.server import Server
+
+SUB = 'foxglove.websocket.v1'
+
+
+class Handler:
+    """Record what clients send."""
+
+    def __init__(self):
+        self.advertised = []
+        self.messages = []
+        self.gone = []
+
+    def on_client_advertise(self, client, channel):
+        if channel['topic'] != '/cmd_vel':
+            return '{}: refused'.format(channel['topic'])
+        self.advertised.append(channel)
+        return None
+
+    def on_client_unadvertise(self, client, channel_id):
+        self.gone.append(channel_id)
+
+    def on_client_message(self, client, channel_id, payload):
+        self.messages.append((channel_id, payload))
+
+    def on_get_parameters(self, client, names, request_id):
+        pass
+
+    def on_service_call(self, client, service_id, call_id, encoding, payload):
+        pass
+
+
+@pytest.fixture
+def server():
+    srv = Server(Handler(), '127.0.0.1', 0, capabilities=('clientPublish',),
+                 max_queue_messages=50, max_queue_bytes=4 << 20)
+    srv.start()
+    try:
+        yield srv
+    finally:
+        srv.stop()
+
+
+def _stalled(port, channel_id):
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    s.connect(('127.0.0.1', port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall(('GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n'
+               'Sec-WebSocket-Key: {}\r\nSec-WebSocket-Version: 13\r\n'
+               'Sec-WebSocket-Protocol: {}\r\n\r\n'.format(key, SUB)).encode())
+    head = b''
+    while b'\r\n\r\n' not in head:
+        head += s.recv(1)
+    assert head.startswith(b'HTTP/1.1 101') and SUB.encode() in head
+    text = json.dumps({'op': 'subscribe', 'subscriptions': [
+        {'id': 9, 'channelId': channel_id}]}).encode()
+    s.sendall(bytes([0x81, 0x80 | len(text)]) + b'\0\0\0\0' + text)
+    return s
+
+
+def _rss_kib():
+    with open('/proc/self/status', encoding='ascii') as f:
+        return int(re.search(r'VmRSS:\s+(\d+)', f.read()).group(1))
+
+
+def _wait(predicate, what, timeout=30.0):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, 'timed out waiting for ' + what
+        time.sleep(0.02)
+
+
+def test_a_late_joiner_gets_the_latched_message_and_live_data_in_order(server):
+    ch = server.add_channel('/tf_static', 'tf2_msgs/msg/TFMessage', 'x')
+    live = server.add_channel('/odom', 'nav_msgs/msg/Odometry', 'y')
+    server.publish(ch, b'static-1', latched=True)
+    server.publish(ch, b'static-1', latched=True)     # a repeat is kept once
+
+    async def main():
+        async with connect('ws://127.0.0.1:{}'.format(server.port), subprotocols=[SUB]) as ws:
+            info = json.loads(await ws.recv())
+            assert info['op'] == 'serverInfo' and info['capabilities'] == ['clientPublish']
+            adv = json.loads(await ws.recv())
+            assert {c['topic']: (c['encoding'], c['schemaEncoding']) for c in adv['channels']} \
+                == {'/tf_static': ('cdr', 'ros2msg'), '/odom': ('cdr', 'ros2msg')}
+            await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+                {'id': 3, 'channelId': ch}, {'id': 4, 'channelId': live}]}))
+            frame = await ws.recv()
+            op, sub, ns = struct.unpack_from('<BIQ', frame)
+            assert (op, sub, frame[13:]) == (1, 3, b'static-1') and ns > 0
+            for i in range(5):
+                server.publish(live, struct.pack('<I', i))
+            got = [struct.unpack_from('<BIQI', await ws.recv()) for _ in range(5)]
+            assert [(g[1], g[3]) for g in got] == [(4, i) for i in range(5)]
+
+    asyncio.run(main())
+
+
+def test_a_stalled_client_is_bounded_and_counted_and_the_reader_gets_everything(server):
+    ch = server.add_channel('/big', 'std_msgs/msg/String', 'string data')
+    stalled = _stalled(server.port, ch)
+    got = []
+    n, size = 300, 256 * 1024        # 75 MiB in all: a queue without a bound would hold it
+
+    async def reader(ready):
+        async with connect('ws://127.0.0.1:{}'.format(server.port), subprotocols=[SUB],
+                           max_size=None) as ws:
+            await ws.recv()
+            await ws.recv()
+            await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+                {'id': 1, 'channelId': ch}]}))
+            ready.set()
+            while len(got) < n:
+                frame = await ws.recv()
+                got.append(struct.unpack_from('<I', frame, 13)[0])
+
+    ready = threading.Event()
+    t = threading.Thread(target=lambda: asyncio.run(reader(ready)), daemon=True)
+    t.start()
+    try:
+        assert ready.wait(10)
+        _wait(lambda: all(s.subscriptions == 1 for s in server.stats())
+              and len(server.stats()) == 2, 'both subscriptions')
+        rss0 = _rss_kib()
+        blob = os.urandom(size - 4)
+        for i in range(n):
+            server.publish(ch, struct.pack('<I', i) + blob)
+            # Paced so the reading client keeps up (its queue bound must not drop for it);
+            # the stalled one cannot keep up at any pace.
+            _wait(lambda i=i: len(got) > i - 8, 'the reader to keep up')
+        t.join(60)
+        assert got == list(range(n))
+        slow = [s for s in server.stats() if s.dropped]
+        assert len(slow) == 1 and slow[0].dropped > n // 2, server.stats()
+        assert slow[0].queued <= 50 and slow[0].queued_bytes <= 4 << 20
+        assert _rss_kib() - rss0 < 40 * 1024
+    finally:
+        stalled.close()
+
+
+def test_client_publish_is_checked_and_handed_over(server):
+    h = server.handler
+
+    async def main():
+        async with connect('ws://127.0.0.1:{}'.format(server.port), subprotocols=[SUB]) as ws:
+            await ws.recv()
+            await ws.recv()
+            await ws.send(json.dumps({'op': 'advertise', 'channels': [
+                {'id': 1, 'topic': '/cmd_vel', 'encoding': 'cdr',
+                 'schemaName': 'geometry_msgs/msg/Twist'},
+                {'id': 2, 'topic': '/x', 'encoding': 'json', 'schemaName': 'a/B'}]}))
+            st = json.loads(await ws.recv())
+            assert st['op'] == 'status' and st['level'] == 2
+            assert "encoding 'json' not supported" in st['message']
+            await ws.send(b'\x01' + struct.pack('<I', 1) + b'abc')
+            await ws.send(b'\x01' + struct.pack('<I', 7) + b'abc')
+            st = json.loads(await ws.recv())
+            assert 'client channel 7 that was not advertised' in st['message']
+            await ws.send(b'\x07')
+            st = json.loads(await ws.recv())
+            assert 'unknown binary opcode 0x07' in st['message']
+
+    asyncio.run(main())
+    assert h.messages == [(1, b'abc')]
+    _wait(lambda: h.gone == [1], 'the channel to go with its client')
+
+
+def test_a_client_without_the_subprotocol_is_refused_at_the_handshake(server):
+    async def main():
+        async with connect('ws://127.0.0.1:{}'.format(server.port)):
+            pass
+
+    with pytest.raises(InvalidStatus, match='HTTP 400'):
+        asyncio.run(main())
+    assert server.stats() == []
+
+
+def test_frames_and_values_follow_the_spec_tables():
+    assert protocol.message_data(7, 5, b'p') == b'\x01' + struct.pack('<IQ', 7, 5) + b'p'
+    enc = protocol.service_call_response(2, 3, 'cdr', b'r')
+    assert enc == b'\x03' + struct.pack('<III', 2, 3, 3) + b'cdr' + b'r'
+    assert protocol.parse_service_call_request(
+        b'\x02' + struct.pack('<III', 4, 5, 3) + b'cdrXY') == (4, 5, 'cdr', b'XY')
+    with pytest.raises(protocol.ProtocolError, match='past the frame end'):
+        protocol.parse_service_call_request(b'\x02' + struct.pack('<III', 4, 5, 99) + b'cdr')
+    with pytest.raises(protocol.ProtocolError):
+        protocol.parse_client_message_data(b'\x01\x00')
+    assert protocol.parameter_value(1.0) == {'value': 1.0, 'type': 'float64'}
+    assert protocol.parameter_value([1.0, 2.5]) == {'value': [1.0, 2.5],
+                                                    'type': 'float64_array'}
+    assert protocol.parameter_value(float('inf')) == {'value': 'inf'}
+    assert protocol.parameter_value(b'AB') == {'value': 'QUI=', 'type': 'byte_array'}
+    assert protocol.parameter_value(['a']) == {'value': ['a']}
+    assert protocol.parameter_value(True) == {'value': True}
+
+
+def test_service_definitions_split_the_srv_and_append_dependencies(tmp_path):
+    (tmp_path / 'p' / 'srv').mkdir(parents=True)
+    (tmp_path / 'p' / 'msg').mkdir(parents=True)
+    (tmp_path / 'p' / 'srv' / 'S.srv').write_text('Point a  # in\n---\nbool ok\n')
+    (tmp_path / 'p' / 'msg' / 'Point.msg').write_text('float64 x\n')
+    req, resp = protocol.service_definitions('p/srv/S', lambda pkg: str(tmp_path / pkg))
+    assert req == 'Point a  # in\n' + '=' * 80 + '\nMSG: p/Point\nfloat64 x\n'
+    assert resp == 'bool ok\n'
+    with pytest.raises(ValueError, match='not a service type'):
+        protocol.service_definitions('p/msg/S')
+
+
+def test_a_port_in_use_is_a_clear_error(server):
+    other = Server(Handler(), '127.0.0.1', server.port)
+    with pytest.raises(OSError, match='address already in use'):
+        other.start()

@@ -1,0 +1,122 @@
+"""calibrate's arithmetic on analytic data, and the simulated robot as built (world.robot)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from m4k_drivers import config as dconfig
+from m4k_drivers.calibrate import fit
+from m4k_drivers.world import LEFT, RIGHT, RobotParams, World, WorldConfig, WorldConfigError
+
+
+def _angle(t, steps, tau):
+    """Angle of a first-order wheel commanded through ``steps`` [(t0, speed)] (closed form).
+
+    Each change of command adds (w_j - w_j-1) * (dt - tau (1 - exp(-dt / tau))) from its t0.
+    """
+    t = np.asarray(t)
+    out = np.zeros_like(t)
+    prev = 0.0
+    for t0, w in steps:
+        dt = np.maximum(t - t0, 0.0)
+        out += (w - prev) * (dt - tau * (1 - np.exp(-dt / tau)))
+        prev = w
+    return out
+
+
+def test_tau_is_the_gap_between_the_angle_asymptotes():
+    tau = 0.08
+    steps = [(0.0, 0.0), (1.2, 2.0), (2.4, 5.0), (3.6, 1.0)]     # (t0, speed)
+    plateaus = []
+    for t0, _ in steps:
+        t = np.linspace(t0 + 0.6, t0 + 1.2, 60)              # the steady part of each plateau
+        plateaus.append(fit.fit_plateau(0, t0, list(t), list(_angle(t, steps, tau))))
+    assert [p.speed for p in plateaus] == pytest.approx([0.0, 2.0, 5.0, 1.0], abs=1e-3)
+    assert fit.tau_from_plateaus(plateaus, 0.5) == pytest.approx(tau, rel=1e-3)
+    with pytest.raises(fit.FitError, match='no speed step'):
+        fit.tau_from_plateaus(plateaus[:1], 0.5)
+
+
+def test_speed_lines_leave_out_the_dead_band_and_give_trim_and_full_scale():
+    k, zero, band = 0.04, -7.0, 19.0        # rad/s per code, amplifier zero, dead band (codes)
+
+    def speed(x):
+        u = x - zero
+        return math.copysign(max(abs(u) - band, 0.0), u) * k
+    points = [(x, speed(x)) for x in range(-128, 129, 16)]
+    m = fit.wheel_model(points, min_speed=0.5)
+    assert m.zero_offset == pytest.approx(zero)
+    assert m.deadband_codes == pytest.approx(band)
+    assert m.full_scale == pytest.approx(k * 511)
+    # The trim that cancels it: written code = 512 + trim + sign * x.
+    assert fit.new_trim(m.zero_offset, 1, 0) == pytest.approx(-7.0)
+    assert fit.new_trim(m.zero_offset, -1, 3) == pytest.approx(10.0)
+    with pytest.raises(fit.FitError, match='backward: 0 level'):
+        fit.wheel_model([(x, w) for x, w in points if x > -40], min_speed=0.5)
+
+
+def test_geometry_and_pi_gains():
+    assert fit.radius_from_run(1.0, 9.9, 10.1) == pytest.approx(0.1)
+    assert fit.track_from_turn(0.1, -13.2, 13.2, 2 * math.pi) == pytest.approx(0.42016, rel=1e-4)
+    with pytest.raises(fit.FitError, match='disagree in sign'):
+        fit.track_from_turn(0.1, 13.2, -13.2, 2 * math.pi)
+    kp, ki = fit.pi_gains(20.0, 0.08, 0.2)
+    assert (kp, ki) == pytest.approx((0.02, 0.25))        # zero on the pole: ki/kp = 1/tau
+
+
+def test_the_simulated_robot_is_the_configured_one_unless_world_robot_says_otherwise():
+    control = {'wheel_radius': 0.1, 'track_width': 0.45, 'full_scale_wheel_speed': 18.0}
+    cfg = dconfig.validate({'world': {}}, control=control)
+    rob = cfg.world.robot
+    assert (rob.wheel_radius_m, rob.track_width_m) == pytest.approx((0.1, 0.45))
+    assert rob.max_wheel_rad_s == pytest.approx(18.0)
+    built = dconfig.validate({'world': {'robot': {'track_width_m': 0.5}}}, control=control)
+    assert built.world.robot.track_width_m == 0.5
+    assert built.world.robot.wheel_radius_m == pytest.approx(0.1)
+    with pytest.raises(WorldConfigError, match=r'control\.wheel_radius: must be a number > 0'):
+        RobotParams.from_control({'wheel_radius': -1})
+    with pytest.raises(dconfig.ConfigError, match=r'control: expected a mapping'):
+        dconfig.validate({}, control=[0.1])
+
+
+@pytest.mark.parametrize('robot, message', [
+    ({'deadband_v': -0.1}, r'world\.robot\.deadband_v: must be >= 0'),
+    ({'amp_offset_left_v': 30.0}, r'world\.robot\.amp_offset_left_v: must be within the supply'),
+])
+def test_bad_as_built_values_are_refused_by_name(robot, message):
+    with pytest.raises(WorldConfigError, match=message):
+        WorldConfig.from_dict({'robot': robot})
+
+
+def test_amplifier_offset_and_dead_band_on_ground_truth():
+    cfg = WorldConfig.from_dict({'robot': {'amp_offset_left_v': 1.2, 'amp_offset_right_v': 0.3,
+                                           'deadband_v': 0.9}, 'obstacles': []})
+    t = [0]
+    world = World(cfg, clock=lambda: t[0], t0_ns=0)
+    t[0] = int(2e9)                                   # zero volts for 2 s
+    world.now()
+    left, right = world.state().wheel_speed
+    maxw = cfg.robot.max_wheel_rad_s
+    assert left == pytest.approx((1.2 - 0.9) / 24.0 * maxw, rel=1e-6)   # beyond the band: creeps
+    assert right == 0.0                                                 # inside: still
+    world.set_enable_until(t[0])                      # enable dropped: no drive, offset gone
+    t[0] += int(2e9)
+    world.now()
+    assert world.state().wheel_speed[LEFT] == pytest.approx(0.0, abs=1e-6)
+    world.set_enable_until(None)
+    world.set_motor_voltage(RIGHT, 6.0)
+    t[0] += int(2e9)
+    world.now()
+    assert world.state().wheel_speed[RIGHT] == pytest.approx((6.0 + 0.3 - 0.9) / 24.0 * maxw,
+                                                             rel=1e-6)
+
+
+def test_sim_robot_refuses_a_control_section_it_cannot_build_a_robot_from(tmp_path, capsys,
+                                                                          m4k_runtime_dir):
+    from m4k_drivers import sim_robot
+    overlay = tmp_path / 'bad.yaml'
+    overlay.write_text('control: {wheel_radius: big}\n')
+    assert sim_robot.main(['--overlay', str(overlay), '--runtime-dir', m4k_runtime_dir,
+                           '--priority', '0']) == 2
+    assert "control.wheel_radius: must be a number > 0, got 'big'" in capsys.readouterr().err

@@ -1,0 +1,113 @@
+"""calibrate's runs in simulated time: motors at zero on every way out, bounds that hold."""
+
+import threading
+
+import pytest
+
+from m4k_drivers.calibrate import runs
+from m4k_drivers.motors.handler import MotorHandler
+from m4k_drivers.motors.sim import open_sim_bus
+from m4k_drivers.world import World, WorldConfig
+
+
+class SimClock:
+    def __init__(self):
+        self.t = 0
+
+    def __call__(self):
+        return self.t
+
+    def seconds(self):
+        return self.t * 1e-9
+
+
+class SteppingStop(threading.Event):
+    """stop.wait() advances the world's clock, so a run takes no wall time."""
+
+    def __init__(self, clock):
+        super().__init__()
+        self.clock = clock
+
+    def wait(self, timeout=None):
+        self.clock.t += max(int(timeout * 1e9), 1000)
+        return self.is_set()
+
+
+def _rig():
+    clock = SimClock()
+    world = World(WorldConfig.from_dict({'obstacles': [],
+                                         'walls': {'rectangle': [-9, -9, 9, 9]}}),
+                  clock=clock, t0_ns=0)
+    bus = {}
+
+    def opener():
+        bus['bus'] = open_sim_bus(world, noise_lsb=0.0)
+        return bus['bus']
+    handler = MotorHandler(opener, clock=clock)
+    stop = SteppingStop(clock)
+    return runs.MotorRig(handler, stop, clock=clock.seconds), world, bus, stop
+
+
+def _dac_codes(bus):
+    return [port.dev.last.code for port in bus['bus'].dacs]
+
+
+def test_an_encoder_fault_mid_run_aborts_with_the_motors_at_zero():
+    rig, world, bus, _ = _rig()
+    with pytest.raises(runs.Aborted, match='encoder frame/jump error'):
+        with rig:
+            rig.run_for(600, 424, 0.5)                   # turning in place
+            bus['bus'].encoders[0].dev.fault = {'cof': True}   # CORDIC overflow: invalid angle
+            rig.run_for(600, 424, 0.5)
+    assert _dac_codes(bus) == [512, 512]
+    assert rig.handler.bus is None                       # shut down: SPI endpoints closed
+    assert not world.drive_enabled() or world.motor_voltage(0) == 0.0
+
+
+def test_an_isolated_bad_reading_is_skipped_not_fatal():
+    rig, world, bus, _ = _rig()
+    with rig:
+        rig.run_for(600, 424, 0.3)
+        dev = bus['bus'].encoders[0].dev
+        dev.fault = {'lin': True}                       # two readings with invalid angles
+        _, a = rig.command(600, 424)
+        _, b = rig.command(600, 424)
+        dev.fault = None
+        t0, samples = rig.run_for(600, 424, 0.3)
+    assert rig.bad_samples == 2 and a is b              # the last good reading, repeated
+    assert len({s.t for s in samples}) == len(samples) and samples[-1].t - t0 >= 0.3
+    assert _dac_codes(bus) == [512, 512]
+
+
+def test_a_stop_request_aborts_and_zeroes():
+    rig, world, bus, stop = _rig()
+    with pytest.raises(runs.Aborted, match='stopped'):
+        with rig:
+            rig.run_for(600, 600, 0.3)
+            stop.set()                                   # Ctrl-C
+            rig.run_for(600, 600, 0.3)
+    assert _dac_codes(bus) == [512, 512]
+
+
+def test_a_stuck_encoder_ends_the_straight_run_within_its_window_not_at_the_time_limit():
+    rig, world, bus, _ = _rig()
+    with rig:
+        rig.run_for(512, 512, 0.2)
+        for port in bus['bus'].encoders:                 # magnet fell off: a valid, fixed angle
+            frozen = port.dev.raw()
+            port.dev.raw = lambda frozen=frozen: frozen
+        with pytest.raises(runs.Aborted, match='encoder or drive fault'):
+            runs.straight(rig, 1.0, 0.1016, 0.15, limit_s=60.0)
+    # Ground truth: it drove a little over one second at 0.3 m/s, not for a minute.
+    assert 0.05 < world.pose().x < 0.6
+    assert _dac_codes(bus) == [512, 512]
+
+
+def test_commands_beyond_the_cap_are_refused():
+    rig, world, bus, _ = _rig()
+    with rig:
+        with pytest.raises(runs.Aborted, match='beyond the calibration cap'):
+            rig.command(512 + 200, 512)
+        with pytest.raises(runs.Aborted, match=r'sweep speed must be in \(0, 0\.3\]'):
+            runs.sweep(rig, 0.5, 3, 0.2, 0.2, print)
+    assert world.pose().x == 0.0
