@@ -26,20 +26,15 @@ from sensor_msgs.msg import Imu, LaserScan, Range
 from m4k_rt import protocol
 
 __all__ = [
-    'IMU_BAD_QUATERNION', 'IMU_NOT_READY', 'NonFiniteCommand', 'URG_FAR_CODES', 'covariance3',
+    'NonFiniteCommand', 'covariance3',
     'covariance6', 'imu_msg', 'led_command', 'odometry_msg', 'odom_transform', 'quaternion_rpy',
     'ros_stamp_ns', 'scan_msg', 'sonar_msg', 'static_transform', 'time_msg', 'urg_range_m',
     'velocity_command',
 ]
 
-# IMU status byte: protocol.ImuStatus owns the values.
-IMU_NOT_READY = protocol.ImuStatus.NOT_READY
-IMU_BAD_QUATERNION = protocol.ImuStatus.BAD_QUATERNION
-
 # URG (SCIP 2.0) error codes: the table has one owner, m4k_rt.protocol.SCAN_ERROR_CODES (SCIP 2.0
 # spec C-42-03320B, Table 3). Only code 0 ("object possibly at 22 m", i.e. nothing within the
 # measurable range) is REP-117 +inf; every other code (< 20) is an erroneous reading: NaN.
-URG_FAR_CODES = protocol.SCAN_FAR_CODES
 
 
 class NonFiniteCommand(ValueError):
@@ -146,12 +141,12 @@ def imu_msg(imu: protocol.Imu, stamp_ns: int, frame_id: str, orientation_cov: Se
     With an invalid quaternion the orientation is reported absent (covariance[0] = -1) while
     angular velocity and acceleration are still published.
     """
-    if imu.status == IMU_NOT_READY:
+    if imu.status == protocol.ImuStatus.NOT_READY:
         return None
     msg = Imu()
     msg.header.stamp = time_msg(stamp_ns)
     msg.header.frame_id = frame_id
-    if imu.status == IMU_BAD_QUATERNION:
+    if imu.status == protocol.ImuStatus.BAD_QUATERNION:
         msg.orientation.w = 1.0
         cov = [0.0] * 9
         cov[0] = -1.0
@@ -173,7 +168,7 @@ def urg_range_m(mm: int) -> float:
     """Return a URG range in metres; error codes (< 20 mm) become +inf or NaN (REP-117)."""
     if mm > protocol.SCAN_ERROR_CODE_MAX:
         return mm * 0.001
-    return math.inf if mm in URG_FAR_CODES else math.nan
+    return math.inf if mm in protocol.SCAN_FAR_CODES else math.nan
 
 
 def scan_msg(scan: protocol.LaserScan, stamp_ns: int, frame_id: str) -> LaserScan:

@@ -93,14 +93,14 @@ def test_imu_message_follows_rep_145():
 
 
 def test_imu_with_bad_quaternion_marks_orientation_absent():
-    msg = convert.imu_msg(_imu(convert.IMU_BAD_QUATERNION), 0, 'imu_link', [1] * 3, [1] * 3,
+    msg = convert.imu_msg(_imu(protocol.ImuStatus.BAD_QUATERNION), 0, 'imu_link', [1] * 3, [1] * 3,
                           [1] * 3)
     assert msg.orientation_covariance[0] == -1.0
     assert msg.angular_velocity.x == 0.1  # the rest is still published
 
 
 def test_imu_not_ready_is_not_published():
-    assert convert.imu_msg(_imu(convert.IMU_NOT_READY), 0, 'i', [1] * 3, [1] * 3,
+    assert convert.imu_msg(_imu(protocol.ImuStatus.NOT_READY), 0, 'i', [1] * 3, [1] * 3,
                            [1] * 3) is None
 
 

@@ -7,9 +7,10 @@ import pytest
 from test_control_base import drive, make, Plant
 
 from m4k_rt import protocol as p
-from m4k_rt.control.base import FLAG_E_STOP, FLAG_HOLD, MODE_E_STOP, MODE_FAULT
+from m4k_rt.control.base import MODE_E_STOP, MODE_FAULT
 from m4k_rt.control.estop import EStopLatch, ramp_to_zero
 from m4k_rt.control.params import control_params, ControlConfigError
+from m4k_rt.protocol import ODOM_E_STOP, ODOM_HOLD
 from m4k_rt.tasks.actuator import ActuatorBody
 from m4k_rt.tasks.state import RobotState
 
@@ -86,7 +87,7 @@ def test_e_stop_ramps_down_at_its_deceleration_from_the_first_cycle():
     t = drive(ctl, plant, 1, t)
     assert ctl.v == pytest.approx(0.25 - 1.0 * 0.01)             # this cycle, at 1 m/s^2
     assert ctl.w == pytest.approx(0.3 - params.angular.max_acceleration * 0.01)
-    assert ctl.flags & FLAG_E_STOP and ctl.mode == MODE_E_STOP
+    assert ctl.flags & ODOM_E_STOP and ctl.mode == MODE_E_STOP
     # commands during the latch are ignored: 0.25 m/s at 1 m/s^2 is 25 cycles
     t = drive(ctl, plant, 24, t, cmd=(0.25, 0.3), cmd_every=1)
     assert ctl.v == 0.0 and ctl.w == 0.0
@@ -104,10 +105,10 @@ def test_release_holds_until_a_newer_command():
     t = drive(ctl, plant, 100, t)
     ctl.e_stop(False)
     t = drive(ctl, plant, 20, t)          # the last command (0.25 m/s) is from before: held
-    assert ctl.v == 0.0 and ctl.flags & FLAG_HOLD and not ctl.flags & FLAG_E_STOP
+    assert ctl.v == 0.0 and ctl.flags & ODOM_HOLD and not ctl.flags & ODOM_E_STOP
     assert ctl.mode != MODE_E_STOP
     drive(ctl, plant, 5, t, cmd=(0.25, 0.0), cmd_every=1)
-    assert ctl.v > 0.0 and not ctl.flags & (FLAG_HOLD | FLAG_E_STOP)
+    assert ctl.v > 0.0 and not ctl.flags & (ODOM_HOLD | ODOM_E_STOP)
 
 
 def test_latch_survives_motor_stale_and_is_still_flagged():
@@ -117,7 +118,7 @@ def test_latch_survives_motor_stale_and_is_still_flagged():
     ctl.e_stop(True)
     t += 500 * MS                         # no encoders: motor stale
     ctl.step(t)
-    assert ctl.mode == MODE_FAULT and ctl.flags & FLAG_E_STOP
+    assert ctl.mode == MODE_FAULT and ctl.flags & ODOM_E_STOP
     t = drive(ctl, plant, 30, t, cmd=(0.25, 0.0), cmd_every=1)
     assert ctl.v == 0.0 and ctl.mode == MODE_E_STOP
 
