@@ -37,7 +37,7 @@ STILL_M = 0.005      # m of true travel
 # when the commanded ramp reaches zero the true speed still trails it by about
 # a * tau and decays as exp(-t / tau), below AT_REST after tau * ln(a * tau / AT_REST).
 DDS_SLACK_S = 0.1
-STAMPED = {'m4k_bridge': {'ros__parameters': {'use_stamped_vel': True}}}
+STAMPED = {'m4k_bridge': {'ros__parameters': {'enable_stamped_cmd_vel': True}}}
 
 
 def _actuator_period_s():
@@ -177,4 +177,66 @@ def test_reset_odometry_zeroes_the_pose_after_the_rt_side_confirms(stack):  # no
     # stopped or not, the pose restarted from zero: at most a few odom periods of travel
     assert abs(odom[-1].pose.pose.position.x) < 0.1
     assert abs(odom[-1].pose.pose.position.y) < 0.01
+    assert proc.poll() is None
+
+
+def test_e_stop_service_state_and_applied_velocity_follow_the_rt_latch(
+        stack, m4k_runtime_dir):  # noqa: F811
+    # ~/e_stop answers once the RT latch confirms; e_stop_state (transient local) shows the
+    # latch; cmd_vel_out is what the actuator applies -- V while driving, zero under the latch
+    # although commands keep coming. Motion judged on the simulator's ground truth.
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_srvs.srv import SetBool
+    user, proc, _ = stack
+    truth = Truth(m4k_runtime_dir)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    state, applied = [], []
+    user.node.create_subscription(Bool, 'e_stop_state', state.append, latched)
+    user.node.create_subscription(TwistStamped, 'cmd_vel_out', applied.append, 10)
+    cmd = user.publisher(Twist, 'cmd_vel')
+    msg = Twist()
+    msg.linear.x = V
+    user.spin_until(lambda: (truth.poll() or {}).get('v', 0.0) > V - 0.01, 20,
+                    'the true speed to reach 0.25 m/s', each=lambda: cmd.publish(msg))
+    user.spin_until(lambda: state and applied, 10, 'e_stop_state and cmd_vel_out',
+                    each=lambda: cmd.publish(msg))
+    assert state[-1].data is False
+    # the ramp (0.37 m/s^2) ends at the commanded speed: nothing limits 0.25 m/s
+    user.spin_until(lambda: abs(applied[-1].twist.linear.x - V) < 1e-6, 5,
+                    'cmd_vel_out to show the commanded speed', each=lambda: cmd.publish(msg))
+    assert applied[-1].header.frame_id == 'base_footprint'
+    client = user.node.create_client(SetBool, '/m4k_bridge/e_stop')
+    user.spin_until(client.service_is_ready, 20, 'the e_stop service')
+    future = client.call_async(SetBool.Request(data=True))
+    user.spin_until(future.done, 10, 'the e_stop answer', each=lambda: cmd.publish(msg))
+    assert future.result().success, future.result().message
+    user.spin_until(lambda: state[-1].data is True, 5, 'e_stop_state true',
+                    each=lambda: cmd.publish(msg))
+    user.spin_until(lambda: applied[-1].twist.linear.x == 0.0, 5, 'cmd_vel_out to reach 0',
+                    each=lambda: cmd.publish(msg))
+    _spin_collect(user, truth, 1.6, each=lambda: cmd.publish(msg))
+    assert abs(truth.latest()['v']) < AT_REST
+    assert applied[-1].twist.linear.x == 0.0       # commands still arrive: the latch holds
+    future = client.call_async(SetBool.Request(data=False))
+    user.spin_until(future.done, 10, 'the release answer')
+    assert future.result().success, future.result().message
+    user.spin_until(lambda: state[-1].data is False, 5, 'e_stop_state false')
+    assert proc.poll() is None
+
+
+def test_set_pose_moves_the_odometry_after_the_rt_side_confirms(stack):  # noqa: F811
+    from m4k_msgs.srv import SetPose
+    user, proc, _ = stack
+    odom = user.got['odom']
+    client = user.node.create_client(SetPose, '/m4k_bridge/set_pose')
+    user.spin_until(client.service_is_ready, 20, 'the set_pose service')
+    future = client.call_async(SetPose.Request(x=1.0, y=2.0, yaw=0.5))
+    user.spin_until(future.done, 10, 'the set_pose answer')
+    assert future.result().success, future.result().message
+    n = len(odom)
+    user.spin_until(lambda: len(odom) > n + 2, 5, 'odom after set_pose')
+    p = odom[-1].pose.pose
+    assert (p.position.x, p.position.y) == pytest.approx((1.0, 2.0), abs=0.01)
+    assert 2 * math.atan2(p.orientation.z, p.orientation.w) == pytest.approx(0.5, abs=0.01)
     assert proc.poll() is None

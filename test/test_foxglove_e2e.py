@@ -159,7 +159,7 @@ def test_a_late_joiner_gets_odom_scan_and_the_latched_tf_tree_and_model(live):
 
     got, c = _run(main())
     odom = got['/odom'][-1]
-    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
+    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_footprint')
     scan = got['/scan'][-1]
     assert len(scan.ranges) > 100 and scan.angle_max > scan.angle_min
     # The static tree and the URDF were published long before this client connected.

@@ -146,3 +146,35 @@ def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_d
     text = (tmp_path / 'launch.log').read_text()
     for name in ('rt_core', 'driver_host', 'bridge'):
         assert '[{}-'.format(name) in text and 'process has died' not in text, text[-3000:]
+
+
+def test_namespaced_launch_with_robot_state_publisher_keeps_one_tree(monkeypatch,
+                                                                     m4k_runtime_dir):
+    # namespace:=r1 robot_state_publisher:=true: the bridge publishes odom -> base_footprint
+    # (and the wheels) on the absolute /tf, robot_state_publisher (in r1) the fixed joints on
+    # /tf_static -- tf2_ros's absolute topics -- and robot_description alone.
+    try:
+        nodes = _evaluate(monkeypatch, m4k_runtime_dir, robot_state_publisher='true',
+                          namespace='r1')
+    except RuntimeError as exc:   # the wheels path has no robot_state_publisher
+        assert 'robot_state_publisher is not installed' in str(exc)
+        return
+    exes = [n.node_executable for n in nodes]
+    bridge = nodes[exes.index('bridge')]
+    rsp = nodes[exes.index('robot_state_publisher')]
+    assert rsp.expanded_node_namespace == '/r1' == bridge.expanded_node_namespace
+    values = _bridge_params(bridge)
+    assert values['publish_robot_state'] is False
+    assert values.get('tf_namespaced', False) is False
+    assert values.get('topics', {}).get('diagnostics', '/diagnostics') == '/diagnostics'
+    urdf = values['robot_description']
+    assert {j.parent for j in description.fixed_joints(urdf)} >= {'base_footprint', 'base_link'}
+
+
+def test_namespaced_launch_without_robot_state_publisher(monkeypatch, m4k_runtime_dir):
+    nodes = _evaluate(monkeypatch, m4k_runtime_dir, namespace='r1')
+    exes = [n.node_executable for n in nodes]
+    assert 'robot_state_publisher' not in exes
+    bridge = nodes[exes.index('bridge')]
+    assert bridge.expanded_node_namespace == '/r1'
+    assert _bridge_params(bridge).get('publish_robot_state', True) is True

@@ -12,6 +12,7 @@ from mcap_ros2.decoder import DecoderFactory
 import pytest
 from test_stack_e2e import stack  # noqa: F401 -- the stack fixture
 from wsenv import stack_env
+import yaml
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 
@@ -57,7 +58,7 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
     schema, odom = decoded['/odom']
     assert schema.name == 'nav_msgs/msg/Odometry'
     assert b'MSG: geometry_msgs/PoseWithCovariance' in schema.data
-    assert odom.header.frame_id == 'odom' and odom.child_frame_id == 'base_link'
+    assert odom.header.frame_id == 'odom' and odom.child_frame_id == 'base_footprint'
     assert len(odom.pose.covariance) == 36
     _, scan = decoded['/scan']
     assert scan.header.frame_id == 'laser' and len(scan.ranges) > 600
@@ -70,3 +71,22 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
         infos = user.node.get_publishers_info_by_topic(topic)
         assert hashes[topic] == str(infos[0].topic_type_hash)
         assert hashes[topic].startswith('RIHS01_')
+    # The directory is a rosbag2 bag: metadata.yaml (format 9) agrees with the MCAP file.
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['version'] == 9 and meta['storage_identifier'] == 'mcap'
+    assert meta['relative_file_paths'] == ['run1_0.mcap'] == [f['path'] for f in meta['files']]
+    by_id = {ch.id: ch.topic for ch in summary.channels.values()}
+    in_file = {by_id[i]: n for i, n in summary.statistics.channel_message_counts.items()}
+    listed = {t['topic_metadata']['name']: t for t in meta['topics_with_message_count']}
+    assert {k: v['message_count'] for k, v in listed.items()} == in_file
+    stats = summary.statistics
+    assert meta['message_count'] == stats.message_count
+    assert meta['starting_time']['nanoseconds_since_epoch'] == stats.message_start_time
+    assert meta['duration']['nanoseconds'] == (stats.message_end_time
+                                               - stats.message_start_time)
+    odom_meta = listed['/odom']['topic_metadata']
+    assert odom_meta['type'] == 'nav_msgs/msg/Odometry'
+    assert odom_meta['type_description_hash'] == hashes['/odom']
+    assert odom_meta['offered_qos_profiles'][0]['reliability'] == 'reliable'
+    assert listed['/scan']['topic_metadata']['offered_qos_profiles'][0]['reliability'] == \
+        'best_effort'

@@ -254,7 +254,7 @@ def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout
     q = odom.pose.pose.orientation
     yaw = math.atan2(2.0 * q.w * q.z, 1.0 - 2.0 * q.z * q.z)
     assert abs(yaw) < math.radians(3.0), math.degrees(yaw)   # odom frame: starts at 0
-    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
+    assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_footprint')
 
 
 def test_sensors_diagnostics_and_rt_status_show_the_simulated_room(stack):

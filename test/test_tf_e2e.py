@@ -90,8 +90,8 @@ def test_tf_is_the_jazzy_type_and_every_published_frame_connects_to_odom(robot):
     frames |= {user.got[k][-1].header.frame_id for k in ('scan', 'imu', 'sonar')}
     urdf = user.got['robot_description'][-1].data
     frames |= {j.child for j in description.joints(urdf)}          # wheels, casters too
-    assert {'odom', 'base_link', 'laser', 'imu_link', 'sonar_link', 'left_wheel_link',
-            'right_wheel_link'} <= frames
+    assert {'odom', 'base_footprint', 'base_link', 'laser', 'imu_link', 'sonar_link',
+            'left_wheel_link', 'right_wheel_link'} <= frames
     for f in frames:
         chain = _root(f, parents)
         assert chain[-1] == 'odom', 'frame {!r} ends at {!r}: {}'.format(f, chain[-1], chain)
@@ -139,8 +139,58 @@ def test_wheel_joints_and_odom_tf_follow_the_ground_truth_of_a_drive(robot, m4k_
     for side in (0, 1):   # a wheel turns distance / radius (no slip in the simulator)
         assert (pos1[side] - pos0[side]) * r == pytest.approx(dist, rel=0.05, abs=0.01)
     odom_tf = [t for m in user.got['tf'] for t in m.transforms
-               if t.header.frame_id == 'odom' and t.child_frame_id == 'base_link'][-1]
+               if t.header.frame_id == 'odom' and t.child_frame_id == 'base_footprint'][-1]
     x = odom_tf.transform.translation.x
     y = odom_tf.transform.translation.y
     # odom starts at the robot's start pose: compare displacements.
     assert math.hypot(x, y) == pytest.approx(dist, abs=0.03)
+
+
+def test_a_namespaced_stack_keeps_one_tree_from_odom_to_every_sensor_on_absolute_tf(
+        procs, tmp_path, m4k_runtime_dir):
+    # bringup --namespace r1 (as ros2 launch ... namespace:=r1): the bridge's topics move to
+    # /r1/..., while /tf, /tf_static and /diagnostics stay absolute, where tf2 listeners,
+    # robot_state_publisher and the diagnostic aggregator are.
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu, LaserScan, Range
+    overlay = write_overlay(tmp_path, {'world': {'start': START}})
+    proc = start_bringup(procs, tmp_path, m4k_runtime_dir, overlay,
+                         extra=['--no-status', '--namespace', 'r1'])
+    user = RosUser()
+    try:
+        n = user.node
+        for name, typ, qos in (('/tf', TFMessage, 100), ('/tf_static', TFMessage, LATCHED),
+                               ('/r1/odom', Odometry, 10),
+                               ('/r1/scan', LaserScan, qos_profile_sensor_data),
+                               ('/r1/imu', Imu, qos_profile_sensor_data),
+                               ('/r1/sonar', Range, qos_profile_sensor_data),
+                               ('/diagnostics', DiagnosticArray, 10)):
+            box = user.got[name] = []
+            n.create_subscription(typ, name, box.append, qos)
+        wanted = ('/tf', '/tf_static', '/r1/odom', '/r1/scan', '/r1/imu', '/r1/sonar',
+                  '/diagnostics')
+        user.spin_until(lambda: all(user.got[k] for k in wanted) or proc.poll() is not None,
+                        60, 'the namespaced topics')
+        assert proc.poll() is None, (tmp_path / 'bringup.err').read_text()[-3000:]
+        assert not n.get_publishers_info_by_topic('/r1/tf')
+        assert not n.get_publishers_info_by_topic('/r1/tf_static')
+        parents = {}
+        for box in ('/tf_static', '/tf'):
+            for msg in user.got[box]:
+                for t in msg.transforms:
+                    parents[t.child_frame_id] = t.header.frame_id
+        odom = user.got['/r1/odom'][-1]
+        assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_footprint')
+        frames = {odom.child_frame_id} | {user.got[k][-1].header.frame_id
+                                          for k in ('/r1/scan', '/r1/imu', '/r1/sonar')}
+        for f in frames:
+            chain = _root(f, parents)
+            assert chain[-1] == 'odom', 'frame {!r} ends at {!r}: {}'.format(f, chain[-1], chain)
+        assert parents['base_link'] == 'base_footprint'
+    finally:
+        user.close()
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(40)

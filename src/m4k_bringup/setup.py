@@ -13,6 +13,12 @@ config_files = sorted(
 layout_files = sorted(  # the Foxglove layout of the live view (ros2 run m4k_bridge foxglove)
     os.path.relpath(p, here) for p in glob(os.path.join(here, '..', '..', 'config', 'foxglove',
                                                         '*.json')))
+# Recipes for the stack around the base (docs/nav2.md): config/<tool>/.
+config_dir = os.path.join(here, '..', '..', 'config')
+recipes = [('share/{}/config/{}'.format(package_name, d),
+            sorted(os.path.relpath(p, here) for p in glob(os.path.join(config_dir, d, '*'))))
+           for d in ('rviz', 'nav2', 'slam_toolbox', 'twist_mux', 'robot_localization',
+                     'diagnostics')]
 launch_files = sorted(os.path.relpath(p, here) for p in glob(os.path.join(here, 'launch', '*.py')))
 
 setup(
@@ -26,6 +32,7 @@ setup(
         ('share/' + package_name + '/config', config_files),
         ('share/' + package_name + '/config/foxglove', layout_files),
         ('share/' + package_name + '/launch', launch_files),
+        *recipes,
     ],
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},

@@ -30,7 +30,7 @@ K = Kind
 # "unexpected". Ports the RT side only writes accept nothing.
 ACCEPTS: Mapping[str, frozenset[int]] = {
     'status': frozenset(), 'stat': frozenset(),
-    'cmd': frozenset({K.VELOCITY_CMD, K.E_STOP, K.ODOM_RESET}),
+    'cmd': frozenset({K.VELOCITY_CMD, K.E_STOP, K.ODOM_RESET, K.SET_POSE}),
     'motor': frozenset({K.ENCODERS, K.DEVICE_STATUS}),
     'imu': frozenset({K.IMU, K.DEVICE_STATUS}), 'imu_out': frozenset(),
     'led': frozenset({K.DEVICE_STATUS}), 'led_in': frozenset({K.LED}),
@@ -94,6 +94,10 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return (rng.randint(0, 1),)
     if kind == K.ODOM_RESET:
         return (u(rng, 32),)
+    if kind == K.APPLIED_VELOCITY:
+        return (f(rng), f(rng))
+    if kind == K.SET_POSE:
+        return (u(rng, 32), f(rng), f(rng), f(rng))
     if kind == K.FORBIDDEN_SITE:
         return ('fuzz', u(rng, 8), rng.choice(sorted(protocol.EVENT_NAMES)), u(rng, 32),
                 u(rng, 32), u(rng, 32), '/fuzz/' * rng.randint(0, 12) + 'body.py', 'cycle')

@@ -6,7 +6,8 @@ only, not the client library), or plain tuples for the reverse direction. Conven
 
 * REP-103 units and axes, REP-105 frames (odom -> base_link), REP-145 for the IMU (a
   covariance whose first element is -1 marks an absent quantity);
-* REP-117 for invalid ranges: +inf = nothing within range, NaN = erroneous reading;
+* REP-117 for invalid ranges: +inf = nothing within range, NaN = erroneous reading (the
+  scan; a sonar reading that is not a range is dropped instead, :func:`sonar_msg`);
 * stamps: datagrams carry the sender's CLOCK_MONOTONIC; :func:`ros_stamp_ns` moves that
   instant onto the ROS clock by the age of the datagram, so a message is stamped when it was
   measured, not when the bridge got round to it.
@@ -25,20 +26,15 @@ from sensor_msgs.msg import Imu, LaserScan, Range
 from m4k_rt import protocol
 
 __all__ = [
-    'IMU_BAD_QUATERNION', 'IMU_NOT_READY', 'NonFiniteCommand', 'URG_FAR_CODES', 'covariance3',
+    'NonFiniteCommand', 'covariance3',
     'covariance6', 'imu_msg', 'led_command', 'odometry_msg', 'odom_transform', 'quaternion_rpy',
     'ros_stamp_ns', 'scan_msg', 'sonar_msg', 'static_transform', 'time_msg', 'urg_range_m',
     'velocity_command',
 ]
 
-# IMU status byte: protocol.ImuStatus owns the values.
-IMU_NOT_READY = protocol.ImuStatus.NOT_READY
-IMU_BAD_QUATERNION = protocol.ImuStatus.BAD_QUATERNION
-
 # URG (SCIP 2.0) error codes: the table has one owner, m4k_rt.protocol.SCAN_ERROR_CODES (SCIP 2.0
 # spec C-42-03320B, Table 3). Only code 0 ("object possibly at 22 m", i.e. nothing within the
 # measurable range) is REP-117 +inf; every other code (< 20) is an erroneous reading: NaN.
-URG_FAR_CODES = protocol.SCAN_FAR_CODES
 
 
 class NonFiniteCommand(ValueError):
@@ -145,12 +141,12 @@ def imu_msg(imu: protocol.Imu, stamp_ns: int, frame_id: str, orientation_cov: Se
     With an invalid quaternion the orientation is reported absent (covariance[0] = -1) while
     angular velocity and acceleration are still published.
     """
-    if imu.status == IMU_NOT_READY:
+    if imu.status == protocol.ImuStatus.NOT_READY:
         return None
     msg = Imu()
     msg.header.stamp = time_msg(stamp_ns)
     msg.header.frame_id = frame_id
-    if imu.status == IMU_BAD_QUATERNION:
+    if imu.status == protocol.ImuStatus.BAD_QUATERNION:
         msg.orientation.w = 1.0
         cov = [0.0] * 9
         cov[0] = -1.0
@@ -172,7 +168,7 @@ def urg_range_m(mm: int) -> float:
     """Return a URG range in metres; error codes (< 20 mm) become +inf or NaN (REP-117)."""
     if mm > protocol.SCAN_ERROR_CODE_MAX:
         return mm * 0.001
-    return math.inf if mm in URG_FAR_CODES else math.nan
+    return math.inf if mm in protocol.SCAN_FAR_CODES else math.nan
 
 
 def scan_msg(scan: protocol.LaserScan, stamp_ns: int, frame_id: str) -> LaserScan:
@@ -193,12 +189,23 @@ def scan_msg(scan: protocol.LaserScan, stamp_ns: int, frame_id: str) -> LaserSca
 
 
 def sonar_msg(sonar: protocol.Sonar, stamp_ns: int, frame_id: str, field_of_view: float,
-              min_range: float, max_range: float) -> Range:
-    """Build sensor_msgs/Range (ULTRASOUND).
+              min_range: float, max_range: float,
+              no_echo: str = 'positive_infinity') -> Range | None:
+    """Build sensor_msgs/Range (ULTRASOUND), or None when the reading must not be published.
 
-    No echo within range -> +inf; timeout or fault -> NaN (REP-117), so a consumer can tell
-    "free ahead" from "sensor broken".
+    No echo within range -> +inf (REP-117, ``no_echo='positive_infinity'``) or ``max_range``
+    (``no_echo='max_range'``: what Nav2's range layer clears with ``clear_on_max_reading``).
+    A timeout, a fault or a non-finite range gives None: Nav2's range layer lets NaN through
+    its ``<`` / ``>`` checks, so an erroneous reading is dropped (the caller counts it).
     """
+    if sonar.status == protocol.SONAR_OK:
+        if not math.isfinite(sonar.range_m):
+            return None
+        value = sonar.range_m
+    elif sonar.status == protocol.SONAR_NO_ECHO:
+        value = max_range if no_echo == 'max_range' else math.inf
+    else:
+        return None
     msg = Range()
     msg.header.stamp = time_msg(stamp_ns)
     msg.header.frame_id = frame_id
@@ -206,12 +213,7 @@ def sonar_msg(sonar: protocol.Sonar, stamp_ns: int, frame_id: str, field_of_view
     msg.field_of_view = field_of_view
     msg.min_range = min_range
     msg.max_range = max_range
-    if sonar.status == protocol.SONAR_OK:
-        msg.range = sonar.range_m
-    elif sonar.status == protocol.SONAR_NO_ECHO:
-        msg.range = math.inf
-    else:
-        msg.range = math.nan
+    msg.range = value
     return msg
 
 

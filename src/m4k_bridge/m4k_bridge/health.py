@@ -143,6 +143,11 @@ class BridgeHealth:
         self._failed_ports: set[str] = set()
         self._last_seq: dict[str, int] = {}
         self.last_cmd_ns = 0
+        # When a command was last rejected / clamped: the cmd_vel status is WARN only while
+        # the newest such event is inside the window (as the RT task statuses judge a window
+        # of samples, not the whole session).
+        self.last_cmd_problem_ns = 0
+        self.cmd_vel_type_mismatch = ''   # 'publisher type vs subscribed type'; '' = none
         self.last_odom: protocol.Odometry | None = None
         self.last_odom_ns = 0
         self.led_shown: protocol.Led | None = None
@@ -153,6 +158,11 @@ class BridgeHealth:
         """Add ``n`` to a counter; return its new value."""
         self.counters[key] += n
         return self.counters[key]
+
+    def on_cmd_problem(self, key: str, now_ns: int) -> int:
+        """Count a rejected or clamped command (``key``) at ``now_ns``; return the count."""
+        self.last_cmd_problem_ns = now_ns
+        return self.count(key)
 
     def on_seq(self, role: str, seq: int) -> None:
         """Account a datagram's sequence number: a gap counts ``lost_<role>``."""
@@ -281,6 +291,7 @@ class BridgeHealth:
                     level, msg = protocol.LEVEL_ERROR, 'motor stale (no encoder feedback)'
             if device == 'sonar':
                 values['range_faults'] = self.counters['sonar_faults']
+                values['dropped_not_a_range'] = self.counters['sonar_dropped']
             if device == 'imu':
                 values['not_ready'] = self.counters['imu_not_ready']
             if device == 'led' and self.led_shown is not None:
@@ -320,23 +331,34 @@ class BridgeHealth:
             msg = 'waiting for the RT process' + (': ' + sorted(errs)[0] if errs else '')
         return Status('m4k_bridge: rt link', level, msg, values, 'm4k_rt')
 
-    def cmd_status(self, now_ns: int, cmd_vel_timeout_s: float, dropped_no_rt: int) -> Status:
+    def cmd_status(self, now_ns: int, cmd_vel_timeout_s: float, dropped_no_rt: int,
+                   window_s: float = 10.0) -> Status:
         """Return the ``m4k_bridge: cmd_vel`` status.
 
-        WARN once any command was rejected or clamped; otherwise OK, 'idle' when no command
-        came for ``cmd_vel_timeout_s`` (the RT actuator brakes after its own timeout),
+        WARN while a publisher of the other message type is on the cmd_vel topic
+        (:attr:`cmd_vel_type_mismatch`), or when a command was rejected or clamped within the
+        last ``window_s`` seconds (the counters stay cumulative); otherwise OK, 'idle' when no
+        command came for ``cmd_vel_timeout_s`` (the RT actuator brakes after its own timeout),
         'commanded' before. ``dropped_no_rt``: commands the cmd port dropped unlinked.
         """
         c = self.counters
         age = _age_s(now_ns, self.last_cmd_ns)
-        values = {'forwarded': c['cmd_vel_forwarded'],
+        values: dict[str, Any] = {'forwarded': c['cmd_vel_forwarded'],
                   'rejected_nonfinite': c['cmd_vel_rejected_nonfinite'],
                   'clamped': c['cmd_vel_clamped'], 'last_cmd_age_s': age,
                   'dropped_no_rt': dropped_no_rt,
                   'led_forwarded': c['led_forwarded'],
                   'led_rejected_nonfinite': c['led_rejected_nonfinite']}
-        if c['cmd_vel_rejected_nonfinite'] or c['cmd_vel_clamped']:
-            level, msg = protocol.LEVEL_WARN, 'some commands rejected or clamped'
+        values['type_mismatch'] = self.cmd_vel_type_mismatch or 'none'
+        recent = (self.last_cmd_problem_ns
+                  and now_ns - self.last_cmd_problem_ns <= window_s * 1e9)
+        if self.cmd_vel_type_mismatch:
+            level, msg = protocol.LEVEL_WARN, (
+                'a cmd_vel publisher of another type never matches: {}'.format(
+                    self.cmd_vel_type_mismatch))
+        elif recent:
+            level, msg = protocol.LEVEL_WARN, 'commands rejected or clamped in the last {:g} s'\
+                .format(window_s)
         elif age > cmd_vel_timeout_s:
             level, msg = protocol.LEVEL_OK, 'idle (RT actuator brakes after its timeout)'
         else:

@@ -1,7 +1,8 @@
 """The m4k ROS 2 bridge node (``m4k_bridge``): the only place of the stack that speaks ROS.
 
 It never runs control logic. Inbound, ``cmd_vel`` (Twist, or TwistStamped with
-``use_stamped_vel``) is checked (NaN/inf rejected, limits clamped, both counted) and forwarded
+``enable_stamped_cmd_vel``; a publisher of the other type is reported) is checked (NaN/inf
+rejected, limits clamped, both counted) and forwarded
 as VELOCITY_CMD on the ``cmd`` port; ``led`` (ColorRGBA) becomes an LED override on ``led_in``.
 The bridge does not repeat commands: when cmd_vel stops, the RT actuator brakes after its own
 ``control.cmd_vel_timeout``; the bridge's ``cmd_vel_timeout`` only labels the input idle in
@@ -9,7 +10,8 @@ diagnostics. On shutdown it sends one zero command. ``e_stop`` (std_msgs/Bool) a
 ``~/reset_odometry`` service (std_srvs/Trigger) go to the RT actuator on the same ``cmd`` port
 (:mod:`m4k_bridge.safety`: the latch itself lives in the RT process).
 
-Outbound, datagrams from the RT process become ``odom``, ``imu``, ``scan``, ``sonar``, and
+Outbound, datagrams from the RT process become ``odom``, ``imu``, ``scan``, ``sonar``,
+``cmd_vel_out`` (the velocity the RT actuator applies), ``e_stop_state``, and
 through :mod:`m4k_bridge.tf` ``joint_states``, ``tf``, ``tf_static`` and
 ``robot_description``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and, with
 the link, command and device health (:mod:`m4k_bridge.health`), ``diagnostics``. Port I/O
@@ -48,7 +50,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, LaserScan, Range
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Header
 import yaml
 
 from m4k_bridge import convert, params
@@ -73,6 +75,9 @@ _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _CMD_VEL_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
 _INBOX_MAX = 4096
 _WATCH_PERIOD_S = 0.25
+_GRAPH_EVERY = 4          # watch ticks between looks at the cmd_vel publishers (1 s)
+_TWIST = 'geometry_msgs/msg/Twist'
+_TWIST_STAMPED = 'geometry_msgs/msg/TwistStamped'
 _TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
           'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
           'float[]': ParameterType.PARAMETER_DOUBLE_ARRAY}
@@ -135,14 +140,24 @@ class BridgeNode(Node):
         self._sonar_pub = self.create_publisher(Range, p.topic('sonar'), qos_sensor)
         self._diag_pub = self.create_publisher(DiagnosticArray, p.topic('diagnostics'),
                                                _RELIABLE)
+        self._applied_pub = self.create_publisher(TwistStamped, p.topic('cmd_vel_out'),
+                                                  _RELIABLE)
         self._rt_pub = self.create_publisher(RtStatus, p.topic('rt_status'), _RELIABLE)
         self._robot_state = self._setup_robot_state()
         self._init_safety()
         if p['use_stamped_vel']:
-            self.create_subscription(TwistStamped, p.topic('cmd_vel'), self._on_twist_stamped,
-                                     _CMD_VEL_QOS)
+            self.get_logger().warning('use_stamped_vel is deprecated: set enable_stamped_cmd_vel '
+                                      '(the name Nav2 and TurtleBot3 use)')
+        if p.stamped_cmd_vel:
+            sub = self.create_subscription(TwistStamped, p.topic('cmd_vel'),
+                                           self._on_twist_stamped, _CMD_VEL_QOS)
         else:
-            self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist, _CMD_VEL_QOS)
+            sub = self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist,
+                                           _CMD_VEL_QOS)
+        self._cmd_vel_topic = sub.topic_name     # fully resolved (namespace, remaps)
+        self._cmd_vel_type = _TWIST_STAMPED if p.stamped_cmd_vel else _TWIST
+        self._mismatch_logged: set[str] = set()
+        self._watch_ticks = 0
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
@@ -205,7 +220,8 @@ class BridgeNode(Node):
         except config.ConfigError as exc:
             raise params.ParamError('<config>', 'cannot load the layered configuration the '
                                     'derived parameters come from: {}'.format(exc)) from None
-        self._derived = params.derived_values(doc, values['base_frame'])
+        self._derived = params.derived_values(doc, values['base_frame'],
+                                              values['footprint_frame'])
         for s in params.SPECS:
             if s.name in params.DERIVED:
                 declare(s, self._derived.get(s.name, s.default))
@@ -242,6 +258,9 @@ class BridgeNode(Node):
         self._monitor.set_window(self.p['stats_window'])
         self._monitor.stale_ns = int(self.p['rt_stale_timeout'] * 1e9)
         self._safety.reset_timeout = self.p['reset_odometry_timeout']
+        self._safety.e_stop_timeout = self.p['e_stop_timeout']
+        # odom and tf read the frames from here: a run-time change reaches both.
+        self._robot_state.set_frames(self.p['odom_frame'], self.p.odom_child)
         if self.p['diagnostics_period'] != old['diagnostics_period']:
             self._diag_timer.cancel()
             self.destroy_timer(self._diag_timer)
@@ -273,12 +292,12 @@ class BridgeNode(Node):
                 linear_x, angular_z, self.p['max_linear_velocity'],
                 self.p['max_angular_velocity'])
         except convert.NonFiniteCommand as exc:
-            n = self.health.count('cmd_vel_rejected_nonfinite')
+            n = self.health.on_cmd_problem('cmd_vel_rejected_nonfinite', time.monotonic_ns())
             self.get_logger().warning('{}: rejected ({} so far)'.format(exc, n),
                                       throttle_duration_sec=1.0)
             return
         if clamped:
-            n = self.health.count('cmd_vel_clamped')
+            n = self.health.on_cmd_problem('cmd_vel_clamped', time.monotonic_ns())
             self.get_logger().warning(
                 'cmd_vel ({:.3f}, {:.3f}) beyond the limits ({}, {}): clamped ({} so far)'.format(
                     linear_x, angular_z, self.p['max_linear_velocity'],
@@ -345,11 +364,20 @@ class BridgeNode(Node):
         if k == protocol.Kind.ODOMETRY:
             self.health.on_odometry(payload, rx_ns)
             self._odom_pub.publish(convert.odometry_msg(
-                payload, stamp, p['odom_frame'], p['base_frame'],
+                payload, stamp, p.frame(p['odom_frame']), p.frame(p.odom_child),
                 p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
             self._robot_state.on_odometry(payload, stamp)
+            self._safety.on_latch(bool(payload.flags & protocol.ODOM_E_STOP))
+        elif k == protocol.Kind.APPLIED_VELOCITY:
+            out = TwistStamped(header=Header(stamp=convert.time_msg(stamp),
+                                             frame_id=p.frame(p.odom_child)))
+            out.twist.linear.x, out.twist.angular.z = payload.linear_x, payload.angular_z
+            self._applied_pub.publish(out)
+        elif k == protocol.Kind.SET_POSE:
+            if not self._safety.on_set_pose_ack(payload):
+                self.health.count('unexpected_' + role)
         elif k == protocol.Kind.IMU:
-            msg = convert.imu_msg(payload, stamp, p['imu_frame'],
+            msg = convert.imu_msg(payload, stamp, p.frame(p['imu_frame']),
                                   p['imu_orientation_covariance_diagonal'],
                                   p['imu_angular_velocity_covariance_diagonal'],
                                   p['imu_linear_acceleration_covariance_diagonal'])
@@ -358,12 +386,16 @@ class BridgeNode(Node):
             else:
                 self._imu_pub.publish(msg)
         elif k == protocol.Kind.LASER_SCAN:
-            self._scan_pub.publish(convert.scan_msg(payload, stamp, p['laser_frame']))
+            self._scan_pub.publish(convert.scan_msg(payload, stamp, p.frame(p['laser_frame'])))
         elif k == protocol.Kind.SONAR:
             self.health.on_sonar(payload.status)
-            self._sonar_pub.publish(convert.sonar_msg(
-                payload, stamp, p['sonar_frame'], p['sonar_field_of_view'],
-                p['sonar_min_range'], p['sonar_max_range']))
+            sonar = convert.sonar_msg(
+                payload, stamp, p.frame(p['sonar_frame']), p['sonar_field_of_view'],
+                p['sonar_min_range'], p['sonar_max_range'], p['sonar_no_echo'])
+            if sonar is None:      # never NaN on sonar: a fault is dropped and counted
+                self.health.count('sonar_dropped')
+            else:
+                self._sonar_pub.publish(sonar)
         elif k == protocol.Kind.LED:
             self.health.on_led_shown(payload)
         elif k == protocol.Kind.ODOM_RESET:
@@ -383,13 +415,16 @@ class BridgeNode(Node):
         p = self.p
         urdf = p['robot_description'] or self._derived.get('robot_description', '')
         try:
-            state = RobotStatePublisher(self, urdf, p['odom_frame'], p['base_frame'],
+            state = RobotStatePublisher(self, urdf, p['odom_frame'], p.odom_child,
                                         p['publish_tf'], p['publish_robot_state'],
-                                        p.topic('joint_states'), p.topic('robot_description'))
+                                        p.topic('joint_states'), p.topic('robot_description'),
+                                        p['frame_prefix'], p['tf_namespaced'])
         except description.DescriptionError as exc:
             raise params.ParamError('robot_description', str(exc)) from None
         missing = [p[f] for f in ('base_frame', 'laser_frame', 'imu_frame', 'sonar_frame')
                    if p[f] not in state.links]
+        if p['footprint_frame'] and p['footprint_frame'] not in state.links:
+            missing.append(p['footprint_frame'])
         if missing:
             self.get_logger().warning(
                 'frames {} are not links of robot_description: their messages do not connect '
@@ -402,7 +437,8 @@ class BridgeNode(Node):
         # Created before the pumps: it only needs the send path, which exists at first use.
         self._safety = SafetyInterface(
             self, lambda data: self._pumps['cmd'].send(data), self.p.topic('e_stop'),
-            self.p['reset_odometry_timeout'])
+            self.p['reset_odometry_timeout'], self.p.topic('e_stop_state'),
+            self.p['e_stop_timeout'])
 
     # --- health (m4k_bridge.health) -------------------------------------------------------
 
@@ -420,6 +456,35 @@ class BridgeNode(Node):
             else:
                 log.info(event.message)
         self._safety.on_cmd_links(self._pumps['cmd'].links)
+        self._watch_ticks += 1
+        if self._watch_ticks % _GRAPH_EVERY == 0:
+            self._check_cmd_vel_types()
+
+    def _check_cmd_vel_types(self) -> None:
+        """Report publishers of the other cmd_vel type: they never match, and DDS is silent.
+
+        A WARN in the cmd_vel diagnostic while one is on the graph, and one log line per
+        foreign type naming both types.
+        """
+        try:
+            infos = self.get_publishers_info_by_topic(self._cmd_vel_topic)
+        except Exception:  # noqa: BLE001 -- graph unavailable while shutting down
+            return
+        foreign = sorted({i.topic_type for i in infos if i.topic_type != self._cmd_vel_type})
+        text = ''
+        if foreign:
+            text = '{} published on {}, {} subscribed (enable_stamped_cmd_vel: {})'.format(
+                ', '.join(foreign), self._cmd_vel_topic, self._cmd_vel_type,
+                'true' if self.p.stamped_cmd_vel else 'false')
+            for t in foreign:
+                if t not in self._mismatch_logged:
+                    self._mismatch_logged.add(t)
+                    self.get_logger().warning(
+                        'cmd_vel type mismatch: a publisher of {} on {}, but the bridge '
+                        'subscribes {}: its commands never arrive (set enable_stamped_cmd_vel '
+                        'to {})'.format(t, self._cmd_vel_topic, self._cmd_vel_type,
+                                        'true' if t == _TWIST_STAMPED else 'false'))
+        self.health.cmd_vel_type_mismatch = text
 
     def _publish_rt_status(self) -> None:
         now = time.monotonic_ns()
@@ -441,7 +506,7 @@ class BridgeNode(Node):
             self._monitor.device_levels(now))
         statuses.append(h.link_status(now, ports))
         statuses.append(h.cmd_status(now, self.p['cmd_vel_timeout'],
-                                     ports['cmd'].dropped_unlinked))
+                                     ports['cmd'].dropped_unlinked, self.p['stats_window']))
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = self._monitor.task_statuses(now)

@@ -41,7 +41,11 @@ __all__ = [
 NODE_NAME = 'm4k_bridge'
 PORT_ROLES = ('status', 'cmd', 'imu_out', 'led_in', 'sonar_out', 'lrf_out')
 TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 'rt_status',
-               'e_stop', 'joint_states', 'robot_description')
+               'e_stop', 'joint_states', 'robot_description', 'e_stop_state', 'cmd_vel_out')
+# Topics whose ROS convention is absolute (tf2_ros, robot_state_publisher and the diagnostic
+# aggregator use /tf, /tf_static, /diagnostics): a namespace must not split them off.
+_ABSOLUTE_TOPICS = {'diagnostics': '/diagnostics'}
+SONAR_NO_ECHO = ('positive_infinity', 'max_range')
 
 _TOPIC = re.compile(r'^~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 _FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
@@ -77,7 +81,7 @@ _UNITS = {
     'imu_linear_acceleration_covariance_diagonal': 'm^2/s^4', 'sonar_field_of_view': 'rad',
     'sonar_min_range': 'm', 'sonar_max_range': 'm', 'stats_window': 's',
     'rt_status_period': 's', 'diagnostics_period': 's', 'rt_stale_timeout': 's',
-    'relink_interval': 's', 'reset_odometry_timeout': 's',
+    'relink_interval': 's', 'reset_odometry_timeout': 's', 'e_stop_timeout': 's',
 }
 _ROS_TYPES = {bool: 'bool', float: 'float', str: 'str', list: 'float[]'}
 
@@ -100,6 +104,22 @@ def _topic(v: Any) -> str | None:
 def _frame(v: Any) -> str | None:
     if not _FRAME.match(v):
         return 'not a valid frame id (letters, digits, _ . / -; not empty): {!r}'.format(v)
+    return None
+
+
+def _frame_or_empty(v: Any) -> str | None:
+    return None if v == '' else _frame(v)
+
+
+def _prefix(v: Any) -> str | None:
+    if v and not _FRAME.match(v):
+        return "not a valid frame prefix (letters, digits, _ . / -) or '': {!r}".format(v)
+    return None
+
+
+def _no_echo(v: Any) -> str | None:
+    if v not in SONAR_NO_ECHO:
+        return 'expected one of {}, got {!r}'.format(', '.join(SONAR_NO_ECHO), v)
     return None
 
 
@@ -127,12 +147,29 @@ SPECS: tuple[Field, ...] = (
                 'never links, and the bridge reports the RT process lost.'.format(role, role),
                 read_only=True, check=_port)
       for role in PORT_ROLES),
-    *(ParamSpec('topics.' + role, role, 'Topic name for {}; relative so namespaces and '
-                'remaps apply.'.format(role), read_only=True, check=_topic)
+    *(ParamSpec('topics.' + role, _ABSOLUTE_TOPICS.get(role, role),
+                'Topic name for {}; {}'.format(role, (
+                    'absolute, as the diagnostic aggregator and rqt_robot_monitor read it '
+                    'whatever the namespace') if role in _ABSOLUTE_TOPICS else
+                    'relative so namespaces and remaps apply.'), read_only=True, check=_topic)
       for role in TOPIC_ROLES),
-    ParamSpec('use_stamped_vel', False, 'Subscribe cmd_vel as geometry_msgs/TwistStamped '
-              'instead of Twist (Nav2 and teleop publish Twist; ros2_controllers on Jazzy '
-              'TwistStamped). A publisher of the other type never matches.', read_only=True),
+    ParamSpec('enable_stamped_cmd_vel', False, 'Subscribe cmd_vel as geometry_msgs/TwistStamped '
+              'instead of Twist (Nav2 Jazzy and teleop publish Twist; Nav2 Kilted and '
+              "ros2_controllers TwistStamped; the name is Nav2 and TurtleBot3's). A publisher "
+              'of the other type never matches: the bridge reports it (cmd_vel diagnostic WARN, '
+              'one log line naming both types).', read_only=True),
+    ParamSpec('use_stamped_vel', False, 'Deprecated alias of enable_stamped_cmd_vel (the '
+              'old diff_drive_controller name, gone in Jazzy); true still works, with a '
+              'warning at start-up.', read_only=True),
+    ParamSpec('tf_namespaced', False, 'Publish tf and tf_static relative to the node namespace '
+              "('tf', 'tf_static': /r1/tf under namespace r1) instead of the absolute /tf and "
+              '/tf_static every tf2 listener reads by default. Only for setups that remap '
+              '/tf:=tf in every node of the namespace (one tf tree per robot).',
+              read_only=True),
+    ParamSpec('frame_prefix', '', "Prefix of every frame id the bridge publishes (odom, tf, "
+              "sensor headers), e.g. 'r1/' for two robots on one /tf; as "
+              "robot_state_publisher's frame_prefix. robot_description keeps the bare names. "
+              "Empty: none.", read_only=True, check=_prefix),
     ParamSpec('cmd_vel_timeout', _CONTROL.cmd_vel_timeout, 'Seconds after the last cmd_vel '
               'after which the input is reported idle in diagnostics. Derived: '
               'control.cmd_vel_timeout, on which the RT actuator brakes (the bridge never '
@@ -146,8 +183,13 @@ SPECS: tuple[Field, ...] = (
               '[rad/s]; cmd_vel beyond it is clamped and counted. Derived: '
               'control.angular.max_velocity.', lo=0.0, hi=20.0),
     ParamSpec('odom_frame', 'odom', 'Frame id of odometry (REP-105 odom).', check=_frame),
-    ParamSpec('base_frame', 'base_link', 'Child frame id of odometry (REP-105 base_link) and '
-              'root link of the generated robot description.', check=_frame),
+    ParamSpec('base_frame', 'base_link', 'The body link (REP-105 base_link, on the wheel axle) '
+              'the sensors, wheels and casters hang from in the generated robot description; '
+              "odometry's child frame when footprint_frame is empty.", check=_frame),
+    ParamSpec('footprint_frame', 'base_footprint', 'Child frame id of odometry and of the odom '
+              'tf (as TurtleBot3 and Kobuki): the ground projection of base_frame, root of the '
+              'generated robot description, base_frame the wheel radius above it. Empty: '
+              'base_frame is the child and the root.', check=_frame_or_empty),
     ParamSpec('imu_frame', 'imu_link', 'Frame id of imu messages (REP-145). Derived: '
               'robot.sensors.imu.frame, a link of robot_description; another value does not '
               'connect to odom in tf.', check=_frame),
@@ -186,6 +228,12 @@ SPECS: tuple[Field, ...] = (
               lo=0.01, hi=math.pi),
     ParamSpec('sonar_min_range', 0.02, 'Sonar minimum range [m] (US-100: 2 cm).',
               lo=0.0, hi=10.0),
+    ParamSpec('sonar_no_echo', 'positive_infinity', "What sonar range says 'nothing within "
+              "range': 'positive_infinity' "
+              "(REP-117 +inf; Nav2's range layer ignores such a reading) or 'max_range' "
+              "(sonar_max_range, which Nav2's range layer clears with clear_on_max_reading: "
+              'true). Faulty readings (timeout, bad echo) are never published: dropped and '
+              'counted (sonar diagnostic).', check=_no_echo),
     ParamSpec('sonar_max_range', 4.5, 'Sonar maximum range [m] (US-100: 4.5 m); must exceed '
               'sonar_min_range.', lo=0.01, hi=20.0),
     ParamSpec('stats_window', 10.0, 'Sliding window of RT timing samples behind rt_status '
@@ -199,8 +247,11 @@ SPECS: tuple[Field, ...] = (
               lo=0.1, hi=600.0),
     ParamSpec('relink_interval', 0.5, 'Seconds between attempts to re-open a port whose RT '
               'side is gone.', lo=0.01, hi=60.0, read_only=True),
-    ParamSpec('reset_odometry_timeout', 1.0, 'Seconds ~/reset_odometry waits for the RT '
-              "actuator's acknowledgement before it answers success=false.",
+    ParamSpec('reset_odometry_timeout', 1.0, 'Seconds ~/reset_odometry and ~/set_pose wait '
+              "for the RT actuator's acknowledgement before they answer success=false.",
+              lo=0.05, hi=60.0),
+    ParamSpec('e_stop_timeout', 1.0, 'Seconds ~/e_stop waits for the RT latch (ODOMETRY '
+              'flags) to show the requested state before it answers success=false.',
               lo=0.05, hi=60.0),
 )
 
@@ -212,7 +263,8 @@ def spec(name: str) -> Field:
     return _BY_NAME[name]
 
 
-def derived_values(doc: Mapping[str, Any], base_frame: str = 'base_link') -> dict[str, Any]:
+def derived_values(doc: Mapping[str, Any], base_frame: str = 'base_link',
+                   footprint_frame: str = 'base_footprint') -> dict[str, Any]:
     """Return the :data:`DERIVED` parameters of a merged configuration document.
 
     Sections the document lacks give nothing (``control`` its defaults, as the RT actuator
@@ -237,7 +289,7 @@ def derived_values(doc: Mapping[str, Any], base_frame: str = 'base_link') -> dic
             out['ports.' + role] = role
     if 'robot' in doc:
         try:
-            robot = description.model(doc, base_frame)
+            robot = description.model(doc, base_frame, footprint_frame)
         except description.DescriptionError as exc:
             raise ParamError('robot_description', str(exc)) from None
         out['robot_description'] = description.urdf(robot)
@@ -317,6 +369,20 @@ class BridgeParams:
     def topic(self, role: str) -> str:
         """Return the topic name for ``role``."""
         return self.values['topics.' + role]
+
+    @property
+    def stamped_cmd_vel(self) -> bool:
+        """Return whether cmd_vel is TwistStamped (either name of the switch)."""
+        return bool(self.values['enable_stamped_cmd_vel'] or self.values['use_stamped_vel'])
+
+    @property
+    def odom_child(self) -> str:
+        """Return the child frame of odometry (unprefixed): the footprint, else base_frame."""
+        return self.values['footprint_frame'] or self.values['base_frame']
+
+    def frame(self, name: str) -> str:
+        """Return the published id of frame ``name``: ``frame_prefix`` + name."""
+        return self.values['frame_prefix'] + name
 
 
 def parse_port(value: str) -> int | str:

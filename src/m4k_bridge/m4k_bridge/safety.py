@@ -9,7 +9,7 @@ The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagr
   volatile publishers);
 * re-sending an engaged e-stop when the ``cmd`` port re-links (a restarted RT process starts
   unlatched; the operator's last word was "stop");
-* with ``use_stamped_vel``, :class:`CommandStampGate` drops TwistStamped commands stamped no
+* with ``enable_stamped_cmd_vel``, :class:`CommandStampGate` drops TwistStamped commands stamped no
   later than the newest command seen before the last release, so a command held up in a queue
   (or re-sent) from before the release cannot restart the robot. The rule compares the
   sender's stamps with each other, never with this machine's clock, so a laptop whose clock is
@@ -19,26 +19,39 @@ The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagr
 * ``~/reset_odometry`` (std_srvs/Trigger): an ODOM_RESET request with a fresh id, answered
   success only when the actuator's ODOM_RESET acknowledgement with that id comes back (the
   pose is zero from that cycle's ODOMETRY on), else success=false after
-  ``reset_odometry_timeout`` with the reason.
+  ``reset_odometry_timeout`` with the reason; ``~/set_pose`` (m4k_msgs/SetPose) the same with
+  a SET_POSE request carrying x, y, yaw;
+* ``e_stop_state`` (std_msgs/Bool, transient local, like Clearpath's
+  ``platform/emergency_stop``): the RT latch as fresh ODOMETRY flags report it, published on
+  every change and at 1 Hz (true while engaged; a late subscriber gets the last state);
+* ``~/e_stop`` (std_srvs/SetBool): the same request as the topic, answered once the RT latch
+  shows the requested state (engaged, or released), else success=false after
+  ``e_stop_timeout``. Topic and service are one input: the last request wins, and its sender
+  learns from the answer or from ``e_stop_state`` what the RT side holds.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from std_msgs.msg import Bool
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 
 from m4k_bridge.diagnostics import make_status
+from m4k_msgs.srv import SetPose
 from m4k_rt import protocol
 
-__all__ = ['CommandStampGate', 'SafetyInterface', 'E_STOP_QOS']
+__all__ = ['CommandStampGate', 'SafetyInterface', 'E_STOP_QOS', 'E_STOP_STATE_QOS']
 
 E_STOP_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+E_STOP_STATE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_STATE_PERIOD_S = 1.0
 _FRESH_NS = 1_000_000_000    # ODOMETRY flags older than this tell nothing about the latch
 
 
@@ -78,11 +91,16 @@ def latch_state(flags: int | None) -> tuple[bool, bool]:
 class SafetyInterface:
     """E-stop topic, reset service and their state, attached to the bridge node."""
 
-    def __init__(self, node: Any, send_cmd: Any, topic: str, reset_timeout: float) -> None:
+    def __init__(self, node: Any, send_cmd: Any, topic: str, reset_timeout: float,
+                 state_topic: str = 'e_stop_state', e_stop_timeout: float = 1.0) -> None:
         """Create the subscription and the service; ``send_cmd(bytes)`` writes to ``cmd``."""
         self.node = node
         self._send = send_cmd
         self.reset_timeout = reset_timeout
+        self.e_stop_timeout = e_stop_timeout
+        self.published_state: bool | None = None
+        self._latch_waiters: list[tuple[bool, Future]] = []
+        self._pose_pending: dict[int, Future] = {}
         self.gate = CommandStampGate()
         self.requested: bool | None = None     # last e_stop value received (None: none yet)
         self.e_stop_messages = 0
@@ -98,6 +116,12 @@ class SafetyInterface:
         self._group = ReentrantCallbackGroup()
         node.create_service(Trigger, '~/reset_odometry', self._on_reset_odometry,
                             callback_group=self._group)
+        node.create_service(SetPose, '~/set_pose', self._on_set_pose,
+                            callback_group=self._group)
+        node.create_service(SetBool, '~/e_stop', self._on_e_stop_service,
+                            callback_group=self._group)
+        self._state_pub = node.create_publisher(Bool, state_topic, E_STOP_STATE_QOS)
+        node.create_timer(_STATE_PERIOD_S, self._publish_state_periodic)
 
     # --- e-stop ---------------------------------------------------------------------------------
 
@@ -107,7 +131,9 @@ class SafetyInterface:
         return data
 
     def _on_e_stop(self, msg: Bool) -> None:
-        engage = bool(msg.data)
+        self._request(bool(msg.data))
+
+    def _request(self, engage: bool) -> None:
         self.e_stop_messages += 1
         if engage != self.requested:
             self.node.get_logger().warning(
@@ -126,7 +152,83 @@ class SafetyInterface:
             if self.requested and links > 0:
                 self._send(self._datagram(protocol.Kind.E_STOP, 1))
 
+    async def _on_e_stop_service(self, request: SetBool.Request,
+                                 response: SetBool.Response) -> SetBool.Response:
+        want = bool(request.data)
+        done = Future()
+        self._latch_waiters.append((want, done))
+        timer = self.node.create_timer(
+            self.e_stop_timeout, lambda: done.done() or done.set_result(False),
+            callback_group=self._group)
+        try:
+            self._request(want)
+            ok = await done
+        finally:
+            timer.cancel()
+            self.node.destroy_timer(timer)
+            self._latch_waiters = [w for w in self._latch_waiters if w[1] is not done]
+        response.success = bool(ok)
+        word = 'engaged' if want else 'released'
+        response.message = ('e-stop {} in the RT actuator'.format(word) if ok else
+                            'the RT actuator did not report the e-stop {} within {} s (is the '
+                            'RT process running?)'.format(word, self.e_stop_timeout))
+        return response
+
+    def on_latch(self, engaged: bool) -> None:
+        """Take the RT latch of a fresh ODOMETRY: answer waiting requests, publish changes."""
+        for want, fut in self._latch_waiters:
+            if want == engaged and not fut.done():
+                fut.set_result(True)
+        if engaged != self.published_state:
+            self.published_state = engaged
+            self._state_pub.publish(Bool(data=engaged))
+
+    def _publish_state_periodic(self) -> None:
+        if self.published_state is not None and self.node.context.ok():
+            self._state_pub.publish(Bool(data=self.published_state))
+
     # --- odometry reset -------------------------------------------------------------------------
+
+    async def _on_set_pose(self, request: SetPose.Request,
+                           response: SetPose.Response) -> SetPose.Response:
+        values = (request.x, request.y, request.yaw)
+        if not all(math.isfinite(v) for v in values):
+            response.success = False
+            response.message = 'x, y and yaw must be finite, got {!r}'.format(values)
+            return response
+        self._reset_id = (self._reset_id + 1) & protocol.SEQ_MASK
+        rid = self._reset_id
+        done = Future()
+        self._pose_pending[rid] = done
+        timer = self.node.create_timer(
+            self.reset_timeout, lambda: done.done() or done.set_result(None),
+            callback_group=self._group)
+        try:
+            self._send(self._datagram(protocol.Kind.SET_POSE, rid, *values))
+            pose = await done
+        finally:
+            timer.cancel()
+            self.node.destroy_timer(timer)
+            self._pose_pending.pop(rid, None)
+        response.success = pose is not None
+        if pose is not None:
+            self.resets_ok += 1
+            response.message = 'odometry pose set to ({:.3f}, {:.3f}, {:.3f}) by the RT ' \
+                'actuator (request {})'.format(*pose, rid)
+        else:
+            self.resets_failed += 1
+            response.message = ('no acknowledgement from the RT actuator within {} s (request '
+                                '{}); the pose may or may not have been set'.format(
+                                    self.reset_timeout, rid))
+        return response
+
+    def on_set_pose_ack(self, ack: protocol.SetPose) -> bool:
+        """Complete the set_pose request of ``ack``; False when none was waiting for it."""
+        fut = self._pose_pending.get(ack.request_id)
+        if fut is None or fut.done():
+            return False
+        fut.set_result((ack.x, ack.y, ack.yaw))
+        return True
 
     async def _on_reset_odometry(self, request: Trigger.Request,
                                  response: Trigger.Response) -> Trigger.Response:

@@ -3,15 +3,22 @@
 What robot_state_publisher and a diff-drive controller would publish for a mobile base, from
 the ODOMETRY datagrams and the robot description (:mod:`m4k_rt.description`):
 
-* ``robot_description`` (std_msgs/String, transient local): the URDF, once;
+* ``robot_description`` (std_msgs/String, transient local): the URDF, once, with
+  ``publish_robot_state`` (robot_state_publisher publishes it otherwise: one publisher);
 * ``joint_states`` (sensor_msgs/JointState): both wheel joints' positions [rad] and velocities
   [rad/s] from the encoders, stamped like ``odom``;
-* ``tf``: odom -> base_link (``publish_tf``; off when an EKF publishes it) and, with
+* ``tf``: odom -> base_footprint (``publish_tf``; off when an EKF publishes it) and, with
   ``publish_robot_state``, the wheel links turned by their joint positions;
 * ``tf_static`` (transient local, as tf2_ros's StaticTransformBroadcaster): every fixed joint of
   the description -- casters, laser, IMU, sonar -- with ``publish_robot_state``. Turn
   ``publish_robot_state`` off when robot_state_publisher runs (``ros2 launch ...
   robot_state_publisher:=true`` does), so no transform has two publishers.
+
+Both go on the absolute ``/tf`` and ``/tf_static`` as tf2_ros's broadcasters do (a
+namespaced bridge must not put odom -> base_footprint on ``/r1/tf`` while robot_state_publisher
+puts the sensor frames on ``/tf_static``: two trees); ``tf_namespaced`` chooses the relative
+names. ``frame_prefix`` is prepended to every frame id (robot_state_publisher's parameter of
+the same name), so two robots can share one tf tree.
 
 tf2_msgs is not on PyPI: on the wheels path the workspace builds a type-identical tf2_msgs
 (``compat/tf2_msgs``, same type hash). Without any tf2_msgs, tf is off with one notice.
@@ -67,17 +74,24 @@ class RobotStatePublisher:
 
     def __init__(self, node: Node, urdf: str, odom_frame: str, base_frame: str,
                  publish_tf: bool, publish_robot_state: bool, topic_joint_states: str,
-                 topic_description: str) -> None:
-        """Parse the description and create the publishers (DescriptionError if unusable)."""
+                 topic_description: str, frame_prefix: str = '',
+                 tf_namespaced: bool = False) -> None:
+        """Parse the description and create the publishers (DescriptionError if unusable).
+
+        ``base_frame``: odometry's child frame (the footprint); frames are given unprefixed.
+        """
         self.node = node
-        self.odom_frame, self.base_frame = odom_frame, base_frame
+        self.prefix = frame_prefix
+        self.set_frames(odom_frame, base_frame)
         self.fixed = description.fixed_joints(urdf)
         self.wheels = description.wheel_joints(urdf)
         self.links = {j.child for j in description.joints(urdf)} | {
             j.parent for j in description.joints(urdf)}
         self.names = [j.name for j in self.wheels]
-        self._desc_pub = node.create_publisher(String, topic_description, LATCHED)
-        self._desc_pub.publish(String(data=urdf))
+        self._desc_pub = None
+        if publish_robot_state:
+            self._desc_pub = node.create_publisher(String, topic_description, LATCHED)
+            self._desc_pub.publish(String(data=urdf))
         self._joint_pub = node.create_publisher(JointState, topic_joint_states, _STATE_QOS)
         self.tf_pub = self.static_pub = None
         if (publish_tf or publish_robot_state) and TFMessage is None:
@@ -87,14 +101,26 @@ class RobotStatePublisher:
             return
         self.publish_tf = publish_tf
         self.publish_robot_state = publish_robot_state
+        tf_topic, static_topic = ('tf', 'tf_static') if tf_namespaced else ('/tf', '/tf_static')
         if publish_tf or publish_robot_state:
-            self.tf_pub = node.create_publisher(TFMessage, 'tf', _TF_QOS)
+            self.tf_pub = node.create_publisher(TFMessage, tf_topic, _TF_QOS)
         if publish_robot_state:
-            self.static_pub = node.create_publisher(TFMessage, 'tf_static', LATCHED)
+            self.static_pub = node.create_publisher(TFMessage, static_topic, LATCHED)
             stamp = node.get_clock().now().nanoseconds
             self.static_pub.publish(TFMessage(transforms=[
-                convert.static_transform(j.parent, j.child, [*j.xyz, *j.rpy], stamp)
+                self._prefixed(convert.static_transform(j.parent, j.child, [*j.xyz, *j.rpy],
+                                                        stamp))
                 for j in self.fixed]))
+
+    def set_frames(self, odom_frame: str, base_frame: str) -> None:
+        """Take new (unprefixed) odom / child frame ids, e.g. after a run-time parameter change."""
+        self.odom_frame, self.base_frame = odom_frame, base_frame
+
+    def _prefixed(self, t: Any) -> Any:
+        if self.prefix:
+            t.header.frame_id = self.prefix + t.header.frame_id
+            t.child_frame_id = self.prefix + t.child_frame_id
+        return t
 
     def on_odometry(self, odom: protocol.Odometry, stamp_ns: int) -> None:
         """Publish joint_states and the tf of one ODOMETRY, stamped like odom."""
@@ -114,4 +140,5 @@ class RobotStatePublisher:
             positions = (odom.left_position, odom.right_position)
             transforms += [joint_transform(j, pos, stamp_ns)
                            for j, pos in zip(self.wheels, positions, strict=True)]
+        transforms = [self._prefixed(t) for t in transforms]
         self.tf_pub.publish(TFMessage(transforms=transforms))

@@ -93,14 +93,14 @@ def test_imu_message_follows_rep_145():
 
 
 def test_imu_with_bad_quaternion_marks_orientation_absent():
-    msg = convert.imu_msg(_imu(convert.IMU_BAD_QUATERNION), 0, 'imu_link', [1] * 3, [1] * 3,
+    msg = convert.imu_msg(_imu(protocol.ImuStatus.BAD_QUATERNION), 0, 'imu_link', [1] * 3, [1] * 3,
                           [1] * 3)
     assert msg.orientation_covariance[0] == -1.0
     assert msg.angular_velocity.x == 0.1  # the rest is still published
 
 
 def test_imu_not_ready_is_not_published():
-    assert convert.imu_msg(_imu(convert.IMU_NOT_READY), 0, 'i', [1] * 3, [1] * 3,
+    assert convert.imu_msg(_imu(protocol.ImuStatus.NOT_READY), 0, 'i', [1] * 3, [1] * 3,
                            [1] * 3) is None
 
 
@@ -146,8 +146,14 @@ def test_sonar_ok_no_echo_and_fault():
     assert ok.field_of_view == pytest.approx(0.26) and ok.max_range == pytest.approx(4.5)
     far = convert.sonar_msg(protocol.Sonar(0.0, protocol.SONAR_NO_ECHO), 0, *args)
     assert math.isinf(far.range) and far.range > 0
+    at_max = convert.sonar_msg(protocol.Sonar(0.0, protocol.SONAR_NO_ECHO), 0, *args,
+                               no_echo='max_range')
+    assert at_max.range == pytest.approx(4.5) == at_max.max_range
+    # Never NaN on /sonar: a fault, a timeout or a non-finite 'ok' range is not published.
     for status in (protocol.SONAR_TIMEOUT, protocol.SONAR_FAULT):
-        assert math.isnan(convert.sonar_msg(protocol.Sonar(0.0, status), 0, *args).range)
+        assert convert.sonar_msg(protocol.Sonar(0.0, status), 0, *args) is None
+    assert convert.sonar_msg(protocol.Sonar(math.nan, protocol.SONAR_OK), 0, *args) is None
+    assert convert.sonar_msg(protocol.Sonar(math.inf, protocol.SONAR_OK), 0, *args) is None
 
 
 def test_velocity_within_limits_passes_unchanged():

@@ -315,20 +315,38 @@ def test_command_is_commanded_then_idle_after_the_timeout():
     assert st.values['forwarded'] == 1
 
 
-def test_rejected_and_clamped_commands_are_counted_and_warn():
+def test_rejected_and_clamped_commands_are_counted_and_warn_within_the_window():
     rig = Rig()
     h = rig.health
-    assert [h.count('cmd_vel_rejected_nonfinite') for _ in range(3)] == [1, 2, 3]
-    h.count('cmd_vel_clamped')
+    assert [h.on_cmd_problem('cmd_vel_rejected_nonfinite', rig.now)
+            for _ in range(3)] == [1, 2, 3]
+    h.on_cmd_problem('cmd_vel_clamped', rig.now)
     h.count('led_rejected_nonfinite')
     h.count('led_forwarded')
     h.on_cmd_vel_forwarded(rig.now)                 # fresh, yet WARN wins
-    st = h.cmd_status(rig.now, 0.5, 6)
-    assert (st.level, st.message) == (protocol.LEVEL_WARN, 'some commands rejected or clamped')
+    st = h.cmd_status(rig.now, 0.5, 6, window_s=10.0)
+    assert (st.level, st.message) == (protocol.LEVEL_WARN,
+                                      'commands rejected or clamped in the last 10 s')
     assert st.values == {'forwarded': 1, 'rejected_nonfinite': 3, 'clamped': 1,
                          'last_cmd_age_s': 0.0, 'dropped_no_rt': 6, 'led_forwarded': 1,
-                         'led_rejected_nonfinite': 1}
+                         'led_rejected_nonfinite': 1, 'type_mismatch': 'none'}
     assert (st.name, st.hardware_id) == ('m4k_bridge: cmd_vel', 'm4k_bridge')
+    # One clamped command does not leave the status WARN for the whole session.
+    rig.advance(9.9)
+    assert h.cmd_status(rig.now, 0.5, 6, window_s=10.0).level == protocol.LEVEL_WARN
+    rig.advance(0.2)
+    st = h.cmd_status(rig.now, 0.5, 6, window_s=10.0)
+    assert st.level == protocol.LEVEL_OK and st.values['clamped'] == 1   # still counted
+
+
+def test_a_cmd_vel_publisher_of_the_other_type_warns():
+    rig = Rig()
+    h = rig.health
+    h.cmd_vel_type_mismatch = ('geometry_msgs/msg/TwistStamped published, '
+                               'geometry_msgs/msg/Twist subscribed')
+    st = h.cmd_status(rig.now, 0.5, 0)
+    assert st.level == protocol.LEVEL_WARN and 'TwistStamped' in st.message
+    assert st.values['type_mismatch'] == h.cmd_vel_type_mismatch
 
 
 def test_sequence_gaps_count_lost_datagrams_per_port():

@@ -61,13 +61,13 @@ class FakeRt:
 
 
 class Harness:
-    def __init__(self, runtime_dir, overrides=()):
+    def __init__(self, runtime_dir, overrides=(), namespace=''):
         self.rt = FakeRt(runtime_dir)
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.bridge = None
-        self.bridge = BridgeNode(context=self.context, parameter_overrides=[
+        self.bridge = BridgeNode(context=self.context, namespace=namespace, parameter_overrides=[
             Parameter('runtime_dir', value=runtime_dir),
             Parameter('diagnostics_period', value=0.2),
             Parameter('rt_status_period', value=0.2), *overrides])
@@ -187,7 +187,7 @@ def test_datagrams_become_odom_imu_scan_and_sonar(harness):
 
     assert harness.spin_until(lambda: odom and imu and scan and sonar, each=feed)
     o = odom[-1]
-    assert (o.header.frame_id, o.child_frame_id) == ('odom', 'base_link')
+    assert (o.header.frame_id, o.child_frame_id) == ('odom', 'base_footprint')
     assert o.pose.pose.position.x == 0.5 and o.twist.twist.linear.x == 0.25
     assert o.pose.covariance[0] == pytest.approx(0.001)
     assert imu[-1].header.frame_id == 'imu_link' and imu[-1].linear_acceleration.z == 9.81
@@ -383,21 +383,190 @@ def test_tf_switches_select_who_publishes_which_transform(m4k_runtime_dir, publi
         assert h.spin_until(h.rt.linked)
         feed = lambda: h.rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0,  # noqa
                                  2.4, 2.5, math.pi, -1.0, 0)
-        assert h.spin_until(lambda: joints and desc and (tf or not (publish_tf or robot_state))
+        assert h.spin_until(lambda: joints and (desc or not robot_state)
+                            and (tf or not (publish_tf or robot_state))
                             and (static or not robot_state), each=feed)
         js = joints[-1]
         assert list(js.name) == ['left_wheel_joint', 'right_wheel_joint']
         assert list(js.position) == [math.pi, -1.0] and list(js.velocity) == [2.4, 2.5]
         pairs = {(t.header.frame_id, t.child_frame_id): t for m in tf for t in m.transforms}
-        assert (('odom', 'base_link') in pairs) == publish_tf
+        assert (('odom', 'base_footprint') in pairs) == publish_tf
         assert (('base_link', 'left_wheel_link') in pairs) == robot_state
         if robot_state:   # half a turn about the axle (y): quaternion (0, 1, 0, 0)
             q = pairs[('base_link', 'left_wheel_link')].transform.rotation
             assert (q.x, q.y, q.z, q.w) == pytest.approx((0.0, 1.0, 0.0, 0.0), abs=1e-9)
             assert {t.child_frame_id for m in static for t in m.transforms} == {
-                'laser', 'imu_link', 'sonar_link', 'front_caster_link', 'rear_caster_link'}
+                'base_link', 'laser', 'imu_link', 'sonar_link', 'front_caster_link',
+                'rear_caster_link'}
+            assert '<robot name="m4k">' in desc[-1].data
         else:
-            assert not h.peer.get_publishers_info_by_topic('tf_static')
-        assert '<robot name="m4k">' in desc[-1].data
+            assert not h.peer.get_publishers_info_by_topic('/tf_static')
+            # robot_state_publisher publishes the description then: one publisher, not two.
+            assert not h.peer.get_publishers_info_by_topic('/robot_description')
     finally:
         h.close()
+
+
+# --- the ROS contract for Nav2 / slam_toolbox / RViz (issue 21) -----------------------------
+
+def _odometry(h, flags=0):
+    return lambda: h.rt.send('cmd', protocol.Kind.ODOMETRY, 0.5, 0.1, 0.2, 0.25, 0.0,
+                             2.4, 2.5, 0.0, 0.0, flags)
+
+
+@pytest.mark.parametrize('tf_namespaced', [False, True])
+def test_tf_and_diagnostics_stay_absolute_under_a_namespace(m4k_runtime_dir, tf_namespaced):
+    h = Harness(m4k_runtime_dir, [Parameter('tf_namespaced', value=tf_namespaced),
+                                  Parameter('frame_prefix', value='r1/')], namespace='r1')
+    try:
+        where = '/r1/' if tf_namespaced else '/'
+        tf = h.collect(TFMessage, where + 'tf', 100)
+        static = h.collect(TFMessage, where + 'tf_static', _LATCHED)
+        diag = h.collect(DiagnosticArray, '/diagnostics')
+        odom = h.collect(Odometry, '/r1/odom')
+        assert h.spin_until(h.rt.linked)
+        assert h.spin_until(lambda: tf and static and diag and odom, each=_odometry(h))
+        other = '/tf' if tf_namespaced else '/r1/tf'
+        assert not h.peer.get_publishers_info_by_topic(other)
+        parents = {t.child_frame_id: t.header.frame_id
+                   for m in static + tf for t in m.transforms}
+        assert parents['r1/base_footprint'] == 'r1/odom'
+        assert parents['r1/base_link'] == 'r1/base_footprint'
+        assert parents['r1/laser'] == 'r1/base_link'
+        o = odom[-1]
+        assert (o.header.frame_id, o.child_frame_id) == ('r1/odom', 'r1/base_footprint')
+    finally:
+        h.close()
+
+
+def test_frames_changed_at_run_time_reach_odom_and_tf(harness):
+    h = harness
+    tf = h.collect(TFMessage, '/tf', 100)
+    odom = h.collect(Odometry, 'odom')
+    res = h.bridge.set_parameters([Parameter('odom_frame', value='world_odom'),
+                                   Parameter('footprint_frame', value='')])
+    assert all(r.successful for r in res)
+    assert h.spin_until(lambda: odom and any(
+        t.header.frame_id == 'world_odom' for m in tf for t in m.transforms), each=_odometry(h))
+    pairs = {(t.header.frame_id, t.child_frame_id) for t in tf[-1].transforms}
+    assert ('world_odom', 'base_link') in pairs
+    assert (odom[-1].header.frame_id, odom[-1].child_frame_id) == ('world_odom', 'base_link')
+
+
+@pytest.mark.parametrize('no_echo', ['positive_infinity', 'max_range'])
+def test_sonar_never_publishes_nan(m4k_runtime_dir, no_echo):
+    h = Harness(m4k_runtime_dir, [Parameter('sonar_no_echo', value=no_echo)])
+    try:
+        sonar = h.collect(Range, 'sonar', qos_profile_sensor_data)
+        assert h.spin_until(h.rt.linked)
+
+        def feed():
+            for status in (protocol.SONAR_TIMEOUT, protocol.SONAR_FAULT, protocol.SONAR_NO_ECHO):
+                h.rt.send('sonar_out', protocol.Kind.SONAR, 0.0, status)
+        assert h.spin_until(lambda: len(sonar) >= 3 and
+                            h.bridge.health.counters['sonar_dropped'] >= 6, each=feed)
+        assert not any(math.isnan(m.range) for m in sonar)
+        want = math.inf if no_echo == 'positive_infinity' else sonar[-1].max_range
+        assert all(m.range == want for m in sonar)
+    finally:
+        h.close()
+
+
+def test_a_cmd_vel_publisher_of_the_other_type_is_reported(harness):
+    h = harness
+    diag = h.collect(DiagnosticArray, '/diagnostics')
+    # Another participant (a laptop's Nav2): one participant cannot hold both types.
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    laptop = rclpy.create_node('laptop', context=ctx)
+    pub = laptop.create_publisher(TwistStamped, 'cmd_vel', 10)
+
+    def cmd_status():
+        for arr in diag[-1:]:
+            for st in arr.status:
+                if st.name == 'm4k_bridge: cmd_vel':
+                    return st
+        return None
+    assert h.spin_until(lambda: cmd_status() is not None
+                        and cmd_status().level == b'\x01', timeout=15.0)
+    st = cmd_status()
+    assert 'geometry_msgs/msg/TwistStamped' in st.message
+    assert 'geometry_msgs/msg/Twist subscribed' in st.message
+    laptop.destroy_publisher(pub)
+    laptop.destroy_node()
+    rclpy.try_shutdown(context=ctx)
+    diag.clear()
+    assert h.spin_until(lambda: cmd_status() is not None
+                        and cmd_status().level == b'\x00', timeout=15.0)
+
+
+def test_enable_stamped_cmd_vel_drives(m4k_runtime_dir):
+    h = Harness(m4k_runtime_dir, [Parameter('enable_stamped_cmd_vel', value=True)])
+    try:
+        assert h.spin_until(h.rt.linked)
+        pub = h.peer.create_publisher(TwistStamped, 'cmd_vel', 10)
+        msg = TwistStamped()
+        msg.twist.linear.x = 0.2
+        got = []
+        assert h.spin_until(lambda: got, each=lambda: (pub.publish(msg),
+                                                       got.extend(h.rt.recv_all('cmd'))))
+        assert got[-1][1].linear_x == pytest.approx(0.2)
+    finally:
+        h.close()
+
+
+def test_e_stop_service_answers_once_the_rt_latch_confirms_and_state_is_latched(harness):
+    from std_msgs.msg import Bool
+    from std_srvs.srv import SetBool
+    h = harness
+    latch = {'engaged': False}
+
+    def rt_side():                    # the RT actuator: latch on E_STOP, report in ODOMETRY
+        for hdr, msg in h.rt.recv_all('cmd'):
+            if hdr.kind == protocol.Kind.E_STOP:
+                latch['engaged'] = bool(msg.engage)
+        _odometry(h, protocol.ODOM_E_STOP if latch['engaged'] else 0)()
+    client = h.peer.create_client(SetBool, '/m4k_bridge/e_stop')
+    assert h.spin_until(client.service_is_ready)
+    fut = client.call_async(SetBool.Request(data=True))
+    assert h.spin_until(fut.done, each=rt_side)
+    assert fut.result().success and latch['engaged']
+    # A late subscriber (transient local) gets the state at once.
+    state = h.collect(Bool, 'e_stop_state', _LATCHED)
+    assert h.spin_until(lambda: state, each=rt_side)
+    assert state[-1].data is True
+    fut = client.call_async(SetBool.Request(data=False))
+    assert h.spin_until(fut.done, each=rt_side)
+    assert fut.result().success and h.spin_until(lambda: state[-1].data is False,
+                                                 each=rt_side)
+    # No RT answer: success=false after e_stop_timeout, never a hang.
+    fut = client.call_async(SetBool.Request(data=True))
+    assert h.spin_until(fut.done, timeout=15.0, each=_odometry(h, 0))
+    assert not fut.result().success and 'did not report' in fut.result().message
+
+
+def test_set_pose_is_answered_with_the_pose_the_rt_side_acknowledges(harness):
+    from m4k_msgs.srv import SetPose
+    h = harness
+
+    def rt_side():
+        for hdr, msg in h.rt.recv_all('cmd'):
+            if hdr.kind == protocol.Kind.SET_POSE:
+                h.rt.send('cmd', protocol.Kind.SET_POSE, msg.request_id, msg.x, msg.y, msg.yaw)
+    client = h.peer.create_client(SetPose, '/m4k_bridge/set_pose')
+    assert h.spin_until(client.service_is_ready)
+    fut = client.call_async(SetPose.Request(x=1.5, y=-2.0, yaw=0.5))
+    assert h.spin_until(fut.done, each=rt_side)
+    assert fut.result().success and '(1.500, -2.000, 0.500)' in fut.result().message
+    fut = client.call_async(SetPose.Request(x=math.nan, y=0.0, yaw=0.0))
+    assert h.spin_until(fut.done)
+    assert not fut.result().success and 'finite' in fut.result().message
+
+
+def test_applied_velocity_becomes_cmd_vel_out(harness):
+    h = harness
+    out = h.collect(TwistStamped, 'cmd_vel_out')
+    assert h.spin_until(lambda: out, each=lambda: h.rt.send(
+        'cmd', protocol.Kind.APPLIED_VELOCITY, 0.125, -0.25))
+    assert (out[-1].twist.linear.x, out[-1].twist.angular.z) == (0.125, -0.25)
+    assert out[-1].header.frame_id == 'base_footprint'

@@ -18,11 +18,14 @@ devices (give ``config:=`` an overlay with the real backends) -- so a real robot
 a simulated sensor by mistake.
 
 ``robot_state_publisher:=true`` starts robot_state_publisher (a full ROS install has it) with
-the same URDF, and turns the bridge's own static transforms off (``publish_robot_state``), so
-no transform has two publishers. ``foxglove:=true`` starts the live view (``ros2 run m4k_bridge
-foxglove``: the Foxglove WebSocket protocol on port 8765, on ``foxglove_address``, localhost by
-default since the protocol has no authentication). For supervision with restarts and the live
-status line use ``bringup`` instead.
+the same URDF, and turns the bridge's own static transforms and robot_description off
+(``publish_robot_state``), so no transform and no description has two publishers. With
+``namespace:=r1`` both the bridge (odom -> base_footprint, wheels) and robot_state_publisher
+(the fixed joints) publish on the absolute /tf and /tf_static: one tree from odom to every
+sensor. ``foxglove:=true`` starts the live view (``ros2 run m4k_bridge foxglove``: the Foxglove
+WebSocket protocol on port 8765, on ``foxglove_address``, localhost by default since the
+protocol has no authentication). For supervision with restarts and the live status line use
+``bringup`` instead.
 """
 
 import os
@@ -116,9 +119,13 @@ def _nodes(context, *args, **kwargs):
             raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
                                'installed (a full ROS install has it; without it the bridge '
                                'publishes the transforms itself)')
+        # robot_state_publisher publishes /tf and /tf_static (absolute, tf2_ros's broadcasters)
+        # and robot_description in the namespace; the bridge leaves both to it.
+        rsp_params = {'robot_description': bridge_values['robot_description']}
+        if bridge_values.get('frame_prefix'):
+            rsp_params['frame_prefix'] = bridge_values['frame_prefix']
         actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
-                            namespace=namespace, output='screen', parameters=[
-                                {'robot_description': bridge_values['robot_description']}]))
+                            namespace=namespace, output='screen', parameters=[rsp_params]))
     if sim_node is None:
         return actions
     ready = _once_ready(actions)

@@ -133,7 +133,8 @@ def bridge_overlay(doc: Mapping[str, Any] | None, runtime_dir: str) -> dict[str,
             'ros__parameters': bridge_params.nest(section)}})
         bridge_params.check_not_derived(section)
     base = section.get('base_frame', bridge_params.spec('base_frame').default)
-    section.update(bridge_params.derived_values(doc or {}, base))
+    footprint = section.get('footprint_frame', bridge_params.spec('footprint_frame').default)
+    section.update(bridge_params.derived_values(doc or {}, base, footprint))
     section['runtime_dir'] = runtime_dir
     return {bridge_params.NODE_NAME: {'ros__parameters': bridge_params.nest(section)}}
 
@@ -389,22 +390,27 @@ def foxglove_spec(address: str = '127.0.0.1', port: int = 8765) -> ChildSpec:
 
 def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
                 runtime_dir: str, sim: bool = True, foxglove: str | None = None,
-                foxglove_port: int = 8765) -> list[ChildSpec]:
+                foxglove_port: int = 8765, namespace: str = '') -> list[ChildSpec]:
     """Return the children with their arguments, in start order (sim_robot first if ``sim``).
 
     ``foxglove``: the address to serve the live view on (None: no live view), on
-    ``foxglove_port``; it starts last and so stops first.
+    ``foxglove_port``; it starts last and so stops first. ``namespace``: ROS namespace of the
+    bridge and the live view (their topics; /tf, /tf_static and /diagnostics stay absolute).
     """
+    ns_args: tuple[str, ...] = ('-r', '__ns:=/' + namespace.strip('/')) if namespace else ()
     rt_args: tuple[str, ...] = ('--config', overlay) if overlay else ()
     host_args: tuple[str, ...] = ('--runtime-dir', runtime_dir)
     if overlay:
         host_args += ('--overlay', overlay)
-    live = [foxglove_spec(foxglove, foxglove_port)] if foxglove else []
+    live = []
+    if foxglove:
+        spec = foxglove_spec(foxglove, foxglove_port)
+        live = [dataclasses.replace(spec, args=spec.args + ns_args)]
     return [sim_robot_spec(runtime_dir, overlay)] * sim + [
         ChildSpec('rt_core', 'm4k_rt', 'rt_core', 'm4k_rt.rt_core', rt_args),
         ChildSpec('driver_host', 'm4k_drivers', 'driver_host', 'm4k_drivers.host', host_args),
         ChildSpec('bridge', 'm4k_bridge', 'bridge', 'm4k_bridge.node',
-                  ('--ros-args', '--params-file', bridge_yaml, '--params-file',
+                  ('--ros-args', *ns_args, '--params-file', bridge_yaml, '--params-file',
                    bridge_params_file)),
     ] + live
 
@@ -447,7 +453,7 @@ def format_status(rt: Any, task_levels: Mapping[str, int], restarts: int, uptime
 class StatusSource:
     """Subscribe rt_status and diagnostics (rclpy) for the status line."""
 
-    def __init__(self) -> None:
+    def __init__(self, namespace: str = '') -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
@@ -458,11 +464,13 @@ class StatusSource:
         self.context = rclpy.context.Context()
         rclpy.init(args=[], context=self.context,
                    signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node('m4k_bringup', context=self.context)
+        self.node = rclpy.create_node('m4k_bringup', context=self.context,
+                                      namespace='/' + namespace.strip('/'))
         self.rt: Any = None
         self.levels: dict[str, int] = {}
         self.node.create_subscription(RtStatus, 'rt_status', self._on_rt, 10)
-        self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
+        self.node.create_subscription(DiagnosticArray, bridge_params.spec(
+            'topics.diagnostics').default, self._on_diag, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
@@ -501,6 +509,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--python-m', action='store_true', help='run children with python -m '
                     '(source tree) instead of the installed executables')
     ap.add_argument('--no-status', action='store_true', help='do not subscribe rt_status')
+    ap.add_argument('--namespace', default='', metavar='NS', help='ROS namespace of the '
+                    'bridge (as ros2 launch ... namespace:=NS); /tf, /tf_static and '
+                    '/diagnostics stay absolute')
     ap.add_argument('--foxglove', action='store_true', help='serve the live view to Foxglove '
                     '(WebSocket protocol, port 8765, localhost only: use an SSH tunnel)')
     ap.add_argument('--foxglove-address', metavar='ADDR', default='127.0.0.1',
@@ -570,13 +581,13 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
     children = [Child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,
                                      args.foxglove_address if args.foxglove else None,
-                                     args.foxglove_port)]
+                                     args.foxglove_port, args.namespace)]
     sup = Supervisor(children, console, args.max_restarts)
     status = None
     try:
         if not args.no_status and not stop.stopping:
             try:
-                status = StatusSource()
+                status = StatusSource(args.namespace)
             except Exception as exc:  # noqa: BLE001 -- the stack runs without a status line
                 console.line('bringup: no status line ({}: {})'.format(type(exc).__name__, exc))
         console.line('bringup: runtime dir {}; starting {}'.format(

@@ -392,3 +392,36 @@ def test_real_motor_bus_configures():
     h.activate()
     assert h.read().status == Status.OK
     h.shutdown()
+
+
+def test_a_reading_returned_late_does_not_make_the_next_honest_step_a_jump():
+    # The driver host is preempted right after a transfer (a busy machine): that reading's
+    # clock is read 8 ms late. The wheel did not move faster for it, so the next reading one
+    # period after the real transfer is an honest step, not an encoder jump.
+    h, world, clock = make_sim()
+    h.configure()
+    h.activate()
+    period = 10_000_000
+    for _ in range(50):                        # 0.5 s at full forward: the wheels at speed
+        clock.t += period
+        h.write(WheelCommand(1023, 1023, 1))
+        h.read()
+    left = h.bus.encoders[LEFT]
+    transfer = left.transfer
+
+    def preempted_after(data):
+        out = transfer(data)
+        clock.t += 8_000_000
+        return out
+
+    left.transfer = preempted_after
+    clock.t += period
+    h.write(WheelCommand(1023, 1023, 1))
+    assert not h.read().value.status & EncoderStatus.LEFT_JUMP
+    left.transfer = transfer
+    clock.t += period - 8_000_000              # one period after the late reading's transfer
+    h.write(WheelCommand(1023, 1023, 1))
+    r = h.read()
+    assert not r.value.status & (EncoderStatus.LEFT_JUMP | EncoderStatus.RIGHT_JUMP), r
+    assert h.unwrap[LEFT].rejected == 0
+    h.shutdown()

@@ -10,7 +10,10 @@ One source: the ``robot:`` section of the layered configuration (``config/robot.
 * :func:`mount_2d` / :func:`fill_sim_mounts` -- the (x, y, yaw) mounts the simulated laser and
   sonar see the world from (``devices.<lrf|sonar>.mount`` when the device section has none).
 
-Frames follow REP-103/105: ``base_link`` on the wheel axle midway between the wheels.
+Frames follow REP-103/105: ``base_link`` on the wheel axle midway between the wheels, and
+(as TurtleBot3 and Kobuki do) ``base_footprint`` its projection on the ground, the root of the
+description and the child frame of odometry: joint ``base_joint`` (fixed) lifts ``base_link``
+by the wheel radius above it. A model with ``footprint_frame=''`` keeps ``base_link`` as root.
 """
 
 from __future__ import annotations
@@ -65,6 +68,7 @@ class RobotModel:
     caster_x: float
     sensors: Mapping[str, Mount]
     base_frame: str = 'base_link'
+    footprint_frame: str = 'base_footprint'   # '' : no footprint link, base_frame is the root
 
 
 class Joint(NamedTuple):
@@ -99,10 +103,12 @@ def _mount(m: Any, path: str) -> Mount:
     return Mount(frame, (p[0], p[1], p[2]), (p[3], p[4], p[5]))
 
 
-def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
+def model(doc: Mapping[str, Any], base_frame: str = 'base_link',
+          footprint_frame: str = 'base_footprint') -> RobotModel:
     """Return the robot model of a layered configuration document (``robot:`` + ``control:``).
 
     The ``robot`` section is checked against :data:`m4k_rt.schema.ROBOT` (unknown keys too).
+    ``footprint_frame`` ('' for none) is the ground projection of ``base_frame``.
     """
     robot = _mapping(doc.get('robot'), 'robot')
     control = _mapping(doc.get('control') or {}, 'control')
@@ -111,10 +117,12 @@ def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
     if missing:
         raise DescriptionError('robot.sensors', 'missing {}'.format(', '.join(missing)))
     mounts = {s: _mount(sensors[s], 'robot.sensors.' + s) for s in SENSORS}
-    frames = [m.frame for m in mounts.values()] + [base_frame]
+    frames = [m.frame for m in mounts.values()] + [base_frame] + [footprint_frame] * bool(
+        footprint_frame)
     if len(set(frames)) != len(frames):
         raise DescriptionError('robot.sensors', 'frame ids must differ from each other and from '
-                               '{!r}, got {!r}'.format(base_frame, frames[:-1]))
+                               '{!r}, got {!r}'.format(
+                                   [base_frame, footprint_frame], frames[:3]))
     v = schema.validate_tree(schema.ROBOT, robot, 'robot', _error)
     wheel = {k: CONTROL[k].validate('control.' + k, control.get(k, CONTROL[k].default), _error)
              for k in ('wheel_radius', 'track_width')}
@@ -124,7 +132,7 @@ def model(doc: Mapping[str, Any], base_frame: str = 'base_link') -> RobotModel:
         wheel_radius=wheel['wheel_radius'], track_width=wheel['track_width'],
         wheel_width=v['wheel_width'], wheel_mass=v['wheel_mass'],
         caster_radius=v['caster_radius'], caster_x=v['caster_x'], sensors=mounts,
-        base_frame=base_frame)
+        base_frame=base_frame, footprint_frame=footprint_frame)
     if m.caster_radius >= m.wheel_radius:
         raise DescriptionError('robot.caster_radius', 'must be smaller than control.wheel_radius '
                                '({}), got {}'.format(m.wheel_radius, m.caster_radius))
@@ -209,7 +217,13 @@ def _joint(robot: ET.Element, name: str, kind: str, parent: str, child: str,
 def urdf(m: RobotModel) -> str:
     """Return the URDF (XML text) of the robot model."""
     robot = ET.Element('robot', name=m.name)
+    if m.footprint_frame:
+        # First, so it is the root: the ground point under the axle centre (no geometry).
+        ET.SubElement(robot, 'link', name=m.footprint_frame)
     base = ET.SubElement(robot, 'link', name=m.base_frame)
+    if m.footprint_frame:
+        _joint(robot, 'base_joint', 'fixed', m.footprint_frame, m.base_frame,
+               (0.0, 0.0, m.wheel_radius))
     body_z = m.bottom + 0.5 * m.height
     box = ('box', {'size': _vec((m.length, m.width, m.height))})
     _shape(base, 'visual', box, (0.0, 0.0, body_z))

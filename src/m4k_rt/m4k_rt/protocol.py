@@ -209,6 +209,8 @@ class Kind(IntEnum):
     PORT_STATS = 13
     E_STOP = 14
     ODOM_RESET = 15
+    APPLIED_VELOCITY = 16
+    SET_POSE = 17
     # Sent by the RT monitor on the `stat` port only (docs/internals.md); numbered apart from
     # the kinds above since they were introduced as an extension.
     FORBIDDEN_SITE = 64
@@ -412,6 +414,25 @@ class OdomReset(NamedTuple):
     request_id: int
 
 
+class AppliedVelocity(NamedTuple):
+    """The body velocity the RT actuator applies this cycle (m/s, rad/s).
+
+    The command after the limiter, the collision guard, the e-stop ramp and the timeout.
+    """
+
+    linear_x: float
+    angular_z: float
+
+
+class SetPose(NamedTuple):
+    """Odometry pose set: the request (NRT -> RT) and its acknowledgement carry one id."""
+
+    request_id: int
+    x: float
+    y: float
+    yaw: float
+
+
 class ForbiddenSite(NamedTuple):
     """One call site of a task's forbidden calls (``event`` is a name of EVENT_CODES)."""
 
@@ -492,6 +513,8 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
           string=LABEL_SIZE),
     _spec(Kind.E_STOP, 'B', EStop, ranges=((0, 0, 1),)),
     _spec(Kind.ODOM_RESET, 'I', OdomReset),
+    _spec(Kind.APPLIED_VELOCITY, 'dd', AppliedVelocity, (0, 2)),
+    _spec(Kind.SET_POSE, 'Iddd', SetPose, (1, 4)),
     _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
           ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,
           texts=(6, 7)),

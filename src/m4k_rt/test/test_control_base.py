@@ -4,10 +4,6 @@ import pytest
 
 from m4k_rt.control.base import (
     BaseController,
-    FLAG_BRAKING,
-    FLAG_CLAMPED,
-    FLAG_GUARD,
-    FLAG_MOTOR_STALE,
     MODE_BRAKING,
     MODE_DRIVING,
     MODE_FAULT,
@@ -16,6 +12,7 @@ from m4k_rt.control.base import (
 )
 from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
+from m4k_rt.protocol import ODOM_BRAKING, ODOM_CLAMPED, ODOM_GUARD, ODOM_MOTOR_STALE
 
 MS = 1_000_000
 PERIOD_NS = 10 * MS
@@ -63,7 +60,7 @@ def test_starts_motor_stale_until_encoders_arrive():
     ctl, _ = make()
     ctl.command(0.25, 0.0, 5 * MS)
     ctl.step(10 * MS)
-    assert ctl.flags & FLAG_MOTOR_STALE
+    assert ctl.flags & ODOM_MOTOR_STALE
     assert ctl.mode == MODE_FAULT
     assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 0)
 
@@ -89,9 +86,9 @@ def test_accel_ramp_is_flagged_clamped_and_steady_state_is_not():
     plant = Plant(p.full_scale_wheel_speed)
     t = drive(ctl, plant, 1, 0)
     t = drive(ctl, plant, 10, t, cmd=(0.25, 0.0))
-    assert ctl.flags & FLAG_CLAMPED
+    assert ctl.flags & ODOM_CLAMPED
     drive(ctl, plant, 100, t, cmd=(0.25, 0.0))
-    assert not ctl.flags & FLAG_CLAMPED
+    assert not ctl.flags & ODOM_CLAMPED
 
 
 def test_stale_command_brakes_at_the_deceleration_limit():
@@ -103,10 +100,10 @@ def test_stale_command_brakes_at_the_deceleration_limit():
     # 0.5 s timeout: cycles at +10..+500 ms are still fresh
     t = drive(ctl, plant, 50, t)
     assert t - last_cmd == 500 * MS
-    assert not ctl.flags & FLAG_BRAKING
+    assert not ctl.flags & ODOM_BRAKING
     assert ctl.v == pytest.approx(0.25)
     t = drive(ctl, plant, 1, t)
-    assert ctl.flags & FLAG_BRAKING
+    assert ctl.flags & ODOM_BRAKING
     assert ctl.mode == MODE_BRAKING
     assert ctl.v == pytest.approx(0.25 - 0.0037)
     # 0.25 / 0.37 -> zero after 68 cycles of braking
@@ -114,11 +111,11 @@ def test_stale_command_brakes_at_the_deceleration_limit():
     assert ctl.v == pytest.approx(0.0, abs=1e-9)
     t = drive(ctl, plant, 30, t)
     assert ctl.mode == MODE_IDLE
-    assert ctl.flags & FLAG_BRAKING
+    assert ctl.flags & ODOM_BRAKING
     assert (ctl.left_code, ctl.right_code) == (512, 512)
     # a fresh command clears the brake
     drive(ctl, plant, 1, t, cmd=(0.1, 0.0))
-    assert not ctl.flags & FLAG_BRAKING
+    assert not ctl.flags & ODOM_BRAKING
 
 
 def test_zero_timeout_disables_the_brake():
@@ -128,7 +125,7 @@ def test_zero_timeout_disables_the_brake():
     t = drive(ctl, plant, 1, t, cmd=(0.1, 0.0))
     drive(ctl, plant, 300, t)
     assert ctl.v == pytest.approx(0.1)
-    assert not ctl.flags & FLAG_BRAKING
+    assert not ctl.flags & ODOM_BRAKING
 
 
 def test_guard_stop_limits_forward_within_the_same_cycle():
@@ -139,7 +136,7 @@ def test_guard_stop_limits_forward_within_the_same_cycle():
     assert ctl.v == pytest.approx(0.25)
     t = drive(ctl, plant, 1, t, cmd=(0.25, 0.0), cap=0.0, guard_active=True)
     assert ctl.v == 0.0
-    assert ctl.flags & FLAG_GUARD
+    assert ctl.flags & ODOM_GUARD
     assert ctl.mode == MODE_OBSTACLE
     # zero setpoints: zero armature voltage (the amplifier brakes), never forward
     assert (ctl.left_code, ctl.right_code) == (512, 512)
@@ -165,7 +162,7 @@ def test_guard_slow_cap_ramps_with_the_limiter():
     t = drive(ctl, plant, 100, t, cmd=(0.25, 0.0))
     drive(ctl, plant, 1, t, cmd=(0.25, 0.0), cap=0.1)
     assert ctl.v == pytest.approx(0.25 - 0.0037)   # decelerating toward the cap, not a jump
-    assert ctl.flags & FLAG_GUARD
+    assert ctl.flags & ODOM_GUARD
 
 
 def test_motor_lost_outputs_stale_then_hold_zero_until_fresh_command():
@@ -178,13 +175,13 @@ def test_motor_lost_outputs_stale_then_hold_zero_until_fresh_command():
         t += PERIOD_NS
         ctl.command(0.25, 0.0, t)
         ctl.step(t)
-    assert ctl.flags & FLAG_MOTOR_STALE
+    assert ctl.flags & ODOM_MOTOR_STALE
     assert ctl.mode == MODE_FAULT
     assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 0)
     plant.speed = [0.0, 0.0]
     # encoders return; the command stored from before the recovery must not restart motion
     t = drive(ctl, plant, 20, t)
-    assert not ctl.flags & FLAG_MOTOR_STALE
+    assert not ctl.flags & ODOM_MOTOR_STALE
     assert ctl.hold_zero
     assert ctl.v == 0.0
     assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 1)

@@ -7,9 +7,10 @@ import pytest
 from test_control_base import drive, make, Plant
 
 from m4k_rt import protocol as p
-from m4k_rt.control.base import FLAG_E_STOP, FLAG_HOLD, MODE_E_STOP, MODE_FAULT
+from m4k_rt.control.base import MODE_E_STOP, MODE_FAULT
 from m4k_rt.control.estop import EStopLatch, ramp_to_zero
 from m4k_rt.control.params import control_params, ControlConfigError
+from m4k_rt.protocol import ODOM_E_STOP, ODOM_HOLD
 from m4k_rt.tasks.actuator import ActuatorBody
 from m4k_rt.tasks.state import RobotState
 
@@ -86,7 +87,7 @@ def test_e_stop_ramps_down_at_its_deceleration_from_the_first_cycle():
     t = drive(ctl, plant, 1, t)
     assert ctl.v == pytest.approx(0.25 - 1.0 * 0.01)             # this cycle, at 1 m/s^2
     assert ctl.w == pytest.approx(0.3 - params.angular.max_acceleration * 0.01)
-    assert ctl.flags & FLAG_E_STOP and ctl.mode == MODE_E_STOP
+    assert ctl.flags & ODOM_E_STOP and ctl.mode == MODE_E_STOP
     # commands during the latch are ignored: 0.25 m/s at 1 m/s^2 is 25 cycles
     t = drive(ctl, plant, 24, t, cmd=(0.25, 0.3), cmd_every=1)
     assert ctl.v == 0.0 and ctl.w == 0.0
@@ -104,10 +105,10 @@ def test_release_holds_until_a_newer_command():
     t = drive(ctl, plant, 100, t)
     ctl.e_stop(False)
     t = drive(ctl, plant, 20, t)          # the last command (0.25 m/s) is from before: held
-    assert ctl.v == 0.0 and ctl.flags & FLAG_HOLD and not ctl.flags & FLAG_E_STOP
+    assert ctl.v == 0.0 and ctl.flags & ODOM_HOLD and not ctl.flags & ODOM_E_STOP
     assert ctl.mode != MODE_E_STOP
     drive(ctl, plant, 5, t, cmd=(0.25, 0.0), cmd_every=1)
-    assert ctl.v > 0.0 and not ctl.flags & (FLAG_HOLD | FLAG_E_STOP)
+    assert ctl.v > 0.0 and not ctl.flags & (ODOM_HOLD | ODOM_E_STOP)
 
 
 def test_latch_survives_motor_stale_and_is_still_flagged():
@@ -117,7 +118,7 @@ def test_latch_survives_motor_stale_and_is_still_flagged():
     ctl.e_stop(True)
     t += 500 * MS                         # no encoders: motor stale
     ctl.step(t)
-    assert ctl.mode == MODE_FAULT and ctl.flags & FLAG_E_STOP
+    assert ctl.mode == MODE_FAULT and ctl.flags & ODOM_E_STOP
     t = drive(ctl, plant, 30, t, cmd=(0.25, 0.0), cmd_every=1)
     assert ctl.v == 0.0 and ctl.mode == MODE_E_STOP
 
@@ -190,3 +191,39 @@ def test_odom_reset_is_acknowledged_with_its_id_and_the_pose_is_zero(rig):
     assert kinds[0] == p.Kind.ODOM_RESET and got[0][1] == p.OdomReset(77)
     odom = [m for h, m in got if h.kind == p.Kind.ODOMETRY][0]
     assert odom.x < 0.02                   # at most five cycles of motion since the reset
+
+
+def test_set_pose_is_acknowledged_with_the_pose_as_set(rig):
+    body, motor = _build(rig)
+    t = _cycle(rig, body, motor, PERIOD)
+    rig.read_all('cmd')
+    rig.write('cmd', p.Kind.SET_POSE, 9, 1.5, -2.0, 7.0)      # yaw wraps into (-pi, pi]
+    t = _cycle(rig, body, motor, t)
+    got = rig.read_all('cmd')
+    assert got[0][0].kind == p.Kind.SET_POSE
+    ack = got[0][1]
+    assert (ack.request_id, ack.x, ack.y) == (9, 1.5, -2.0)
+    assert ack.yaw == pytest.approx(7.0 - 2 * math.pi)
+    for _ in range(6):                       # ODOMETRY goes out every odom_every_n cycles
+        t = _cycle(rig, body, motor, t)
+    odom = [m for h, m in got + rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY][-1]
+    assert (odom.x, odom.y) == pytest.approx((1.5, -2.0), abs=1e-6)
+
+
+def test_applied_velocity_is_what_the_actuator_drives_after_limits_and_e_stop(rig):
+    body, motor = _build(rig)
+    t = _cycle(rig, body, motor, PERIOD)
+    for _ in range(10):                      # 5 m/s asked: the limiter ramps at 0.37 m/s^2
+        rig.write('cmd', p.Kind.VELOCITY_CMD, 5.0, 0.0)
+        t = _cycle(rig, body, motor, t)
+    applied = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.APPLIED_VELOCITY]
+    assert applied and all(0.0 < a.linear_x <= 0.37 * 0.01 * 10 + 1e-9 for a in applied[1:])
+    # sent with each ODOMETRY: the ramp's value of that cycle, rising, never the 5 m/s asked
+    assert [a.linear_x for a in applied] == sorted(a.linear_x for a in applied)
+    assert 0.0 < applied[-1].linear_x <= body.ctl.v
+    rig.write('cmd', p.Kind.E_STOP, 1)
+    for _ in range(20):
+        rig.write('cmd', p.Kind.VELOCITY_CMD, 5.0, 0.0)
+        t = _cycle(rig, body, motor, t)
+    applied = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.APPLIED_VELOCITY]
+    assert applied[-1] == p.AppliedVelocity(0.0, 0.0)   # the latch, whatever is commanded

@@ -15,7 +15,7 @@ def doc():
 
 def test_urdf_parses_with_the_ros_urdf_parser_and_matches_table_2(doc):
     robot = URDF.from_xml_string(description.urdf(description.model(doc)).encode())
-    assert robot.get_root() == 'base_link'
+    assert robot.get_root() == 'base_footprint'
     links = {link.name: link for link in robot.links}
     body = links['base_link'].visual.geometry.size
     assert body == pytest.approx([0.45, 0.28, 0.20])            # paper Table 2
@@ -34,6 +34,22 @@ def test_urdf_parses_with_the_ros_urdf_parser_and_matches_table_2(doc):
     for j in casters:  # a caster touches the ground plane the wheels stand on
         r = links[j.child].collision.geometry.radius
         assert j.origin.xyz[2] - r == pytest.approx(-doc['control']['wheel_radius'])
+
+
+def test_base_footprint_is_the_ground_point_under_base_link(doc):
+    # TurtleBot3 / Kobuki layout: base_footprint (root, on the ground) -> base_link (axle).
+    robot = URDF.from_xml_string(description.urdf(description.model(doc)).encode())
+    base = {j.name: j for j in robot.joints}['base_joint']
+    assert (base.type, base.parent, base.child) == ('fixed', 'base_footprint', 'base_link')
+    assert base.origin.xyz == pytest.approx([0.0, 0.0, doc['control']['wheel_radius']])
+    # The lowest point of a wheel is on the footprint's plane (z = 0 in base_footprint).
+    r = doc['control']['wheel_radius']
+    assert base.origin.xyz[2] - r == pytest.approx(0.0)
+    old = URDF.from_xml_string(description.urdf(description.model(doc, 'base_link', ''))
+                               .encode())
+    assert old.get_root() == 'base_link' and 'base_joint' not in {j.name for j in old.joints}
+    with pytest.raises(description.DescriptionError):
+        description.model(doc, 'base_link', 'base_link')
 
 
 def test_sensor_links_sit_at_the_configured_mounts(doc):

@@ -11,11 +11,11 @@ effort), and its messages are stored as received: serialized CDR, no decoding an
 The file follows the MCAP ``ros2`` profile as rosbag2 (Jazzy) writes it: profile ``ros2``,
 schemas ``ros2msg`` with the nested definitions (:mod:`m4k_bridge.bag.msgdef`), channels ``cdr``
 with the ``offered_qos_profiles`` and ``topic_type_hash`` metadata, zstd chunks and a summary.
-It goes to ``DIR/<DIR name>_0.mcap`` (DIR defaults to ``m4k_<UTC time>``); ``ros2 bag info``
-and ``ros2 bag play`` take the file, and ``ros2 bag reindex DIR`` adds the ``metadata.yaml``
-that ``ros2 bag`` wants for a directory. SIGINT / SIGTERM (or ``--duration``) end the
-recording: the file is finished (summary and index written) before the exit. Exit codes: 0
-done, 1 nothing could be written, 2 bad arguments.
+It goes to ``DIR/<DIR name>_0.mcap`` (DIR defaults to ``m4k_<UTC time>``), and on finish
+``DIR/metadata.yaml`` (rosbag2 format 9, :mod:`m4k_bridge.bag.metadata`): the directory is a
+bag that ``ros2 bag info DIR`` and ``ros2 bag play DIR`` take as it is. SIGINT / SIGTERM
+(or ``--duration``) end the recording: the file is finished (summary and index written)
+before the exit. Exit codes: 0 done, 1 nothing could be written, 2 bad arguments.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from m4k_bridge import params as bridge_params
+from m4k_bridge.bag.metadata import metadata_yaml, qos_entries, TopicRecord
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError, split_type, type_hash
 
 __all__ = ['DEFAULT_TOPICS', 'Recorder', 'main', 'qos_yaml']
@@ -43,7 +44,7 @@ __all__ = ['DEFAULT_TOPICS', 'Recorder', 'main', 'qos_yaml']
 # Everything the m4k stack publishes or takes (relative names: the recorder's namespace applies).
 DEFAULT_TOPICS = tuple(bridge_params.spec('topics.' + role).default
                        for role in bridge_params.TOPIC_ROLES) + (
-    'tf', 'tf_static', 'joint_states', 'robot_description', 'planner_state')
+    '/tf', '/tf_static', 'joint_states', 'robot_description', 'planner_state')
 _GRAPH_PERIOD_S = 0.5
 _DEPTH = 100
 
@@ -101,6 +102,8 @@ class Recorder:
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self.counts: dict[str, int] = {}
+        self.records: dict[str, TopicRecord] = {}
+        self.first_ns = self.last_ns = 0
         self.skipped: dict[str, str] = {}
         self._subs: list[Any] = []
         self._finished = False
@@ -140,6 +143,8 @@ class Recorder:
                       'topic_type_hash': digest if digest.startswith('RIHS') else ''})
         self._channels[topic] = channel_id
         self.counts[topic] = 0
+        self.records[topic] = TopicRecord(topic, type_name, digest if digest.startswith('RIHS')
+                                          else '', qos_entries(profiles))
         self._subs.append(self.node.create_subscription(
             msg_type, topic, lambda data, t=topic: self._write(t, data),
             _subscription_qos(profiles), raw=True))
@@ -153,6 +158,8 @@ class Recorder:
         self._writer.add_message(channel_id=self._channels[topic], log_time=now, data=data,
                                  publish_time=now, sequence=seq)
         self.counts[topic] = seq + 1
+        self.first_ns = self.first_ns or now
+        self.last_ns = now
 
     def finish(self) -> None:
         """Write the summary and close the file (idempotent)."""
@@ -162,6 +169,12 @@ class Recorder:
         self._timer.cancel()
         self._writer.finish()
         self._file.close()
+        for topic, rec in self.records.items():
+            rec.count = self.counts[topic]
+        with open(os.path.join(os.path.dirname(self.path) or '.', 'metadata.yaml'), 'w',
+                  encoding='utf-8') as f:
+            f.write(metadata_yaml(os.path.basename(self.path), list(self.records.values()),
+                                  self.first_ns, self.last_ns))
 
 
 def _parser() -> argparse.ArgumentParser:

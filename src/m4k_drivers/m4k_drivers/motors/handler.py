@@ -127,13 +127,14 @@ class MotorHandler(DeviceHandler):
         status = 0
         t_sum = 0
         for side, port in enumerate(self.bus.encoders):
+            t0 = self.clock()
             data = port.transfer(bytes(p.ENC_READ_LEN))
             t = self.clock()
             t_sum += t
             try:
                 frame = p.decode_encoder(data, self.lead_bits)
                 raw = self._wheel(side, frame)
-                self.unwrap[side].update(raw, t)
+                self.unwrap[side].update(raw, t, t0)
                 self.last_raw[side] = raw
             except p.EncoderJumpError as exc:
                 self.record_fault(exc)

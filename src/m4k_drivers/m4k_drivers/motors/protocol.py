@@ -268,10 +268,19 @@ class Unwrapper:
         """Return the largest accepted step in counts after ``dt_s`` seconds."""
         return min(self.counts // 2 - 1, int(self.max_rate * max(dt_s, 0.0)) + self.slack)
 
-    def update(self, raw: int, t_ns: int) -> int:
-        """Accept one reading taken at ``t_ns`` and return the continuous count."""
+    def update(self, raw: int, t_ns: int, since_ns: int | None = None) -> int:
+        """Accept one reading and return the continuous count.
+
+        ``t_ns`` is the latest the reading can have been taken (the clock read after the
+        transfer returned), ``since_ns`` the earliest (read before the transfer started;
+        default ``t_ns``). A step is bounded by the longest time the wheel can have turned:
+        from the previous reading's earliest to this one's latest. Bounding it by the two
+        clock reads after the transfers would turn an honest step into a "jump" whenever the
+        previous reading's clock was read late (its process preempted after the transfer).
+        """
+        since = t_ns if since_ns is None else since_ns
         if self.last_raw is None:
-            self.last_raw, self.last_t_ns = raw, t_ns
+            self.last_raw, self.last_t_ns = raw, since
             self.count = raw
             return self.count
         half = self.counts // 2
@@ -288,7 +297,7 @@ class Unwrapper:
             self.resyncs += 1
         self._consecutive = 0
         self.count += delta
-        self.last_raw, self.last_t_ns = raw, t_ns
+        self.last_raw, self.last_t_ns = raw, since
         return self.count
 
     @property

@@ -72,14 +72,7 @@ from m4k_rt.protocol import (
     seq_newer,
 )
 
-# The controller's flags are the ODOMETRY flags (protocol.py owns the bits).
-FLAG_BRAKING = ODOM_BRAKING
-FLAG_GUARD = ODOM_GUARD
-FLAG_MOTOR_STALE = ODOM_MOTOR_STALE
-FLAG_CLAMPED = ODOM_CLAMPED
-FLAG_E_STOP = ODOM_E_STOP
-FLAG_HOLD = ODOM_HOLD
-
+# The controller's flags are the ODOMETRY flags (protocol.py owns the bits: ODOM_*).
 MODE_IDLE = 0
 MODE_DRIVING = 1
 MODE_BRAKING = 2
@@ -150,7 +143,7 @@ class BaseController:
         self.left_code = DAC_ZERO
         self.right_code = DAC_ZERO
         self.enable = 0
-        self.flags = FLAG_MOTOR_STALE
+        self.flags = ODOM_MOTOR_STALE
         self.mode = MODE_FAULT
         self.motor_stale = True
         self.hold_zero = True
@@ -175,9 +168,9 @@ class BaseController:
         """Latch (True) or release (False) the e-stop; takes effect at the next ``step``."""
         self.estop.set(engage)
 
-    def reset_pose(self) -> None:
-        """Zero the odometry pose (x, y, yaw); speeds and the encoder baseline are kept."""
-        self.odom.set_pose()
+    def reset_pose(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> None:
+        """Set the odometry pose (zero by default); speeds and the encoder baseline are kept."""
+        self.odom.set_pose(x, y, yaw)
         self.pose_resets += 1
 
     def encoders(self, left_angle: float, right_angle: float, stamp_ns: int, rx_ns: int,
@@ -238,7 +231,7 @@ class BaseController:
             self.hold_zero = True
             self.braking = False
             self._stop_outputs(0)
-            self.flags = FLAG_MOTOR_STALE | self._estop_flags()
+            self.flags = ODOM_MOTOR_STALE | self._estop_flags()
             self.mode = MODE_FAULT
             return
         if self.motor_stale:
@@ -256,13 +249,13 @@ class BaseController:
             tv = self.cmd_linear
             tw = self.cmd_angular
         if cmd_stale:
-            flags |= FLAG_BRAKING
+            flags |= ODOM_BRAKING
         # 3. guard and limits
         if tv > forward_cap:
             tv = forward_cap
-            flags |= FLAG_GUARD
+            flags |= ODOM_GUARD
         if guard_active:
-            flags |= FLAG_GUARD
+            flags |= ODOM_GUARD
         estop = self.estop
         if estop.blocking:
             # The e-stop's own ramp replaces the limiters; they restart from this output.
@@ -280,7 +273,7 @@ class BaseController:
         if forward_cap <= 0.0 and v > 0.0:
             v = 0.0
             self.linear.override(0.0)
-            flags |= FLAG_GUARD
+            flags |= ODOM_GUARD
         self.v = v
         self.w = w
         # 4. kinematics and wheel control
@@ -300,12 +293,12 @@ class BaseController:
             self.right_code = command_to_code(ur)
         self.enable = 1
         if clamped or sat:
-            flags |= FLAG_CLAMPED
+            flags |= ODOM_CLAMPED
         self.flags = flags
         moving = abs(v) > _MOVING_EPS or abs(w) > _MOVING_EPS
         if estop.engaged:
             self.mode = MODE_E_STOP
-        elif flags & FLAG_GUARD and (guard_active or forward_cap <= 0.0):
+        elif flags & ODOM_GUARD and (guard_active or forward_cap <= 0.0):
             self.mode = MODE_OBSTACLE
         elif cmd_stale and moving:
             self.mode = MODE_BRAKING
@@ -317,5 +310,5 @@ class BaseController:
     def _estop_flags(self) -> int:
         estop = self.estop
         if estop.engaged:
-            return FLAG_E_STOP
-        return FLAG_HOLD if estop.holding else 0
+            return ODOM_E_STOP
+        return ODOM_HOLD if estop.holding else 0

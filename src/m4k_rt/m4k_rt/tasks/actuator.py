@@ -13,10 +13,12 @@ instead cycle k runs:
    so how late the reply is read does not distort the speeds;
 2. drain ``cmd`` in arrival order: VELOCITY_CMD (the latest wins), E_STOP (latch / release,
    effective in this cycle's step; a command after a release ends its hold) and ODOM_RESET
-   (pose zeroed now, acknowledged with an ODOM_RESET carrying the same id on ``cmd``);
+   (pose zeroed now, acknowledged with an ODOM_RESET carrying the same id on ``cmd``), SET_POSE
+   likewise (pose set to the request's x, y, yaw; acknowledged with the pose as set);
 3. guard cap from the sonar/lrf readings in the shared state, then the controller's step
    (supervision, limits, IK, PI on the feedback of step 1);
-4. send WHEEL_CMD k; every ``odom_every_n``-th cycle send ODOMETRY on ``cmd``.
+4. send WHEEL_CMD k; every ``odom_every_n``-th cycle send ODOMETRY and APPLIED_VELOCITY (the
+   body velocity this cycle applies: after limits, guard, e-stop ramp and timeout) on ``cmd``.
 
 So the PI acts on feedback one period old (a pure one-sample delay, well inside the motor's
 80 ms lag), and the response time of the task stays a few tens of microseconds. WHEEL_CMD is
@@ -50,6 +52,8 @@ _WHEEL_CMD = Kind.WHEEL_CMD
 _ODOMETRY = Kind.ODOMETRY
 _E_STOP = Kind.E_STOP
 _ODOM_RESET = Kind.ODOM_RESET
+_SET_POSE = Kind.SET_POSE
+_APPLIED = Kind.APPLIED_VELOCITY
 
 
 def make_guard(params: ControlParams) -> CollisionGuard:
@@ -133,6 +137,10 @@ class ActuatorBody:
             elif kind == _ODOM_RESET:
                 ctl.reset_pose()
                 self._cmd_out.send(_ODOM_RESET, now, msg.request_id)
+            elif kind == _SET_POSE:
+                ctl.reset_pose(msg.x, msg.y, msg.yaw)
+                o = ctl.odom
+                self._cmd_out.send(_SET_POSE, now, msg.request_id, o.x, o.y, o.yaw)
             else:
                 self.unexpected += 1
         if latest is not None:
@@ -152,6 +160,7 @@ class ActuatorBody:
             self._cmd_out.send(_ODOMETRY, now, odom.x, odom.y, odom.yaw, odom.v, odom.w,
                                odom.left_speed, odom.right_speed, odom.left_position,
                                odom.right_position, flags)
+            self._cmd_out.send(_APPLIED, now, ctl.v, ctl.w)
             flags = 0
         self._odom_flags = flags
         state.odom_flags = ctl.flags
