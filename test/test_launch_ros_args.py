@@ -49,6 +49,7 @@ TOOLS = {
     'bench': (['--duration', '-1'], 2, r'must be > 0 s, got -1.0'),      # its own check
     'demo': (['--timeout', '-1'], 2, r'demo: bad arguments: timeout -1.0'),
     'config_doc': (['--markdown'], 0, r'## runtime \(config/m4k.yaml\)'),
+    'scenarios': (['{tmp}/none.yaml'], 2, r'scenarios: .*No such file'),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),
 }

@@ -38,7 +38,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--results', default=os.path.join('docs', 'results', 'scenarios'),
                     metavar='DIR', help='where the table and plots go (default: '
                     'docs/results/scenarios)')
-    args = ap.parse_args(argv)
+    from m4k_rt import rosargs
+    args = rosargs.parse_args(ap, argv)       # launch_ros's --ros-args are taken, not refused
     from m4k_bench.scenarios import report, spec
     from m4k_bench.scenarios.run import run_scenario
     scs: list[spec.Scenario] = []
