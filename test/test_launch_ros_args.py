@@ -35,7 +35,10 @@ SERVERS = {
     'echo_peer': (['cmd'], r'echo peer: serving cmd'),
     'record': (['odom', '-o', '{tmp}/bag'], None),
     'sim_robot': (['--runtime-dir', '{rt}'], r'simulating '),
+    'foxglove': ([], None),
 }
+# ROS parameters a server needs besides use_sim_time (port 0: any free port, not 8765).
+SERVER_PARAMS = {'foxglove': {'port': 0}}
 # Tools: arguments for a short real run, and what their output must show.
 TOOLS = {
     'rt_stat': (['--wait', '0'], 1, r'no RT core'),
@@ -49,6 +52,8 @@ TOOLS = {
     'bench': (['--duration', '-1'], 2, r'must be > 0 s, got -1.0'),      # its own check
     'demo': (['--timeout', '-1'], 2, r'demo: bad arguments: timeout -1.0'),
     'config_doc': (['--markdown'], 0, r'## runtime \(config/m4k.yaml\)'),
+    'calibrate': (['--hold', '0', '--output', '{tmp}/o.yaml'], 2, r'--hold: must be in'),
+    'liveview': (['--drive-s', '-1'], 2, r'--drive-s must be > 0 s, got -1.0'),
     'scenarios': (['{tmp}/none.yaml'], 2, r'scenarios: .*No such file'),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),
@@ -127,7 +132,7 @@ def test_server_starts_with_launch_arguments_and_stops_on_sigterm(procs, tmp_pat
         while not bringup.sim_ready(m4k_runtime_dir) and time.monotonic() < end:
             time.sleep(0.1)
         assert bringup.sim_ready(m4k_runtime_dir), 'sim_robot did not come up'
-    params = {'use_sim_time': False}
+    params = {'use_sim_time': False, **SERVER_PARAMS.get(exe, {})}
     cmd = launch_cmdline(_argv(module) + _subst(args, m4k_runtime_dir, tmp_path), exe,
                          NS, params, tmp_path)
     log = tmp_path / 'out.txt'

@@ -32,6 +32,8 @@ import tempfile
 import time
 from typing import Any, Sequence
 
+from m4k_rt import rosargs
+
 SUB = 'foxglove.websocket.v1'
 TOPICS = ('/scan', '/odom', '/tf', '/tf_static', '/robot_description', '/diagnostics', '/sonar',
           '/imu')
@@ -204,7 +206,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog='liveview', description=__doc__.split('\n\n')[0])
     ap.add_argument('--results', default=os.path.join('docs', 'results', 'liveview'))
     ap.add_argument('--drive-s', type=float, default=8.0)
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)   # launch_ros's --ros-args section accepted
+    if not args.drive_s > 0:
+        ap.error(f'--drive-s must be > 0 s, got {args.drive_s}')
     env = dict(os.environ)
     env.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 200)))
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
