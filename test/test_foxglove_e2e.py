@@ -258,8 +258,10 @@ def test_teleop_on_cmd_vel_drives_the_robot_and_e_stop_stops_it(live):
 def test_a_teleop_client_that_disconnects_leaves_the_robot_stopped(live):
     # With the RT command timeout off the robot would keep its last command forever (up to
     # the collision guard at the wall, metres ahead): only the zero Twist the server publishes
-    # when the client's cmd_vel channel goes away stops it, within its braking distance plus
-    # the delivery delay (0.5 m at 0.2 m/s is 2 s of delay; the wall is 3.5 m away).
+    # when the client's cmd_vel channel goes away stops it. Without it the robot would stop
+    # only at the guard, about 3 m on (the wall is 3.5 m away); with it, after the braking
+    # distance plus the delivery delay. The bound tells the two apart without timing the
+    # machine: 1.5 m at 0.2 m/s is 7 s of delay (a loaded VM has shown more than 2 s).
     port, runtime_dir, _ = live
     start = ground_truth(runtime_dir)
 
@@ -287,7 +289,7 @@ def test_a_teleop_client_that_disconnects_leaves_the_robot_stopped(live):
         assert time.monotonic() < deadline, 'the robot did not stop'
         time.sleep(0.1)
     rest = ground_truth(runtime_dir)
-    assert rest['pose'][0] - gone['pose'][0] < 0.5, (gone['pose'], rest['pose'])
+    assert rest['pose'][0] - gone['pose'][0] < 1.5, (gone['pose'], rest['pose'])
     assert rest['collisions'] == 0
 
 
