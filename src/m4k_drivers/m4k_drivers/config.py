@@ -143,11 +143,13 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
     return out
 
 
-def validate(doc: dict[str, Any], control: dict[str, Any] | None = None) -> DriverConfig:
+def validate(doc: dict[str, Any], control: dict[str, Any] | None = None,
+             body: dict[str, Any] | None = None) -> DriverConfig:
     """Validate a whole document with ``devices:`` and ``world:`` sections.
 
-    ``control`` (the stack's ``control:`` section) gives the simulated robot's defaults, so
-    the simulator is the configured robot unless ``world.robot`` says how it was built.
+    ``control`` (the stack's ``control:`` section) and ``body`` (``robot.body``) give the
+    simulated robot's defaults, so the simulator is the configured robot -- one source for each
+    physical value -- unless ``world.robot`` says how it was built differently.
     """
     unknown = sorted(set(doc) - {'devices', 'world'})
     if unknown:
@@ -163,7 +165,8 @@ def validate(doc: dict[str, Any], control: dict[str, Any] | None = None) -> Driv
         out[kind] = validate_device(kind, section, f'devices.{kind}')
     world_raw = doc.get('world') or {}
     try:
-        robot = RobotParams.from_control(control) if control is not None else None
+        robot = (RobotParams.from_control(control, body)
+                 if control is not None or body is not None else None)
         world = WorldConfig.from_dict(world_raw, robot=robot)
     except WorldConfigError as exc:
         raise ConfigError(str(exc)) from None

@@ -375,7 +375,8 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
             raise dconfig.ConfigError(refusal)
         cfg = dconfig.validate({'devices': raw.get('devices') or {},
                                 'world': raw.get('world') or {}},
-                               control=raw.get('control') or {})
+                               control=raw.get('control') or {},
+                               body=(raw.get('robot') or {}).get('body'))
         runtime_dir = xddp.ensure_runtime_dir(
             args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir'))
     except (dconfig.ConfigError, ValueError) as exc:

@@ -84,12 +84,25 @@ class RobotParams:
     deadband_v: float = 0.0             # armature volts the motor needs before it turns
 
     @classmethod
-    def from_control(cls, control: dict[str, Any] | None) -> RobotParams:
-        """Return the robot the ``control:`` section describes (unset keys: the defaults).
+    def from_control(cls, control: dict[str, Any] | None,
+                     body: dict[str, Any] | None = None) -> RobotParams:
+        """Return the robot ``control:`` and ``robot.body`` describe (unset keys: the defaults).
 
         Full scale is the wheel speed at code 1023, so the top speed is that times the radius.
+        The body's footprint (``robot.body.length``/``width``, the URDF's) is the one the
+        simulator's contacts use.
         """
         base = cls()
+        if body is not None and not isinstance(body, dict):
+            raise WorldConfigError(f'robot.body: expected a mapping, got {body!r}')
+        for key, attr in (('length', 'length_m'), ('width', 'width_m')):
+            v = (body or {}).get(key)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                    math.isfinite(v) and v > 0):
+                raise WorldConfigError(f'robot.body.{key}: must be a number > 0, got {v!r}')
+            base = replace(base, **{attr: float(v)})
         if control is not None and not isinstance(control, dict):
             raise WorldConfigError(f'control: expected a mapping, got {control!r}')
         vals: dict[str, float] = {}

@@ -120,3 +120,20 @@ def test_sim_robot_refuses_a_control_section_it_cannot_build_a_robot_from(tmp_pa
     assert sim_robot.main(['--overlay', str(overlay), '--runtime-dir', m4k_runtime_dir,
                            '--priority', '0']) == 2
     assert "control.wheel_radius: must be a number > 0, got 'big'" in capsys.readouterr().err
+
+
+def test_the_simulated_footprint_is_the_robot_body_and_the_shipped_world_sets_no_geometry():
+    body = {'length': 0.5, 'width': 0.3}
+    rob = dconfig.validate({'world': {}}, control={}, body=body).world.robot
+    assert (rob.length_m, rob.width_m) == (0.5, 0.3)
+    with pytest.raises(WorldConfigError, match=r'robot\.body\.width: must be a number > 0'):
+        RobotParams.from_control({}, {'width': 0})
+    # One source per physical value: the shipped world.robot leaves wheel, track, gear, top
+    # speed and footprint to control.yaml and robot.yaml.
+    import yaml
+
+    from m4k_rt.config import find_config_dir
+    with open(f'{find_config_dir()}/devices.yaml', encoding='utf-8') as f:
+        shipped = yaml.safe_load(f)['world']['robot']
+    assert not {'wheel_diameter_m', 'track_width_m', 'gear_ratio', 'top_speed_mps',
+                'length_m', 'width_m'} & set(shipped), shipped
