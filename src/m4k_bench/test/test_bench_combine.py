@@ -1,4 +1,4 @@
-"""bench-combine: each run's median with its spread, pooled rounds, met only when every run met."""
+"""bench_combine: each run's median with its spread, pooled rounds, met only when every run met."""
 
 from __future__ import annotations
 

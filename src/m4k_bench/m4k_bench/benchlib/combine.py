@@ -6,8 +6,8 @@ gives, for every target, each run's median with its min–max over the rounds, t
 rounds of all runs pooled with its min–max, and the verdict: a target counts as met only when
 it is met in every run (the pooled median alone could hide a run that missed it).
 
-Usage: ``python -m m4k_bench.benchlib.combine docs/results/bench-1 docs/results/bench-2
-[--out FILE]`` (each argument a published bench directory holding ``summary.json``).
+Usage: ``bench_combine docs/results/bench-1 docs/results/bench-2 [--out FILE]`` (each argument
+a published bench directory holding ``summary.json``).
 """
 
 from __future__ import annotations
@@ -18,6 +18,8 @@ import os
 import statistics
 import sys
 from typing import Any, Mapping, Sequence
+
+from m4k_rt import rosargs
 
 __all__ = ['combine', 'load', 'main', 'render', 'spread']
 
@@ -143,14 +145,14 @@ def render(comb: Mapping[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Print (or write with ``--out``) the combined table of the given bench directories."""
-    ap = argparse.ArgumentParser(prog='bench-combine', description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(prog='bench_combine', description=__doc__.split('\n')[0])
     ap.add_argument('dirs', nargs='+', help='published bench directories (summary.json)')
     ap.add_argument('--out', default=None, help='write the Markdown here')
-    args = ap.parse_args(argv)
+    args = rosargs.parse_args(ap, argv)
     try:
         runs = [load(d) for d in args.dirs]
     except (OSError, ValueError) as exc:
-        sys.stderr.write('bench-combine: {}\n'.format(exc))
+        sys.stderr.write('bench_combine: {}\n'.format(exc))
         return 2
     text = render(combine(runs))
     if args.out:
