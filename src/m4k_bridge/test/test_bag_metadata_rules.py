@@ -11,10 +11,16 @@ what the recorder writes for real rclpy QoS profiles.
 
 from __future__ import annotations
 
-import yaml
 from rclpy.duration import Duration
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile,
-                       ReliabilityPolicy, qos_profile_sensor_data)
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    qos_profile_sensor_data,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+import yaml
 
 from m4k_bridge.bag import metadata
 
