@@ -14,7 +14,14 @@ misses <= cyclictest's samples later than one period in the same run (:func:`lat
 a wake-up later than a period is an overrun in m4k (never a deadline miss), so both count
 against the machine's late samples.
 
-Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log.
+Beside the rule, a timeline (:mod:`m4k_bench.soaktime`): the counters polled every second,
+the tasks' cycle samples, cyclictest's ``-v`` samples and ``--spike`` stamps (a second
+cyclictest runs at the priority of the lowest-priority task with the actuator's period, the
+IMU), all on CLOCK_MONOTONIC, and per task the split of its late cycles into "with a machine
+stall" and "m4k alone".
+
+Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log,
+cyclictest.hist, cyclictest.v.txt, timeline.csv (and the second reference's files).
 
 Usage: ``python -m m4k_bench.soak [--duration 600] [--warmup 60] [--no-stress]``
 """

@@ -117,3 +117,27 @@ def test_sample_events_count_skipped_releases_and_misses_inside_the_window():
     exp = [1, 3, 1, 2]
     over, miss = soaktime.sample_events(rel, start, end, exp, 10 * ms, 0, 150 * ms)
     assert over == [(0.0764, 2)] and miss == [(0.101, 1)]
+
+
+def test_analyze_puts_samples_counters_and_references_in_one_report():
+    from m4k_rt.recorder import TaskSeries
+    ms = 1_000_000
+    imu = TaskSeries('imu', period_ns=10 * ms)
+    # one cycle at 1000.0 s, then a wake-up 26.4 ms after the release at 30 ms: 3 expirations
+    # (2 overruns), the cycle stamped with the latest release (50 ms), as m4k_rt.task does
+    for rel, start, end, exp in ((1000_000 * ms, 1000_000 * ms + 50_000, 1000_001 * ms, 1),
+                                 (1000_050 * ms, 1000_056_436_000, 1000_057 * ms, 3)):
+        imu.t_rel.append(rel)
+        imu.t_start.append(start)
+        imu.t_end.append(end)
+        imu.expirations.append(exp)
+    counters = soaktime.CounterTimeline({'imu': {'overruns': 0, 'deadline_misses': 0}})
+    counters.poll(1002.0, {'imu': {'overruns': 2, 'deadline_misses': 0}})   # 2 s later
+    ref = dict(soaktime.reference(VERBOSE, 10_000, 999.0, 1000.0), priority=90)
+    tl = soaktime.analyze({'actuator': ref}, counters, {'imu': imu}, 1000.0, 1010.0)
+    s, c = tl['samples']['tasks']['imu'], tl['counters']['tasks']['imu']
+    assert (s['overruns'], s['deadline_misses'], s['coincide'], s['alone']) == (2, 0, 2, 0)
+    assert (c['total'], c['coincide'], c['per_second']) == (2, 2, {2: 2})
+    text = '\n'.join(soaktime.report_lines(tl, 10_000))
+    assert '| actuator | 90 | 7 | 2 | 26.4, 12.0 | 3 | --spike stamps |' in text
+    assert '| imu | 2 + 0 | 2 | 2 | 0 | 2 (0) | 2 | 2 | 0 |' in text
