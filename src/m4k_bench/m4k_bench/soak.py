@@ -14,7 +14,14 @@ misses <= cyclictest's samples later than one period in the same run (:func:`lat
 a wake-up later than a period is an overrun in m4k (never a deadline miss), so both count
 against the machine's late samples.
 
-Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log.
+Beside the rule, a timeline (:mod:`m4k_bench.soaktime`): the counters polled every second,
+the tasks' cycle samples, cyclictest's ``-v`` samples and ``--spike`` stamps (a second
+cyclictest runs at the priority of the lowest-priority task with the actuator's period, the
+IMU), all on CLOCK_MONOTONIC, and per task the split of its late cycles into "with a machine
+stall" and "m4k alone".
+
+Writes ``results/soak-<UTC>/``: report.md, summary.json, rss.csv, rss.png, bringup.log,
+cyclictest.hist, cyclictest.v.txt, timeline.csv (and the second reference's files).
 
 Usage: ``python -m m4k_bench.soak [--duration 600] [--warmup 60] [--no-stress]``
 """
@@ -35,7 +42,7 @@ import threading
 import time
 from typing import Any, Sequence
 
-from m4k_bench import core_bench
+from m4k_bench import core_bench, soaktime
 from m4k_bench.benchlib import stack, system
 from m4k_rt import config, recorder, rosargs, xddp
 from m4k_rt.proc import stop_process
@@ -173,18 +180,32 @@ class StatReader:
         self.link.close()
 
 
-def _cyclictest(duration_s: float, priority: int, interval_us: int,
-                hist_path: str) -> subprocess.Popen[str] | None:
+def _cyclictest(duration_s: float, priority: int, interval_us: int, hist_path: str,
+                verbose_path: str) -> subprocess.Popen[str] | None:
     exe = shutil.which('cyclictest')
     if not exe:
         return None
     loops = max(1, int(duration_s * 1e6 / interval_us))
-    # -h <period>: every sample above the period lands in "Histogram Overflows".
-    return subprocess.Popen([exe, '-m', '-p', str(priority), '-i', str(interval_us), '-l',
-                             str(loops), '-q', '-h', str(interval_us),
-                             '--histfile={}'.format(hist_path)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    # -h <period>: every sample above the period lands in "Histogram Overflows". -v: one line
+    # per sample (thread: cycle: latency us) for the timeline; --spike: every sample above
+    # period - 1 us (= the overflows) with its CLOCK_MONOTONIC wake-up time, printed at exit.
+    with open(verbose_path, 'w') as out:
+        return subprocess.Popen([exe, '-m', '-p', str(priority), '-i', str(interval_us), '-l',
+                                 str(loops), '-q', '-h', str(interval_us),
+                                 '--histfile={}'.format(hist_path), '-v',
+                                 '--spike={}'.format(interval_us - 1), '--spike-nodes=10000'],
+                                stdout=out, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+
+
+def _stop_cyclictest(ct: subprocess.Popen[str]) -> None:
+    if ct.poll() is None:
+        ct.send_signal(signal.SIGINT)
+    try:
+        ct.wait(30)
+    except subprocess.TimeoutExpired:
+        ct.kill()
+        ct.wait()
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -220,6 +241,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     log_path = os.path.join(outdir, 'bringup.log')
     hist_path = os.path.join(outdir, 'cyclictest.hist')
+    # The second reference: a cyclictest thread at the priority of the lowest-priority task
+    # with the actuator's period (the IMU), in its own process: rt-tests runs every thread of
+    # one -h run at one priority (--priospread steps by 1, not to a chosen value).
+    low = min((t for t in cfg.tasks if t.period_ns == act.period_ns), key=lambda t: t.priority)
+    refs = {'actuator': (act.priority, hist_path, os.path.join(outdir, 'cyclictest.v.txt'))}
+    if low.priority != act.priority:
+        refs[low.name] = (low.priority, os.path.join(outdir, 'cyclictest-{}.hist'.format(
+            low.name)), os.path.join(outdir, 'cyclictest-{}.v.txt'.format(low.name)))
     argv_bu = [sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
                '--status-interval', '10'] + (['--config', args.config] if args.config else [])
     _log('{} s (warm-up {} s), stress {}, results {}'.format(
@@ -235,7 +264,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     stat = StatReader(runtime_dir)
     stop_cmd = threading.Event()
     stress = None
-    ct = None
+    cts: dict[str, subprocess.Popen[str]] = {}
+    ct_start: dict[str, float] = {}
+    timeline: soaktime.CounterTimeline | None = None
+    t0 = t_first = t_last = time.monotonic()
     first: dict[str, dict[str, Any]] = {}
     cmd_thread: threading.Thread | None = None
     tools = system.ensure_tools(_log, install=False)
@@ -264,12 +296,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         while 'actuator' not in stat.tasks() and time.monotonic() < end:
             time.sleep(0.1)
         first = stat.tasks()
-        ct = _cyclictest(args.duration, act.priority, period_us, hist_path)
+        t_first = time.monotonic()
+        timeline = soaktime.CounterTimeline(first)
+        for ref, (prio, hpath, vpath) in refs.items():
+            ct_start[ref] = time.monotonic()
+            p = _cyclictest(args.duration, prio, period_us, hpath, vpath)
+            if p is not None:
+                cts[ref] = p
         t0 = time.monotonic()
         next_report = t0 + 30.0
+        next_rss = t0
         while True:
             now = time.monotonic()
             t = now - t0
+            # The counters every second (the monitor ships them at 1 Hz), RSS every --sample.
+            timeline.poll(now, stat.tasks())
+            if now < next_rss and bu.poll() is None and t < args.duration:
+                time.sleep(min(1.0, max(0.0, args.duration - t)))
+                continue
+            next_rss += args.sample
             kids = children(bu.pid)
             for name, pid in kids.items():
                 pids_seen[name].add(pid)
@@ -283,8 +328,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 next_report += 30.0
                 _log('{:.0f}/{:.0f} s, RSS {}'.format(t, args.duration, ', '.join(
                     '{} {} KiB'.format(n, s[-1][1]) for n, s in rss.items() if s)))
-            time.sleep(min(args.sample, max(0.0, args.duration - t)))
+            time.sleep(min(1.0, max(0.0, args.duration - t)))
         last = stat.tasks()
+        t_last = time.monotonic()
+        timeline.poll(t_last, last)
         summary['tasks'] = {n: {k: (v - first[n][k] if k != 'period_ms' and n in first
                                     and isinstance(v, int) and isinstance(first[n][k], int)
                                     else v) for k, v in t.items()} for n, t in last.items()}
@@ -294,14 +341,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             cmd_thread.join(5.0)
         if stress is not None:
             stress.__exit__(None, None, None)
-        if ct is not None:
-            if ct.poll() is None:
-                ct.send_signal(signal.SIGINT)
-            try:
-                ct.wait(30)
-            except subprocess.TimeoutExpired:
-                ct.kill()
-                ct.wait()
+        for p in cts.values():
+            _stop_cyclictest(p)
         stat.close()
         bu_rc = bu.poll()
         stop_process(bu, signal.SIGINT, 60, group=False)
@@ -313,10 +354,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary['pids'] = {n: sorted(p) for n, p in pids_seen.items()}
     summary['rss'] = {n: leak_verdict(s, warmup) for n, s in rss.items()}
     ctres = core_bench.parse_cyclictest_hist(open(hist_path).read()) \
-        if ct is not None and os.path.exists(hist_path) else None
+        if 'actuator' in cts and os.path.exists(hist_path) else None
     summary['cyclictest'] = ctres
     over = ctres['overflows'] if ctres else None
     summary['late'] = late_verdict(summary.get('tasks') or {}, over)
+    if timeline is not None:
+        tl_refs = {}
+        for ref, (prio, _, vpath) in refs.items():
+            if ref in cts and os.path.exists(vpath):
+                r = soaktime.reference(open(vpath, errors='replace').read(), period_us,
+                                       ct_start[ref], t_first)
+                tl_refs[ref] = dict(r, priority=prio)
+        summary['timeline'] = soaktime.analyze(tl_refs, timeline, stat.rec.tasks, t_first,
+                                               t_last)
     crashes = summary['restarts'] + sum(max(0, len(p) - 1) for p in pids_seen.values())
     summary['verdicts'] = {
         'no_crash': crashes == 0 and not summary['bringup_ended_early'],
@@ -398,7 +448,15 @@ def _write(outdir: str, summary: dict[str, Any], rss: dict[str, list[tuple[float
                      'samples above the period {overflows}'.format(**ct))
     else:
         lines.append('not run (cyclictest missing)')
-    lines += ['', 'Files: summary.json, rss.csv, rss.png, bringup.log, cyclictest.hist', '']
+    files = 'summary.json, rss.csv, rss.png, bringup.log, cyclictest.hist'
+    tl = summary.get('timeline')
+    if tl:
+        lines += [''] + soaktime.report_lines(tl, period_us)
+        soaktime.write_csv(os.path.join(outdir, 'timeline.csv'), tl)
+        files += ', cyclictest.v.txt (-v and --spike output), timeline.csv'
+        if len(tl['references']) > 1:
+            files += ', cyclictest-<task>.hist/.v.txt (the second reference)'
+    lines += ['', 'Files: ' + files, '']
     with open(os.path.join(outdir, 'report.md'), 'w') as f:
         f.write('\n'.join(lines))
 
