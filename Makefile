@@ -4,6 +4,8 @@
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
+#   make bench RUNS=2                 two full runs, one after the other -> docs/results/bench-1, -2
+#                                     and their combined table docs/results/bench-combined.md
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
 #   make scenarios [ONLY='a b'] [SHORT=1]  config/scenarios/*.yaml on the whole stack, judged on
 #                                     ground truth -> docs/results/scenarios/ (about 6 min)
@@ -43,8 +45,12 @@ test: build
 run: build
 	@$(ENV); bringup $(if $(CONFIG),--config $(CONFIG),) $(if $(FOXGLOVE),--foxglove,)
 
+BENCH_ARGS = $(if $(QUICK),--quick,) $(if $(DURATION),--duration $(DURATION),) $(if $(ROUNDS),--rounds $(ROUNDS),)
 bench: build
-	@$(ENV); bench $(if $(QUICK),--quick,) $(if $(DURATION),--duration $(DURATION),) $(if $(ROUNDS),--rounds $(ROUNDS),)
+	@$(ENV); if [ -z '$(RUNS)' ]; then bench $(BENCH_ARGS); else dirs=; \
+	  for i in $$(seq 1 $(RUNS)); do bench $(BENCH_ARGS) --publish docs/results/bench-$$i; \
+	  dirs="$$dirs docs/results/bench-$$i"; done; \
+	  bench_combine $$dirs --out docs/results/bench-combined.md; cat docs/results/bench-combined.md; fi
 
 demo: build
 	@$(ENV); demo

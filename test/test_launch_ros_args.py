@@ -49,6 +49,7 @@ TOOLS = {
               '{tmp}/fuzz'], None, r'\ncmd +1 +1 .* ok\n'),
     'core_bench': (['--duration', '0.2', '--rtt', '10'], 0, r'task machinery per cycle'),
     'loop_ab': (['--variant', 'x={tmp}'], 2, r'expected NAME=DIR with DIR/m4k_rt'),
+    'bench_combine': (['{tmp}/none'], 2, r'bench_combine: .*summary.json'),
     'bench': (['--duration', '-1'], 2, r'must be > 0 s, got -1.0'),      # its own check
     'demo': (['--timeout', '-1'], 2, r'demo: bad arguments: timeout -1.0'),
     'config_doc': (['--markdown'], 0, r'## runtime \(config/m4k.yaml\)'),

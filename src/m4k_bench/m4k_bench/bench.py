@@ -656,7 +656,7 @@ class Bench:
         with open(os.path.join(self.outdir, 'report.md'), 'w', encoding='utf-8') as f:
             f.write(report.render(s))
         with open(os.path.join(self.outdir, 'readme_snippet.md'), 'w', encoding='utf-8') as f:
-            f.write(report.readme_snippet(s))
+            f.write(report.readme_snippet(s, self.args.publish or PUBLISH_DIR))
         _link_latest(self.args.results, self.outdir)
         if self.args.publish:
             os.makedirs(self.args.publish, exist_ok=True)

@@ -397,18 +397,21 @@ def render(summ: Mapping[str, Any]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def readme_snippet(summ: Mapping[str, Any]) -> str:
-    """Return the README's results block: targets with their spread, the machine, the command."""
+def readme_snippet(summ: Mapping[str, Any], where: str = 'docs/results/bench') -> str:
+    """Return the README's results block: targets with their spread, the machine, the command.
+
+    ``where`` is the directory the run is published to, as the README links it.
+    """
     m = summ.get('machine', {})
     run = summ.get('run', {})
     plan = run.get('plan') or {}
     lines = ['Measured with `{}` ({} rounds × {:g} s per condition, started {} UTC) on: {}, '
              '{} CPUs, kernel {} ({}). Median over the rounds, min–max in brackets; full '
-             'report: [`docs/results/bench/report.md`](docs/results/bench/report.md).'.format(
+             'report: [`{w}/report.md`]({w}/report.md).'.format(
                  run.get('reproduce', 'make bench'), plan.get('rounds'),
                  plan.get('condition_s', 0), run.get('started_utc', ''),
                  m.get('cpu_model', '?'), m.get('cpus_online', '?'), m.get('kernel', '?'),
-                 m.get('preempt_model', '?')), '']
+                 m.get('preempt_model', '?'), w=where), '']
     rows = [[t['label'], _sp(t['spread']), _sp((t.get('of') or {}).get('concurrent')),
              _sp((t.get('of') or {}).get('alone')), t['target'],
              {True: 'met', False: 'NOT met', None: 'not measured'}[t['met']]]
@@ -426,7 +429,7 @@ def readme_snippet(summ: Mapping[str, Any]) -> str:
                   _sp(lc.get('floor_cpu_per_cycle_us'), 1))]
     lines += _table1_compact(summ)
     if summ.get('scaling'):
-        lines += ['', '![scaling](docs/results/bench/scaling.png)']
+        lines += ['', '![scaling]({}/scaling.png)'.format(where)]
     return '\n'.join(lines) + '\n'
 
 
