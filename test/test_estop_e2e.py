@@ -23,6 +23,7 @@ from test_stack_e2e import _control, stack  # noqa: F401 -- the stack fixture
 from wsenv import ground_truth, ROOT
 import yaml
 
+from m4k_rt import protocol
 from m4k_rt.control.params import control_params
 from m4k_rt.testing import child_pids
 
@@ -239,4 +240,51 @@ def test_set_pose_moves_the_odometry_after_the_rt_side_confirms(stack):  # noqa:
     p = odom[-1].pose.pose
     assert (p.position.x, p.position.y) == pytest.approx((1.0, 2.0), abs=0.01)
     assert 2 * math.atan2(p.orientation.z, p.orientation.w) == pytest.approx(0.5, abs=0.01)
+    assert proc.poll() is None
+
+
+def _e_stop_diag(user):
+    """Return (level, message, values) of the newest ``m4k_bridge: e_stop`` status, or None."""
+    for arr in reversed(user.got['diagnostics']):
+        for s in arr.status:
+            if s.name == 'm4k_bridge: e_stop':
+                return s.level, s.message, {kv.key: kv.value for kv in s.values}
+    return None
+
+
+def test_e_stop_state_falls_silent_and_the_diagnostic_says_unknown_when_the_rt_side_stops(
+        stack):  # noqa: F811
+    # rt_core frozen (SIGSTOP: ODOMETRY stops, the sockets stay, bringup restarts nothing): the
+    # bridge no longer knows the latch, so it must stop repeating "not engaged" at 1 Hz and
+    # its diagnostic must say the state is unknown. Thawed, the state is published again.
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    user, proc, _ = stack
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    state = []
+    user.node.create_subscription(Bool, 'e_stop_state', state.append, latched)
+    user.spin_until(lambda: len(state) >= 2, 10, 'e_stop_state and its 1 Hz repeat')
+    assert state[-1].data is False
+    rt = [pid for pid in child_pids(proc.pid) if 'rt_core' in cmdline(pid)]
+    assert len(rt) == 1, [cmdline(pid) for pid in child_pids(proc.pid)]
+
+    def unknown():
+        d = _e_stop_diag(user)
+        return d is not None and d[2].get('rt_latch') == 'unknown'
+    os.kill(rt[0], signal.SIGSTOP)
+    try:
+        user.spin_until(unknown, 15, 'the e_stop diagnostic to say the latch is unknown')
+        user.spin_for(0.5)       # a repeat published before the stale judgement, in flight
+        n = len(state)
+        user.spin_for(3.5)       # three and a half periods of the 1 Hz repeat
+        assert len(state) == n, 'e_stop_state still repeated by a bridge that no longer knows'
+        level, message, values = _e_stop_diag(user)
+        assert level == bytes([protocol.LEVEL_STALE]), (level, message)
+        assert 'unknown' in message and values['e_stop_state_republishing'] == 'False'
+    finally:
+        os.kill(rt[0], signal.SIGCONT)
+    n = len(state)
+    user.spin_until(lambda: len(state) > n, 20, 'e_stop_state again once the RT side reports')
+    assert state[-1].data is False
+    user.spin_until(lambda: not unknown(), 10, 'the e_stop diagnostic to know the latch again')
     assert proc.poll() is None

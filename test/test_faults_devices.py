@@ -9,6 +9,7 @@ Nothing stale may be sent as fresh; every fault must show up in the counters and
 DEVICE_STATUS; the device must recover without a restart.
 """
 
+import math
 import threading
 import time
 
@@ -252,3 +253,40 @@ def test_laser_unplug_replug_checksums_and_noise_no_stale_scan_sent_as_fresh(rig
     # (the simulated range noise makes every real scan's ranges differ).
     sent = {(m.device_stamp, m.ranges) for m in scans + noisy}
     assert not [m.device_stamp for m in back if (m.device_stamp, m.ranges) in sent]
+
+
+def _sound_at_rest(m):
+    """Tell whether an IMU datagram is what the robot at rest measures (the world's truth)."""
+    unit = abs(math.hypot(m.qx, m.qy, m.qz, m.qw) - 1) < 1e-6
+    still = max(abs(m.gx), abs(m.gy), abs(m.gz)) < 1.0
+    return m.status == protocol.ImuStatus.OK and unit and still and abs(m.az - 9.80665) < 1.0
+
+
+@pytest.mark.parametrize('garble', ['zeros', 'ones', 'quaternion', 'gyro_rail'])
+def test_imu_garbage_registers_are_counted_faults_never_an_imu_datagram(rig, garble):
+    # A myAHRS+ on a noisy bus or mid-reset returns register images no sensor measured: a
+    # quaternion far from unit norm (all zero, all 0xFF, corrupted) or a rate at the rail. The
+    # robot stands still, so every sound sample is the world's truth at rest.
+    r = rig('imu')
+    model = r.robot.imu
+    good = _of(K.IMU, r.run(0.3, K.REQUEST, (0, 0)))
+    assert good and all(_sound_at_rest(m) for m in good)
+    faults0 = r.handler.faults
+    model.garble = garble
+    got = r.run(0.5, K.REQUEST, (0, 0))
+    garbage = [m for m in _of(K.IMU, got) if not _sound_at_rest(m)]
+    assert not garbage, 'garbage sent as IMU samples: {}'.format(garbage[:2])
+    got += r.until(lambda: r.handler.faults - faults0 >= 2, K.REQUEST, (0, 0))
+    model.garble = None
+    assert not [m for m in _of(K.IMU, got) if not _sound_at_rest(m)]
+    reason = 'gyro_full_scale' if garble == 'gyro_rail' else 'quaternion_norm'
+    assert set(r.handler.rejected) == {reason}
+    assert sum(r.handler.rejected.values()) == r.handler.faults - faults0
+    st = _of(K.DEVICE_STATUS, got)
+    assert st and st[-1].level == protocol.LEVEL_WARN
+    assert st[-1].last_error == protocol.DeviceError.PROTOCOL
+    back, end = [], time.monotonic() + 5.0
+    while not _of(K.IMU, back):
+        assert time.monotonic() < end, 'no IMU sample after the bus recovered'
+        back += r.run(0.05, K.REQUEST, (0, 0))
+    assert _sound_at_rest(_of(K.IMU, back)[-1]), 'recovered without a restart'

@@ -11,10 +11,11 @@ import math
 import os
 
 import pytest
+import upstream_keys
 from wsenv import ROOT
 import yaml
 
-from m4k_bridge import params
+from m4k_bridge import params, safety
 from m4k_rt import config, description
 
 CONFIG = os.path.join(ROOT, 'config')
@@ -57,6 +58,67 @@ def test_recipe_is_a_ros_parameter_file_and_its_bridge_section_is_valid(rel):
         params.check_section(_load(rel))
 
 
+@pytest.mark.parametrize('rel', RECIPES)
+def test_every_key_is_one_the_jazzy_node_reads_with_its_type(rel):
+    # m4k_bridge sections are the bridge's own, checked above exactly as the bridge does.
+    found = [p for node, params in _nodes(_load(rel)).items() if node != 'm4k_bridge'
+             for p in upstream_keys.problems(node, params)]
+    assert found == []
+
+
+@pytest.mark.parametrize(('node', 'params', 'expected'), [
+    ('local_costmap/local_costmap',
+     {'plugins': ['inflation_layer'],
+      'inflation_layer': {'plugin': 'nav2_costmap_2d::InflationLayer', 'inflation_radious': 0.4}},
+     ['local_costmap/local_costmap.inflation_layer.inflation_radious: not read upstream']),
+    ('local_costmap/local_costmap',
+     {'plugins': ['obstacle_layer'],
+      'obstacle_layer': {'plugin': 'nav2_costmap_2d::ObstacleLayer', 'observation_sources': 'scan',
+                         'scan': {'raytrace_range': 5.6, 'inf_is_valid': 'true'}}},
+     ['local_costmap/local_costmap.obstacle_layer.scan.raytrace_range: not read upstream',
+      'local_costmap/local_costmap.obstacle_layer.scan.inf_is_valid: str where upstream '
+      'declares bool']),
+    ('local_costmap/local_costmap', {'plugins': ['range_layer'], 'range_layer': {'topics': []}},
+     ['local_costmap/local_costmap.range_layer.plugin: missing']),
+    ('twist_mux', {'locks': {'e_stop': {'topic': 'e_stop_state', 'timeout': 0, 'priority': 255}}},
+     ['twist_mux.locks.e_stop.timeout: int where upstream declares float']),
+    ('twist_mux', {'topics': {'nav': {'topic': 'a', 'timeout': 0.5}}},
+     ['twist_mux.topics.nav.priority: missing']),
+    ('ekf_filter_node', {'odom0': 'odom', 'odom0_config': [True] * 14, 'imu1': 'imu'},
+     ['ekf_filter_node.odom0_config: 14 entries, the state has 15',
+      'ekf_filter_node: imu indices [1] have a gap']),
+    ('ekf_filter_node', {'base_frame': 'base_footprint'},
+     ['ekf_filter_node.base_frame: not read upstream']),
+    ('velocity_smoother', {'max_velocity': [0.5, 0, 1.5]},
+     ['velocity_smoother.max_velocity: mixed[] where upstream declares float[]']),
+    ('analyzers', {'rt': {'type': 'diagnostic_aggregator/GenericAnalyzer', 'startwith': ['a']}},
+     ['analyzers.rt.startwith: not read upstream', 'analyzers.rt: needs a known type and a path']),
+])
+def test_the_upstream_key_check_catches_misspelled_misplaced_and_mistyped_keys(
+        node, params, expected):
+    assert upstream_keys.problems(node, params) == expected
+
+
+def test_obstacle_sources_keep_the_scan_points_at_the_laser_height():
+    # Jazzy drops every point of a source above its max_obstacle_height (default 0.0) in the
+    # costmap's frame: the scan plane is the laser's height above base_footprint.
+    urdf = description.urdf(description.model(config.load_layered()))
+    up = {j.child: (j.parent, j.xyz[2]) for j in description.joints(urdf)}
+    frame, height = params.spec('laser_frame').default, 0.0
+    while frame != 'base_footprint':
+        frame, dz = up[frame]
+        height += dz
+    assert height > upstream_keys.SOURCE_DEFAULT_MAX_OBSTACLE_HEIGHT
+    n = _nodes(_load('nav2/nav2_params_overlay.yaml'))
+    for costmap in ('local_costmap/local_costmap', 'global_costmap/global_costmap'):
+        layer = n[costmap]['obstacle_layer']
+        for src in layer['observation_sources'].split():
+            s = layer[src]
+            assert s.get('min_obstacle_height', 0.0) <= height, (costmap, src)
+            assert s.get('max_obstacle_height', upstream_keys.SOURCE_DEFAULT_MAX_OBSTACLE_HEIGHT) \
+                >= height, (costmap, src)
+
+
 def test_nav2_overlay_frames_footprint_and_scan_match_the_robot():
     n = _nodes(_load('nav2/nav2_params_overlay.yaml'))
     links = _links()
@@ -95,6 +157,10 @@ def test_twist_mux_locks_on_e_stop_state():
     p = _nodes(_load('twist_mux/twist_mux.yaml'))['twist_mux']
     assert p['locks']['e_stop']['topic'] == params.spec('topics.e_stop_state').default
     assert p['locks']['e_stop']['priority'] > max(t['priority'] for t in p['topics'].values())
+    # twist_mux subscribes to locks volatile (it never gets the latched sample) and reads an
+    # unheard lock as released unless a timeout makes it expire: the timeout must outlast the
+    # bridge's republish period, so the lock holds until the state is heard and after it stops.
+    assert p['locks']['e_stop']['timeout'] > safety._STATE_PERIOD_S
 
 
 def test_ekf_fuses_wheel_velocity_and_imu_yaw_rate_and_owns_the_transform():

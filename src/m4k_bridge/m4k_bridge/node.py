@@ -367,7 +367,7 @@ class BridgeNode(Node):
                 payload, stamp, p.frame(p['odom_frame']), p.frame(p.odom_child),
                 p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
             self._robot_state.on_odometry(payload, stamp)
-            self._safety.on_latch(bool(payload.flags & protocol.ODOM_E_STOP))
+            self._safety.on_latch(bool(payload.flags & protocol.ODOM_E_STOP), rx_ns)
         elif k == protocol.Kind.APPLIED_VELOCITY:
             out = TwistStamped(header=Header(stamp=convert.time_msg(stamp),
                                              frame_id=p.frame(p.odom_child)))

@@ -23,7 +23,13 @@ The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagr
   a SET_POSE request carrying x, y, yaw;
 * ``e_stop_state`` (std_msgs/Bool, transient local, like Clearpath's
   ``platform/emergency_stop``): the RT latch as fresh ODOMETRY flags report it, published on
-  every change and at 1 Hz (true while engaged; a late subscriber gets the last state);
+  every change and at 1 Hz (true while engaged; a late subscriber gets the last state). The
+  1 Hz republish runs only while the latch is known (ODOMETRY within ``_FRESH_NS``): a bridge
+  that lost the RT side falls silent instead of repeating a state it no longer knows, and the
+  ``m4k_bridge: e_stop`` diagnostic says the latch is unknown. The transient-local cache still
+  holds the last value published (DDS cannot retract it): a late subscriber gets the last
+  *known* state; the diagnostic tells whether it is current. The first fresh ODOMETRY after
+  the outage publishes the state again at once;
 * ``~/e_stop`` (std_srvs/SetBool): the same request as the topic, answered once the RT latch
   shows the requested state (engaged, or released), else success=false after
   ``e_stop_timeout``. Topic and service are one input: the last request wins, and its sender
@@ -99,6 +105,8 @@ class SafetyInterface:
         self.reset_timeout = reset_timeout
         self.e_stop_timeout = e_stop_timeout
         self.published_state: bool | None = None
+        self.latch_rx_ns = 0          # when the last ODOMETRY's latch arrived (0: never)
+        self.state_messages = 0       # e_stop_state messages published (change + periodic)
         self._latch_waiters: list[tuple[bool, Future]] = []
         self._pose_pending: dict[int, Future] = {}
         self.gate = CommandStampGate()
@@ -174,18 +182,34 @@ class SafetyInterface:
                             'RT process running?)'.format(word, self.e_stop_timeout))
         return response
 
-    def on_latch(self, engaged: bool) -> None:
-        """Take the RT latch of a fresh ODOMETRY: answer waiting requests, publish changes."""
+    def on_latch(self, engaged: bool, rx_ns: int | None = None) -> None:
+        """Take the RT latch of a fresh ODOMETRY (arrived at ``rx_ns``, CLOCK_MONOTONIC).
+
+        Answer waiting requests; publish a change, or the state known again after a stale gap.
+        """
+        now = time.monotonic_ns() if rx_ns is None else rx_ns
+        was_fresh = self._fresh(now)
+        self.latch_rx_ns = now
         for want, fut in self._latch_waiters:
             if want == engaged and not fut.done():
                 fut.set_result(True)
-        if engaged != self.published_state:
+        if engaged != self.published_state or not was_fresh:
             self.published_state = engaged
-            self._state_pub.publish(Bool(data=engaged))
+            self._publish(engaged)
+
+    def _fresh(self, now_ns: int) -> bool:
+        return bool(self.latch_rx_ns) and now_ns - self.latch_rx_ns <= _FRESH_NS
+
+    def _publish(self, engaged: bool) -> None:
+        self.state_messages += 1
+        self._state_pub.publish(Bool(data=engaged))
 
     def _publish_state_periodic(self) -> None:
-        if self.published_state is not None and self.node.context.ok():
-            self._state_pub.publish(Bool(data=self.published_state))
+        # Only a latch we still know is repeated: with the RT side gone, silence (the
+        # diagnostic says unknown) rather than a confident "not engaged" nobody measured.
+        if (self.published_state is not None and self._fresh(time.monotonic_ns())
+                and self.node.context.ok()):
+            self._publish(self.published_state)
 
     # --- odometry reset -------------------------------------------------------------------------
 
@@ -284,13 +308,20 @@ class SafetyInterface:
                   'engaged' if latch[0] else 'holding' if latch[1] else 'clear',
                   'e_stop_messages': self.e_stop_messages,
                   'stale_commands_rejected': self.gate.rejected,
-                  'odometry_resets': self.resets_ok, 'odometry_resets_failed': self.resets_failed}
+                  'odometry_resets': self.resets_ok, 'odometry_resets_failed': self.resets_failed,
+                  'e_stop_state_published': self.state_messages,
+                  'e_stop_state_last': {None: 'none', True: 'true', False: 'false'}[
+                      self.published_state],
+                  'e_stop_state_republishing': latch is not None}
         if latch is None:
             if self.requested:
                 level, msg = protocol.LEVEL_ERROR, ('e-stop requested but the RT actuator does '
-                                                    'not report (no fresh odometry)')
+                                                    'not report (no fresh odometry): latch state '
+                                                    'unknown, e_stop_state not republished')
             else:
-                level, msg = protocol.LEVEL_STALE, 'RT actuator not reporting'
+                level, msg = protocol.LEVEL_STALE, ('RT actuator not reporting: e-stop state '
+                                                    'unknown (stale), e_stop_state not '
+                                                    'republished')
         elif latch[0]:
             level, msg = protocol.LEVEL_WARN, 'e-stop latched in the RT actuator'
         elif self.requested:

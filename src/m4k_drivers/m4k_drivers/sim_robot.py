@@ -130,6 +130,7 @@ class SimRobot:
         self.enable: Any = None
         self.urg: Any = None
         self.sonar_trigger: Any = None
+        self.imu: Any = None             # the FakeMyAhrsBus; fault injection (tests): ``garble``
         self.leds: Any = None
         self.events: list[dict[str, Any]] = []    # the world events applied: what, when
         self.sims = [k for k, s in cfg.devices.items() if s['enabled'] and s['backend'] == 'sim']
@@ -153,8 +154,8 @@ class SimRobot:
     def _build_imu(self, s: dict[str, Any]) -> None:
         from m4k_drivers.imu.sim import FakeMyAhrsBus
         bus = self.i2c.setdefault(str(s['bus']), _I2cBus())
-        bus.devices[s['address']] = FakeMyAhrsBus(self.world, s['address'],
-                                                  gyro_bias_sd=s['gyro_bias_sd'])
+        self.imu = FakeMyAhrsBus(self.world, s['address'], gyro_bias_sd=s['gyro_bias_sd'])
+        bus.devices[s['address']] = self.imu
 
     def _build_sonar(self, s: dict[str, Any]) -> None:
         from m4k_drivers.sonar.sim import FakeEchoLine, FakeTriggerLine

@@ -2,8 +2,9 @@
 
 Properties: any register contents decode to finite SI values in the ROS frame with a status
 in {OK, NOT_READY, BAD_QUATERNION}; an OK sample has a unit quaternion and encodes into a
-valid IMU datagram; wrong burst lengths and I2C errors are typed, counted errors -- never a
-value. Run with atheris (optional) as a script::
+valid IMU datagram; wrong burst lengths, I2C errors and implausible samples (the handler's
+plausibility check) are typed, counted errors -- never a value. Run with atheris (optional)
+as a script::
 
     python src/m4k_drivers/test/test_fuzz_imu.py -atheris_runs=200000
 """
@@ -57,6 +58,18 @@ def check_blocks(b1: bytes, b2: bytes, ready: bool) -> p.ImuSample | None:
        st.binary(min_size=p.BLOCK2_LEN, max_size=p.BLOCK2_LEN), st.booleans())
 def test_any_register_contents_decode_to_finite_flagged_samples(b1, b2, ready):
     assert check_blocks(b1, b2, ready) is not None
+
+
+@settings(max_examples=examples(200))
+@given(st.binary(min_size=p.SAMPLE_LEN, max_size=p.SAMPLE_LEN))
+def test_any_burst_the_handler_accepts_is_a_plausible_measurement(burst):
+    s = p.decode_sample(burst)
+    if p.implausible(s) is not None:
+        return
+    assert abs(math.sqrt(sum(q * q for q in s.quaternion)) - 1.0) <= p.QUAT_NORM_TOLERANCE
+    assert max(abs(g) for g in s.gyro) < math.radians(2000.0)
+    assert max(abs(a) for a in s.accel) < 16 * p.GRAVITY
+    assert p.to_ros(s).status == ImuStatus.OK
 
 
 @settings(max_examples=examples(200))
@@ -125,14 +138,15 @@ def test_i2c_errors_and_short_reads_are_counted_and_never_a_value():
     h.activate()
     results = [h.read() for _ in range(6)]
     assert [r.status for r in results] == [Status.OK, Status.ERROR, Status.ERROR, Status.ERROR,
-                                           Status.OK, Status.OK]
+                                           Status.OK, Status.ERROR]
     assert all(r.value is None for r in results if r.status == Status.ERROR)
     assert isinstance(results[1].error, DeviceIOError) and 'errno 5' in str(results[1].error)
     assert isinstance(results[2].error, DeviceProtocolError)
     assert 'flaky:i2c@0x20' in str(results[3].error)
-    assert h.faults == 3 and h.state == State.ACTIVE and h.status_level() == 1
-    # 0xFF everywhere is a legal register image: decoded, finite, its quaternion flagged.
-    assert results[5].value.status == ImuStatus.BAD_QUATERNION
+    assert h.faults == 4 and h.state == State.ACTIVE and h.status_level() == 1
+    # 0xFF everywhere (nothing drives SDA) decodes, but its |q| = 6e-5: rejected, counted.
+    assert isinstance(results[5].error, DeviceProtocolError)
+    assert 'quaternion_norm' in str(results[5].error) and h.rejected == {'quaternion_norm': 1}
     assert h.read().value.status == ImuStatus.OK   # recovered without a reconfigure
     h.shutdown()
     assert bus.closed

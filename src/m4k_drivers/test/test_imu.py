@@ -14,7 +14,7 @@ from m4k_drivers.handler import (
 from m4k_drivers.imu import protocol as p
 from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice, open_real_i2c
-from m4k_drivers.imu.sim import FakeMyAhrsBus
+from m4k_drivers.imu.sim import FakeMyAhrsBus, GARBLES
 from m4k_drivers.world import World, WorldConfig
 from m4k_rt.protocol import ImuStatus
 
@@ -64,6 +64,65 @@ def test_to_ros_flags_bad_quaternion_and_not_ready():
     bad = BLOCK2[:6] + bytes(8)                       # quaternion all zero
     assert p.to_ros(p.decode_blocks(BLOCK1, bad)).status == ImuStatus.BAD_QUATERNION
     assert p.to_ros(p.decode_blocks(BLOCK1, BLOCK2), ready=False).status == ImuStatus.NOT_READY
+
+
+def _with(block, offset, count):
+    """Return ``block`` with the int16 at byte ``offset`` replaced by ``count``."""
+    return block[:offset] + count.to_bytes(2, 'little', signed=True) + block[offset + 2:]
+
+
+def test_implausible_quaternion_norm_from_the_register_scaling():
+    assert p.implausible(p.decode_blocks(BLOCK1, BLOCK2)) is None           # |q| = 1.00001
+    zero = BLOCK2[:6] + bytes(8)
+    assert p.implausible(p.decode_blocks(BLOCK1, zero)) == 'quaternion_norm'
+    ones = b'\xff' * p.BLOCK2_LEN                                           # |q| = 6e-5
+    assert p.implausible(p.decode_blocks(BLOCK1, ones)) == 'quaternion_norm'
+    # 1 % off unit: 0.99 * 23170 * sqrt(2) -- just inside; 1.2 % -- outside
+    inside = _with(_with(BLOCK2, 10, round(23170 * 0.991)), 12, round(23170 * 0.991))
+    outside = _with(_with(BLOCK2, 10, round(23170 * 0.988)), 12, round(23170 * 0.988))
+    assert p.implausible(p.decode_blocks(BLOCK1, inside)) is None
+    assert p.implausible(p.decode_blocks(BLOCK1, outside)) == 'quaternion_norm'
+
+
+def test_implausible_rates_and_accelerations_at_the_full_scale_rail():
+    for offset, reason in ((6, 'gyro_full_scale'), (10, 'gyro_full_scale'),
+                           (0, 'accel_full_scale'), (4, 'accel_full_scale')):
+        for rail in (32767, -32767, -32768):
+            s = p.decode_blocks(_with(BLOCK1, offset, rail), BLOCK2)
+            assert p.implausible(s) == reason, (offset, rail)
+        assert p.implausible(p.decode_blocks(_with(BLOCK1, offset, 32766), BLOCK2)) is None
+
+
+def test_handler_rejects_implausible_sample_with_a_counted_reason():
+    regs = _regs()
+    regs[0x3C:0x44] = bytes(8)                       # quaternion registers cleared (a reset)
+    bus = RegBus(regs)
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'fake'))
+    h.configure()
+    h.activate()
+    r = h.read()
+    assert r.status == Status.ERROR and r.value is None
+    assert 'sample rejected: quaternion_norm (|q|=0.0000' in str(r.error)
+    assert h.rejected == {'quaternion_norm': 1} and h.faults == 1 and h.status_level() == 1
+    regs[0x36:0x44] = BLOCK2
+    assert h.read().status == Status.OK                # the next sound sample passes
+    h.shutdown()
+
+
+def test_sim_garble_modes_produce_what_the_plausibility_rules_reject():
+    world = World(WorldConfig(), clock=lambda: 0, t0_ns=0)
+    bus = FakeMyAhrsBus(world)
+    dev = I2cDevice(bus, p.ADDRESS, 'sim')
+    sound = p.decode_sample(dev.read_burst(p.SAMPLE, p.SAMPLE_LEN))
+    assert p.implausible(sound) is None
+    want = {'zeros': 'quaternion_norm', 'ones': 'quaternion_norm',
+            'quaternion': 'quaternion_norm', 'gyro_rail': 'gyro_full_scale'}
+    assert set(want) == set(GARBLES)
+    for garble, reason in want.items():
+        bus.garble = garble
+        assert p.implausible(p.decode_sample(dev.read_burst(p.SAMPLE, p.SAMPLE_LEN))) == reason
+    bus.garble = None
+    assert p.decode_sample(dev.read_burst(p.SAMPLE, p.SAMPLE_LEN)) == sound
 
 
 def test_decode_rejects_short_burst():

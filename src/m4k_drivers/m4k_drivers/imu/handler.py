@@ -1,10 +1,18 @@
-"""IMU handler: identify the myAHRS+ (WHO_AM_I), then read samples in the ROS frame."""
+"""IMU handler: identify the myAHRS+ (WHO_AM_I), then read samples in the ROS frame.
+
+A sample that cannot be a measurement (:func:`m4k_drivers.imu.protocol.implausible`: a
+quaternion far from unit norm, a rate or acceleration at the full-scale rail) is rejected here,
+in the NRT handler that decodes the registers, not in the RT task: counted per reason in
+``rejected``, recorded as a fault (DEVICE_STATUS level WARN, fault count, last error PROTOCOL)
+and never sent as an IMU datagram.
+"""
 
 from __future__ import annotations
 
+import collections
 from typing import Any, Callable
 
-from m4k_drivers.handler import DeviceHandler, DeviceIdentityError
+from m4k_drivers.handler import DeviceHandler, DeviceIdentityError, DeviceProtocolError
 from m4k_drivers.imu import protocol as p
 from m4k_drivers.imu.real import I2cDevice
 
@@ -22,6 +30,7 @@ class ImuHandler(DeviceHandler):
         self._opener = opener
         self.dev: I2cDevice | None = None
         self.revision = (0, 0)
+        self.rejected: collections.Counter[str] = collections.Counter()   # reason -> samples
 
     def on_configure(self) -> None:
         """Open the bus and check WHO_AM_I == 0xB1."""
@@ -33,13 +42,33 @@ class ImuHandler(DeviceHandler):
         self.revision = (self.dev.read_byte(p.REG_REV_MAJOR), self.dev.read_byte(p.REG_REV_MINOR))
 
     def on_read(self) -> p.ImuSample:
-        """Read STATUS, then the whole sample in one transaction; return it in the ROS frame."""
+        """Read STATUS, then the whole sample in one transaction; return it in the ROS frame.
+
+        Raise DeviceProtocolError (counted in ``rejected``) for an implausible sample.
+        """
         assert self.dev is not None
         ready = bool(self.dev.read_byte(p.REG_STATUS) & p.STATUS_READY)
-        return p.to_ros(p.decode_sample(self.dev.read_burst(p.SAMPLE, p.SAMPLE_LEN)), ready)
+        sample = p.decode_sample(self.dev.read_burst(p.SAMPLE, p.SAMPLE_LEN))
+        reason = p.implausible(sample)
+        if reason is not None:
+            self.rejected[reason] += 1
+            n = sum(self.rejected.values())
+            if n == 1 or n % 100 == 0:      # a glitching bus repeats: not every sample logged
+                self.log.warning('%s: rejected %d implausible sample(s), last: %s %s',
+                                 self.name, n, reason, _describe(sample))
+            raise DeviceProtocolError(f'{self.name}: sample rejected: {reason} '
+                                      f'{_describe(sample)}')
+        return p.to_ros(sample, ready)
 
     def on_cleanup(self) -> None:
         """Close the bus."""
         if self.dev is not None:
             self.dev.close()
             self.dev = None
+
+
+def _describe(sample: p.DeviceSample) -> str:
+    """Return the quantities the plausibility rules judge, for the error message."""
+    norm = sum(q * q for q in sample.quaternion) ** 0.5
+    return (f'(|q|={norm:.4f}, gyro={tuple(round(g, 3) for g in sample.gyro)} rad/s, '
+            f'accel={tuple(round(a, 2) for a in sample.accel)} m/s^2)')

@@ -42,7 +42,7 @@ __all__ = [
     'ADDRESS', 'BLOCK1', 'BLOCK1_LEN', 'BLOCK2', 'BLOCK2_LEN', 'GRAVITY', 'REG_STATUS',
     'SAMPLE', 'SAMPLE_LEN', 'decode_sample',
     'REG_WHO_AM_I', 'STATUS_READY', 'WHO_AM_I_VALUE', 'DeviceSample', 'ImuSample',
-    'decode_blocks', 'encode_blocks', 'to_ros',
+    'QUAT_NORM_TOLERANCE', 'decode_blocks', 'encode_blocks', 'implausible', 'to_ros',
 ]
 
 ADDRESS = 0x20
@@ -72,6 +72,18 @@ GYRO_DPS = 2000.0 / FULL
 TEMP_C = 200.0 / FULL
 EULER_DEG = 180.0 / FULL
 QUAT = 1.0 / FULL
+
+# Plausibility (see :func:`implausible`).  The firmware's EKF outputs a unit quaternion; the
+# registers round each component to 1/32767, so |q| of a sound sample is 1 within
+# sqrt(4) * 0.5 / 32767 = 3.1e-5.  0.01 (328 LSB) is 300 times that: room for a firmware that
+# normalises loosely, while all-zero (a reset in progress), all-0xFF (nothing drives SDA:
+# |q| = 6e-5) and a corrupted high byte of a large component (>= 256 LSB) fall outside.
+QUAT_NORM_TOLERANCE = 0.01
+# A calibrated accel/gyro register at the rail (|count| >= 32767: +-16 g, +-2000 dps, the
+# stated full scale) is clipped -- the true value is at or beyond the range, so the number is
+# wrong.  Half an LSB below the rail, so the rail itself counts.
+ACC_LIMIT = (FULL - 0.5) * ACC_G * GRAVITY                    # m/s^2
+GYRO_LIMIT = math.radians((FULL - 0.5) * GYRO_DPS)        # rad/s
 
 class DeviceSample(NamedTuple):
     """One sample in the myAHRS+ board frame (x fwd, y right, z down), SI units."""
@@ -136,6 +148,23 @@ def encode_blocks(sample: DeviceSample) -> tuple[bytes, bytes]:
     quat = [_i16(q / QUAT) for q in sample.quaternion]
     return (_B1.pack(*acc, *gyro, *mag, _i16(sample.temperature / TEMP_C)),
             _B2.pack(*euler, *quat))
+
+
+def implausible(sample: DeviceSample) -> str | None:
+    """Return why ``sample`` cannot be a real measurement (None: plausible).
+
+    Reasons: ``quaternion_norm`` (|q| off 1 by more than :data:`QUAT_NORM_TOLERANCE`: garbage
+    on the bus or registers cleared by a reset), ``gyro_full_scale`` / ``accel_full_scale``
+    (a register at the +-2000 dps / +-16 g rail: clipped).
+    """
+    norm = math.sqrt(sum(q * q for q in sample.quaternion))
+    if not abs(norm - 1.0) <= QUAT_NORM_TOLERANCE:
+        return 'quaternion_norm'
+    if any(not abs(g) < GYRO_LIMIT for g in sample.gyro):
+        return 'gyro_full_scale'
+    if any(not abs(a) < ACC_LIMIT for a in sample.accel):
+        return 'accel_full_scale'
+    return None
 
 
 def to_ros(sample: DeviceSample, ready: bool = True) -> ImuSample:

@@ -9,6 +9,13 @@ the standard deviations the ``robotpilot/myahrs_driver`` authors measured on a m
 a constant per-axis bias (``gyro_bias``, ROS frame) drawn once from the world seed (sd 0.002
 rad/s).  The robot drives on
 a flat floor: roll = pitch = 0; the heading reference is the world x axis.
+
+Fault injection (tests): ``garble`` set to one of :data:`GARBLES` makes every sample burst
+read as what a real part on a noisy bus or in a reset returns -- ``zeros`` (data registers
+cleared while the firmware restarts), ``ones`` (0xFF: nothing drives SDA), ``quaternion``
+(bit 6 of QUATERNION_X_HIGH flipped: x off by
+0.5, |q| about 1.12), ``gyro_rail`` (gyro z at +32767: the
+2000 dps full scale, clipped).  STATUS and WHO_AM_I are not touched (separate transactions).
 """
 
 from __future__ import annotations
@@ -22,13 +29,14 @@ from typing import Any
 from m4k_drivers.imu import protocol as p
 from m4k_drivers.world import World
 
-__all__ = ['FakeMyAhrsBus']
+__all__ = ['FakeMyAhrsBus', 'GARBLES']
 
 I2C_M_RD = 0x0001          # linux/i2c.h: read message
 
 # Earth field in base_link at yaw 0 (uT): 25 horizontal towards world +x, 40 down.
 _EARTH_H_UT = 25.0
 _EARTH_DOWN_UT = 40.0
+GARBLES = ('zeros', 'ones', 'quaternion', 'gyro_rail')
 
 
 class FakeMyAhrsBus:
@@ -52,6 +60,7 @@ class FakeMyAhrsBus:
         self.closed = False
         self.samples = 0
         self.transactions = 0
+        self.garble: str | None = None        # fault injection: one of GARBLES, None = sound
 
     def _refresh(self) -> None:
         now = self.world.now()
@@ -81,6 +90,24 @@ class FakeMyAhrsBus:
         self.regs[p.BLOCK2:p.BLOCK2 + p.BLOCK2_LEN] = b2
         self.samples += 1
 
+    def _view(self) -> bytearray:
+        """Return the registers as a read sees them: with ``garble``, a corrupted sample."""
+        if self.garble is None:
+            return self.regs
+        regs = bytearray(self.regs)
+        lo, hi = p.SAMPLE, p.SAMPLE + p.SAMPLE_LEN
+        if self.garble == 'zeros':
+            regs[lo:hi] = bytes(hi - lo)
+        elif self.garble == 'ones':
+            regs[lo:hi] = b'\xff' * (hi - lo)
+        elif self.garble == 'quaternion':      # one bit flipped in QUATERNION_X_HIGH
+            regs[p.REG_QUATERNION_X + 1] ^= 0x40   # x +- 16384 LSB: |q| about 1.12
+        elif self.garble == 'gyro_rail':
+            regs[p.REG_C_GYRO_X + 4:p.REG_C_GYRO_X + 6] = (32767).to_bytes(2, 'little')
+        else:
+            raise ValueError(f'garble must be one of {GARBLES} or None, got {self.garble!r}')
+        return regs
+
     def _check(self, i2c_addr: int, register: int, length: int = 1) -> None:
         if self.closed:
             raise OSError(errno.EBADF, 'Bad file descriptor')
@@ -94,13 +121,13 @@ class FakeMyAhrsBus:
         """Read one register."""
         self._check(i2c_addr, register)
         self._refresh()
-        return self.regs[register]
+        return self._view()[register]
 
     def read_i2c_block_data(self, i2c_addr: int, register: int, length: int) -> list[int]:
         """Read consecutive registers (auto-increment), at most 32 like SMBus."""
         self._check(i2c_addr, register, length)
         self._refresh()
-        return list(self.regs[register:register + length])
+        return list(self._view()[register:register + length])
 
     def read_burst(self, i2c_addr: int, register: int, length: int) -> bytes:
         """Read ``length`` registers from ``register`` in one transaction (auto-increment).
@@ -115,7 +142,7 @@ class FakeMyAhrsBus:
         if not 0 <= register <= 0xFF or length < 1:
             raise OSError(errno.EINVAL, f'register 0x{register:02x}+{length} invalid')
         self._refresh()
-        data = bytes(self.regs[register:register + length])
+        data = bytes(self._view()[register:register + length])
         return data + b'\xff' * (length - len(data))
 
     def i2c_rdwr(self, *messages: Any) -> None:
@@ -126,6 +153,7 @@ class FakeMyAhrsBus:
         if self.closed:
             raise OSError(errno.EBADF, 'Bad file descriptor')
         self._refresh()
+        regs = self._view()
         pointer = 0
         for msg in messages:
             if msg.addr != self.address:
@@ -135,9 +163,9 @@ class FakeMyAhrsBus:
                 if data:
                     pointer = data[0]
                 continue
-            if pointer + msg.len > len(self.regs):
+            if pointer + msg.len > len(regs):
                 raise OSError(errno.EIO, f'register 0x{pointer:02x}+{msg.len} out of range')
-            ctypes.memmove(msg.buf, bytes(self.regs[pointer:pointer + msg.len]), msg.len)
+            ctypes.memmove(msg.buf, bytes(regs[pointer:pointer + msg.len]), msg.len)
             pointer += msg.len
         self.transactions += 1
 
