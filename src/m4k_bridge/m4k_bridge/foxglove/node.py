@@ -37,10 +37,12 @@ import importlib
 import re
 import sys
 import threading
+import time
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
@@ -60,6 +62,11 @@ NODE_NAME = 'm4k_foxglove'
 _ACTIONS_MAX = 1000          # client requests waiting for the ROS thread
 _SKIP_SERVICE_PACKAGES = ('rcl_interfaces', 'type_description_interfaces')
 _TWISTS = ('geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped')
+# A publisher destroyed right after its last message can take that message with it: a reliable
+# writer's unacknowledged samples die with the writer (ros2cli's `topic pub` keeps its node
+# alive 0.1 s after the last message for the same reason). A dropped client's publisher is
+# therefore kept until every reader acknowledged the zero Twist, or this long at most.
+_RETIRE_S = 5.0
 
 
 def subscription_qos(profiles: Sequence[Any]) -> QoSProfile:
@@ -113,6 +120,7 @@ class FoxgloveNode(Node):
         self._subs: dict[str, tuple[int, Any, str]] = {}   # topic -> (channel, sub, type)
         self._skipped: set[str] = set()
         self._pubs: dict[tuple[int, int], tuple[Any, Any, str]] = {}
+        self._retiring: list[tuple[float, Any]] = []    # (monotonic deadline, publisher)
         self._service_ids: dict[str, int] = {}
         self._svc: dict[int, tuple[Any, Any, str]] = {}     # id -> (client, class, name)
         self._actions: collections.deque[Callable[[], None]] = collections.deque()
@@ -136,10 +144,19 @@ class FoxgloveNode(Node):
         self.poll_graph()
         self.create_timer(graph_period, self.poll_graph)
         self.create_timer(diag_period, self.publish_diagnostics)
+        self.create_timer(0.1, self._retire)
 
     def destroy_node(self) -> None:
-        """Stop the server (closing every connection), then the node."""
+        """Stop the server (closing every connection), then the node.
+
+        The connections' last requests still run here -- the zero Twist of every client that
+        was driving -- and the node waits (bounded) for its readers to acknowledge it.
+        """
         self.server.stop()
+        self._run_actions()
+        for _, pub in self._retiring:
+            pub.wait_for_all_acked(Duration(seconds=0.5))
+        self._retiring.clear()
         super().destroy_node()
 
     # --- graph -> channels -------------------------------------------------------------------
@@ -204,9 +221,11 @@ class FoxgloveNode(Node):
             self.server.set_services(new)
 
     # --- what clients send (server thread -> ROS thread) -------------------------------------
-    def _post(self, action: Callable[[], None]) -> None:
+    def _post(self, action: Callable[[], None], critical: bool = False) -> None:
+        # ``critical``: never dropped for the bound (a client's channel going away: its zero
+        # Twist); one per channel, so the queue stays bounded by the channels.
         with self._actions_lock:
-            if len(self._actions) >= _ACTIONS_MAX:
+            if len(self._actions) >= _ACTIONS_MAX and not critical:
                 self.actions_dropped += 1
                 return
             self._actions.append(action)
@@ -250,16 +269,31 @@ class FoxgloveNode(Node):
 
     def on_client_unadvertise(self, client: int, channel_id: int) -> None:
         """Destroy the client's publisher (after one zero Twist for a velocity channel)."""
-        self._post(lambda: self._drop_publisher((client, channel_id)))
+        self._post(lambda: self._drop_publisher((client, channel_id)), critical=True)
 
     def _drop_publisher(self, key: tuple[int, int]) -> None:
         entry = self._pubs.pop(key, None)
         if entry is None:
             return
         pub, cls, tname = entry
-        if tname in _TWISTS:
-            pub.publish(cls())          # zero velocity: the robot stops with its client
-        self.destroy_publisher(pub)
+        if tname not in _TWISTS:
+            self.destroy_publisher(pub)
+            return
+        pub.publish(cls())          # zero velocity: the robot stops with its client
+        self._retiring.append((time.monotonic() + _RETIRE_S, pub))
+
+    def _retire(self) -> None:
+        """Destroy dropped clients' publishers once their zero Twist is acknowledged."""
+        if not self._retiring:
+            return
+        now = time.monotonic()
+        keep = []
+        for deadline, pub in self._retiring:
+            if now < deadline and not pub.wait_for_all_acked(Duration(seconds=0)):
+                keep.append((deadline, pub))
+            else:
+                self.destroy_publisher(pub)
+        self._retiring = keep
 
     def on_client_message(self, client: int, channel_id: int, payload: bytes) -> None:
         """Publish a client's CDR message (decoded to check it, then published by rclpy)."""
