@@ -198,16 +198,6 @@ def _cyclictest(duration_s: float, priority: int, interval_us: int, hist_path: s
                                 start_new_session=True)
 
 
-def _stop_cyclictest(ct: subprocess.Popen[str]) -> None:
-    if ct.poll() is None:
-        ct.send_signal(signal.SIGINT)
-    try:
-        ct.wait(30)
-    except subprocess.TimeoutExpired:
-        ct.kill()
-        ct.wait()
-
-
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog='soak', description=__doc__.split('\n')[0])
     ap.add_argument('--duration', type=float, default=600.0, help='seconds (default 600)')
@@ -342,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if stress is not None:
             stress.__exit__(None, None, None)
         for p in cts.values():
-            _stop_cyclictest(p)
+            stop_process(p, signal.SIGINT, 30, group=False)   # SIGINT: it writes its histogram
         stat.close()
         bu_rc = bu.poll()
         stop_process(bu, signal.SIGINT, 60, group=False)
