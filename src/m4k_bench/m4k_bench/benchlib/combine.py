@@ -15,23 +15,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import sys
 from typing import Any, Mapping, Sequence
 
+from m4k_bench.benchlib.report import fmt_spread, md_table
+from m4k_bench.benchlib.rounds import spread
 from m4k_rt import rosargs
 
-__all__ = ['combine', 'load', 'main', 'render', 'spread']
+__all__ = ['combine', 'load', 'main', 'render']
 
 _EXTRA = ('baseline_over_m4k_jitter_p99_stress', 'baseline_over_m4k_jitter_max_stress')
-
-
-def spread(values: Sequence[float | None]) -> dict[str, Any] | None:
-    """Return median, min, max and n of the values that were measured (None: none were)."""
-    v = sorted(float(x) for x in values if x is not None)
-    if not v:
-        return None
-    return {'median': statistics.median(v), 'min': v[0], 'max': v[-1], 'n': len(v)}
 
 
 def load(directory: str) -> dict[str, Any]:
@@ -92,17 +85,6 @@ def combine(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                     'rounds'), 'machine': r.get('machine') or {}} for r in runs]}
 
 
-def _f(v: float | None, digits: int = 2) -> str:
-    return '-' if v is None else '{:.{}f}'.format(v, digits)
-
-
-def _sp(sp: Mapping[str, Any] | None, digits: int = 2) -> str:
-    if not sp:
-        return '-'
-    return '{} ({}–{}, n={})'.format(_f(sp['median'], digits), _f(sp['min'], digits),
-                                     _f(sp['max'], digits), sp['n'])
-
-
 def render(comb: Mapping[str, Any]) -> str:
     """Return the combined table as Markdown (for the README and docs/results)."""
     runs = comb['runs']
@@ -129,17 +111,16 @@ def render(comb: Mapping[str, Any]) -> str:
         else:
             verdict = 'NOT met ({} of {} runs met)'.format(
                 sum(1 for m in row['met_per_run'] if m), len(runs))
-        out_rows.append([row['label'], row['target']] + [_sp(s) for s in row['runs']] + [
-            _sp(row['pooled']), verdict])
-    lines.append('| ' + ' | '.join(head) + ' |')
-    lines.append('|' + '---|' * len(head))
-    lines += ['| ' + ' | '.join(r) + ' |' for r in out_rows]
+        out_rows.append([row['label'], row['target']] + [fmt_spread(s) for s in row['runs']]
+                        + [fmt_spread(row['pooled']), verdict])
+    lines += md_table(head, out_rows)
     lines += ['', 'CPU per task cycle (µs), the floor beside the stack and cyclictest in the '
               'same run:', '']
     for i, lc in enumerate(comb['loop_cost'], 1):
         lines.append('* run {}: m4k {}, floor {} (floor run alone: {})'.format(
-            i, _sp(lc['paired_m4k_cpu_per_cycle_us'], 1),
-            _sp(lc['paired_floor_cpu_per_cycle_us'], 1), _sp(lc['floor_cpu_per_cycle_us'], 1)))
+            i, fmt_spread(lc['paired_m4k_cpu_per_cycle_us'], 1),
+            fmt_spread(lc['paired_floor_cpu_per_cycle_us'], 1),
+            fmt_spread(lc['floor_cpu_per_cycle_us'], 1)))
     return '\n'.join(lines) + '\n'
 
 

@@ -15,7 +15,8 @@ from m4k_bench.benchlib import analysis
 from m4k_bench.benchlib.analysis import RATIOS
 from m4k_rt import recorder
 
-__all__ = ['CONDITION_LABELS', 'method_lines', 'readme_snippet', 'render']
+__all__ = ['CONDITION_LABELS', 'fmt_spread', 'md_table', 'method_lines', 'readme_snippet',
+           'render']
 
 CONDITION_LABELS = {
     'm4k_idle': 'm4k full stack, idle',
@@ -47,13 +48,14 @@ def _g(d: Mapping[str, Any] | None, *path: str) -> Any:
     return d
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
+def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
+    """Return a Markdown table's lines."""
     out = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
     out += ['| ' + ' | '.join(str(c) for c in r) + ' |' for r in rows]
     return out
 
 
-def _sp(sp: Mapping[str, Any] | None, digits: int = 2) -> str:
+def fmt_spread(sp: Mapping[str, Any] | None, digits: int = 2) -> str:
     """Format a spread: 'median (min–max, n)'."""
     if not sp:
         return '-'
@@ -66,15 +68,15 @@ def _targets(summ: Mapping[str, Any]) -> list[str]:
     for t in summ.get('targets', []):
         met = {True: '**met**', False: '**NOT met**', None: 'not measured'}[t['met']]
         of = t.get('of') or {}
-        rows.append([t['label'], t['target'], _sp(t['spread']), _sp(of.get('concurrent')),
-                     _sp(of.get('alone')), met])
+        rows.append([t['label'], t['target'], fmt_spread(t['spread']),
+                     fmt_spread(of.get('concurrent')), fmt_spread(of.get('alone')), met])
     lines = ['## Targets (issue 14): median over the rounds, min–max', '',
              'Every ratio is computed within one round, from two measurements taken side by '
              'side; the verdict is on the median. A latency target is judged on the stricter '
              'of two denominators, round by round: cyclictest running concurrently beside '
              'm4k (which m4k slows) and cyclictest alone in the same round; both are shown.',
              '']
-    lines += _table(['Ratio', 'Target', 'judged: stricter, median (min–max, rounds)',
+    lines += md_table(['Ratio', 'Target', 'judged: stricter, median (min–max, rounds)',
                      '÷ concurrent cyclictest', '÷ cyclictest alone', 'Verdict'], rows)
     return lines
 
@@ -84,10 +86,10 @@ def _ratios(summ: Mapping[str, Any]) -> list[str]:
     rows = []
     for r in RATIOS:
         e = ratios.get(r.key) or {}
-        rows.append([r.label, _sp(e.get('spread')),
+        rows.append([r.label, fmt_spread(e.get('spread')),
                      ' / '.join(_f(v, 2) for v in e.get('values', []))])
     lines = ['## All ratios, per round', '']
-    lines += _table(['Ratio', 'median (min–max, n)', 'per round'], rows)
+    lines += md_table(['Ratio', 'median (min–max, n)', 'per round'], rows)
     excl = ratios.get('_excluded') or []
     if excl:
         lines += ['', 'Left out of the m4k ratios (RT hardening not obtained): ' +
@@ -135,7 +137,7 @@ def _per_round(summ: Mapping[str, Any]) -> list[str]:
              'Release latency = cycle start - the release it serves; after an overrun, from the '
              "missed release (cyclictest's metric). The plain-ROS rows are its timer callback. "
              '"concurrent cyclictest" ran at the same period and priority during that run.', '']
-    lines += _table(['Round', 'Condition', 'p50', 'p99', 'p99.9', 'max',
+    lines += md_table(['Round', 'Condition', 'p50', 'p99', 'p99.9', 'max',
                      'concurrent cyclictest p99 / max', 'overruns / misses', 'RT hardening'],
                     rows)
     return lines
@@ -155,7 +157,7 @@ def _stalls(summ: Mapping[str, Any]) -> list[str]:
              "process's own.", '']
     if not rows:
         return lines + ['No stall in any round.']
-    return lines + _table(['Round', 'Condition', 'Metric', 'max (µs)',
+    return lines + md_table(['Round', 'Condition', 'Metric', 'max (µs)',
                            'concurrent cyclictest max (µs)', 'Whose'], rows)
 
 
@@ -179,7 +181,7 @@ def _utilization(summ: Mapping[str, Any]) -> list[str]:
              '(with release jitter = the release latency at the same percentile) of the '
              'median round is in the Table 1 section. A max set by a stall is listed above '
              'with its owner.', '']
-    return lines + _table(['Round', 'Condition', 'from max', 'from p99.9'], rows)
+    return lines + md_table(['Round', 'Condition', 'from max', 'from p99.9'], rows)
 
 
 def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
@@ -193,31 +195,31 @@ def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
              'rt_core) and the concurrent cyclictest, so both pay for the same co-load; the '
              'floor run alone, in every round, is shown for comparison.', '']
     rows = [['m4k full stack, idle, paired with the floor',
-             _sp(lc.get('paired_m4k_cpu_per_cycle_us'), 1)],
+             fmt_spread(lc.get('paired_m4k_cpu_per_cycle_us'), 1)],
             ['Python floor beside the stack and cyclictest (paired)',
-             _sp(lc.get('paired_floor_cpu_per_cycle_us'), 1)],
+             fmt_spread(lc.get('paired_floor_cpu_per_cycle_us'), 1)],
             ['m4k ÷ floor, paired (the target)',
-             _sp(_g(summ, 'ratios', 'cpu_per_cycle_over_floor', 'spread'))],
-            ['m4k full stack, idle', _sp(lc.get('m4k_cpu_per_cycle_us'), 1)],
-            ['Python floor, alone', _sp(lc.get('floor_cpu_per_cycle_us'), 1)],
+             fmt_spread(_g(summ, 'ratios', 'cpu_per_cycle_over_floor', 'spread'))],
+            ['m4k full stack, idle', fmt_spread(lc.get('m4k_cpu_per_cycle_us'), 1)],
+            ['Python floor, alone', fmt_spread(lc.get('floor_cpu_per_cycle_us'), 1)],
             ['m4k ÷ floor alone',
-             _sp(_g(summ, 'ratios', 'cpu_per_cycle_over_floor_alone', 'spread'))]]
-    lines += _table(['CPU per cycle (µs)', 'median (min–max, rounds)'], rows)
+             fmt_spread(_g(summ, 'ratios', 'cpu_per_cycle_over_floor_alone', 'spread'))]]
+    lines += md_table(['CPU per cycle (µs)', 'median (min–max, rounds)'], rows)
     lines += ['', "Breakdown: what each task's body costs per cycle (response p50, median "
               'over rounds) and the per-cycle bookkeeping of `RtTask.wait_period` without the '
               'kernel wait (clock read, ring record, rusage every 64 cycles):', '']
-    brows = [[k, _sp(v, 1)] for k, v in (lc.get('body_response_p50_us') or {}).items()]
+    brows = [[k, fmt_spread(v, 1)] for k, v in (lc.get('body_response_p50_us') or {}).items()]
     bk = lc.get('bookkeeping_us') or {}
     if 'per_cycle_us_median' in bk:
         brows.append(['bookkeeping (no wait)', '{} µs'.format(_f(bk['per_cycle_us_median'],
                                                                    2))])
-    lines += _table(['Part', 'µs per cycle'], brows)
+    lines += md_table(['Part', 'µs per cycle'], brows)
     lines += _breakdown(lc.get('breakdown'))
     parts = lc.get('parts_us') or {}
     if parts:
         lines += ['', 'The parts of a cycle, each timed alone on the real objects '
                   '(`m4k_bench.benchlib.loopparts`; µs per call, rusage per cycle):', '']
-        lines += _table(['clock read', 'drain + decode one datagram', 'drain, empty port',
+        lines += md_table(['clock read', 'drain + decode one datagram', 'drain, empty port',
                          'encode + send one datagram', 'timing record', 'rusage'],
                         [[_f(parts.get(k), 2) for k in ('clock', 'drain_decode', 'drain_empty',
                                                          'encode_send', 'timing_record',
@@ -248,8 +250,8 @@ def _breakdown(bd: Mapping[str, Any] | None) -> list[str]:
              "are timed with the clock around the ports' readers and writers; wake = the "
              "thread's CPU per cycle minus the timed parts (timer wait system call, switch, GIL, "
              'loop lines). Process CPU per cycle of the profiled runs: {} µs.'.format(
-                 _sp(bd.get('process_cpu_per_cycle_us'), 1)), '']
-    lines += _table(['Task', 'rate (Hz)'] + [_PART_LABELS[p] for p in PARTS]
+                 fmt_spread(bd.get('process_cpu_per_cycle_us'), 1)), '']
+    lines += md_table(['Task', 'rate (Hz)'] + [_PART_LABELS[p] for p in PARTS]
                     + ['thread CPU'], rows)
     ab = bd.get('cache_ab_us')
     if ab:
@@ -264,10 +266,11 @@ def _breakdown(bd: Mapping[str, Any] | None) -> list[str]:
 
 
 def _scaling(summ: Mapping[str, Any]) -> list[str]:
-    rows = [[r['rate_hz'], r['set'], _sp(r['release_p99_us'], 1), _sp(r['release_p999_us'], 1),
-             _sp(r['cyclictest_p99_us'], 1), _sp(r['ratio_p99']),
-             _sp(r['cyclictest_alone_p99_us'], 1), _sp(r['ratio_p99_alone']),
-             _sp(r['cpu_per_cycle_us'], 1),
+    rows = [[r['rate_hz'], r['set'], fmt_spread(r['release_p99_us'], 1),
+             fmt_spread(r['release_p999_us'], 1), fmt_spread(r['cyclictest_p99_us'], 1),
+             fmt_spread(r['ratio_p99']),
+             fmt_spread(r['cyclictest_alone_p99_us'], 1), fmt_spread(r['ratio_p99_alone']),
+             fmt_spread(r['cpu_per_cycle_us'], 1),
              '{} / {}'.format(_f(r.get('overruns')), _f(r.get('deadline_misses'))),
              '{}{}'.format(r['runs'], ' ({} degraded)'.format(r['degraded'])
                            if r['degraded'] else '')]
@@ -279,7 +282,7 @@ def _scaling(summ: Mapping[str, Any]) -> list[str]:
               'other round. Median (min–max) over the hardened runs; overruns and deadline '
               'misses summed over all runs. Per-run figures: `summary.json` → `scaling`.', '',
               '![scaling](scaling.png)', '']
-    return lines + _table(['Rate (Hz)', 'Tasks', 'release p99 (µs)', 'release p99.9 (µs)',
+    return lines + md_table(['Rate (Hz)', 'Tasks', 'release p99 (µs)', 'release p99.9 (µs)',
                            'concurrent cyclictest p99 (µs)', 'p99 ratio',
                            'cyclictest alone p99 (µs)', 'p99 ratio (alone)',
                            'CPU per cycle (µs)', 'overruns / misses', 'runs'], rows)
@@ -299,7 +302,7 @@ def _rtt(summ: Mapping[str, Any]) -> list[str]:
              'thread waits in one poll, then receives with `RtXddpSocket.recv_into` (what '
              '`PortReader` does every cycle) -- the raw side with the same poll + recv_into '
              '(`m4k_bench.xddp_bench`).', '']
-    return lines + _table(['Round', 'XDDP p50', 'raw p50', 'XDDP p99', 'raw p99',
+    return lines + md_table(['Round', 'XDDP p50', 'raw p50', 'XDDP p99', 'raw p99',
                            'p50 ratio'], rows)
 
 
@@ -312,7 +315,7 @@ def _machine(m: Mapping[str, Any]) -> list[str]:
             ('sched_rt_runtime_us', 'sched_rt_runtime_us'), ('python', 'Python'),
             ('numpy', 'numpy'), ('euid', 'Effective uid'),
             ('loadavg', 'Load average at start')]
-    return ['## Machine and kernel', ''] + _table(
+    return ['## Machine and kernel', ''] + md_table(
         ['', ''], [[label, _f(m.get(k))] for k, label in keys if k in m])
 
 
@@ -328,7 +331,7 @@ def _cmdlat(summ: Mapping[str, Any]) -> list[str]:
         if s:
             rows.append([label, _f(s['p50']), _f(s['p99']), _f(s['max']), _f(s['min']), s['n']])
     lines += [c.get('method', ''), '']
-    lines += _table(['Interval', 'p50 (us)', 'p99 (us)', 'max (us)', 'min (us)', 'trials'], rows)
+    lines += md_table(['Interval', 'p50 (us)', 'p99 (us)', 'max (us)', 'min (us)', 'trials'], rows)
     if c.get('lost'):
         lines += ['', '{} trial(s) saw no reacting WHEEL_CMD within the timeout.'.format(
             c['lost'])]
@@ -412,21 +415,22 @@ def readme_snippet(summ: Mapping[str, Any], where: str = 'docs/results/bench') -
                  plan.get('condition_s', 0), run.get('started_utc', ''),
                  m.get('cpu_model', '?'), m.get('cpus_online', '?'), m.get('kernel', '?'),
                  m.get('preempt_model', '?'), w=where), '']
-    rows = [[t['label'], _sp(t['spread']), _sp((t.get('of') or {}).get('concurrent')),
-             _sp((t.get('of') or {}).get('alone')), t['target'],
+    rows = [[t['label'], fmt_spread(t['spread']),
+             fmt_spread((t.get('of') or {}).get('concurrent')),
+             fmt_spread((t.get('of') or {}).get('alone')), t['target'],
              {True: 'met', False: 'NOT met', None: 'not measured'}[t['met']]]
             for t in summ.get('targets', [])]
     for key in ('baseline_over_m4k_jitter_p99_stress', 'baseline_over_m4k_jitter_max_stress'):
         e = _g(summ, 'ratios', key) or {}
-        rows.append([e.get('label', key), _sp(e.get('spread')), '', '', '–', 'reported'])
-    lines += _table(['ratio', 'judged (stricter): median (min–max, rounds)',
+        rows.append([e.get('label', key), fmt_spread(e.get('spread')), '', '', '–', 'reported'])
+    lines += md_table(['ratio', 'judged (stricter): median (min–max, rounds)',
                      '÷ concurrent cyclictest', '÷ cyclictest alone', 'target', ''], rows)
     lc = summ.get('loop_cost') or {}
     lines += ['', 'CPU per task cycle, one run with the Python floor beside the stack and '
               'cyclictest: m4k {} µs, floor {} µs (floor run alone: {} µs).'.format(
-                  _sp(lc.get('paired_m4k_cpu_per_cycle_us'), 1),
-                  _sp(lc.get('paired_floor_cpu_per_cycle_us'), 1),
-                  _sp(lc.get('floor_cpu_per_cycle_us'), 1))]
+                  fmt_spread(lc.get('paired_m4k_cpu_per_cycle_us'), 1),
+                  fmt_spread(lc.get('paired_floor_cpu_per_cycle_us'), 1),
+                  fmt_spread(lc.get('floor_cpu_per_cycle_us'), 1))]
     lines += _table1_compact(summ)
     if summ.get('scaling'):
         lines += ['', '![scaling]({}/scaling.png)'.format(where)]
@@ -464,7 +468,7 @@ def _table1_compact(summ: Mapping[str, Any]) -> list[str]:
              'stack, idle — the round whose actuator release p99 is the median. Times in µs, '
              'p50 / p99 / max; RTA = response-time analysis with release jitter, '
              'worst-case response in brackets:'.format(summ.get('table1_round')), '']
-    lines += _table(['Task', 'Prio', 'Period (ms)', 'Cycles', 'Response', 'Release latency',
+    lines += md_table(['Task', 'Prio', 'Period (ms)', 'Cycles', 'Response', 'Release latency',
                      'Overruns / misses', 'RTA on max', 'RTA on p99.9'], rows)
     for key, label in (('utilization', 'max'), ('utilization_p999', 'p99.9')):
         u = t1.get(key)
