@@ -30,6 +30,8 @@ import math
 import re
 from typing import Any, Iterable, Mapping, Sequence
 
+from m4k_rt import timing
+
 __all__ = ['CounterTimeline', 'attribute', 'parse_spikes', 'parse_verbose', 'sample_events',
            'sample_times', 'skipped_releases']
 
@@ -135,17 +137,18 @@ def sample_events(t_rel: Sequence[int], t_start: Sequence[int], t_end: Sequence[
                   hi_ns: int) -> tuple[list[Event], list[Event]]:
     """Return (overruns, deadline misses) of one task's samples with ``lo <= t_start < hi``.
 
-    An overrun is ``expirations - 1`` at the cycle's start (the late wake-up); a deadline miss
-    is a cycle that ended after its release + period, at its end (as :mod:`m4k_rt.task`).
+    Overruns (:func:`m4k_rt.timing.overruns`) are placed at the cycle's start (the late
+    wake-up); a deadline miss (:func:`m4k_rt.timing.deadline_missed`) at the cycle's end.
     """
     over: list[Event] = []
     miss: list[Event] = []
     for rel, start, end, exp in zip(t_rel, t_start, t_end, expirations, strict=True):
         if not lo_ns <= start < hi_ns:
             continue
-        if exp > 1:
-            over.append((start / 1e9, exp - 1))
-        if end > rel + period_ns:
+        n = timing.overruns(exp)
+        if n:
+            over.append((start / 1e9, n))
+        if timing.deadline_missed(rel, end, period_ns):
             miss.append((end / 1e9, 1))
     return over, miss
 
