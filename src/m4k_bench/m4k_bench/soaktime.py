@@ -316,8 +316,12 @@ def report_lines(tl: Mapping[str, Any], period_us: int) -> list[str]:
 
 
 def write_csv(path: str, tl: Mapping[str, Any]) -> None:
-    """Write one row per second: each task's overruns + misses and each reference's max/late."""
-    tasks = sorted(tl['counters']['tasks'])
+    """Write one row per second: each task's overruns + misses and each reference's max/late.
+
+    The tasks' counts are binned at their exact cycle times (the cycle samples, as the report's
+    lead table), not at the 1-2 s later second in which the polled counters showed them.
+    """
+    tasks = sorted(tl['samples']['tasks'])
     refs = list(tl['references'])
     secs: set[int] = set()
     for r in refs:
@@ -332,7 +336,7 @@ def write_csv(path: str, tl: Mapping[str, Any]) -> None:
         w.writerow(['second'] + ['{}_late'.format(t) for t in tasks]
                    + [x for r in refs for x in ('ct_{}_max_us'.format(r), 'ct_{}_late'.format(r))])
         for s in sorted(secs):
-            w.writerow([s] + [tl['counters']['tasks'][t]['per_second'].get(s, 0) for t in tasks]
+            w.writerow([s] + [tl['samples']['tasks'][t]['per_second'].get(s, 0) for t in tasks]
                        + [x for r in refs for x in (
                            tl['references'][r]['per_second_max_us'].get(s, ''),
                            late[r].get(s, 0))])

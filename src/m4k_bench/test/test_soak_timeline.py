@@ -1,5 +1,7 @@
 """The soak's timeline: cyclictest -v/--spike parsing and the stall attribution, worked by hand."""
 
+import csv
+
 from m4k_bench import soaktime
 
 # cyclictest 2.x output of `-q -v --spike=9999` (one thread, 10 ms): headers, one line per
@@ -119,7 +121,7 @@ def test_sample_events_count_skipped_releases_and_misses_inside_the_window():
     assert over == [(0.0764, 2)] and miss == [(0.101, 1)]
 
 
-def test_analyze_puts_samples_counters_and_references_in_one_report():
+def test_analyze_puts_samples_counters_and_references_in_one_report(tmp_path):
     from m4k_rt.recorder import TaskSeries
     ms = 1_000_000
     imu = TaskSeries('imu', period_ns=10 * ms)
@@ -141,3 +143,9 @@ def test_analyze_puts_samples_counters_and_references_in_one_report():
     text = '\n'.join(soaktime.report_lines(tl, 10_000))
     assert '| actuator | 90 | 7 | 2 | 26.4, 12.0 | 3 | --spike stamps |' in text
     assert '| imu | 2 + 0 | 2 | 2 | 0 | 2 (0) | 2 | 2 | 0 |' in text
+    # timeline.csv bins the task at its cycle (second 0), not where the counters showed it (2).
+    soaktime.write_csv(str(tmp_path / 't.csv'), tl)
+    with open(tmp_path / 't.csv', newline='') as f:
+        rows = {r['second']: r for r in csv.DictReader(f)}
+    assert rows['0']['imu_late'] == '2'
+    assert all(r['imu_late'] == '0' for sec, r in rows.items() if sec != '0')
