@@ -69,6 +69,6 @@ class ImuHandler(DeviceHandler):
 
 def _describe(sample: p.DeviceSample) -> str:
     """Return the quantities the plausibility rules judge, for the error message."""
-    norm = sum(q * q for q in sample.quaternion) ** 0.5
-    return (f'(|q|={norm:.4f}, gyro={tuple(round(g, 3) for g in sample.gyro)} rad/s, '
+    return (f'(|q|={p.quaternion_norm(sample):.4f}, '
+            f'gyro={tuple(round(g, 3) for g in sample.gyro)} rad/s, '
             f'accel={tuple(round(a, 2) for a in sample.accel)} m/s^2)')

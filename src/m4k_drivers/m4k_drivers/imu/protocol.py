@@ -42,7 +42,8 @@ __all__ = [
     'ADDRESS', 'BLOCK1', 'BLOCK1_LEN', 'BLOCK2', 'BLOCK2_LEN', 'GRAVITY', 'REG_STATUS',
     'SAMPLE', 'SAMPLE_LEN', 'decode_sample',
     'REG_WHO_AM_I', 'STATUS_READY', 'WHO_AM_I_VALUE', 'DeviceSample', 'ImuSample',
-    'QUAT_NORM_TOLERANCE', 'decode_blocks', 'encode_blocks', 'implausible', 'to_ros',
+    'QUAT_NORM_TOLERANCE', 'decode_blocks', 'encode_blocks', 'implausible', 'quaternion_norm',
+    'to_ros',
 ]
 
 ADDRESS = 0x20
@@ -150,6 +151,11 @@ def encode_blocks(sample: DeviceSample) -> tuple[bytes, bytes]:
             _B2.pack(*euler, *quat))
 
 
+def quaternion_norm(sample: DeviceSample) -> float:
+    """Return |q| of the sample's orientation (1 for a sound sample)."""
+    return math.sqrt(sum(q * q for q in sample.quaternion))
+
+
 def implausible(sample: DeviceSample) -> str | None:
     """Return why ``sample`` cannot be a real measurement (None: plausible).
 
@@ -157,8 +163,7 @@ def implausible(sample: DeviceSample) -> str | None:
     on the bus or registers cleared by a reset), ``gyro_full_scale`` / ``accel_full_scale``
     (a register at the +-2000 dps / +-16 g rail: clipped).
     """
-    norm = math.sqrt(sum(q * q for q in sample.quaternion))
-    if not abs(norm - 1.0) <= QUAT_NORM_TOLERANCE:
+    if not abs(quaternion_norm(sample) - 1.0) <= QUAT_NORM_TOLERANCE:
         return 'quaternion_norm'
     if any(not abs(g) < GYRO_LIMIT for g in sample.gyro):
         return 'gyro_full_scale'
@@ -173,7 +178,7 @@ def to_ros(sample: DeviceSample, ready: bool = True) -> ImuSample:
     gx, gy, gz = sample.gyro
     qx, qy, qz, qw = sample.quaternion
     roll, pitch, yaw = sample.euler
-    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    norm = quaternion_norm(sample)
     status = ImuStatus.OK
     if not ready:
         status = ImuStatus.NOT_READY
