@@ -44,10 +44,12 @@ def _nodes(doc):
     return out
 
 
+def _joints():
+    return description.joints(description.urdf(description.model(config.load_layered())))
+
+
 def _links():
-    urdf = description.urdf(description.model(config.load_layered()))
-    return {j.child for j in description.joints(urdf)} | {j.parent for j in
-                                                          description.joints(urdf)}
+    return {j.child for j in _joints()} | {j.parent for j in _joints()}
 
 
 @pytest.mark.parametrize('rel', RECIPES)
@@ -102,8 +104,7 @@ def test_the_upstream_key_check_catches_misspelled_misplaced_and_mistyped_keys(
 def test_obstacle_sources_keep_the_scan_points_at_the_laser_height():
     # Jazzy drops every point of a source above its max_obstacle_height (default 0.0) in the
     # costmap's frame: the scan plane is the laser's height above base_footprint.
-    urdf = description.urdf(description.model(config.load_layered()))
-    up = {j.child: (j.parent, j.xyz[2]) for j in description.joints(urdf)}
+    up = {j.child: (j.parent, j.xyz[2]) for j in _joints()}
     frame, height = params.spec('laser_frame').default, 0.0
     while frame != 'base_footprint':
         frame, dz = up[frame]
