@@ -66,6 +66,9 @@ class OdomFlag(IntFlag):
     CLAMPED = 0x8
     E_STOP = 0x10       # the e-stop latch is engaged (E_STOP engage 1)
     HOLD = 0x20         # stopped until a velocity command newer than an e-stop release
+    MOTOR_FAULT = 0x40  # wheel supervision latched a motor fault: outputs zero, enable dropped
+    ESTOP_OPEN = 0x80   # the hardware e-stop contact reads open (enable line read back low)
+    SLOWDOWN = 0x100    # the speed-aware guard's slow-down zone limits forward speed
 
 
 class EncoderStatus(IntFlag):
@@ -77,6 +80,9 @@ class EncoderStatus(IntFlag):
     RIGHT_JUMP = 0x08
     SAFE = 0x10          # the driver holds the DACs at zero (link loss / watchdog)
     WRITE_ERROR = 0x20
+    # The amplifier enable line read back after the e-stop contact (a GPIO input) reads low
+    # while the driver drives the enable: the contact is open (e-stop pressed or wiring cut).
+    ESTOP_OPEN = 0x40
     # The bits that make the angles untrustworthy (frame or jump error, either wheel); SAFE
     # and WRITE_ERROR leave the angles valid.
     INVALID = LEFT_FRAME | RIGHT_FRAME | LEFT_JUMP | RIGHT_JUMP
