@@ -192,7 +192,9 @@ class SafetyInterface:
             self.gate.released()
         changed = engage != self.requested
         self.requested = engage
-        # Persist before sending: a crash between the two must not forget an engage.
+        # Send first (the stop must not wait for the file system), then persist: the RT
+        # latch holds meanwhile, and the file only matters to a process that starts later.
+        self._send(self._datagram(protocol.Kind.E_STOP, 1 if engage else 0))
         if changed and self.runtime_dir:
             try:
                 write_request(self.runtime_dir, engage)
@@ -202,7 +204,6 @@ class SafetyInterface:
                     'cannot persist the e-stop request to {}: {} (a restart of rt_core and '
                     'the bridge together would forget it)'.format(
                         request_path(self.runtime_dir), exc))
-        self._send(self._datagram(protocol.Kind.E_STOP, 1 if engage else 0))
 
     def on_flags(self, flags: int) -> None:
         """Take a fresh ODOMETRY's flags: an open e-stop contact becomes an e-stop request."""

@@ -44,13 +44,16 @@ def read_request(runtime_dir: str) -> bool | None:
 
 
 def write_request(runtime_dir: str, engaged: bool) -> None:
-    """Persist the request atomically (write a temporary file, fsync, rename); raise OSError."""
+    """Persist the request atomically (write a temporary file, rename); raise OSError.
+
+    No fsync: the runtime directory is a tmpfs on a real robot (``/run``), and a power loss
+    resets the RT latch and the amplifier anyway; what must survive is a process restart.
+    """
     path = request_path(runtime_dir)
     tmp = '{}.{}.tmp'.format(path, os.getpid())
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o600)
     try:
         os.write(fd, ((_ENGAGED if engaged else _RELEASED) + '\n').encode('ascii'))
-        os.fsync(fd)
     finally:
         os.close(fd)
     os.replace(tmp, path)

@@ -269,6 +269,7 @@ class BaseController:
                 self.odom.zero_speeds()
                 self.left_speed = self.right_speed = 0.0
             self.motor_stale = True
+            self.supervisor.idle()
             self.hold_zero = True
             self.braking = False
             self._stop_outputs(0)
