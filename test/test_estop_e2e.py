@@ -290,6 +290,15 @@ def test_e_stop_state_falls_silent_and_the_diagnostic_says_unknown_when_the_rt_s
     assert proc.poll() is None
 
 
+def _safety_diag(user):
+    """Return (level, message, values) of the newest ``m4k_rt: safety`` status, or None."""
+    for arr in reversed(user.got['diagnostics']):
+        for s in arr.status:
+            if s.name == 'm4k_rt: safety':
+                return s.level, s.message, {kv.key: kv.value for kv in s.values}
+    return None
+
+
 def _pid_of(proc, what):
     pids = [pid for pid in child_pids(proc.pid) if what in cmdline(pid)]
     assert len(pids) == 1, [cmdline(pid) for pid in child_pids(proc.pid)]
@@ -353,6 +362,13 @@ def test_e_stop_latch_survives_kill_9_of_rt_core_and_then_the_bridge(
     assert worst < 0.02, worst
     assert turned < 0.02, turned
     assert proc.poll() is None
+    # the new RT session stated its guard again: the diagnostic and rt_status carry the cap
+    user.spin_until(lambda: _safety_diag(user) is not None, 10, 'the m4k_rt: safety diagnostic',
+                    each=each, period=0.05)
+    level, _, values = _safety_diag(user)
+    assert float(values['top_forward_speed_mps']) == pytest.approx(2.0)
+    assert values['e_stop_latched'] == 'True' and values['wheel_supervision'] == 'on'
+    assert user.got['rt_status'][-1].guard_top_speed == pytest.approx(2.0)
     # the release still works, and a fresh command turns the robot again
     e_stop.publish(Bool(data=False))
     user.spin_until(lambda: truth_w() > 0.3, 20, 'a fresh command after the release to turn '
