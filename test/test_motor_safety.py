@@ -40,6 +40,7 @@ class Commander:
 
     def __init__(self, runtime_dir: str) -> None:
         self.ep = nrt_xddp_open('cmd', wait=20.0, runtime_dir=runtime_dir)
+        self.command = (SPEED, 0.0)          # (linear m/s, angular rad/s) sent at 20 Hz
         self.lock = threading.Lock()
         self.odom_flags = 0                  # the last ODOMETRY's flags
         self.stop = threading.Event()
@@ -50,7 +51,7 @@ class Commander:
         while not self.stop.wait(0.05):
             try:
                 with self.lock:
-                    self.ep.write(p.encode(p.Kind.VELOCITY_CMD, 0, 0, SPEED, 0.0))
+                    self.ep.write(p.encode(p.Kind.VELOCITY_CMD, 0, 0, *self.command))
                 while True:                  # drain ODOMETRY so the port never fills
                     data = self.ep.read(timeout=0.0)
                     if data is None:
@@ -202,22 +203,25 @@ def made_commander(s):
     return s['commander']
 
 
+TURN = 0.5            # rad/s
 PRESS_AT_S = 25.0      # world time of the e-stop press (the stack is driving well before)
 RELEASE_AT_S = 27.0
 
 
 def test_e_stop_contact_under_a_live_command_stays_still_after_release_until_reset(stack, procs):
     """Press the e-stop contact (sim fault: the contact opens in series with the enable) while
-    the command source keeps sending 0.25 m/s at 20 Hz, then close it: the robot must stay
-    still (ground truth) until the e-stop is released explicitly and a fresh command follows.
+    the command source keeps sending a turn at 20 Hz (a turn: the guard never holds it), then
+    close it: the robot must stay still (ground truth) until the e-stop is released
+    explicitly, and turn again only on the commands after that.
     """
     s = stack(world={'faults': [{'at_s': PRESS_AT_S, 'until_s': RELEASE_AT_S, 'kind': 'estop'}]})
-    before = _drive(s)
-    assert not before['estop_open'], 'the stack was not driving before the press'
+    cmd = made_commander(s)
+    cmd.command = (0.0, TURN)
+    before = _wait_truth(s['rd'], lambda t: abs(t['w']) > 0.8 * TURN, 30.0, 'turning')
+    assert not before['estop_open'], 'the stack was not turning before the press'
     _wait_truth(s['rd'], lambda t: t['estop_open'], 40.0, 'the e-stop contact to open')
     closed = _wait_truth(s['rd'], lambda t: not t['estop_open'], 10.0,
                          'the e-stop contact to close again')
-    cmd = made_commander(s)
     assert cmd.odom_flags & p.ODOM_E_STOP, cmd.odom_flags        # the RT latch holds
     # commands keep coming; for 3 s of world time after the release the robot must not move
     t_end = closed['t_ns'] + 3_000_000_000
@@ -226,12 +230,12 @@ def test_e_stop_contact_under_a_live_command_stays_still_after_release_until_res
     while last['t_ns'] < t_end:
         seen = last['t_ns']
         last = _wait_truth(s['rd'], lambda t, seen=seen: t['t_ns'] > seen, 5.0, 'sim time')
-        worst = max(worst, abs(last['v']))
-    still = math.hypot(last['x'] - closed['x'], last['y'] - closed['y'])
-    print('after the contact closed: peak |v| {:.4f} m/s, moved {:.4f} m in 3 s'.format(
-        worst, still))
-    assert worst < STOPPED and still < 0.005, (worst, still)
+        worst = max(worst, abs(last['w']), abs(last['v']))
+    turned = abs(math.remainder(last['theta'] - closed['theta'], 2 * math.pi))
+    print('after the contact closed: peak |w|,|v| {:.4f}, turned {:.4f} rad in 3 s'.format(
+        worst, turned))
+    assert worst < 0.02 and turned < 0.01, (worst, turned)
     assert cmd.odom_flags & p.ODOM_E_STOP
-    # the explicit reset (E_STOP release), then the next command drives again
+    # the explicit reset (E_STOP release); the commands after it turn the robot again
     cmd.send(p.encode(p.Kind.E_STOP, 0, 0, 0))
-    _wait_truth(s['rd'], lambda t: t['v'] > 0.5 * SPEED, 20.0, 'driving again after the reset')
+    _wait_truth(s['rd'], lambda t: abs(t['w']) > 0.8 * TURN, 20.0, 'turning again after the reset')

@@ -25,7 +25,8 @@ Between 1 and 2: the e-stop contact read back open (ENCODERS status ESTOP_OPEN i
 the heartbeat restarts are filtered) -> outputs zero (enable kept driven: its read-back
 shows the release), PI reset, the e-stop latch engaged; flags ESTOP_OPEN | E_STOP. A
 latched motor fault (``control.supervision``) -> outputs zero and the enable dropped, flag
-MOTOR_FAULT, until :meth:`reset_fault`. After step 4 the supervisor compares the wheel setpoints with the measured speeds and may latch the fault.
+MOTOR_FAULT, until :meth:`reset_fault`. After step 4 the supervisor compares the wheel
+setpoints with the measured speeds and may latch the fault.
 The guard's configuration also caps the forward target at the top speed the sensors can stop
 for and reverse at a creep speed (``forward_limit``, ``reverse_limit``; flag CLAMPED).
 
