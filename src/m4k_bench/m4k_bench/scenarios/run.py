@@ -26,7 +26,8 @@ from typing import Any, Callable
 
 import yaml
 
-from m4k_bench.scenarios.bounds import bounds, REST_V, SAMPLE_S
+from m4k_bench.scenarios.bounds import Bounds, bounds, REST_V, SAMPLE_S, STAY_M, stop_line
+from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.spec import Scenario
 from m4k_rt import config
 
@@ -49,6 +50,10 @@ class Result:
     contacts: int = -1
     stop_s: float | None = None
     stop_bound_s: float | None = None
+    stop_m: float | None = None         # m travelled from the trigger to rest
+    stop_bound_m: float | None = None   # the allowed stopping distance (guard stops)
+    peak_decel: float = math.nan        # m/s^2, ground truth
+    max_decel: float = math.nan         # m/s^2, mu * g of the world's robot
     distance_tol: float = math.nan
     failures: list[str] = field(default_factory=list)
     samples: list[dict[str, Any]] = field(default_factory=list)
@@ -184,7 +189,7 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
         with open(log_path, 'rb') as f:
             res.log_tail = b'\n'.join(f.read().splitlines()[-15:]).decode(errors='replace')
         shutil.rmtree(runtime_dir, ignore_errors=True)
-    _judge(sc, res, b)
+    _judge(sc, res, b, raw)
     return res
 
 
@@ -259,19 +264,31 @@ def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: in
         res.failures.append(f'fault kill {f.kill} at {f.travelled} m never happened')
 
 
-def _judge(sc: Scenario, res: Result, b: Any) -> None:
+def _judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     s = res.samples
     if not s:
         res.failures.append('no ground truth sampled')
         return
+    scene = Scene(raw)
+    for x in s:                       # the judge's own geometry, on every ground-truth sample
+        x['clearance'], x['front_clearance'] = scene.judge_sample(x)
     last = s[-1]
     res.travelled = float(last['travelled'])
-    res.min_clearance = min(_m(x['min_clearance']) for x in s)
+    # the judge's exact clearance per sample, and the simulator's own 5 ms minimum
+    res.min_clearance = min(min(x['clearance'] for x in s), min(_m(x['min_clearance']) for x in s))
     res.contacts = int(last['contacts'])
+    touching = sum(1 for x in s if x['clearance'] <= 0.0)
     if res.contacts:
         res.failures.append(f'{res.contacts} contact(s)')
+    elif touching:
+        res.failures.append(f'contact: the footprint touches a surface in {touching} sample(s)')
     if not res.min_clearance > 0.0:
         res.failures.append(f'minimum clearance {res.min_clearance:.3f} m')
+    res.peak_decel = _peak_decel(s)
+    res.max_decel = b.max_decel
+    if res.peak_decel > b.max_decel:
+        res.failures.append(f'peak deceleration {res.peak_decel:.2f} m/s^2 on ground truth > '
+                            f'{b.max_decel:.2f} m/s^2 (mu * g): physically impossible braking')
     if sc.distance and abs(res.travelled - res.commanded) > b.distance_tol:
         res.failures.append(f'travelled {res.travelled:.3f} m, commanded {res.commanded:.3f} m '
                             f'(tolerance {b.distance_tol:.3f} m)')
@@ -279,20 +296,46 @@ def _judge(sc: Scenario, res: Result, b: Any) -> None:
         res.failures.append(f'travelled {res.travelled:.3f} m, expected {sc.distance_m:.3f} m '
                             f'(tolerance {b.distance_tol:.3f} m)')
     if sc.stop:
-        t0 = _trigger_ns(sc, s, b)
-        if t0 is None:
-            res.failures.append(f'stop ({sc.stop}): its trigger never happened')
-            return
-        # The simulator stamps when the robot came to rest (1 ms steps): the first sample
-        # after the trigger that reports rest says since when, whatever the sampling jitter.
-        rest = next((x for x in s if x['t_ns'] >= t0 and x.get('rest_since_ns') is not None),
-                    None)
-        if rest is None:
-            res.failures.append(f'stop ({sc.stop}): never at rest after the trigger')
-            return
-        res.stop_s = max(int(rest['rest_since_ns']) - t0, 0) / 1e9
-        if b.stop_s is not None and res.stop_s > b.stop_s:
-            res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
+        _judge_stop(sc, res, b, raw, s)
+
+
+def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
+                s: list[dict[str, Any]]) -> None:
+    trig = _trigger(sc, s, raw)
+    if trig is None:
+        res.failures.append(f'stop ({sc.stop}): its trigger never happened')
+        return
+    t0, travelled0, v0 = trig
+    # The simulator stamps when the robot came to rest (1 ms steps): the first sample
+    # after the trigger that reports rest says since when, whatever the sampling jitter.
+    i_rest = next((i for i, x in enumerate(s)
+                   if x['t_ns'] >= t0 and x.get('rest_since_ns') is not None), None)
+    if i_rest is None:
+        res.failures.append(f'stop ({sc.stop}): never at rest after the trigger')
+        return
+    rest = s[i_rest]
+    res.stop_s = max(int(rest['rest_since_ns']) - t0, 0) / 1e9
+    res.stop_m = max(float(rest['travelled']) - travelled0, 0.0)
+    allowed = b.stop_distance(v0)
+    if allowed is not None:
+        res.stop_bound_m = allowed
+        if res.stop_m > allowed:
+            res.failures.append(f'stopped {res.stop_m:.3f} m after the stop line at '
+                                f'{v0:.2f} m/s > {allowed:.3f} m (v t_react + v^2 / 2a + '
+                                f'margin: t_react {b.t_react:.3f} s, a {b.a_brake:.2f} m/s^2)')
+    if b.stop_s is not None and res.stop_s > b.stop_s:
+        res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
+    if b.stays_stopped:
+        after = s[i_rest:]
+        moved = float(after[-1]['travelled']) - float(rest['travelled'])
+        v_max = max(abs(float(x['v'])) for x in after)
+        held_s = (int(after[-1]['t_ns']) - int(rest['t_ns'])) / 1e9
+        if moved > STAY_M or v_max >= REST_V:
+            res.failures.append(f'stop ({sc.stop}): moved again after the stop ({moved:.3f} m, '
+                                f'up to {v_max:.3f} m/s)')
+        elif held_s < 1.0:
+            res.failures.append(f'stop ({sc.stop}): at rest only {held_s:.2f} s before the run '
+                                f'ended: staying stopped not shown')
 
 
 def _m(v: float | None) -> float:
@@ -300,18 +343,60 @@ def _m(v: float | None) -> float:
     return math.inf if v is None else float(v)
 
 
-def _trigger_ns(sc: Scenario, s: list[dict[str, Any]], b: Any) -> int | None:
-    """Return when the robot had to start stopping (ground-truth clock)."""
+def _peak_decel(s: list[dict[str, Any]]) -> float:
+    """Return the peak braking deceleration (m/s^2, >= 0) on ground truth.
+
+    The simulator's own peak since the previous sample when it reports one, else the
+    difference of the true speed between consecutive samples.
+    """
+    peaks = [float(x['peak_decel']) for x in s if x.get('peak_decel') is not None]
+    if peaks:
+        return max(0.0, max(peaks))
+    best = 0.0
+    for a, c in zip(s, s[1:], strict=False):
+        dt = (int(c['t_ns']) - int(a['t_ns'])) / 1e9
+        if dt <= 0:
+            continue
+        va, vc = float(a['v']), float(c['v'])
+        if abs(vc) < abs(va) and va * vc >= 0:     # slowing down, not reversing
+            best = max(best, (abs(va) - abs(vc)) / dt)
+    return best
+
+
+def _trigger(sc: Scenario, s: list[dict[str, Any]], raw: dict[str, Any]
+             ) -> tuple[int, float, float] | None:
+    """Return (ns, travelled m, v m/s) when the robot had to start stopping (ground truth).
+
+    Guard stops: the sample where the judge's exact front clearance first falls below the
+    guard's stop line for the true speed, interpolated (linear in travelled) back to the
+    crossing between that sample and the one before.
+    """
     if sc.stop in ('sonar', 'laser'):
-        hit = next((x for x in s if _m(x['front_clearance']) < b.trigger_clearance), None)
-        return None if hit is None else int(hit['t_ns'])
+        prev = None
+        for x in s:
+            v = abs(float(x['v']))
+            line = stop_line(raw, v)
+            fc = x['front_clearance']
+            if fc < line:
+                if prev is None or not prev['front_clearance'] > fc:
+                    return int(x['t_ns']), float(x['travelled']), v
+                k = (prev['front_clearance'] - line) / (prev['front_clearance'] - fc)
+                k = min(max(k, 0.0), 1.0)
+                t = int(prev['t_ns'] + k * (int(x['t_ns']) - int(prev['t_ns'])))
+                tr = float(prev['travelled']) + k * (float(x['travelled']) -
+                                                      float(prev['travelled']))
+                vv = max(abs(float(prev['v'])), v)
+                return t, tr, vv
+            prev = x
+        return None
     if sc.stop in ('sonar_unplugged', 'laser_unplugged'):
         want = 'sonar' if sc.stop == 'sonar_unplugged' else 'lrf'
         for x in s:
             for e in x.get('events', []):
                 if e['unplug'] == want:
-                    return int(e['t_ns'])
+                    return int(e['t_ns']), float(x['travelled']), abs(float(x['v']))
         return None
     want = 'bridge' if sc.stop == 'bridge_killed' else 'driver_host'
     hit = next((x for x in s if x.get('killed') == want), None)
-    return None if hit is None else int(hit['kill_ns'])
+    return None if hit is None else (int(hit['kill_ns']), float(hit['travelled']),
+                                     abs(float(hit['v'])))
