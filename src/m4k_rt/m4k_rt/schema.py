@@ -419,8 +419,9 @@ def rt_sections() -> list[Section]:
                 'one owner per port, at least one enabled task.'),
         Section('ports', 'ports (config/m4k.yaml)', {'<label>': PORT}),
         Section('control', 'control (config/control.yaml)', CONTROL,
-                'Run by the RT actuator task. Checked across fields: slow_distance 0 or > '
-                'stop_distance; e-stop decelerations not below the normal ones.'),
+                'Run by the RT actuator task. Checked across fields: guard.brake_deceleration not '
+                'below linear.max_deceleration; e-stop decelerations not below the normal '
+                'ones. The guard, supervision and e-stop: docs/safety.md.'),
         Section('robot', 'robot (config/robot.yaml)', ROBOT,
                 'The one source of the URDF, the static transforms and the simulated '
                 "sensors' mounts. Every field but name is required in the layered configuration."),
