@@ -91,14 +91,14 @@ def test_the_judge_triggers_on_the_leg_5cm_off_centre_and_bounds_the_stop():
     b = bounds.bounds(raw, 0.5, 'sonar')
     line = bounds.stop_line(raw, 0.5)
     cross_x = 2.5 - 0.225 - line          # the front face reaches the stop line here
-    # braking at once, within the tyres: passes, the trigger at the crossing
-    res = Result('leg', '', 4.0, samples=_drive_samples(0.5, cross_x, 0.9 * b.max_decel))
+    # braking at the configured a_brake half a reaction time after the crossing: passes
+    react_x = cross_x + 0.5 * b.t_react * 0.5
+    res = Result('leg', '', 4.0, samples=_drive_samples(0.5, react_x, b.a_brake))
     _judge(sc, res, b, raw)
     assert res.passed, res.failures
     assert res.stop_m is not None and res.stop_m <= b.stop_distance(0.5)
     # the same stop 0.1 m late (a weakened guard) fails on the stopping distance
-    late = Result('leg', '', 4.0,
-                  samples=_drive_samples(0.5, cross_x + 0.1, 0.9 * b.max_decel))
+    late = Result('leg', '', 4.0, samples=_drive_samples(0.5, react_x + 0.1, b.a_brake))
     _judge(sc, late, b, raw)
     assert any('after the stop line' in f for f in late.failures), late.failures
     # braking harder than the tyres can: physically impossible, fails

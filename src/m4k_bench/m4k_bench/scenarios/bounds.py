@@ -11,17 +11,18 @@ Physics, not ramps. For a guard stop (``sonar`` / ``laser``) at ground-truth spe
   and actuator latency:
 
   ======  ===================================================================
-  cause   t_react
+  cause   t_react (``guard.reaction_time`` instead when set: calibrated)
   ======  ===================================================================
-  sonar   2 sonar periods (pipelined ping) + 1 actuator period
-  laser   2 lrf periods + one URG scan (60 / SCAN rpm) + 1 actuator period
+  sonar   2 sonar periods (pipelined ping) + 1 actuator period + lag
+  laser   2 lrf periods + one URG scan (60 / SCAN rpm) + 1 actuator period + lag
   ======  ===================================================================
 
-  and ``a_brake`` the braking deceleration the guard is configured to command (or, with none
-  configured, what the tyres give: ``mu * g``). No ``v / max_deceleration`` ramp slack: the
+  (lag: ``guard.pipeline_latency + guard.amplifier_lag``, the datagram hops and the
+  amplifier's current rise) and ``a_brake`` the guard's ``brake_deceleration`` (at most
+  ``mu * g``; with none configured, ``mu * g``). No ``v / max_deceleration`` ramp slack: the
   guard's stop bypasses the limiter's ramp.
 
-For the other causes a stop *time* from the trigger to rest, ``t_detect + v / a_brake``:
+For the other causes a stop *time* from the trigger to rest, ``t_detect + lag + v / a_brake``:
 
 =====================  ==================================================  ==================
 cause                  t_detect                                            trigger
@@ -104,31 +105,61 @@ def traction_limit(raw: Mapping[str, Any]) -> float:
     return mu * G
 
 
+def _lag(raw: Mapping[str, Any]) -> float:
+    """Return the configured hops and amplifier response after the actuator's cycle (s)."""
+    from m4k_rt.control.params import control_params
+    g = control_params(raw.get('control')).guard
+    return float(getattr(g, 'pipeline_latency', 0.0) or 0.0) + float(
+        getattr(g, 'amplifier_lag', 0.0) or 0.0)
+
+
+def _t_react(raw: Mapping[str, Any], sensor: str) -> float:
+    """Return the configured reaction time for a stop ``sensor`` sees (s).
+
+    ``guard.reaction_time`` when set (``calibrate`` measures it), else the sensor's latency
+    (the table above) + the actuator period + ``guard.pipeline_latency`` +
+    ``guard.amplifier_lag``.
+    """
+    from m4k_rt.control.params import control_params
+    g = control_params(raw.get('control')).guard
+    fixed = getattr(g, 'reaction_time', None)
+    if fixed is not None:
+        return float(fixed)
+    ta = _period(raw, 'actuator')
+    if sensor == 'sonar':
+        return 2 * _period(raw, 'sonar') + ta + _lag(raw)
+    return 2 * _period(raw, 'lrf') + URG_SCAN_S + ta + _lag(raw)
+
+
 def _guard_decel(raw: Mapping[str, Any]) -> float | None:
-    """Return the braking deceleration the guard is configured to command, if it states one."""
-    g = (raw.get('control') or {}).get('guard') or {}
-    for key in ('brake_deceleration', 'a_brake', 'braking_deceleration'):
-        v = g.get(key)
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0:
-            return float(v)
-    return None
+    """Return ``guard.brake_deceleration``: what the guard's stop assumes the drive gives."""
+    from m4k_rt.control.params import control_params
+    a = getattr(control_params(raw.get('control')).guard, 'brake_deceleration', None)
+    return None if a is None else float(a)
 
 
 def stop_line(raw: Mapping[str, Any], v: float) -> float:
     """Return the guard's configured stopping distance ahead of the front face at speed ``v``.
 
-    A speed-aware guard (``v * t_react + v^2 / (2 a_brake) + stop_distance`` as its margin) when
-    the configuration states its braking; else the fixed ``guard.stop_distance``.
+    The speed-aware stop zone ``d(v) = v t_react + v^2 / (2 a_brake) + stop_distance`` from the
+    configuration (``t_react``: ``guard.reaction_time``, else twice the period of the slowest
+    front sensor in use + the actuator period + pipeline + amplifier lag), restated here from
+    the specification -- never read from the guard. A configuration without
+    ``brake_deceleration`` (the fixed-distance guard): ``stop_distance``.
     """
     from m4k_rt.control.params import control_params
-    p = control_params(raw.get('control'))
-    g = p.guard
+    g = control_params(raw.get('control')).guard
     a = _guard_decel(raw)
-    if a is None:
+    if a is None or v <= 0.0:
         return g.stop_distance
-    t = (raw.get('control') or {}).get('guard', {}).get('reaction_time')
-    t_react = float(t) if isinstance(t, (int, float)) and not isinstance(t, bool) else 0.0
-    return abs(v) * t_react + v * v / (2.0 * a) + g.stop_distance
+    fixed = getattr(g, 'reaction_time', None)
+    if fixed is not None:
+        t = float(fixed)
+    else:
+        period = _period(raw, 'lrf') if g.use_laser else _period(raw, 'sonar') \
+            if g.use_sonar else 0.0
+        t = 2 * period + _period(raw, 'actuator') + _lag(raw)
+    return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 
 
 def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
@@ -145,16 +176,15 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     g = p.guard
     t_react: float | None = None
     stop: float | None = None
-    if cause == 'sonar':
-        t_react = 2 * _period(raw, 'sonar') + ta
-    elif cause == 'laser':
-        t_react = 2 * _period(raw, 'lrf') + URG_SCAN_S + ta
+    lag = _lag(raw)
+    if cause in ('sonar', 'laser'):
+        t_react = _t_react(raw, cause)
     elif cause == 'sonar_unplugged':
-        stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + brake
+        stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + lag + brake
     elif cause == 'laser_unplugged':
-        stop = g.laser_timeout + _period(raw, 'lrf') + ta + brake
+        stop = g.laser_timeout + _period(raw, 'lrf') + ta + lag + brake
     elif cause == 'bridge_killed':
-        stop = p.cmd_vel_timeout + 2 * ta + brake
+        stop = p.cmd_vel_timeout + 2 * ta + lag + brake
     elif cause == 'driver_host_killed':
         motor = (raw.get('devices') or {}).get('motor') or {}
         coast = float(_robot(raw).coast_decel_mps2)
