@@ -249,6 +249,7 @@ class SimRobot:
             'motor_enabled': self.world.drive_enabled(),
             'heartbeat_enabled': self.world.heartbeat_enabled(),
             'estop_open': self.world.estop_open,
+            'faults': self.world.active_faults(),     # [{kind, wheel}] on now (world.faults)
             'heartbeat': self.enable is not None,
             'heartbeat_edges': self.enable.edges if self.enable else 0,
             'heartbeat_drops': self.enable.drops if self.enable else 0,

@@ -75,10 +75,11 @@ class SimEncoder:
         self.fault: dict[str, bool] | None = None    # status-bit override for fault injection
 
     def raw(self) -> int:
-        """Return the current 12-bit reading with noise."""
-        angle = self.world.wheel_angle_at(self.side)   # the angle at the read time
+        """Return the current 12-bit reading with noise (what a faulty encoder says, too)."""
+        # The angle at the read time, as the world's encoder faults have it (m4k_drivers.faults)
+        angle, frozen = self.world.encoder_angle(self.side)
         counts = angle / (2.0 * math.pi) * p.ENC_COUNTS
-        if self.noise_lsb:
+        if self.noise_lsb and not frozen:
             counts += float(self.rng.normal(0.0, self.noise_lsb))
         return int(math.floor(counts)) % p.ENC_COUNTS
 
