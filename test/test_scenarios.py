@@ -29,6 +29,11 @@ def test_the_suite_covers_the_issue_list():
             'laser_only_curtain', 'sonar_only_glass', 'sonar_only_black', 'low_obstacle',
             'wall_start', 'sonar_unplugged', 'laser_unplugged', 'imu_unplugged',
             'driver_host_killed', 'bridge_killed', 'paper_room'} <= names
+    # issue 28: at speed, thin legs across the front face, encoder faults, the e-stop
+    assert {'wall_0_5', 'wall_1_0', 'wall_top', 'person_0_5', 'person_1_0', 'person_top',
+            'table_leg_centre', 'table_leg_left', 'table_leg_right', 'chair_leg_left_edge',
+            'chair_leg_right_edge', 'table_leg_5cm_off', 'encoder_sign_flip', 'encoder_swap',
+            'encoder_frozen', 'wheel_stall', 'estop_release', 'rt_core_restart_estop'} <= names
 
 
 def _raw(world):
@@ -129,3 +134,34 @@ def test_the_judge_sees_a_contact_when_the_guard_is_off(tmp_path, m4k_runtime_di
     res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
     assert res.contacts >= 1 and res.min_clearance == 0.0
     assert not res.passed and any('contact' in f for f in res.failures)
+
+
+BY_NAME = {s.name: s for s in SCENARIOS}
+
+
+def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(tmp_path, m4k_runtime_dir):
+    """The guard weakened by 0.1 m through rt_core's test-only hook: the judge must fail it.
+
+    The hook (M4K_TEST_HOOKS=1, M4K_TEST_GUARD_WEAKEN_M) reaches rt_core through the stack's
+    environment only; the judge reads the configuration and the ground truth, never the hook,
+    so it holds the weakened guard to the real stop line -- and it stops 10 cm too late.
+    """
+    sc = BY_NAME['wall_0_5']
+    env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
+    res = run_scenario(sc, str(tmp_path), short=True, env=env)
+    assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
+    assert any('after the stop line' in f or 'contact' in f or 'clearance' in f
+               for f in res.failures), res.failures
+
+
+def test_negative_control_supervision_off_with_a_flipped_encoder_fails(tmp_path, m4k_runtime_dir):
+    """Wheel supervision off and the left encoder counting backwards: the judge must fail it."""
+    base = BY_NAME['encoder_sign_flip']
+    sc = spec.parse({'world': base.world, 'commands': [{'v': 0.3, 't': 4.0}],
+                     'expect': {'max_speed': 0.5, 'motor_fault': True},
+                     'config': {'control': {'supervision': {'enabled': False}}}},
+                    'supervision_off.yaml')
+    res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
+    assert not res.passed, 'the judge passed a runaway with supervision off'
+    assert any('peak speed' in f or 'motor fault not latched' in f for f in res.failures), \
+        res.failures
