@@ -10,9 +10,12 @@ the command source on the ``cmd`` port (VELOCITY_CMD 0.25 m/s at 20 Hz, as the b
   from the configuration: devices.motor.heartbeat_hold_s, world.robot.coast_decel_mps2);
 * the same with ``heartbeat: false`` (enable strapped on): the DACs hold their word and the
   robot keeps driving nobody commands -- the hazard the heartbeat exists for;
-* kill -9 rt_core with the heartbeat off: the driver host's watchdog writes the zero code (0 V
-  on both armatures) and the robot stops by ``watchdog + tau * ln(v / 0.01)`` after the kill
-  (``period_s * watchdog_periods`` and ``tau`` from config/; simulated time);
+* kill -9 rt_core with the heartbeat off: the driver host sees the link drop (the socket
+  closes) and writes the zero code (0 V on both armatures) at once -- the link-loss path;
+* rt_core hung (SIGSTOP) with the heartbeat off: the link stays up but no WHEEL_CMD comes, so
+  only the driver host's watchdog (``period_s * watchdog_periods``) can write the zero code; the
+  robot stops by ``watchdog + tau * ln(v / 0.01)`` (simulated time) and the host never saw the
+  link drop -- the timeout path, which the kill above never reaches;
 * a driver-host restart keeps the world: the pose goes on from where it was.
 """
 
@@ -23,7 +26,7 @@ import threading
 import time
 
 import pytest
-from wsenv import ground_truth_live, stack_env, start_sim_robot
+from wsenv import ground_truth_live, LineWatch, stack_env, start_sim_robot
 import yaml
 
 from m4k_drivers.config import validate
@@ -166,8 +169,11 @@ def test_kill_driver_host_without_heartbeat_keeps_driving(stack, procs):
     assert after['x'] > before['x'] + 0.1, (before, after)
 
 
-def test_kill_rt_core_watchdog_zeroes_the_dacs(stack, procs):
-    """With the heartbeat off (enable strapped on) only the watchdog can stop the robot."""
+def test_kill_rt_core_link_loss_zeroes_the_dacs(stack, procs):
+    """With the heartbeat off, a dead rt_core closes the link: the host makes the outputs safe.
+
+    This is the link-loss path (the socket's end), not the watchdog: see the hang test below.
+    """
     s = stack(heartbeat=False)
     before = _drive(s)
     assert before['motor_enabled'] and not before['heartbeat']
@@ -178,7 +184,7 @@ def test_kill_rt_core_watchdog_zeroes_the_dacs(stack, procs):
     t_kill = time.monotonic_ns()
     os.kill(s['core'].pid, signal.SIGKILL)
     after = _wait_sim_time(s['rd'], t_kill + int(bound_s * 1e9))
-    # the watchdog wrote the zero code (0 V armature); the enable never dropped
+    # the host wrote the zero code (0 V armature); the enable never dropped
     assert after['motor_volts'] == [0.0, 0.0], (bound_s, after)
     assert after['motor_enabled'], after
     assert abs(after['v']) < STOPPED, (bound_s, after)
@@ -239,3 +245,37 @@ def test_e_stop_contact_under_a_live_command_stays_still_after_release_until_res
     # the explicit reset (E_STOP release); the commands after it turn the robot again
     cmd.send(p.encode(p.Kind.E_STOP, 0, 0, 0))
     _wait_truth(s['rd'], lambda t: abs(t['w']) > 0.8 * TURN, 20.0, 'turning again after the reset')
+
+
+def test_rt_core_hang_watchdog_zeroes_the_dacs(stack, procs):
+    """rt_core stops sending WHEEL_CMD but the link stays up: only the watchdog stops the robot.
+
+    SIGSTOP freezes rt_core with its sockets open, so the driver host's reads just time out --
+    no link loss (its log says so if it saw one; asserted below). Heartbeat off: the enable
+    stays on, so nothing but the host's watchdog (no WHEEL_CMD for ``period_s *
+    watchdog_periods``) can put 0 V on the armatures. Without the watchdog the DACs keep their
+    driving word and the robot drives on: this test fails.
+    """
+    s = stack(heartbeat=False)
+    host_log = LineWatch(s['host'].stderr)
+    before = _drive(s)
+    assert before['motor_enabled'] and not before['heartbeat']
+    motor = s['cfg'].devices['motor']
+    watchdog_s = motor['period_s'] * motor['watchdog_periods']      # config/devices.yaml
+    bound_s = watchdog_s + _braked_bound_s(s['cfg'], 1.2 * before['v'])
+    t_hang = time.monotonic_ns()
+    os.kill(s['core'].pid, signal.SIGSTOP)
+    try:
+        after = _wait_sim_time(s['rd'], t_hang + int(bound_s * 1e9))
+        # a little further on, the robot must still be at rest (the DACs stay at zero)
+        later = _wait_sim_time(s['rd'], after['t_ns'] + int(0.5e9))
+        lost = host_log.count('RT side gone')
+    finally:
+        os.kill(s['core'].pid, signal.SIGCONT)
+    assert lost == 0, 'the host saw the link drop: the link-loss path, not the watchdog'
+    assert s['core'].poll() is None and s['host'].poll() is None
+    assert after['motor_volts'] == [0.0, 0.0], (bound_s, after)
+    assert after['motor_enabled'], after
+    assert abs(after['v']) < STOPPED, (bound_s, after)
+    assert abs(later['v']) < STOPPED and later['motor_volts'] == [0.0, 0.0], later
+    assert later['collisions'] == 0

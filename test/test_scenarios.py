@@ -6,13 +6,16 @@ distance within the limiter's ramp, stops within bounds derived from config/, no
 positive clearance. ``make scenarios`` runs the full versions and writes the table and plots.
 """
 
+import math
 import os
 
 import pytest
 from wsenv import ROOT, stack_env
 
-from m4k_bench.scenarios import spec
-from m4k_bench.scenarios.run import run_scenario
+from m4k_bench.scenarios import bounds, spec
+from m4k_bench.scenarios.geometry import Scene
+from m4k_bench.scenarios.run import _judge, Result, run_scenario
+from m4k_rt import config
 
 pytest.importorskip('rclpy')
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its transport sockets for the process
@@ -26,6 +29,87 @@ def test_the_suite_covers_the_issue_list():
             'laser_only_curtain', 'sonar_only_glass', 'sonar_only_black', 'low_obstacle',
             'wall_start', 'sonar_unplugged', 'laser_unplugged', 'imu_unplugged',
             'driver_host_killed', 'bridge_killed', 'paper_room'} <= names
+    # issue 28: at speed, thin legs across the front face, encoder faults, the e-stop
+    assert {'wall_0_5', 'wall_1_0', 'wall_top', 'person_0_5', 'person_1_0', 'person_top',
+            'table_leg_centre', 'table_leg_left', 'table_leg_right', 'chair_leg_left_edge',
+            'chair_leg_right_edge', 'table_leg_5cm_off', 'encoder_sign_flip', 'encoder_swap',
+            'encoder_frozen', 'wheel_stall', 'estop_release', 'rt_core_restart_estop'} <= names
+
+
+def _raw(world):
+    return dict(config.load_layered(None, os.path.join(ROOT, 'config')), world=world)
+
+
+def _leg(x, y, side):
+    h = side / 2.0
+    return [[x - h, y - h], [x + h, y - h], [x + h, y + h], [x - h, y + h]]
+
+
+HALL = {'rectangle': [-3.0, -3.0, 8.0, 3.0]}
+
+
+@pytest.mark.parametrize('offset', [0.0, 0.035, 0.05, -0.05, 0.1, -0.1, 0.13, -0.13])
+def test_the_judge_measures_a_thin_leg_anywhere_across_the_front_face(offset):
+    """A 4 cm leg 2.5 m ahead: exact distance from the front face, wherever across it."""
+    scene = Scene(_raw({'walls': HALL, 'obstacles': [_leg(2.52, offset, 0.04)]}))
+    front = scene.front_x
+    assert front == pytest.approx(0.225)       # the simulator's footprint (robot.yaml body)
+    assert scene.front_clearance(0.0, 0.0, 0.0) == pytest.approx(2.5 - front)
+    assert scene.clearance(0.0, 0.0, 0.0) == pytest.approx(2.5 - front)
+    # beside the band the face sweeps it is not ahead, however close: the far wall is
+    assert scene.front_clearance(0.0, offset + 0.14 + 0.021, 0.0) == pytest.approx(8.0 - front)
+    assert Scene(_raw({'walls': [], 'obstacles': [_leg(2.52, offset, 0.04)]})).front_clearance(
+        0.0, offset - 0.161, 0.0) == math.inf
+    # touching: contact (distance 0), however it is approached
+    assert scene.clearance(2.5 - front, 0.0, 0.0) == 0.0
+
+
+def test_the_five_rays_missed_the_leg_the_judge_sees():
+    """The regression: a 4 cm leg between two of the old five rays across the 0.28 m face."""
+    from m4k_drivers.world import Pose, World
+    scene = Scene(_raw({'walls': HALL, 'obstacles': [_leg(2.52, 0.035, 0.04)]}))
+    world = World(scene.config, clock=lambda: 0, t0_ns=0)
+    assert world.front_clearance(Pose(0.0, 0.0, 0.0)) > 5.0     # the rays pass it: the wall
+    assert scene.front_clearance(0.0, 0.0, 0.0) == pytest.approx(2.275)
+
+
+def _drive_samples(v, stop_at_x, decel, leg_y=0.05):
+    """Ground-truth samples of a robot braking at ``decel`` from ``v`` once at ``stop_at_x``."""
+    out, x, t, vv, rest = [], 0.0, 0, v, None
+    while t < int(8e9):
+        out.append({'t_ns': t, 'x': x, 'y': 0.0, 'theta': 0.0, 'v': vv, 'w': 0.0,
+                    'travelled': x, 'contacts': 0, 'min_clearance': 1.0,
+                    'obstacle_offsets': [], 'rest_since_ns': rest})
+        if x >= stop_at_x:
+            vv = max(vv - decel * 0.02, 0.0)
+        x += vv * 0.02
+        t += int(0.02e9)
+        if vv == 0.0 and rest is None:
+            rest = t
+    return out
+
+
+def test_the_judge_triggers_on_the_leg_5cm_off_centre_and_bounds_the_stop():
+    raw = _raw({'walls': HALL, 'obstacles': [_leg(2.52, 0.05, 0.04)]})
+    sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.5, 't': 8.0}],
+                     'expect': {'stop': 'sonar'}}, 'leg.yaml')
+    b = bounds.bounds(raw, 0.5, 'sonar')
+    line = bounds.stop_line(raw, 0.5)
+    cross_x = 2.5 - 0.225 - line          # the front face reaches the stop line here
+    # braking at the configured a_brake half a reaction time after the crossing: passes
+    react_x = cross_x + 0.5 * b.t_react * 0.5
+    res = Result('leg', '', 4.0, samples=_drive_samples(0.5, react_x, b.a_brake))
+    _judge(sc, res, b, raw)
+    assert res.passed, res.failures
+    assert res.stop_m is not None and res.stop_m <= b.stop_distance(0.5)
+    # the same stop 0.1 m late (a weakened guard) fails on the stopping distance
+    late = Result('leg', '', 4.0, samples=_drive_samples(0.5, react_x + 0.1, b.a_brake))
+    _judge(sc, late, b, raw)
+    assert any('after the stop line' in f for f in late.failures), late.failures
+    # braking harder than the tyres can: physically impossible, fails
+    hard = Result('leg', '', 4.0, samples=_drive_samples(0.5, cross_x, 1.5 * b.max_decel))
+    _judge(sc, hard, b, raw)
+    assert any('physically impossible' in f for f in hard.failures), hard.failures
 
 
 @pytest.mark.parametrize('sc', SCENARIOS, ids=[s.name for s in SCENARIOS])
@@ -50,3 +134,34 @@ def test_the_judge_sees_a_contact_when_the_guard_is_off(tmp_path, m4k_runtime_di
     res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
     assert res.contacts >= 1 and res.min_clearance == 0.0
     assert not res.passed and any('contact' in f for f in res.failures)
+
+
+BY_NAME = {s.name: s for s in SCENARIOS}
+
+
+def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(tmp_path, m4k_runtime_dir):
+    """The guard weakened by 0.1 m through rt_core's test-only hook: the judge must fail it.
+
+    The hook (M4K_TEST_HOOKS=1, M4K_TEST_GUARD_WEAKEN_M) reaches rt_core through the stack's
+    environment only; the judge reads the configuration and the ground truth, never the hook,
+    so it holds the weakened guard to the real stop line -- and it stops 10 cm too late.
+    """
+    sc = BY_NAME['wall_0_5']
+    env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
+    res = run_scenario(sc, str(tmp_path), short=True, env=env)
+    assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
+    assert any('after the stop line' in f or 'contact' in f or 'clearance' in f
+               for f in res.failures), res.failures
+
+
+def test_negative_control_supervision_off_with_a_flipped_encoder_fails(tmp_path, m4k_runtime_dir):
+    """Wheel supervision off and the left encoder counting backwards: the judge must fail it."""
+    base = BY_NAME['encoder_sign_flip']
+    sc = spec.parse({'world': base.world, 'commands': [{'v': 0.3, 't': 4.0}],
+                     'expect': {'max_speed': 0.5, 'motor_fault': True},
+                     'config': {'control': {'supervision': {'enabled': False}}}},
+                    'supervision_off.yaml')
+    res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
+    assert not res.passed, 'the judge passed a runaway with supervision off'
+    assert any('peak speed' in f or 'motor fault not latched' in f for f in res.failures), \
+        res.failures

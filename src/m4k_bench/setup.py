@@ -37,6 +37,7 @@ setup(
             'baseline = m4k_bench.baseline:main',
             'loop_ab = m4k_bench.loop_ab:main',
             'scenarios = m4k_bench.scenarios:main',
+            'reaction = m4k_bench.reaction:main',
             'bench_combine = m4k_bench.benchlib.combine:main',
         ],
     },

@@ -15,7 +15,10 @@ root, else it says what to install), holds ``/dev/cpu_dma_latency`` at 0 µs for
    (wake, drain + decode, control, encode + send, timing record, rusage) in the report;
 2. **scaling**, in every round (the rates reversed every other round): the actuator alone and
    with the task set at 100, 250, 500 and 1000 Hz, each with cyclictest at the same rate;
-3. cmd_vel -> WHEEL_CMD latency.
+3. cmd_vel -> WHEEL_CMD latency;
+4. the guard's reaction (:mod:`m4k_bench.reaction`, also ``reaction`` alone): stop line crossed
+   on ground truth -> first braking DAC word, on the simulator's clock (50 trials, 10 with
+   ``--quick``), and the stopping distance at 0.5, 1.0 and 2.0 m/s against the physics.
 
 Every ratio is computed per round and reported as the median with min-max over the rounds;
 the verdict is on the median. The RT hardening rt_core obtained (RT_STATUS) is recorded per
@@ -58,14 +61,15 @@ RATES_HZ = (100, 250, 500, 1000)
 PUBLISH_DIR = os.path.join('docs', 'results', 'bench')
 
 FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 6.0, 'rtt_n': 2000,
-        'cmd_trials': 60}
+        'cmd_trials': 60, 'reaction_trials': 50, 'reaction_speed_trials': 5}
 QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt_n': 500,
-         'cmd_trials': 10}
+         'cmd_trials': 10, 'reaction_trials': 10, 'reaction_speed_trials': 2}
 # One round, in this order (reversed every other round).
 CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_live', 'm4k_alone', 'baseline_idle',
               'ct_stress', 'm4k_stress', 'baseline_stress')
 SCALING_TARGET_HZ = 1000   # the scaling target's rate (analysis.TARGETS)
-PHASES = ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt', 'scaling', 'cmdlat')
+PHASES = ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt', 'scaling', 'cmdlat',
+          'reaction')
 
 
 def plan_durations(quick: bool, duration: float | None, condition: float | None,
@@ -96,6 +100,8 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
         plan['scaling_s'] + WARMUP_S + 5) + plan['scaling_s'] + 3
     total = plan['rounds'] * per_round
     total += 0 if 'cmdlat' in skip else plan['cmd_trials'] * 0.4 + 10.0
+    total += 0 if 'reaction' in skip else plan['reaction_trials'] * 2.5 + 2 * plan[
+        'reaction_speed_trials'] * 6.0 + 30.0
     return total
 
 
@@ -280,7 +286,8 @@ class Bench:
                          if c not in self.skip])
         per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz) + (
             SCALING_TARGET_HZ in args.rates_hz)
-        steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1)
+        steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1) + (
+            0 if 'reaction' in self.skip else 1)
         self.progress = progress_mod.Progress(steps)
         self.periods: dict[str, list[np.ndarray]] = {}
         self.tables: dict[str, Any] = {}          # per round: the m4k_idle recorder summary
@@ -492,6 +499,10 @@ class Bench:
                     p.phase('cmd_vel -> WHEEL_CMD latency ({} trials)'.format(
                         plan['cmd_trials']))
                     self._cmdlat(plan['cmd_trials'])
+                if 'reaction' not in self.skip:
+                    p.phase('guard reaction: stop line -> braking DAC word ({} trials)'.format(
+                        plan['reaction_trials']))
+                    self._reaction(plan['reaction_trials'], plan['reaction_speed_trials'])
         finally:
             shutil.rmtree(self.tmp, ignore_errors=True)
         p.phase('analysis, plots, report')
@@ -620,6 +631,19 @@ class Bench:
         if res.get('error'):
             self._note('cmd_vel latency: {}'.format(res['error']))
         self.summ['cmd_latency'] = res
+
+    def _reaction(self, trials: int, speed_trials: int) -> None:
+        from m4k_bench import reaction
+        out = os.path.join(self.outdir, 'reaction')
+        try:
+            res = reaction.run_reaction(out, trials=trials, speed_trials=speed_trials,
+                                        progress=self.progress.update, env=self.env)
+            self.summ['files'] += [os.path.join('reaction', n) for n in (
+                'reaction.md', 'reaction.json', 'reaction.csv', 'reaction.png')]
+        except (OSError, RuntimeError, ImportError, ValueError) as exc:
+            res = {'error': '{}: {}'.format(type(exc).__name__, exc)}
+            self._note('guard reaction: {}'.format(res['error']))
+        self.summ['reaction'] = res
 
     def _finish(self) -> None:
         s = self.summ

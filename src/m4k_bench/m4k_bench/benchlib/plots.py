@@ -9,11 +9,11 @@ tail that reaches further right is a less periodic task.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-__all__ = ['COLORS', 'fig10', 'scaling']
+__all__ = ['COLORS', 'fig10', 'reaction', 'scaling']
 
 # condition key -> (label, colour, line style); XDDP solid, ROS dashed, stress darker.
 COLORS = {
@@ -130,5 +130,58 @@ def scaling(rows: Sequence[Mapping[str, object]], path: str) -> str:
     ax2.set_title('(b) RT process CPU per cycle\n(median, bars min–max)', fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def reaction(rows: Sequence[Mapping[str, Any]], summary: Mapping[str, Any],
+             path: str) -> str:
+    """Write the guard's reaction figure: (a) reaction times, (b) stopping distance vs speed.
+
+    (a) histogram of the crossing -> first braking DAC word times (simulator clock) with p50
+    and p99 marked; (b) every stop's ground-truth distance from the stop line against the
+    physical minimum ``v t_sensor + v^2 / (2 mu g)`` and the judge's allowed distance.
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.6))
+    times = [1e3 * float(r['reaction_s']) for r in rows
+             if r.get('reaction_s') is not None]
+    if times:
+        ax1.hist(times, bins=min(30, max(5, len(times) // 3)), color='#1f77b4', alpha=0.8)
+        for key, ls in (('reaction_p50_s', '-'), ('reaction_p99_s', '--')):
+            val = summary.get(key)
+            if isinstance(val, float):
+                ax1.axvline(1e3 * val, color='k', ls=ls,
+                            label='{} {:.1f} ms'.format(key.split('_')[1], 1e3 * val))
+        ax1.legend(fontsize=8)
+    ax1.set_xlabel('stop line crossed -> first braking DAC word (ms, simulator clock)')
+    ax1.set_ylabel('trials')
+    ax1.set_title('(a) guard reaction time', fontsize=10)
+    stops = [(float(r['v']), float(r['stop_m'])) for r in rows
+             if r.get('stop_m') is not None]
+    if stops:
+        ax2.plot([s[0] for s in stops], [s[1] for s in stops], 'o', color='#1f77b4',
+                 alpha=0.6, label='measured (ground truth)')
+        vmax = max(s[0] for s in stops) * 1.1
+        v = np.linspace(0.0, vmax, 50)
+        t_s = float(summary.get('t_sensor_s') or 0.0)
+        mu_g = float(summary.get('mu_g') or 1.0)
+        ax2.plot(v, v * t_s + v * v / (2.0 * mu_g), 'k--',
+                 label='physical minimum v t_sensor + v²/(2 μg)')
+        speeds = summary.get('speeds') or []
+        allowed = [(float(r['v']), float(r['judge_allowed_m']))
+                   for r in speeds if r.get('judge_allowed_m') is not None]
+        if allowed:
+            ax2.plot([a[0] for a in allowed], [a[1] for a in allowed], 's', color='#b22222',
+                     label="judge's allowed distance")
+        ax2.legend(fontsize=8)
+    ax2.set_xlabel('true speed at the crossing (m/s)')
+    ax2.set_ylabel('stop line -> rest (m)')
+    ax2.set_title('(b) stopping distance', fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
     plt.close(fig)
     return path

@@ -338,6 +338,27 @@ def _cmdlat(summ: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _reaction(summ: Mapping[str, Any]) -> list[str]:
+    r = summ.get('reaction')
+    lines = ['## Guard reaction time and stopping distance', '']
+    if not r or not r.get('trials'):
+        return lines + ['Not measured: {}.'.format((r or {}).get('error', 'skipped'))]
+    def ms(v: float | None) -> str:
+        return '-' if v is None else '{:.1f}'.format(1e3 * v)
+    lines += ["Stop line crossed on ground truth -> first braking DAC word, on the simulator's "
+              'clock (`reaction/reaction.md`, `reaction/reaction.png`).', '']
+    lines += md_table(['trials', 'p50 (ms)', 'p99 (ms)', 'max (ms)'],
+                      [[r['trials'], ms(r.get('reaction_p50_s')), ms(r.get('reaction_p99_s')),
+                        ms(r.get('reaction_max_s'))]])
+    rows = [['{:g}'.format(s['v_cmd']), '{:.3f}'.format(s['v']), s['n'],
+             '{:.3f}'.format(s['stop_m_median']), '{:.3f}'.format(s['stop_m_max']),
+             '{:.3f}'.format(s['physical_min_m']), s['contacts']] for s in r.get('speeds', [])]
+    if rows:
+        lines += [''] + md_table(['commanded (m/s)', 'true (m/s)', 'stops', 'stop median (m)',
+                                  'stop max (m)', 'physical minimum (m)', 'contacts'], rows)
+    return lines
+
+
 def method_lines(summ: Mapping[str, Any], domain: Any) -> list[str]:
     """Return the method, as it was run (the numbers come from the plan)."""
     plan = _g(summ, 'run', 'plan') or {}
@@ -381,6 +402,7 @@ def render(summ: Mapping[str, Any]) -> str:
     lines += [''] + _scaling(summ)
     lines += [''] + _rtt(summ)
     lines += [''] + _cmdlat(summ)
+    lines += [''] + _reaction(summ)
     if any(summ.get('rounds', [{}])[0:1]) and 'fig10_periodicity.png' in summ.get('files', []):
         lines += ['', '## Fig. 10: periodicity of the actuator task, all rounds pooled', '',
                   '![Fig. 10 periodicity](fig10_periodicity.png)']

@@ -1,30 +1,43 @@
 """The bounds a scenario is judged against, derived from config/ (never tuned to a run).
 
-* distance: the true path within ``v^2 / (2 a)`` of the commanded distance -- what the speed
-  limiter's ramps may take or give (``control.linear.max_acceleration`` / ``max_deceleration``);
-* stop time, from the moment the robot must react (the *trigger*) to the first ground-truth
-  instant at rest (< ``REST_V``, the simulator's ``rest_since_ns``), for each cause:
+Physics, not ramps. For a guard stop (``sonar`` / ``laser``) at ground-truth speed ``v``:
 
-  =====================  ==================================================  ==================
-  cause                  latency before the guard / watchdog acts             trigger
-  =====================  ==================================================  ==================
-  sonar                  2 sonar periods (pipelined ping) + 1 actuator        front clearance <
-                                                                              stop_distance
-  laser                  2 lrf periods + one URG scan (60 / SCAN rpm)          the same
-                         + 1 actuator
-  sonar_unplugged        sonar_timeout + 2 sonar periods + echo timeout       the unplug
-                         + 1 actuator
-  laser_unplugged        laser_timeout + 1 lrf period + 1 actuator            the unplug
-  bridge_killed          cmd_vel_timeout + 2 actuator                         the kill
-  driver_host_killed     heartbeat_hold_s (the amplifiers lose enable), then  the kill
-                         the wheels coast on friction: v / world.robot.
-                         coast_decel_mps2 (no braking: this replaces the
-                         v / max_deceleration below)
-  =====================  ==================================================  ==================
+* the **stop line**: the guard must start braking when a surface inside the front face's band
+  comes within ``stop_line(v)`` of the front face (:func:`stop_line`: the guard's configured
+  stopping distance at that speed). The judge measures that on ground truth with exact geometry
+  (:mod:`.geometry`) -- it never reads the guard, its log or any test hook;
+* the **allowed stopping distance** from that crossing to rest:
+  ``v * t_react + v^2 / (2 a_brake) + STOP_MARGIN_M``, with ``t_react`` the configured sensor
+  and actuator latency:
 
-  plus (but for the coasting driver host) the braking ``v / max_deceleration`` (the guard's stop
-  bypasses the ramp, so this bounds it from above). The rest instant is the simulator's own
-  (``rest_since_ns``, 1 ms steps), not the runner's sampling.
+  ======  ===================================================================
+  cause   t_react (``guard.reaction_time`` instead when set: calibrated)
+  ======  ===================================================================
+  sonar   2 sonar periods (pipelined ping) + 1 actuator period + lag
+  laser   2 lrf periods + one URG scan (60 / SCAN rpm) + 1 actuator period + lag
+  ======  ===================================================================
+
+  (lag: ``guard.pipeline_latency + guard.amplifier_lag``, the datagram hops and the
+  amplifier's current rise) and ``a_brake`` the guard's ``brake_deceleration`` (at most
+  ``mu * g``; with none configured, ``mu * g``). No ``v / max_deceleration`` ramp slack: the
+  guard's stop bypasses the limiter's ramp.
+
+For the other causes a stop *time* from the trigger to rest, ``t_detect + lag + v / a_brake``:
+
+=====================  ==================================================  ==================
+cause                  t_detect                                            trigger
+=====================  ==================================================  ==================
+sonar_unplugged        sonar_timeout + 2 sonar periods + echo timeout       the unplug
+                       + 1 actuator (and the robot must STAY at rest)
+laser_unplugged        laser_timeout + 1 lrf period + 1 actuator (stays)    the unplug
+bridge_killed          cmd_vel_timeout + 2 actuator                         the kill
+driver_host_killed     heartbeat_hold_s, then the wheels coast on friction  the kill
+                       (``v / world.robot.coast_decel_mps2`` replaces
+                       ``v / a_brake``)
+=====================  ==================================================  ==================
+
+Every scenario: the peak ground-truth deceleration must be physically possible, ``<= mu * g``
+of the world's robot (:func:`traction_limit`).
 """
 
 from __future__ import annotations
@@ -36,10 +49,22 @@ from typing import Any, Mapping
 from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
 from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
-__all__ = ['Bounds', 'REST_V', 'SAMPLE_S', 'bounds']
+__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds', 'stop_line',
+           'traction_limit']
 
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
 URG_SCAN_S = 0.1     # URG-04LX: 600 rpm (PP SCAN)
+G = 9.80665          # m/s^2, standard gravity
+# The judge's own tolerance on a guard stop: the interpolation of the 20 ms samples at the
+# crossing (linear in travelled) and the 1 ms simulation step. Far below the 0.1 m a weakened
+# guard loses (the negative control), so a guard acting 10 cm late fails.
+STOP_MARGIN_M = 0.02
+# Rubber tyres on a hard floor: mu about 0.5-0.7 (issue 28). Used only when the world's robot
+# states no friction coefficient of its own (then its traction limit is the upper end, 0.7 g).
+DEFAULT_MU = 0.7
+# The wheels stay at rest after an unplug stop: at most this far on ground truth.
+STAY_M = 0.01
+UNPLUG_CAUSES = ('sonar_unplugged', 'laser_unplugged')
 
 
 @dataclass(frozen=True)
@@ -47,12 +72,94 @@ class Bounds:
     """What one scenario is held to."""
 
     distance_tol: float           # m
-    stop_s: float | None          # s from trigger to rest
-    trigger_clearance: float | None   # m ahead of the front face (obstacle stops)
+    stop_s: float | None          # s from trigger to rest (the non-guard causes)
+    t_react: float | None         # s, guard stops: sensor + actuator latency
+    a_brake: float                # m/s^2 the stop may assume
+    max_decel: float              # m/s^2: mu * g of the world's robot
+    stays_stopped: bool = False   # the unplug causes: at rest until the end of the run
+
+    def stop_distance(self, v: float) -> float | None:
+        """Return the allowed stopping distance from the stop line at ``v`` (guard stops)."""
+        if self.t_react is None:
+            return None
+        return abs(v) * self.t_react + v * v / (2.0 * self.a_brake) + STOP_MARGIN_M
 
 
 def _period(raw: Mapping[str, Any], task: str) -> float:
     return float(raw['tasks'][task]['period_ms']) / 1000.0
+
+
+def _robot(raw: Mapping[str, Any]) -> Any:
+    """Return the world's robot as the simulator builds it (m4k_drivers.world)."""
+    from m4k_drivers.world import RobotParams, WorldConfig
+    robot = RobotParams.from_control(dict(raw.get('control') or {}),
+                                     (raw.get('robot') or {}).get('body'))
+    return WorldConfig.from_dict(dict(raw.get('world') or {}), robot=robot).robot
+
+
+def traction_limit(raw: Mapping[str, Any]) -> float:
+    """Return ``mu * g`` (m/s^2) of the world's robot: the most any braking can give."""
+    robot = _robot(raw)
+    mu = next((float(getattr(robot, k)) for k in ('mu', 'traction_mu', 'tyre_mu', 'friction_mu')
+               if getattr(robot, k, None) is not None), DEFAULT_MU)
+    return mu * G
+
+
+def _lag(raw: Mapping[str, Any]) -> float:
+    """Return the configured hops and amplifier response after the actuator's cycle (s)."""
+    from m4k_rt.control.params import control_params
+    g = control_params(raw.get('control')).guard
+    return float(getattr(g, 'pipeline_latency', 0.0) or 0.0) + float(
+        getattr(g, 'amplifier_lag', 0.0) or 0.0)
+
+
+def _t_react(raw: Mapping[str, Any], sensor: str) -> float:
+    """Return the configured reaction time for a stop ``sensor`` sees (s).
+
+    ``guard.reaction_time`` when set (``calibrate`` measures it), else the sensor's latency
+    (the table above) + the actuator period + ``guard.pipeline_latency`` +
+    ``guard.amplifier_lag``.
+    """
+    from m4k_rt.control.params import control_params
+    g = control_params(raw.get('control')).guard
+    fixed = getattr(g, 'reaction_time', None)
+    if fixed is not None:
+        return float(fixed)
+    ta = _period(raw, 'actuator')
+    if sensor == 'sonar':
+        return 2 * _period(raw, 'sonar') + ta + _lag(raw)
+    return 2 * _period(raw, 'lrf') + URG_SCAN_S + ta + _lag(raw)
+
+
+def _guard_decel(raw: Mapping[str, Any]) -> float | None:
+    """Return ``guard.brake_deceleration``: what the guard's stop assumes the drive gives."""
+    from m4k_rt.control.params import control_params
+    a = getattr(control_params(raw.get('control')).guard, 'brake_deceleration', None)
+    return None if a is None else float(a)
+
+
+def stop_line(raw: Mapping[str, Any], v: float) -> float:
+    """Return the guard's configured stopping distance ahead of the front face at speed ``v``.
+
+    The speed-aware stop zone ``d(v) = v t_react + v^2 / (2 a_brake) + stop_distance`` from the
+    configuration (``t_react``: ``guard.reaction_time``, else twice the period of the slowest
+    front sensor in use + the actuator period + pipeline + amplifier lag), restated here from
+    the specification -- never read from the guard. A configuration without
+    ``brake_deceleration`` (the fixed-distance guard): ``stop_distance``.
+    """
+    from m4k_rt.control.params import control_params
+    g = control_params(raw.get('control')).guard
+    a = _guard_decel(raw)
+    if a is None or v <= 0.0:
+        return g.stop_distance
+    fixed = getattr(g, 'reaction_time', None)
+    if fixed is not None:
+        t = float(fixed)
+    else:
+        period = _period(raw, 'lrf') if g.use_laser else _period(raw, 'sonar') \
+            if g.use_sonar else 0.0
+        t = 2 * period + _period(raw, 'actuator') + _lag(raw)
+    return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 
 
 def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
@@ -63,30 +170,25 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     decel = p.linear.max_deceleration or accel
     tol = v * v / (2.0 * min(accel, decel))
     ta = _period(raw, 'actuator')
-    brake = v / decel
+    mu_g = traction_limit(raw)
+    a_brake = min(_guard_decel(raw) or mu_g, mu_g)
+    brake = v / a_brake
     g = p.guard
-    trigger = None
+    t_react: float | None = None
     stop: float | None = None
-    if cause == 'sonar':
-        trigger = g.stop_distance       # the guard measures from the body's front face
-        stop = 2 * _period(raw, 'sonar') + ta + brake
-    elif cause == 'laser':
-        trigger = g.stop_distance
-        stop = 2 * _period(raw, 'lrf') + URG_SCAN_S + ta + brake
+    lag = _lag(raw)
+    if cause in ('sonar', 'laser'):
+        t_react = _t_react(raw, cause)
     elif cause == 'sonar_unplugged':
-        stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + brake
+        stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + lag + brake
     elif cause == 'laser_unplugged':
-        stop = g.laser_timeout + _period(raw, 'lrf') + ta + brake
+        stop = g.laser_timeout + _period(raw, 'lrf') + ta + lag + brake
     elif cause == 'bridge_killed':
-        stop = p.cmd_vel_timeout + 2 * ta + brake
+        stop = p.cmd_vel_timeout + 2 * ta + lag + brake
     elif cause == 'driver_host_killed':
-        from m4k_drivers.world import RobotParams, WorldConfig
         motor = (raw.get('devices') or {}).get('motor') or {}
-        # The coast-down is friction alone, derived from the robot as built (world.robot).
-        robot = RobotParams.from_control(raw.get('control'), (raw.get('robot') or {}).get('body'))
-        coast = WorldConfig.from_dict({'robot': (raw.get('world') or {}).get('robot') or {}},
-                                      robot=robot).robot.coast_decel_mps2
+        coast = float(_robot(raw).coast_decel_mps2)
         hold = float(motor.get('heartbeat_hold_s', 0.05)) if motor.get('heartbeat', True) \
             else math.inf
         stop = hold + v / coast
-    return Bounds(tol, stop, trigger)
+    return Bounds(tol, stop, t_react, a_brake, mu_g, cause in UNPLUG_CAUSES)

@@ -22,13 +22,17 @@ def table(results: Sequence[Result], header: str = '') -> str:
     """Return the markdown table of the results."""
     lines = [header, '',
              '| scenario | expected | commanded (m) | measured distance (m) | min clearance (m) '
-             '| contacts | stop time (s) / bound | verdict |',
-             '|---|---|---|---|---|---|---|---|']
+             '| contacts | stop time (s) / bound | stop distance (m) / bound | peak decel '
+             '(m/s²) / μg | verdict |',
+             '|---|---|---|---|---|---|---|---|---|---|']
     for r in results:
-        stop = '-' if r.stop_bound_s is None else f'{_f(r.stop_s)} / {_f(r.stop_bound_s)}'
+        stop = '-' if r.stop_s is None and r.stop_bound_s is None else \
+            f'{_f(r.stop_s)} / {_f(r.stop_bound_s)}'
+        dist = '-' if r.stop_bound_m is None else f'{_f(r.stop_m)} / {_f(r.stop_bound_m)}'
         verdict = 'PASS' if r.passed else 'FAIL: ' + '; '.join(r.failures)
         lines.append(f'| {r.name} | {r.expected} | {r.commanded:.2f} | {_f(r.travelled)} | '
-                     f'{_f(r.min_clearance)} | {r.contacts} | {stop} | {verdict} |')
+                     f'{_f(r.min_clearance)} | {r.contacts} | {stop} | {dist} | '
+                     f'{_f(r.peak_decel, ".2f")} / {_f(r.max_decel, ".2f")} | {verdict} |')
     return '\n'.join(lines) + '\n'
 
 

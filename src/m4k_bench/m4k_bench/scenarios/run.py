@@ -26,7 +26,8 @@ from typing import Any, Callable
 
 import yaml
 
-from m4k_bench.scenarios.bounds import bounds, REST_V, SAMPLE_S
+from m4k_bench.scenarios.bounds import Bounds, bounds, REST_V, SAMPLE_S, STAY_M, stop_line
+from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.spec import Scenario
 from m4k_rt import config
 
@@ -49,10 +50,16 @@ class Result:
     contacts: int = -1
     stop_s: float | None = None
     stop_bound_s: float | None = None
+    stop_m: float | None = None         # m travelled from the trigger to rest
+    stop_bound_m: float | None = None   # the allowed stopping distance (guard stops)
+    peak_decel: float = math.nan        # m/s^2, ground truth
+    max_decel: float = math.nan         # m/s^2, mu * g of the world's robot
     distance_tol: float = math.nan
     failures: list[str] = field(default_factory=list)
     samples: list[dict[str, Any]] = field(default_factory=list)
     log_tail: str = ''
+    cmd_end_ns: int | None = None       # truth time the scripted commands ended
+    peak_speed: float = math.nan        # m/s, body or wheel rim, ground truth
 
     @property
     def passed(self) -> bool:
@@ -95,6 +102,9 @@ class _Ros:
         self.node = rclpy.create_node('m4k_scenario', context=self.ctx)
         self.twist = Twist()
         self.pub = self.node.create_publisher(Twist, 'cmd_vel', 10)
+        from std_msgs.msg import Bool
+        self.estop_msg = Bool()
+        self.estop_pub = self.node.create_publisher(Bool, 'e_stop', 10)
         self.odom = self.scan = 0
         self.yaw: float | None = None       # the robot's own heading (odometry), for ``hold``
         self.node.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
@@ -118,6 +128,10 @@ class _Ros:
     def send(self, v: float, w: float) -> None:
         self.twist.linear.x, self.twist.angular.z = float(v), float(w)
         self.pub.publish(self.twist)
+
+    def e_stop(self, on: bool) -> None:
+        self.estop_msg.data = bool(on)
+        self.estop_pub.publish(self.estop_msg)
 
     def close(self) -> None:
         self.ex.shutdown()
@@ -175,8 +189,12 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
             res.failures.append(f'the stack did not come up (odom {ros.odom}, scan {ros.scan})')
             return res
         ros.spin(0.5)          # every sensor has reported: the guard is fresh
+        if sc.e_stop:          # requested before the drive, as an operator would
+            for _ in range(4):
+                ros.e_stop(True)
+                ros.spin(0.25)
         progress(f'{sc.name}: stack up, driving {res.commanded:.2f} m commanded')
-        _drive(sc, cmds, ros, runtime_dir, proc.pid, res, children)
+        _drive(sc, cmds, ros, runtime_dir, proc.pid, res, children, _held_at_stop(sc, raw))
     finally:
         ros.close()
         _stop(proc)
@@ -184,7 +202,7 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
         with open(log_path, 'rb') as f:
             res.log_tail = b'\n'.join(f.read().splitlines()[-15:]).decode(errors='replace')
         shutil.rmtree(runtime_dir, ignore_errors=True)
-    _judge(sc, res, b)
+    _judge(sc, res, b, raw)
     return res
 
 
@@ -221,26 +239,61 @@ def _commander(ros: _Ros, plan: list[tuple[float, float, float, bool]], done: th
     return th
 
 
+HELD_S = 2.5          # a guard stop held this long in front of its obstacle ends the drive
+
+
+def _held_at_stop(sc: Scenario, raw: dict[str, Any]) -> Callable[[list[dict[str, Any]]], bool]:
+    """Return a test of whether a guard-stop scenario's robot rests at its obstacle.
+
+    True once the robot has moved, rests (the simulator's ``rest_since_ns``) for ``HELD_S``
+    and the judge's exact front clearance is within the guard's stop zone at rest plus its
+    release margin (and 0.1 m): the stop the scenario is about happened, so the rest of the
+    command time would only show the robot standing there. Other scenarios run their time.
+    """
+    if sc.stop not in ('sonar', 'laser'):
+        return lambda s: False
+    from m4k_rt.control.params import control_params
+    scene = Scene(raw)
+    g = control_params(raw.get('control')).guard
+    near = stop_line(raw, 0.0) + g.release_margin + 0.1
+
+    def held(s: list[dict[str, Any]]) -> bool:
+        x = s[-1]
+        rest = x.get('rest_since_ns')
+        if rest is None or float(x['travelled']) < 0.05 or \
+                int(x['t_ns']) - int(rest) < HELD_S * 1e9:
+            return False
+        return scene.front_clearance(float(x['x']), float(x['y']), float(x['theta']),
+                                     x.get('obstacle_offsets') or []) < near
+    return held
+
+
 def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: int, res: Result,
-           children: Callable[[int], dict[str, int]]) -> None:
+           children: Callable[[int], dict[str, int]],
+           held: Callable[[list[dict[str, Any]]], bool] = lambda s: False) -> None:
     plan = [(c.v, c.w, c.t, c.hold) for c in cmds] + [(0.0, 0.0, SETTLE_S, False)]
     faults = list(sc.faults)
     done, stop = threading.Event(), threading.Event()
     th = _commander(ros, plan, done, stop)
     try:
-        nxt = time.monotonic()
+        nxt = t_drive = time.monotonic()
         while not done.is_set():
             t = _truth(runtime_dir)
             if t is not None:
                 res.samples.append(t)
+                res.cmd_end_ns = int(t['t_ns'])
                 for f in list(faults):
-                    if t['travelled'] >= f.travelled:
+                    due = (time.monotonic() - t_drive >= f.after) if f.after is not None \
+                        else t['travelled'] >= f.travelled
+                    if due:
                         pid = children(bringup_pid).get(f.kill)
                         if pid:
                             t_kill = time.monotonic_ns()
                             os.kill(pid, signal.SIGKILL)
                             res.samples[-1] = dict(t, killed=f.kill, kill_ns=t_kill)
                             faults.remove(f)
+                if held(res.samples):
+                    break
             nxt += SAMPLE_S
             ros.spin(max(0.0, nxt - time.monotonic()))
         # at rest? keep sampling (zero commands) up to a few more seconds until it is
@@ -256,43 +309,163 @@ def _drive(sc: Scenario, cmds: Any, ros: _Ros, runtime_dir: str, bringup_pid: in
         stop.set()
         th.join(5.0)
     for f in faults:
-        res.failures.append(f'fault kill {f.kill} at {f.travelled} m never happened')
+        when = f'{f.after} s' if f.after is not None else f'{f.travelled} m'
+        res.failures.append(f'fault kill {f.kill} at {when} never happened')
 
 
-def _judge(sc: Scenario, res: Result, b: Any) -> None:
+def _judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     s = res.samples
     if not s:
         res.failures.append('no ground truth sampled')
         return
+    scene = Scene(raw)
+    for x in s:                       # the judge's own geometry, on every ground-truth sample
+        x['clearance'], x['front_clearance'] = scene.judge_sample(x)
     last = s[-1]
     res.travelled = float(last['travelled'])
-    res.min_clearance = min(_m(x['min_clearance']) for x in s)
+    # the judge's exact clearance per sample, and the simulator's own 5 ms minimum
+    res.min_clearance = min(min(x['clearance'] for x in s), min(_m(x['min_clearance']) for x in s))
     res.contacts = int(last['contacts'])
+    touching = sum(1 for x in s if x['clearance'] <= 0.0)
     if res.contacts:
         res.failures.append(f'{res.contacts} contact(s)')
+    elif touching:
+        res.failures.append(f'contact: the footprint touches a surface in {touching} sample(s)')
     if not res.min_clearance > 0.0:
         res.failures.append(f'minimum clearance {res.min_clearance:.3f} m')
+    res.peak_decel = _peak_decel(s)
+    res.max_decel = b.max_decel
+    if res.peak_decel > b.max_decel:
+        res.failures.append(f'peak deceleration {res.peak_decel:.2f} m/s^2 on ground truth > '
+                            f'{b.max_decel:.2f} m/s^2 (mu * g): physically impossible braking')
     if sc.distance and abs(res.travelled - res.commanded) > b.distance_tol:
         res.failures.append(f'travelled {res.travelled:.3f} m, commanded {res.commanded:.3f} m '
                             f'(tolerance {b.distance_tol:.3f} m)')
     if sc.distance_m is not None and abs(res.travelled - sc.distance_m) > b.distance_tol:
         res.failures.append(f'travelled {res.travelled:.3f} m, expected {sc.distance_m:.3f} m '
                             f'(tolerance {b.distance_tol:.3f} m)')
+    radius = scene.robot.wheel_radius_m
+    res.peak_speed = max(max(abs(float(x['v'])), abs(float(x['wheel_speed_left'])) * radius,
+                             abs(float(x['wheel_speed_right'])) * radius) for x in s)
+    if sc.max_speed is not None and not res.peak_speed < sc.max_speed:
+        res.failures.append(f'peak speed {res.peak_speed:.3f} m/s on ground truth (body or wheel '
+                            f'rim) >= {sc.max_speed:g} m/s')
+    if sc.motor_fault:
+        _judge_motor_fault(res, s)
+    if sc.still_after_estop:
+        _judge_estop_release(res, s)
+    if sc.max_w_after_kill is not None:
+        hit = next((i for i, x in enumerate(s) if x.get('killed')), None)
+        if hit is None:
+            res.failures.append('the kill never happened')
+        else:
+            w_max = max(abs(float(x['w'])) for x in s[hit:])
+            if not w_max < sc.max_w_after_kill:
+                res.failures.append(f'|w| up to {w_max:.3f} rad/s after the kill of '
+                                    f'{s[hit]["killed"]} >= {sc.max_w_after_kill:g}')
     if sc.stop:
-        t0 = _trigger_ns(sc, s, b)
-        if t0 is None:
-            res.failures.append(f'stop ({sc.stop}): its trigger never happened')
-            return
-        # The simulator stamps when the robot came to rest (1 ms steps): the first sample
-        # after the trigger that reports rest says since when, whatever the sampling jitter.
-        rest = next((x for x in s if x['t_ns'] >= t0 and x.get('rest_since_ns') is not None),
-                    None)
-        if rest is None:
-            res.failures.append(f'stop ({sc.stop}): never at rest after the trigger')
-            return
-        res.stop_s = max(int(rest['rest_since_ns']) - t0, 0) / 1e9
-        if b.stop_s is not None and res.stop_s > b.stop_s:
-            res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
+        _judge_stop(sc, res, b, raw, s)
+
+
+FAULT_HOLD_S = 1.0   # a latched fault: outputs zero and at rest this long before the commands end
+
+
+def _judge_motor_fault(res: Result, s: list[dict[str, Any]]) -> None:
+    """Judge a latched motor fault on ground truth: the commands drive on, the robot does not.
+
+    Over the last ``FAULT_HOLD_S`` of the scripted commands both armatures get 0 V or the
+    amplifiers are disabled, and the robot is at rest -- although the command source never
+    stopped asking for motion.
+    """
+    end = res.cmd_end_ns
+    if end is None:
+        res.failures.append('motor fault: no samples while commanded')
+        return
+    tail = [x for x in s if end - FAULT_HOLD_S * 1e9 <= int(x['t_ns']) <= end]
+    if len(tail) < 3:
+        res.failures.append('motor fault: too few samples at the end of the commands')
+        return
+    driven = [x for x in tail if x.get('motor_enabled', True) and
+              any(abs(float(u)) > 1e-6 for u in x.get('motor_volts') or [])]
+    moving = [x for x in tail if abs(float(x['v'])) >= REST_V or abs(float(x['w'])) >= 0.02]
+    if driven or moving:
+        res.failures.append(f'motor fault not latched: in the last {FAULT_HOLD_S:g} s of the '
+                            f'commands {len(driven)} sample(s) drive the motors, {len(moving)} '
+                            f'move')
+
+
+def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
+    """Judge the e-stop release: no motion once the contact closes (no reset, command live).
+
+    The contact (``estop_open`` on ground truth) must have opened while the robot was being
+    driven, then closed; from the closing sample on, the robot stays at rest.
+    """
+    i_open = next((i for i, x in enumerate(s) if x.get('estop_open')), None)
+    if i_open is None:
+        res.failures.append('e-stop: the contact never opened during the drive')
+        return
+    if float(s[i_open]['travelled']) < 0.02:
+        res.failures.append('e-stop: the contact opened before the robot moved (the stack came '
+                            'up late): the release under a live command was not exercised')
+        return
+    i_close = next((i for i in range(i_open, len(s)) if not s[i].get('estop_open')), None)
+    if i_close is None:
+        res.failures.append('e-stop: the contact never closed again during the drive')
+        return
+    # the robot may still be coasting when the contact closes: from its rest on
+    i_rest = next((i for i in range(i_close, len(s)) if abs(float(s[i]['v'])) < REST_V), None)
+    if i_rest is None:
+        res.failures.append('e-stop: never at rest after the release')
+        return
+    after = s[i_rest:]
+    moved = float(after[-1]['travelled']) - float(after[0]['travelled'])
+    v_max = max(abs(float(x['v'])) for x in after)
+    w_max = max(abs(float(x['w'])) for x in after)
+    held = (int(after[-1]['t_ns']) - int(s[i_close]['t_ns'])) / 1e9
+    if moved > STAY_M or v_max >= REST_V or w_max >= 0.02:
+        res.failures.append(f'e-stop release restarted motion: {moved:.3f} m, up to '
+                            f'{v_max:.3f} m/s, {w_max:.3f} rad/s with no reset')
+    elif held < 1.0:
+        res.failures.append(f'e-stop: only {held:.2f} s observed after the release')
+
+
+def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
+                s: list[dict[str, Any]]) -> None:
+    trig = _trigger(sc, s, raw)
+    if trig is None:
+        res.failures.append(f'stop ({sc.stop}): its trigger never happened')
+        return
+    t0, travelled0, v0 = trig
+    # The simulator stamps when the robot came to rest (1 ms steps): the first sample
+    # after the trigger that reports rest says since when, whatever the sampling jitter.
+    i_rest = next((i for i, x in enumerate(s)
+                   if x['t_ns'] >= t0 and x.get('rest_since_ns') is not None), None)
+    if i_rest is None:
+        res.failures.append(f'stop ({sc.stop}): never at rest after the trigger')
+        return
+    rest = s[i_rest]
+    res.stop_s = max(int(rest['rest_since_ns']) - t0, 0) / 1e9
+    res.stop_m = max(float(rest['travelled']) - travelled0, 0.0)
+    allowed = b.stop_distance(v0)
+    if allowed is not None:
+        res.stop_bound_m = allowed
+        if res.stop_m > allowed:
+            res.failures.append(f'stopped {res.stop_m:.3f} m after the stop line at '
+                                f'{v0:.2f} m/s > {allowed:.3f} m (v t_react + v^2 / 2a + '
+                                f'margin: t_react {b.t_react:.3f} s, a {b.a_brake:.2f} m/s^2)')
+    if b.stop_s is not None and res.stop_s > b.stop_s:
+        res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
+    if b.stays_stopped:
+        after = s[i_rest:]
+        moved = float(after[-1]['travelled']) - float(rest['travelled'])
+        v_max = max(abs(float(x['v'])) for x in after)
+        held_s = (int(after[-1]['t_ns']) - int(rest['t_ns'])) / 1e9
+        if moved > STAY_M or v_max >= REST_V:
+            res.failures.append(f'stop ({sc.stop}): moved again after the stop ({moved:.3f} m, '
+                                f'up to {v_max:.3f} m/s)')
+        elif held_s < 1.0:
+            res.failures.append(f'stop ({sc.stop}): at rest only {held_s:.2f} s before the run '
+                                f'ended: staying stopped not shown')
 
 
 def _m(v: float | None) -> float:
@@ -300,18 +473,60 @@ def _m(v: float | None) -> float:
     return math.inf if v is None else float(v)
 
 
-def _trigger_ns(sc: Scenario, s: list[dict[str, Any]], b: Any) -> int | None:
-    """Return when the robot had to start stopping (ground-truth clock)."""
+def _peak_decel(s: list[dict[str, Any]]) -> float:
+    """Return the peak braking deceleration (m/s^2, >= 0) on ground truth.
+
+    The simulator's own peak since the previous sample when it reports one, else the
+    difference of the true speed between consecutive samples.
+    """
+    peaks = [float(x['peak_decel']) for x in s if x.get('peak_decel') is not None]
+    if peaks:
+        return max(0.0, max(peaks))
+    best = 0.0
+    for a, c in zip(s, s[1:], strict=False):
+        dt = (int(c['t_ns']) - int(a['t_ns'])) / 1e9
+        if dt <= 0:
+            continue
+        va, vc = float(a['v']), float(c['v'])
+        if abs(vc) < abs(va) and va * vc >= 0:     # slowing down, not reversing
+            best = max(best, (abs(va) - abs(vc)) / dt)
+    return best
+
+
+def _trigger(sc: Scenario, s: list[dict[str, Any]], raw: dict[str, Any]
+             ) -> tuple[int, float, float] | None:
+    """Return (ns, travelled m, v m/s) when the robot had to start stopping (ground truth).
+
+    Guard stops: the sample where the judge's exact front clearance first falls below the
+    guard's stop line for the true speed, interpolated (linear in travelled) back to the
+    crossing between that sample and the one before.
+    """
     if sc.stop in ('sonar', 'laser'):
-        hit = next((x for x in s if _m(x['front_clearance']) < b.trigger_clearance), None)
-        return None if hit is None else int(hit['t_ns'])
+        prev = None
+        for x in s:
+            v = abs(float(x['v']))
+            line = stop_line(raw, v)
+            fc = x['front_clearance']
+            if fc < line:
+                if prev is None or not prev['front_clearance'] > fc:
+                    return int(x['t_ns']), float(x['travelled']), v
+                k = (prev['front_clearance'] - line) / (prev['front_clearance'] - fc)
+                k = min(max(k, 0.0), 1.0)
+                t = int(prev['t_ns'] + k * (int(x['t_ns']) - int(prev['t_ns'])))
+                tr = float(prev['travelled']) + k * (float(x['travelled']) -
+                                                      float(prev['travelled']))
+                vv = max(abs(float(prev['v'])), v)
+                return t, tr, vv
+            prev = x
+        return None
     if sc.stop in ('sonar_unplugged', 'laser_unplugged'):
         want = 'sonar' if sc.stop == 'sonar_unplugged' else 'lrf'
         for x in s:
             for e in x.get('events', []):
                 if e['unplug'] == want:
-                    return int(e['t_ns'])
+                    return int(e['t_ns']), float(x['travelled']), abs(float(x['v']))
         return None
     want = 'bridge' if sc.stop == 'bridge_killed' else 'driver_host'
     hit = next((x for x in s if x.get('killed') == want), None)
-    return None if hit is None else int(hit['kill_ns'])
+    return None if hit is None else (int(hit['kill_ns']), float(hit['travelled']),
+                                     abs(float(hit['v'])))

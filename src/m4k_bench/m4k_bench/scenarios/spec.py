@@ -10,11 +10,19 @@ A scenario is one YAML file (``config/scenarios/*.yaml`` ships the suite; write 
       - {v: 0.5, t: 27.0, heading: hold}  # steer on odometry to keep the segment's first
                                         # heading, as a navigation stack would (w = -1.0 * err)
     faults:                             # processes the runner kills -9 (bringup restarts them)
-      - {kill: driver_host, at: {travelled: 1.0}}   # driver_host | bridge
+      - {kill: driver_host, at: {travelled: 1.0}}   # driver_host | bridge | rt_core; at:
+                                        # {travelled: m} or {after: s since the drive began}
+    e_stop: true                        # the runner publishes e_stop (std_msgs/Bool) true first
     expect:                             # written before the run
       distance: commanded               # the true path covers the commanded distance (or
                                         # a number of metres, e.g. 0: must not move)
       stop: sonar                       # the robot stops, within the bound of this cause
+      max_speed: 0.5                    # m/s: peak true body and wheel-rim speed below this
+      motor_fault: true                 # a latched motor fault: zero outputs, at rest while
+                                        # still commanded, to the end of the commands
+      still_after_estop: true           # after the e-stop contact (world.faults) closes again
+                                        # the robot stays at rest (no reset is ever sent)
+      max_w_after_kill: 0.02            # rad/s: |w| on ground truth from the kill on
     short: 0.5                          # the test's version: command durations x 0.5
 
 ``expect.stop`` names why the robot must come to rest, and so which bound from ``config/``
@@ -38,7 +46,7 @@ __all__ = ['Command', 'Fault', 'Scenario', 'ScenarioError', 'STOP_CAUSES', 'load
 
 STOP_CAUSES = ('sonar', 'laser', 'sonar_unplugged', 'laser_unplugged', 'bridge_killed',
                'driver_host_killed')
-KILLABLE = ('driver_host', 'bridge')
+KILLABLE = ('driver_host', 'bridge', 'rt_core')
 
 
 class ScenarioError(ValueError):
@@ -57,10 +65,11 @@ class Command:
 
 @dataclass(frozen=True)
 class Fault:
-    """A process killed when the robot has truly covered ``travelled`` m."""
+    """A process killed when the robot has truly covered ``travelled`` m (or ``after`` s)."""
 
     kill: str
-    travelled: float
+    travelled: float = 0.0
+    after: float | None = None      # s since the drive began, instead of travelled
 
 
 @dataclass(frozen=True)
@@ -76,6 +85,11 @@ class Scenario:
     distance_m: float | None = None  # or expect this distance (m), e.g. 0: must not move
     stop: str | None = None         # expect a stop, for this cause
     short: float = 1.0
+    max_speed: float | None = None  # m/s: peak true speed (body, wheel rims) below this
+    motor_fault: bool = False       # expect a latched motor fault
+    still_after_estop: bool = False  # no motion after the e-stop contact closes again
+    max_w_after_kill: float | None = None   # rad/s: |w| from the kill on
+    e_stop: bool = False            # the runner requests an e-stop before driving
     path: str = ''
     overlay: dict[str, Any] = field(default_factory=dict)
 
@@ -94,6 +108,14 @@ class Scenario:
                  f'{self.distance_m:g} m' if self.distance_m is not None else '']
         if self.stop:
             parts.append(f'stop ({self.stop.replace("_", " ")})')
+        if self.max_speed is not None:
+            parts.append(f'peak speed < {self.max_speed:g} m/s')
+        if self.motor_fault:
+            parts.append('motor fault latched')
+        if self.still_after_estop:
+            parts.append('no motion after the e-stop release')
+        if self.max_w_after_kill is not None:
+            parts.append(f'|w| < {self.max_w_after_kill:g} rad/s after the kill')
         return ', '.join(p for p in parts if p) + '; no contact'
 
 
@@ -109,7 +131,8 @@ def parse(doc: Any, where: str) -> Scenario:
     """Validate one scenario document."""
     if not isinstance(doc, dict):
         raise ScenarioError(f'{where}: expected a mapping, got {type(doc).__name__}')
-    known = {'name', 'description', 'world', 'commands', 'faults', 'expect', 'short', 'config'}
+    known = {'name', 'description', 'world', 'commands', 'faults', 'expect', 'short', 'config',
+             'e_stop'}
     if set(doc) - known:
         raise ScenarioError(f'{where}: unknown field(s) {sorted(set(doc) - known)}; valid: '
                             f'{sorted(known)}')
@@ -133,14 +156,27 @@ def parse(doc: Any, where: str) -> Scenario:
     faults = []
     for i, f in enumerate(doc.get('faults') or []):
         if not isinstance(f, dict) or set(f) != {'kill', 'at'} or f['kill'] not in KILLABLE \
-                or not isinstance(f['at'], dict) or set(f['at']) != {'travelled'}:
-            raise ScenarioError(f'{where}.faults[{i}]: expected {{kill: driver_host|bridge, '
-                                f'at: {{travelled: m}}}}, got {f!r}')
-        faults.append(Fault(f['kill'], _num(f['at']['travelled'], f'{where}.faults[{i}]', 0.0)))
+                or not isinstance(f['at'], dict) or len(f['at']) != 1 \
+                or set(f['at']) - {'travelled', 'after'}:
+            raise ScenarioError(f'{where}.faults[{i}]: expected {{kill: {"|".join(KILLABLE)}, '
+                                f'at: {{travelled: m}} or {{after: s}}}}, got {f!r}')
+        at = f['at']
+        if 'after' in at:
+            faults.append(Fault(f['kill'], 0.0, _num(at['after'], f'{where}.faults[{i}]', 0.0)))
+        else:
+            faults.append(Fault(f['kill'], _num(at['travelled'], f'{where}.faults[{i}]', 0.0)))
     exp = doc.get('expect')
-    if not isinstance(exp, dict) or set(exp) - {'distance', 'stop'} or not exp:
-        raise ScenarioError(f'{where}.expect: expected {{distance: commanded, stop: cause}}, '
-                            f'got {exp!r}')
+    exp_keys = {'distance', 'stop', 'max_speed', 'motor_fault', 'still_after_estop',
+                'max_w_after_kill'}
+    if not isinstance(exp, dict) or set(exp) - exp_keys or not exp:
+        raise ScenarioError(f'{where}.expect: expected a mapping with keys from '
+                            f'{sorted(exp_keys)}, got {exp!r}')
+    for key in ('motor_fault', 'still_after_estop'):
+        if key in exp and not isinstance(exp[key], bool):
+            raise ScenarioError(f'{where}.expect.{key}: expected true or false, got '
+                                f'{exp[key]!r}')
+    if not isinstance(doc.get('e_stop', False), bool):
+        raise ScenarioError(f'{where}.e_stop: expected true or false, got {doc["e_stop"]!r}')
     dist = exp.get('distance')
     distance_m = None
     if dist not in (None, 'commanded'):
@@ -154,7 +190,14 @@ def parse(doc: Any, where: str) -> Scenario:
         raise ScenarioError(f'{where}.config: expected a mapping without world: (use the '
                             f"scenario's world:), got {overlay!r}")
     return Scenario(name, str(doc.get('description', '')), world, tuple(cmds), tuple(faults),
-                    dist == 'commanded', distance_m, stop, min(short, 1.0), where, overlay)
+                    dist == 'commanded', distance_m, stop, min(short, 1.0),
+                    max_speed=None if exp.get('max_speed') is None else
+                    _num(exp['max_speed'], f'{where}.expect.max_speed', 0.0),
+                    motor_fault=bool(exp.get('motor_fault', False)),
+                    still_after_estop=bool(exp.get('still_after_estop', False)),
+                    max_w_after_kill=None if exp.get('max_w_after_kill') is None else
+                    _num(exp['max_w_after_kill'], f'{where}.expect.max_w_after_kill', 0.0),
+                    e_stop=bool(doc.get('e_stop', False)), path=where, overlay=overlay)
 
 
 def load(path: str) -> Scenario:
