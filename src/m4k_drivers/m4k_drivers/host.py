@@ -370,6 +370,7 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
             raw | {'devices': devices})
         if refusal:
             raise dconfig.ConfigError(refusal)
+        standin = dconfig.kernel_standin(raw)
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2
@@ -391,6 +392,13 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
     # sim backends reach sim_robot through the sim-bus socket in the runtime directory.
     ctx = registry.BuildContext(world_config=cfg.world_raw, runtime_dir=runtime_dir)
+    if standin:
+        # Real backends on simulated hardware: this process's open/ioctl/read of their device
+        # nodes go to the kernel-ABI stand-in, wired to sim_robot (m4k_drivers.abi.wire).
+        from m4k_drivers.abi.wire import standin_for
+        kernel = standin_for(cfg.devices, ctx.sim_runtime_dir()).install()
+        LOG.warning('kernel_standin: serving %s from the stand-in (no real device is opened)',
+                    ', '.join(sorted([*kernel.spi, *kernel.i2c, *kernel.gpio])) or 'nothing')
     handlers: dict[str, DeviceHandler] = {}
     try:
         for kind in enabled:

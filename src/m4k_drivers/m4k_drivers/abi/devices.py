@@ -204,12 +204,12 @@ class MyAhrsPlus:
         out = []
         for is_read, data in msgs:
             if is_read:
-                n = int(data)   # type: ignore[arg-type]
+                n = int(data)
                 got = bytes(self.regs[(self.pointer + i) % len(self.regs)] for i in range(n))
                 self.pointer = (self.pointer + n) % len(self.regs)
                 out.append(got)
             else:
-                buf = bytes(data)   # type: ignore[arg-type]
+                buf = bytes(data)
                 if buf:                        # pointer, then data: the registers are
                     self.pointer = (buf[0] + len(buf) - 1) % len(self.regs)   # read-only
         return out
@@ -261,7 +261,12 @@ class LdacPin(_OutputPin):
     def __init__(self, dacs: list[Mcp4911]) -> None:
         # Before the host requests it the pin reads low (the Pi's default pull-down on the
         # GPIOs m4k uses): the DACs follow every write until the line idles high.
-        super().__init__(lambda level, t: [d.ldac(not level) for d in dacs])
+        super().__init__(self._apply)
+        self.dacs = dacs
+
+    def _apply(self, level: bool, t_ns: int) -> None:
+        for dac in self.dacs:
+            dac.ldac(not level)
 
 
 class Us100:

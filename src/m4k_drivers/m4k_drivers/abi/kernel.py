@@ -56,7 +56,8 @@ class I2cAdapter:
     """``/dev/i2c-N``: the devices on the bus by 7-bit address."""
 
     def __init__(self, devices: dict[int, Any] | None = None) -> None:
-        self.devices = dict(devices or {})   # addr -> i2c_transaction(msgs) -> reads
+        # addr -> i2c_transaction(msgs) -> reads; a dict subclass may answer any address
+        self.devices = devices if devices is not None else {}
 
 
 class GpioChip:
@@ -93,6 +94,13 @@ class _LineRequest:
         self.line_seqno = [0] * len(offsets)
         self.lock = threading.Lock()
         self.closed = False
+
+
+def _release(device: Any) -> None:
+    """Tell a device its node was closed (a model holding a connection drops it)."""
+    release = getattr(device, 'release', None)
+    if release is not None:
+        release()
 
 
 def _line_flags_valid(flags: int) -> str | None:
@@ -188,9 +196,9 @@ class KernelStandIn:
 
     # -- os.open / os.close / os.read ----------------------------------------------------------
     def _open(self, path: Any, flags: int, mode: int = 0o777, *, dir_fd: Any = None) -> int:
-        key = os.fspath(path) if not isinstance(path, int) else path
+        key = path if isinstance(path, str) else None
         for kind, table in (('spi', self.spi), ('i2c', self.i2c), ('gpio', self.gpio)):
-            if key in table:
+            if key is not None and key in table:
                 fd = self._real_open('/dev/null', os.O_RDWR | os.O_CLOEXEC)
                 self._files[fd] = _Open(kind, table[key], key)
                 self.log.append((key, 'open', {'flags': flags}))
@@ -210,6 +218,13 @@ class KernelStandIn:
                     if line is not None:
                         line.attach(None)
                 self._real_close(f.wfd)
+                for off in f.offsets:
+                    _release(f.chip.lines.get(off))
+        elif isinstance(f, _Open) and f.kind == 'spi':
+            _release(f.node.device)
+        elif isinstance(f, _Open) and f.kind == 'i2c':
+            for dev in list(f.node.devices.values()):
+                _release(dev)
         self._real_close(fd)
 
     def _read(self, fd: int, n: int) -> bytes:
