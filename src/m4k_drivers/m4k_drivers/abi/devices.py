@@ -329,3 +329,91 @@ class _EchoPin(Line):
 def counts_of(angle_rad: float) -> int:
     """Return the AS5045 reading (0..4095) of a shaft angle."""
     return int(math.floor(angle_rad / (2 * math.pi) * 4096)) % 4096
+
+
+class Ws2812Strip:
+    """A WS2812B pixel strip on MOSI: the waveform decoded by the datasheet's timing.
+
+    The line level is MOSI at the SPI clock.  A high run then a low run is one bit: a 0 when
+    T0H = 400 +/- 150 ns and T0L = 850 +/- 150 ns, a 1 when T1H = 800 +/- 150 ns and
+    T1L = 450 +/- 150 ns, and TH + TL = 1.25 us +/- 600 ns; anything else is out of tolerance
+    (counted in ``bad_bits``, and the frame is not shown).  A low run >= ``reset_us`` latches:
+    the first 24 bits go to pixel 0 (G, R, B, MSB first), the next 24 are passed on to pixel
+    1, and so on.  The line idles low between SPI messages (longer than any reset).
+    """
+
+    TOL_NS = 150
+    PERIOD_NS, PERIOD_TOL_NS = 1250, 600
+
+    def __init__(self, pixels: int, reset_us: float = 280.0) -> None:
+        self.pixels = pixels
+        self.reset_ns = reset_us * 1000.0
+        self.shown: list[tuple[int, int, int]] = [(0, 0, 0)] * pixels   # r, g, b
+        self.frames = 0
+        self.bad_bits = 0
+        self.rejected_frames = 0
+
+    def _classify(self, high_ns: float, low_ns: float) -> int | None:
+        t = self.TOL_NS
+        if not abs(high_ns + low_ns - self.PERIOD_NS) <= self.PERIOD_TOL_NS:
+            return None
+        if abs(high_ns - 400) <= t and abs(low_ns - 850) <= t:
+            return 0
+        if abs(high_ns - 800) <= t and abs(low_ns - 450) <= t:
+            return 1
+        return None
+
+    def transfer(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
+        """Decode one SPI message's MOSI waveform; latch on each reset."""
+        bit_ns = 1e9 / speed_hz
+        runs: list[tuple[int, float]] = []         # (level, duration ns)
+        for byte in tx:
+            for i in range(8):
+                level = byte >> (7 - i) & 1
+                if runs and runs[-1][0] == level:
+                    runs[-1] = (level, runs[-1][1] + bit_ns)
+                else:
+                    runs.append((level, bit_ns))
+        runs.append((0, float('inf')))             # the line idles low after the message
+        bits: list[int] = []
+        bad = 0
+        i = 0
+        while i < len(runs):
+            level, dur = runs[i]
+            if level == 0:
+                if dur >= self.reset_ns:
+                    self._latch(bits, bad)
+                    bits, bad = [], 0
+                i += 1
+                continue
+            low = runs[i + 1][1]
+            if low >= self.reset_ns:
+                # the last bit's low time merges into the reset: judge its high time alone
+                b = 0 if abs(dur - 400) <= self.TOL_NS else 1 if abs(
+                    dur - 800) <= self.TOL_NS else None
+            else:
+                b = self._classify(dur, low)
+            if b is None:
+                bad += 1
+            else:
+                bits.append(b)
+            if low >= self.reset_ns:
+                i += 1                              # the reset run is handled next round
+            else:
+                i += 2
+        return bytes(len(tx))
+
+    def _latch(self, bits: list[int], bad: int) -> None:
+        if not bits and not bad:
+            return
+        if bad:
+            self.bad_bits += bad
+            self.rejected_frames += 1
+            return
+        self.frames += 1
+        for p in range(min(self.pixels, len(bits) // 24)):
+            word = 0
+            for b in bits[p * 24:(p + 1) * 24]:
+                word = word << 1 | b
+            g, r, bl = word >> 16 & 0xFF, word >> 8 & 0xFF, word & 0xFF
+            self.shown[p] = (r, g, bl)
