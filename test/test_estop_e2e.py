@@ -34,9 +34,10 @@ AT_REST = 0.005      # m/s of true speed
 STILL_M = 0.005      # m of true travel
 # Slack on top of v / e_stop_deceleration + 2 actuator periods, each term an upper bound on
 # this loaded two-core machine: DDS delivery on localhost plus the bridge's executor and port
-# thread (0.1 s), and the simulated motor's first-order lag (devices.yaml world.motor_tau_s):
-# when the commanded ramp reaches zero the true speed still trails it by about
-# a * tau and decays as exp(-t / tau), below AT_REST after tau * ln(a * tau / AT_REST).
+# thread (0.1 s), and the simulated drive's time constant (RobotParams.motor_tau_s, derived
+# from the motor, gear and mass of world.robot): when the commanded ramp reaches zero the true
+# speed still trails it by about a * tau and decays as exp(-t / tau), below AT_REST after
+# tau * ln(a * tau / AT_REST).
 DDS_SLACK_S = 0.1
 STAMPED = {'m4k_bridge': {'ros__parameters': {'enable_stamped_cmd_vel': True}}}
 
@@ -47,8 +48,11 @@ def _actuator_period_s():
 
 
 def _motor_tau_s():
+    from m4k_drivers.world import RobotParams, WorldConfig
     with open(os.path.join(ROOT, 'config', 'devices.yaml'), encoding='utf-8') as f:
-        return float(yaml.safe_load(f)['world']['robot']['motor_tau_s'])
+        world = yaml.safe_load(f)['world']
+    return WorldConfig.from_dict(world, robot=RobotParams.from_control(_control())
+                                 ).robot.motor_tau_s
 
 
 def _dist(a, b):

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from m4k_drivers import registry
+from m4k_drivers.drive import ROBOT_FIELDS
 from m4k_drivers.handler import DriverError
 from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
 from m4k_rt.config import deep_merge as merge
@@ -126,8 +127,14 @@ def kernel_standin(raw: Any) -> bool:
 
 
 def schema_sections() -> list[Section]:
-    """Return one schema Section per registered (device kind, backend), for the docs."""
-    out = [Section('kernel_standin', 'kernel_standin (real backends on the kernel-ABI '
+    """Return the schema Sections: world.robot, kernel_standin, each (kind, backend)."""
+    title = 'world.robot: the simulated robot as built (config/devices.yaml)'
+    out = [Section('world.robot', title, ROBOT_FIELDS,
+                   "The simulator's physics (m4k_drivers.drive); sources and the braking they "
+                   "give: docs/sim-physics.md. Geometry unset here takes the control section's "
+                   'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
+                   'and the supply must overcome the friction.'),
+           Section('kernel_standin', 'kernel_standin (real backends on the kernel-ABI '
                    'stand-in; docs/real-robot.md)', KERNEL_STANDIN)]
     for kind in registry.kinds():
         for backend in registry.backends(kind):

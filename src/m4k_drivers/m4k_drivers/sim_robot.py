@@ -244,7 +244,18 @@ class SimRobot:
             't': st.t_ns * 1e-9, 't_ns': st.t_ns, 'x': x, 'y': y, 'theta': th,
             'pose': [x, y, th], 'v': st.v, 'w': st.w,
             'wheel_speed_left': st.wheel_speed[0], 'wheel_speed_right': st.wheel_speed[1],
+            # Drive physics (m4k_drivers.drive, docs/sim-physics.md): the body's longitudinal
+            # acceleration over the last 1 ms step, each tyre's slip (rim speed - ground speed
+            # of its contact, m/s), the wheel angles the encoders see (rad), and the peaks since
+            # start (contact steps excluded): the judge's deceleration is measured here.
+            'accel': st.accel, 'slip_left': st.slip[0], 'slip_right': st.slip[1],
+            'wheel_angle_left': st.wheel_angle[0], 'wheel_angle_right': st.wheel_angle[1],
+            'peak_decel': self.world.peak_decel, 'peak_accel': self.world.peak_accel,
+            'peak_speed': self.world.peak_speed, 'peak_slip': self.world.peak_slip,
+            'traction_decel': self.world.robot.traction_decel_mps2,
             'motor_enabled': self.world.drive_enabled(),
+            'heartbeat_enabled': self.world.heartbeat_enabled(),
+            'estop_open': self.world.estop_open,
             'heartbeat': self.enable is not None,
             'heartbeat_edges': self.enable.edges if self.enable else 0,
             'heartbeat_drops': self.enable.drops if self.enable else 0,
