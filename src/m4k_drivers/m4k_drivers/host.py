@@ -278,7 +278,12 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--jog', nargs=2, metavar=('WHEEL', 'SPEED'),
                     help='--device motor: turn WHEEL (left|right) at SPEED (fraction of full '
                     'scale, |SPEED| <= 0.25) for --duration s, then zero (bring-up)')
-    ap.add_argument('--duration', type=float, default=1.0, help='--jog: seconds (<= 5)')
+    ap.add_argument('--dac', type=int, metavar='CODE',
+                    help='--device motor: hold CODE (0..1023) on both DACs with the amplifier '
+                    'enable off, for --duration s (default 60, <= 600): the meter check '
+                    'before first power (docs/real-robot.md)')
+    ap.add_argument('--duration', type=float, default=None,
+                    help='--jog: seconds (<= 5, default 1); --dac: seconds (default 60)')
     ap.add_argument('--yes', action='store_true', help='--jog: do not ask for confirmation')
     ap.add_argument('--runtime-dir', help='XDDP runtime directory')
     ap.add_argument('--device-module', action='append', default=[], metavar='MOD',
@@ -357,6 +362,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     rosargs.configure_logging(args.ros_args, args.verbose)
+    if args.dac is not None:
+        if args.jog is not None:
+            print('driver_host: --dac and --jog exclude each other', file=sys.stderr)
+            return 2
+        args.jog = ['dac', str(args.dac)]         # a jog target of the motor service
+    if args.duration is None:
+        args.duration = 60.0 if args.dac is not None else 1.0
     try:
         raw = load_raw_config(args.config, args.overlay)
         devices = _apply_overrides(raw.get('devices') or {}, args)
