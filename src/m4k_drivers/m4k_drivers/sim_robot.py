@@ -168,7 +168,8 @@ class SimRobot:
         from m4k_drivers.sonar.sim import FakeEchoLine, FakeTriggerLine
         echo = FakeEchoLine(self.world.clock, self.sleep)
         trig = FakeTriggerLine(self.world, echo, s['mount'], s['fov_deg'], s['noise_sd'],
-                               s['temperature_c'], self.heights.get('sonar', 0.0))
+                               s['temperature_c'], self.heights.get('sonar', 0.0),
+                               no_echo_s=s['no_echo_s'])
         self.sonar_trigger = trig        # fault injection (tests): ``dead``
         self.gpio[(s['chip'], s['trigger_line'])] = _OutputLine(trig)
         self.gpio[(s['chip'], s['echo_line'])] = _EchoLine(echo)

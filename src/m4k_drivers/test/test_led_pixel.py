@@ -44,10 +44,10 @@ def test_rgb_order_strip_fed_grb_swaps_red_and_green():
 
 def test_pixel_backend_through_spidev_shows_the_colour_and_switches_off(tmp_path):
     strip = Ws2812Strip(8)
-    section = dconfig.validate_device('led', {'backend': 'pixel_spi', 'pixels': 8,
-                                              'device': '/dev/spidev0.0'}, 'devices.led')
+    section = dconfig.validate_device('led', {'backend': 'pixel_spi', 'pixels': 8},
+                                      'devices.led')
     with KernelStandIn() as kernel:
-        kernel.spi['/dev/spidev0.0'] = SpiNode(strip)
+        kernel.spi['/dev/spidev1.2'] = SpiNode(strip)
         h = registry.create('led', section, registry.BuildContext())
         h.configure()
         h.activate()

@@ -24,6 +24,7 @@ import errno
 import fcntl
 import heapq
 import os
+import select
 import threading
 import time
 from typing import Any, Callable
@@ -148,13 +149,14 @@ class KernelStandIn:
         self._real_close = os.close
         self._real_read = os.read
         self._real_ioctl = fcntl.ioctl
+        self._real_poll = select.poll
 
     # -- installing ----------------------------------------------------------------------------
     def install(self) -> KernelStandIn:
         """Take over the calls (until :meth:`uninstall`); returns self."""
         targets: list[tuple[Any, str, Any]] = [
             (os, 'open', self._open), (os, 'close', self._close), (os, 'read', self._read),
-            (fcntl, 'ioctl', self._ioctl)]
+            (fcntl, 'ioctl', self._ioctl), (select, 'poll', self._poll_object)]
         try:
             from smbus2 import smbus2 as sm  # it bound ``ioctl`` by name at import
             targets.append((sm, 'ioctl', self._ioctl))
@@ -232,6 +234,7 @@ class KernelStandIn:
         if f is None:
             return self._real_read(fd, n)
         if isinstance(f, _LineRequest):
+            self._flush_due()
             size = ctypes.sizeof(u.GpioV2LineEvent)
             if n < size:
                 raise _err(errno.EINVAL, f'read of {n} bytes < one gpio_v2_line_event')
@@ -604,6 +607,23 @@ class KernelStandIn:
         raise _err(errno.ENOTTY, f'{path}: ioctl 0x{code:08x} is not a line ioctl')
 
     # -- edge delivery ---------------------------------------------------------------------------
+    # An edge is queued on its line at the moment it happens, as the kernel's interrupt handler
+    # does.  Two paths do that: the delivery thread (for readers that block in read()), and a
+    # reader's own poll()/read() on a line fd, which first queues every edge already due -- so
+    # what a reader sees depends on the edges' times, not on when the delivery thread ran.
+    def _flush_due(self) -> int | None:
+        """Queue every edge whose time has come; return ns until the next one (None: none)."""
+        with self._lock:
+            now = time.monotonic_ns()
+            while self._events and self._events[0][0] <= now:
+                _, _, fn = heapq.heappop(self._events)
+                fn()
+            return self._events[0][0] - now if self._events else None
+
+    def _poll_object(self) -> Any:
+        return _Poll(self)
+
+
     def _schedule(self, t_ns: int, fn: Callable[[], None]) -> None:
         with self._lock:
             self._event_seq += 1
@@ -619,3 +639,43 @@ class KernelStandIn:
                     fn()
                 wait = (self._events[0][0] - now) * 1e-9 if self._events else 1.0
                 self._wake.wait(max(wait, 0.0))
+
+
+class _Poll:
+    """``select.poll()`` while the stand-in is installed: due edges are queued before looking."""
+
+    def __init__(self, kernel: KernelStandIn) -> None:
+        self.kernel = kernel
+        self.real = kernel._real_poll()
+        self.fds: set[int] = set()
+
+    def register(self, fd: Any, eventmask: int = select.POLLIN | select.POLLPRI) -> None:
+        fdn = fd if isinstance(fd, int) else fd.fileno()
+        self.fds.add(fdn)
+        self.real.register(fdn, eventmask)
+
+    def modify(self, fd: Any, eventmask: int) -> None:
+        self.real.modify(fd, eventmask)
+
+    def unregister(self, fd: Any) -> None:
+        self.fds.discard(fd if isinstance(fd, int) else fd.fileno())
+        self.real.unregister(fd)
+
+    def poll(self, timeout: float | None = None) -> list[tuple[int, int]]:
+        served = any(isinstance(self.kernel._files.get(fd), _LineRequest) for fd in self.fds)
+        if not served:
+            return self.real.poll(timeout)
+        forever = timeout is None or timeout < 0
+        end = time.monotonic_ns() + (0 if timeout is None or forever else int(timeout * 1e6))
+        while True:
+            next_ns = self.kernel._flush_due()
+            ready = self.real.poll(0)
+            if ready:
+                return ready
+            left = None if forever else end - time.monotonic_ns()
+            if left is not None and left <= 0:
+                return []
+            waits = [w for w in (left, next_ns) if w is not None]
+            ready = self.real.poll(max(1, -(-min(waits) // 1_000_000)) if waits else None)
+            if ready:
+                return ready

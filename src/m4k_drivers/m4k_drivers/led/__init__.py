@@ -91,9 +91,10 @@ def _check_color_order(value: object) -> str | None:
 
 
 @register('led', 'pixel_spi', params={
-    'device': Param(str, '/dev/spidev0.0', "spidev node whose MOSI drives the strip's DIN "
-                    '(SPI0 MOSI = GPIO10, pin 19, through a 3.3 V -> 5 V level shifter; '
-                    'docs/real-robot.md)'),
+    'device': Param(str, '/dev/spidev1.2', "spidev node whose MOSI drives the strip's DIN: "
+                    'SPI1 MOSI (GPIO20, pin 38, through a 3.3 V -> 5 V buffer) with '
+                    'dtoverlay=spi1-3cs; not SPI0, whose MOSI carries the DAC words '
+                    '(docs/real-robot.md)'),
     'pixels': Param(int, 1, 'pixels on the strip (all show the LED colour); the frame must '
                     "fit spidev's 4096-byte bufsiz", lambda v: None if v >= 1 else 'must be >= 1'),
     'bits_per_led_bit': Param(int, 3, 'SPI bits per LED bit: 3 (SPI at 2.4 MHz) or 4 '

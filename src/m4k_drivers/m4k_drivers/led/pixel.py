@@ -17,10 +17,13 @@ two of them (:data:`PATTERNS`)::
     4 bits at 3.2 MHz (312 ns):  0 -> 1000 (T0H 312, T0L 938)  1 -> 1110 (T1H 938, T1L 312)
 
 then ``reset_us`` of zero bytes (MOSI low) latch the frame; one zero byte first makes sure the
-line was low before the first rise.  spidev sends one message as one uninterrupted burst on
-the Raspberry Pi's SPI0 (its FIFO is fed by DMA in the kernel driver for long transfers), so
-the gaps between bytes that would break the timing do not occur below spidev's ``bufsiz``
-(4096 bytes by default: 450 pixels at 3 bits, 330 at 4).
+line was low before the first rise.  The whole frame is one spidev message (at most spidev's
+``bufsiz``, 4096 bytes by default: 450 pixels at 3 bits, 330 at 4).  On the M4K the strip
+hangs on SPI1 MOSI (SPI0's carries the DAC words, which a strip would take for pixels):
+the bcm2835 aux controller has a small FIFO refilled by interrupt, so a busy CPU can stretch a
+low time between bytes -- WS2812-family parts latch a bit on the rising edge and only reset
+after >= 50 us low, but a stretched T0L/T1L is outside the datasheet window: the bring-up step
+in docs/real-robot.md checks the strip under load.
 """
 
 from __future__ import annotations
