@@ -126,15 +126,19 @@ def kernel_standin(raw: Any) -> bool:
                                                    section.get('enabled', False), _error))
 
 
-def schema_sections() -> list[Section]:
-    """Return the schema Sections: world.robot, kernel_standin, each (kind, backend)."""
+def world_sections() -> list[Section]:
+    """Return the schema Section of ``world.robot`` (the simulated robot), for the docs."""
     title = 'world.robot: the simulated robot as built (config/devices.yaml)'
-    out = [Section('world.robot', title, ROBOT_FIELDS,
-                   "The simulator's physics (m4k_drivers.drive); sources and the braking they "
-                   "give: docs/sim-physics.md. Geometry unset here takes the control section's "
-                   'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
-                   'and the supply must overcome the friction.'),
-           Section('kernel_standin', 'kernel_standin (real backends on the kernel-ABI '
+    return [Section('world.robot', title, ROBOT_FIELDS,
+                    "The simulator's physics (m4k_drivers.drive); sources and the braking they "
+                    "give: docs/sim-physics.md. Geometry unset here takes the control section's "
+                    'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
+                    'and the supply must overcome the friction.')]
+
+
+def schema_sections() -> list[Section]:
+    """Return the kernel_standin Section and one per registered (device kind, backend)."""
+    out = [Section('kernel_standin', 'kernel_standin (real backends on the kernel-ABI '
                    'stand-in; docs/real-robot.md)', KERNEL_STANDIN)]
     for kind in registry.kinds():
         for backend in registry.backends(kind):

@@ -53,6 +53,7 @@ from m4k_drivers.drive import (
     step_drive,
     WorldConfigError,
 )
+from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
 
 __all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'World', 'WorldConfig',
@@ -127,6 +128,7 @@ class WorldConfig:
     surfaces: tuple[Surface, ...] = ()
     paths: tuple[Path | None, ...] = ()
     events: tuple[Event, ...] = ()
+    faults: tuple[Fault, ...] = ()        # m4k_drivers.faults: scheduled from the world's start
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = 'world',
@@ -137,10 +139,11 @@ class WorldConfig:
         """
         data = dict(data or {})
         unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s',
-                               'events'}
+                               'events', 'faults'}
         if unknown:
             raise WorldConfigError(f'{where}: unknown field(s) {sorted(unknown)!r}; valid: '
-                                   'walls, obstacles, start, robot, seed, step_s, events')
+                                   'walls, obstacles, start, robot, seed, step_s, events, '
+                                   'faults')
         cfg = cls() if robot is None else cls(robot=robot)
         walls = data.get('walls')
         if walls is not None:
@@ -174,6 +177,11 @@ class WorldConfig:
             try:
                 cfg = replace(cfg, events=parse_events(data['events'], f'{where}.events'))
             except SceneError as exc:
+                raise WorldConfigError(str(exc)) from None
+        if 'faults' in data:
+            try:
+                cfg = replace(cfg, faults=parse_faults(data['faults'], f'{where}.faults'))
+            except FaultError as exc:
                 raise WorldConfigError(str(exc)) from None
         if 'start' in data:
             cfg = replace(cfg, start=Pose(*_numbers(data['start'], 3, f'{where}.start')))
@@ -255,7 +263,13 @@ class World:
         self._wheel_angle = [0.0, 0.0]
         self._volts = [0.0, 0.0]
         self._enable_until_ns: int | None = None
-        self._estop_open = False
+        self._estop_open = False          # set by tests or a tool (set_estop_open)
+        self._start_ns = self._t_ns
+        # Faults: (kind, side) -> the wheel angles at its onset; scheduled ones from the
+        # config, forced ones from set_fault (tests).
+        self._faults: dict[tuple[str, int], tuple[float, float]] = {}
+        self._forced: set[tuple[str, int]] = set()
+        self._estop_scheduled = False
         self._v = 0.0
         self._w = 0.0
         self._accel = 0.0
@@ -320,8 +334,75 @@ class World:
 
     @property
     def estop_open(self) -> bool:
-        """Return True while the e-stop contact is open (pressed)."""
-        return self._estop_open
+        """Return True while the e-stop contact is open (pressed, or an ``estop`` fault)."""
+        return self._estop_open or self._estop_scheduled
+
+    # -- faults (m4k_drivers.faults) ------------------------------------------------------
+    def set_fault(self, kind: str, wheel: str | int = 'both', active: bool = True) -> None:
+        """Force a fault on or off now (tests); ``wheel``: left, right, both or 0/1."""
+        if kind not in KINDS:
+            raise ValueError(f'fault kind must be one of {", ".join(KINDS)}, got {kind!r}')
+        sides = {'left': (LEFT,), 'right': (RIGHT,), 'both': (LEFT, RIGHT), LEFT: (LEFT,),
+                 RIGHT: (RIGHT,)}.get(wheel)
+        if sides is None:
+            raise ValueError(f'wheel must be left, right, both, 0 or 1, got {wheel!r}')
+        self.now()
+        with self._lock:
+            for side in sides:
+                key = (kind, side)
+                if active:
+                    self._forced.add(key)
+                else:
+                    self._forced.discard(key)
+            self._update_faults()
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        """Return the faults on now: [{kind, wheel}] (wheel: left/right)."""
+        with self._lock:
+            return [{'kind': k, 'wheel': ('left', 'right')[side]}
+                    for k, side in sorted(self._faults)]
+
+    def _update_faults(self) -> None:
+        t_s = (self._t_ns - self._start_ns) * 1e-9
+        want = set(self._forced)
+        for f in self.config.faults:
+            if f.active(t_s):
+                want.update((f.kind, side) for side in f.sides)
+        if want == set(self._faults):
+            return
+        for key in set(self._faults) - want:
+            del self._faults[key]
+        angles = (self._wheel_angle[LEFT], self._wheel_angle[RIGHT])
+        for key in want - set(self._faults):
+            self._faults[key] = angles            # onset: the readings continue from here
+        self._estop_scheduled = any(k == 'estop' for k, _ in self._faults)
+        for side in (LEFT, RIGHT):
+            self._drive.blocked[side] = ('wheel_stall', side) in self._faults
+
+    def encoder_angle(self, side: int, t_ns: int | None = None) -> tuple[float, bool]:
+        """Return (the angle one wheel's encoder reports at ``t_ns``, frozen?) under faults.
+
+        Without a fault it is the wheel's angle. Frozen: the reading of the onset, always the
+        same (the caller adds no noise). The faults compose in the wiring's order: the swap
+        (cables) picks the shaft, the flip and the freeze act on what that encoder reads.
+        """
+        t = self.clock() if t_ns is None else t_ns
+        own = self.wheel_angle_at(side, t)
+        with self._lock:
+            if not self._faults:
+                return own, False
+            other = 1 - side
+            angle = own
+            onset = self._faults.get(('encoder_swap', side))
+            if onset is not None:    # the other shaft's motion since the swap, from here on
+                angle = onset[side] + self.wheel_angle_at(other, t) - onset[other]
+            onset = self._faults.get(('encoder_sign_flip', side))
+            if onset is not None:
+                angle = 2.0 * onset[side] - angle
+            onset = self._faults.get(('encoder_frozen', side))
+            if onset is not None:
+                return onset[side], True
+            return angle, False
 
     def heartbeat_enabled(self, t_ns: int | None = None) -> bool:
         """Return the heartbeat monostable's output at ``t_ns`` (before the e-stop contact)."""
@@ -336,7 +417,7 @@ class World:
         contact is open.
         """
         with self._lock:
-            return not self._estop_open and self.heartbeat_enabled(t_ns)
+            return not self.estop_open and self.heartbeat_enabled(t_ns)
 
     def motor_voltage(self, side: int) -> float:
         """Return the armature voltage last set for one motor."""
@@ -348,6 +429,8 @@ class World:
         self._steps += 1
         if self._moving or self._events:
             self._scene_step()
+        if self.config.faults or self._forced or self._faults:
+            self._update_faults()
         rob = self.robot
         drv = self._drive
         enabled = self.drive_enabled()

@@ -15,11 +15,13 @@ from m4k_drivers.abi.wire import standin_for
 from m4k_drivers.motors.handler import WheelCommand
 from m4k_drivers.sim_robot import SimRobot
 from m4k_drivers.sonar import protocol as sp
+from m4k_rt.protocol import EncoderStatus
 from m4k_rt.xddp import ensure_runtime_dir
 
 DEVICES = {
     'motor': {'backend': 'real', 'left_dac': '/dev/spidev0.0', 'right_dac': '/dev/spidev0.1',
-              'left_enc': '/dev/spidev1.0', 'right_enc': '/dev/spidev1.1'},
+              'left_enc': '/dev/spidev1.0', 'right_enc': '/dev/spidev1.1',
+              'estop_readback_line': 26},
     'imu': {'backend': 'real', 'bus': 1},
     'sonar': {'backend': 'gpio', 'chip': '/dev/gpiochip0', 'trigger_line': 23,
               'echo_line': 24},
@@ -57,7 +59,9 @@ def test_real_backends_run_on_sim_robot_through_the_standin(rig):
     truth = robot.truth()
     assert truth['heartbeat_edges'] >= 1 and truth['motor_enabled']
     assert truth['motor_volts'][0] > 0 and truth['motor_volts'][0] == truth['motor_volts'][1]
-    assert motor.read().value is not None
+    reading = motor.read().value
+    assert not reading.status & EncoderStatus.ESTOP_OPEN     # read back through the stand-in
+    assert ('/dev/gpiochip0', 26) in robot.gpio
     spi = [d for p, c, d in kernel.log if c == 'spi_xfer' and p == '/dev/spidev0.0']
     assert spi and spi[-1]['tx'] == bytes([0x30 | 800 >> 6, (800 << 2) & 0xFF])
     imu = h['imu']

@@ -117,6 +117,7 @@ class SimBusLine(Line):
         self.wake = wake
         self.out: Any = None
         self.inp: Any = None
+        self.reader: Any = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -132,9 +133,12 @@ class SimBusLine(Line):
             self.wake.set()
 
     def level(self, t_ns: int) -> bool:
-        """Read the simulated line."""
-        client = self.out or self.inp
-        return bool(client.read()) if client is not None else False
+        """Read the simulated line (an input without edges is requested on first read)."""
+        from m4k_drivers.simbus import GpioClient
+        client = self.out or self.inp or self.reader
+        if client is None:
+            client = self.reader = GpioClient(self.runtime_dir, self.chip, self.line, 'in')
+        return bool(client.read())
 
     def attach(self, emit: EmitEdge | None) -> None:
         """Forward the simulated line's edges (monotonic stamps) while attached."""
@@ -166,9 +170,10 @@ class SimBusLine(Line):
     def release(self) -> None:
         """Release the simulated line (the line request was closed)."""
         self._detach()
-        if self.out is not None:
-            self.out.close()
-            self.out = None
+        for client in (self.out, self.reader):
+            if client is not None:
+                client.close()
+        self.out = self.reader = None
 
     def _detach(self) -> None:
         self._stop.set()
@@ -195,6 +200,8 @@ def standin_for(devices: dict[str, dict[str, Any]], runtime_dir: str) -> KernelS
             k.spi[m[name]] = SpiNode(SimBusSpiDevice(runtime_dir, name))
         if m['heartbeat']:
             line(m['heartbeat_chip'], m['heartbeat_line'])
+        if m.get('estop_readback_line') is not None:
+            line(m['estop_readback_chip'], m['estop_readback_line'])
         if m['ldac'] == 'gpio':
             # sim_robot's DACs update on every write (/LDAC low); a driven /LDAC line is
             # served (so the request succeeds) but has nothing behind it.
