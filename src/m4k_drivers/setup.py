@@ -26,6 +26,7 @@ setup(
             'sim_robot = m4k_drivers.sim_robot:main',
             'sim_truth = m4k_drivers.sim_robot:truth_main',
             'calibrate = m4k_drivers.calibrate.cli:main',
+            'sonar_echo_width = m4k_drivers.sonar.echowidth:main',
         ],
     },
 )

@@ -376,8 +376,11 @@ def sim_ready(runtime_dir: str) -> bool:
 
 
 def uses_sim(doc: Mapping[str, Any] | None) -> bool:
-    """Return True when the layered configuration has any enabled ``sim`` device."""
+    """Return True when the layered configuration has an enabled ``sim`` device or stand-in."""
     devices = (doc or {}).get('devices') or {}
+    standin = (doc or {}).get('kernel_standin')
+    if isinstance(standin, Mapping) and standin.get('enabled') is True:
+        return True     # the real backends' wires end in sim_robot (m4k_drivers.abi.wire)
     return any(isinstance(s, Mapping) and s.get('backend') == 'sim' and s.get('enabled', True)
                for s in devices.values())
 

@@ -30,8 +30,9 @@ from m4k_rt.config import deep_merge as merge
 from m4k_rt.config import find_config_dir
 from m4k_rt.schema import Field, REQUIRED, Section
 
-__all__ = ['COMMON', 'DEFAULT_PORTS', 'ConfigError', 'DriverConfig', 'default_config_path',
-           'load', 'load_file', 'merge', 'schema_sections', 'validate']
+__all__ = ['COMMON', 'DEFAULT_PORTS', 'KERNEL_STANDIN', 'ConfigError', 'DriverConfig',
+           'default_config_path', 'kernel_standin', 'load', 'load_file', 'merge',
+           'schema_sections', 'validate']
 
 # XDDP ports of the driver-host peers (docs/internals.md, "Ports").
 DEFAULT_PORTS = {'motor': 2, 'imu': 3, 'led': 5, 'sonar': 7, 'lrf': 9}
@@ -97,6 +98,34 @@ COMMON: dict[str, Field] = {
 }
 
 
+# The kernel-ABI stand-in (m4k_drivers.abi): real backends on simulated hardware.
+KERNEL_STANDIN: dict[str, Field] = {
+    'enabled': Field('bool', False, 'true: the driver host serves the device nodes of every '
+                     'enabled real motor, imu and sonar (gpio) backend from the kernel-ABI '
+                     'stand-in (m4k_drivers.abi), which forwards what the wires carry to '
+                     "sim_robot's models; sim_robot then simulates those devices. The real "
+                     'backends (python-periphery, smbus2) run unchanged; no real device node is '
+                     'opened. For bring-up rehearsals and tests, never on the robot.',
+                     expect='bool'),
+}
+STANDIN_KINDS = ('motor', 'imu', 'sonar')    # the kinds whose real backends it serves
+
+
+def kernel_standin(raw: Any) -> bool:
+    """Return ``kernel_standin.enabled`` of a merged document (ConfigError if malformed)."""
+    section = raw.get('kernel_standin') if isinstance(raw, dict) else None
+    if section is None:
+        return False
+    if not isinstance(section, dict):
+        raise ConfigError(f'kernel_standin: expected a mapping, got {section!r}')
+    unknown = sorted(set(section) - set(KERNEL_STANDIN))
+    if unknown:
+        raise ConfigError(f'kernel_standin: unknown field(s) {unknown!r}; valid: '
+                          f'{", ".join(KERNEL_STANDIN)}')
+    return bool(KERNEL_STANDIN['enabled'].validate('kernel_standin.enabled',
+                                                   section.get('enabled', False), _error))
+
+
 def world_sections() -> list[Section]:
     """Return the schema Section of ``world.robot`` (the simulated robot), for the docs."""
     title = 'world.robot: the simulated robot as built (config/devices.yaml)'
@@ -108,8 +137,9 @@ def world_sections() -> list[Section]:
 
 
 def schema_sections() -> list[Section]:
-    """Return one schema Section per registered (device kind, backend), for the docs."""
-    out = []
+    """Return the kernel_standin Section and one per registered (device kind, backend)."""
+    out = [Section('kernel_standin', 'kernel_standin (real backends on the kernel-ABI '
+                   'stand-in; docs/real-robot.md)', KERNEL_STANDIN)]
     for kind in registry.kinds():
         for backend in registry.backends(kind):
             spec = registry.get(kind, backend)

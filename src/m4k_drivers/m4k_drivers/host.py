@@ -278,7 +278,12 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--jog', nargs=2, metavar=('WHEEL', 'SPEED'),
                     help='--device motor: turn WHEEL (left|right) at SPEED (fraction of full '
                     'scale, |SPEED| <= 0.25) for --duration s, then zero (bring-up)')
-    ap.add_argument('--duration', type=float, default=1.0, help='--jog: seconds (<= 5)')
+    ap.add_argument('--dac', type=int, metavar='CODE',
+                    help='--device motor: hold CODE (0..1023) on both DACs with the amplifier '
+                    'enable off, for --duration s (default 60, <= 600): the meter check '
+                    'before first power (docs/real-robot.md)')
+    ap.add_argument('--duration', type=float, default=None,
+                    help='--jog: seconds (<= 5, default 1); --dac: seconds (default 60)')
     ap.add_argument('--yes', action='store_true', help='--jog: do not ask for confirmation')
     ap.add_argument('--runtime-dir', help='XDDP runtime directory')
     ap.add_argument('--device-module', action='append', default=[], metavar='MOD',
@@ -357,6 +362,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     rosargs.configure_logging(args.ros_args, args.verbose)
+    if args.dac is not None:
+        if args.jog is not None:
+            print('driver_host: --dac and --jog exclude each other', file=sys.stderr)
+            return 2
+        args.jog = ['dac', str(args.dac)]         # a jog target of the motor service
+    if args.duration is None:
+        args.duration = 60.0 if args.dac is not None else 1.0
     try:
         raw = load_raw_config(args.config, args.overlay)
         devices = _apply_overrides(raw.get('devices') or {}, args)
@@ -370,6 +382,7 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
             raw | {'devices': devices})
         if refusal:
             raise dconfig.ConfigError(refusal)
+        standin = dconfig.kernel_standin(raw)
     except (dconfig.ConfigError, registry.RegistryError, ValueError) as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2
@@ -391,6 +404,13 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
     # sim backends reach sim_robot through the sim-bus socket in the runtime directory.
     ctx = registry.BuildContext(world_config=cfg.world_raw, runtime_dir=runtime_dir)
+    if standin:
+        # Real backends on simulated hardware: this process's open/ioctl/read of their device
+        # nodes go to the kernel-ABI stand-in, wired to sim_robot (m4k_drivers.abi.wire).
+        from m4k_drivers.abi.wire import standin_for
+        kernel = standin_for(cfg.devices, ctx.sim_runtime_dir()).install()
+        LOG.warning('kernel_standin: serving %s from the stand-in (no real device is opened)',
+                    ', '.join(sorted([*kernel.spi, *kernel.i2c, *kernel.gpio])) or 'nothing')
     handlers: dict[str, DeviceHandler] = {}
     try:
         for kind in enabled:

@@ -43,6 +43,9 @@ def unsafe_mix(raw: Mapping[str, Any]) -> str | None:
     motor = _section(devices, 'motor')
     if motor.get('backend') != 'real' or not _enabled(motor):
         return None
+    standin = raw.get('kernel_standin')
+    if isinstance(standin, Mapping) and standin.get('enabled') is True:
+        return None      # the motors' nodes are served by the stand-in: no real motor moves
     for kind in GUARD_SENSORS:
         s = _section(devices, kind)
         if s.get('backend') == 'sim' and _enabled(s):

@@ -115,7 +115,7 @@ class SimRobot:
                  report_path: str | None = None, *,
                  clock: Callable[[], int] = time.monotonic_ns,
                  sleep: Callable[[float], None] = time.sleep,
-                 heights: dict[str, float] | None = None) -> None:
+                 heights: dict[str, float] | None = None, standin: bool = False) -> None:
         self.cfg = cfg
         # Height above the floor of each sensor (robot.sensors.<laser|sonar>.pose z): an
         # obstacle lower than a sensor is under its beam. None: every obstacle is seen.
@@ -135,10 +135,17 @@ class SimRobot:
         self.leds: Any = None
         self.events: list[dict[str, Any]] = []    # the world events applied: what, when
         self.sims = [k for k, s in cfg.devices.items() if s['enabled'] and s['backend'] == 'sim']
+        sections = {k: cfg.devices[k] for k in self.sims}
+        if standin:
+            # The driver host runs these kinds' real backends on the kernel-ABI stand-in,
+            # which forwards the wires here (m4k_drivers.abi.wire): simulate them too.
+            for kind, sec in standin_sections(cfg.devices).items():
+                self.sims.append(kind)
+                sections[kind] = sec
         for kind in self.sims:
             build = getattr(self, f'_build_{kind}', None)
             if build is not None:
-                build(cfg.devices[kind])
+                build(sections[kind])
         self.server = SimBusServer(socket_path(runtime_dir), self._open, self.truth)
 
     # -- device models -------------------------------------------------------------------
@@ -166,7 +173,8 @@ class SimRobot:
         from m4k_drivers.sonar.sim import FakeEchoLine, FakeTriggerLine
         echo = FakeEchoLine(self.world.clock, self.sleep)
         trig = FakeTriggerLine(self.world, echo, s['mount'], s['fov_deg'], s['noise_sd'],
-                               s['temperature_c'], self.heights.get('sonar', 0.0))
+                               s['temperature_c'], self.heights.get('sonar', 0.0),
+                               no_echo_s=s['no_echo_s'])
         self.sonar_trigger = trig        # fault injection (tests): ``dead``
         self.gpio[(s['chip'], s['trigger_line'])] = _OutputLine(trig)
         self.gpio[(s['chip'], s['echo_line'])] = _EchoLine(echo)
@@ -324,6 +332,27 @@ class SimRobot:
         self.write_report()
 
 
+def standin_sections(devices: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Return the sim sections of the real devices the kernel stand-in serves.
+
+    Each is the real section's shared fields validated as a ``sim`` section (the sim-only
+    ones, e.g. the DAC's ``vref``, at their defaults).
+    """
+    from m4k_drivers import registry
+    out = {}
+    for kind in dconfig.STANDIN_KINDS:
+        s = devices.get(kind)
+        if not s or not s['enabled'] or s['backend'] not in ('real', 'gpio'):
+            continue
+        params = registry.get(kind, 'sim').params
+        raw = {k: v for k, v in s.items() if k in params}
+        if kind == 'imu':
+            raw['bus'] = str(s['bus']).removeprefix('/dev/i2c-')
+        out[kind] = dconfig.validate_device(kind, {'backend': 'sim', **raw},
+                                            f'devices.{kind}')
+    return out
+
+
 def _finite(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
@@ -395,6 +424,7 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
                                 'world': raw.get('world') or {}},
                                control=raw.get('control') or {},
                                body=(raw.get('robot') or {}).get('body'))
+        standin = dconfig.kernel_standin(raw)
         runtime_dir = xddp.ensure_runtime_dir(
             args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir'))
     except (dconfig.ConfigError, ValueError) as exc:
@@ -417,7 +447,8 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
             return 0
         report = args.world_report or os.path.join(runtime_dir, 'world.json')
         try:
-            robot = SimRobot(cfg, runtime_dir, report, heights=_sensor_heights(raw)).start()
+            robot = SimRobot(cfg, runtime_dir, report, heights=_sensor_heights(raw),
+                             standin=standin).start()
         except (ValueError, OSError) as exc:
             print(f'sim_robot: {exc}', file=sys.stderr)
             return 2

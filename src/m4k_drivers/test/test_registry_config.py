@@ -11,7 +11,8 @@ def test_registry_lists_backends_per_kind():
     assert registry.backends('motor') == ['real', 'sim']
     assert registry.backends('imu') == ['real', 'sim']
     assert registry.backends('sonar') == ['gpio', 'iio', 'real', 'sim']
-    assert registry.backends('led') == ['led_class', 'led_class_rgb', 'pwm', 'real', 'sim']
+    assert registry.backends('led') == ['led_class', 'led_class_rgb', 'pixel_spi', 'pwm', 'real',
+                                        'sim']
 
 
 def test_registry_unknown_backend_lists_valid_ones():

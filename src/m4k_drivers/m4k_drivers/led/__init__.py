@@ -1,4 +1,7 @@
-"""LED strip NS-LED-02; backends ``led_class`` (= ``real``), ``led_class_rgb``, ``pwm``, ``sim``.
+"""LED strip NS-LED-02: backends led_class (= real), led_class_rgb, pwm, pixel_spi, sim.
+
+``pixel_spi`` drives a WS2811/WS2812 pixel strip (the NS-LED-02 is one) with its bit timing
+encoded on SPI MOSI (:mod:`m4k_drivers.led.pixel`): no root, no DMA, no PWM block.
 
 ``led_class_rgb`` drives a strip wired as three single-colour LED class devices.  ``sim`` runs
 the ``led_class`` (or, with ``interface: pwm``, the ``pwm``) code unchanged on the sysfs files
@@ -80,6 +83,36 @@ def _build_pwm(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandl
     return LedHandler(lambda: PwmOutput(params['chip'], params['channels'], params['period_ns'],
                                         params['polarity'], root,
                                         **({'write': write()} if write else {})), name=name)
+
+
+def _check_color_order(value: object) -> str | None:
+    from m4k_drivers.led.pixel import COLOR_ORDERS
+    return None if value in COLOR_ORDERS else f'must be one of {", ".join(COLOR_ORDERS)}'
+
+
+@register('led', 'pixel_spi', params={
+    'device': Param(str, '/dev/spidev1.2', "spidev node whose MOSI drives the strip's DIN: "
+                    'SPI1 MOSI (GPIO20, pin 38, through a 3.3 V -> 5 V buffer) with '
+                    'dtoverlay=spi1-3cs; not SPI0, whose MOSI carries the DAC words '
+                    '(docs/real-robot.md)'),
+    'pixels': Param(int, 1, 'pixels on the strip (all show the LED colour); the frame must '
+                    "fit spidev's 4096-byte bufsiz", lambda v: None if v >= 1 else 'must be >= 1'),
+    'bits_per_led_bit': Param(int, 3, 'SPI bits per LED bit: 3 (SPI at 2.4 MHz) or 4 '
+                              '(3.2 MHz); either meets the WS2812B T0H/T1H windows',
+                              lambda v: None if v in (3, 4) else 'must be 3 or 4'),
+    'color_order': Param(str, 'GRB', 'byte order the strip expects: GRB for WS2812/WS2812B '
+                         '(NS-LED-02), often RGB for WS2811 strips; wrong = swapped colours',
+                         _check_color_order),
+    'reset_us': Param(float, 300.0, 'low time that latches a frame, us: >= 50 for WS2811/'
+                      'WS2812, >= 280 for WS2812B V5 and WS2813 (too short: nothing latches)',
+                      lambda v: None if 50.0 <= v <= 1000.0 else 'must be 50..1000'),
+})
+def _build_pixel_spi(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
+    from m4k_drivers.led.real import PixelSpiOutput
+    return LedHandler(lambda: PixelSpiOutput(params['device'], params['pixels'],
+                                             bits=params['bits_per_led_bit'],
+                                             order=params['color_order'],
+                                             reset_us=params['reset_us']), name=name)
 
 
 @register('led', 'sim', params={

@@ -27,8 +27,8 @@ from m4k_drivers.handler import (
 )
 from m4k_drivers.led import protocol as p
 
-__all__ = ['LedClassOutput', 'LedClassRgbOutput', 'POLARITIES', 'PwmOutput', 'SysfsPwmChannel',
-           'write_attr']
+__all__ = ['LedClassOutput', 'LedClassRgbOutput', 'POLARITIES', 'PixelSpiOutput', 'PwmOutput',
+           'SysfsPwmChannel', 'write_attr']
 
 LED_ROOT = '/sys/class/leds'
 PWM_ROOT = '/sys/class/pwm'
@@ -242,3 +242,58 @@ class PwmOutput:
         close = getattr(self._write, 'close', None)
         if close is not None:
             close()                        # a sim-bus writer's connection
+
+
+class PixelSpiOutput:
+    """A WS2811/WS2812 pixel strip (NS-LED-02) on spidev MOSI (:mod:`m4k_drivers.led.pixel`).
+
+    Every pixel shows the one colour of the LED datagram.  The frame is sent whole in one
+    SPI message (the bit timing must not break); SPI mode 0, 8-bit words, the clock of the
+    chosen encoding.
+    """
+
+    def __init__(self, path: str, pixels: int, *, bits: int = 3, order: str = 'GRB',
+                 reset_us: float = 300.0) -> None:
+        from m4k_drivers.led import pixel as px
+        if not isinstance(pixels, int) or isinstance(pixels, bool) or pixels < 1:
+            raise ValueError(f'pixel strip needs pixels >= 1, got {pixels!r}')
+        size = px.frame_bytes(pixels, reset_us, bits)
+        if size > px.SPIDEV_BUFSIZ:
+            raise ValueError(f'{pixels} pixels need {size} SPI bytes per frame, more than '
+                             f"spidev's bufsiz {px.SPIDEV_BUFSIZ} (spidev.bufsiz=N on the "
+                             'kernel command line, or fewer pixels)')
+        self.path, self.pixels, self.bits = path, pixels, bits
+        self.order, self.reset_us = order, reset_us
+        self.hz = px.PATTERNS[bits][0]
+        from periphery import SPI
+        try:
+            self.spi = SPI(path, 0, self.hz, bit_order='msb', bits_per_word=8)
+        except OSError as exc:
+            raise wrap_os_error(exc, path) from exc
+        self.frames = 0
+
+    def _send(self, rgb: tuple[int, int, int]) -> None:
+        from m4k_drivers.led import pixel as px
+        frame = px.encode_frame([rgb] * self.pixels, bits=self.bits, order=self.order,
+                                reset_us=self.reset_us)
+        try:
+            self.spi.transfer(frame)
+        except OSError as exc:
+            raise wrap_os_error(exc, self.path, 'transfer') from exc
+        self.frames += 1
+
+    def show(self, color: p.LedColor) -> None:
+        """Show ``color`` (brightness applied) on every pixel."""
+        r, g, b = (round(level * 255) for level in p.channel_levels(color))
+        self._send((r, g, b))
+
+    def close(self) -> None:
+        """Switch every pixel off, then close the node (never raises: cleanup)."""
+        try:
+            self._send((0, 0, 0))
+        except DriverError:
+            pass
+        try:
+            self.spi.close()
+        except OSError:
+            pass

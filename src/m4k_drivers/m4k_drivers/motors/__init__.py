@@ -9,11 +9,12 @@ from __future__ import annotations
 from typing import Any
 
 from m4k_drivers.motors import protocol as p
+from m4k_drivers.motors.amplifier import AMP_PARAMS, check_amplifier
 from m4k_drivers.motors.handler import EncoderReading, MotorHandler, WheelCommand
 from m4k_drivers.motors.service import SERVICE
 from m4k_drivers.registry import BuildContext, Param, register, register_service
 
-__all__ = ['EncoderReading', 'MotorHandler', 'WheelCommand']
+__all__ = ['EncoderReading', 'MotorHandler', 'RealMotorHandler', 'WheelCommand']
 
 _HANDLER = {
     'period_s': Param(float, 0.01, 'actuator period, s'),
@@ -57,6 +58,12 @@ _HEARTBEAT = {
 _COMMON = _HANDLER | _HEARTBEAT
 
 
+class RealMotorHandler(MotorHandler):
+    """The real backend's handler: also knows the amplifier as configured (the DAC hold)."""
+
+    amplifier: dict[str, Any] = {}
+
+
 LDAC_MODES = ('tied_low', 'gpio')
 
 
@@ -81,7 +88,7 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
         'clock': ctx.clock, 'enable_hold_s': hold if params['heartbeat'] else None}
 
 
-@register('motor', 'real', params=_COMMON | {
+@register('motor', 'real', params=_COMMON | AMP_PARAMS | {
     'left_dac': Param(str, doc='spidev path of the left MCP4911'),
     'right_dac': Param(str, doc='spidev path of the right MCP4911'),
     'left_enc': Param(str, doc='spidev path of the left AS5045'),
@@ -101,6 +108,7 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
     from m4k_drivers.motors.real import open_real_bus, open_real_enable, open_real_readback
+    check_amplifier(params, f'devices.{name}')
     kw = _handler_kw(params, ctx)
     driven = params['ldac'] == 'gpio'
     if driven and (params['ldac_chip'] is None or params['ldac_line'] is None
@@ -130,7 +138,9 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
 
     def readback() -> Any:
         return open_real_readback(params['estop_readback_chip'], params['estop_readback_line'])
-    return MotorHandler(opener, name=name, **kw)
+    handler = RealMotorHandler(opener, name=name, **kw)
+    handler.amplifier = {k: params[k] for k in AMP_PARAMS}
+    return handler
 
 
 @register('motor', 'sim', params=_COMMON | {

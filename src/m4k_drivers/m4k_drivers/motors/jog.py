@@ -31,12 +31,13 @@ from m4k_drivers.handler import DriverError, Status
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 
-__all__ = ['JOG_MAX_DURATION_S', 'JOG_MAX_SPEED', 'JOG_MIN_TURN_RAD', 'JogError', 'check_jog',
-           'run_jog', 'verdict']
+__all__ = ['DAC_HOLD_MAX_S', 'JOG_MAX_DURATION_S', 'JOG_MAX_SPEED', 'JOG_MIN_TURN_RAD',
+           'JogError', 'check_dac_hold', 'check_jog', 'run_dac_hold', 'run_jog', 'verdict']
 
 JOG_MAX_SPEED = 0.25            # fraction of full scale (0.5 m/s rim speed on the M4K)
 JOG_MAX_DURATION_S = 5.0
 JOG_MIN_TURN_RAD = 0.05         # an encoder's angle change below this is "did not turn"
+DAC_HOLD_MAX_S = 600.0          # long enough to probe both DAC outputs with a meter
 SIDES = ('left', 'right')
 
 
@@ -46,6 +47,9 @@ class JogError(ValueError):
 
 def check_jog(side: str, speed: float, duration_s: float) -> None:
     """Raise JogError unless side, speed and duration are within the caps."""
+    if side == 'dac':
+        check_dac_hold(speed, duration_s)
+        return
     if side not in SIDES:
         raise JogError(f'--jog: wheel must be left or right, got {side!r}')
     if not math.isfinite(speed) or abs(speed) > JOG_MAX_SPEED or speed == 0.0:
@@ -103,8 +107,11 @@ def run_jog(handler: MotorHandler, side: str, speed: float, duration_s: float,
             stop: threading.Event, *, out: TextIO, stdin: TextIO | None = None,
             assume_yes: bool = False, period_s: float | None = None,
             clock: Callable[[], float] | None = None) -> int:
-    """Jog one wheel; return the exit code (0 done, 1 refused or failed)."""
+    """Jog one wheel (or hold a DAC code: ``side`` 'dac'); return the exit code."""
     check_jog(side, speed, duration_s)
+    if side == 'dac':
+        return run_dac_hold(handler, int(speed), duration_s, stop, out=out, stdin=stdin,
+                            assume_yes=assume_yes)
     if not assume_yes:
         if stdin is None or not stdin.isatty():
             raise JogError('--jog needs confirmation: run it on a terminal, or pass --yes')
@@ -156,4 +163,79 @@ def run_jog(handler: MotorHandler, side: str, speed: float, duration_s: float,
             print(line, file=out, flush=True)
     if stop.is_set():
         print('driver_host: jog stopped early; motors at zero', file=out, flush=True)
+    return rc
+
+
+# -- the DAC hold: a code on both DACs with the amplifier enable off ---------------------------
+def check_dac_hold(code: float, duration_s: float) -> None:
+    """Raise JogError unless ``code`` is a DAC code and the hold within its cap."""
+    if not (math.isfinite(code) and code == int(code) and 0 <= code <= p.DAC_MAX):
+        raise JogError(f'--dac CODE: must be an integer 0..{p.DAC_MAX}, got {code!r}')
+    if not math.isfinite(duration_s) or not 0.0 < duration_s <= DAC_HOLD_MAX_S:
+        raise JogError(f'--duration: must be in (0, {DAC_HOLD_MAX_S:.0f}] s for --dac, '
+                       f'got {duration_s!r}')
+
+
+def run_dac_hold(handler: MotorHandler, code: int, duration_s: float, stop: threading.Event,
+                 *, out: TextIO, stdin: TextIO | None = None,
+                 assume_yes: bool = False) -> int:
+    """Write ``code`` to both DACs and hold it with the enable line inactive; 0 when done.
+
+    The code goes out as it is (no dac_sign, no zero trim: the meter must see the chip's own
+    output), /LDAC is pulsed when driven, and the heartbeat line is requested low and never
+    toggled, so the enable monostable never fires: the amplifier stays disabled whatever the
+    code.  A configuration without the heartbeat line (enable strapped on) is refused: there
+    the amplifier would drive the motors at this code.
+    """
+    check_dac_hold(code, duration_s)
+    amp = getattr(handler, 'amplifier', None) or {}
+    vref = float(amp.get('vref', 3.3))
+    volts = p.code_to_volts(code, vref)
+    if not assume_yes:
+        if stdin is None or not stdin.isatty():
+            raise JogError('--dac needs confirmation: run it on a terminal, or pass --yes')
+        print(f'driver_host: hold code {code} ({volts:.3f} V at vref {vref} V) on BOTH DACs '
+              f'for {duration_s:.0f} s, amplifier enable OFF. Robot on blocks? [y/N] ',
+              end='', file=out, flush=True)
+        if stdin.readline().strip().lower() not in ('y', 'yes'):
+            print('driver_host: DAC hold cancelled', file=out, flush=True)
+            return 1
+    try:
+        handler.configure()
+    except DriverError as exc:
+        print(f'driver_host: motor: {exc}', file=out, flush=True)
+        handler.shutdown()
+        return 1
+    bus = handler.bus
+    rc = 0
+    try:
+        if bus is None or bus.enable is None:
+            print('driver_host: --dac refused: no heartbeat line (heartbeat: false, the enable '
+                  'strapped on) -- the motors would run at this code', file=out, flush=True)
+            return 1
+        frame = p.encode_dac(code)
+        for port in bus.dacs:
+            port.transfer(frame)
+        bus.latch()
+        print(f'dac hold: code {code} on both DACs: expect {volts:.3f} V at each MCP4911 VOUT '
+              f'(vref {vref} V); enable line {bus.enable.where} held low, never toggled: the '
+              f'amplifier stays disabled. Measure now; Ctrl-C ends.', file=out, flush=True)
+        if amp:
+            print(f"amplifier as configured: input {amp['amp_input_range_v']} V, zero "
+                  f"{amp['amp_zero_v']} V, ENABLE {amp['amp_enable']}, current limit "
+                  f"{amp['amp_current_limit_a']} A", file=out, flush=True)
+        stop.wait(duration_s)
+    except DriverError as exc:
+        print(f'driver_host: dac hold: {exc}', file=out, flush=True)
+        rc = 1
+    finally:
+        try:
+            handler.make_safe()        # the zero code on both DACs (trims applied)
+        except DriverError as exc:
+            print(f'driver_host: dac hold: zeroing failed: {exc}', file=out, flush=True)
+            rc = 1
+        handler.shutdown()
+    if rc == 0:
+        print(f'dac hold: ended; both DACs back at zero (code {p.DAC_ZERO} + trim)', file=out,
+              flush=True)
     return rc

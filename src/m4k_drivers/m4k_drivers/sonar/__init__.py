@@ -13,11 +13,30 @@ from m4k_drivers.sonar.handler import SonarHandler
 from m4k_drivers.sonar.protocol import SonarReading
 from m4k_drivers.sonar.service import SERVICE
 
-__all__ = ['SonarHandler', 'SonarReading']
+__all__ = ['NO_ECHO_MARGIN_S', 'SonarHandler', 'SonarReading', 'check_no_echo']
+
+NO_ECHO_MARGIN_S = 0.01     # the wait beyond the no-echo width: edge latency, scheduling
+
+
+def check_no_echo(params: dict[str, Any], name: str = 'sonar') -> None:
+    """Raise ValueError unless the echo wait outlasts the no-echo pulse."""
+    need = params['no_echo_s'] + NO_ECHO_MARGIN_S
+    if params['timeout_s'] < need:
+        raise ValueError(f"devices.{name}.timeout_s: {params['timeout_s']!r} s is shorter than "
+                         f"no_echo_s {params['no_echo_s']!r} s + {NO_ECHO_MARGIN_S} s: open "
+                         'space would read as a timeout (stale sonar: the guard stops); set '
+                         f'timeout_s >= {need:.3f}')
 
 _COMMON = {
     'temperature_c': Param(float, 20.0, 'air temperature for the speed of sound, degC'),
-    'timeout_s': Param(float, 0.06, 'longest wait for the echo, s'),
+    'timeout_s': Param(float, 0.06, 'longest wait for the echo, s; must exceed no_echo_s by '
+                       f'{NO_ECHO_MARGIN_S * 1000:.0f} ms (refused otherwise), else open space '
+                       'reads as a timeout (stale: the guard stops)'),
+    'no_echo_s': Param(float, 0.038, 'echo width the sensor holds with nothing in range, s: '
+                       "measure the part with sonar_echo_width (the HC-SR04's 38 ms is not "
+                       "every US-100's); sim: the simulated part's width; "
+                       'control.guard.sonar_timeout must exceed it',
+                       lambda v: None if 0.02 <= v <= 0.2 else 'must be 0.02..0.2 s'),
 }
 _GPIO = _COMMON | {
     'chip': Param(str, doc='gpiochip character device, e.g. /dev/gpiochip0'),
@@ -27,6 +46,7 @@ _GPIO = _COMMON | {
 
 
 def _handler(name: str, params: dict[str, Any], opener: Any) -> SonarHandler:
+    check_no_echo(params, name)
     return SonarHandler(opener, name=name, temperature_c=params['temperature_c'],
                         timeout_s=params['timeout_s'])
 

@@ -104,14 +104,27 @@ class EdgeSonar:
             out: list[p.Edge] = []
             while True:
                 remaining = (deadline - self._clock()) * 1e-9
-                if remaining <= 0 or not self.echo.poll(remaining):
-                    return out
+                # Past the deadline, still take the edges the kernel queued before it: this
+                # process may wake late on a busy machine, the stamps say when they happened.
+                if not self.echo.poll(max(remaining, 0.0)):
+                    return self._until(out, deadline)
                 ev = self.echo.read_event()
                 out.append(p.Edge(ev.edge, ev.timestamp))
                 if ev.edge == 'falling' and any(e.edge == 'rising' for e in out):
-                    return out
+                    return self._until(out, deadline)
         except OSError as exc:
             raise wrap_os_error(exc, self.where, 'ping') from exc
+
+    def _until(self, edges: list[p.Edge], deadline: int) -> list[p.Edge]:
+        """Drop edges stamped after the deadline when the stamps are on our clock.
+
+        Then whether an echo counts depends on when its edges happened, never on when this
+        process got round to reading them (with realtime stamps the deadline cannot be
+        compared, and the wait decides as before).
+        """
+        if self.line_clock != 'monotonic':
+            return edges
+        return [e for e in edges if e.timestamp <= deadline]
 
     def measure(self, temp_c: float = 20.0, timeout_s: float = p.ECHO_TIMEOUT_S,
                 ) -> p.SonarReading:

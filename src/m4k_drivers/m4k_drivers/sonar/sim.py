@@ -3,8 +3,9 @@
 On the falling edge of a trigger pulse that was high >= 10 us, the sensor "fires": the range is
 the nearest surface in a 15 deg cone (the US-100 beam) cast in the world from the sensor's
 mount, plus Gaussian noise; the echo rises after the 8-cycle 40 kHz burst (0.2 ms) and falls
-2 * range / c later.  Nothing within 4.5 m gives the long no-echo pulse (38 ms).  The same
-:class:`~m4k_drivers.sonar.real.EdgeSonar` code then turns those edges into a range.
+2 * range / c later.  Nothing within 4.5 m gives the long no-echo pulse (``no_echo_s``,
+default 38 ms).  The same :class:`~m4k_drivers.sonar.real.EdgeSonar` code then turns those
+edges into a range.
 """
 
 from __future__ import annotations
@@ -60,8 +61,9 @@ class FakeTriggerLine:
 
     def __init__(self, world: World, echo: FakeEchoLine, mount: Sequence[float],
                  fov_deg: float = 15.0, noise_sd: float = 0.003, temp_c: float = 20.0,
-                 height: float = 0.0) -> None:
+                 height: float = 0.0, no_echo_s: float = NO_ECHO_PULSE_S) -> None:
         self.world, self.echo, self.mount = world, echo, tuple(mount)
+        self.no_echo_s = no_echo_s      # the part's width with nothing in range
         self.height = float(height)     # m above the floor of the transducers
         self.half_angle = math.radians(fov_deg) / 2.0
         self.noise_sd, self.temp_c = noise_sd, temp_c
@@ -95,7 +97,7 @@ class FakeTriggerLine:
             dist = max(0.0, dist + float(self.rng.normal(0.0, self.noise_sd)))
             pulse = p.range_to_pulse(dist, self.temp_c)
         else:
-            pulse = NO_ECHO_PULSE_S
+            pulse = self.no_echo_s
         rise = now + round(BURST_S * 1e9)
         self.echo.pending += [p.Edge('rising', rise), p.Edge('falling', rise + round(pulse * 1e9))]
 
