@@ -212,9 +212,13 @@ SPECS: tuple[Field, ...] = (
               'Diagonal of the odometry pose covariance (x, y, z [m^2], roll, pitch, yaw '
               '[rad^2]); huge values mark the unobserved planar-robot axes. ' + _COV,
               lo=0.0, hi=1.0e9, length=6),
-    ParamSpec('odom_twist_covariance_diagonal', [0.001, 1.0e+6, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
+    ParamSpec('odom_twist_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
               'Diagonal of the odometry twist covariance (vx, vy, vz [m^2/s^2], wx, wy, wz '
-              '[rad^2/s^2]). ' + _COV, lo=0.0, hi=1.0e9, length=6),
+              '[rad^2/s^2]). vy is a measurement, not an unknown: a differential drive cannot '
+              'move sideways, so the published vy = 0 carries about the variance of vx (wheel '
+              'slip), and an EKF fusing it (the robot_localization recipe) keeps its lateral '
+              'velocity at zero; 1e6 would make that fusion a no-op. ' + _COV,
+              lo=0.0, hi=1.0e9, length=6),
     ParamSpec('imu_orientation_covariance_diagonal', [0.0003, 0.0003, 0.003],
               'Diagonal of the imu orientation covariance [rad^2] (roll, pitch, yaw). ' + _COV,
               lo=0.0, hi=1.0e9, length=3),
