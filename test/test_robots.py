@@ -96,3 +96,20 @@ def test_bringup_hands_the_bridge_every_extra_file_after_its_own():
     files = [a for i, a in enumerate(bridge.args) if bridge.args[i - 1] == '--params-file']
     assert files == ['/cfg/bridge.yaml', '/tmp/overlay.yaml', NAV2, EKF]
     assert '__ns:=/r1' in bridge.args
+
+
+def test_a_bare_bridge_section_is_rekeyed_so_rcl_applies_it_under_the_namespace(tmp_path):
+    # rcl matches 'm4k_bridge' as /m4k_bridge only: under /r1 the section would not apply
+    files = robots.namespaced_files([NAV2, EKF], '/r1', str(tmp_path))
+    for path in files:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, args=['--ros-args', '--params-file', path])
+        node = Node(params.NODE_NAME, namespace='/r1', context=ctx)
+        try:
+            assert node._parameter_overrides, path
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown(context=ctx)
+    assert robots.namespaced_files([NAV2], '', str(tmp_path)) == [NAV2]
+    assert robots.for_namespace({'m4k_bridge': 1, '/**': 2}, 'r1') == {'/r1/m4k_bridge': 1,
+                                                                       '/**': 2}

@@ -34,6 +34,7 @@ protocol has no authentication). For supervision with restarts and the live stat
 """
 
 import os
+import tempfile
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
@@ -109,7 +110,9 @@ def _nodes(context, *args, **kwargs):
     sim_node = None
     for spec in specs:
         if spec.executable == 'bridge':
-            params = [bridge_yaml, bridge_values, *extra_files]
+            # a bare m4k_bridge section would not reach the namespaced node: re-keyed copies
+            params = [bridge_yaml, bridge_values, *robots.namespaced_files(
+                extra_files, namespace, tempfile.mkdtemp(prefix='m4k-launch-'))]
             actions.append(Node(package=spec.package, executable=spec.executable,
                                 name=bridge_params.NODE_NAME, namespace=namespace,
                                 parameters=params, additional_env=env, output='screen',

@@ -596,15 +596,17 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
          bridge_doc: dict[str, Any], tmpdir: str, stop: StopSignals, sim: bool = True) -> int:
     params_file = os.path.join(tmpdir, 'bridge_overlay.yaml')
     with open(params_file, 'w', encoding='utf-8') as f:
-        yaml.safe_dump(bridge_doc, f)
+        # keyed by the node's fully qualified name under a namespace (rcl would not apply a
+        # bare m4k_bridge section to /r1/m4k_bridge)
+        yaml.safe_dump(robots.for_namespace(bridge_doc, args.namespace), f)
+    extra = robots.namespaced_files(args.bridge_params, args.namespace, tmpdir)
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir, PYTHONUNBUFFERED='1')
     console = Console(sys.stdout, sys.stderr, sys.stdout.isatty())
     children = [Child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,
                                      args.foxglove_address if args.foxglove else None,
-                                     args.foxglove_port, args.namespace,
-                                     args.bridge_params)]
+                                     args.foxglove_port, args.namespace, extra)]
     sup = Supervisor(children, console, args.max_restarts)
     status = None
     try:

@@ -21,8 +21,8 @@ import yaml
 
 from m4k_bridge import params as bridge_params
 
-__all__ = ['TF_REMAPS', 'effective_bridge_values', 'param_files', 'robot_settings',
-           'robot_state_publisher_setup']
+__all__ = ['TF_REMAPS', 'effective_bridge_values', 'for_namespace', 'namespaced_files',
+           'param_files', 'robot_settings', 'robot_state_publisher_setup']
 
 _NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 # Namespaced tf: /tf and /tf_static become the namespace's tf and tf_static (as Nav2's
@@ -66,6 +66,38 @@ def effective_bridge_values(values: Mapping[str, Any], files: Sequence[str]) -> 
     for path in files:
         with open(path, encoding='utf-8') as f:
             out.update(bridge_params.flatten_section(yaml.safe_load(f)))
+    return out
+
+
+def for_namespace(doc: Mapping[str, Any], namespace: str) -> dict[str, Any]:
+    """Return a parameter document whose bare ``m4k_bridge`` key names the namespaced node.
+
+    rcl matches a section key against the node's fully qualified name: a bare ``m4k_bridge``
+    is ``/m4k_bridge`` and never reaches ``/r1/m4k_bridge``, so under a namespace the section
+    would silently not apply. Other keys (wildcards, other nodes) stay as they are.
+    """
+    ns = namespace.strip('/')
+    if not ns:
+        return dict(doc)
+    return {('/{}/{}'.format(ns, key) if key == bridge_params.NODE_NAME else key): value
+            for key, value in doc.items()}
+
+
+def namespaced_files(files: Sequence[str], namespace: str, tmpdir: str) -> list[str]:
+    """Return files, each rewritten into tmpdir for the namespace when it has to be."""
+    if not namespace.strip('/'):
+        return list(files)
+    out = []
+    for i, path in enumerate(files):
+        with open(path, encoding='utf-8') as f:
+            doc = yaml.safe_load(f) or {}
+        if bridge_params.NODE_NAME not in doc:
+            out.append(path)
+            continue
+        new = os.path.join(tmpdir, 'bridge_params_{}_{}'.format(i, os.path.basename(path)))
+        with open(new, 'w', encoding='utf-8') as f:
+            yaml.safe_dump(for_namespace(doc, namespace), f)
+        out.append(new)
     return out
 
 
