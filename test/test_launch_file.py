@@ -185,3 +185,31 @@ def test_namespaced_launch_without_robot_state_publisher(monkeypatch, m4k_runtim
     bridge = nodes[exes.index('bridge')]
     assert bridge.expanded_node_namespace == '/r1'
     assert _bridge_params(bridge).get('publish_robot_state', True) is True
+
+
+def test_robot_argument_namespaces_tf_and_prefix_for_bridge_and_robot_state_publisher(
+        monkeypatch, m4k_runtime_dir):
+    # robot:=r1: namespace /r1, tf on /r1/tf for the bridge (tf_namespaced) and for
+    # robot_state_publisher (its /tf:=tf remaps), one prefix r1/ for both
+    try:
+        nodes = _evaluate(monkeypatch, m4k_runtime_dir, robot='r1',
+                          robot_state_publisher='true')
+    except RuntimeError as exc:   # the wheels path has no robot_state_publisher
+        assert 'robot_state_publisher is not installed' in str(exc)
+        return
+    exes = [n.node_executable for n in nodes]
+    bridge = nodes[exes.index('bridge')]
+    rsp = nodes[exes.index('robot_state_publisher')]
+    assert rsp.expanded_node_namespace == '/r1' == bridge.expanded_node_namespace
+    values = _bridge_params(bridge)
+    assert values['tf_namespaced'] is True and values['frame_prefix'] == 'r1/'
+    assert set(rsp.expanded_remapping_rules) == {('/tf', 'tf'), ('/tf_static', 'tf_static')}
+
+
+def test_several_bridge_params_files_reach_the_bridge_in_order(monkeypatch, m4k_runtime_dir):
+    nav2 = os.path.join(ROOT, 'config', 'nav2', 'nav2_params.yaml')
+    ekf = os.path.join(ROOT, 'config', 'robot_localization', 'ekf.yaml')
+    nodes = _evaluate(monkeypatch, m4k_runtime_dir, bridge_params='{},{}'.format(nav2, ekf))
+    bridge = nodes[[n.node_executable for n in nodes].index('bridge')]
+    values = _bridge_params(bridge)
+    assert values['sonar_no_echo'] == 'max_range' and values['publish_tf'] is False

@@ -1,25 +1,36 @@
-"""The shipped recipes under config/: ROS parameter files and the RViz configuration.
+"""The shipped recipes under config/: generated, taken in and resolved as their consumers do.
 
-Each parameter file must load as a ROS parameter file (every node section, possibly nested one
-namespace deep as Nav2's costmaps are, holds ``ros__parameters``) and name the frames, topics
-and limits the m4k stack really has: the frames of the generated robot description, the
-bridge's topic names, the footprint of paper Table 2 and the URG-04LX range. The RViz file is
-YAML with the displays a user needs, subscribed with the QoS m4k publishes with.
+* Generated: every recipe is ``m4k_bringup.recipes``' output for config/; a stale one fails,
+  and a change of control.yaml reaches the Nav2 limits.
+* Taken in: each parameter file is loaded by rcl (``rcl_yaml_param_parser``, through a real
+  rclpy node of the consumer's fully qualified name, as the C++ node's rcl picks its section).
+* Resolved: every topic name a consumer reads from its parameters (or has fixed in its code) is
+  expanded and remapped by rcl as that node would -- its namespace, the stock launch file's
+  remaps -- and the resulting graph with the m4k bridge is checked by
+  ``m4k_bridge.graphcheck`` (the check ``doctor`` runs live): each subscription fed by a
+  publisher of the same type and a compatible QoS (test/consumers.py).
+* Keyed: each key is one the Jazzy node reads, with its type (test/upstream_keys.py).
 """
 
+import copy
 import math
 import os
 
+import consumers
 import pytest
 import upstream_keys
 from wsenv import ROOT
 import yaml
 
-from m4k_bridge import params, safety
+from m4k_bridge import graphcheck, params, safety
+from m4k_bringup import recipes
 from m4k_rt import config, description
 
+pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 CONFIG = os.path.join(ROOT, 'config')
-RECIPES = ('nav2/nav2_params_overlay.yaml', 'slam_toolbox/mapper_params_online_async.yaml',
+NAV2 = 'nav2/nav2_params.yaml'
+NAV2_MUX = 'nav2/nav2_params_twist_mux.yaml'
+RECIPES = (NAV2, NAV2_MUX, 'slam_toolbox/mapper_params_online_async.yaml',
            'twist_mux/twist_mux.yaml', 'robot_localization/ekf.yaml',
            'diagnostics/aggregator.yaml')
 
@@ -82,10 +93,23 @@ def test_every_key_is_one_the_jazzy_node_reads_with_its_type(rel):
       'declares bool']),
     ('local_costmap/local_costmap', {'plugins': ['range_layer'], 'range_layer': {'topics': []}},
      ['local_costmap/local_costmap.range_layer.plugin: missing']),
-    ('twist_mux', {'locks': {'e_stop': {'topic': 'e_stop_state', 'timeout': 0, 'priority': 255}}},
+    ('twist_mux', {'use_stamped': False,
+                   'locks': {'e_stop': {'topic': 'e_stop_state', 'timeout': 0, 'priority': 255}}},
      ['twist_mux.locks.e_stop.timeout: int where upstream declares float']),
-    ('twist_mux', {'topics': {'nav': {'topic': 'a', 'timeout': 0.5}}},
+    ('twist_mux', {'use_stamped': False, 'topics': {'nav': {'topic': 'a', 'timeout': 0.5}}},
      ['twist_mux.topics.nav.priority: missing']),
+    ('twist_mux', {'topics': {}},
+     ['twist_mux.use_stamped: missing (twist_mux >= 4.4.0 aborts)']),
+    ('controller_server', {'controller_plugins': ['FollowPath'],
+                           'FollowPath': {'plugin': 'nav2_mppi_controller::MPPIController',
+                                          'az_min': -1.0, 'critics': ['CostCritc']}},
+     ['controller_server.FollowPath.az_min: not read upstream',
+      'controller_server.FollowPath.critics: unknown critic CostCritc']),
+    ('collision_monitor', {'polygons': ['Stop'], 'observation_sources': ['scan'],
+                           'Stop': {'type': 'polygon'}, 'scan': {'type': 'laser'}},
+     ["collision_monitor.Stop: needs a type of ('polygon', 'circle', 'velocity_polygon') "
+      'and an action_type',
+      "collision_monitor.scan.type: not ('scan', 'pointcloud', 'range', 'polygon')"]),
     ('ekf_filter_node', {'odom0': 'odom', 'odom0_config': [True] * 14, 'imu1': 'imu'},
      ['ekf_filter_node.odom0_config: 14 entries, the state has 15',
       'ekf_filter_node: imu indices [1] have a gap']),
@@ -110,7 +134,7 @@ def test_obstacle_sources_keep_the_scan_points_at_the_laser_height():
         frame, dz = up[frame]
         height += dz
     assert height > upstream_keys.SOURCE_DEFAULT_MAX_OBSTACLE_HEIGHT
-    n = _nodes(_load('nav2/nav2_params_overlay.yaml'))
+    n = _nodes(_load(NAV2))
     for costmap in ('local_costmap/local_costmap', 'global_costmap/global_costmap'):
         layer = n[costmap]['obstacle_layer']
         for src in layer['observation_sources'].split():
@@ -120,8 +144,8 @@ def test_obstacle_sources_keep_the_scan_points_at_the_laser_height():
                 >= height, (costmap, src)
 
 
-def test_nav2_overlay_frames_footprint_and_scan_match_the_robot():
-    n = _nodes(_load('nav2/nav2_params_overlay.yaml'))
+def test_nav2_frames_footprint_and_scan_match_the_robot():
+    n = _nodes(_load(NAV2))
     links = _links()
     assert n['amcl']['base_frame_id'] == 'base_footprint' in links
     assert n['collision_monitor']['base_frame_id'] == 'base_footprint'
@@ -135,15 +159,29 @@ def test_nav2_overlay_frames_footprint_and_scan_match_the_robot():
         assert max(ys) - min(ys) == pytest.approx(body['width']) == pytest.approx(0.28)
         scan = c['obstacle_layer']['scan']
         assert scan['inf_is_valid'] is True and scan['data_type'] == 'LaserScan'
-        assert scan['topic'] == params.spec('topics.scan').default
+        assert scan['topic'] == '/' + params.spec('topics.scan').default    # absolute
     rng = n['local_costmap/local_costmap']['range_layer']
     assert rng['clear_on_max_reading'] is True
-    assert rng['topics'] == [params.spec('topics.sonar').default]
+    assert rng['topics'] == ['/' + params.spec('topics.sonar').default]
     assert n['m4k_bridge']['sonar_no_echo'] == 'max_range'
-    control = config.load_layered()['control']
-    vs = n['velocity_smoother']
-    assert vs['max_velocity'][0] <= control['linear']['max_velocity']
-    assert vs['max_accel'][0] <= control['linear']['max_acceleration']
+
+
+@pytest.mark.parametrize('rel', (NAV2, NAV2_MUX))
+def test_nav2_controller_and_smoother_limits_are_control_yaml_s(rel):
+    n = _nodes(_load(rel))
+    c = config.load_layered()['control']
+    lin, ang = c['linear'], c['angular']
+    vs, mppi = n['velocity_smoother'], n['controller_server']['FollowPath']
+    assert vs['max_accel'] == [lin['max_acceleration'], 0.0, ang['max_acceleration']]
+    assert vs['max_decel'] == [-lin['max_deceleration'], 0.0,
+                               -(ang['max_deceleration'] or ang['max_acceleration'])]
+    assert vs['max_velocity'][0] <= lin['max_velocity']
+    assert vs['max_velocity'][2] == ang['max_velocity']
+    assert (mppi['ax_max'], mppi['ax_min'], mppi['az_max'], mppi['wz_max']) == (
+        lin['max_acceleration'], -lin['max_deceleration'], ang['max_acceleration'],
+        ang['max_velocity'])
+    assert mppi['vx_max'] == vs['max_velocity'][0] <= lin['max_velocity']
+    assert n['behavior_server']['rotational_acc_lim'] == ang['max_acceleration']
 
 
 def test_slam_toolbox_uses_the_urg_range_and_the_odometry_child_frame():
@@ -156,7 +194,8 @@ def test_slam_toolbox_uses_the_urg_range_and_the_odometry_child_frame():
 
 def test_twist_mux_locks_on_e_stop_state():
     p = _nodes(_load('twist_mux/twist_mux.yaml'))['twist_mux']
-    assert p['locks']['e_stop']['topic'] == params.spec('topics.e_stop_state').default
+    assert p['locks']['e_stop']['topic'] == '/' + params.spec('topics.e_stop_state').default
+    assert p['use_stamped'] is params.spec('enable_stamped_cmd_vel').default is False
     assert p['locks']['e_stop']['priority'] > max(t['priority'] for t in p['topics'].values())
     # twist_mux subscribes to locks volatile (it never gets the latched sample) and reads an
     # unheard lock as released unless a timeout makes it expire: the timeout must outlast the
@@ -172,6 +211,12 @@ def test_ekf_fuses_wheel_velocity_and_imu_yaw_rate_and_owns_the_transform():
     assert len(odom) == len(imu) == 15
     assert [i for i, v in enumerate(odom) if v] == [6, 7, 11]     # vx, vy, vyaw
     assert [i for i, v in enumerate(imu) if v] == [11]            # yaw rate
+    # Fused as docs/nav2.md says: vy is zero *observed*, so the odometry must carry a variance
+    # an EKF weighs (a 1e6 "unknown" makes the fusion a no-op). Twist diagonal: vx vy vz wx wy
+    # wz; every fused axis has a measured-size variance.
+    twist = params.spec('odom_twist_covariance_diagonal').default
+    for state, axis in ((6, 0), (7, 1), (11, 5)):
+        assert odom[state] and 0.0 < twist[axis] <= 0.01, upstream_keys.EKF_STATE[state]
     # One publisher of odom -> base_footprint: the EKF's publish_tf excludes the bridge's.
     assert p['publish_tf'] is (not n['m4k_bridge']['publish_tf'])
 
@@ -197,3 +242,154 @@ def test_rviz_config_has_the_displays_with_the_qos_m4k_publishes():
     assert desc['Durability Policy'] == 'Transient Local'
     assert by_class['Odometry']['Topic']['Value'] == '/odom'
     assert not math.isnan(float(vm['Views']['Current']['Distance']))
+
+
+# --- generated ------------------------------------------------------------------------------
+
+def test_shipped_recipes_are_what_config_generates():
+    # `recipes --check`: every generated file equals the shipped one (regenerate: `recipes`)
+    assert recipes.stale(CONFIG, recipes.generate(config.load_layered(config_dir=CONFIG))) == []
+    assert recipes.main(['--config-dir', CONFIG, '--check']) == 0
+
+
+def test_a_changed_control_yaml_makes_the_nav2_recipes_stale(tmp_path, capsys):
+    changed = copy.deepcopy(config.load_layered(config_dir=CONFIG))
+    changed['control']['linear']['max_acceleration'] = 0.25
+    changed['control']['linear']['max_deceleration'] = 0.25
+    changed['control']['angular']['max_velocity'] = 1.0
+    texts = recipes.generate(changed)
+    stale = recipes.stale(CONFIG, texts)
+    assert len(stale) == 2 and all('/nav2/' in d.split('\n')[0] for d in stale), stale
+    n = _nodes(yaml.safe_load(texts[NAV2]))
+    assert n['controller_server']['FollowPath']['ax_max'] == 0.25
+    assert n['controller_server']['FollowPath']['wz_max'] == 1.0
+    assert n['velocity_smoother']['max_accel'][0] == 0.25
+    # and the script says so, with its exit status, for a config dir whose control.yaml changed
+    for name in os.listdir(CONFIG):
+        src = os.path.join(CONFIG, name)
+        if os.path.isfile(src):
+            with open(src, encoding='utf-8') as f:
+                (tmp_path / name).write_text(f.read().replace(
+                    'max_acceleration: 0.37', 'max_acceleration: 0.25'))
+    capsys.readouterr()
+    assert recipes.main(['--config-dir', str(tmp_path), '--out', CONFIG, '--check']) == 1
+    assert '+      ax_max: 0.25' in capsys.readouterr().out
+
+
+# --- resolved as the consumers resolve them -------------------------------------------------
+
+_OTHER = {'twist_mux/twist_mux.yaml': 'twist_mux',
+          'slam_toolbox/mapper_params_online_async.yaml': 'slam_toolbox',
+          'robot_localization/ekf.yaml': 'ekf'}
+
+
+def _graph(files, robot=''):
+    # the endpoints of the bridge and of the consumers of the generated files, and the
+    # parameters rcl handed each consumer node
+    texts = recipes.generate(config.load_layered(config_dir=CONFIG), robot)
+    eps = consumers.bridge_endpoints(robot)
+    seen = {}
+    for rel in files:
+        doc = yaml.safe_load(texts[rel])
+        cons = consumers.nav2_consumers(doc) if rel.startswith('nav2/') else \
+            consumers.other_consumers(_OTHER[rel], doc)
+        found, overrides = consumers.resolve(cons, doc, robot)
+        eps += found
+        seen.update(overrides)
+    return eps, seen
+
+
+def _fed_externally(eps, topics):
+    # the bridge's inputs no recipe drives (e_stop; cmd_vel when no Nav2 runs)
+    return [graphcheck.Endpoint(**{**e.__dict__, 'external': True})
+            if e.m4k and e.kind == 'sub' and graphcheck.base_name(e.topic) in topics else e
+            for e in eps]
+
+
+GRAPHS = {
+    'nav2 alone': ([NAV2], ('e_stop',)),
+    'nav2 through twist_mux': ([NAV2_MUX, 'twist_mux/twist_mux.yaml'], ('e_stop',)),
+    'slam_toolbox': (['slam_toolbox/mapper_params_online_async.yaml'], ('e_stop', 'cmd_vel')),
+    'ekf': (['robot_localization/ekf.yaml'], ('e_stop', 'cmd_vel')),
+}
+
+
+@pytest.mark.parametrize('robot', ['', 'r1'])
+@pytest.mark.parametrize('graph', sorted(GRAPHS))
+def test_every_consumer_name_resolves_to_a_matching_m4k_topic(graph, robot):
+    files, idle = GRAPHS[graph]
+    eps, _ = _graph(files, robot)
+    assert graphcheck.check(_fed_externally(eps, idle)) == []
+    # every sensor input is the bridge's own topic, in the robot's namespace
+    bridge = {e.topic: e for e in eps if e.m4k}
+    sensors = (consumers.LASER, consumers.RANGE, consumers.IMU, consumers.ODOM)
+    subs = [e for e in eps if e.kind == 'sub' and e.type in sensors]
+    assert subs
+    for e in subs:
+        assert e.topic in bridge and bridge[e.topic].kind == 'pub', e
+        assert e.topic.count('/') == (2 if robot else 1), e
+
+
+def test_the_final_nav2_output_drives_the_bridge_after_the_smoother_and_collision_monitor():
+    # the cmd_vel chain as rcl resolves it: controller -> smoother -> collision monitor ->
+    # bridge; with twist_mux, collision monitor -> twist_mux -> bridge (never cmd_vel_nav)
+    for name in ('nav2 alone', 'nav2 through twist_mux'):
+        files = GRAPHS[name][0]
+        eps, _ = _graph(files)
+        by = {(e.node, e.kind): e.topic for e in eps if e.type == consumers.TWIST}
+        assert by[('/controller_server', 'pub')] == '/cmd_vel_nav' \
+            == by[('/velocity_smoother', 'sub')]
+        assert by[('/velocity_smoother', 'pub')] == '/cmd_vel_smoothed' \
+            == by[('/collision_monitor', 'sub')]
+        into_bridge = [e for e in eps if e.m4k and e.kind == 'sub' and e.type == consumers.TWIST]
+        feeders = [e.node for e in eps if e.kind == 'pub' and e.topic == into_bridge[0].topic]
+        mux = 'twist_mux/twist_mux.yaml' in files
+        assert feeders == (['/twist_mux'] if mux else ['/collision_monitor'])
+        if mux:
+            mux_in = {e.topic for e in eps if e.node == '/twist_mux' and e.kind == 'sub'}
+            assert '/cmd_vel_nav' not in mux_in and by[('/collision_monitor', 'pub')] in mux_in
+
+
+def test_relative_costmap_topics_are_caught_where_jazzy_resolves_them():
+    # navigation2 #5745: Jazzy hands a layer's topic straight to the costmap node's
+    # subscription, so the old recipe's relative `scan` reads /local_costmap/scan.
+    doc = yaml.safe_load(recipes.generate(config.load_layered(config_dir=CONFIG))[NAV2])
+    layer = doc['local_costmap']['local_costmap']['ros__parameters']
+    layer['obstacle_layer']['scan']['topic'] = 'scan'
+    layer['range_layer']['topics'] = ['sonar']
+    found, _ = consumers.resolve(consumers.nav2_consumers(doc), doc)
+    lines = graphcheck.check(_fed_externally(consumers.bridge_endpoints() + found,
+                                             ('e_stop',)))
+    assert len(lines) == 2, lines
+    assert lines[0].startswith('/local_costmap/local_costmap subscribes /local_costmap/scan')
+    assert 'm4k publishes /scan' in lines[0]
+    assert lines[1].startswith('/local_costmap/local_costmap subscribes /local_costmap/sonar')
+
+
+def _flatten(tree, prefix=''):
+    out = {}
+    for k, v in tree.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, prefix + k + '.'))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+@pytest.mark.parametrize('robot', ['', 'r1'])
+@pytest.mark.parametrize('rel', [NAV2, 'slam_toolbox/mapper_params_online_async.yaml',
+                                 'twist_mux/twist_mux.yaml', 'robot_localization/ekf.yaml'])
+def test_rcl_hands_every_key_to_the_node_of_its_section(rel, robot):
+    # rcl_yaml_param_parser, through a node of each section's fully qualified name (with the
+    # robot's namespace, as navigation_launch.py's RewrittenYaml nests the file under it):
+    # every key arrives with the YAML value; a file rcl refused would raise in rclpy.init
+    _, seen = _graph([rel], robot)
+    texts = recipes.generate(config.load_layered(config_dir=CONFIG), robot)
+    for node, expected in _nodes(yaml.safe_load(texts[rel])).items():
+        if node == 'm4k_bridge':
+            continue
+        fqn = '/'.join(['', robot, node] if robot else ['', node])
+        assert fqn in seen, (fqn, sorted(seen))
+        want = _flatten(expected)
+        got = {k: seen[fqn].get(k) for k in want}
+        assert got == want, fqn

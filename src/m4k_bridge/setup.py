@@ -25,6 +25,7 @@ setup(
             'bridge = m4k_bridge.node:main',
             'record = m4k_bridge.bag.record:main',
             'foxglove = m4k_bridge.foxglove.node:main',
+            'doctor = m4k_bridge.doctor:main',
         ],
     },
 )

@@ -45,6 +45,7 @@ setup(
         'console_scripts': [
             'bringup = m4k_bringup.bringup:main',
             'config_doc = m4k_bringup.configdoc:main',
+            'recipes = m4k_bringup.recipes:main',
         ],
     },
 )

@@ -92,6 +92,9 @@ def _descriptor(f: Field) -> ParameterDescriptor:
         text += ' Unit: {}.'.format(f.unit)
     if f.derived_from and 'Derived' not in text:
         text += ' Derived from {} of the layered configuration.'.format(f.derived_from)
+    if f.type == 'any':     # a bool or a keyword (enable_stamped_cmd_vel: auto)
+        return ParameterDescriptor(name=f.name, description=text, read_only=f.read_only,
+                                   dynamic_typing=True)
     d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
                             read_only=f.read_only)
     if f.lo is not None and f.hi is not None:
@@ -150,14 +153,9 @@ class BridgeNode(Node):
         if p['use_stamped_vel']:
             self.get_logger().warning('use_stamped_vel is deprecated: set enable_stamped_cmd_vel '
                                       '(the name Nav2 and TurtleBot3 use)')
-        if p.stamped_cmd_vel:
-            sub = self.create_subscription(TwistStamped, p.topic('cmd_vel'),
-                                           self._on_twist_stamped, _CMD_VEL_QOS)
-        else:
-            sub = self.create_subscription(Twist, p.topic('cmd_vel'), self._on_twist,
-                                           _CMD_VEL_QOS)
-        self._cmd_vel_topic = sub.topic_name     # fully resolved (namespace, remaps)
-        self._cmd_vel_type = _TWIST_STAMPED if p.stamped_cmd_vel else _TWIST
+        self._cmd_vel_sub = self._subscribe_cmd_vel(p.stamped_cmd_vel)
+        self._cmd_vel_topic = self._cmd_vel_sub.topic_name   # resolved (namespace, remaps)
+        self._cmd_vel_auto = p.auto_cmd_vel      # decided by the first publisher, then fixed
         self._mismatch_logged: set[str] = set()
         self._watch_ticks = 0
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
@@ -489,8 +487,37 @@ class BridgeNode(Node):
                 log.info(event.message)
         self._safety.on_cmd_links(self._pumps['cmd'].links)
         self._watch_ticks += 1
+        if self._cmd_vel_auto:
+            self._decide_cmd_vel_type()
         if self._watch_ticks % _GRAPH_EVERY == 0:
             self._check_cmd_vel_types()
+
+    def _subscribe_cmd_vel(self, stamped: bool) -> Any:
+        """Subscribe cmd_vel as TwistStamped or Twist; remember which."""
+        self._cmd_vel_type = _TWIST_STAMPED if stamped else _TWIST
+        if stamped:
+            return self.create_subscription(TwistStamped, self.p.topic('cmd_vel'),
+                                            self._on_twist_stamped, _CMD_VEL_QOS)
+        return self.create_subscription(Twist, self.p.topic('cmd_vel'), self._on_twist,
+                                        _CMD_VEL_QOS)
+
+    def _decide_cmd_vel_type(self) -> None:
+        """enable_stamped_cmd_vel auto: take the type of the first cmd_vel publisher, once."""
+        try:
+            types = {i.topic_type for i in self.get_publishers_info_by_topic(self._cmd_vel_topic)}
+        except Exception:  # noqa: BLE001 -- graph unavailable while shutting down
+            return
+        types &= {_TWIST, _TWIST_STAMPED}
+        if not types:
+            return
+        self._cmd_vel_auto = False
+        chosen = self._cmd_vel_type if self._cmd_vel_type in types else types.pop()
+        if chosen != self._cmd_vel_type:
+            self.destroy_subscription(self._cmd_vel_sub)
+            self._cmd_vel_sub = self._subscribe_cmd_vel(chosen == _TWIST_STAMPED)
+        self.get_logger().info('enable_stamped_cmd_vel auto: the first cmd_vel publisher on {} '
+                               'uses {}: subscribed with that type'.format(self._cmd_vel_topic,
+                                                                           chosen))
 
     def _check_cmd_vel_types(self) -> None:
         """Report publishers of the other cmd_vel type: they never match, and DDS is silent.
@@ -507,7 +534,7 @@ class BridgeNode(Node):
         if foreign:
             text = '{} published on {}, {} subscribed (enable_stamped_cmd_vel: {})'.format(
                 ', '.join(foreign), self._cmd_vel_topic, self._cmd_vel_type,
-                'true' if self.p.stamped_cmd_vel else 'false')
+                str(self.p['enable_stamped_cmd_vel']).lower())
             for t in foreign:
                 if t not in self._mismatch_logged:
                     self._mismatch_logged.add(t)

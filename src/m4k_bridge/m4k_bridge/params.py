@@ -47,6 +47,7 @@ TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 
 # aggregator use /tf, /tf_static, /diagnostics): a namespace must not split them off.
 _ABSOLUTE_TOPICS = {'diagnostics': '/diagnostics'}
 SONAR_NO_ECHO = ('positive_infinity', 'max_range')
+AUTO = 'auto'   # enable_stamped_cmd_vel: the type of the first cmd_vel publisher
 
 _TOPIC = re.compile(r'^~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$')
 _FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
@@ -124,6 +125,12 @@ def _no_echo(v: Any) -> str | None:
     return None
 
 
+def _bool_or_auto(v: Any) -> str | None:
+    if isinstance(v, bool) or v == AUTO:
+        return None
+    return 'expected true, false or {}, got {!r}'.format(AUTO, v)
+
+
 def _port(v: Any) -> str | None:
     if not (v.isdigit() or _LABEL.match(v)):
         return 'expected an XDDP port label or number, got {!r}'.format(v)
@@ -154,11 +161,15 @@ SPECS: tuple[Field, ...] = (
                     'whatever the namespace') if role in _ABSOLUTE_TOPICS else
                     'relative so namespaces and remaps apply.'), read_only=True, check=_topic)
       for role in TOPIC_ROLES),
-    ParamSpec('enable_stamped_cmd_vel', False, 'Subscribe cmd_vel as geometry_msgs/TwistStamped '
-              'instead of Twist (Nav2 Jazzy and teleop publish Twist; Nav2 Kilted and '
-              "ros2_controllers TwistStamped; the name is Nav2 and TurtleBot3's). A publisher "
-              'of the other type never matches: the bridge reports it (cmd_vel diagnostic WARN, '
-              'one log line naming both types).', read_only=True),
+    dataclasses.replace(ParamSpec(
+        'enable_stamped_cmd_vel', False, 'Subscribe cmd_vel as geometry_msgs/TwistStamped '
+        '(true) or Twist (false), or auto: as Twist until the first cmd_vel publisher shows, '
+        'then with the type that publisher uses (logged once; a later publisher of the other '
+        "type is reported like a fixed setting's). Nav2 Jazzy and teleop publish Twist; Nav2 "
+        "Kilted and ros2_controllers TwistStamped; the name is Nav2 and TurtleBot3's. A "
+        'publisher of the other type never matches: the bridge reports it (cmd_vel diagnostic '
+        'WARN, one log line naming both types). true, false or auto.', read_only=True,
+        check=_bool_or_auto), type='any'),
     ParamSpec('use_stamped_vel', False, 'Deprecated alias of enable_stamped_cmd_vel (the '
               'old diff_drive_controller name, gone in Jazzy); true still works, with a '
               'warning at start-up.', read_only=True),
@@ -213,9 +224,13 @@ SPECS: tuple[Field, ...] = (
               'Diagonal of the odometry pose covariance (x, y, z [m^2], roll, pitch, yaw '
               '[rad^2]); huge values mark the unobserved planar-robot axes. ' + _COV,
               lo=0.0, hi=1.0e9, length=6),
-    ParamSpec('odom_twist_covariance_diagonal', [0.001, 1.0e+6, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
+    ParamSpec('odom_twist_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
               'Diagonal of the odometry twist covariance (vx, vy, vz [m^2/s^2], wx, wy, wz '
-              '[rad^2/s^2]). ' + _COV, lo=0.0, hi=1.0e9, length=6),
+              '[rad^2/s^2]). vy is a measurement, not an unknown: a differential drive cannot '
+              'move sideways, so the published vy = 0 carries about the variance of vx (wheel '
+              'slip), and an EKF fusing it (the robot_localization recipe) keeps its lateral '
+              'velocity at zero; 1e6 would make that fusion a no-op. ' + _COV,
+              lo=0.0, hi=1.0e9, length=6),
     ParamSpec('imu_orientation_covariance_diagonal', [0.0003, 0.0003, 0.003],
               'Diagonal of the imu orientation covariance [rad^2] (roll, pitch, yaw). ' + _COV,
               lo=0.0, hi=1.0e9, length=3),
@@ -330,6 +345,8 @@ def validate(name: str, value: Any) -> str | None:
     s = _BY_NAME.get(name)
     if s is None:
         return 'unknown parameter (known: {})'.format(', '.join(sorted(_BY_NAME)))
+    if s.type == 'any':          # a bool or a keyword (enable_stamped_cmd_vel: auto)
+        return s.check(value) if s.check is not None else None
     want = _kind(s.default)
     got = _kind(value)
     if want == 'double' and got == 'int':
@@ -373,8 +390,15 @@ class BridgeParams:
 
     @property
     def stamped_cmd_vel(self) -> bool:
-        """Return whether cmd_vel is TwistStamped (either name of the switch)."""
-        return bool(self.values['enable_stamped_cmd_vel'] or self.values['use_stamped_vel'])
+        """Return whether cmd_vel starts as TwistStamped (either name of the switch)."""
+        return (self.values['enable_stamped_cmd_vel'] is True
+                or bool(self.values['use_stamped_vel']))
+
+    @property
+    def auto_cmd_vel(self) -> bool:
+        """Return whether the cmd_vel type follows its first publisher (``auto``)."""
+        return (self.values['enable_stamped_cmd_vel'] == AUTO
+                and not self.values['use_stamped_vel'])
 
     @property
     def odom_child(self) -> str:

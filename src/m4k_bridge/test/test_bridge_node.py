@@ -515,6 +515,40 @@ def test_enable_stamped_cmd_vel_drives(m4k_runtime_dir):
         h.close()
 
 
+@pytest.mark.parametrize('msg_type', [TwistStamped, Twist])
+def test_enable_stamped_cmd_vel_auto_takes_the_first_publishers_type_and_drives(
+        m4k_runtime_dir, msg_type):
+    h = Harness(m4k_runtime_dir, [Parameter('enable_stamped_cmd_vel', value='auto')])
+    # the publisher in another participant (a laptop): one participant cannot hold both types
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    laptop = rclpy.create_node('laptop', context=ctx)
+    try:
+        assert h.spin_until(h.rt.linked)
+        pub = laptop.create_publisher(msg_type, 'cmd_vel', 10)
+        msg = msg_type()
+        (msg.twist if msg_type is TwistStamped else msg).linear.x = 0.2
+        got = []
+        assert h.spin_until(lambda: got, timeout=15.0, each=lambda: (
+            pub.publish(msg), got.extend(h.rt.recv_all('cmd'))))
+        assert got[-1][1].linear_x == pytest.approx(0.2)
+        subs = h.bridge.get_subscriptions_info_by_topic('/cmd_vel')
+        assert [i.topic_type for i in subs if i.node_name == 'm4k_bridge'] == [
+            'geometry_msgs/msg/' + msg_type.__name__]
+        assert h.bridge.p['enable_stamped_cmd_vel'] == 'auto'
+    finally:
+        laptop.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        h.close()
+
+
+def test_enable_stamped_cmd_vel_refuses_other_words():
+    assert params.validate('enable_stamped_cmd_vel', 'yes') == \
+        "expected true, false or auto, got 'yes'"
+    assert params.validate('enable_stamped_cmd_vel', 'auto') is None
+    assert params.validate('enable_stamped_cmd_vel', True) is None
+
+
 def test_e_stop_service_answers_once_the_rt_latch_confirms_and_state_is_latched(harness):
     from std_msgs.msg import Bool
     from std_srvs.srv import SetBool

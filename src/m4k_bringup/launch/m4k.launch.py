@@ -1,16 +1,21 @@
 """Launch the m4k stack with ros2 launch (needs launch/launch_ros: a full ROS 2 install).
 
     ros2 launch m4k_bringup m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
-        [sim:=auto|true|false] [robot_state_publisher:=false|true] [bridge_params:=FILE]
-        [foxglove:=false|true] [foxglove_address:=127.0.0.1]
+        [robot:=r1] [sim:=auto|true|false] [robot_state_publisher:=false|true]
+        [bridge_params:=FILE[,FILE...]] [foxglove:=false|true] [foxglove_address:=127.0.0.1]
 
 Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
 ``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
 simulated robot (``sim_robot``, when ``sim`` is on), rt_core, driver_host and the bridge (node
 m4k_bridge, parameters: share/m4k_bringup/config/bridge.yaml, then those derived from the
 configuration -- runtime directory, command timeout, velocity limits, sensor frames, port
-labels, robot description -- and the overlay's ``m4k_bridge:`` section, then
-``bridge_params``).
+labels, robot description -- and the overlay's ``m4k_bridge:`` section, then each
+``bridge_params`` file in order, comma-separated: e.g. the Nav2 and the EKF recipes together).
+
+``robot:=r1`` (one robot of several; ``m4k_bringup.robots``): namespace ``/r1``, the bridge's
+``tf_namespaced: true`` and ``frame_prefix: r1/``; robot_state_publisher follows the bridge's
+tf mode and prefix however they were set (``robot``, ``config``, ``bridge_params``), with the
+``/tf:=tf`` remaps a namespaced tf needs.
 
 ``sim``: ``auto`` (default) simulates when the configuration has any ``backend: sim`` device;
 ``true`` requires such devices; ``false`` refuses a configuration that still has simulated
@@ -29,6 +34,7 @@ protocol has no authentication). For supervision with restarts and the live stat
 """
 
 import os
+import tempfile
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
@@ -65,12 +71,20 @@ def _installed(package, executable):
 def _nodes(context, *args, **kwargs):
     """Build the actions once the launch arguments are known (bringup's plan, as ROS nodes)."""
     from m4k_bridge import params as bridge_params
-    from m4k_bringup import bringup
+    from m4k_bringup import bringup, robots
     from m4k_rt import config, xddp
 
     arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     overlay = os.path.abspath(arg('config')) if arg('config') else None
     namespace = arg('namespace')
+    robot_values = {}
+    if arg('robot'):
+        robot_ns, robot_values = robots.robot_settings(arg('robot'))
+        if namespace and namespace.strip('/') != robot_ns.strip('/'):
+            raise RuntimeError('robot:={} puts the bridge in {}, namespace:={} says otherwise: '
+                               'give one'.format(arg('robot'), robot_ns, namespace))
+        namespace = robot_ns
+    extra_files = robots.param_files(arg('bridge_params'))
     sim = _flag(context, 'sim', allow_auto=True)
     with_rsp = _flag(context, 'robot_state_publisher')
 
@@ -85,6 +99,7 @@ def _nodes(context, *args, **kwargs):
     runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
     bridge_doc = bringup.bridge_overlay(doc, runtime_dir)
     bridge_values = bridge_params.flatten_section(bridge_doc)
+    bridge_values.update(robot_values)
     if with_rsp:
         bridge_values['publish_robot_state'] = False
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
@@ -95,9 +110,9 @@ def _nodes(context, *args, **kwargs):
     sim_node = None
     for spec in specs:
         if spec.executable == 'bridge':
-            params = [bridge_yaml, bridge_values]
-            if arg('bridge_params'):
-                params.append(os.path.abspath(arg('bridge_params')))
+            # a bare m4k_bridge section would not reach the namespaced node: re-keyed copies
+            params = [bridge_yaml, bridge_values, *robots.namespaced_files(
+                extra_files, namespace, tempfile.mkdtemp(prefix='m4k-launch-'))]
             actions.append(Node(package=spec.package, executable=spec.executable,
                                 name=bridge_params.NODE_NAME, namespace=namespace,
                                 parameters=params, additional_env=env, output='screen',
@@ -120,12 +135,13 @@ def _nodes(context, *args, **kwargs):
                                'installed (a full ROS install has it; without it the bridge '
                                'publishes the transforms itself)')
         # robot_state_publisher publishes /tf and /tf_static (absolute, tf2_ros's broadcasters)
-        # and robot_description in the namespace; the bridge leaves both to it.
-        rsp_params = {'robot_description': bridge_values['robot_description']}
-        if bridge_values.get('frame_prefix'):
-            rsp_params['frame_prefix'] = bridge_values['frame_prefix']
+        # and robot_description in the namespace; the bridge leaves both to it. Its tf mode and
+        # frame prefix are the bridge's as the bridge ends up with them (bridge_params last).
+        rsp_params, rsp_remaps = robots.robot_state_publisher_setup(
+            robots.effective_bridge_values(bridge_values, extra_files))
         actions.append(Node(package='robot_state_publisher', executable='robot_state_publisher',
-                            namespace=namespace, output='screen', parameters=[rsp_params]))
+                            namespace=namespace, output='screen', parameters=[rsp_params],
+                            remappings=rsp_remaps))
     if sim_node is None:
         return actions
     ready = _once_ready(actions)
@@ -156,7 +172,11 @@ def generate_launch_description():
         DeclareLaunchArgument('config', default_value='',
                               description='user overlay YAML, as bringup --config'),
         DeclareLaunchArgument('bridge_params', default_value='',
-                              description='extra ROS parameter file for m4k_bridge (last)'),
+                              description='extra ROS parameter files for m4k_bridge, '
+                              'comma-separated, after the configuration (later files win)'),
+        DeclareLaunchArgument('robot', default_value='',
+                              description='one robot of several: namespace /ROBOT, tf on '
+                              '/ROBOT/tf, frames prefixed ROBOT/ (recipes --robot ROBOT)'),
         DeclareLaunchArgument('namespace', default_value='',
                               description='ROS namespace of the bridge topics'),
         DeclareLaunchArgument('sim', default_value='auto',

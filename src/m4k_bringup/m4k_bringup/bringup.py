@@ -46,6 +46,7 @@ from typing import Any, Callable, Mapping, Sequence, TextIO
 import yaml
 
 from m4k_bridge import params as bridge_params
+from m4k_bringup import robots
 from m4k_drivers import simbus
 from m4k_rt import config, rosargs
 from m4k_rt.control.params import control_params
@@ -393,12 +394,15 @@ def foxglove_spec(address: str = '127.0.0.1', port: int = 8765) -> ChildSpec:
 
 def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
                 runtime_dir: str, sim: bool = True, foxglove: str | None = None,
-                foxglove_port: int = 8765, namespace: str = '') -> list[ChildSpec]:
+                foxglove_port: int = 8765, namespace: str = '',
+                extra_params: Sequence[str] = ()) -> list[ChildSpec]:
     """Return the children with their arguments, in start order (sim_robot first if ``sim``).
 
     ``foxglove``: the address to serve the live view on (None: no live view), on
     ``foxglove_port``; it starts last and so stops first. ``namespace``: ROS namespace of the
-    bridge and the live view (their topics; /tf, /tf_static and /diagnostics stay absolute).
+    bridge and the live view (their topics; /tf, /tf_static and /diagnostics stay absolute
+    unless the bridge's tf_namespaced). ``extra_params``: more parameter files for the bridge,
+    after the configuration's (later files win: e.g. two recipes' m4k_bridge sections).
     """
     ns_args: tuple[str, ...] = ('-r', '__ns:=/' + namespace.strip('/')) if namespace else ()
     rt_args: tuple[str, ...] = ('--config', overlay) if overlay else ()
@@ -414,7 +418,8 @@ def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
         ChildSpec('driver_host', 'm4k_drivers', 'driver_host', 'm4k_drivers.host', host_args),
         ChildSpec('bridge', 'm4k_bridge', 'bridge', 'm4k_bridge.node',
                   ('--ros-args', *ns_args, '--params-file', bridge_yaml, '--params-file',
-                   bridge_params_file)),
+                   bridge_params_file,
+                   *(a for f in extra_params for a in ('--params-file', f)))),
     ] + live
 
 
@@ -515,6 +520,12 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--namespace', default='', metavar='NS', help='ROS namespace of the '
                     'bridge (as ros2 launch ... namespace:=NS); /tf, /tf_static and '
                     '/diagnostics stay absolute')
+    ap.add_argument('--robot', default='', metavar='NAME', help='one robot of several: '
+                    'namespace /NAME, tf on /NAME/tf (tf_namespaced), frames prefixed NAME/ '
+                    '(generate matching recipes with `recipes --robot NAME`)')
+    ap.add_argument('--bridge-params', action='append', default=[], metavar='FILE',
+                    help='another ROS parameter file for the bridge, after the configuration '
+                    "(repeat it; later files win), e.g. two recipes' m4k_bridge sections")
     ap.add_argument('--foxglove', action='store_true', help='serve the live view to Foxglove '
                     '(WebSocket protocol, port 8765, localhost only: use an SSH tunnel)')
     ap.add_argument('--foxglove-address', metavar='ADDR', default='127.0.0.1',
@@ -552,8 +563,19 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         return 1
     try:
         bridge_doc = bridge_overlay(doc, runtime_dir)
+        args.bridge_params = robots.param_files(args.bridge_params)
+        if args.robot:
+            namespace, values = robots.robot_settings(args.robot)
+            if args.namespace and args.namespace.strip('/') != namespace.strip('/'):
+                raise ValueError('--robot {} puts the bridge in {}, --namespace says {}: give '
+                                 'one'.format(args.robot, namespace, args.namespace))
+            args.namespace = namespace.strip('/')
+            bridge_doc[bridge_params.NODE_NAME]['ros__parameters'].update(values)
     except bridge_params.ParamError as exc:
         _err('config error: m4k_bridge: {}'.format(exc))
+        return CONFIG_ERROR
+    except ValueError as exc:
+        _err('usage: {}'.format(exc))
         return CONFIG_ERROR
     owner = lock_owner(runtime_dir)
     if owner is not None:
@@ -577,14 +599,17 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
          bridge_doc: dict[str, Any], tmpdir: str, stop: StopSignals, sim: bool = True) -> int:
     params_file = os.path.join(tmpdir, 'bridge_overlay.yaml')
     with open(params_file, 'w', encoding='utf-8') as f:
-        yaml.safe_dump(bridge_doc, f)
+        # keyed by the node's fully qualified name under a namespace (rcl would not apply a
+        # bare m4k_bridge section to /r1/m4k_bridge)
+        yaml.safe_dump(robots.for_namespace(bridge_doc, args.namespace), f)
+    extra = robots.namespaced_files(args.bridge_params, args.namespace, tmpdir)
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir, PYTHONUNBUFFERED='1')
     console = Console(sys.stdout, sys.stderr, sys.stdout.isatty())
     children = [Child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,
                                      args.foxglove_address if args.foxglove else None,
-                                     args.foxglove_port, args.namespace)]
+                                     args.foxglove_port, args.namespace, extra)]
     sup = Supervisor(children, console, args.max_restarts)
     status = None
     try:

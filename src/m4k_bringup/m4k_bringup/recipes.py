@@ -1,0 +1,476 @@
+"""Generate the recipes for the stack around the base from ``config/`` (``recipes`` script).
+
+The Nav2, twist_mux, slam_toolbox, robot_localization and RViz files under ``config/<tool>/``
+are not written by hand: they are this module's output for the layered configuration
+(``robot.yaml``'s body and sensor frames, ``control.yaml``'s velocity and acceleration limits)
+and the bridge's parameter defaults (frames, topic names, sonar range). Change ``control.yaml``
+and every recipe follows; ``recipes --check`` (and ``test/test_recipes.py``) fails while a
+shipped file differs from what the configuration generates.
+
+Names are written the way the consumer resolves them correctly (docs/nav2.md, "Names"):
+every topic a Nav2 node reads from a parameter is absolute, because Jazzy's costmap layers
+pass the parameter straight to the subscription of a node living in ``/local_costmap`` or
+``/global_costmap`` (navigation2 #5745: ``scan`` there is ``/local_costmap/scan``). With a
+robot name (``--robot r1``) the topics get the robot's namespace (``/r1/scan``) and the frames
+its prefix (``r1/odom``), as ``bringup --robot r1`` and ``robot:=r1`` run the base.
+
+The Nav2 file is complete: ``navigation_launch.py`` takes ONE ``params_file``, so it carries a
+section for every node that launch file (and ``localization_launch.py``'s AMCL) starts, with the
+plugin lists the Jazzy stock ``nav2_params.yaml`` uses and m4k's values; what it leaves out
+each node defaults itself (``test/upstream_keys.py`` lists what every key is read as).
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import os
+import sys
+from typing import Any, Mapping, Sequence
+
+import yaml
+
+from m4k_bridge import params as bridge_params
+from m4k_drivers.lrf.sim import URG04LX_PP
+from m4k_rt import config as rt_config
+
+# Navigation's own speed choice (not a property of the base): Nav2 plans at most this fast,
+# however fast control.linear.max_velocity lets the base go. At 0.5 m/s and 0.37 m/s^2 the
+# base needs 0.34 m to stop, inside the 3 m local costmap and the 5.6 m laser range.
+NAV_MAX_LINEAR_VELOCITY = 0.5      # m/s
+NAV_MAX_REVERSE_VELOCITY = 0.25    # m/s (the laser sees nothing behind the robot)
+
+# The laser's range as the URG-04LX reports it in PP (DMIN, DMAX; mm): 0.02 .. 5.6 m.
+LASER_MIN_RANGE = int(URG04LX_PP['DMIN']) / 1000.0
+LASER_MAX_RANGE = int(URG04LX_PP['DMAX']) / 1000.0
+
+# the generated files, under config/
+FILES = ('nav2/nav2_params.yaml', 'nav2/nav2_params_twist_mux.yaml', 'twist_mux/twist_mux.yaml',
+         'slam_toolbox/mapper_params_online_async.yaml', 'robot_localization/ekf.yaml',
+         'rviz/m4k.rviz')
+# Nav2's final velocity output when twist_mux sits in front of the bridge: the collision
+# monitor publishes here and twist_mux reads it (never cmd_vel_nav, the controller's raw output
+# before the smoother and the collision monitor).
+NAV2_MUX_INPUT = 'cmd_vel_nav2'
+
+
+class Names:
+    """Topic names and frame ids of one robot (``robot`` '' = the single, unprefixed robot)."""
+
+    def __init__(self, robot: str = '') -> None:
+        """Derive the namespace '/r1' and the frame prefix 'r1/' from the robot name."""
+        if robot and not robot.replace('_', 'a').isalnum() or robot[:1].isdigit():
+            raise ValueError('robot name must be a ROS name token ([a-zA-Z_][a-zA-Z0-9_]*), '
+                             'got {!r}'.format(robot))
+        self.robot = robot
+        self.ns = '/' + robot if robot else ''
+        self.prefix = robot + '/' if robot else ''
+
+    def topic(self, relative: str) -> str:
+        """Return the absolute name of one of the robot's relative topics."""
+        return '{}/{}'.format(self.ns, relative.lstrip('/'))
+
+    def bridge_topic(self, key: str) -> str:
+        """Return the absolute name of the bridge's topic ``topics.<key>``."""
+        name = str(bridge_params.spec('topics.' + key).default)
+        return name if name.startswith('/') else self.topic(name)
+
+    def frame(self, key: str) -> str:
+        """Return the bridge's frame ``<key>`` (e.g. 'odom_frame') with the robot's prefix."""
+        return self.prefix + str(bridge_params.spec(key).default)
+
+
+def _limits(layered: Mapping[str, Any]) -> dict[str, float]:
+    control = layered['control']
+    lin, ang = control['linear'], control['angular']
+    return {
+        'vx': min(float(lin['max_velocity']), NAV_MAX_LINEAR_VELOCITY),
+        'vx_rev': min(float(lin['max_velocity']), NAV_MAX_REVERSE_VELOCITY),
+        'wz': float(ang['max_velocity']),
+        'ax': float(lin['max_acceleration']),
+        'dx': float(lin['max_deceleration'] or lin['max_acceleration']),
+        'az': float(ang['max_acceleration']),
+        'dz': float(ang['max_deceleration'] or ang['max_acceleration']),
+    }
+
+
+def _footprint(layered: Mapping[str, Any]) -> str:
+    body = layered['robot']['body']
+    x, y = float(body['length']) / 2.0, float(body['width']) / 2.0
+    pts = [[x, y], [x, -y], [-x, -y], [-x, y]]
+    return '[' + ', '.join('[{:g}, {:g}]'.format(*p) for p in pts) + ']'
+
+
+def _scan_source(n: Names, max_range: float) -> dict[str, Any]:
+    return {
+        'topic': n.bridge_topic('scan'),
+        'data_type': 'LaserScan',
+        'marking': True,
+        'clearing': True,
+        'inf_is_valid': True,               # URG "nothing within range" is +inf (REP-117)
+        'raytrace_max_range': max_range,
+        'obstacle_max_range': round(max_range - 0.6, 3),
+        # Jazzy's per-source default is 0.0 and the buffer drops every point above it
+        'max_obstacle_height': 2.0,
+    }
+
+
+def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str, Any]:
+    """Return the complete Nav2 parameter file (one params_file for navigation_launch.py)."""
+    lim = _limits(layered)
+    foot = _footprint(layered)
+    laser_max = LASER_MAX_RANGE
+    odom, base, footprint = n.frame('odom_frame'), n.frame('base_frame'), \
+        n.frame('footprint_frame')
+    map_frame = n.prefix + 'map'
+
+    def ros(p: dict[str, Any]) -> dict[str, Any]:
+        return {'ros__parameters': p}
+
+    local = {
+        'update_frequency': 5.0, 'publish_frequency': 2.0,
+        'global_frame': odom, 'robot_base_frame': base,
+        'rolling_window': True, 'width': 3, 'height': 3, 'resolution': 0.05,
+        'footprint': foot,
+        'plugins': ['obstacle_layer', 'range_layer', 'inflation_layer'],
+        'obstacle_layer': {'plugin': 'nav2_costmap_2d::ObstacleLayer', 'enabled': True,
+                           'observation_sources': 'scan', 'scan': _scan_source(n, laser_max)},
+        'range_layer': {'plugin': 'nav2_costmap_2d::RangeSensorLayer', 'enabled': True,
+                        'topics': [n.bridge_topic('sonar')],
+                        'clear_on_max_reading': True},   # with sonar_no_echo: max_range
+        'inflation_layer': {'plugin': 'nav2_costmap_2d::InflationLayer',
+                            'inflation_radius': 0.45, 'cost_scaling_factor': 3.0},
+    }
+    glob = {
+        'update_frequency': 1.0, 'publish_frequency': 1.0,
+        'global_frame': map_frame, 'robot_base_frame': base,
+        'resolution': 0.05, 'track_unknown_space': True,
+        'footprint': foot,
+        'plugins': ['static_layer', 'obstacle_layer', 'inflation_layer'],
+        'static_layer': {'plugin': 'nav2_costmap_2d::StaticLayer',
+                         'map_subscribe_transient_local': True},
+        'obstacle_layer': {'plugin': 'nav2_costmap_2d::ObstacleLayer', 'enabled': True,
+                           'observation_sources': 'scan', 'scan': _scan_source(n, laser_max)},
+        'inflation_layer': {'plugin': 'nav2_costmap_2d::InflationLayer',
+                            'inflation_radius': 0.45, 'cost_scaling_factor': 3.0},
+    }
+    mppi = {
+        'plugin': 'nav2_mppi_controller::MPPIController',
+        'motion_model': 'DiffDrive',
+        'time_steps': 56, 'model_dt': 0.05, 'batch_size': 2000,
+        'vx_max': lim['vx'], 'vx_min': -lim['vx_rev'], 'vy_max': 0.0, 'wz_max': lim['wz'],
+        'ax_max': lim['ax'], 'ax_min': -lim['dx'], 'az_max': lim['az'],
+        'critics': ['ConstraintCritic', 'CostCritic', 'GoalCritic', 'GoalAngleCritic',
+                    'PathAlignCritic', 'PathFollowCritic', 'PathAngleCritic',
+                    'PreferForwardCritic'],
+    }
+    doc: dict[str, Any] = {
+        # also a bridge_params:= file: the sonar's "no echo" as max_range, which the range
+        # layer's clear_on_max_reading clears with (it drops +inf)
+        'm4k_bridge': ros({'sonar_no_echo': 'max_range'}),
+        'amcl': ros({
+            'base_frame_id': footprint, 'odom_frame_id': odom, 'global_frame_id': map_frame,
+            'scan_topic': n.bridge_topic('scan'),
+            'laser_max_range': laser_max, 'laser_min_range': LASER_MIN_RANGE,
+            'robot_model_type': 'nav2_amcl::DifferentialMotionModel'}),
+        'bt_navigator': ros({
+            'global_frame': map_frame, 'robot_base_frame': base,
+            'odom_topic': n.bridge_topic('odom'),
+            'navigators': ['navigate_to_pose', 'navigate_through_poses'],
+            'navigate_to_pose': {'plugin': 'nav2_bt_navigator::NavigateToPoseNavigator'},
+            'navigate_through_poses': {
+                'plugin': 'nav2_bt_navigator::NavigateThroughPosesNavigator'}}),
+        'controller_server': ros({
+            # >= 2 Hz: the RT actuator brakes after control.cmd_vel_timeout without cmd_vel
+            'controller_frequency': 20.0,
+            'odom_topic': n.bridge_topic('odom'),
+            'progress_checker_plugins': ['progress_checker'],
+            'goal_checker_plugins': ['general_goal_checker'],
+            'controller_plugins': ['FollowPath'],
+            'progress_checker': {'plugin': 'nav2_controller::SimpleProgressChecker'},
+            'general_goal_checker': {'plugin': 'nav2_controller::SimpleGoalChecker',
+                                     'xy_goal_tolerance': 0.25, 'yaw_goal_tolerance': 0.25},
+            'FollowPath': mppi}),
+        'local_costmap': {'local_costmap': ros(local)},
+        'global_costmap': {'global_costmap': ros(glob)},
+        'planner_server': ros({
+            'planner_plugins': ['GridBased'],
+            'GridBased': {'plugin': 'nav2_navfn_planner::NavfnPlanner', 'tolerance': 0.5,
+                          'use_astar': False, 'allow_unknown': True}}),
+        'smoother_server': ros({
+            'smoother_plugins': ['simple_smoother'],
+            'simple_smoother': {'plugin': 'nav2_smoother::SimpleSmoother'}}),
+        'behavior_server': ros({
+            'local_costmap_topic': n.topic('local_costmap/costmap_raw'),
+            'global_costmap_topic': n.topic('global_costmap/costmap_raw'),
+            'local_footprint_topic': n.topic('local_costmap/published_footprint'),
+            'global_footprint_topic': n.topic('global_costmap/published_footprint'),
+            'local_frame': odom, 'global_frame': map_frame, 'robot_base_frame': base,
+            'behavior_plugins': ['spin', 'backup', 'drive_on_heading', 'wait'],
+            'spin': {'plugin': 'nav2_behaviors::Spin'},
+            'backup': {'plugin': 'nav2_behaviors::BackUp'},
+            'drive_on_heading': {'plugin': 'nav2_behaviors::DriveOnHeading'},
+            'wait': {'plugin': 'nav2_behaviors::Wait'},
+            'max_rotational_vel': lim['wz'], 'min_rotational_vel': min(0.4, lim['wz']),
+            'rotational_acc_lim': lim['az']}),
+        'waypoint_follower': ros({
+            'waypoint_task_executor_plugin': 'wait_at_waypoint',
+            'wait_at_waypoint': {'plugin': 'nav2_waypoint_follower::WaitAtWaypoint'}}),
+        'velocity_smoother': ros({
+            'smoothing_frequency': 20.0,
+            'feedback': 'OPEN_LOOP',
+            'odom_topic': n.bridge_topic('odom'),
+            # [x, y, theta]: within control.yaml, so the RT limiter never clamps what Nav2 plans
+            'max_velocity': [lim['vx'], 0.0, lim['wz']],
+            'min_velocity': [-lim['vx_rev'], 0.0, -lim['wz']],
+            'max_accel': [lim['ax'], 0.0, lim['az']],
+            'max_decel': [-lim['dx'], 0.0, -lim['dz']]}),
+        'collision_monitor': ros({
+            'base_frame_id': footprint, 'odom_frame_id': odom,
+            'cmd_vel_in_topic': n.topic('cmd_vel_smoothed'),
+            'cmd_vel_out_topic': n.topic(NAV2_MUX_INPUT) if mux else n.bridge_topic('cmd_vel'),
+            'polygons': ['FootprintApproach'],
+            'FootprintApproach': {
+                'type': 'polygon', 'action_type': 'approach',
+                'footprint_topic': n.topic('local_costmap/published_footprint'),
+                'time_before_collision': 1.2, 'simulation_time_step': 0.1,
+                'min_points': 6, 'enabled': True},
+            'observation_sources': ['scan', 'sonar'],
+            'scan': {'type': 'scan', 'topic': n.bridge_topic('scan'), 'enabled': True},
+            'sonar': {'type': 'range', 'topic': n.bridge_topic('sonar'), 'enabled': True,
+                      'obstacles_angle': 0.1}}),
+        'docking_server': ros({
+            'base_frame': base, 'fixed_frame': odom,
+            'dock_plugins': ['simple_charging_dock'],
+            'simple_charging_dock': {'plugin': 'opennav_docking::SimpleChargingDock'},
+            'controller': {
+                'costmap_topic': n.topic('local_costmap/costmap_raw'),
+                'footprint_topic': n.topic('local_costmap/published_footprint')}}),
+    }
+    return doc
+
+
+def twist_mux(n: Names, stamped: bool = False) -> dict[str, Any]:
+    """Return twist_mux's parameters: Nav2's final output and a joystick, locked by e-stop."""
+    return {'twist_mux': {'ros__parameters': {
+        # twist_mux >= 4.4.0 (Jazzy since 2024-10) aborts without it; false: Twist in and out,
+        # as Nav2 Jazzy publishes and the bridge's enable_stamped_cmd_vel: false subscribes
+        'use_stamped': stamped,
+        'topics': {
+            'navigation': {'topic': n.topic(NAV2_MUX_INPUT), 'timeout': 0.5, 'priority': 10},
+            'joystick': {'topic': n.topic('cmd_vel_joy'), 'timeout': 0.5, 'priority': 100},
+        },
+        'locks': {
+            # twist_mux subscribes locks volatile, so the bridge repeats e_stop_state at 1 Hz;
+            # with a timeout an unheard lock counts as engaged (docs/nav2.md)
+            'e_stop': {'topic': n.bridge_topic('e_stop_state'), 'timeout': 2.5,
+                       'priority': 255},
+        },
+    }}}
+
+
+def slam_toolbox(n: Names) -> dict[str, Any]:
+    """Return slam_toolbox's online-async parameters for the URG-04LX."""
+    return {'slam_toolbox': {'ros__parameters': {
+        'mode': 'mapping',
+        'odom_frame': n.frame('odom_frame'), 'map_frame': n.prefix + 'map',
+        'base_frame': n.frame('footprint_frame'),
+        'scan_topic': n.bridge_topic('scan'),
+        'max_laser_range': LASER_MAX_RANGE,
+        'resolution': 0.05,
+        'minimum_travel_distance': 0.2, 'minimum_travel_heading': 0.2,
+        'map_update_interval': 5.0, 'transform_publish_period': 0.02,
+        'use_scan_matching': True,
+    }}}
+
+
+def ekf(n: Names) -> dict[str, Any]:
+    """Return the 2-D EKF: wheel vx, vy and yaw rate, IMU yaw rate.
+
+    vy is fused as the zero a differential drive measures, with the odometry's own variance
+    (the bridge's odom_twist_covariance_diagonal); the EKF owns odom -> base_footprint, so the
+    file's m4k_bridge section turns the bridge's transform off.
+    """
+    return {
+        'm4k_bridge': {'ros__parameters': {'publish_tf': False}},
+        'ekf_filter_node': {'ros__parameters': {
+            'frequency': 30.0, 'two_d_mode': True, 'publish_tf': True,
+            'map_frame': n.prefix + 'map', 'odom_frame': n.frame('odom_frame'),
+            'base_link_frame': n.frame('footprint_frame'), 'world_frame': n.frame('odom_frame'),
+            'odom0': n.bridge_topic('odom'),
+            # x y z, roll pitch yaw, vx vy vz, vroll vpitch vyaw, ax ay az
+            'odom0_config': [False, False, False, False, False, False,
+                             True, True, False, False, False, True,
+                             False, False, False],
+            'imu0': n.bridge_topic('imu'),
+            'imu0_config': [False, False, False, False, False, False,
+                            False, False, False, False, False, True,
+                            False, False, False],
+            'imu0_remove_gravitational_acceleration': True,
+        }},
+    }
+
+
+def _topic(value: str, reliability: str, durability: str = 'Volatile',
+           depth: int = 5) -> dict[str, Any]:
+    return {'Value': value, 'Depth': depth, 'Durability Policy': durability,
+            'History Policy': 'Keep Last', 'Reliability Policy': reliability}
+
+
+def rviz(n: Names) -> dict[str, Any]:
+    """Return the RViz 2 layout: the base's displays with the QoS m4k publishes with."""
+    return {
+        'Panels': [{'Class': 'rviz_common/Displays', 'Name': 'Displays'}],
+        'Visualization Manager': {
+            'Class': '',
+            'Displays': [
+                {'Class': 'rviz_default_plugins/Grid', 'Name': 'Grid', 'Enabled': True,
+                 'Reference Frame': '<Fixed Frame>'},
+                {'Class': 'rviz_default_plugins/RobotModel', 'Name': 'RobotModel',
+                 'Enabled': True, 'Description Source': 'Topic',
+                 'Description Topic': _topic(n.bridge_topic('robot_description'), 'Reliable',
+                                             'Transient Local', 1)},
+                {'Class': 'rviz_default_plugins/TF', 'Name': 'TF', 'Enabled': True,
+                 'Show Names': True},
+                {'Class': 'rviz_default_plugins/LaserScan', 'Name': 'LaserScan',
+                 'Enabled': True, 'Topic': _topic(n.bridge_topic('scan'), 'Best Effort')},
+                {'Class': 'rviz_default_plugins/Range', 'Name': 'Range', 'Enabled': True,
+                 'Topic': _topic(n.bridge_topic('sonar'), 'Best Effort')},
+                # imu_tools' rviz_imu_plugin (apt ros-jazzy-rviz-imu-plugin)
+                {'Class': 'rviz_imu_plugin/Imu', 'Name': 'Imu', 'Enabled': True,
+                 'Topic': _topic(n.bridge_topic('imu'), 'Best Effort')},
+                {'Class': 'rviz_default_plugins/Odometry', 'Name': 'Odometry',
+                 'Enabled': True, 'Topic': _topic(n.bridge_topic('odom'), 'Reliable'),
+                 'Keep': 100},
+            ],
+            'Enabled': True,
+            'Global Options': {'Fixed Frame': n.frame('odom_frame'), 'Frame Rate': 30},
+            'Name': 'root',
+            'Tools': [{'Class': 'rviz_default_plugins/MoveCamera'},
+                      {'Class': 'rviz_default_plugins/Select'},
+                      {'Class': 'rviz_default_plugins/SetInitialPose'},
+                      {'Class': 'rviz_default_plugins/SetGoal'}],
+            'Views': {'Current': {'Class': 'rviz_default_plugins/Orbit', 'Distance': 6.0,
+                                  'Target Frame': '<Fixed Frame>'}},
+        },
+    }
+
+
+_HEADERS = {
+    'nav2/nav2_params.yaml':
+        'Nav2 (Jazzy), complete: ros2 launch nav2_bringup navigation_launch.py '
+        'params_file:=<this>\n(also bringup_launch.py; and bridge_params:= for its m4k_bridge '
+        "section). The collision\nmonitor drives the bridge's cmd_vel directly.",
+    'nav2/nav2_params_twist_mux.yaml':
+        'Nav2 (Jazzy), complete, with twist_mux in front of the bridge: as nav2_params.yaml, '
+        "but the\ncollision monitor publishes Nav2's final output on {} (twist_mux's "
+        '"navigation" input).'.format(NAV2_MUX_INPUT),
+    'twist_mux/twist_mux.yaml':
+        'twist_mux (Jazzy, >= 4.4.0): ros2 run twist_mux twist_mux --ros-args --params-file '
+        '<this>\n-r cmd_vel_out:=cmd_vel. Run Nav2 with nav2/nav2_params_twist_mux.yaml.',
+    'slam_toolbox/mapper_params_online_async.yaml':
+        'slam_toolbox (Jazzy, online async): slam_params_file:=<this> to online_async_launch.py.',
+    'robot_localization/ekf.yaml':
+        'robot_localization EKF (Jazzy): params for ekf_node, and bridge_params:= for its '
+        'm4k_bridge\nsection (the EKF publishes odom -> base_footprint, the bridge does not).',
+    'rviz/m4k.rviz':
+        'RViz 2 (Jazzy): rviz2 -d <this>. Sensors best effort (m4k publishes them with the '
+        'sensor-data\nQoS), robot_description transient local.',
+}
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+def _list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    flow = all(not isinstance(v, (dict, list)) for v in data)
+    return dumper.represent_sequence('tag:yaml.org,2002:seq', data, flow_style=flow)
+
+
+_Dumper.add_representer(list, _list)
+
+
+def render(rel: str, doc: Mapping[str, Any], robot: str = '') -> str:
+    """Return the text of one recipe: a generated-file header, then the YAML."""
+    head = ['# GENERATED by `ros2 run m4k_bringup recipes` from config/ (robot.yaml, '
+            'control.yaml) and', "# the bridge's defaults: edit those and regenerate, not "
+            'this file (docs/nav2.md).']
+    if robot:
+        head.append('# Robot {!r}: namespace /{}, frame prefix {}/.'.format(robot, robot, robot))
+    head += ['# ' + line for line in _HEADERS[rel].split('\n')]
+    body = yaml.dump(dict(doc), Dumper=_Dumper, sort_keys=False, default_flow_style=False,
+                     width=99)
+    return '\n'.join(head) + '\n' + body
+
+
+def generate(layered: Mapping[str, Any] | None = None, robot: str = '') -> dict[str, str]:
+    """Return every recipe (path under config/ -> text) for the configuration and robot."""
+    layered = layered if layered is not None else rt_config.load_layered()
+    n = Names(robot)
+    docs = {
+        'nav2/nav2_params.yaml': nav2(layered, n),
+        'nav2/nav2_params_twist_mux.yaml': nav2(layered, n, mux=True),
+        'twist_mux/twist_mux.yaml': twist_mux(n),
+        'slam_toolbox/mapper_params_online_async.yaml': slam_toolbox(n),
+        'robot_localization/ekf.yaml': ekf(n),
+        'rviz/m4k.rviz': rviz(n),
+    }
+    return {rel: render(rel, docs[rel], robot) for rel in FILES}
+
+
+def stale(config_dir: str, texts: Mapping[str, str]) -> list[str]:
+    """Return a unified diff per recipe under config_dir that differs from texts."""
+    out = []
+    for rel, text in texts.items():
+        path = os.path.join(config_dir, rel)
+        try:
+            with open(path, encoding='utf-8') as f:
+                have = f.read()
+        except OSError as exc:
+            out.append('{}: cannot read ({})'.format(path, exc.strerror))
+            continue
+        if have != text:
+            out.append(''.join(difflib.unified_diff(
+                have.splitlines(True), text.splitlines(True), path, 'generated')))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Write (or with --check compare) the recipes; exit 1 when --check finds a stale one."""
+    ap = argparse.ArgumentParser(prog='recipes', description=__doc__.split('\n')[0])
+    ap.add_argument('--config-dir', default=None,
+                    help='the config/ to read (default: as the stack finds it)')
+    ap.add_argument('--out', default=None,
+                    help='directory to write <tool>/<file> into (default: --config-dir)')
+    ap.add_argument('--robot', default='', help="robot name: namespace /NAME, frames 'NAME/'")
+    ap.add_argument('--check', action='store_true',
+                    help='compare instead of writing; exit 1 and show the diff when stale')
+    a = ap.parse_args(argv)
+    config_dir = a.config_dir or rt_config.find_config_dir()
+    try:
+        texts = generate(rt_config.load_layered(config_dir=config_dir), a.robot)
+    except (ValueError, KeyError) as exc:
+        print('recipes: {}'.format(exc), file=sys.stderr)
+        return 2
+    out = a.out or config_dir
+    if a.check:
+        diffs = stale(out, texts)
+        for d in diffs:
+            print(d)
+        if diffs:
+            print('recipes: {} stale recipe(s) under {}: run `recipes` to regenerate'.format(
+                len(diffs), out), file=sys.stderr)
+            return 1
+        return 0
+    for rel, text in texts.items():
+        path = os.path.join(out, rel)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, 'w', encoding='utf-8') as f:
+            f.write(text)
+        print(path)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
