@@ -88,3 +88,28 @@ def test_a_standalone_bridge_refuses_a_runtime_directory_the_rt_side_would(
         _, err = p.communicate(timeout=60)
         assert p.returncode == 2, err
         assert "parameter 'runtime_dir'" in err and why in err, err
+
+
+@pytest.mark.parametrize('args, why', [
+    (['-p', 'token_file:=/nonexistent/token'], "token_file '/nonexistent/token': cannot open"),
+    (['-p', "allowed_origins:=['app.foxglove.dev']"], "'app.foxglove.dev' is not scheme://"),
+    (['-p', 'max_clients:=0'], 'max_clients out of range'),
+], ids=['token_file', 'allowed_origins', 'max_clients'])
+def test_the_live_view_refuses_a_bad_access_setting_with_exit_2(procs, m4k_runtime_dir,
+                                                                args, why):
+    p = procs.start(['python', '-m', 'm4k_bridge.foxglove.node', '--ros-args', '-p',
+                     'port:=0', *args], env=stack_env(m4k_runtime_dir))
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 2, err
+    assert why in err, err
+
+
+def test_the_live_view_refuses_a_parameter_file_with_a_misspelt_key(procs, tmp_path,
+                                                                    m4k_runtime_dir):
+    bad = tmp_path / 'live.yaml'
+    bad.write_text('m4k_foxglove:\n  ros__parameters:\n    token_fle: /x\n')
+    p = procs.start(['python', '-m', 'm4k_bridge.foxglove.node', '--ros-args', '--params-file',
+                     str(bad)], env=stack_env(m4k_runtime_dir))
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 2, err
+    assert "unknown parameter 'token_fle'" in err, err

@@ -63,6 +63,7 @@ from m4k_bridge.foxglove import protocol as fp
 from m4k_bridge.foxglove.access import AccessError, OriginPolicy, read_token_file
 from m4k_bridge.foxglove.server import Server
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
+from m4k_rt import yamlload
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
@@ -477,10 +478,29 @@ class FoxgloveNode(Node):
         self._diag_pub.publish(arr)
 
 
+def _check_param_files(argv: Sequence[str]) -> None:
+    for i, a in enumerate(argv[:-1]):
+        if a == '--params-file':
+            path = argv[i + 1]
+            with open(path, encoding='utf-8') as f:
+                try:
+                    doc = yamlload.load(f)
+                except yamlload.yaml.YAMLError as exc:
+                    raise ValueError('{}: {}'.format(path, str(exc).replace('\n', ' '))) \
+                        from None
+            fparams.check_param_file(doc, path)
+
+
 def main(args: Sequence[str] | None = None) -> int:
     """Run the Foxglove server node until SIGINT/SIGTERM; exit code 1 if it cannot listen."""
     stop = StopSignals().install()
     argv = list(sys.argv if args is None else args)
+    try:
+        _check_param_files(argv)
+    except (OSError, ValueError) as exc:   # unreadable, not YAML, duplicate or unknown key
+        sys.stderr.write('{}: {}\n'.format(NODE_NAME, exc))
+        stop.restore()
+        return 2
     rclpy.init(args=argv)
     node = None
     try:

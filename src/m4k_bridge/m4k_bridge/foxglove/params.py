@@ -14,7 +14,7 @@ from typing import Any, Mapping
 from m4k_bridge.foxglove.access import AccessError, DEFAULT_ORIGINS, OriginPolicy
 from m4k_rt.schema import Field
 
-__all__ = ['NAV_TOPICS', 'NODE_NAME', 'SPECS', 'validate']
+__all__ = ['NAV_TOPICS', 'NODE_NAME', 'SPECS', 'check_param_file', 'validate']
 
 NODE_NAME = 'm4k_foxglove'
 # What the 3D panel's publish tool advertises as soon as a layout opens (Foxglove and
@@ -91,6 +91,33 @@ SPECS: tuple[Field, ...] = (
 )
 
 _BY_NAME = {s.name: s for s in SPECS}
+
+
+def check_param_file(doc: Any, path: str) -> None:
+    """Refuse a ROS parameter file whose ``m4k_foxglove`` section has an unknown or bad value.
+
+    rclpy ignores a value for a parameter the node does not declare: a misspelt
+    ``token_fle`` would start the live view without its token. ValueError names the key.
+    """
+    if doc is None:
+        return
+    if not isinstance(doc, Mapping):
+        raise ValueError('{}: top level must be a mapping'.format(path))
+    for key, section in doc.items():
+        name = str(key).rsplit('/', 1)[-1]
+        if name not in (NODE_NAME, '**'):
+            continue
+        values = section.get('ros__parameters') if isinstance(section, Mapping) else None
+        if not isinstance(values, Mapping):
+            raise ValueError("{}: {}: expected a mapping with 'ros__parameters'".format(
+                path, key))
+        for pname, value in values.items():
+            if pname == 'use_sim_time' or (name == '**' and pname not in _BY_NAME):
+                continue        # a wildcard section also feeds other nodes
+            if pname not in _BY_NAME:
+                raise ValueError('{}: {}: unknown parameter {!r} (known: {})'.format(
+                    path, key, pname, ', '.join(sorted(_BY_NAME))))
+            validate({pname: value})
 
 
 def validate(values: Mapping[str, Any]) -> dict[str, Any]:
