@@ -11,6 +11,8 @@ import shutil
 import subprocess
 import sys
 
+from wsenv import check_provenance
+
 from m4k_bench.benchlib import analysis, system
 
 SCALING_KEY = 'scaling_1khz_release_p99_over_cyclictest'
@@ -70,6 +72,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     for name in ('report.md', 'summary.json', 'rounds.json', 'readme_snippet.md'):
         assert (publish / name).is_file(), name
     summ = json.loads((out / 'summary.json').read_text())
+    check_provenance(summ)
     rnd = summ['rounds'][0]
     # Table 1 of the median round: every robot task, with the utilization test and RTA
     names = {t['name'] for t in summ['table1']['tasks']}

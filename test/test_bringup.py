@@ -352,3 +352,18 @@ def test_plain_status_lines_when_stdout_is_not_a_tty(procs, tmp_path, m4k_runtim
     assert lines and '\r' not in out() and all(ln.startswith('m4k ') for ln in lines)
     assert any(re.search(r'act \d+\.\d .* Hz \| worst jitter [\d.]+ ms', ln) for ln in lines)
 
+
+
+def test_the_live_view_takes_a_parameter_file_and_bringup_checks_it_first(procs, tmp_path):
+    specs = bringup.child_specs(None, '/p', '/b', '/r', sim=False, foxglove='0.0.0.0',
+                                foxglove_params='/f.yaml')
+    assert specs[-1].args == ('--ros-args', '--params-file', '/f.yaml', '-p',
+                              'address:=0.0.0.0', '-p', 'port:=8765')
+    # A misspelt key would be ignored by rclpy (a LAN live view without its token): refused.
+    bad = tmp_path / 'live.yaml'
+    bad.write_text('m4k_foxglove:\n  ros__parameters:\n    token_fle: /x\n')
+    p = procs.start(['python', '-m', 'm4k_bringup.bringup', '--foxglove', '--foxglove-params',
+                     str(bad), '--no-status'], env=stack_env(str(tmp_path / 'rt')))
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 2, err
+    assert "unknown parameter 'token_fle'" in err

@@ -15,7 +15,7 @@ import sys
 from mcap.reader import make_reader
 import pytest
 from test_bringup import write_overlay
-from wsenv import stack_env
+from wsenv import check_provenance, stack_env
 
 pytestmark = pytest.mark.allow_leaks('fds')
 
@@ -51,6 +51,7 @@ def test_demo_reaches_the_goal_around_the_obstacle_without_contact(procs, tmp_pa
 
     summary = json.loads((run / 'summary.json').read_text())
     assert summary['passed'] is True and summary['goal_reached'] is True
+    check_provenance(summary)
     assert summary['contacts'] == 0
     assert summary['final_error_m'] <= summary['goal_tolerance_m']
     assert summary['min_clearance_m'] > 0.0

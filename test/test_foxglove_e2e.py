@@ -26,6 +26,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Bool
 from test_bringup import cmdline, start_bringup, write_overlay
 from websockets.asyncio.client import connect
+from websockets.exceptions import InvalidStatus
 from wsenv import ground_truth, ROOT
 
 from m4k_rt.testing import child_pids
@@ -192,6 +193,15 @@ def _layout_topics(doc):
     return reads, writes
 
 
+def _panel_3d_publishes(doc):
+    """Return {topic: type} the 3D panel advertises on load (Foxglove and Lichtblick's
+    ThreeDeeRender advertise all three of its publish tool's topics, whatever the click type)."""
+    pub = doc['configById']['3D!m4k']['publish']
+    return {pub['poseTopic']: 'geometry_msgs/msg/PoseStamped',
+            pub['pointTopic']: 'geometry_msgs/msg/PointStamped',
+            pub['poseEstimateTopic']: 'geometry_msgs/msg/PoseWithCovarianceStamped'}
+
+
 def test_the_layout_names_every_panel_it_places():
     doc = _layout()
 
@@ -201,8 +211,14 @@ def test_the_layout_names_every_panel_it_places():
 
     assert sorted(leaves(doc['layout'])) == sorted(doc['configById'])
     reads, writes = _layout_topics(doc)
-    assert {'/scan', '/odom', '/robot_description', '/diagnostics'} <= reads
+    assert {'/scan', '/odom', '/robot_description', '/diagnostics', '/sonar'} <= reads
     assert writes == {'/cmd_vel': 'geometry_msgs/msg/Twist', '/e_stop': 'std_msgs/msg/Bool'}
+    # The 3D panel draws only what both Foxglove and Lichtblick render there: the scan, the
+    # URDF placed by /tf (the robot's pose), the grid. Odometry and Range have no 3D renderer
+    # in Lichtblick; odometry's speed and the sonar's range are plotted instead.
+    assert set(doc['configById']['3D!m4k']['topics']) == {'/scan'}
+    # Its publish tool names the nav topics the server knows (nav_goals).
+    assert set(_panel_3d_publishes(doc)) == {'/goal_pose', '/clicked_point', '/initialpose'}
 
 
 def _share(pkg):
@@ -250,6 +266,117 @@ def test_teleop_on_cmd_vel_drives_the_robot_and_e_stop_stops_it(live):
             await ws.send(b'\x01' + struct.pack('<I', 2) + serialize_message(Bool(data=False)))
             await c.pump(0.5)
             assert not [s for s in c.statuses if s['level'] == 2], c.statuses
+
+    _run(main())
+
+
+EVIL = 'http://evil.example'
+
+
+def _raw_handshake(port, origin):
+    """Open a WebSocket by hand with ``origin``; return everything the server sent."""
+    s = socket.create_connection(('127.0.0.1', port))
+    s.settimeout(WAIT_S)
+    try:
+        key = base64.b64encode(os.urandom(16)).decode()
+        s.sendall(('GET / HTTP/1.1\r\nHost: localhost:{}\r\nUpgrade: websocket\r\n'
+                   'Connection: Upgrade\r\nSec-WebSocket-Key: {}\r\n'
+                   'Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {}\r\n'
+                   'Origin: {}\r\n\r\n'.format(port, key, SUBPROTOCOL, origin)).encode())
+        data = b''
+        while True:             # a refused handshake ends with the server closing
+            chunk = s.recv(4096)
+            if not chunk:
+                return data
+            data += chunk
+    finally:
+        s.close()
+
+
+def test_a_foreign_origin_is_refused_before_server_info_and_the_robot_stays_put(live):
+    # A web page open in the operator's browser reaches ws://localhost:8765 through the SSH
+    # tunnel as well as the Foxglove app does; the browser stamps the page's Origin on the
+    # handshake. It would advertise cmd_vel and drive -- if it got in.
+    port, runtime_dir, _ = live
+    start = ground_truth(runtime_dir)
+    forward = b'\x01' + struct.pack('<I', 1) + serialize_message(Twist(linear=Vector3(x=0.3)))
+
+    async def attack():
+        try:
+            async with connect('ws://127.0.0.1:{}'.format(port), subprotocols=[SUBPROTOCOL],
+                               origin=EVIL) as ws:
+                await ws.send(json.dumps({'op': 'advertise', 'channels': [
+                    {'id': 1, 'topic': '/cmd_vel', 'encoding': 'cdr',
+                     'schemaName': 'geometry_msgs/msg/Twist'}]}))
+                for _ in range(30):
+                    await ws.send(forward)
+                    await asyncio.sleep(0.1)
+                return 'served'
+        except InvalidStatus as exc:
+            return exc.response.status_code
+
+    for _ in range(3):
+        assert _run(attack()) == 403
+    data = _raw_handshake(port, EVIL)
+    assert data.startswith(b'HTTP/1.1 403'), data[:200]
+    assert b'serverInfo' not in data and b'/odom' not in data
+    after = ground_truth(runtime_dir)
+    assert abs(after['pose'][0] - start['pose'][0]) < 0.005, (start, after)
+    assert abs(after['v']) < 0.005
+
+    # The Foxglove web app's origin is served and drives the robot.
+    async def drive():
+        async with connect('ws://127.0.0.1:{}'.format(port), subprotocols=[SUBPROTOCOL],
+                           origin='https://app.foxglove.dev') as ws:
+            c = Client(ws)
+            await c.until(lambda: c.info is not None, 'serverInfo')
+            await ws.send(json.dumps({'op': 'advertise', 'channels': [
+                {'id': 1, 'topic': '/cmd_vel', 'encoding': 'cdr',
+                 'schemaName': 'geometry_msgs/msg/Twist'}]}))
+            deadline = time.monotonic() + WAIT_S
+            while ground_truth(runtime_dir)['pose'][0] - start['pose'][0] < 0.1:
+                assert time.monotonic() < deadline, 'the allowed client did not drive'
+                await ws.send(forward)
+                await c.pump(0.1)
+            assert not c.statuses, c.statuses
+
+    _run(drive())
+
+
+def test_the_layouts_publishers_as_the_app_advertises_them_raise_no_alert(live):
+    # On connect the app advertises what the layout's panels publish: the teleop panel,
+    # the e-stop buttons and the 3D panel's publish tool (goal, point, initial pose). Each
+    # refusal would be a red alert; there must be none, nor any warning.
+    port, _, _ = live
+    doc = _layout()
+    _, writes = _layout_topics(doc)
+    writes.update(_panel_3d_publishes(doc))
+
+    async def main():
+        async with connect('ws://127.0.0.1:{}'.format(port), subprotocols=[SUBPROTOCOL],
+                           origin='file://') as ws:          # the desktop app
+            c = Client(ws)
+            await c.until(lambda: '/m4k_bridge/reset_odometry' in c.services
+                          and '/odom' in c.channels, 'the graph')
+            chans = {t: i for i, t in enumerate(sorted(writes), start=1)}
+            await ws.send(json.dumps({'op': 'advertise', 'channels': [
+                {'id': i, 'topic': t, 'encoding': 'cdr', 'schemaName': writes[t]}
+                for t, i in chans.items()]}))
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                await c.pump(0.2)
+            assert c.statuses == []
+            # A click of the publish tool while no nav stack is configured: one error naming
+            # the parameter, and nothing reaches the graph.
+            from geometry_msgs.msg import PoseStamped
+            await ws.send(b'\x01' + struct.pack('<I', chans['/goal_pose'])
+                          + serialize_message(PoseStamped()))
+            await c.until(lambda: c.statuses, 'the status of the click')
+            assert c.statuses[0]['level'] == 2 and 'nav_goals' in c.statuses[0]['message']
+            end = time.monotonic() + 3.0           # more than two graph polls
+            while time.monotonic() < end:
+                await c.pump(0.2)
+            assert '/goal_pose' not in c.channels
 
     _run(main())
 
@@ -323,9 +450,17 @@ def test_reset_odometry_is_callable_and_the_bridge_parameters_readable(live):
             await c.until(lambda: '/m4k_bridge/reset_odometry' in c.services, 'the service')
             svc = c.services['/m4k_bridge/reset_odometry']
             assert svc['type'] == 'std_srvs/srv/Trigger'
-            fields = [ln.split('#')[0].split() for ln in svc['responseSchema'].splitlines()]
+            # The spec's current form (request/response objects), not the deprecated
+            # requestSchema/responseSchema strings Lichtblick warns about.
+            assert 'requestSchema' not in svc and 'responseSchema' not in svc
+            assert svc['request'] == {'encoding': 'cdr', 'schemaEncoding': 'ros2msg',
+                                      'schemaName': 'std_srvs/srv/Trigger_Request',
+                                      'schema': ''}
+            assert svc['response']['schemaName'] == 'std_srvs/srv/Trigger_Response'
+            assert (svc['response']['encoding'], svc['response']['schemaEncoding']) == (
+                'cdr', 'ros2msg')
+            fields = [ln.split('#')[0].split() for ln in svc['response']['schema'].splitlines()]
             assert [f for f in fields if f] == [['bool', 'success'], ['string', 'message']]
-            assert svc['requestSchema'] == ''
             enc = b'cdr'
             await ws.send(struct.pack('<BIII', 0x02, svc['id'], 42, len(enc)) + enc
                           + serialize_message(Trigger.Request()))

@@ -155,17 +155,29 @@ def test_ros2_launch_brings_the_stack_up_and_down(procs, tmp_path, m4k_runtime_d
         assert '[{}-'.format(name) in text and 'process has died' not in text, text[-3000:]
 
 
+def test_robot_state_publisher_true_is_refused_where_the_package_is_missing(monkeypatch,
+                                                                          m4k_runtime_dir):
+    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    try:
+        get_package_prefix('robot_state_publisher')
+    except PackageNotFoundError:
+        pass
+    else:
+        pytest.skip('robot_state_publisher is installed here: nothing to refuse')
+    with pytest.raises(RuntimeError, match='robot_state_publisher is not installed'):
+        _evaluate(monkeypatch, m4k_runtime_dir, robot_state_publisher='true', namespace='r1')
+
+
+@pytest.mark.needs_ros_package('robot_state_publisher')   # skipped, naming it, when absent
 def test_namespaced_launch_with_robot_state_publisher_keeps_one_tree(monkeypatch,
                                                                      m4k_runtime_dir):
     # namespace:=r1 robot_state_publisher:=true: the bridge publishes odom -> base_footprint
     # (and the wheels) on the absolute /tf, robot_state_publisher (in r1) the fixed joints on
-    # /tf_static -- tf2_ros's absolute topics -- and robot_description alone.
-    try:
-        nodes = _evaluate(monkeypatch, m4k_runtime_dir, robot_state_publisher='true',
-                          namespace='r1')
-    except RuntimeError as exc:   # the wheels path has no robot_state_publisher
-        assert 'robot_state_publisher is not installed' in str(exc)
-        return
+    # /tf_static -- tf2_ros's absolute topics -- and robot_description alone. Without the
+    # package the launch file refuses robot_state_publisher:=true (the test beside this one
+    # that needs no package checks that refusal).
+    nodes = _evaluate(monkeypatch, m4k_runtime_dir, robot_state_publisher='true',
+                      namespace='r1')
     exes = [n.node_executable for n in nodes]
     bridge = nodes[exes.index('bridge')]
     rsp = nodes[exes.index('robot_state_publisher')]

@@ -123,3 +123,16 @@ class LineWatch:
         """Wait for the stream's end; return the whole output."""
         self._thread.join(self.timeout)
         return ''.join(self.lines)
+
+
+def check_provenance(doc: dict) -> None:
+    """Assert a result file records this checkout's commit and the machine, not its name."""
+    import subprocess
+    head = subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=ROOT, capture_output=True,
+                          text=True, check=True).stdout.strip()
+    prov = doc['provenance']
+    assert prov['commit'] == head, (prov['commit'], head)
+    assert isinstance(prov['dirty'], bool)
+    machine = prov['machine']
+    assert machine['cpus_online'] >= 1 and machine['kernel'] and 'cpu_model' in machine
+    assert 'hostname' not in machine and 'node' not in machine

@@ -40,7 +40,7 @@ client.on('advertiseServices', (s) => { services = services.concat(s); });
 client.on('parameterValues', (p) => { params = p.parameters; });
 client.on('serviceCallResponse', (r) => {
   const svc = services.find((s) => s.id === r.serviceId);
-  reset = new MessageReader(parse(svc.responseSchema, { ros2: true })).readMessage(r.data);
+  reset = new MessageReader(parse(svc.response.schema, { ros2: true })).readMessage(r.data);
 });
 
 client.on('open', () => {
@@ -48,7 +48,7 @@ client.on('open', () => {
     client.getParameters([], 'all');
     const svc = services.find((s) => s.name.endsWith('/reset_odometry'));
     if (svc) {
-      const req = new MessageWriter(parse(svc.requestSchema, { ros2: true })).writeMessage({});
+      const req = new MessageWriter(parse(svc.request.schema, { ros2: true })).writeMessage({});
       client.sendServiceCallRequest({ serviceId: svc.id, callId: 1, encoding: 'cdr', data: req });
     }
     const twist = new MessageWriter(parse(

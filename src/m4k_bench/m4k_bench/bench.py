@@ -44,7 +44,7 @@ from typing import AbstractSet, Any, Callable, Sequence
 
 import numpy as np
 
-from m4k_bench.benchlib import analysis, plots, report, rounds, stack, system
+from m4k_bench.benchlib import analysis, plots, provenance, report, rounds, stack, system
 from m4k_bench.benchlib import progress as progress_mod
 from m4k_rt import config as rt_config_mod
 from m4k_rt import cycleprof, rosargs
@@ -330,10 +330,12 @@ class Bench:
         if actuator_period_ms is None:
             return self.args.rt_config
         import yaml
+
+        from m4k_rt import yamlload
         data: dict[str, Any] = {}
         if self.args.rt_config:
             with open(self.args.rt_config, encoding='utf-8') as f:
-                data = yaml.safe_load(f) or {}
+                data = yamlload.load(f) or {}
         data = rt_config_mod.deep_merge(data, {'tasks': {ACTUATOR: {
             'period_ms': actuator_period_ms}}})
         path = os.path.join(self.tmp, 'actuator_{:g}ms.yaml'.format(actuator_period_ms))
@@ -669,6 +671,7 @@ class Bench:
             plots.scaling(s['scaling'], os.path.join(self.outdir, 'scaling.png'))
             s['files'].append('scaling.png')
         s['method'] = report.method_lines(s, self.env.get('ROS_DOMAIN_ID'))
+        s['provenance'] = provenance.provenance()
         s['files'] = sorted(set(s['files']) | {'report.md', 'summary.json', 'rounds.json',
                                                'readme_snippet.md'})
         with open(os.path.join(self.outdir, 'rounds.json'), 'w', encoding='utf-8') as f:

@@ -49,6 +49,7 @@ from typing import Any, Sequence, TextIO
 
 import numpy as np
 
+from m4k_bench.benchlib import provenance
 from m4k_bench.planning.dwa import DwaConfig
 from m4k_bench.planning.evaluate import (
     contacts,
@@ -437,6 +438,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
     goal_reached = bool(len(odom) and err <= tolerance)
     verdict = judge(goal_reached, truth)
     summary: dict[str, Any] = {
+        'provenance': provenance.provenance(),
         'goal_reached': goal_reached,
         'final_error_m': round(err, 4),
         'min_clearance_m': round(float(clear.min()), 4) if len(clear) else None,

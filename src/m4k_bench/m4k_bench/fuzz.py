@@ -53,7 +53,7 @@ import time
 from typing import Any, Mapping, Sequence
 
 from m4k_bench import fuzzlinks, fuzzstream
-from m4k_bench.benchlib import stack, stallprobe
+from m4k_bench.benchlib import provenance, stack, stallprobe
 from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
 # rt_core registers the monitor body on import: config.load needs it to know that body.
@@ -475,6 +475,7 @@ def _summarize(args: argparse.Namespace, cfg: config.RtConfig, obs: fuzzlinks.Ob
         'config': args.config, 'quiet_s': quiet_s,
         'machine': {'node': platform.node(), 'kernel': platform.release(),
                     'cpus': os.cpu_count(), 'python': platform.python_version()},
+        'provenance': provenance.provenance(),
         'rt_status': None if st is None else dict(st._asdict()),
         # What rt_core could not send to the fuzzer's own links (its socket full): lost
         # batches, which show as missing samples above.

@@ -32,6 +32,7 @@ import tempfile
 import time
 from typing import Any, Sequence
 
+from m4k_bench.benchlib import provenance
 from m4k_rt import rosargs
 
 SUB = 'foxglove.websocket.v1'
@@ -245,7 +246,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     server = [{kv.key: kv.value for kv in st.values} for _, a in got['/diagnostics']
               for st in a.status if st.name == 'm4k_foxglove: server']
     summary = {'messages': {t: len(v) for t, v in got.items()},
-               'server': server[-1] if server else None}
+               'server': server[-1] if server else None,
+               'provenance': provenance.provenance()}
     with open(os.path.join(args.results, 'summary.json'), 'w') as f:
         json.dump(summary, f, indent=2)
         f.write('\n')

@@ -106,6 +106,22 @@ def test_a_20_kib_per_s_leak_fails_the_short_soak():
     assert v['limit_kib_per_min'] == pytest.approx(256.0 / 45.0 * 60.0)
 
 
+def test_a_20_kib_per_s_leak_fails_the_soak_make_test_runs_at_its_real_window():
+    # test/test_faults_soak.py runs soak.QUICK_*: sampled every second, judged after the
+    # warm-up. At that window the limit is 256 KiB / 20 s = 12.8 KiB/s: 20 KiB/s fails,
+    # 5 KiB/s (one allocator step spread over the window) does not.
+    def at_quick(rate: float) -> dict:
+        return soak.leak_verdict(_rss(rate, soak.QUICK_DURATION_S, every=soak.QUICK_SAMPLE_S),
+                                 soak.QUICK_WARMUP_S)
+
+    v = at_quick(20.0)
+    assert v['window_s'] == soak.QUICK_DURATION_S - soak.QUICK_WARMUP_S
+    assert v['verdict'] == 'GROWING', v
+    assert v['limit_kib_per_min'] < 20.0 * 60.0
+    assert at_quick(5.0)['verdict'] == 'flat'
+    assert at_quick(0.0)['verdict'] == 'flat'
+
+
 def test_a_20_kib_per_s_leak_fails_the_long_soak_and_a_flat_process_passes():
     assert soak.leak_verdict(_rss(20.0, 600), 60.0)['verdict'] == 'GROWING'
     assert soak.leak_verdict(_rss(0.0, 600), 60.0)['verdict'] == 'flat'

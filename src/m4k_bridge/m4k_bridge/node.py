@@ -63,7 +63,7 @@ from m4k_bridge.safety import SafetyInterface
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_bridge.tf import RobotStatePublisher
 from m4k_msgs.msg import RtStatus
-from m4k_rt import config, description, protocol, xddp
+from m4k_rt import config, description, protocol, xddp, yamlload
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
@@ -135,6 +135,11 @@ class BridgeNode(Node):
         self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
         runtime_dir = p['runtime_dir'] or None
         self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
+        group = p['runtime_group'] or None
+        try:     # as the RT side checks it, before anything links in it
+            xddp.check_runtime_dir(self._runtime_dir, group)
+        except OSError as exc:
+            raise params.ParamError('runtime_dir', str(exc)) from None
         # Outages, counters and the link / cmd_vel / device statuses (m4k_bridge.health).
         self.health = BridgeHealth(time.monotonic_ns(), self._runtime_dir)
 
@@ -164,7 +169,7 @@ class BridgeNode(Node):
         # The cmd port's first datagram on every link is the e-stop, when one is requested.
         safety = self._safety
         self._pumps = {role: PortPump(role, p.port(role), self._deliver, runtime_dir,
-                                      p['relink_interval'],
+                                      p['relink_interval'], group=group,
                                       preamble=(safety.link_preamble if role == 'cmd'
                                                 else None))
                        for role in params.PORT_ROLES}
@@ -607,10 +612,12 @@ def _check_param_files(argv: Sequence[str]) -> None:
     for path in param_files(argv):
         try:
             with open(path, encoding='utf-8') as f:
-                doc = yaml.safe_load(f)
+                doc = yamlload.load(f)
         except OSError as exc:
             raise params.ParamError('--params-file', 'cannot read {!r}: {} [errno {}]'.format(
                 path, exc.strerror, exc.errno)) from None
+        except yamlload.DuplicateKeyError as exc:
+            raise params.ParamError('--params-file', '{!r}: {}'.format(path, exc)) from None
         except yaml.YAMLError as exc:
             raise params.ParamError('--params-file', '{!r} is not valid YAML: {}'.format(
                 path, str(exc).replace('\n', ' '))) from None

@@ -73,6 +73,7 @@ DERIVED: dict[str, str] = {
     'sonar_frame': 'robot.sensors.sonar.frame',
     **{'ports.' + role: 'ports.' + role for role in PORT_ROLES},
     'robot_description': 'robot (with control.wheel_radius and control.track_width)',
+    'runtime_group': 'runtime.group',
 }
 
 _UNITS = {
@@ -150,6 +151,11 @@ SPECS: tuple[Field, ...] = (
               '$M4K_RUNTIME_DIR, $XDG_RUNTIME_DIR/m4k, /run/m4k as root, else /tmp/m4k-<uid>. '
               'Must be the one the RT process uses, or no port ever links.',
               read_only=True, check=_runtime_dir),
+    ParamSpec('runtime_group', '', 'Group of the runtime directory (derived: runtime.group). '
+              'Before linking, the bridge checks the directory as the RT side does: not a '
+              'symlink, owned by this user (root, or a member of this group), mode 0700 '
+              '(0770 with this group); a directory that fails is refused (exit 2) rather than '
+              'linked to sockets someone else could have planted.', read_only=True),
     *(ParamSpec('ports.' + role, role, 'XDDP port label (or number) of the RT side for {!r}. '
                 'Derived: the label {!r} of the ports section (config/m4k.yaml); a wrong one '
                 'never links, and the bridge reports the RT process lost.'.format(role, role),
@@ -296,6 +302,9 @@ def derived_values(doc: Mapping[str, Any], base_frame: str = 'base_link',
     out['cmd_vel_timeout'] = control.cmd_vel_timeout
     out['max_linear_velocity'] = control.linear.max_velocity
     out['max_angular_velocity'] = control.angular.max_velocity
+    runtime = doc.get('runtime')
+    if isinstance(runtime, Mapping):
+        out['runtime_group'] = runtime.get('group') or ''
     ports = doc.get('ports')
     if isinstance(ports, Mapping):
         for role in PORT_ROLES:

@@ -34,7 +34,7 @@ class PortPump:
 
     def __init__(self, role: str, port: int | str, deliver: Callable[[str, bytes, int], None],
                  runtime_dir: str | None = None, retry_interval: float = 0.5,
-                 outbox_size: int = 16,
+                 outbox_size: int = 16, group: str | None = None,
                  preamble: Optional[Callable[[], bytes | None]] = None) -> None:
         """Create the pump (not started); ``preamble`` is called on every new link.
 
@@ -48,7 +48,7 @@ class PortPump:
         self.port = port
         self._deliver = deliver
         self._link = xddp.NrtLink(port, runtime_dir, retry_interval=retry_interval,
-                                  handshake_timeout=2.0)
+                                  handshake_timeout=2.0, group=group)
         self._retry = retry_interval
         self._outbox: collections.deque[bytes] = collections.deque()
         self._outbox_size = outbox_size

@@ -233,3 +233,184 @@ def test_a_port_in_use_is_a_clear_error(server):
     other = Server(Handler(), '127.0.0.1', server.port)
     with pytest.raises(OSError, match='address already in use'):
         other.start()
+
+
+# --- who may connect: Origin, token, caps ------------------------------------------------------
+
+def _handshake(port, origin=None, path='/'):
+    """Do a raw RFC 6455 handshake; return (status line, everything the server sent)."""
+    s = socket.create_connection(('127.0.0.1', port))
+    try:
+        key = base64.b64encode(os.urandom(16)).decode()
+        s.sendall(('GET {} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nUpgrade: websocket\r\n'
+                   'Connection: Upgrade\r\nSec-WebSocket-Key: {}\r\n'
+                   'Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {}\r\n{}\r\n'.format(
+                       path, port, key, SUB,
+                       '' if origin is None else 'Origin: {}\r\n'.format(origin))).encode())
+        s.settimeout(10.0)
+        data = b''
+        while b'\r\n\r\n' not in data:
+            chunk = s.recv(4096)
+            if not chunk:
+                break
+            data += chunk
+        if data.startswith(b'HTTP/1.1 101'):
+            # Accepted: serverInfo is the first frame (an unmasked text frame).
+            while b'serverInfo' not in data:
+                chunk = s.recv(4096)
+                assert chunk, data
+                data += chunk
+        else:
+            while True:     # refused: the server closes after its HTTP response
+                chunk = s.recv(4096)
+                if not chunk:
+                    break
+                data += chunk
+        return data.split(b'\r\n', 1)[0].decode(), data
+    finally:
+        s.close()
+
+
+@pytest.mark.parametrize('origin', ['http://evil.example', 'https://app.foxglove.dev.evil.io',
+                                    'http://localhost.evil.io:8080', 'null',
+                                    'https://app.foxglove.dev:8443'])
+def test_a_foreign_origin_is_refused_with_403_before_server_info(server, origin):
+    server.add_channel('/odom', 'nav_msgs/msg/Odometry', 'y')
+    status, data = _handshake(server.port, origin)
+    assert status.startswith('HTTP/1.1 403'), status
+    assert b'allowed_origins' in data
+    assert b'serverInfo' not in data and b'/odom' not in data
+    assert server.stats() == [] and server.clients_total == 0
+    assert server.refused['origin'] >= 1
+
+
+@pytest.mark.parametrize('origin', [None, 'https://app.foxglove.dev', 'file://',
+                                    'http://localhost:8080', 'http://127.0.0.1:3000',
+                                    'http://[::1]:8080', 'HTTP://LOCALHOST:5173',
+                                    'http://localhost'])
+def test_native_clients_the_apps_and_localhost_pages_are_served(server, origin):
+    status, data = _handshake(server.port, origin)
+    assert status.startswith('HTTP/1.1 101'), (status, data)
+    assert b'"op":"serverInfo"' in data
+
+
+def test_the_allow_list_is_configurable():
+    from m4k_bridge.foxglove.access import OriginPolicy
+    srv = Server(Handler(), '127.0.0.1', 0, origins=OriginPolicy(['https://viz.example:8443']))
+    srv.start()
+    try:
+        assert _handshake(srv.port, 'https://viz.example:8443')[0].startswith('HTTP/1.1 101')
+        assert _handshake(srv.port, 'https://viz.example')[0].startswith('HTTP/1.1 403')
+        assert _handshake(srv.port, 'http://localhost:8080')[0].startswith('HTTP/1.1 403')
+        assert _handshake(srv.port, None)[0].startswith('HTTP/1.1 101')
+    finally:
+        srv.stop()
+
+
+def test_the_websockets_client_sees_the_refusal_as_http_403(server):
+    async def main():
+        with pytest.raises(InvalidStatus) as exc:
+            async with connect('ws://127.0.0.1:{}'.format(server.port), subprotocols=[SUB],
+                               origin='http://evil.example'):
+                pass
+        assert exc.value.response.status_code == 403
+
+    asyncio.run(main())
+
+
+def test_with_a_token_only_a_client_that_gives_it_is_served():
+    token = 'a' * 12 + 'Z-9_'
+    srv = Server(Handler(), '127.0.0.1', 0, token=token)
+    srv.start()
+    try:
+        assert _handshake(srv.port, None, '/')[0].startswith('HTTP/1.1 401')
+        assert _handshake(srv.port, None, '/?token=wrong')[0].startswith('HTTP/1.1 401')
+        assert _handshake(srv.port, None, '/?token={}&token={}'.format(token, token))[0] \
+            .startswith('HTTP/1.1 401')
+        status, data = _handshake(srv.port, 'https://app.foxglove.dev', '/?token=' + token)
+        assert status.startswith('HTTP/1.1 101') and b'serverInfo' in data
+        # The token does not open the door to a foreign page.
+        assert _handshake(srv.port, 'http://evil.example', '/?token=' + token)[0] \
+            .startswith('HTTP/1.1 403')
+        assert srv.refused['token'] == 3
+    finally:
+        srv.stop()
+
+
+def test_one_client_more_than_max_clients_is_refused_and_a_freed_place_is_served():
+    srv = Server(Handler(), '127.0.0.1', 0, max_clients=2)
+    srv.start()
+
+    async def main():
+        url = 'ws://127.0.0.1:{}'.format(srv.port)
+        async with connect(url, subprotocols=[SUB]) as a, connect(url, subprotocols=[SUB]):
+            assert json.loads(await a.recv())['op'] == 'serverInfo'
+            _wait(lambda: len(srv.stats()) == 2, 'two clients')
+            with pytest.raises(InvalidStatus) as exc:
+                async with connect(url, subprotocols=[SUB]):
+                    pass
+            assert exc.value.response.status_code == 503
+            assert b'max_clients' in exc.value.response.body
+        _wait(lambda: len(srv.stats()) == 0, 'the clients gone')
+        async with connect(url, subprotocols=[SUB]) as c:
+            assert json.loads(await c.recv())['op'] == 'serverInfo'
+
+    try:
+        asyncio.run(main())
+        assert srv.refused['clients'] == 1
+    finally:
+        srv.stop()
+
+
+def test_a_client_may_advertise_at_most_max_client_channels():
+    handler = Handler()
+    srv = Server(handler, '127.0.0.1', 0, capabilities=('clientPublish',),
+                 max_client_channels=2)
+    srv.start()
+
+    async def main():
+        async with connect('ws://127.0.0.1:{}'.format(srv.port), subprotocols=[SUB]) as ws:
+            await ws.send(json.dumps({'op': 'advertise', 'channels': [
+                {'id': i, 'topic': '/cmd_vel', 'encoding': 'cdr',
+                 'schemaName': 'geometry_msgs/msg/Twist'} for i in (1, 2, 3)]}))
+            while True:
+                doc = json.loads(await ws.recv())
+                if doc['op'] == 'status':
+                    return doc
+
+    try:
+        status = asyncio.run(main())
+        assert status['level'] == 2
+        assert 'max_client_channels' in status['message'] and '2 channels' in status['message']
+        assert [c['id'] for c in handler.advertised] == [1, 2]
+    finally:
+        srv.stop()
+
+
+def test_origin_patterns_are_validated_and_matched_exactly():
+    from m4k_bridge.foxglove.access import AccessError, OriginPolicy
+    p = OriginPolicy(['https://app.foxglove.dev', 'http://localhost:*', 'file://'])
+    assert p.allows(None) and p.allows('file://') and p.allows('http://localhost:1')
+    assert not p.allows('https://app.foxglove.dev/') and not p.allows('http://localhost:x')
+    assert not p.allows('http://localhost:8080@evil.io') and not p.allows('')
+    for bad in ('app.foxglove.dev', 'https://app.foxglove.dev/', '*', 'http://*:80'):
+        with pytest.raises(AccessError, match='allowed_origins'):
+            OriginPolicy([bad])
+
+
+def test_a_token_file_others_can_read_or_a_short_token_is_refused(tmp_path):
+    from m4k_bridge.foxglove.access import AccessError, read_token_file
+    f = tmp_path / 'token'
+    f.write_text('0123456789abcdef0123\n')
+    os.chmod(f, 0o644)
+    with pytest.raises(AccessError, match='chmod 600'):
+        read_token_file(str(f))
+    os.chmod(f, 0o600)
+    assert read_token_file(str(f)) == '0123456789abcdef0123'
+    f.write_text('short\n')
+    with pytest.raises(AccessError, match='at least 16'):
+        read_token_file(str(f))
+    link = tmp_path / 'link'
+    link.symlink_to(f)
+    with pytest.raises(AccessError, match='cannot open'):
+        read_token_file(str(link))

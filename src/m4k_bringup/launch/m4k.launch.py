@@ -3,6 +3,7 @@
     ros2 launch m4k_bringup m4k.launch.py [config:=/path/overlay.yaml] [namespace:=robot1]
         [robot:=r1] [sim:=auto|true|false] [robot_state_publisher:=false|true]
         [bridge_params:=FILE[,FILE...]] [foxglove:=false|true] [foxglove_address:=127.0.0.1]
+        [foxglove_params:=FILE]
 
 Starts what ``bringup`` starts, built by bringup's own code (``child_specs``,
 ``bridge_overlay``, ``uses_sim``) from the same layered configuration and overlay: the
@@ -126,9 +127,10 @@ def _nodes(context, *args, **kwargs):
             else:
                 actions.append(node)
     if _flag(context, 'foxglove'):
+        live_params = [arg('foxglove_params')] if arg('foxglove_params') else []
         actions.append(Node(package='m4k_bridge', executable='foxglove', name='m4k_foxglove',
                             namespace=namespace, output='screen', parameters=[
-                                {'address': arg('foxglove_address')}]))
+                                *live_params, {'address': arg('foxglove_address')}]))
     if with_rsp:
         if not _installed('robot_state_publisher', 'robot_state_publisher'):
             raise RuntimeError('robot_state_publisher:=true but robot_state_publisher is not '
@@ -187,7 +189,10 @@ def generate_launch_description():
         DeclareLaunchArgument('foxglove', default_value='false',
                               description='serve the live view (Foxglove WebSocket, port 8765)'),
         DeclareLaunchArgument('foxglove_address', default_value='127.0.0.1',
-                              description='address of the live view; 0.0.0.0 serves the LAN '
-                              'without authentication'),
+                              description='address of the live view; 0.0.0.0 serves the LAN: '
+                              'give it a token_file (foxglove_params) and firewall it'),
+        DeclareLaunchArgument('foxglove_params', default_value='',
+                              description='ROS parameter file of the live view (m4k_foxglove: '
+                              'token_file, allowed_origins, nav_goals, ...)'),
         OpaqueFunction(function=_nodes),
     ])

@@ -386,16 +386,24 @@ def uses_sim(doc: Mapping[str, Any] | None) -> bool:
                for s in devices.values())
 
 
-def foxglove_spec(address: str = '127.0.0.1', port: int = 8765) -> ChildSpec:
-    """Return how to run the Foxglove WebSocket server (the live view) on ``address:port``."""
+def foxglove_spec(address: str = '127.0.0.1', port: int = 8765,
+                  params_file: str | None = None) -> ChildSpec:
+    """Return how to run the Foxglove WebSocket server (the live view) on ``address:port``.
+
+    ``params_file``: a ROS parameter file with an ``m4k_foxglove:`` section (token_file,
+    allowed_origins, nav_goals, ...); address and port given here win over it.
+    """
+    extra = ('--params-file', params_file) if params_file else ()
     return ChildSpec('foxglove', 'm4k_bridge', 'foxglove', 'm4k_bridge.foxglove.node',
-                     ('--ros-args', '-p', 'address:=' + address, '-p', 'port:={:d}'.format(port)))
+                     ('--ros-args', *extra, '-p', 'address:=' + address,
+                      '-p', 'port:={:d}'.format(port)))
 
 
 def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
                 runtime_dir: str, sim: bool = True, foxglove: str | None = None,
                 foxglove_port: int = 8765, namespace: str = '',
-                extra_params: Sequence[str] = ()) -> list[ChildSpec]:
+                extra_params: Sequence[str] = (),
+                foxglove_params: str | None = None) -> list[ChildSpec]:
     """Return the children with their arguments, in start order (sim_robot first if ``sim``).
 
     ``foxglove``: the address to serve the live view on (None: no live view), on
@@ -411,7 +419,7 @@ def child_specs(overlay: str | None, bridge_params_file: str, bridge_yaml: str,
         host_args += ('--overlay', overlay)
     live = []
     if foxglove:
-        spec = foxglove_spec(foxglove, foxglove_port)
+        spec = foxglove_spec(foxglove, foxglove_port, foxglove_params)
         live = [dataclasses.replace(spec, args=spec.args + ns_args)]
     return [sim_robot_spec(runtime_dir, overlay)] * sim + [
         ChildSpec('rt_core', 'm4k_rt', 'rt_core', 'm4k_rt.rt_core', rt_args),
@@ -529,10 +537,15 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--foxglove', action='store_true', help='serve the live view to Foxglove '
                     '(WebSocket protocol, port 8765, localhost only: use an SSH tunnel)')
     ap.add_argument('--foxglove-address', metavar='ADDR', default='127.0.0.1',
-                    help='address the live view listens on; 0.0.0.0 serves the LAN WITHOUT '
-                    'AUTHENTICATION (anyone who reaches it can drive the robot: firewall it)')
+                    help='address the live view listens on; 0.0.0.0 serves the LAN: give it '
+                    'a token_file (--foxglove-params) and firewall it, or anyone who reaches '
+                    'it can drive the robot')
     ap.add_argument('--foxglove-port', metavar='PORT', type=int, default=8765,
                     help='port of the live view (0: any free port, logged)')
+    ap.add_argument('--foxglove-params', metavar='FILE',
+                    help='ROS parameter file of the live view (m4k_foxglove: ros__parameters: '
+                    'token_file, allowed_origins, nav_goals, max_clients, ...; '
+                    'docs/live-view.md)')
     return rosargs.parse_args(ap, argv)
 
 
@@ -577,6 +590,15 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
     except ValueError as exc:
         _err('usage: {}'.format(exc))
         return CONFIG_ERROR
+    if args.foxglove_params:        # before any child: the live view would only exit 2
+        from m4k_bridge.foxglove import params as foxglove_params
+        from m4k_rt import yamlload
+        try:
+            with open(args.foxglove_params, encoding='utf-8') as f:
+                foxglove_params.check_param_file(yamlload.load(f), args.foxglove_params)
+        except (OSError, ValueError, yaml.YAMLError) as exc:
+            _err('config error: m4k_foxglove: {}'.format(exc))
+            return CONFIG_ERROR
     owner = lock_owner(runtime_dir)
     if owner is not None:
         _err('another m4k stack owns {} (rt_core pid {}); stop it first'.format(
@@ -609,7 +631,9 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
     children = [Child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,
                                      args.foxglove_address if args.foxglove else None,
-                                     args.foxglove_port, args.namespace, extra)]
+                                     args.foxglove_port, args.namespace, extra,
+                                     os.path.abspath(args.foxglove_params)
+                                     if args.foxglove_params else None)]
     sup = Supervisor(children, console, args.max_restarts)
     status = None
     try:

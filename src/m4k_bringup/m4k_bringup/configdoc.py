@@ -12,12 +12,14 @@ import sys
 from typing import Sequence
 
 from m4k_bridge import params as bridge_params
+from m4k_bridge.foxglove import params as foxglove_params
 from m4k_drivers.config import schema_sections, world_sections
 from m4k_rt import rosargs, schema
 
 
 def all_sections() -> list[schema.Section]:
-    """Return every section: the RT side's, each device backend's, the world's, the bridge's."""
+    """Return every section: the RT side, each device backend, the world, the bridge, the
+    live view."""
     sections = schema.rt_sections()
     sections += schema_sections()
     sections += world_sections()
@@ -27,6 +29,11 @@ def all_sections() -> list[schema.Section]:
         'Declared with these descriptors (`ros2 param describe /m4k_bridge <name>`). Derived '
         'parameters are not in bridge.yaml: bringup, the launch file and a bridge started by '
         'hand compute them from the layered configuration.'))
+    sections.append(schema.Section(
+        'm4k_foxglove', 'm4k_foxglove ROS parameters (the live view, docs/live-view.md)',
+        {s.name: s for s in foxglove_params.SPECS},
+        'Read-only, set at start (`ros2 run m4k_bridge foxglove --ros-args -p name:=value`, '
+        '`bringup --foxglove-address/--foxglove-port`).'))
     return sections
 
 

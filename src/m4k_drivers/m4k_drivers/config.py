@@ -62,11 +62,15 @@ def default_config_path() -> Path:
 def load_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read one YAML file into a mapping (ConfigError naming the path on failure)."""
     import yaml
+
+    from m4k_rt import yamlload
     try:
         with open(path, encoding='utf-8') as fh:
-            data = yaml.safe_load(fh)
+            data = yamlload.load(fh)
     except OSError as exc:
         raise ConfigError(f'{path}: {exc.strerror} (errno {exc.errno})') from exc
+    except yamlload.DuplicateKeyError as exc:
+        raise ConfigError(f'{path}: {exc}') from None
     except yaml.YAMLError as exc:
         raise ConfigError(f'{path}: invalid YAML: {exc}') from exc
     if data is None:

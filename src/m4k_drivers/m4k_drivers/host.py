@@ -36,7 +36,7 @@ from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, 
 from m4k_rt import description, protocol, rosargs
 from m4k_rt.sched import SchedError, set_thread_fifo
 from m4k_rt.stopsignals import run_stoppable, StopSignals
-from m4k_rt.xddp import NrtLink
+from m4k_rt.xddp import check_runtime_dir, NrtLink
 
 __all__ = ['DEVICE_MODULES_ENV', 'DeviceService', 'format_reading', 'load_raw_config', 'main']
 
@@ -77,7 +77,7 @@ class DeviceService:
 
     def __init__(self, kind: str, handler: DeviceHandler, section: dict[str, Any],
                  port: int | str, stop: threading.Event, runtime_dir: str | None = None,
-                 status_period_s: float = 1.0) -> None:
+                 status_period_s: float = 1.0, group: str | None = None) -> None:
         self.kind = kind
         self.spec = registry.service(kind)
         self.handler = handler
@@ -85,6 +85,7 @@ class DeviceService:
         self.port = port
         self.stop = stop
         self.runtime_dir = runtime_dir
+        self.group = group
         self.status_period_s = status_period_s
         self.link: Any = None
         self.seq = 0
@@ -158,7 +159,7 @@ class DeviceService:
         timeout = spec.read_timeout(self.section)
         stream = spec.stream_period(self.section)
         self._set_priority()
-        self.link = NrtLink(self.port, self.runtime_dir)
+        self.link = NrtLink(self.port, self.runtime_dir, group=self.group)
         next_stream = time.monotonic()
         try:
             while not self.stop.is_set():
@@ -402,6 +403,13 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
             print(f'driver_host: {exc}', file=sys.stderr)
             return 2
     runtime_dir = args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir')
+    group = (raw.get('runtime') or {}).get('group')
+    try:
+        # As the RT side checks it: the ports and the sim bus are linked in there.
+        check_runtime_dir(runtime_dir, group)
+    except OSError as exc:
+        print(f'driver_host: {exc}', file=sys.stderr)
+        return 2
     # sim backends reach sim_robot through the sim-bus socket in the runtime directory.
     ctx = registry.BuildContext(world_config=cfg.world_raw, runtime_dir=runtime_dir)
     if standin:
@@ -439,19 +447,20 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
             print(f'driver_host: {exc}', file=sys.stderr)
             handler.shutdown()
             return 2
-    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop)
+    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop, group)
 
 
 def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
            devices: dict[str, Any], ports: dict[str, Any], runtime_dir: str | None,
-           stop: threading.Event) -> int:
+           stop: threading.Event, group: str | None = None) -> int:
     services = []
     for kind, handler in handlers.items():
         # An explicit xddp_port wins; else the RT side's ports table; else the default.
         explicit = 'xddp_port' in (devices.get(kind) or {})
         port = cfg.devices[kind]['xddp_port'] if explicit else ports.get(
             kind, cfg.devices[kind]['xddp_port'])
-        services.append(DeviceService(kind, handler, cfg.devices[kind], port, stop, runtime_dir))
+        services.append(DeviceService(kind, handler, cfg.devices[kind], port, stop, runtime_dir,
+                                      group=group))
     for s in services:
         s.start()
     LOG.info('serving %s', ', '.join(f'{s.kind}@{s.port}' for s in services))

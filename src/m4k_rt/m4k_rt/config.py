@@ -17,7 +17,7 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
-from m4k_rt import schema
+from m4k_rt import schema, yamlload
 from m4k_rt.schema import ConfigError
 
 __all__ = [
@@ -120,10 +120,12 @@ def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, An
 def _read_yaml(path: str) -> dict[str, Any]:
     try:
         with open(path, encoding='utf-8') as f:
-            doc = yaml.safe_load(f)
+            doc = yamlload.load(f)
     except OSError as exc:
         raise ConfigError(path, 'cannot read: {} [errno {}]'.format(exc.strerror, exc.errno),
                           path) from exc
+    except yamlload.DuplicateKeyError as exc:
+        raise ConfigError(path, str(exc), exc.key) from None
     except yaml.YAMLError as exc:
         raise ConfigError(path, 'not valid YAML: {}'.format(
             str(exc).replace('\n', ' '))) from exc

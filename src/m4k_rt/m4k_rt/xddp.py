@@ -159,6 +159,55 @@ def ensure_runtime_dir(path: str | None = None, group: str | int | None = None) 
     return path
 
 
+def check_runtime_dir(path: str | None = None, group: str | int | None = None) -> str:
+    """Check, as the NRT side, the runtime directory the RT side made; return its path.
+
+    The NRT side neither creates nor changes it (a missing directory is only "nothing bound
+    yet"), but before it links it refuses what :func:`ensure_runtime_dir` refuses: a symlink
+    or non-directory, an owner it cannot trust, permissions wider than 0700 (0770 with a
+    group), another group than the configured one. Trusted owners: this user, root, and with
+    a group its members (the RT process may run as another member). Else whoever made the
+    directory could have planted the sockets: a fake RT side that reads the commands or feeds
+    odometry. A peer of a stack configured with a group must be given that group.
+    """
+    path = os.path.abspath(path or default_runtime_dir())
+    gid = _gid(group)
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return path
+    except OSError as exc:
+        raise XddpError('cannot check runtime directory {!r}: {}'.format(
+            path, exc.strerror), path, exc.errno) from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise XddpError('runtime directory {!r} is not a directory (symlinks are refused)'.format(
+            path), path, errno.ENOTDIR)
+    euid = os.geteuid()
+    if st.st_uid not in (euid, 0) and not (gid is not None and _member(st.st_uid, gid)):
+        raise XddpError('runtime directory {!r} is owned by uid {}, not by uid {}{}: refusing '
+                        'to link to it'.format(path, st.st_uid, euid, '' if gid is None else
+                                               ' or a member of group {}'.format(gid)),
+                        path, errno.EPERM)
+    perm = st.st_mode & 0o777
+    mode = 0o770 if gid is not None else 0o700
+    if perm & ~mode:
+        raise XddpError('runtime directory {!r} has mode {:04o}, wider than {:04o}: refusing to '
+                        'link to it'.format(path, perm, mode), path, errno.EPERM)
+    if gid is not None and st.st_gid != gid:
+        raise XddpError('runtime directory {!r} has group {}, expected {}'.format(
+            path, st.st_gid, gid), path, errno.EPERM)
+    return path
+
+
+def _member(uid: int, gid: int) -> bool:
+    import pwd
+    try:
+        user = pwd.getpwuid(uid)
+        return user.pw_gid == gid or user.pw_name in grp.getgrgid(gid).gr_mem
+    except KeyError:
+        return False
+
+
 def _check_port(port: Any, max_ports: int) -> int:
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port < max_ports:
         raise XddpPortError('port {!r} is not an integer in [0, {})'.format(port, max_ports),
@@ -602,17 +651,20 @@ def _connect(path: str, mode: str | None, timeout: float) -> tuple[socket.socket
 def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
                   runtime_dir: str | None = None, max_ports: int = DEFAULT_MAX_PORTS,
                   mode: str | None = None,
-                  handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT) -> NrtXddpEndpoint:
+                  handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT,
+                  group: str | int | None = None) -> NrtXddpEndpoint:
     """Open the NRT side of a port by number or label (like ``open('/dev/rtpN')``).
 
     ``wait=0`` fails fast with XddpNotBoundError, ``None`` waits forever, a float waits that
     many seconds for the RT side to bind. ``mode=None`` detects message or stream mode.
-    Raise XddpBusyError when another NRT peer is linked.
+    Raise XddpBusyError when another NRT peer is linked, XddpError when the runtime
+    directory fails :func:`check_runtime_dir` (with the configured ``group``).
     """
     if mode is not None and mode not in MODES:
         raise XddpPortError('mode {!r} is not one of {}'.format(mode, sorted(MODES)),
                             None, errno.EINVAL)
     path = port_path(port_or_label, runtime_dir, max_ports)
+    check_runtime_dir(os.path.dirname(path), group)
     deadline = None if wait is None else time.monotonic() + wait
     while True:
         try:
@@ -650,10 +702,12 @@ class NrtLink:
     def __init__(self, port_or_label: int | str, runtime_dir: str | None = None, *,
                  retry_interval: float = 0.5, max_ports: int = DEFAULT_MAX_PORTS,
                  mode: str | None = None, write_timeout: float | None = 1.0,
-                 handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT) -> None:
+                 handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT,
+                 group: str | int | None = None) -> None:
         port_path(port_or_label, runtime_dir, max_ports)  # validate now, not on first use
         self.port_or_label = port_or_label
         self.runtime_dir = runtime_dir
+        self.group = group
         self.retry_interval = retry_interval
         self.max_ports = max_ports
         self.mode = mode
@@ -682,7 +736,7 @@ class NrtLink:
         try:
             ep = nrt_xddp_open(self.port_or_label, wait=0.0, runtime_dir=self.runtime_dir,
                                max_ports=self.max_ports, mode=self.mode,
-                               handshake_timeout=self.handshake_timeout)
+                               handshake_timeout=self.handshake_timeout, group=self.group)
         except OSError as exc:  # not bound, busy, permission: keep trying, keep the reason
             self.last_error = exc
             return None

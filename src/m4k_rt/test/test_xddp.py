@@ -580,6 +580,57 @@ def test_unknown_group_is_refused(rundir):
         xddp.ensure_runtime_dir(group='no-such-group-m4k')
 
 
+# ---- the NRT side checks the runtime directory too, before it links ----
+
+def test_nrt_side_accepts_what_the_rt_side_made_and_a_missing_directory(rundir):
+    assert xddp.check_runtime_dir() == rundir            # absent: nothing bound yet
+    with xddp.rt_xddp_bind(1, 'imu') as rt:
+        assert xddp.check_runtime_dir() == rundir
+        with open_while_polling([rt], 'imu', wait=5.0) as ep:
+            assert ep.path.endswith('label.imu')
+
+
+def test_nrt_side_accepts_a_group_directory_with_its_group(rundir):
+    gid = os.getgid() if os.geteuid() != 0 else 65534
+    with xddp.rt_xddp_bind(1, group=gid) as rt:
+        assert xddp.check_runtime_dir(group=gid) == rundir
+        with open_while_polling([rt], 1, wait=5.0, group=gid):
+            pass
+        with pytest.raises(XddpError, match='wider than 0700'):   # a peer not told the group
+            xddp.nrt_xddp_open(1, wait=0.0)
+        other = 65533 if gid != 65533 else 65532
+        with pytest.raises(XddpError, match='has group {}, expected {}'.format(gid, other)):
+            xddp.check_runtime_dir(group=other)
+
+
+@pytest.mark.parametrize('mode', [0o755, 0o777, 0o707])
+def test_nrt_side_refuses_a_directory_others_may_write_or_read(rundir, mode):
+    os.mkdir(rundir)
+    os.chmod(rundir, mode)
+    with pytest.raises(XddpError, match='wider than 0700') as info:
+        xddp.nrt_xddp_open(1, wait=0.0)
+    assert info.value.errno == errno.EPERM
+    link = xddp.NrtLink(1, retry_interval=0.01)
+    assert link.write(b'x') is False and 'wider than' in str(link.last_error)
+    assert stat.S_IMODE(os.stat(rundir).st_mode) == mode     # checked, never changed
+
+
+def test_nrt_side_refuses_a_symlinked_runtime_directory(rundir):
+    real = rundir + '.real'
+    os.mkdir(real, 0o700)
+    os.symlink(real, rundir)
+    with pytest.raises(XddpError, match='symlinks are refused'):
+        xddp.nrt_xddp_open(1, wait=0.0)
+
+
+@pytest.mark.needs_root('to chown the directory to another user')
+def test_nrt_side_refuses_a_runtime_directory_of_another_user(rundir):
+    os.mkdir(rundir, 0o700)
+    os.chown(rundir, 54321, -1)
+    with pytest.raises(XddpError, match='owned by uid 54321'):
+        xddp.nrt_xddp_open(1, wait=0.0)
+
+
 needs_root = pytest.mark.needs_root('to chown and to run a child as nobody')
 
 CONNECT_AS_NOBODY = """

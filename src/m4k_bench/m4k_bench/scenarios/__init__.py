@@ -14,11 +14,12 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import subprocess
 import sys
 import tempfile
 import time
 from typing import Sequence
+
+from m4k_bench.benchlib import provenance
 
 __all__ = ['main']
 
@@ -71,14 +72,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not res.passed and res.log_tail:
                 print('    bringup log tail:\n      ' + res.log_tail.replace('\n', '\n      '),
                       file=sys.stderr)
-    try:
-        rev = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True,
-                             text=True, check=False).stdout.strip() or '?'
-    except OSError:
-        rev = '?'
+    prov = provenance.provenance()
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
     header = (f'# Scenario suite ({"short" if args.short else "full"} versions)\n\n'
-              f'`make scenarios` at {rev}, {stamp}, {time.monotonic() - t_all:.0f} s. Every '
+              f'`make scenarios` at {provenance.text(prov)}; {stamp}, '
+              f'{time.monotonic() - t_all:.0f} s. Every '
               f"number is the simulator's ground truth (sim_truth), never odometry. Bounds from "
               f'config/ (m4k_bench.scenarios.bounds); the scenarios are config/scenarios/*.yaml; '
               f'one plot per scenario beside this file.')

@@ -42,6 +42,8 @@ from typing import Any
 
 import yaml
 
+from m4k_rt import yamlload
+
 __all__ = ['Command', 'Fault', 'Scenario', 'ScenarioError', 'STOP_CAUSES', 'load', 'load_dir']
 
 STOP_CAUSES = ('sonar', 'laser', 'sonar_unplugged', 'laser_unplugged', 'bridge_killed',
@@ -204,7 +206,7 @@ def load(path: str) -> Scenario:
     """Load and validate one scenario file (the world section too, as the simulator will)."""
     with open(path, encoding='utf-8') as f:
         try:
-            doc = yaml.safe_load(f)
+            doc = yamlload.load(f)
         except yaml.YAMLError as exc:
             raise ScenarioError(f'{path}: not YAML: {exc}') from None
     sc = parse(doc, path)

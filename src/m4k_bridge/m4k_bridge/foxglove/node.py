@@ -21,8 +21,13 @@ bridge's ``~/reset_odometry``.
 
 Security: the protocol has no authentication: anyone who reaches the port sees the robot and,
 with ``clientPublish``, drives it. The server therefore listens on 127.0.0.1 by default; reach
-it with an SSH tunnel (``ssh -L 8765:localhost:8765 robot``). ``address:=0.0.0.0`` serves the
-LAN -- only behind a firewall that admits the operators' machines.
+it with an SSH tunnel (``ssh -L 8765:localhost:8765 robot``). Web pages in the operator's
+browser can reach that tunnel too: the handshake's ``Origin`` must be on ``allowed_origins``
+(the Foxglove and Lichtblick apps and localhost pages by default) or it gets HTTP 403 before
+anything is served. ``address:=0.0.0.0`` serves the LAN -- with ``token_file`` (clients add
+``?token=...`` to the URL) and behind a firewall that admits the operators' machines.
+``max_clients`` and ``max_client_channels`` bound what clients can make the node allocate.
+Parameters: :data:`m4k_bridge.foxglove.params.SPECS` (all read-only).
 
 Diagnostics (``m4k_foxglove: server`` on ``diagnostics``, each ``diagnostics_period``):
 clients, messages sent and dropped (each client's data queue is bounded by
@@ -41,8 +46,10 @@ import time
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 import rclpy
 from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
@@ -51,14 +58,24 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError
 from m4k_bridge.diagnostics import make_status
+from m4k_bridge.foxglove import params as fparams
 from m4k_bridge.foxglove import protocol as fp
+from m4k_bridge.foxglove.access import AccessError, OriginPolicy, read_token_file
 from m4k_bridge.foxglove.server import Server
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
+from m4k_rt import yamlload
+from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
-__all__ = ['FoxgloveNode', 'main', 'subscription_qos']
+__all__ = ['FoxgloveNode', 'descriptor', 'main', 'subscription_qos']
 
-NODE_NAME = 'm4k_foxglove'
+NODE_NAME = fparams.NODE_NAME
+_TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
+          'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
+          'str[]': ParameterType.PARAMETER_STRING_ARRAY}
+# A client's type name, checked before anything is imported by it.
+_TYPE_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*')
+_TOPIC_NAME = re.compile(r'~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
 _ACTIONS_MAX = 1000          # client requests waiting for the ROS thread
 _SKIP_SERVICE_PACKAGES = ('rcl_interfaces', 'type_description_interfaces')
 _TWISTS = ('geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped')
@@ -95,6 +112,20 @@ def full_type(name: str, kind: str = 'msg') -> str:
     raise ValueError('not a {} type name: {!r}'.format(kind, name))
 
 
+def descriptor(f: Field) -> ParameterDescriptor:
+    """Return the ROS descriptor of a schema Field: type, range, read-only, unit."""
+    text = f.description + (' Unit: {}.'.format(f.unit) if f.unit else '')
+    d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
+                            read_only=f.read_only)
+    if f.lo is not None and f.hi is not None:
+        if f.type == 'float':
+            d.floating_point_range = [FloatingPointRange(from_value=float(f.lo),
+                                                         to_value=float(f.hi), step=0.0)]
+        elif f.type == 'int':
+            d.integer_range = [IntegerRange(from_value=int(f.lo), to_value=int(f.hi), step=1)]
+    return d
+
+
 def _interface_class(type_name: str) -> Any:
     pkg, kind, name = type_name.split('/')
     return getattr(importlib.import_module('{}.{}'.format(pkg, kind)), name)
@@ -105,18 +136,21 @@ class FoxgloveNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        d = self.declare_parameter
-        self.address = str(d('address', '127.0.0.1').value)
-        port = int(d('port', 8765).value)
-        self.topic_whitelist = [re.compile(p) for p in d('topic_whitelist', ['.*']).value]
-        self.service_whitelist = [re.compile(p) for p in d('service_whitelist', ['.*']).value]
-        self.client_topics = {self.resolve_topic_name(t) for t in
-                              d('client_topics', ['cmd_vel', 'e_stop', 'led']).value}
-        bridge = str(d('bridge_node', 'm4k_bridge').value)
-        max_msgs = int(d('max_queue_messages', 200).value)
-        max_bytes = int(d('max_queue_bytes', 8 << 20).value)
-        graph_period = float(d('graph_period', 1.0).value)
-        diag_period = float(d('diagnostics_period', 1.0).value)
+        p = fparams.validate({s.name: self.declare_parameter(s.name, s.default,
+                                                             descriptor(s)).value
+                              for s in fparams.SPECS})
+        self.address = str(p['address'])
+        self.topic_whitelist = [re.compile(x) for x in p['topic_whitelist']]
+        self.service_whitelist = [re.compile(x) for x in p['service_whitelist']]
+        self.client_topics = {self.resolve_topic_name(t) for t in p['client_topics']}
+        self.nav_goals = bool(p['nav_goals'])
+        self._nav_topics = {self.resolve_topic_name(t): tname
+                            for t, tname in fparams.NAV_TOPICS.items()}
+        token = read_token_file(p['token_file']) if p['token_file'] else None
+        graph_period = float(p['graph_period'])
+        diag_period = float(p['diagnostics_period'])
+        self._inert: set[tuple[int, int]] = set()    # nav channels while nav_goals is false
+        self.inert_messages = 0
         self._subs: dict[str, tuple[int, Any, str]] = {}   # topic -> (channel, sub, type)
         self._skipped: set[str] = set()
         self._pubs: dict[tuple[int, int], tuple[Any, Any, str]] = {}
@@ -128,19 +162,25 @@ class FoxgloveNode(Node):
         self.actions_dropped = 0
         self.bad_client_messages = 0
         self._last_dropped = 0
-        self._bridge_params = AsyncParameterClient(self, bridge)
+        self._bridge_params = AsyncParameterClient(self, str(p['bridge_node']))
         self._wake = self.create_guard_condition(self._run_actions)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        self.server = Server(self, self.address, port,
+        self.server = Server(self, self.address, int(p['port']),
                              name='m4k ' + self.get_fully_qualified_name(),
                              capabilities=('clientPublish', 'parameters', 'services'),
-                             encodings=('cdr',), max_queue_messages=max_msgs,
-                             max_queue_bytes=max_bytes)
+                             encodings=('cdr',), max_queue_messages=p['max_queue_messages'],
+                             max_queue_bytes=p['max_queue_bytes'],
+                             origins=OriginPolicy(p['allowed_origins']), token=token,
+                             max_clients=p['max_clients'],
+                             max_client_channels=p['max_client_channels'])
         self.server.start()
-        self.get_logger().info('Foxglove WebSocket server on ws://{}:{} ({})'.format(
-            self.address, self.server.port, 'localhost only; use an SSH tunnel' if
-            self.address in ('127.0.0.1', 'localhost', '::1') else
-            'NO AUTHENTICATION: anyone on this network can drive the robot'))
+        local = self.address in ('127.0.0.1', 'localhost', '::1')
+        self.get_logger().info('Foxglove WebSocket server on ws://{}:{} ({}; {})'.format(
+            self.address, self.server.port,
+            'localhost only; use an SSH tunnel' if local else 'serving the network',
+            'token required' if token else (
+                'no token' if local else 'NO TOKEN: anyone on this network can drive the '
+                'robot')))
         self.poll_graph()
         self.create_timer(graph_period, self.poll_graph)
         self.create_timer(diag_period, self.publish_diagnostics)
@@ -215,8 +255,7 @@ class FoxgloveNode(Node):
             sid = len(self._svc) + 1
             self._service_ids[name] = sid
             self._svc[sid] = (self.create_client(cls, name), cls, name)
-            new.append({'id': sid, 'name': name, 'type': tname, 'requestSchema': req,
-                        'responseSchema': resp})
+            new.append(fp.service(sid, name, tname, req, resp))
         if new:
             self.server.set_services(new)
 
@@ -240,20 +279,40 @@ class FoxgloveNode(Node):
             action()
 
     def on_client_advertise(self, client: int, channel: dict[str, Any]) -> str | None:
-        """Accept a CDR channel on an allowed topic; the publisher is made on the ROS thread."""
-        try:
-            topic = self.resolve_topic_name(str(channel['topic']))
-            tname = full_type(str(channel['schemaName']))
-            cls = _interface_class(tname)
-        except (KeyError, ValueError, ImportError, AttributeError) as exc:
-            return '{}: cannot publish: {}'.format(channel.get('topic'), exc)
-        if topic not in self.client_topics:
+        """Accept a CDR channel on an allowed topic; the publisher is made on the ROS thread.
+
+        The topic is checked against ``client_topics`` (and the 3D panel's nav topics) first,
+        then the type name's form and the graph's type: a client's type is imported only for
+        a topic it may publish on.
+        """
+        name = channel.get('topic')
+        if not isinstance(name, str) or not _TOPIC_NAME.fullmatch(name):
+            return '{!r}: not a valid topic name'.format(name)
+        topic = self.resolve_topic_name(name)
+        nav = self._nav_topics.get(topic)
+        if topic not in self.client_topics and nav is None:
             return '{}: clients may publish only on {}'.format(
-                topic, ', '.join(sorted(self.client_topics)))
+                topic, ', '.join(sorted(self.client_topics)) or 'nothing (view only)')
+        try:
+            tname = full_type(str(channel['schemaName']))
+        except (KeyError, ValueError) as exc:
+            return '{}: cannot publish: {}'.format(topic, exc)
+        if not _TYPE_NAME.fullmatch(tname):
+            return '{}: {!r} is not a message type name'.format(topic, tname)
+        key = (client, int(channel['id']))
+        if nav is not None and topic not in self.client_topics:
+            if tname != nav:
+                return '{}: expects {}, not {}'.format(topic, nav, tname)
+            if not self.nav_goals:
+                self._inert.add(key)      # the 3D panel advertises it on every layout load
+                return None
         graph = dict(self.get_topic_names_and_types()).get(topic, [])
         if graph and tname not in graph:
             return '{}: the graph has it as {}, not {}'.format(topic, graph[0], tname)
-        key = (client, int(channel['id']))
+        try:
+            cls = _interface_class(tname)
+        except (ImportError, AttributeError, ValueError) as exc:
+            return '{}: cannot publish {}: {}'.format(topic, tname, exc)
         self._post(lambda: self._make_publisher(key, topic, cls, tname))
         return None
 
@@ -269,6 +328,7 @@ class FoxgloveNode(Node):
 
     def on_client_unadvertise(self, client: int, channel_id: int) -> None:
         """Destroy the client's publisher (after one zero Twist for a velocity channel)."""
+        self._inert.discard((client, channel_id))
         self._post(lambda: self._drop_publisher((client, channel_id)), critical=True)
 
     def _drop_publisher(self, key: tuple[int, int]) -> None:
@@ -297,6 +357,12 @@ class FoxgloveNode(Node):
 
     def on_client_message(self, client: int, channel_id: int, payload: bytes) -> None:
         """Publish a client's CDR message (decoded to check it, then published by rclpy)."""
+        if (client, channel_id) in self._inert:
+            self.inert_messages += 1
+            self.server.send_text(client, fp.status(2, (
+                'not published: publishing goals and poses from the 3D panel is off '
+                '(m4k_foxglove nav_goals:=false; set it true when a nav stack uses them)')))
+            return
         self._post(lambda: self._publish((client, channel_id), payload))
 
     def _publish(self, key: tuple[int, int], payload: bytes) -> None:
@@ -391,6 +457,10 @@ class FoxgloveNode(Node):
             'clients_total': self.server.clients_total, 'channels': len(self._subs),
             'dropped_total': dropped, 'client_requests_dropped': self.actions_dropped,
             'bad_client_messages': self.bad_client_messages,
+            'refused_origin': self.server.refused['origin'],
+            'refused_token': self.server.refused['token'],
+            'refused_max_clients': self.server.refused['clients'],
+            'nav_messages_not_published': self.inert_messages,
             'max_queue_messages': self.server.max_queue_messages,
             'max_queue_bytes': self.server.max_queue_bytes}
         for s in stats:
@@ -408,10 +478,29 @@ class FoxgloveNode(Node):
         self._diag_pub.publish(arr)
 
 
+def _check_param_files(argv: Sequence[str]) -> None:
+    for i, a in enumerate(argv[:-1]):
+        if a == '--params-file':
+            path = argv[i + 1]
+            with open(path, encoding='utf-8') as f:
+                try:
+                    doc = yamlload.load(f)
+                except yamlload.yaml.YAMLError as exc:
+                    raise ValueError('{}: {}'.format(path, str(exc).replace('\n', ' '))) \
+                        from None
+            fparams.check_param_file(doc, path)
+
+
 def main(args: Sequence[str] | None = None) -> int:
     """Run the Foxglove server node until SIGINT/SIGTERM; exit code 1 if it cannot listen."""
     stop = StopSignals().install()
     argv = list(sys.argv if args is None else args)
+    try:
+        _check_param_files(argv)
+    except (OSError, ValueError) as exc:   # unreadable, not YAML, duplicate or unknown key
+        sys.stderr.write('{}: {}\n'.format(NODE_NAME, exc))
+        stop.restore()
+        return 2
     rclpy.init(args=argv)
     node = None
     try:
@@ -421,6 +510,9 @@ def main(args: Sequence[str] | None = None) -> int:
         except OSError as exc:
             sys.stderr.write('{}: cannot listen: {}\n'.format(NODE_NAME, exc))
             return 1
+        except (AccessError, ParameterException, ValueError) as exc:
+            sys.stderr.write('{}: {}\n'.format(NODE_NAME, exc))
+            return 2
         if node is not None and not stop.stopping:
             spin_until_shutdown(lambda: rclpy.spin(node), node.context)
     except KeyboardInterrupt:

@@ -22,7 +22,7 @@ from m4k_bridge.bag.msgdef import dependencies, SEPARATOR, split_type
 __all__ = [
     'BIN_MESSAGE_DATA', 'BIN_SERVICE_CALL_RESPONSE', 'CLIENT_MESSAGE_DATA',
     'CLIENT_SERVICE_CALL_REQUEST', 'ProtocolError', 'SUBPROTOCOL', 'advertise',
-    'advertise_services', 'message_data', 'parameter_value', 'parameter_values',
+    'advertise_services', 'message_data', 'service', 'parameter_value', 'parameter_values',
     'parse_client_message_data', 'parse_service_call_request', 'server_info',
     'service_call_failure', 'service_call_response', 'service_definitions', 'status',
     'unadvertise',
@@ -74,8 +74,26 @@ def unadvertise(channel_ids: Sequence[int]) -> str:
 
 
 def advertise_services(services: Sequence[Mapping[str, Any]]) -> str:
-    """Return an ``advertiseServices`` message (id, name, type, requestSchema, responseSchema)."""
+    """Return an ``advertiseServices`` message (each service from :func:`service`)."""
     return _json({'op': 'advertiseServices', 'services': [dict(s) for s in services]})
+
+
+def service(service_id: int, name: str, type_name: str, request_schema: str,
+            response_schema: str, encoding: str = 'cdr') -> dict[str, Any]:
+    """Return one service of ``advertiseServices`` in the current form of the spec.
+
+    ``request`` and ``response`` objects (encoding, schemaName, schemaEncoding, schema), not
+    the deprecated ``requestSchema``/``responseSchema`` strings that Lichtblick warns about.
+    The schema names follow the convention the spec and the clients use to derive them from
+    the type: ``pkg/srv/Name_Request``, ``pkg/srv/Name_Response``.
+    """
+    def half(suffix: str, schema: str) -> dict[str, str]:
+        return {'encoding': encoding, 'schemaName': type_name + suffix,
+                'schemaEncoding': 'ros2msg', 'schema': schema}
+
+    return {'id': int(service_id), 'name': name, 'type': type_name,
+            'request': half('_Request', request_schema),
+            'response': half('_Response', response_schema)}
 
 
 def service_call_failure(service_id: int, call_id: int, message: str) -> str:

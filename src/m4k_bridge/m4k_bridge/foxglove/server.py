@@ -8,6 +8,11 @@ dropped; a client that lets more than ``max_control`` of them pile up is not rea
 disconnected) and message data, bounded by count and bytes, where the oldest frame is dropped
 and counted when a new one does not fit (the newest data is what a live view wants). What a
 client sends is handed to a :class:`Handler` on the server thread.
+
+Who may connect is decided in the opening handshake, before anything is sent or imported
+(:meth:`Server._admit`): a foreign ``Origin`` gets HTTP 403, a missing or wrong token HTTP
+401, one client more than ``max_clients`` HTTP 503 -- a refused browser page never sees
+``serverInfo``. A client may advertise at most ``max_client_channels`` channels.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import dataclasses
+from http import HTTPStatus
 import itertools
 import json
 import threading
@@ -23,8 +29,10 @@ from typing import Any, Deque, Protocol
 
 from websockets.asyncio.server import serve, ServerConnection
 from websockets.exceptions import ConnectionClosed
+from websockets.http11 import Request, Response
 
 from m4k_bridge.foxglove import protocol as fp
+from m4k_bridge.foxglove.access import DEFAULT_ORIGINS, OriginPolicy, token_matches
 
 __all__ = ['ClientStats', 'Handler', 'Server']
 
@@ -90,8 +98,15 @@ class Server:
     def __init__(self, handler: Handler, host: str = '127.0.0.1', port: int = 8765,
                  name: str = 'm4k', capabilities: tuple[str, ...] = (),
                  encodings: tuple[str, ...] = ('cdr',), max_queue_messages: int = 200,
-                 max_queue_bytes: int = 8 << 20, max_control: int = 1000) -> None:
+                 max_queue_bytes: int = 8 << 20, max_control: int = 1000,
+                 origins: OriginPolicy | None = None, token: str | None = None,
+                 max_clients: int = 4, max_client_channels: int = 16) -> None:
         self.handler = handler
+        # Never unchecked: a server built without a policy gets the default allow-list.
+        self.origins = origins if origins is not None else OriginPolicy(DEFAULT_ORIGINS)
+        self.token = token
+        self.max_clients, self.max_client_channels = max_clients, max_client_channels
+        self.refused: collections.Counter[str] = collections.Counter()   # why -> handshakes
         self.host, self.port, self.name = host, port, name
         self.capabilities, self.encodings = capabilities, encodings
         self.max_queue_messages, self.max_queue_bytes = max_queue_messages, max_queue_bytes
@@ -135,6 +150,7 @@ class Server:
         try:
             server = await serve(self._handle, self.host, self.port,
                                  subprotocols=[fp.SUBPROTOCOL],  # type: ignore[list-item]
+                                 process_request=self._admit,
                                  max_size=MAX_INCOMING, compression=None)
         except OSError as exc:
             self._error = exc
@@ -184,7 +200,7 @@ class Server:
                 self._control(c, text)
 
     def set_services(self, services: list[dict[str, Any]]) -> None:
-        """Advertise services (each a dict with id, name, type, requestSchema, responseSchema)."""
+        """Advertise services (each a dict with id, name, type, request, response)."""
         with self._lock:
             new = [s for s in services if s['id'] not in self._services]
             for s in new:
@@ -266,13 +282,43 @@ class Server:
                 pass
 
     # --- one connection (server thread) -----------------------------------------------------
+    def _admit(self, conn: ServerConnection, request: Request) -> Response | None:
+        """Refuse a handshake by Origin, token or client count (None: go on with it)."""
+        origins = request.headers.get_all('Origin')
+        origin = origins[0] if len(origins) == 1 else None
+        if len(origins) > 1 or not self.origins.allows(origin):
+            self.refused['origin'] += 1
+            return conn.respond(HTTPStatus.FORBIDDEN, (
+                'Origin {!r} may not open this live view (m4k_foxglove allowed_origins)\n'
+                .format(origin if len(origins) == 1 else origins)[:300]))
+        if self.token is not None and not token_matches(request.path, self.token):
+            self.refused['token'] += 1
+            return conn.respond(HTTPStatus.UNAUTHORIZED, 'this live view needs its token: '
+                                'connect to ws://<host>:<port>/?token=<token>\n')
+        with self._lock:
+            full = len(self._clients) >= self.max_clients
+        if full:
+            self.refused['clients'] += 1
+            return conn.respond(HTTPStatus.SERVICE_UNAVAILABLE, (
+                'this live view already serves {} clients (m4k_foxglove max_clients)\n'
+                .format(self.max_clients)))
+        return None
+
     async def _handle(self, ws: ServerConnection) -> None:
         if ws.subprotocol != fp.SUBPROTOCOL:
             await ws.close(1002, 'subprotocol {} required'.format(fp.SUBPROTOCOL))
             return
         c = _Client(next(self._ids), ws, asyncio.get_running_loop())
         with self._lock:
-            self._clients[c.id] = c
+            # Handshakes admitted together may pass _admit together: this is the real count.
+            full = len(self._clients) >= self.max_clients
+            if not full:
+                self._clients[c.id] = c
+        if full:
+            self.refused['clients'] += 1
+            await ws.close(1013, 'too many clients (max_clients {})'.format(self.max_clients))
+            return
+        with self._lock:
             self.clients_total += 1
             self._control(c, fp.server_info(self.name, self.capabilities, self.encodings,
                                             self.session_id))
@@ -393,6 +439,11 @@ class Server:
             cid = int(chan['id'])
             if cid in c.channels:
                 errors.append('client channel {} already advertised'.format(cid))
+                continue
+            if len(c.channels) >= self.max_client_channels:
+                errors.append('{}: not advertised, this client already has {} channels '
+                              '(m4k_foxglove max_client_channels)'.format(
+                                  chan.get('topic'), self.max_client_channels))
                 continue
             if chan.get('encoding') not in self.encodings:
                 errors.append('{}: encoding {!r} not supported (use {})'.format(
