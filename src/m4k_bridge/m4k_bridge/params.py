@@ -267,8 +267,9 @@ SPECS: tuple[Field, ...] = (
               'evictions). At the default topics (about 30 KiB/s) 8 MiB is minutes.',
               lo=65536, hi=1 << 30, read_only=True),
     ParamSpec('flight_recorder.min_interval', 30.0, 'At most one dump per trigger kind in this '
-              'many seconds; triggers in between are kept in the ring (flight_recorder/trigger) '
-              'and counted, not dumped. Lower: more bags from a fault that repeats.',
+              'many seconds; a trigger in between is only noted in the ring '
+              '(flight_recorder/trigger, dumped: no) and so in the next dump. Lower: more '
+              'bags from a fault that repeats.',
               lo=1.0, hi=86400.0),
     ParamSpec('flight_recorder.directory', '', 'Directory the dumps go to, one bag directory '
               "flight_<UTC time>_<trigger> each; '' = $XDG_STATE_HOME/m4k/flight_recorder "

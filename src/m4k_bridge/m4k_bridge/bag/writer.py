@@ -347,6 +347,9 @@ def recover(directory: str) -> Recovery:
     listed = {t['topic_metadata']['name']: t.get('message_count')
               for t in old.get('topics_with_message_count', []) or []
               if isinstance(t, dict) and 'topic_metadata' in t}
+    stale = meta_path + '.tmp'          # a sync's metadata that a crash kept from its rename
+    if os.path.exists(stale):
+        os.unlink(stale)
     if complete and listed == by_topic and old.get('message_count') == len(messages):
         return Recovery(len(messages), by_topic, True, False, 0)
     # Rewrite into a sibling directory, then swap the files in (each rename is atomic).
