@@ -244,6 +244,10 @@ class Dumper:
                 self.failed += 1
                 self._log('error', 'flight recorder: dump for {} failed: {}'.format(
                     job.kind, exc))
+            except Exception as exc:  # noqa: BLE001 -- the thread must outlive one bad dump
+                self.failed += 1
+                self._log('error', 'flight recorder: dump for {} failed: {!r}'.format(
+                    job.kind, exc))
 
     def _definition(self, type_name: str) -> tuple[str, str]:
         if type_name not in self._defs:

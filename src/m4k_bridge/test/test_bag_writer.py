@@ -127,3 +127,15 @@ def test_recover_refuses_a_directory_without_the_bag_file(tmp_path):
     (tmp_path / 'x').mkdir()
     with pytest.raises(bw.BagError, match='not a bag'):
         bw.recover(str(tmp_path / 'x'))
+
+
+def test_the_default_name_moves_on_when_taken(tmp_path, monkeypatch):
+    import datetime
+
+    from m4k_bridge.bag.record import default_output
+    monkeypatch.chdir(tmp_path)
+    when = datetime.datetime(2026, 11, 26, 6, 0, 0, tzinfo=datetime.timezone.utc)
+    assert default_output(when) == 'm4k_2026_11_26-06_00_00'
+    (tmp_path / 'm4k_2026_11_26-06_00_00').mkdir()
+    (tmp_path / 'm4k_2026_11_26-06_00_00-2').mkdir()
+    assert default_output(when) == 'm4k_2026_11_26-06_00_00-3'

@@ -22,7 +22,8 @@ Crash safety (:mod:`m4k_bridge.bag.writer`): once a second the messages so far a
 fsynced behind a fresh summary and footer, and metadata.yaml is replaced atomically to match,
 so after ``kill -9`` or a power cut the directory is a complete bag of everything but the last
 second. SIGINT / SIGTERM (or ``--duration``) end the recording cleanly. Exit codes: 0 done,
-1 nothing could be written, 2 bad arguments (an existing ``-o`` DIR among them).
+1 the bag could not be created or a sync failed (e.g. disk full: the recording stops there,
+what was synced stays readable), 2 bad arguments (an existing ``-o`` DIR among them).
 """
 
 from __future__ import annotations
@@ -114,7 +115,8 @@ class Recorder:
         self._finished = False
         self.poll_graph()
         self._timer = node.create_timer(_GRAPH_PERIOD_S, self.poll_graph)
-        self._sync_timer = node.create_timer(sync_period, self.bag.sync)
+        self.error: BagError | None = None
+        self._sync_timer = node.create_timer(sync_period, self._sync)
 
     def poll_graph(self) -> None:
         """Subscribe to every wanted topic that now has a publisher of a known type."""
@@ -147,6 +149,13 @@ class Recorder:
             _subscription_qos(profiles), raw=True))
         self.node.get_logger().info('recording {} ({})'.format(topic, type_name))
 
+    def _sync(self) -> None:
+        try:
+            self.bag.sync()
+        except BagError as exc:         # e.g. disk full: stop, say why (main exits 1)
+            self.error = exc
+            self._finished = True
+
     def _write(self, topic: str, data: bytes) -> None:
         if self._finished:
             return
@@ -155,13 +164,16 @@ class Recorder:
         self.counts[topic] = seq + 1
 
     def finish(self) -> None:
-        """Write what is buffered and close the bag (idempotent)."""
-        if self._finished:
+        """Write what is buffered and close the bag (idempotent; a failed sync is kept)."""
+        if self._timer.is_canceled():
             return
         self._finished = True
         self._timer.cancel()
         self._sync_timer.cancel()
-        self.bag.close()
+        try:
+            self.bag.close()
+        except BagError as exc:
+            self.error = self.error or exc
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -237,7 +249,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 1
         node.get_logger().info('writing {}'.format(rec.path))
         end = time.monotonic() + args.duration if args.duration else None
-        while not stop and (end is None or time.monotonic() < end):
+        while not stop and rec.error is None and (end is None or time.monotonic() < end):
             rclpy.spin_once(node, timeout_sec=0.1)
     finally:
         if rec is not None:
@@ -245,12 +257,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             total = sum(rec.counts.values())
             print('record: {} messages on {} topics -> {}'.format(
                 total, len(rec.counts), rec.path), file=sys.stderr)
+            if rec.error is not None:
+                print('record: stopped: {}'.format(rec.error), file=sys.stderr)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 0
+    return 1 if rec is not None and rec.error is not None else 0
 
 
 if __name__ == '__main__':
