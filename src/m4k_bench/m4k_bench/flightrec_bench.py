@@ -131,10 +131,11 @@ def run_once(enabled: bool, window_s: float, warmup_s: float, env: dict[str, str
             ex.spin_once(timeout_sec=0.005)
         t_end = time.monotonic()
         stop.publish(Bool(data=False))
-        deadline = t_end + 10
+        deadline = t_end + 30
         while not (got and got[-1][0] > t_end + 0.05):
             if time.monotonic() > deadline:
-                raise RuntimeError('no rt_status after the window')
+                raise RuntimeError('no rt_status within 30 s after the window:\n' + open(
+                    log_path, errors='replace').read()[-3000:])
             ex.spin_once(timeout_sec=0.05)
         res['tasks'] = _task_stats(got[-1][1])
         res['e_stops'] = estops
