@@ -1,13 +1,18 @@
 """record: an MCAP recording of the running stack, read back with independent decoders.
 
+Also: a recorder killed with SIGKILL leaves a bag that the ``mcap`` package and rosbags open
+as it is (each with its own parser and CDR decoder), and an existing ``-o`` is refused.
+
 The file is read with the ``mcap`` reader and decoded by mcap-ros2-support's decoder (its own
 CDR parser driven by the schema text in the file), not by the recorder's code or rclpy: a wrong
 or incomplete ``ros2msg`` schema, or bytes that are not the messages, fail the decode.
 """
 
 import signal
+import subprocess
+import sys
 
-from mcap.reader import make_reader
+from mcap.reader import make_reader, NonSeekingReader
 from mcap_ros2.decoder import DecoderFactory
 import pytest
 from test_stack_e2e import stack  # noqa: F401 -- the stack fixture
@@ -90,3 +95,79 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
     assert odom_meta['offered_qos_profiles'][0]['reliability'] == 'reliable'
     assert listed['/scan']['topic_metadata']['offered_qos_profiles'][0]['reliability'] == \
         'best_effort'
+
+
+def test_record_refuses_an_existing_output_directory(tmp_path):
+    out = tmp_path / 'earlier'
+    out.mkdir()
+    (out / 'earlier_0.mcap').write_bytes(b'an earlier recording')
+    r = subprocess.run([sys.executable, '-m', 'm4k_bridge.bag.record', '-o', str(out)],
+                       env=stack_env(str(tmp_path / 'rt')), capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert 'exists' in r.stderr and 'never overwrites' in r.stderr and str(out) in r.stderr
+    assert (out / 'earlier_0.mcap').read_bytes() == b'an earlier recording'
+    assert sorted(p.name for p in out.iterdir()) == ['earlier_0.mcap']
+
+
+def _mcap_counts(path):
+    """Messages per topic in the MCAP, read linearly by the mcap package's streaming reader."""
+    counts = {}
+    with open(path, 'rb') as f:
+        for _, channel, _ in NonSeekingReader(f).iter_messages(log_time_order=False):
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    return counts
+
+
+def test_record_killed_with_sigkill_leaves_a_bag_that_independent_readers_open(
+        stack, procs, m4k_runtime_dir, tmp_path):  # noqa: F811
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+
+    user, _, _ = stack
+    out = tmp_path / 'crash'
+    err = tmp_path / 'record.err'
+    with open(err, 'w') as f:
+        rec = procs.start(['python', '-m', 'm4k_bridge.bag.record', '-o', str(out)],
+                          env=stack_env(m4k_runtime_dir), stdout=f, stderr=f)
+    _wait_text(user, err, ('recording /odom', 'recording /scan'), 30)
+    user.spin_for(5.0)
+    rec.send_signal(signal.SIGKILL)
+    assert rec.wait(20) == -signal.SIGKILL
+    path = out / 'crash_0.mcap'
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['version'] == 9 and meta['relative_file_paths'] == ['crash_0.mcap']
+    listed = {t['topic_metadata']['name']: t['message_count']
+              for t in meta['topics_with_message_count']}
+    assert meta['message_count'] == sum(listed.values())
+    # 1. The mcap package, seeking reader: the file ends in a summary and footer as it is.
+    with open(path, 'rb') as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        odoms = [m for _, ch, _, m in reader.iter_decoded_messages(topics=['/odom'])]
+    in_file = {summary.channels[c].topic: n
+               for c, n in summary.statistics.channel_message_counts.items()}
+    assert in_file == _mcap_counts(path)
+    # About 5 s at 20 Hz; everything but the last sync period (1 s) is there.
+    assert len(odoms) >= 40, len(odoms)
+    assert all(o.header.frame_id == 'odom' and len(o.pose.covariance) == 36 for o in odoms)
+    # The metadata never lists more than the file holds (it is at most one sync behind).
+    assert set(listed) == set(in_file)
+    assert all(listed[t] <= in_file[t] for t in listed), (listed, in_file)
+    # 2. rosbags opens the directory (metadata.yaml + MCAP) and its own CDR decoder reads it.
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(out) as bag:
+        conns = [c for c in bag.connections if c.topic == '/odom']
+        assert conns and conns[0].msgtype == 'nav_msgs/msg/Odometry'
+        decoded = [store.deserialize_cdr(raw, conns[0].msgtype)
+                   for _, _, raw in bag.messages(connections=conns)]
+    assert len(decoded) == len(odoms)
+    assert decoded[-1].child_frame_id == 'base_footprint'
+    # 3. --recover: a bag as the crash left it needs nothing, or only the metadata catching up.
+    r = subprocess.run([sys.executable, '-m', 'm4k_bridge.bag.record', '--recover', str(out)],
+                       env=stack_env(m4k_runtime_dir), capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    after = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert {t['topic_metadata']['name']: t['message_count']
+            for t in after['topics_with_message_count']} == in_file

@@ -24,7 +24,15 @@ def stack_env(runtime_dir: str) -> dict[str, str]:
     env['M4K_RUNTIME_DIR'] = runtime_dir
     env['M4K_CONFIG_DIR'] = os.path.join(ROOT, 'config')
     env['M4K_WORLD_REPORT'] = ground_truth_path(runtime_dir)
+    # The flight recorder's default dump directory ($XDG_STATE_HOME/m4k/flight_recorder):
+    # beside the test's runtime directory, never in the user's home.
+    env['XDG_STATE_HOME'] = state_home(runtime_dir)
     return env
+
+
+def state_home(runtime_dir: str) -> str:
+    """Return the XDG_STATE_HOME of a stack started with :func:`stack_env`."""
+    return os.path.join(os.path.dirname(runtime_dir), 'state')
 
 
 def ground_truth_path(runtime_dir: str) -> str:

@@ -32,6 +32,7 @@ setup(
             'xddp_bench = m4k_bench.xddp_bench:main',
             'demo = m4k_bench.demo:main',
             'liveview = m4k_bench.liveview:main',
+            'flightrec_bench = m4k_bench.flightrec_bench:main',
             'soak = m4k_bench.soak:main',
             'fuzz = m4k_bench.fuzz:main',
             'baseline = m4k_bench.baseline:main',

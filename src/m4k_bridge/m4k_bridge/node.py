@@ -57,6 +57,7 @@ import yaml
 from m4k_bridge import convert, params
 from m4k_bridge.diagnostics import make_status, RtMonitor
 from m4k_bridge.faults import MotorFaultInterface, SafetyReport
+from m4k_bridge.flightrec_ros import FlightRecorder
 from m4k_bridge.health import BridgeHealth, Status
 from m4k_bridge.ports import PortPump
 from m4k_bridge.safety import SafetyInterface
@@ -165,6 +166,9 @@ class BridgeNode(Node):
         self._watch_ticks = 0
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
+        # The flight recorder (docs/recording.md): a bounded ring of this node's topics, dumped
+        # as a bag by a thread of its own on an e-stop, guard stop, fault or deadline miss.
+        self._flight = FlightRecorder(self, p, self._cmd_vel_type)
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
         # The cmd port's first datagram on every link is the e-stop, when one is requested.
         safety = self._safety
@@ -371,6 +375,7 @@ class BridgeNode(Node):
             self.get_logger().warning('malformed datagram on port {!r}: {}'.format(role, exc),
                                       throttle_duration_sec=5.0)
             return
+        self._flight.on_datagram(header.kind, payload)
         if header.kind in (protocol.Kind.TASK_HEALTH, protocol.Kind.FORBIDDEN_SITE):
             self._monitor.feed(header.kind, payload, rx_ns)
             return
@@ -591,6 +596,7 @@ class BridgeNode(Node):
         self._closed = True
         for role, pump in self._pumps.items():
             pump.close(final=self._velocity_datagram(0.0, 0.0) if role == 'cmd' else None)
+        self._flight.close()
 
     def destroy_node(self) -> None:
         """Close the ports, then destroy the node."""

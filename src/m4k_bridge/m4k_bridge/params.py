@@ -85,8 +85,10 @@ _UNITS = {
     'sonar_min_range': 'm', 'sonar_max_range': 'm', 'stats_window': 's',
     'rt_status_period': 's', 'diagnostics_period': 's', 'rt_stale_timeout': 's',
     'relink_interval': 's', 'reset_odometry_timeout': 's', 'e_stop_timeout': 's',
+    'flight_recorder.seconds': 's', 'flight_recorder.post_seconds': 's',
+    'flight_recorder.max_bytes': 'bytes', 'flight_recorder.min_interval': 's',
 }
-_ROS_TYPES = {bool: 'bool', float: 'float', str: 'str', list: 'float[]'}
+_ROS_TYPES = {bool: 'bool', int: 'int', float: 'float', str: 'str', list: 'float[]'}
 
 
 def ParamSpec(name: str, default: Any, description: str, lo: float | None = None,  # noqa: N802
@@ -135,6 +137,12 @@ def _bool_or_auto(v: Any) -> str | None:
 def _port(v: Any) -> str | None:
     if not (v.isdigit() or _LABEL.match(v)):
         return 'expected an XDDP port label or number, got {!r}'.format(v)
+    return None
+
+
+def _abs_dir(v: Any) -> str | None:
+    if v and not v.startswith('/'):
+        return "expected an absolute path or '' (the default directory), got {!r}".format(v)
     return None
 
 
@@ -264,6 +272,31 @@ SPECS: tuple[Field, ...] = (
               lo=0.05, hi=60.0),
     ParamSpec('diagnostics_period', 1.0, 'Publication period of diagnostics [s] (REP-107: 1 Hz).',
               lo=0.05, hi=60.0),
+    ParamSpec('flight_recorder.enabled', True, 'Keep the last seconds of commands, odometry, '
+              'guard/supervisor flags, faults and RT timing in memory and write them as a bag '
+              'on an e-stop, guard stop, motor fault, deadline miss or device fault '
+              '(docs/recording.md). False: no ring, no subscriptions, no dumps -- and no record '
+              'of the next incident.', read_only=True),
+    ParamSpec('flight_recorder.seconds', 10.0, 'Seconds before a trigger that a flight '
+              'recorder dump holds (the ring keeps these plus post_seconds), unless max_bytes '
+              'cuts them shorter.', lo=1.0, hi=120.0, read_only=True),
+    ParamSpec('flight_recorder.post_seconds', 2.0, 'Seconds after a trigger the dump waits '
+              'for, so the stop itself is in it. 0: the dump ends at the trigger.',
+              lo=0.0, hi=30.0, read_only=True),
+    ParamSpec('flight_recorder.max_bytes', 8 * 1024 * 1024, "Memory cap of the flight "
+              "recorder's ring (payload + 160 bytes per message); past it the oldest messages "
+              'go first and the dump covers less than seconds (its metadata counts the '
+              'evictions). At the default topics (about 30 KiB/s) 8 MiB is minutes.',
+              lo=65536, hi=1 << 30, read_only=True),
+    ParamSpec('flight_recorder.min_interval', 30.0, 'At most one dump per trigger kind in this '
+              'many seconds; a trigger in between is only noted in the ring '
+              '(flight_recorder/trigger, dumped: no) and so in the next dump. Lower: more '
+              'bags from a fault that repeats.',
+              lo=1.0, hi=86400.0),
+    ParamSpec('flight_recorder.directory', '', 'Directory the dumps go to, one bag directory '
+              "flight_<UTC time>_<trigger> each; '' = $XDG_STATE_HOME/m4k/flight_recorder "
+              '(~/.local/state/m4k/flight_recorder). Nothing prunes it.', read_only=True,
+              check=_abs_dir),
     ParamSpec('rt_stale_timeout', 3.0, 'Seconds without any datagram from the RT process '
               'after which it is reported lost (diagnostics STALE, one log line).',
               lo=0.1, hi=600.0),

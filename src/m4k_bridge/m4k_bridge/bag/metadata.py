@@ -14,7 +14,7 @@ from typing import Any, Sequence
 
 import yaml
 
-__all__ = ['TopicRecord', 'VERSION', 'metadata_yaml', 'qos_entries']
+__all__ = ['TopicRecord', 'VERSION', 'metadata_yaml', 'qos_entries', 'qos_entries_from_yaml']
 
 VERSION = 9
 _HISTORY = {0: 'system_default', 1: 'keep_last', 2: 'keep_all', 3: 'unknown'}
@@ -54,13 +54,45 @@ def qos_entries(profiles: Sequence[Any]) -> list[dict[str, Any]]:
             for q in profiles]
 
 
+def _named(table: dict[int, str], value: Any) -> Any:
+    return table.get(value, 'unknown') if isinstance(value, int) else value
+
+
+def qos_entries_from_yaml(text: str) -> list[dict[str, Any]]:
+    """Return version-9 entries from an MCAP channel's ``offered_qos_profiles`` text.
+
+    That text (what :func:`m4k_bridge.bag.record.qos_yaml` writes) gives the policies as
+    numbers; the metadata names them. Unreadable text gives no entries (rosbag2 then uses
+    its defaults).
+    """
+    try:
+        doc = yaml.safe_load(text) if text else []
+    except yaml.YAMLError:
+        return []
+    if not isinstance(doc, list):
+        return []
+    out = []
+    for q in doc:
+        if not isinstance(q, dict):
+            continue
+        e = dict(q)
+        for key, table in (('history', _HISTORY), ('reliability', _RELIABILITY),
+                           ('durability', _DURABILITY), ('liveliness', _LIVELINESS)):
+            if key in e:
+                e[key] = _named(table, e[key])
+        out.append(e)
+    return out
+
+
 def metadata_yaml(file_name: str, topics: Sequence[TopicRecord], start_ns: int,
-                  end_ns: int, compression: str = '') -> str:
+                  end_ns: int, compression: str = '',
+                  custom_data: dict[str, str] | None = None) -> str:
     """Return the metadata.yaml text of a bag of one MCAP file ``file_name`` (relative).
 
     ``start_ns`` / ``end_ns``: receive times (ns since the epoch) of the first and last
     message (both 0 for an empty bag). ``compression``: '' -- the MCAP chunks are compressed
-    inside the file, not the file by rosbag2.
+    inside the file, not the file by rosbag2. ``custom_data``: rosbag2's free string map
+    (``ros2 bag record --custom-data``), e.g. a flight recorder's trigger.
     """
     total = sum(t.count for t in topics)
     duration = max(0, end_ns - start_ns)
@@ -80,7 +112,7 @@ def metadata_yaml(file_name: str, topics: Sequence[TopicRecord], start_ns: int,
         'relative_file_paths': [file_name],
         'files': [{'path': file_name, 'starting_time': {'nanoseconds_since_epoch': start_ns},
                    'duration': {'nanoseconds': duration}, 'message_count': total}],
-        'custom_data': {},
+        'custom_data': {str(k): str(v) for k, v in (custom_data or {}).items()},
         'ros_distro': 'jazzy',
     }
     return yaml.safe_dump({'rosbag2_bagfile_information': info}, sort_keys=False)

@@ -1,0 +1,175 @@
+"""The flight recorder inside the bridge process: ROS subscriptions and RT datagrams in, bags out.
+
+Always on with the bridge (``flight_recorder.enabled``). It keeps, in a bounded ring
+(:class:`m4k_bridge.flightrec.Ring`), the serialized messages of:
+
+* commands: ``cmd_vel`` as received (the bridge's type), ``e_stop``, and ``cmd_vel_out``, the
+  velocity the RT actuator applies;
+* odometry: ``odom``;
+* guard and supervisor state: ``flight_recorder/rt_flags`` (diagnostic_msgs/DiagnosticStatus,
+  kept here only, never published): the actuator's ODOMETRY flags by name (GUARD, SLOWDOWN,
+  E_STOP, HOLD, MOTOR_FAULT, ESTOP_OPEN, ...) at every change and once a second, and
+  ``e_stop_state``;
+* faults: ``diagnostics`` (devices, link, e-stop) and ``flight_recorder/trigger``, one
+  DiagnosticStatus per trigger seen (rate-limited or not);
+* RT timing: ``rt_status`` (per-task release latency, response time, overruns, deadline
+  misses).
+
+It subscribes best effort (it never slows a publisher down) on the bridge's own node, and its
+callbacks only copy bytes into the ring. The triggers come from the RT datagrams the bridge
+decodes anyway (:meth:`FlightRecorder.on_datagram`), and a dump is written by a thread of its
+own (:class:`m4k_bridge.flightrec.Dumper`). It never runs in the RT process.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+
+from m4k_bridge.bag.metadata import qos_entries
+from m4k_bridge.bag.record import qos_yaml
+from m4k_bridge.flightrec import (
+    default_directory,
+    Dumper,
+    RateLimit,
+    Ring,
+    TopicSpec,
+    Trigger,
+    Triggers,
+)
+from m4k_rt import protocol
+
+__all__ = ['FlightRecorder']
+
+_NS = 1_000_000_000
+_SUB_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
+_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+_BEST_EFFORT = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+_LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_DIAG_STATUS = 'diagnostic_msgs/msg/DiagnosticStatus'
+_FLAGS_KEEPALIVE_NS = _NS       # the flags are kept at every change and at least once a second
+
+
+def _spec(topic: str, type_name: str, qos: QoSProfile) -> TopicSpec:
+    return TopicSpec(topic, type_name, qos_entries([qos]), qos_yaml([qos]))
+
+
+def flag_names(flags: int) -> str:
+    """Return the set ODOMETRY flags by name, ``|``-joined ('' when none)."""
+    return '|'.join(f.name or '' for f in protocol.OdomFlag if flags & f)
+
+
+class FlightRecorder:
+    """Feed the ring from the bridge node's topics and datagrams; dump on triggers."""
+
+    def __init__(self, node: Any, p: Any, cmd_vel_type: str) -> None:
+        """Subscribe on ``node`` (the bridge) with its parameters ``p`` and start the dumper."""
+        self.node = node
+        self.enabled = bool(p['flight_recorder.enabled'])
+        pre, post = p['flight_recorder.seconds'], p['flight_recorder.post_seconds']
+        self.ring = Ring(pre + post, p['flight_recorder.max_bytes'])
+        self.triggers = Triggers()
+        self.limit = RateLimit(p['flight_recorder.min_interval'])
+        self.directory = p['flight_recorder.directory'] or default_directory()
+        self.dumper: Dumper | None = None
+        self._flags_ns = 0
+        self.seen: list[Trigger] = []
+        if not self.enabled:
+            return
+        ns = node.get_namespace().rstrip('/')
+        topics = {
+            'cmd_vel': (p.topic('cmd_vel'), cmd_vel_type, _BEST_EFFORT),
+            'cmd_vel_out': (p.topic('cmd_vel_out'), 'geometry_msgs/msg/TwistStamped', _RELIABLE),
+            'odom': (p.topic('odom'), 'nav_msgs/msg/Odometry', _RELIABLE),
+            'e_stop': (p.topic('e_stop'), 'std_msgs/msg/Bool', _RELIABLE),
+            'e_stop_state': (p.topic('e_stop_state'), 'std_msgs/msg/Bool', _LATCHED),
+            'rt_status': (p.topic('rt_status'), 'm4k_msgs/msg/RtStatus', _RELIABLE),
+            'diagnostics': (p.topic('diagnostics'), 'diagnostic_msgs/msg/DiagnosticArray',
+                            _RELIABLE),
+        }
+        specs: dict[str, TopicSpec] = {}
+        self._subs = []
+        for key, (topic, type_name, qos) in topics.items():
+            sub = node.create_subscription(_message_class(type_name), topic,
+                                           self._keeper(key), _SUB_QOS, raw=True)
+            self._subs.append(sub)
+            specs[key] = _spec(sub.topic_name, type_name, qos)
+        for key in ('rt_flags', 'trigger'):
+            specs[key] = _spec('{}/flight_recorder/{}'.format(ns, key), _DIAG_STATUS,
+                               _RELIABLE)
+        log = node.get_logger()
+
+        def emit(level: str, text: str) -> None:
+            (log.error if level == 'error' else log.warning)(text)
+
+        self.dumper = Dumper(self.ring, specs, self.directory, pre, post, emit)
+        log.info('flight recorder: last {:g} s (+{:g} s after a trigger, at most {} bytes) '
+                 'dumped to {} on {}'.format(pre, post, self.ring.max_bytes, self.directory,
+                                             ', '.join(('e_stop', 'guard_stop', 'motor_fault',
+                                                        'deadline_miss', 'device_fault'))))
+
+    def _keeper(self, key: str) -> Callable[[bytes], None]:
+        ring = self.ring
+
+        def keep(data: bytes) -> None:
+            ring.add(time.time_ns(), key, data)
+        return keep
+
+    def on_datagram(self, kind: int, payload: Any) -> None:
+        """Watch a decoded RT datagram for triggers (the bridge's executor thread; cheap)."""
+        if not self.enabled:
+            return
+        if kind == protocol.Kind.ODOMETRY:
+            prev = self.triggers.flags
+            found = self.triggers.on_odometry(payload.flags)
+            now = time.monotonic_ns()
+            if payload.flags != prev or now - self._flags_ns >= _FLAGS_KEEPALIVE_NS:
+                self._flags_ns = now
+                self._keep_status('rt_flags', 'm4k_rt: actuator flags', flag_names(
+                    payload.flags), {'flags': '0x{:x}'.format(payload.flags),
+                                     'v': '{:.4f}'.format(payload.v),
+                                     'w': '{:.4f}'.format(payload.w)})
+        elif kind == protocol.Kind.TASK_STATS:
+            found = self.triggers.on_task_stats(payload)
+        elif kind == protocol.Kind.DEVICE_STATUS:
+            found = self.triggers.on_device_status(payload)
+        else:
+            return
+        for trig_kind, detail in found:
+            self.trigger(trig_kind, detail)
+
+    def trigger(self, kind: str, detail: str) -> bool:
+        """Note a trigger in the ring and queue a dump unless rate-limited; True if queued."""
+        mono, wall = time.monotonic_ns(), time.time_ns()
+        allowed = self.limit.allow(kind, mono)
+        self._keep_status('trigger', 'm4k_bridge: flight recorder trigger', kind,
+                          {'detail': detail, 'dumped': 'yes' if allowed else
+                           'no (rate limit)'}, level=DiagnosticStatus.ERROR)
+        trig = Trigger(kind, detail, wall, mono)
+        self.seen.append(trig)
+        del self.seen[:-100]
+        if allowed and self.dumper is not None:
+            self.dumper.submit(trig)
+        return allowed
+
+    def _keep_status(self, key: str, name: str, message: str, values: dict[str, str],
+                     level: bytes = DiagnosticStatus.OK) -> None:
+        st = DiagnosticStatus(level=level, name=name, message=message, hardware_id='m4k',
+                              values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        self.ring.add(time.time_ns(), key, serialize_message(st))
+
+    def close(self) -> None:
+        """Write pending dumps now and stop the dump thread."""
+        if self.dumper is not None:
+            self.dumper.close()
+
+
+def _message_class(type_name: str) -> Any:
+    import importlib
+    pkg, _, name = type_name.split('/')
+    return getattr(importlib.import_module(pkg + '.msg'), name)
