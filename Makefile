@@ -3,6 +3,9 @@
 #                                     stops it); FOXGLOVE=1 adds the live view on localhost:8765
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests
+#                                     (about 16 min on a 2-vCPU VM)
+#   make check                        lint + the unit tiers: make test without the tests marked
+#                                     e2e (they start the stack, processes or ROS nodes)
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #   make bench RUNS=2                 two full runs, one after the other -> docs/results/bench-1, -2
 #                                     and their combined table docs/results/bench-combined.md
@@ -20,7 +23,7 @@ SOURCES := $(shell find src config compat -type f -not -path '*/__pycache__/*' -
 BUILD_STAMP := install/.m4k-build-stamp
 COLCON_FLAGS := --event-handlers console_cohesion- status- --metas colcon.meta
 
-.PHONY: setup build test lint run bench demo scenarios soak fuzz clean
+.PHONY: setup build test check lint run bench demo scenarios soak fuzz clean
 
 setup:
 	@tools/setup.sh
@@ -41,6 +44,9 @@ lint: setup
 
 test: build
 	@tools/run-tests.sh
+
+check: build
+	@tools/run-tests.sh --check
 
 run: build
 	@$(ENV); bringup $(if $(CONFIG),--config $(CONFIG),) $(if $(FOXGLOVE),--foxglove,)

@@ -219,3 +219,115 @@ def test_the_bridge_bookkeeping_needs_no_ros_context(module, tmp_path):
     names = _loaded_by([module], tmp_path)[module]
     bad = sorted({n.split('.')[0] for n in names if _BRIDGE_PURE[module](n)})
     assert bad == [], f'{module} loads {bad}'
+
+
+# --- no import circle, not even through a function-local (lazy) import ----------------------
+
+def _module_files(pkg_roots: dict[str, str]) -> dict[str, str]:
+    """Return module name -> file for every module of the packages ``{pkg: package dir}``."""
+    files = {}
+    for pkg, pkg_dir in pkg_roots.items():
+        for mod in _modules(pkg_dir, pkg):
+            rel = mod.split('.')[1:]
+            path = os.path.join(pkg_dir, *rel)
+            files[mod] = (os.path.join(path, '__init__.py') if os.path.isdir(path)
+                          else path + '.py')
+    return files
+
+
+def _import_graph(pkg_roots: dict[str, str]) -> dict[str, set[str]]:
+    """Return module -> the modules of these packages that any import statement of it names.
+
+    Every ``import`` / ``from ... import`` counts, wherever it stands (module level, inside a
+    function, under ``if TYPE_CHECKING``); ``from a import b`` names ``a.b`` when that is a
+    module, else ``a``; relative imports are resolved.
+    """
+    files = _module_files(pkg_roots)
+    known = set(files)
+
+    def resolve(name: str) -> str | None:
+        while name and name not in known:
+            name = name.rpartition('.')[0]
+        return name or None
+
+    graph: dict[str, set[str]] = {}
+    for mod, path in files.items():
+        with open(path, encoding='utf-8') as f:
+            tree = ast.parse(f.read(), path)
+        is_pkg = path.endswith('__init__.py')
+        targets: set[str] = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                targets.update(t for a in node.names if (t := resolve(a.name)))
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ''
+                if node.level:
+                    parts = mod.split('.')
+                    anchor = parts if is_pkg else parts[:-1]
+                    anchor = anchor[:len(anchor) - (node.level - 1)]
+                    base = '.'.join(anchor + ([base] if base else []))
+                for a in node.names:
+                    t = resolve(base + '.' + a.name) if base else resolve(a.name)
+                    if t:
+                        targets.add(t)
+        targets.discard(mod)
+        graph[mod] = targets
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Return the import circles: each strongly connected set of two or more modules."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:   # Tarjan's algorithm; the graph is small (about 200 nodes)
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            scc = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                scc.append(w)
+                if w == v:
+                    break
+            if len(scc) > 1:
+                out.append(sorted(scc))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_module_imports_one_that_imports_it_back():
+    graph = _import_graph({p: os.path.join(ROOT, 'src', p, p) for p in PYTHON_PACKAGES})
+    assert 'm4k_rt.schema' in graph and 'm4k_bringup.configdoc' in graph
+    assert 'm4k_rt.schema' in graph['m4k_rt.control.params']
+    circles = _cycles(graph)
+    detail = {' -> '.join(c): {m: sorted(graph[m] & set(c)) for m in c} for c in circles}
+    assert circles == [], f'import circles (lazy imports included): {detail}'
+
+
+def test_the_circle_finder_sees_a_lazy_import_back(tmp_path):
+    pkg = tmp_path / 'pk'
+    (pkg / 'sub').mkdir(parents=True)
+    (pkg / '__init__.py').write_text('')
+    (pkg / 'sub' / '__init__.py').write_text('')
+    (pkg / 'a.py').write_text('from pk.sub import b\n')
+    (pkg / 'sub' / 'b.py').write_text('def f():\n    from .. import a\n    return a\n')
+    (pkg / 'c.py').write_text('import pk.a\nfrom pk.sub.b import f\n')
+    graph = _import_graph({'pk': str(pkg)})
+    assert graph['pk.a'] == {'pk.sub.b'} and graph['pk.sub.b'] == {'pk.a'}
+    assert graph['pk.c'] == {'pk.a', 'pk.sub.b'}
+    assert _cycles(graph) == [['pk.a', 'pk.sub.b']]

@@ -1,8 +1,18 @@
 #!/usr/bin/env bash
 # `make test`: lint, colcon test of every package, the workspace tests in test/, one summary.
+# `make check` (tools/run-tests.sh --check): the same without the end-to-end tier -- the tests
+# marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
+# static checks listed in test/conftest.py) -- the fast loop while editing.
 # Exits non-zero on any failure, and when no test ran at all.
 set -uo pipefail
 cd "$(dirname "$0")/.."
+markers='not hardware'
+if [[ ${1:-} == --check ]]; then
+  markers='not e2e and not hardware'
+elif [[ -n ${1:-} ]]; then
+  echo "usage: $0 [--check]" >&2
+  exit 2
+fi
 source tools/env.sh
 # Isolation for everything that starts ROS nodes: a random domain, localhost-only discovery.
 export ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-$(( (RANDOM % 100) + 1 ))}
@@ -12,15 +22,16 @@ rc=0
 echo "== lint (tools/lint.sh: ruff, then mypy) =="
 tools/lint.sh || rc=1
 
-echo "== colcon test (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, localhost discovery) =="
+echo "== colcon test -m '$markers' (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, localhost discovery) =="
 rm -rf build/*/test_results
 colcon --log-base log test --event-handlers console_cohesion- status- \
   --base-paths src --return-code-on-test-failure \
-  --pytest-args -q -p no:cacheprovider -m 'not hardware' || rc=1
+  --pytest-args -q -p no:cacheprovider -m "$markers" || rc=1
 
-echo "== workspace tests (test/) =="
+echo "== workspace tests (test/) -m '$markers' =="
+rm -rf build/workspace_test
 mkdir -p build/workspace_test
-python -m pytest test -q -p no:cacheprovider -m 'not hardware' \
+python -m pytest test -q -p no:cacheprovider -m "$markers" \
   --junitxml=build/workspace_test/test_results/workspace/pytest.xml || rc=1
 
 echo "== summary =="

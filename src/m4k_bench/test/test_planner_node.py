@@ -15,7 +15,8 @@ from std_msgs.msg import String
 
 from m4k_bench.planning.node import ParamError, PlannerNode
 
-pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
+pytestmark = [pytest.mark.allow_leaks('fds'),  # FastDDS keeps its sockets for the process
+              pytest.mark.e2e]           # ROS nodes: the end-to-end tier
 
 
 class Harness:

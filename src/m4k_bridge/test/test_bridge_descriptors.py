@@ -8,7 +8,8 @@ from m4k_bridge import params
 from m4k_bridge.node import BridgeNode
 from m4k_rt import config
 
-pytestmark = pytest.mark.allow_leaks('fds')  # in-process DDS transports outlive the node
+pytestmark = [pytest.mark.allow_leaks('fds'),  # in-process DDS transports outlive the node
+              pytest.mark.e2e]           # ROS nodes: the end-to-end tier
 
 
 @pytest.fixture

@@ -21,7 +21,8 @@ from m4k_msgs.msg import RtStatus
 from m4k_rt import protocol, xddp
 
 PORTS = {'status': 0, 'cmd': 1, 'imu_out': 4, 'led_in': 6, 'sonar_out': 8, 'lrf_out': 10}
-pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
+pytestmark = [pytest.mark.allow_leaks('fds'),  # FastDDS keeps its sockets for the process
+              pytest.mark.e2e]           # ROS nodes: the end-to-end tier
 
 
 class FakeRt:

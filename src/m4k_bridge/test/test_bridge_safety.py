@@ -5,6 +5,8 @@ import pytest
 from m4k_bridge.safety import CommandStampGate, latch_state
 from m4k_rt import protocol as p
 
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
+
 
 def test_stamped_command_from_before_the_release_is_dropped():
     gate = CommandStampGate()

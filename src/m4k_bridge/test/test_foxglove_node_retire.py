@@ -18,7 +18,8 @@ from rclpy.serialization import serialize_message
 
 from m4k_bridge.foxglove.node import FoxgloveNode
 
-pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
+pytestmark = [pytest.mark.allow_leaks('fds'),  # FastDDS keeps its sockets for the process
+              pytest.mark.e2e]           # ROS nodes: the end-to-end tier
 
 
 def test_the_zero_twist_is_delivered_in_order_and_the_publisher_retired_after_the_ack() -> None:

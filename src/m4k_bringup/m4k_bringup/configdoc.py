@@ -15,12 +15,36 @@ from m4k_bridge import params as bridge_params
 from m4k_bridge.foxglove import params as foxglove_params
 from m4k_drivers.config import schema_sections, world_sections
 from m4k_rt import rosargs, schema
+from m4k_rt.control.params import CONTROL
+from m4k_rt.schema import PORT, ROBOT, RUNTIME, Section, TASK
+
+
+def rt_sections() -> list[Section]:
+    """Return the sections of the RT side (m4k.yaml, control.yaml, robot.yaml) for the docs.
+
+    Gathered here, above every package, so that :mod:`m4k_rt.schema` need not import
+    :mod:`m4k_rt.control.params` (which imports it) -- not even lazily.
+    """
+    return [
+        Section('runtime', 'runtime (config/m4k.yaml)', RUNTIME),
+        Section('tasks.<name>', 'tasks.<name> (config/m4k.yaml)', TASK,
+                'One entry per RT task; checked across fields: 0 <= offset_ms < period_ms, '
+                'one owner per port, at least one enabled task.'),
+        Section('ports', 'ports (config/m4k.yaml)', {'<label>': PORT}),
+        Section('control', 'control (config/control.yaml)', CONTROL,
+                'Run by the RT actuator task. Checked across fields: guard.brake_deceleration not '
+                'below linear.max_deceleration; e-stop decelerations not below the normal '
+                'ones. The guard, supervision and e-stop: docs/safety.md.'),
+        Section('robot', 'robot (config/robot.yaml)', ROBOT,
+                'The one source of the URDF, the static transforms and the simulated '
+                "sensors' mounts. Every field but name is required in the layered configuration."),
+    ]
 
 
 def all_sections() -> list[schema.Section]:
     """Return every section: the RT side, each device backend, the world, the bridge, the
     live view."""
-    sections = schema.rt_sections()
+    sections = rt_sections()
     sections += schema_sections()
     sections += world_sections()
     sections.append(schema.Section(

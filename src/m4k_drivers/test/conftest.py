@@ -1,5 +1,6 @@
 """Shared m4k fixtures: ROS isolation, private runtime dir, process cleanup, leak check."""
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_rt.testing import *  # noqa: F401,F403
@@ -28,3 +29,9 @@ def sim_robot(m4k_runtime_dir):
         stop.set()
         loop.join(5)
         robot.close()
+
+
+@pytest.fixture
+def fake_clock():
+    """Return a fresh :class:`fakeclock.FakeClock` at t = 0 (the one fake clock of these tests)."""
+    return FakeClock()

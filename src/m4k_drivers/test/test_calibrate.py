@@ -26,6 +26,8 @@ from m4k_drivers.world import RobotParams
 from m4k_rt import config as rtconfig
 from m4k_rt.control.params import control_params
 
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
+
 CALIBRATE = ['python', '-m', 'm4k_drivers.calibrate.cli']   # `ros2 run m4k_drivers calibrate`
 R_CFG, TRACK_CFG = 0.1016, 0.40
 TRUE = {'wheel_diameter_m': 2 * R_CFG * 0.97, 'track_width_m': TRACK_CFG * 1.05,

@@ -12,8 +12,8 @@ calibrated overlay, and the ground truth says which one does what it is told.
 import argparse
 import io
 import math
-import threading
 
+from fakeclock import FakeClock, SteppingStop
 import pytest
 
 from m4k_drivers.calibrate import cli, runs
@@ -28,29 +28,8 @@ AS_BUILT = {'wheel_diameter_m': 0.2032 * 0.97, 'track_width_m': 0.42, 'top_speed
             'amp_offset_left_v': 0.3, 'amp_offset_right_v': -1.2, 'deadband_v': 0.9}
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def seconds(self):
-        return self.t * 1e-9
-
-
-class SteppingStop(threading.Event):
-    def __init__(self, clock):
-        super().__init__()
-        self.clock = clock
-
-    def wait(self, timeout=None):
-        self.clock.t += max(int(timeout * 1e9), 1000)
-        return self.is_set()
-
-
 def _robot(trim=(0, 0)):
-    clock = Clock()
+    clock = FakeClock()
     world = World(WorldConfig.from_dict({'robot': AS_BUILT, 'obstacles': [], 'seed': 7,
                                          'walls': {'rectangle': [-20, -20, 20, 20]}}),
                   clock=clock, t0_ns=0)

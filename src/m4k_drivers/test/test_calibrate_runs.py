@@ -1,7 +1,6 @@
 """calibrate's runs in simulated time: motors at zero on every way out, bounds that hold."""
 
-import threading
-
+from fakeclock import FakeClock, SteppingStop
 import pytest
 
 from m4k_drivers.calibrate import runs
@@ -10,31 +9,8 @@ from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import World, WorldConfig
 
 
-class SimClock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def seconds(self):
-        return self.t * 1e-9
-
-
-class SteppingStop(threading.Event):
-    """stop.wait() advances the world's clock, so a run takes no wall time."""
-
-    def __init__(self, clock):
-        super().__init__()
-        self.clock = clock
-
-    def wait(self, timeout=None):
-        self.clock.t += max(int(timeout * 1e9), 1000)
-        return self.is_set()
-
-
 def _rig():
-    clock = SimClock()
+    clock = FakeClock()
     world = World(WorldConfig.from_dict({'obstacles': [],
                                          'walls': {'rectangle': [-9, -9, 9, 9]}}),
                   clock=clock, t0_ns=0)

@@ -10,7 +10,11 @@ import os
 import signal
 import time
 
+import pytest
+
 from m4k_drivers.motors import protocol as p
+
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 
 
 def _truth_at(robot, t_ns, timeout_s=10.0):

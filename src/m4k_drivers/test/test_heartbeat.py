@@ -1,5 +1,6 @@
 """Motor-enable heartbeat: the handler toggles on fresh commands only; the monostable model."""
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers import config as dconfig
@@ -12,16 +13,8 @@ from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig
 MS = 1_000_000
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-
 def _rig(hold_s=0.05):
-    clock = Clock()
+    clock = FakeClock()
     world = World(WorldConfig(obstacles=()), clock=clock, t0_ns=0)
     mono = EnableMonostable(world, hold_s)
 

@@ -12,6 +12,8 @@ from m4k_drivers.host import DeviceService, main
 from m4k_rt import protocol
 from m4k_rt.xddp import rt_xddp_bind
 
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
+
 CONFIG = str(dconfig.default_config_path())
 
 

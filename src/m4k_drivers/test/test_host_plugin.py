@@ -20,6 +20,8 @@ from m4k_drivers import host, registry
 from m4k_rt import protocol
 from m4k_rt.xddp import rt_xddp_bind
 
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 K = protocol.Kind
 BUILT_IN = ('motor', 'imu', 'sonar', 'led', 'lrf')

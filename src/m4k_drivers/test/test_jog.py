@@ -1,8 +1,8 @@
 """Wheel jog (bring-up) against the simulated motor backend: direction, caps, prompt, zero."""
 
 import io
-import threading
 
+from fakeclock import FakeClock, SteppingStop
 import pytest
 
 from m4k_drivers import host
@@ -30,33 +30,13 @@ class Tty(io.StringIO):
         return self.tty
 
 
-class SimClock:
-    """The world's clock; stop.wait() advances it, so the jog runs in simulated time."""
 
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def seconds(self):
-        return self.t * 1e-9
-
-
-class SteppingStop(threading.Event):
-    def __init__(self, clock, stop_after_s=None):
-        super().__init__()
-        self.clock, self.stop_after_s = clock, stop_after_s
-
-    def wait(self, timeout=None):
-        self.clock.t += int(timeout * 1e9)
-        if self.stop_after_s is not None and self.clock.seconds() >= self.stop_after_s:
-            self.set()                                   # Ctrl-C
-        return self.is_set()
-
+def _stop(clock, **kw):
+    """The jog's stop: each wait advances the clock by exactly its timeout."""
+    return SteppingStop(clock, min_step_ns=0, **kw)
 
 def _rig(**kw):
-    clock = SimClock()
+    clock = FakeClock()
     world = World(WorldConfig(), clock=clock, t0_ns=0)
     dacs = []
 
@@ -75,7 +55,7 @@ def _angles(world):
 def test_jog_turns_only_the_chosen_wheel_then_zero(side, sign):
     h, world, clock, dacs = _rig()
     out = io.StringIO()
-    rc = run_jog(h, side, 0.1 * sign, 1.0, SteppingStop(clock), out=out, assume_yes=True,
+    rc = run_jog(h, side, 0.1 * sign, 1.0, _stop(clock), out=out, assume_yes=True,
                  clock=clock.seconds)
     assert rc == 0
     idx = 0 if side == 'left' else 1
@@ -92,7 +72,7 @@ def test_jog_turns_only_the_chosen_wheel_then_zero(side, sign):
 def test_jog_with_a_mirrored_dac_reports_backward():
     h, world, clock, dacs = _rig(dac_sign=(-1, 1))
     out = io.StringIO()
-    run_jog(h, 'left', 0.1, 0.5, SteppingStop(clock), out=out, assume_yes=True,
+    run_jog(h, 'left', 0.1, 0.5, _stop(clock), out=out, assume_yes=True,
             clock=clock.seconds)
     assert _angles(world)[0] < 0
     assert 'BACKWARD' in out.getvalue()
@@ -101,7 +81,7 @@ def test_jog_with_a_mirrored_dac_reports_backward():
 def test_ctrl_c_ends_the_jog_early_with_motors_at_zero():
     h, world, clock, dacs = _rig()
     out = io.StringIO()
-    rc = run_jog(h, 'right', 0.2, JOG_MAX_DURATION_S, SteppingStop(clock, stop_after_s=0.3),
+    rc = run_jog(h, 'right', 0.2, JOG_MAX_DURATION_S, _stop(clock, stop_after_s=0.3),
                  out=out, assume_yes=True, clock=clock.seconds)
     assert rc == 0 and clock.seconds() < 0.5
     assert [d.last.code for d in dacs] == [512, 512]
@@ -113,7 +93,7 @@ def test_ctrl_c_ends_the_jog_early_with_motors_at_zero():
 def test_confirmation_prompt_on_a_tty(answer, moved):
     h, world, clock, dacs = _rig()
     out = io.StringIO()
-    rc = run_jog(h, 'left', 0.1, 0.5, SteppingStop(clock), out=out, stdin=Tty(answer),
+    rc = run_jog(h, 'left', 0.1, 0.5, _stop(clock), out=out, stdin=Tty(answer),
                  clock=clock.seconds)
     assert 'Robot on blocks' in out.getvalue()
     assert (rc == 0) == moved
@@ -125,7 +105,7 @@ def test_confirmation_prompt_on_a_tty(answer, moved):
 def test_no_tty_and_no_yes_is_refused_before_anything_moves():
     h, world, clock, dacs = _rig()
     with pytest.raises(JogError, match='needs confirmation'):
-        run_jog(h, 'left', 0.1, 0.5, SteppingStop(clock), out=io.StringIO(),
+        run_jog(h, 'left', 0.1, 0.5, _stop(clock), out=io.StringIO(),
                 stdin=Tty('y\n', tty=False), clock=clock.seconds)
     assert dacs == []
 

@@ -1,5 +1,6 @@
 import math
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers.handler import DeviceNotFoundError, State, Status
@@ -148,16 +149,8 @@ def test_unwrap_rejects_impossible_jump_then_resyncs():
 
 
 # -- handler on the simulated bus --------------------------------------------------------
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-
 def make_sim(world_cfg=None, **kw):
-    clock = Clock()
+    clock = FakeClock()
     world = World(world_cfg or WorldConfig(), clock=clock, t0_ns=0)
     h = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.0), clock=clock, **kw)
     return h, world, clock
@@ -259,7 +252,7 @@ def test_driven_ldac_pulses_once_after_both_dac_words():
     from m4k_drivers.motors.real import MotorBus
     log = []
     bus = MotorBus(*_ports(log), ldac=_Ldac(log))
-    h = MotorHandler(lambda: bus, clock=Clock())
+    h = MotorHandler(lambda: bus, clock=FakeClock())
     h.configure()
     h.activate()
     log.clear()

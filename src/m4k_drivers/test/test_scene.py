@@ -3,6 +3,7 @@
 import errno
 import math
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers import config as dconfig
@@ -14,20 +15,9 @@ PANEL = [[2.0, -0.6], [2.05, -0.6], [2.05, 0.6], [2.0, 0.6]]
 HALL = [[8.0, -3.0, 8.0, 3.0]]
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.t += int(s * 1e9)
-
-
 def _world(obstacles, walls=HALL, **extra):
     return World(WorldConfig.from_dict({'walls': walls, 'obstacles': obstacles, **extra}),
-                 clock=Clock(), t0_ns=0)
+                 clock=FakeClock(), t0_ns=0)
 
 
 @pytest.mark.parametrize('surface, laser, sonar', [
@@ -60,8 +50,8 @@ def test_urg_reports_low_intensity_code_on_a_black_panel_and_code_0_through_glas
         assert out[0] == code          # glass: the wall behind is 9 m > 5.6 m: code 0
 
 
-def test_moving_obstacle_starts_on_the_robots_true_distance_and_follows_its_waypoints():
-    clock = Clock()
+def test_moving_obstacle_starts_on_the_robots_true_distance_and_follows_its_waypoints(fake_clock):
+    clock = fake_clock
     person = {'polygon': [[3.0, 2.0], [3.2, 2.0], [3.2, 2.4], [3.0, 2.4]],
               'path': {'start': {'travelled': 0.2}, 'waypoints': [[0, 0, 0], [2.0, 0, -2.0]]}}
     w = World(WorldConfig.from_dict({'walls': HALL, 'obstacles': [person]}), clock=clock,
@@ -86,8 +76,8 @@ def test_moving_obstacle_starts_on_the_robots_true_distance_and_follows_its_wayp
     assert w.obstacle_offsets()[0][1] == pytest.approx(-2.0)     # held after the last point
 
 
-def test_a_person_walking_into_the_robot_at_rest_is_a_contact():
-    clock = Clock()
+def test_a_person_walking_into_the_robot_at_rest_is_a_contact(fake_clock):
+    clock = fake_clock
     person = {'polygon': [[1.0, -0.2], [1.2, -0.2], [1.2, 0.2], [1.0, 0.2]],
               'path': {'start': {'after': 0.0}, 'waypoints': [[0, 0, 0], [1.0, -1.0, 0]]}}
     w = World(WorldConfig.from_dict({'walls': HALL, 'obstacles': [person]}), clock=clock,
@@ -126,10 +116,11 @@ def test_bad_scene_entries_name_the_field(section, message):
         WorldConfig.from_dict(section)
 
 
-def test_unplug_events_make_the_devices_do_what_unplugged_hardware_does(m4k_runtime_dir):
+def test_unplug_events_make_the_devices_do_what_unplugged_hardware_does(m4k_runtime_dir,
+                                                                         fake_clock):
     from m4k_drivers.sim_robot import SimRobot
     from m4k_rt.xddp import ensure_runtime_dir
-    clock = Clock()
+    clock = fake_clock
     doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'},
                        'sonar': {'backend': 'sim', 'mount': [0.225, 0.0, 0.0]}},
            'world': {'walls': HALL, 'obstacles': [],
@@ -164,8 +155,8 @@ def test_no_echo_pulse_of_the_sim_is_nothing_in_range():
     assert p.pulse_to_range(NO_ECHO_PULSE_S).status == p.STATUS_NO_ECHO
 
 
-def test_the_world_stamps_when_the_robot_came_to_rest():
-    clock = Clock()
+def test_the_world_stamps_when_the_robot_came_to_rest(fake_clock):
+    clock = fake_clock
     w = World(WorldConfig.from_dict({'walls': HALL, 'obstacles': []}), clock=clock, t0_ns=0)
     assert w.rest_since_ns == 0
     w.set_motor_voltage(LEFT, 6.0)

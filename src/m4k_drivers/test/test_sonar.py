@@ -1,3 +1,4 @@
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers.handler import DeviceNotFoundError, Status
@@ -36,17 +37,6 @@ def test_edges_to_width_takes_first_pair():
     edges = [p.Edge('falling', 5), p.Edge('rising', 1_000), p.Edge('falling', 6_001_000)]
     assert p.edges_to_width(edges) == pytest.approx(0.006)
     assert p.edges_to_width([p.Edge('rising', 1)]) is None
-
-
-class FakeClock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.t += int(s * 1e9)
 
 
 def _sim(cfg=None):

@@ -9,17 +9,6 @@ from m4k_drivers.motors.handler import WheelCommand
 from m4k_drivers.world import LEFT, Pose, RIGHT, World, WorldConfig, WorldConfigError
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.t += int(s * 1e9)
-
-
 def test_default_world_matches_paper_layout():
     w = World(t0_ns=0, clock=lambda: 0)
     assert w.robot.track_width_m == 0.40
@@ -37,8 +26,8 @@ def test_cone_cast_sees_obstacle_off_axis():
     assert w.cone_cast((0.0, 0.0), math.radians(20), math.radians(15), 1.6) < 1.6
 
 
-def test_spin_in_place_integrates_exact_arc():
-    t = Clock()
+def test_spin_in_place_integrates_exact_arc(fake_clock):
+    t = fake_clock
     w = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
     w.set_motor_voltage(LEFT, -6.0)
     w.set_motor_voltage(RIGHT, 6.0)
@@ -54,8 +43,8 @@ def test_spin_in_place_integrates_exact_arc():
     assert s.wheel_angle[LEFT] == pytest.approx(-s.wheel_angle[RIGHT])
 
 
-def test_drive_into_obstacle_stops_and_counts_collision():
-    t = Clock()
+def test_drive_into_obstacle_stops_and_counts_collision(fake_clock):
+    t = fake_clock
     w = World(clock=t, t0_ns=0)
     w.set_motor_voltage(LEFT, 6.0)
     w.set_motor_voltage(RIGHT, 6.0)
@@ -99,7 +88,7 @@ def test_world_config_errors_name_the_field(section, match):
         WorldConfig.from_dict(section)
 
 
-def test_drive_straight_one_metre_sensors_agree(m4k_runtime_dir):
+def test_drive_straight_one_metre_sensors_agree(m4k_runtime_dir, fake_clock):
     """Drive 1 m through DAC frames on the sim-bus; encoders, IMU yaw, ray cast, sonar agree.
 
     Motor and IMU go through the sim-bus to a SimRobot on a fake clock; the sonar's trigger
@@ -107,7 +96,7 @@ def test_drive_straight_one_metre_sensors_agree(m4k_runtime_dir):
     """
     from m4k_drivers.sim_robot import SimRobot
     from m4k_rt.xddp import ensure_runtime_dir
-    clock = Clock()
+    clock = fake_clock
     doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'}},
            'world': {'walls': {'rectangle': [-0.8, -1.5, 4.2, 1.5]}, 'obstacles': [],
                      'seed': 3}}
@@ -174,9 +163,9 @@ def _drive_and_compare(robot, motor, imu, clock):
     sonar.shutdown()
 
 
-def test_wheel_angle_between_steps_is_the_angle_at_that_time():
+def test_wheel_angle_between_steps_is_the_angle_at_that_time(fake_clock):
     # 1 ms steps: at 2.5 ms the stepped state is from 2 ms; a read at 2.5 ms must not see it.
-    t = Clock()
+    t = fake_clock
     w = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
     fine = World(WorldConfig(obstacles=(), step_s=1e-5), clock=t, t0_ns=0)
     for world in (w, fine):

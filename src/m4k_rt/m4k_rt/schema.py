@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Mapping, NoReturn, Sequence
 
 __all__ = [
     'ConfigError', 'Field', 'PORT', 'REQUIRED', 'ROBOT', 'RUNTIME', 'Section', 'TASK',
-    'check_keys', 'markdown', 'rt_sections', 'validate_tree',
+    'check_keys', 'markdown', 'validate_tree',
 ]
 
 
@@ -407,25 +407,6 @@ ROBOT: dict[str, Field] = {
         length=6, expect='[x, y, z, roll, pitch, yaw] (6 finite numbers)')
        for s in ('laser', 'imu', 'sonar')},
 }
-
-
-def rt_sections() -> list[Section]:
-    """Return the sections of the RT side (m4k.yaml, control.yaml, robot.yaml) for the docs."""
-    from m4k_rt.control.params import CONTROL  # beside its dataclasses (imports this module)
-    return [
-        Section('runtime', 'runtime (config/m4k.yaml)', RUNTIME),
-        Section('tasks.<name>', 'tasks.<name> (config/m4k.yaml)', TASK,
-                'One entry per RT task; checked across fields: 0 <= offset_ms < period_ms, '
-                'one owner per port, at least one enabled task.'),
-        Section('ports', 'ports (config/m4k.yaml)', {'<label>': PORT}),
-        Section('control', 'control (config/control.yaml)', CONTROL,
-                'Run by the RT actuator task. Checked across fields: guard.brake_deceleration not '
-                'below linear.max_deceleration; e-stop decelerations not below the normal '
-                'ones. The guard, supervision and e-stop: docs/safety.md.'),
-        Section('robot', 'robot (config/robot.yaml)', ROBOT,
-                'The one source of the URDF, the static transforms and the simulated '
-                "sensors' mounts. Every field but name is required in the layered configuration."),
-    ]
 
 
 # --- docs/configuration.md --------------------------------------------------------------------

@@ -9,6 +9,8 @@ Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. Wha
 * An autouse leak check that fails any test leaving behind a child process, a Python thread
   or a socket file descriptor -- the python-can habit of catching leaks where they happen.
 * The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
+* The ``e2e`` marker for the end-to-end tier: tests that start the stack, its processes or ROS
+  nodes. ``make check`` runs ``-m 'not e2e and not hardware'``; ``make test`` runs them all.
 * The ``ros2cli`` marker for tests that need launch/launch_ros/ros2cli (not on PyPI): skipped,
   saying so, where they do not import; the skip policy accepts that skip only there.
 * The ``needs_ros_package(name)`` marker for tests that need a ROS package PyPI lacks (e.g.
@@ -87,6 +89,9 @@ def examples(n: int) -> int:
 def pytest_configure(config: pytest.Config) -> None:
     """Register the m4k markers."""
     config.addinivalue_line('markers', 'hardware: needs the real M4K hardware; CI skips it')
+    config.addinivalue_line(
+        'markers', 'e2e: the end-to-end tier (starts the stack, its processes or ROS nodes); '
+        'make check deselects it, make test runs it')
     config.addinivalue_line(
         'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
         'install or the ros-verify environment); skipped with the reason elsewhere')

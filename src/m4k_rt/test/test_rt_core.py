@@ -7,11 +7,14 @@ import textwrap
 import threading
 import time
 
+import pytest
 import yaml
 
 from m4k_rt import protocol, recorder, xddp
 from m4k_rt.tasks import echo
 from m4k_rt.tools import rt_stat
+
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 
 SRC = os.path.join(os.path.dirname(__file__), '..')
 

@@ -13,6 +13,8 @@ from m4k_rt import protocol as p
 from m4k_rt.control.params import control_params
 from m4k_rt.timerfd import monotonic_ns
 
+pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
+
 SRC = os.path.join(os.path.dirname(__file__), '..')
 
 
