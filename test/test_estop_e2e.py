@@ -373,7 +373,13 @@ def test_e_stop_latch_survives_kill_9_of_rt_core_and_then_the_bridge(
     assert float(values['top_forward_speed_mps']) == pytest.approx(2.0)
     assert values['e_stop_latched'] == 'True' and values['wheel_supervision'] == 'on'
     assert user.got['rt_status'][-1].guard_top_speed == pytest.approx(2.0)
-    # the release still works, and a fresh command turns the robot again
-    e_stop.publish(Bool(data=False))
-    user.spin_until(lambda: truth_w() > 0.3, 20, 'a fresh command after the release to turn '
+    # the release still works (the service: it answers once the new bridge is up and the RT
+    # latch reports released), and a fresh command turns the robot again
+    from std_srvs.srv import SetBool
+    client = user.node.create_client(SetBool, '/m4k_bridge/e_stop')
+    user.spin_until(client.service_is_ready, 30, "the new bridge's e_stop service")
+    future = client.call_async(SetBool.Request(data=False))
+    user.spin_until(future.done, 20, 'the release answer')
+    assert future.result().success, future.result().message
+    user.spin_until(lambda: truth_w() > 0.3, 30, 'a fresh command after the release to turn '
                     'the robot', each=lambda: cmd.publish(turn))
