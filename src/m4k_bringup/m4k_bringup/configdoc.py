@@ -12,14 +12,15 @@ import sys
 from typing import Sequence
 
 from m4k_bridge import params as bridge_params
-from m4k_drivers.config import schema_sections
+from m4k_drivers.config import schema_sections, world_sections
 from m4k_rt import rosargs, schema
 
 
 def all_sections() -> list[schema.Section]:
-    """Return every section: the RT side's, each device backend's and the bridge's."""
+    """Return every section: the RT side's, each device backend's, the world's, the bridge's."""
     sections = schema.rt_sections()
     sections += schema_sections()
+    sections += world_sections()
     sections.append(schema.Section(
         'm4k_bridge', 'm4k_bridge ROS parameters (config/bridge.yaml)',
         {s.name: s for s in bridge_params.SPECS},

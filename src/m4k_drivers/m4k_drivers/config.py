@@ -97,14 +97,19 @@ COMMON: dict[str, Field] = {
 }
 
 
-def schema_sections() -> list[Section]:
-    """Return one schema Section per registered (device kind, backend) and world.robot."""
+def world_sections() -> list[Section]:
+    """Return the schema Section of ``world.robot`` (the simulated robot), for the docs."""
     title = 'world.robot: the simulated robot as built (config/devices.yaml)'
-    out = [Section('world.robot', title, ROBOT_FIELDS,
-                   "The simulator's physics (m4k_drivers.drive); sources and the braking they "
-                   "give: docs/sim-physics.md. Geometry unset here takes the control section's "
-                   'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
-                   'and the supply must overcome the friction.')]
+    return [Section('world.robot', title, ROBOT_FIELDS,
+                    "The simulator's physics (m4k_drivers.drive); sources and the braking they "
+                    "give: docs/sim-physics.md. Geometry unset here takes the control section's "
+                    'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
+                    'and the supply must overcome the friction.')]
+
+
+def schema_sections() -> list[Section]:
+    """Return one schema Section per registered (device kind, backend), for the docs."""
+    out = []
     for kind in registry.kinds():
         for backend in registry.backends(kind):
             spec = registry.get(kind, backend)

@@ -26,6 +26,7 @@ Defaults and their sources: docs/sim-physics.md. Each parameter is declared once
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from functools import cached_property
 import math
 from typing import Any
 
@@ -197,17 +198,17 @@ class RobotParams:
         """Return the motor-shaft speed at full armature voltage."""
         return self.max_wheel_rad_s * self.gear_ratio
 
-    @property
+    @cached_property
     def wheel_load_n(self) -> float:
         """Return the normal load on each drive wheel."""
         return self.mass_kg * G * self.drive_load_fraction / 2.0
 
-    @property
+    @cached_property
     def rolling_force_n(self) -> float:
         """Return each wheel's rolling resistance force."""
         return self.rolling_resistance * self.wheel_load_n
 
-    @property
+    @cached_property
     def ke(self) -> float:
         """Return the motor constant (V s/rad = N m/A) that makes top_speed_mps the top speed.
 
@@ -226,12 +227,12 @@ class RobotParams:
                              'no_load_current_a, rolling_resistance)')
         return (a + math.sqrt(disc)) / (2.0 * wm)
 
-    @property
+    @cached_property
     def wheel_inertia_total(self) -> float:
         """Return one wheel's inertia with its rotor reflected through the gear."""
         return self.wheel_inertia_kgm2 + self.gear_ratio ** 2 * self.rotor_inertia_kgm2
 
-    @property
+    @cached_property
     def friction_torque_nm(self) -> float:
         """Return the drive train's dry friction at the wheel (motor no-load current)."""
         return self.gear_ratio * self.ke * self.no_load_current_a

@@ -5,6 +5,7 @@ It plays the hardware the driver host talks to, and nothing else reaches the wor
 * SPI (sim-bus): ``left_dac``/``right_dac`` MCP4911 + amplifier, ``left_enc``/``right_enc``
   AS5045 on the wheel shafts (:mod:`m4k_drivers.motors.sim`); the DACs latch their last word;
 * GPIO (sim-bus): the amplifier-enable heartbeat monostable (``devices.motor.heartbeat_*``),
+  the e-stop read-back input after the contact (``devices.motor.estop_readback_*``),
   the US-100 TRIG and ECHO lines with edge timestamps (``devices.sonar.chip`` / ``*_line``);
 * I2C (sim-bus): the myAHRS+ registers on bus ``devices.imu.bus`` (:mod:`m4k_drivers.imu.sim`);
 * a pseudo terminal: the URG-04LX speaking SCIP 2.0, linked at ``<runtime_dir>/sim-urg``;
@@ -150,6 +151,10 @@ class SimRobot:
         if s['heartbeat']:
             self.enable = EnableMonostable(self.world, s['heartbeat_hold_s'])
             self.gpio[(s['heartbeat_chip'], s['heartbeat_line'])] = self.enable
+        if s['estop_readback_line'] is not None:
+            from m4k_drivers.motors.sim import EstopReadback
+            self.gpio[(s['estop_readback_chip'], s['estop_readback_line'])] = \
+                EstopReadback(self.world)
 
     def _build_imu(self, s: dict[str, Any]) -> None:
         from m4k_drivers.imu.sim import FakeMyAhrsBus

@@ -140,3 +140,14 @@ def test_the_simulated_footprint_is_the_robot_body_and_the_shipped_world_sets_no
         shipped = yaml.safe_load(f)['world']['robot']
     assert not {'wheel_diameter_m', 'track_width_m', 'gear_ratio', 'top_speed_mps',
                 'length_m', 'width_m'} & set(shipped), shipped
+
+
+def test_brake_results_go_to_the_guards_keys_of_the_overlay():
+    from m4k_drivers.calibrate import cli
+    res = {'brake': {'decel_mps2': 2.83, 'reaction_s': 0.012, 'speed_mps': 0.48, 'points': 7,
+                     'radius_m': 0.1016}}
+    doc = cli.overlay_doc(res)
+    assert doc == {'control': {'guard': {'brake_deceleration': 2.83, 'reaction_time': 0.012}}}
+    assert any('brake_deceleration' in line for line in cli._comments(res))
+    res['brake']['reaction_s'] = -0.001            # noise before the write: never negative
+    assert cli.overlay_doc(res)['control']['guard']['reaction_time'] == 0.0

@@ -111,3 +111,39 @@ def test_commands_beyond_the_cap_are_refused():
         with pytest.raises(runs.Aborted, match=r'sweep speed must be in \(0, 0\.3\]'):
             runs.sweep(rig, 0.5, 3, 0.2, 0.2, print)
     assert world.pose().x == 0.0
+
+
+@pytest.mark.parametrize('robot', [{}, {'amp_current_limit_a': 2.0, 'mass_kg': 40.0}])
+def test_brake_run_measures_the_simulators_braking_and_a_reaction_within_two_periods(robot):
+    """The braking run on the simulator agrees with its physics (issue 28.1, calibrate).
+
+    Tolerances: deceleration within 5 % of RobotParams.braking_decel_mps2() (the current limit's
+    braking, as the simulator's ground truth peak shows too); reaction time within half a
+    period before and two periods after the write: the simulated amplifier acts on the zero
+    at once (no current rise modelled), so the fit finds ~0 up to the encoder noise.
+    """
+    from m4k_drivers.calibrate import fit
+    clock = SimClock()
+    world = World(WorldConfig.from_dict({'obstacles': [], 'robot': robot,
+                                         'walls': {'rectangle': [-9, -9, 9, 9]}}),
+                  clock=clock, t0_ns=0)
+    handler = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.5), clock=clock)
+    stop = SteppingStop(clock)
+    with runs.MotorRig(handler, stop, clock=clock.seconds) as rig:
+        t_zero, before, after = runs.brake(rig, 0.25, 1.5)
+    r = world.robot.wheel_radius_m
+    b = fit.braking(t_zero, [(s.t, 0.5 * (s.left + s.right)) for s in before],
+                    [(s.t, 0.5 * (s.left + s.right)) for s in after], r)
+    truth = world.robot.braking_decel_mps2()
+    assert world.peak_decel == pytest.approx(truth, rel=0.01)      # the physics itself
+    assert b.decel_mps2 == pytest.approx(truth, rel=0.05)
+    assert -0.5 * handler.period_s <= b.reaction_s <= 2 * handler.period_s
+    assert b.speed_mps == pytest.approx(0.25 * world.robot.top_speed_mps, rel=0.1)
+    assert abs(world.state().v) < 0.01                              # stopped at the end
+
+
+def test_brake_fit_refuses_a_run_without_braking():
+    from m4k_drivers.calibrate import fit
+    flat = [(i * 0.01, i * 0.05) for i in range(50)]
+    with pytest.raises(fit.FitError, match='braking: 0 speed sample'):
+        fit.braking(0.25, flat[:25], flat[25:], 0.1)

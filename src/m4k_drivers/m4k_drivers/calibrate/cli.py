@@ -13,6 +13,10 @@ for what only a person can measure; answers come from stdin, one per line.
    ``wheel_radius``.
 4. ``turn``: turn in place ``--turns`` full turns counter-clockwise, then clockwise; you
    measure each angle: ``track_width``.
+5. ``brake`` (only when asked for in ``--steps``): drive straight at ``--brake-speed``, then
+   command zero (amplifier on, as the guard's stop does) and fit the encoders' speed:
+   ``control.guard.brake_deceleration`` (m/s^2) and ``control.guard.reaction_time`` (s,
+   from the host's zero command to the wheels' deceleration); the robot travels about 1.5 m.
 
 The output is your overlay (``--overlay``) with the identified values merged in, so it can
 replace it; a comment block states every value's method and the numbers behind it, and
@@ -39,7 +43,8 @@ from m4k_drivers.motors.handler import MotorHandler
 
 __all__ = ['STEPS', 'Operator', 'main']
 
-STEPS = ('zero', 'sweep', 'straight', 'turn')
+STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
+DEFAULT_STEPS = ('zero', 'sweep', 'straight', 'turn')     # brake: when asked for
 
 
 class Operator:
@@ -95,8 +100,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--runtime-dir', help='runtime directory (sim backends: the sim_robot)')
     ap.add_argument('--output', required=True, help='overlay YAML to write')
     ap.add_argument('--report', help='also write the numbers behind it as JSON')
-    ap.add_argument('--steps', default=','.join(STEPS),
-                    help=f'comma-separated subset of {",".join(STEPS)} (default: all)')
+    ap.add_argument('--steps', default=','.join(DEFAULT_STEPS),
+                    help=f'comma-separated subset of {",".join(STEPS)} (default: '
+                    f'{",".join(DEFAULT_STEPS)})')
     ap.add_argument('--hold', type=float, default=3.0, help='zero hold, s (1..10)')
     ap.add_argument('--max-speed', type=float, default=0.25,
                     help=f'sweep top, fraction of full scale (<= {runs.MAX_SPEED})')
@@ -107,6 +113,11 @@ def _parser() -> argparse.ArgumentParser:
                     help='straight run and turns, fraction of full scale (<= 0.25)')
     ap.add_argument('--distance', type=float, default=1.0, help='straight run, m (0.2..3)')
     ap.add_argument('--turns', type=int, default=1, help='full turns each way (1..3)')
+    ap.add_argument('--brake-speed', type=float, default=0.25,
+                    help='brake: straight speed before the stop, fraction of full scale '
+                    f'(0.05..{runs.MAX_SPEED})')
+    ap.add_argument('--brake-settle', type=float, default=1.5,
+                    help='brake: s at that speed before the stop (0.5..5)')
     ap.add_argument('--lambda', dest='lam', type=float, default=0.15,
                     help='closed-loop lag for the suggested PI gains, s (0.05..1)')
     ap.add_argument('--yes', action='store_true', help='do not ask before moving')
@@ -122,6 +133,8 @@ def _check(args: argparse.Namespace) -> list[str]:
     for name, v, lo, hi in (('--hold', args.hold, 1.0, 10.0),
                             ('--max-speed', args.max_speed, 0.02, runs.MAX_SPEED),
                             ('--levels', args.levels, 3, 10),
+                            ('--brake-speed', args.brake_speed, 0.05, runs.MAX_SPEED),
+                            ('--brake-settle', args.brake_settle, 0.5, 5.0),
                             ('--settle', args.settle, 0.2, 5.0),
                             ('--measure', args.measure, 0.2, 5.0),
                             ('--speed', args.speed, 0.02, 0.25),
@@ -249,6 +262,17 @@ def identify(rig: runs.MotorRig, steps: list[str], args: argparse.Namespace, ctl
         res['track_width'] = sum(tracks) / len(tracks)
         op.say(f'turn: track_width {res["track_width"]:.5f} m (ccw {tracks[0]:.5f}, cw '
                f'{tracks[1]:.5f}; configured {ctl.track_width:.5f})')
+    if 'brake' in steps:
+        op.confirm(f'Brake: the robot drives straight at {args.brake_speed:.2f} of full scale '
+                   f'for {args.brake_settle:.1f} s, then stops with a zero command (clear path '
+                   'of about 2 m ahead). Go?')
+        t_zero, before, after = runs.brake(rig, args.brake_speed, args.brake_settle)
+        b = fit.braking(t_zero, [(s.t, 0.5 * (s.left + s.right)) for s in before],
+                        [(s.t, 0.5 * (s.left + s.right)) for s in after], radius)
+        res['brake'] = {'decel_mps2': b.decel_mps2, 'reaction_s': b.reaction_s,
+                        'speed_mps': b.speed_mps, 'points': b.points, 'radius_m': radius}
+        op.say(f'brake: from {b.speed_mps:.3f} m/s the wheels decelerate at '
+               f'{b.decel_mps2:.3f} m/s^2, {b.reaction_s * 1e3:.1f} ms after the zero command')
 
 
 def _time_limit(distance_m: float, radius_m: float, speed: float, ctl: Any) -> float:
@@ -305,6 +329,10 @@ def overlay_doc(res: dict[str, Any]) -> dict[str, Any]:
             control[key] = round(float(res[key]), 6)
     if 'pi' in res:
         control['pi'] = {'kp': round(res['pi']['kp'], 5), 'ki': round(res['pi']['ki'], 5)}
+    if 'brake' in res:
+        # The guard's physics (issue 28): its stop distance v t_react + v^2 / (2 a_brake).
+        control['guard'] = {'brake_deceleration': round(res['brake']['decel_mps2'], 4),
+                            'reaction_time': round(max(res['brake']['reaction_s'], 0.0), 4)}
     doc: dict[str, Any] = {'control': control} if control else {}
     if 'dac_zero_trim' in res:
         doc['devices'] = {'motor': {'dac_zero_trim': list(res['dac_zero_trim'])}}
@@ -335,6 +363,12 @@ def _comments(res: dict[str, Any]) -> list[str]:
               f'  pi: lambda tuning of K/(tau s + 1), K = full scale, tau = {res["tau_s"]:.4f} s '
               f'(lag of the angle asymptotes): kp = tau/(K lambda), ki = 1/(K lambda), '
               f'lambda = {res["pi"]["lambda_s"]} s']
+    if 'brake' in res:
+        b = res['brake']
+        c.append(f'  guard.brake_deceleration / reaction_time: zero command from a steady '
+                 f'{b["speed_mps"]:.3f} m/s; the wheel speed line (85..40 % of it, {b["points"]} '
+                 f'samples) falls at {b["decel_mps2"]:.4f} m/s^2 and starts '
+                 f'{b["reaction_s"] * 1e3:.1f} ms after the write (radius {b["radius_m"]:.5f} m)')
     return c
 
 

@@ -15,6 +15,12 @@ what it does not model:
   gap at ``t0`` between the two plateaus' fitted lines is ``(w2 - w1) * tau``.  ``t0`` is when
   the host wrote the command, so the lag includes the command path's latency -- which the
   speed loop sees as well;
+* braking: from a steady straight run, the command goes to zero (code 512, amplifier on).
+  The mean wheel speed (angle differences) falls along a line while the amplifier's current
+  limit brakes; the line fitted between 85 % and 40 % of the steady speed gives the
+  deceleration (its slope times the radius) and, where it meets the steady speed, the
+  moment braking began: the reaction time is that moment minus the host's write of the zero
+  command (command path + amplifier + current rise);
 * geometry: radius = measured distance / mean wheel angle of a straight run; track width =
   radius * (right - left wheel angle) / measured heading change of an in-place turn.
 
@@ -32,7 +38,8 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ['FitError', 'Plateau', 'SpeedLine', 'WheelModel', 'fit_line', 'fit_plateau',
+__all__ = ['Braking', 'FitError', 'Plateau', 'SpeedLine', 'WheelModel', 'braking', 'fit_line',
+           'fit_plateau',
            'new_trim', 'pi_gains', 'radius_from_run', 'speed_line', 'tau_from_plateaus',
            'track_from_turn', 'wheel_model']
 
@@ -181,3 +188,48 @@ def pi_gains(full_scale: float, tau_s: float, lam_s: float) -> tuple[float, floa
         raise FitError(f'PI tuning needs positive gain, lag and target, got '
                        f'{full_scale!r}, {tau_s!r}, {lam_s!r}')
     return tau_s / (full_scale * lam_s), 1.0 / (full_scale * lam_s)
+
+
+@dataclass(frozen=True)
+class Braking:
+    """A braking run's result: deceleration, reaction time, the speed it braked from."""
+
+    decel_mps2: float
+    reaction_s: float
+    speed_mps: float
+    points: int
+
+
+def braking(t_zero: float, before: Sequence[tuple[float, float]],
+            after: Sequence[tuple[float, float]], radius_m: float,
+            lo: float = 0.40, hi: float = 0.85) -> Braking:
+    """Fit a braking run: (t, mean wheel angle) ``before`` and ``after`` the zero at ``t_zero``.
+
+    ``before``: the steady run (its last half gives the steady speed); ``after``: from the zero
+    command on. Speeds are angle differences over two samples, fitted as a line where they are
+    between ``lo`` and ``hi`` of the steady speed.
+    """
+    half = list(before[len(before) // 2:])
+    if len(half) < 2:
+        raise FitError('braking: too few samples of the steady run before the stop')
+    w1, _ = fit_line([t for t, _ in half], [a for _, a in half])
+    if abs(w1) < 1e-3:
+        raise FitError('braking: the wheels were not moving before the stop')
+    sign = 1.0 if w1 > 0 else -1.0
+    pts = list(before[-2:]) + list(after)
+    ts, ws = [], []
+    for (ta, aa), (tb, ab) in zip(pts[:-2], pts[2:], strict=True):
+        if tb > ta:
+            ts.append(0.5 * (ta + tb))
+            ws.append(sign * (ab - aa) / (tb - ta))
+    speed = abs(w1)
+    use = [(t, w) for t, w in zip(ts, ws, strict=True)
+           if t > t_zero and lo * speed <= w <= hi * speed]
+    if len(use) < 3:
+        raise FitError(f'braking: {len(use)} speed sample(s) between {lo:.0%} and {hi:.0%} of '
+                       f'the steady speed, need 3 (brake from a higher speed)')
+    slope, icpt = fit_line([t for t, _ in use], [w for _, w in use])
+    if not slope < 0:
+        raise FitError(f'braking: the speed does not fall after the stop (slope {slope:.4g})')
+    t_brake = (speed - icpt) / slope
+    return Braking(-slope * radius_m, t_brake - t_zero, speed * radius_m, len(use))

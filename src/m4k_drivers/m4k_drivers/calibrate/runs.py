@@ -26,8 +26,8 @@ from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_rt.protocol import EncoderStatus
 
-__all__ = ['MAX_SPEED', 'Aborted', 'MotorRig', 'Sample', 'Sweep', 'hold', 'straight', 'sweep',
-           'turn']
+__all__ = ['MAX_SPEED', 'Aborted', 'MotorRig', 'Sample', 'Sweep', 'brake', 'hold', 'straight',
+           'sweep', 'turn']
 
 MAX_SPEED = 0.3               # fraction of full scale, any run (0.6 m/s rim speed on the M4K)
 STOP_SPEED = 0.05             # rad/s: a wheel slower than this counts as stopped
@@ -270,3 +270,18 @@ def turn(rig: MotorRig, heading_rad: float, radius_m: float, track_m: float, spe
     if not math.isfinite(end.left + end.right):
         raise Aborted('turn: no encoder reading')
     return end.left - start.left, end.right - start.right
+
+
+def brake(rig: MotorRig, speed: float, settle_s: float,
+          stop_s: float = 1.5) -> tuple[float, list[Sample], list[Sample]]:
+    """Drive straight at ``speed`` (fraction of full scale) for ``settle_s``, then command zero.
+
+    The zero is code 512 with the amplifier enabled (what the guard's stop sends): the motors
+    brake as hard as the amplifier and the tyres allow. Return the zero's write time and the
+    readings before and after it (both wheels at rest at the end, else Aborted).
+    """
+    code = _code(speed * fit.DAC_SPAN)
+    _, before = rig.run_for(code, code, settle_s)
+    t_zero, after = rig.run_for(p.DAC_ZERO, p.DAC_ZERO, stop_s)
+    rig.wait_stopped()
+    return t_zero, before, after

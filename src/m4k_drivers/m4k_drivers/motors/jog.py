@@ -11,6 +11,13 @@ terminal, ``--yes`` is required).  Commands go through the motor handler's norma
 (:meth:`MotorHandler.write`, one fresh command per actuator period -- what feeds the driver
 watchdog and the motor-enable heartbeat), the other wheel is held at zero, and both wheels are
 commanded to zero at the end, on Ctrl-C (``stop``) and on any error.
+
+The verdict reports both wheels from their encoders. A wheel "turned" only beyond
+``JOG_MIN_TURN_RAD`` (0.05 rad: 33 counts of the 12-bit AS5045, 5 mm at the rim -- far above a
+count of flicker or noise, far below what the smallest allowed jog turns on free wheels), so a
+count of flicker never reads as "forward". The jogged wheel should turn the commanded way; the
+held one should stay still -- if it moved, the channels are swapped or the other motor is
+driven.
 """
 
 from __future__ import annotations
@@ -24,10 +31,12 @@ from m4k_drivers.handler import DriverError, Status
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 
-__all__ = ['JOG_MAX_DURATION_S', 'JOG_MAX_SPEED', 'JogError', 'check_jog', 'run_jog']
+__all__ = ['JOG_MAX_DURATION_S', 'JOG_MAX_SPEED', 'JOG_MIN_TURN_RAD', 'JogError', 'check_jog',
+           'run_jog', 'verdict']
 
 JOG_MAX_SPEED = 0.25            # fraction of full scale (0.5 m/s rim speed on the M4K)
 JOG_MAX_DURATION_S = 5.0
+JOG_MIN_TURN_RAD = 0.05         # an encoder's angle change below this is "did not turn"
 SIDES = ('left', 'right')
 
 
@@ -44,6 +53,41 @@ def check_jog(side: str, speed: float, duration_s: float) -> None:
                        f'+/-{JOG_MAX_SPEED}, got {speed!r}')
     if not math.isfinite(duration_s) or not 0.0 < duration_s <= JOG_MAX_DURATION_S:
         raise JogError(f'--duration: must be in (0, {JOG_MAX_DURATION_S}] s, got {duration_s!r}')
+
+
+def verdict(side: str, speed: float, turned: tuple[float, float],
+            threshold: float = JOG_MIN_TURN_RAD) -> tuple[bool, list[str]]:
+    """Return (all as expected, one line per wheel) for the encoders' angle changes.
+
+    ``turned`` is (left, right) in rad. The jogged wheel must turn the way ``speed`` says by
+    more than ``threshold``; the held one must stay within it.
+    """
+    idx = SIDES.index(side)
+    lines = []
+    ok = True
+    for i, name in enumerate(SIDES):
+        d = turned[i]
+        moved = abs(d) > threshold
+        head = (f'jog {side}: {name} wheel angle changed {d:+.3f} rad '
+                f'(threshold {threshold:.3f})')
+        if i == idx:
+            if moved and d * speed > 0:
+                what = 'the encoder says it turned forward'
+            elif moved:
+                what = ('the encoder says it turned BACKWARD (check dac_sign / enc_direction)')
+                ok = False
+            else:
+                what = ('the encoder says it did NOT turn measurably (check the amplifier '
+                        'enable, the motor wiring, or swapped encoder channels)')
+                ok = False
+        elif moved:
+            what = ('held at zero but the encoder says it MOVED (encoder channels swapped, or '
+                    'this motor is driven: check the wiring)')
+            ok = False
+        else:
+            what = 'held at zero and still, as it should be'
+        lines.append(f'{head}: {what}')
+    return ok, lines
 
 
 def confirm(side: str, speed: float, duration_s: float, stdin: TextIO, out: TextIO) -> bool:
@@ -80,8 +124,8 @@ def run_jog(handler: MotorHandler, side: str, speed: float, duration_s: float,
         print(f'driver_host: motor: {exc}', file=out, flush=True)
         handler.shutdown()
         return 1
-    start_angle = None
-    angle = math.nan
+    start: tuple[float, float] | None = None
+    last: tuple[float, float] | None = None
     rc = 0
     try:
         end = now() + duration_s
@@ -93,11 +137,11 @@ def run_jog(handler: MotorHandler, side: str, speed: float, duration_s: float,
                 break
             r = handler.read()
             if r.status == Status.OK:
-                angle = (r.value.left_angle, r.value.right_angle)[idx]
-                if start_angle is None:
-                    start_angle = angle
+                last = (r.value.left_angle, r.value.right_angle)
+                if start is None:
+                    start = last
                 if now() >= next_print:
-                    print(f'jog {side} code={code} angle={angle:+.3f} rad '
+                    print(f'jog {side} code={code} angle={last[idx]:+.3f} rad '
                           f'status=0x{r.value.status:02x}', file=out, flush=True)
                     next_print += 0.1
             stop.wait(period)
@@ -106,12 +150,10 @@ def run_jog(handler: MotorHandler, side: str, speed: float, duration_s: float,
         if handler.write(zero) != Status.OK:
             rc = 1
         handler.shutdown()             # deactivate: code 512 again, outputs active
-    if start_angle is not None and math.isfinite(angle):
-        turned = angle - start_angle
-        verdict = 'forward' if turned * speed > 0 else 'BACKWARD (check dac_sign / ' \
-            'enc_direction)' if turned * speed < 0 else 'not at all'
-        print(f'jog {side}: wheel angle changed {turned:+.3f} rad: the encoder says it turned '
-              f'{verdict}', file=out, flush=True)
+    if start is not None and last is not None and all(map(math.isfinite, last)):
+        _, lines = verdict(side, speed, (last[0] - start[0], last[1] - start[1]))
+        for line in lines:
+            print(line, file=out, flush=True)
     if stop.is_set():
         print('driver_host: jog stopped early; motors at zero', file=out, flush=True)
     return rc
