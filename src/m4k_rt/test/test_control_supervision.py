@@ -272,6 +272,7 @@ def test_open_e_stop_contact_resets_the_pi_and_latches_until_release_and_fresh_c
     sim = Sim()
     sim.run(2.0, (0.5, 0.0))
     sim.status = ENC_ESTOP_OPEN              # contact open: the amplifier is cut, wheels coast
+    sim.run(0.04, (0.5, 0.0))                # e_stop.contact_samples (5) in a row first
     for _ in range(100):
         sim.step((0.5, 0.0))
         ctl = sim.ctl
@@ -287,3 +288,15 @@ def test_open_e_stop_contact_resets_the_pi_and_latches_until_release_and_fresh_c
     assert sim.ctl.flags & ODOM_HOLD and sim.ctl.v == 0.0
     sim.run(1.0, (0.5, 0.0))                 # a fresh command drives again
     assert sim.ctl.v > 0.3
+
+
+def test_a_short_estop_open_glitch_is_filtered():
+    # fewer than e_stop.contact_samples samples: contact bounce, or the read-back glitch when
+    # the heartbeat restarts -- not an e-stop
+    sim = Sim()
+    sim.run(2.0, (0.5, 0.0))
+    sim.status = ENC_ESTOP_OPEN
+    sim.run(0.04, (0.5, 0.0))
+    sim.status = 0
+    sim.run(0.5, (0.5, 0.0))
+    assert not sim.ctl.flags & ODOM_E_STOP and sim.ctl.v == pytest.approx(0.5)

@@ -20,11 +20,13 @@ Order inside ``step``:
    voltage: the amplifier brakes the motor down with its own lag) and clear the integrators,
    so a residual integral or encoder quantization can never make a stopped robot creep.
 
-Between 1 and 2: the e-stop contact read back open (ENCODERS status ESTOP_OPEN) -> outputs
-zero (enable kept driven: its read-back shows the release), PI reset, the e-stop latch
-engaged; flags ESTOP_OPEN | E_STOP. A latched motor fault (``control.supervision``) -> outputs
-zero and the enable dropped, flag MOTOR_FAULT, until :meth:`reset_fault`. After step 4 the
-supervisor compares the wheel setpoints with the measured speeds and may latch the fault.
+Between 1 and 2: the e-stop contact read back open (ENCODERS status ESTOP_OPEN in
+``e_stop.contact_samples`` consecutive samples: contact bounce and the read-back glitch when
+the heartbeat restarts are filtered) -> outputs zero (enable kept driven: its read-back
+shows the release), PI reset, the e-stop latch engaged; flags ESTOP_OPEN | E_STOP. A
+latched motor fault (``control.supervision``) -> outputs zero and the enable dropped, flag
+MOTOR_FAULT, until :meth:`reset_fault`. After step 4 the supervisor compares the wheel
+setpoints with the measured speeds and may latch the fault.
 The guard's configuration also caps the forward target at the top speed the sensors can stop
 for and reverse at a creep speed (``forward_limit``, ``reverse_limit``; flag CLAMPED).
 
@@ -138,7 +140,9 @@ class BaseController:
             enabled=sv.enabled, speed_threshold=sv.speed_threshold, min_speed=sv.min_speed,
             wrong_way_time=sv.wrong_way_time, frozen_time=sv.frozen_time,
             stall_time=sv.stall_time, stall_ratio=sv.stall_ratio, swap_time=sv.swap_time)
-        self.estop_open = False     # the last valid ENCODERS said the e-stop contact is open
+        self.estop_open = False     # the contact reads open (contact_samples in a row)
+        self._open_samples = 0
+        self._open_needed = params.e_stop.contact_samples
         self.driver_safe = False    # the last valid ENCODERS said the driver holds DACs safe
         self.fault_resets = 0
         self.commands_blocked = 0   # commands received while the e-stop latch was engaged
@@ -228,7 +232,13 @@ class BaseController:
                                  or not seq_newer(self._enc_seq, seq)):
             self.odom.rebase()
         self._enc_seq = -1 if seq is None else seq
-        self.estop_open = bool(status & ENC_ESTOP_OPEN)
+        if status & ENC_ESTOP_OPEN:
+            self._open_samples += 1
+            if self._open_samples >= self._open_needed:
+                self.estop_open = True
+        else:
+            self._open_samples = 0
+            self.estop_open = False
         self.driver_safe = bool(status & ENC_SAFE)
         self.supervisor.encoders(left_angle, right_angle)
         self.encoder_samples += 1
@@ -269,6 +279,7 @@ class BaseController:
                 self.odom.zero_speeds()
                 self.left_speed = self.right_speed = 0.0
             self.motor_stale = True
+            self.supervisor.idle()
             self.hold_zero = True
             self.braking = False
             self._stop_outputs(0)

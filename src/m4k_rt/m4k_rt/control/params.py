@@ -94,6 +94,11 @@ CONTROL: dict[str, Field] = {
     'e_stop.angular_deceleration': _pos(
         'rad/s^2', None, 'Latched e-stop ramp; null: the angular maximum deceleration.',
         nullable=True),
+    'e_stop.contact_samples': Field(
+        'int', 5, 'Consecutive ENCODERS samples with ESTOP_OPEN before the open contact counts '
+        '(5 = 50 ms): filters contact bounce and the read-back glitch when the enable '
+        'heartbeat restarts. The contact cuts the amplifier in hardware at once either way; '
+        'larger only delays the latch and the PI reset.', lo=1, hi=50),
     'pi.kp': _nonneg('1/(rad/s)', 0.02, 'Proportional gain of the wheel-speed PI '
                      '(normalized command per rad/s). Too high: oscillation.'),
     'pi.ki': _nonneg('1/rad', 0.4, 'Integral gain. Too high: overshoot; 0: steady-state '
@@ -246,6 +251,7 @@ class EStopParams:
 
     linear_deceleration: float | None = None    # m/s^2
     angular_deceleration: float | None = None   # rad/s^2
+    contact_samples: int = 5                     # consecutive ESTOP_OPEN samples
 
 
 def _axis_deceleration(limits: AxisLimits) -> float:

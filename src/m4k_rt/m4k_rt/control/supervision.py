@@ -8,9 +8,10 @@ meaningless), the supervisor accumulates the time each symptom has held without 
 
 * **wrong way**: the measured speed is beyond ``min_speed`` and of the other sign
   (``wrong_way_time``);
-* **frozen**: the encoder angle has not changed by a single count (``frozen_time``): a frozen
-  frame, a dead encoder, or a wheel that does not turn at all (a stalled wheel whose encoder
-  is healthy reads the same);
+* **frozen**: the encoder angle has not changed by a single count (``frozen_time``, counted
+  over cycles that brought a new sample only: a late driver host is not a frozen encoder): a
+  frozen frame, a dead encoder, or a wheel that does not turn at all (a stalled wheel whose
+  encoder is healthy reads the same);
 * **stall**: the PI output is saturated and the wheel turns at less than ``stall_ratio`` of
   its setpoint (``stall_time``);
 * **swapped** (both wheels, while their setpoints differ by more than the threshold): each
@@ -47,7 +48,7 @@ class WheelSupervisor:
 
     __slots__ = ('enabled', 'threshold', 'min_speed', 'wrong_way_time', 'frozen_time',
                  'stall_time', 'stall_ratio', 'swap_time', 'cause', 'faults', 'last_cause',
-                 '_t', '_left_angle', '_right_angle', '_left_moved', '_right_moved')
+                 '_t', '_left_angle', '_right_angle', '_left_moved', '_right_moved', '_fresh')
 
     def __init__(self, *, enabled: bool = True, speed_threshold: float = 0.5,
                  min_speed: float = 0.3, wrong_way_time: float = 0.1,
@@ -70,6 +71,7 @@ class WheelSupervisor:
         self._right_angle = 0.0
         self._left_moved = False   # the angle changed since the last step
         self._right_moved = False
+        self._fresh = False        # a sample arrived since the last step
 
     @property
     def latched(self) -> bool:
@@ -78,6 +80,7 @@ class WheelSupervisor:
 
     def encoders(self, left_angle: float, right_angle: float) -> None:
         """Note one valid ENCODERS sample (did either angle change since the last?)."""
+        self._fresh = True
         if left_angle != self._left_angle:
             self._left_moved = True
             self._left_angle = left_angle
@@ -90,7 +93,7 @@ class WheelSupervisor:
         t = self._t
         for i in range(7):
             t[i] = 0.0
-        self._left_moved = self._right_moved = False
+        self._left_moved = self._right_moved = self._fresh = False
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, saturated_left: bool, saturated_right: bool) -> bool:
@@ -100,9 +103,12 @@ class WheelSupervisor:
         the measured wheel speeds, ``saturated_*`` whether that PI output was at its limit.
         """
         if not self.enabled or self.cause:
-            self._left_moved = self._right_moved = False
+            self._left_moved = self._right_moved = self._fresh = False
             return False
         t = self._t
+        # A cycle without a new sample (the driver host late) says nothing about a frozen
+        # encoder: its time counts only over cycles that brought a sample.
+        fresh = self._fresh
         th = self.threshold
         ms = self.min_speed
         cause = 0
@@ -119,7 +125,7 @@ class WheelSupervisor:
                     t[k] = 0.0
                 if moved:
                     t[2 + k] = 0.0
-                else:
+                elif fresh:
                     t[2 + k] += dt
                 if sat and abs(m) < self.stall_ratio * abs(sp):
                     t[4 + k] += dt
@@ -127,7 +133,7 @@ class WheelSupervisor:
                     t[4 + k] = 0.0
             else:
                 t[k] = t[2 + k] = t[4 + k] = 0.0
-        self._left_moved = self._right_moved = False
+        self._left_moved = self._right_moved = self._fresh = False
         diff = sp_left - sp_right
         if (diff > th or diff < -th) and (sp_left > th or sp_left < -th
                                           or sp_right > th or sp_right < -th):

@@ -47,6 +47,7 @@ from m4k_rt.control.guard import (
     speed_for_distance,
 )
 from m4k_rt.control.params import control_params, ControlParams
+from m4k_rt.estop_request import read_request, request_path
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import PortReader, PortWriter
@@ -351,8 +352,18 @@ def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) ->
     params = control_params(control_section(task, shared))
     period = task.period_ns * 1e-9
     plan = guard_plan(params, period, shared, raw_section(task, shared, 'robot'), test_weaken())
-    # Start-up, before any loop runs: the one place the RT process may write to stderr.
-    sys.stderr.write('rt_core: {}\n'.format(plan.line()))
-    sys.stderr.flush()
-    return ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params, period,
+    body = ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params, period,
                         plan=plan)
+    # Start-up, before any loop runs: the one place the RT process may read the e-stop
+    # request the bridge persisted, and write to stderr.
+    lines = [plan.line()]
+    runtime_dir = getattr(shared, 'runtime_dir', '')
+    if runtime_dir and read_request(runtime_dir):
+        body.ctl.e_stop(True)
+        lines.append('e-stop latch ENGAGED at start-up: {} says the e-stop is requested '
+                     '(release it with e_stop false, then send a fresh command)'.format(
+                         request_path(runtime_dir)))
+    for line in lines:
+        sys.stderr.write('rt_core: {}\n'.format(line))
+    sys.stderr.flush()
+    return body
