@@ -204,6 +204,40 @@ def test_driver_host_restart_keeps_the_world(stack, procs):
     assert again['heartbeat_edges'] > stopped['heartbeat_edges']
 
 
+def test_rt_core_hang_watchdog_zeroes_the_dacs(stack, procs):
+    """rt_core stops sending WHEEL_CMD but the link stays up: only the watchdog stops the robot.
+
+    SIGSTOP freezes rt_core with its sockets open, so the driver host's reads just time out --
+    no link loss (its log says so if it saw one; asserted below). Heartbeat off: the enable
+    stays on, so nothing but the host's watchdog (no WHEEL_CMD for ``period_s *
+    watchdog_periods``) can put 0 V on the armatures. Without the watchdog the DACs keep their
+    driving word and the robot drives on: this test fails.
+    """
+    s = stack(heartbeat=False)
+    host_log = LineWatch(s['host'].stderr)
+    before = _drive(s)
+    assert before['motor_enabled'] and not before['heartbeat']
+    motor = s['cfg'].devices['motor']
+    watchdog_s = motor['period_s'] * motor['watchdog_periods']      # config/devices.yaml
+    bound_s = watchdog_s + _braked_bound_s(s['cfg'], 1.2 * before['v'])
+    t_hang = time.monotonic_ns()
+    os.kill(s['core'].pid, signal.SIGSTOP)
+    try:
+        after = _wait_sim_time(s['rd'], t_hang + int(bound_s * 1e9))
+        # a little further on, the robot must still be at rest (the DACs stay at zero)
+        later = _wait_sim_time(s['rd'], after['t_ns'] + int(0.5e9))
+        lost = host_log.count('RT side gone')
+    finally:
+        os.kill(s['core'].pid, signal.SIGCONT)
+    assert lost == 0, 'the host saw the link drop: the link-loss path, not the watchdog'
+    assert s['core'].poll() is None and s['host'].poll() is None
+    assert after['motor_volts'] == [0.0, 0.0], (bound_s, after)
+    assert after['motor_enabled'], after
+    assert abs(after['v']) < STOPPED, (bound_s, after)
+    assert abs(later['v']) < STOPPED and later['motor_volts'] == [0.0, 0.0], later
+    assert later['collisions'] == 0
+
+
 def made_commander(s):
     """Return the stack's command source (the Commander the fixture started)."""
     return s['commander']
@@ -245,37 +279,3 @@ def test_e_stop_contact_under_a_live_command_stays_still_after_release_until_res
     # the explicit reset (E_STOP release); the commands after it turn the robot again
     cmd.send(p.encode(p.Kind.E_STOP, 0, 0, 0))
     _wait_truth(s['rd'], lambda t: abs(t['w']) > 0.8 * TURN, 20.0, 'turning again after the reset')
-
-
-def test_rt_core_hang_watchdog_zeroes_the_dacs(stack, procs):
-    """rt_core stops sending WHEEL_CMD but the link stays up: only the watchdog stops the robot.
-
-    SIGSTOP freezes rt_core with its sockets open, so the driver host's reads just time out --
-    no link loss (its log says so if it saw one; asserted below). Heartbeat off: the enable
-    stays on, so nothing but the host's watchdog (no WHEEL_CMD for ``period_s *
-    watchdog_periods``) can put 0 V on the armatures. Without the watchdog the DACs keep their
-    driving word and the robot drives on: this test fails.
-    """
-    s = stack(heartbeat=False)
-    host_log = LineWatch(s['host'].stderr)
-    before = _drive(s)
-    assert before['motor_enabled'] and not before['heartbeat']
-    motor = s['cfg'].devices['motor']
-    watchdog_s = motor['period_s'] * motor['watchdog_periods']      # config/devices.yaml
-    bound_s = watchdog_s + _braked_bound_s(s['cfg'], 1.2 * before['v'])
-    t_hang = time.monotonic_ns()
-    os.kill(s['core'].pid, signal.SIGSTOP)
-    try:
-        after = _wait_sim_time(s['rd'], t_hang + int(bound_s * 1e9))
-        # a little further on, the robot must still be at rest (the DACs stay at zero)
-        later = _wait_sim_time(s['rd'], after['t_ns'] + int(0.5e9))
-        lost = host_log.count('RT side gone')
-    finally:
-        os.kill(s['core'].pid, signal.SIGCONT)
-    assert lost == 0, 'the host saw the link drop: the link-loss path, not the watchdog'
-    assert s['core'].poll() is None and s['host'].poll() is None
-    assert after['motor_volts'] == [0.0, 0.0], (bound_s, after)
-    assert after['motor_enabled'], after
-    assert abs(after['v']) < STOPPED, (bound_s, after)
-    assert abs(later['v']) < STOPPED and later['motor_volts'] == [0.0, 0.0], later
-    assert later['collisions'] == 0

@@ -381,6 +381,11 @@ def _judge_motor_fault(res: Result, s: list[dict[str, Any]]) -> None:
     if end is None:
         res.failures.append('motor fault: no samples while commanded')
         return
+    # the commands reached the wheels before the latch (a stack that never drove is no test)
+    if not any(abs(float(u)) > 0.5 for x in s for u in x.get('motor_volts') or []):
+        res.failures.append('motor fault: the motors were never driven (no armature voltage '
+                            'above 0.5 V on ground truth): nothing was supervised')
+        return
     tail = [x for x in s if end - FAULT_HOLD_S * 1e9 <= int(x['t_ns']) <= end]
     if len(tail) < 3:
         res.failures.append('motor fault: too few samples at the end of the commands')
