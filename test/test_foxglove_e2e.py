@@ -145,6 +145,7 @@ def test_a_late_joiner_gets_odom_scan_and_the_latched_tf_tree_and_model(live):
             await c.until(lambda: c.info is not None, 'serverInfo')
             assert {'clientPublish', 'services'} <= set(c.info['capabilities'])
             assert 'cdr' in c.info['supportedEncodings']
+            assert c.info['metadata']['ROS_DISTRO'] == (os.environ.get('ROS_DISTRO') or 'jazzy')
             # Every topic the shipped layout shows is served (what it publishes, the teleop
             # test publishes as its panels do).
             reads, _ = _layout_topics(_layout())

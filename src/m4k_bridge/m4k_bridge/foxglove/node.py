@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import collections
 import importlib
+import os
 import re
 import sys
 import threading
@@ -172,7 +173,10 @@ class FoxgloveNode(Node):
                              max_queue_bytes=p['max_queue_bytes'],
                              origins=OriginPolicy(p['allowed_origins']), token=token,
                              max_clients=p['max_clients'],
-                             max_client_channels=p['max_client_channels'])
+                             max_client_channels=p['max_client_channels'],
+                             # As foxglove_bridge: the apps then take the source as ROS 2
+                             # (their publish tools use ROS 2 type names and definitions).
+                             metadata={'ROS_DISTRO': os.environ.get('ROS_DISTRO') or 'jazzy'})
         self.server.start()
         local = self.address in ('127.0.0.1', 'localhost', '::1')
         self.get_logger().info('Foxglove WebSocket server on ws://{}:{} ({}; {})'.format(

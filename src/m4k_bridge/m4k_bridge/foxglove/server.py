@@ -100,8 +100,10 @@ class Server:
                  encodings: tuple[str, ...] = ('cdr',), max_queue_messages: int = 200,
                  max_queue_bytes: int = 8 << 20, max_control: int = 1000,
                  origins: OriginPolicy | None = None, token: str | None = None,
-                 max_clients: int = 4, max_client_channels: int = 16) -> None:
+                 max_clients: int = 4, max_client_channels: int = 16,
+                 metadata: dict[str, str] | None = None) -> None:
         self.handler = handler
+        self.metadata = dict(metadata or {})
         # Never unchecked: a server built without a policy gets the default allow-list.
         self.origins = origins if origins is not None else OriginPolicy(DEFAULT_ORIGINS)
         self.token = token
@@ -321,7 +323,7 @@ class Server:
         with self._lock:
             self.clients_total += 1
             self._control(c, fp.server_info(self.name, self.capabilities, self.encodings,
-                                            self.session_id))
+                                            self.session_id, self.metadata))
             self._control(c, fp.advertise(list(self._channels.values())))
             if self._services:
                 self._control(c, fp.advertise_services(list(self._services.values())))
