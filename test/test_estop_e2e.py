@@ -34,9 +34,10 @@ AT_REST = 0.005      # m/s of true speed
 STILL_M = 0.005      # m of true travel
 # Slack on top of v / e_stop_deceleration + 2 actuator periods, each term an upper bound on
 # this loaded two-core machine: DDS delivery on localhost plus the bridge's executor and port
-# thread (0.1 s), and the simulated motor's first-order lag (devices.yaml world.motor_tau_s):
-# when the commanded ramp reaches zero the true speed still trails it by about
-# a * tau and decays as exp(-t / tau), below AT_REST after tau * ln(a * tau / AT_REST).
+# thread (0.1 s), and the simulated drive's time constant (RobotParams.motor_tau_s, derived
+# from the motor, gear and mass of world.robot): when the commanded ramp reaches zero the true
+# speed still trails it by about a * tau and decays as exp(-t / tau), below AT_REST after
+# tau * ln(a * tau / AT_REST).
 DDS_SLACK_S = 0.1
 STAMPED = {'m4k_bridge': {'ros__parameters': {'enable_stamped_cmd_vel': True}}}
 
@@ -47,8 +48,11 @@ def _actuator_period_s():
 
 
 def _motor_tau_s():
+    from m4k_drivers.world import RobotParams, WorldConfig
     with open(os.path.join(ROOT, 'config', 'devices.yaml'), encoding='utf-8') as f:
-        return float(yaml.safe_load(f)['world']['robot']['motor_tau_s'])
+        world = yaml.safe_load(f)['world']
+    return WorldConfig.from_dict(world, robot=RobotParams.from_control(_control())
+                                 ).robot.motor_tau_s
 
 
 def _dist(a, b):
@@ -288,3 +292,94 @@ def test_e_stop_state_falls_silent_and_the_diagnostic_says_unknown_when_the_rt_s
     assert state[-1].data is False
     user.spin_until(lambda: not unknown(), 10, 'the e_stop diagnostic to know the latch again')
     assert proc.poll() is None
+
+
+def _safety_diag(user):
+    """Return (level, message, values) of the newest ``m4k_rt: safety`` status, or None."""
+    for arr in reversed(user.got['diagnostics']):
+        for s in arr.status:
+            if s.name == 'm4k_rt: safety':
+                return s.level, s.message, {kv.key: kv.value for kv in s.values}
+    return None
+
+
+def _pid_of(proc, what):
+    pids = [pid for pid in child_pids(proc.pid) if what in cmdline(pid)]
+    assert len(pids) == 1, [cmdline(pid) for pid in child_pids(proc.pid)]
+    return pids[0]
+
+
+def _new_pid(proc, what, old):
+    return any(what in cmdline(pid) and pid != old for pid in child_pids(proc.pid))
+
+
+def test_e_stop_latch_survives_kill_9_of_rt_core_and_then_the_bridge(
+        stack, m4k_runtime_dir):  # noqa: F811
+    # Issue 28: killing rt_core and the bridge together lost the latch (the robot turned at
+    # 0.8 rad/s on ground truth). Now the bridge persists the request, a restarted rt_core
+    # starts latched from it, a restarted bridge gates cmd_vel and sends E_STOP first on
+    # every link. Judged on the simulator's ground truth, sampled at 20 Hz from the kill on.
+    user, proc, _ = stack
+    cmd = user.publisher(Twist, 'cmd_vel')
+    e_stop = user.publisher(Bool, 'e_stop')
+    turn = Twist()
+    turn.angular.z = 0.8
+    samples = []
+
+    def truth_w():
+        g = ground_truth(m4k_runtime_dir)
+        return 0.0 if g is None else abs(g['w'])
+
+    user.spin_until(lambda: truth_w() > 0.3, 20, 'the robot to turn (ground truth)',
+                    each=lambda: cmd.publish(turn))
+    e_stop.publish(Bool(data=True))
+    user.spin_until(lambda: user.got['rt_status'] and user.got['rt_status'][-1].e_stop_active
+                    and truth_w() < 0.005, 15, 'the latch engaged and the robot at rest',
+                    each=lambda: cmd.publish(turn))
+    assert os.path.exists(os.path.join(m4k_runtime_dir, 'e_stop.request'))
+
+    def each():
+        cmd.publish(turn)                   # a rotation commanded at 20 Hz throughout
+        g = ground_truth(m4k_runtime_dir)
+        if g is not None:
+            samples.append(g)
+
+    rt = _pid_of(proc, 'rt_core')
+    bridge = _pid_of(proc, 'm4k_bridge.node')
+    start = ground_truth(m4k_runtime_dir)
+    os.kill(rt, signal.SIGKILL)
+    user.spin_for(0.2, each, 0.05)
+    os.kill(bridge, signal.SIGKILL)
+    user.spin_until(lambda: _new_pid(proc, 'rt_core', rt)
+                    and _new_pid(proc, 'm4k_bridge.node', bridge), 30,
+                    'bringup to restart rt_core and the bridge', each=each, period=0.05)
+    n = len(user.got['rt_status'])
+    user.spin_until(lambda: len(user.got['rt_status']) > n + 1
+                    and user.got['rt_status'][-1].e_stop_active, 40,
+                    'the new bridge to report the RT latch engaged', each=each, period=0.05)
+    user.spin_for(3.0, each, 0.05)
+    assert len(samples) > 40, len(samples)
+    worst = max(abs(g['w']) for g in samples)
+    turned = abs(math.remainder(samples[-1]['pose'][2] - start['pose'][2], 2 * math.pi))
+    print('after kill -9 of rt_core and the bridge: {} truth samples, max |w| {:.4f} rad/s, '
+          'heading change {:.4f} rad'.format(len(samples), worst, turned))
+    assert worst < 0.02, worst
+    assert turned < 0.02, turned
+    assert proc.poll() is None
+    # the new RT session stated its guard again: the diagnostic and rt_status carry the cap
+    user.spin_until(lambda: _safety_diag(user) is not None, 10, 'the m4k_rt: safety diagnostic',
+                    each=each, period=0.05)
+    level, _, values = _safety_diag(user)
+    assert float(values['top_forward_speed_mps']) == pytest.approx(2.0)
+    assert values['e_stop_latched'] == 'True' and values['wheel_supervision'] == 'on'
+    assert user.got['rt_status'][-1].guard_top_speed == pytest.approx(2.0)
+    # the release still works (the service: it answers once the new bridge is up and the RT
+    # latch reports released), and a fresh command turns the robot again
+    from std_srvs.srv import SetBool
+    client = user.node.create_client(SetBool, '/m4k_bridge/e_stop')
+    user.spin_until(client.service_is_ready, 30, "the new bridge's e_stop service")
+    future = client.call_async(SetBool.Request(data=False))
+    user.spin_until(future.done, 20, 'the release answer')
+    assert future.result().success, future.result().message
+    user.spin_until(lambda: truth_w() > 0.3, 30, 'a fresh command after the release to turn '
+                    'the robot', each=lambda: cmd.publish(turn))

@@ -40,6 +40,9 @@ class Commander:
 
     def __init__(self, runtime_dir: str) -> None:
         self.ep = nrt_xddp_open('cmd', wait=20.0, runtime_dir=runtime_dir)
+        self.command = (SPEED, 0.0)          # (linear m/s, angular rad/s) sent at 20 Hz
+        self.lock = threading.Lock()
+        self.odom_flags = 0                  # the last ODOMETRY's flags
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
@@ -47,11 +50,22 @@ class Commander:
     def _run(self) -> None:
         while not self.stop.wait(0.05):
             try:
-                self.ep.write(p.encode(p.Kind.VELOCITY_CMD, 0, 0, SPEED, 0.0))
+                with self.lock:
+                    self.ep.write(p.encode(p.Kind.VELOCITY_CMD, 0, 0, *self.command))
                 while True:                  # drain ODOMETRY so the port never fills
-                    self.ep.read(timeout=0.0)
-            except (TimeoutError, OSError):
+                    data = self.ep.read(timeout=0.0)
+                    if data is None:
+                        break
+                    hdr, msg = p.decode(data)
+                    if hdr.kind == p.Kind.ODOMETRY:
+                        self.odom_flags = msg.flags
+            except (TimeoutError, OSError, p.ProtocolError):
                 pass
+
+    def send(self, data: bytes) -> None:
+        """Write one datagram between two commands (in port order)."""
+        with self.lock:
+            self.ep.write(data)
 
     def close(self) -> None:
         self.stop.set()
@@ -80,10 +94,12 @@ def stack(procs, tmp_path, m4k_runtime_dir):
     """Start sim_robot, driver_host, rt_core with an overlay; yield a starter for variants."""
     made = {}
 
-    def start(heartbeat: bool = True):
+    def start(heartbeat: bool = True, world: dict | None = None):
         overlay = tmp_path / 'overlay.yaml'
         doc = {'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10},
                'devices': {'motor': {'backend': 'sim', 'heartbeat': heartbeat}}}
+        if world:
+            doc['world'] = world
         overlay.write_text(yaml.safe_dump(doc))
         env = stack_env(m4k_runtime_dir)
         sim = start_sim_robot(procs, env, m4k_runtime_dir, '--overlay', str(overlay))
@@ -95,7 +111,7 @@ def stack(procs, tmp_path, m4k_runtime_dir):
         raw = load_raw_config(None, str(overlay))
         cfg = validate({'devices': raw['devices'], 'world': raw.get('world') or {}})
         return {'sim': sim, 'host': host, 'core': core, 'env': env, 'host_argv': host_argv,
-                'cfg': cfg, 'rd': m4k_runtime_dir}
+                'cfg': cfg, 'rd': m4k_runtime_dir, 'commander': made['cmd']}
 
     yield start
     if 'cmd' in made:
@@ -180,3 +196,46 @@ def test_driver_host_restart_keeps_the_world(stack, procs):
     again = _wait_truth(s['rd'], lambda t: t['v'] > 0.95 * SPEED, 30.0, 'driving again')
     assert again['x'] > stopped['x'], (stopped, again)          # continues from there
     assert again['heartbeat_edges'] > stopped['heartbeat_edges']
+
+
+def made_commander(s):
+    """Return the stack's command source (the Commander the fixture started)."""
+    return s['commander']
+
+
+TURN = 0.5            # rad/s
+PRESS_AT_S = 25.0      # world time of the e-stop press (the stack is driving well before)
+RELEASE_AT_S = 27.0
+
+
+def test_e_stop_contact_under_a_live_command_stays_still_after_release_until_reset(stack, procs):
+    """Press the e-stop contact (sim fault: the contact opens in series with the enable) while
+    the command source keeps sending a turn at 20 Hz (a turn: the guard never holds it), then
+    close it: the robot must stay still (ground truth) until the e-stop is released
+    explicitly, and turn again only on the commands after that.
+    """
+    s = stack(world={'faults': [{'at_s': PRESS_AT_S, 'until_s': RELEASE_AT_S, 'kind': 'estop'}]})
+    cmd = made_commander(s)
+    cmd.command = (0.0, TURN)
+    before = _wait_truth(s['rd'], lambda t: abs(t['w']) > 0.8 * TURN, 30.0, 'turning')
+    assert not before['estop_open'], 'the stack was not turning before the press'
+    _wait_truth(s['rd'], lambda t: t['estop_open'], 40.0, 'the e-stop contact to open')
+    closed = _wait_truth(s['rd'], lambda t: not t['estop_open'], 10.0,
+                         'the e-stop contact to close again')
+    assert cmd.odom_flags & p.ODOM_E_STOP, cmd.odom_flags        # the RT latch holds
+    # commands keep coming; for 3 s of world time after the release the robot must not move
+    t_end = closed['t_ns'] + 3_000_000_000
+    worst = 0.0
+    last = closed
+    while last['t_ns'] < t_end:
+        seen = last['t_ns']
+        last = _wait_truth(s['rd'], lambda t, seen=seen: t['t_ns'] > seen, 5.0, 'sim time')
+        worst = max(worst, abs(last['w']), abs(last['v']))
+    turned = abs(math.remainder(last['theta'] - closed['theta'], 2 * math.pi))
+    print('after the contact closed: peak |w|,|v| {:.4f}, turned {:.4f} rad in 3 s'.format(
+        worst, turned))
+    assert worst < 0.02 and turned < 0.01, (worst, turned)
+    assert cmd.odom_flags & p.ODOM_E_STOP
+    # the explicit reset (E_STOP release); the commands after it turn the robot again
+    cmd.send(p.encode(p.Kind.E_STOP, 0, 0, 0))
+    _wait_truth(s['rd'], lambda t: abs(t['w']) > 0.8 * TURN, 20.0, 'turning again after the reset')

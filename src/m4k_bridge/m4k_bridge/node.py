@@ -11,7 +11,8 @@ diagnostics. On shutdown it sends one zero command. ``e_stop`` (std_msgs/Bool) a
 (:mod:`m4k_bridge.safety`: the latch itself lives in the RT process).
 
 Outbound, datagrams from the RT process become ``odom``, ``imu``, ``scan``, ``sonar``,
-``cmd_vel_out`` (the velocity the RT actuator applies), ``e_stop_state``, and
+``cmd_vel_out`` (the velocity the RT actuator applies), ``e_stop_state``, ``motor_fault``
+(:mod:`m4k_bridge.faults`; reset by ``~/reset_motor_fault``), and
 through :mod:`m4k_bridge.tf` ``joint_states``, ``tf``, ``tf_static`` and
 ``robot_description``; the monitor's TASK_STATS / RT_STATUS become ``rt_status`` and, with
 the link, command and device health (:mod:`m4k_bridge.health`), ``diagnostics``. Port I/O
@@ -55,6 +56,7 @@ import yaml
 
 from m4k_bridge import convert, params
 from m4k_bridge.diagnostics import make_status, RtMonitor
+from m4k_bridge.faults import MotorFaultInterface, SafetyReport
 from m4k_bridge.health import BridgeHealth, Status
 from m4k_bridge.ports import PortPump
 from m4k_bridge.safety import SafetyInterface
@@ -161,8 +163,12 @@ class BridgeNode(Node):
         self.create_subscription(ColorRGBA, p.topic('led'), self._on_led, 10)
 
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
+        # The cmd port's first datagram on every link is the e-stop, when one is requested.
+        safety = self._safety
         self._pumps = {role: PortPump(role, p.port(role), self._deliver, runtime_dir,
-                                      p['relink_interval'])
+                                      p['relink_interval'],
+                                      preamble=(safety.link_preamble if role == 'cmd'
+                                                else None))
                        for role in params.PORT_ROLES}
         self._diag_timer = self.create_timer(p['diagnostics_period'],
                                              self._unless_shut_down(self._publish_diagnostics))
@@ -287,6 +293,14 @@ class BridgeNode(Node):
         self._command(msg.twist.linear.x, msg.twist.angular.z)
 
     def _command(self, linear_x: float, angular_z: float) -> None:
+        if self._safety.gating:
+            # An e-stop is requested: nothing to forward, whatever the RT latch says (a
+            # restarted RT process may not have latched yet).
+            self._safety.gated += 1
+            self.get_logger().warning(
+                'cmd_vel while the e-stop is requested: not forwarded ({} so far; release with '
+                'e_stop false)'.format(self._safety.gated), throttle_duration_sec=5.0)
+            return
         try:
             v, w, clamped = convert.velocity_command(
                 linear_x, angular_z, self.p['max_linear_velocity'],
@@ -368,6 +382,18 @@ class BridgeNode(Node):
                 p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
             self._robot_state.on_odometry(payload, stamp)
             self._safety.on_latch(bool(payload.flags & protocol.ODOM_E_STOP), rx_ns)
+            self._safety.on_flags(payload.flags)
+            self._faults.on_flags(payload.flags, rx_ns)
+        elif k == protocol.Kind.SAFETY_STATUS:
+            line = self._safety_report.feed(payload, rx_ns)
+            if line is not None:
+                if payload.flags & protocol.SAFETY_TEST_WEAKENED:
+                    self.get_logger().error(line)
+                else:
+                    self.get_logger().info(line)
+        elif k == protocol.Kind.FAULT_RESET:
+            if not self._faults.on_reset_ack(payload):
+                self.health.count('unexpected_' + role)
         elif k == protocol.Kind.APPLIED_VELOCITY:
             out = TwistStamped(header=Header(stamp=convert.time_msg(stamp),
                                              frame_id=p.frame(p.odom_child)))
@@ -435,10 +461,14 @@ class BridgeNode(Node):
 
     def _init_safety(self) -> None:
         # Created before the pumps: it only needs the send path, which exists at first use.
-        self._safety = SafetyInterface(
+        self._safety: SafetyInterface = SafetyInterface(
             self, lambda data: self._pumps['cmd'].send(data), self.p.topic('e_stop'),
             self.p['reset_odometry_timeout'], self.p.topic('e_stop_state'),
-            self.p['e_stop_timeout'])
+            self.p['e_stop_timeout'], self._runtime_dir)
+        self._faults = MotorFaultInterface(
+            self, lambda data: self._pumps['cmd'].send(data), self.p.topic('motor_fault'),
+            self.p['reset_odometry_timeout'])
+        self._safety_report = SafetyReport()
 
     # --- health (m4k_bridge.health) -------------------------------------------------------
 
@@ -449,6 +479,8 @@ class BridgeNode(Node):
                                        self.p['rt_stale_timeout']):
             # One call site per severity: rclpy's logger refuses a call site whose severity
             # changes between calls ('Logger severity cannot be changed between calls').
+            if event.kind == 'outage_start':
+                self._safety_report.lost()   # the next RT process states its caps again
             if event.severity == 'error':
                 log.error(event.message)
             elif event.severity == 'warning':
@@ -495,6 +527,9 @@ class BridgeNode(Node):
         msg.ports = self._monitor.port_msgs(now)   # the RT side's counters (PORT_STATS)
         latch = self._safety.latch(h.last_odom, h.last_odom_ns, now)
         msg.e_stop_active, msg.e_stop_hold = latch if latch is not None else (False, False)
+        odom = h.last_odom
+        fresh = odom is not None and now - h.last_odom_ns <= 1_000_000_000
+        self._safety_report.fill(msg, now, odom.flags if odom is not None and fresh else None)
         self._rt_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
@@ -512,6 +547,7 @@ class BridgeNode(Node):
         arr.status = self._monitor.task_statuses(now)
         arr.status.extend(_diagnostic(s) for s in statuses)
         arr.status.append(self._safety.status(h.last_odom, h.last_odom_ns, now))
+        arr.status.append(self._safety_report.status(now))
         self._diag_pub.publish(arr)
 
     # --- shutdown -------------------------------------------------------------------------------

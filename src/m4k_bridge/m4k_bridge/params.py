@@ -41,7 +41,8 @@ __all__ = [
 NODE_NAME = 'm4k_bridge'
 PORT_ROLES = ('status', 'cmd', 'imu_out', 'led_in', 'sonar_out', 'lrf_out')
 TOPIC_ROLES = ('cmd_vel', 'led', 'odom', 'imu', 'scan', 'sonar', 'diagnostics', 'rt_status',
-               'e_stop', 'joint_states', 'robot_description', 'e_stop_state', 'cmd_vel_out')
+               'e_stop', 'joint_states', 'robot_description', 'e_stop_state', 'cmd_vel_out',
+               'motor_fault')
 # Topics whose ROS convention is absolute (tf2_ros, robot_state_publisher and the diagnostic
 # aggregator use /tf, /tf_static, /diagnostics): a namespace must not split them off.
 _ABSOLUTE_TOPICS = {'diagnostics': '/diagnostics'}

@@ -19,7 +19,7 @@ import os
 import select
 import threading
 import time
-from typing import Callable
+from typing import Callable, Optional
 
 from m4k_rt import xddp
 
@@ -34,8 +34,17 @@ class PortPump:
 
     def __init__(self, role: str, port: int | str, deliver: Callable[[str, bytes, int], None],
                  runtime_dir: str | None = None, retry_interval: float = 0.5,
-                 outbox_size: int = 16) -> None:
+                 outbox_size: int = 16,
+                 preamble: Optional[Callable[[], bytes | None]] = None) -> None:
+        """Create the pump (not started); ``preamble`` is called on every new link.
+
+        It runs in the pump thread and returns a datagram to write first on that link, before
+        anything queued (the e-stop re-assertion), or None.
+        """
         self.role = role
+        self._preamble = preamble
+        self._links_seen = 0
+        self.preambles_sent = 0
         self.port = port
         self._deliver = deliver
         self._link = xddp.NrtLink(port, runtime_dir, retry_interval=retry_interval,
@@ -100,8 +109,28 @@ class PortPump:
         except BlockingIOError:
             pass
 
+    def _on_link(self) -> None:
+        # First on every new link, in this thread, before the outbox: nothing queued can
+        # overtake it.
+        links = self._link.links
+        if links == self._links_seen:
+            return
+        self._links_seen = links
+        if self._preamble is None:
+            return
+        data = self._preamble()
+        if data is not None and self._link.write(data):
+            self.preambles_sent += 1
+
     def _flush(self) -> None:
         while self._outbox:
+            if not self._link.linked:
+                # Never link from here (NrtLink.write would): a new link must start with the
+                # preamble, which only the linking path below sends.
+                self.dropped_unlinked += len(self._outbox)
+                self._outbox.clear()
+                return
+            self._on_link()
             data = self._outbox.popleft()
             if self._link.write(data):
                 self.sent += 1
@@ -129,7 +158,9 @@ class PortPump:
                     # Link attempt: returns at once when nothing is bound; waits for the
                     # handshake (bounded) when the RT side is there.
                     self._drain(self._link.read(0.0))
-                    if not self._link.linked:
+                    if self._link.linked:
+                        self._on_link()
+                    else:
                         if self._outbox:
                             self.dropped_unlinked += len(self._outbox)
                             self._outbox.clear()

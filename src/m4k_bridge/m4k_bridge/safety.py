@@ -7,8 +7,17 @@ The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagr
 * the subscription: reliable, volatile, depth 10 -- it matches volatile publishers and
   transient-local ("latched") ones alike (a transient-local subscription would refuse
   volatile publishers);
-* re-sending an engaged e-stop when the ``cmd`` port re-links (a restarted RT process starts
-  unlatched; the operator's last word was "stop");
+* the request persisted (:mod:`m4k_rt.estop_request`: ``<runtime_dir>/e_stop.request``,
+  written on every change): a restarted rt_core starts with its latch engaged, and a
+  restarted bridge starts with the request engaged -- the latch survives both dying together;
+* the **gate**: while the e-stop is requested, ``cmd_vel`` is not forwarded at all (counted
+  as ``cmd_vel_gated_e_stop``), so nothing can reach an RT process that has not latched yet;
+* E_STOP engage as the **first datagram of every (re-)link** of the ``cmd`` port, written by
+  the port's own thread before anything queued (:meth:`link_preamble`), and re-sent on the
+  0.25 s watch as before;
+* the e-stop **contact**: when ODOMETRY flags ESTOP_OPEN (the amplifier enable read back low)
+  the bridge takes it as an e-stop request (persisted, gated). Closing the contact never
+  releases it: that takes ``e_stop`` false (or ``~/e_stop`` false), then a fresh command;
 * with ``enable_stamped_cmd_vel``, :class:`CommandStampGate` drops TwistStamped commands stamped no
   later than the newest command seen before the last release, so a command held up in a queue
   (or re-sent) from before the release cannot restart the robot. The rule compares the
@@ -39,6 +48,7 @@ The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagr
 from __future__ import annotations
 
 import math
+import threading
 import time
 from typing import Any
 
@@ -51,6 +61,7 @@ from std_srvs.srv import SetBool, Trigger
 from m4k_bridge.diagnostics import make_status
 from m4k_msgs.srv import SetPose
 from m4k_rt import protocol
+from m4k_rt.estop_request import read_request, request_path, write_request
 
 __all__ = ['CommandStampGate', 'SafetyInterface', 'E_STOP_QOS', 'E_STOP_STATE_QOS']
 
@@ -98,9 +109,18 @@ class SafetyInterface:
     """E-stop topic, reset service and their state, attached to the bridge node."""
 
     def __init__(self, node: Any, send_cmd: Any, topic: str, reset_timeout: float,
-                 state_topic: str = 'e_stop_state', e_stop_timeout: float = 1.0) -> None:
-        """Create the subscription and the service; ``send_cmd(bytes)`` writes to ``cmd``."""
+                 state_topic: str = 'e_stop_state', e_stop_timeout: float = 1.0,
+                 runtime_dir: str | None = None) -> None:
+        """Create the subscription and the service; ``send_cmd(bytes)`` writes to ``cmd``.
+
+        ``runtime_dir``: where the request is persisted (None: not persisted).
+        """
         self.node = node
+        self.runtime_dir = runtime_dir
+        self._lock = threading.Lock()      # the seq counter: the pump thread encodes too
+        self.gated = 0                     # cmd_vel not forwarded while the e-stop is requested
+        self.contact_requests = 0          # e-stop requests taken from the contact opening
+        self.persist_errors = 0
         self._send = send_cmd
         self.reset_timeout = reset_timeout
         self.e_stop_timeout = e_stop_timeout
@@ -118,6 +138,14 @@ class SafetyInterface:
         self._reset_id = 0
         self._pending: dict[int, Future] = {}
         self._links_seen = 0
+        if runtime_dir:
+            persisted = read_request(runtime_dir)
+            if persisted:
+                self.requested = True
+                node.get_logger().warning(
+                    'e-stop request ENGAGED from {} (persisted before a restart): cmd_vel gated, '
+                    'the RT latch re-asserted on link; release with e_stop false'.format(
+                        request_path(runtime_dir)))
         node.create_subscription(Bool, topic, self._on_e_stop, E_STOP_QOS)
         # The service callback awaits the acknowledgement, which the node's default
         # (mutually exclusive) group delivers: in that group it would block its own answer.
@@ -134,24 +162,55 @@ class SafetyInterface:
     # --- e-stop ---------------------------------------------------------------------------------
 
     def _datagram(self, kind: int, *fields: Any) -> bytes:
-        data = protocol.encode(kind, self._seq, time.monotonic_ns(), *fields)
-        self._seq = protocol.next_seq(self._seq)
+        with self._lock:
+            data = protocol.encode(kind, self._seq, time.monotonic_ns(), *fields)
+            self._seq = protocol.next_seq(self._seq)
         return data
+
+    @property
+    def gating(self) -> bool:
+        """Return True while cmd_vel must not be forwarded (the e-stop is requested)."""
+        return self.requested is True
+
+    def link_preamble(self) -> bytes | None:
+        """Return E_STOP engage for the first write of a new ``cmd`` link (pump thread)."""
+        if self.requested is True:
+            return self._datagram(protocol.Kind.E_STOP, 1)
+        return None
 
     def _on_e_stop(self, msg: Bool) -> None:
         self._request(bool(msg.data))
 
-    def _request(self, engage: bool) -> None:
+    def _request(self, engage: bool, why: str = '') -> None:
         self.e_stop_messages += 1
         if engage != self.requested:
             self.node.get_logger().warning(
-                'e_stop {}: sent to the RT actuator'.format(
+                'e_stop {}{}: sent to the RT actuator'.format(
                     'ENGAGED' if engage else 'released (the robot moves again only on a '
-                    'newer cmd_vel)'))
+                    'newer cmd_vel)', why))
         if not engage:
             self.gate.released()
+        changed = engage != self.requested
         self.requested = engage
+        # Send first (the stop must not wait for the file system), then persist: the RT
+        # latch holds meanwhile, and the file only matters to a process that starts later.
         self._send(self._datagram(protocol.Kind.E_STOP, 1 if engage else 0))
+        if changed and self.runtime_dir:
+            try:
+                write_request(self.runtime_dir, engage)
+            except OSError as exc:
+                self.persist_errors += 1
+                self.node.get_logger().error(
+                    'cannot persist the e-stop request to {}: {} (a restart of rt_core and '
+                    'the bridge together would forget it)'.format(
+                        request_path(self.runtime_dir), exc))
+
+    def on_flags(self, flags: int) -> None:
+        """Take a fresh ODOMETRY's flags: an open e-stop contact becomes an e-stop request."""
+        if flags & protocol.ODOM_ESTOP_OPEN and self.requested is not True:
+            self.contact_requests += 1
+            self._request(True, ' by the e-stop CONTACT (release: close it, then e_stop false, '
+                          'then a fresh cmd_vel)')
 
     def on_cmd_links(self, links: int) -> None:
         """Re-send an engaged e-stop after the ``cmd`` port re-linked (call periodically)."""
@@ -308,6 +367,11 @@ class SafetyInterface:
                   'engaged' if latch[0] else 'holding' if latch[1] else 'clear',
                   'e_stop_messages': self.e_stop_messages,
                   'stale_commands_rejected': self.gate.rejected,
+                  'cmd_vel_gated_e_stop': self.gated,
+                  'contact_requests': self.contact_requests,
+                  'persisted_in': (request_path(self.runtime_dir) if self.runtime_dir
+                                   else 'not persisted'),
+                  'persist_errors': self.persist_errors,
                   'odometry_resets': self.resets_ok, 'odometry_resets_failed': self.resets_failed,
                   'e_stop_state_published': self.state_messages,
                   'e_stop_state_last': {None: 'none', True: 'true', False: 'false'}[

@@ -80,3 +80,116 @@ def test_reset_odometry_without_acknowledgement_fails_with_the_reason():
     reply = _call_reset(ack=False)
     assert not reply.success
     assert 'no acknowledgement from the RT actuator within 0.3 s' in reply.message
+
+
+def test_request_file_round_trip_and_unreadable_means_engaged(tmp_path):
+    from m4k_rt.estop_request import read_request, request_path, write_request
+    d = str(tmp_path)
+    assert read_request(d) is None                       # nothing persisted: unknown
+    write_request(d, True)
+    assert read_request(d) is True
+    write_request(d, False)
+    assert read_request(d) is False
+    with open(request_path(d), 'w', encoding='ascii') as f:
+        f.write('garbage\n')
+    assert read_request(d) is True                       # unreadable: never a reason to drive
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['e_stop.request']   # no tmp left
+
+
+def _with_safety(tmp_path, fn):
+    import rclpy
+
+    from m4k_bridge.safety import SafetyInterface
+
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node('m4k_bridge', context=context)
+        sent = []
+        fn(lambda: SafetyInterface(node, sent.append, 'e_stop', 0.3,
+                                   runtime_dir=str(tmp_path)), sent)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def test_engaged_request_is_persisted_gates_commands_and_leads_every_link(tmp_path):
+    from m4k_rt.estop_request import read_request
+
+    def run(make, sent):
+        safety = make()
+        assert not safety.gating and safety.link_preamble() is None
+        safety._request(True)
+        assert read_request(str(tmp_path)) is True
+        assert safety.gating
+        _, msg = p.decode(safety.link_preamble())
+        assert msg == p.EStop(1)
+        # a restarted bridge finds the request: gated, and E_STOP leads its first link
+        again = make()
+        assert again.requested is True and again.gating
+        assert p.decode(again.link_preamble())[1] == p.EStop(1)
+        again._request(False)
+        assert read_request(str(tmp_path)) is False and not again.gating
+        assert again.link_preamble() is None
+        assert make().requested is None                   # released: nothing to re-assert
+
+    _with_safety(tmp_path, run)
+
+
+def test_open_contact_becomes_an_e_stop_request_that_only_a_release_clears(tmp_path):
+    from m4k_rt.estop_request import read_request
+
+    def run(make, sent):
+        safety = make()
+        safety.on_flags(0)
+        assert safety.requested is None
+        safety.on_flags(p.ODOM_ESTOP_OPEN | p.ODOM_E_STOP)
+        assert safety.requested is True and safety.contact_requests == 1
+        assert read_request(str(tmp_path)) is True
+        assert p.decode(sent[-1])[1] == p.EStop(1)
+        safety.on_flags(p.ODOM_E_STOP)                    # contact closed: still requested
+        assert safety.gating
+        safety._request(False)
+        assert not safety.gating
+
+    _with_safety(tmp_path, run)
+
+
+def test_port_pump_writes_the_preamble_first_on_every_link(tmp_path):
+    # A real RT-side socket: the pump links, writes the preamble before anything queued,
+    # and again first after the RT side went away and came back.
+    import time
+
+    from m4k_bridge.ports import PortPump
+    from m4k_rt.xddp import rt_xddp_bind
+
+    d = str(tmp_path)
+    pre = p.encode(p.Kind.E_STOP, 0, 0, 1)
+    cmd = p.encode(p.Kind.VELOCITY_CMD, 0, 0, 0.0, 0.5)
+    pump = PortPump('cmd', 1, lambda *a: None, d, retry_interval=0.05, preamble=lambda: pre)
+
+    def first_two(sock):
+        got = []
+        end = time.monotonic() + 10
+        while len(got) < 2 and time.monotonic() < end:
+            pump.send(cmd)
+            data = sock.recv()
+            if data is not None:
+                got.append(bytes(data))
+            time.sleep(0.02)
+        return got
+
+    sock = rt_xddp_bind(1, 'cmd', runtime_dir=d)
+    pump.start()
+    try:
+        for _ in range(2):
+            got = first_two(sock)
+            assert got and got[0] == pre, got
+            assert all(g == cmd for g in got[1:])
+            sock.close()
+            time.sleep(0.3)
+            sock = rt_xddp_bind(1, 'cmd', runtime_dir=d)
+        assert pump.preambles_sent >= 2
+    finally:
+        pump.close()
+        sock.close()

@@ -12,7 +12,7 @@ import sys
 from typing import Sequence
 
 from m4k_bridge import params as bridge_params
-from m4k_drivers.config import schema_sections
+from m4k_drivers.config import schema_sections, world_sections
 from m4k_rt import rosargs, schema
 from m4k_rt.control.params import CONTROL
 from m4k_rt.schema import PORT, ROBOT, RUNTIME, Section, TASK
@@ -31,8 +31,9 @@ def rt_sections() -> list[Section]:
                 'one owner per port, at least one enabled task.'),
         Section('ports', 'ports (config/m4k.yaml)', {'<label>': PORT}),
         Section('control', 'control (config/control.yaml)', CONTROL,
-                'Run by the RT actuator task. Checked across fields: slow_distance 0 or > '
-                'stop_distance; e-stop decelerations not below the normal ones.'),
+                'Run by the RT actuator task. Checked across fields: guard.brake_deceleration not '
+                'below linear.max_deceleration; e-stop decelerations not below the normal '
+                'ones. The guard, supervision and e-stop: docs/safety.md.'),
         Section('robot', 'robot (config/robot.yaml)', ROBOT,
                 'The one source of the URDF, the static transforms and the simulated '
                 "sensors' mounts. Every field but name is required in the layered configuration."),
@@ -40,9 +41,10 @@ def rt_sections() -> list[Section]:
 
 
 def all_sections() -> list[schema.Section]:
-    """Return every section: the RT side's, each device backend's and the bridge's."""
+    """Return every section: the RT side's, each device backend's, the world's, the bridge's."""
     sections = rt_sections()
     sections += schema_sections()
+    sections += world_sections()
     sections.append(schema.Section(
         'm4k_bridge', 'm4k_bridge ROS parameters (config/bridge.yaml)',
         {s.name: s for s in bridge_params.SPECS},

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from m4k_drivers import registry
+from m4k_drivers.drive import ROBOT_FIELDS
 from m4k_drivers.handler import DriverError
 from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
 from m4k_rt.config import deep_merge as merge
@@ -94,6 +95,16 @@ COMMON: dict[str, Field] = {
                        'links.',
                        lo=0, expect='a port number or label', check=_port_or_label),
 }
+
+
+def world_sections() -> list[Section]:
+    """Return the schema Section of ``world.robot`` (the simulated robot), for the docs."""
+    title = 'world.robot: the simulated robot as built (config/devices.yaml)'
+    return [Section('world.robot', title, ROBOT_FIELDS,
+                    "The simulator's physics (m4k_drivers.drive); sources and the braking they "
+                    "give: docs/sim-physics.md. Geometry unset here takes the control section's "
+                    'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
+                    'and the supply must overcome the friction.')]
 
 
 def schema_sections() -> list[Section]:

@@ -5,6 +5,7 @@ It plays the hardware the driver host talks to, and nothing else reaches the wor
 * SPI (sim-bus): ``left_dac``/``right_dac`` MCP4911 + amplifier, ``left_enc``/``right_enc``
   AS5045 on the wheel shafts (:mod:`m4k_drivers.motors.sim`); the DACs latch their last word;
 * GPIO (sim-bus): the amplifier-enable heartbeat monostable (``devices.motor.heartbeat_*``),
+  the e-stop read-back input after the contact (``devices.motor.estop_readback_*``),
   the US-100 TRIG and ECHO lines with edge timestamps (``devices.sonar.chip`` / ``*_line``);
 * I2C (sim-bus): the myAHRS+ registers on bus ``devices.imu.bus`` (:mod:`m4k_drivers.imu.sim`);
 * a pseudo terminal: the URG-04LX speaking SCIP 2.0, linked at ``<runtime_dir>/sim-urg``;
@@ -150,6 +151,10 @@ class SimRobot:
         if s['heartbeat']:
             self.enable = EnableMonostable(self.world, s['heartbeat_hold_s'])
             self.gpio[(s['heartbeat_chip'], s['heartbeat_line'])] = self.enable
+        if s['estop_readback_line'] is not None:
+            from m4k_drivers.motors.sim import EstopReadback
+            self.gpio[(s['estop_readback_chip'], s['estop_readback_line'])] = \
+                EstopReadback(self.world)
 
     def _build_imu(self, s: dict[str, Any]) -> None:
         from m4k_drivers.imu.sim import FakeMyAhrsBus
@@ -237,7 +242,19 @@ class SimRobot:
             't': st.t_ns * 1e-9, 't_ns': st.t_ns, 'x': x, 'y': y, 'theta': th,
             'pose': [x, y, th], 'v': st.v, 'w': st.w,
             'wheel_speed_left': st.wheel_speed[0], 'wheel_speed_right': st.wheel_speed[1],
+            # Drive physics (m4k_drivers.drive, docs/sim-physics.md): the body's longitudinal
+            # acceleration over the last 1 ms step, each tyre's slip (rim speed - ground speed
+            # of its contact, m/s), the wheel angles the encoders see (rad), and the peaks since
+            # start (contact steps excluded): the judge's deceleration is measured here.
+            'accel': st.accel, 'slip_left': st.slip[0], 'slip_right': st.slip[1],
+            'wheel_angle_left': st.wheel_angle[0], 'wheel_angle_right': st.wheel_angle[1],
+            'peak_decel': self.world.peak_decel, 'peak_accel': self.world.peak_accel,
+            'peak_speed': self.world.peak_speed, 'peak_slip': self.world.peak_slip,
+            'traction_decel': self.world.robot.traction_decel_mps2,
             'motor_enabled': self.world.drive_enabled(),
+            'heartbeat_enabled': self.world.heartbeat_enabled(),
+            'estop_open': self.world.estop_open,
+            'faults': self.world.active_faults(),     # [{kind, wheel}] on now (world.faults)
             'heartbeat': self.enable is not None,
             'heartbeat_edges': self.enable.edges if self.enable else 0,
             'heartbeat_drops': self.enable.drops if self.enable else 0,

@@ -7,21 +7,20 @@ gear 12:1, top speed 2 m/s, body 0.45 x 0.28 m.  The track width is not in the p
 plus clearance would be ~0.38-0.40 m).
 
 Dynamics, per fixed step (``step_s``, default 1 ms, so results do not depend on how often
-callers look): motor armature voltage -> first-order lag (``motor_tau_s``) -> motor speed,
-/ gear ratio -> wheel speed; the robot pose is integrated exactly along the arc for the mean
-wheel speeds of the step.  A step whose new footprint would touch a wall or an obstacle is not
-taken: the robot stops, the wheels stall, and ``collisions`` counts the contact onset.
+callers look): the drive train of :mod:`m4k_drivers.drive` -- DAC volts -> voltage-mode
+amplifier with a current limit -> DC motor -> 12:1 gear -> wheel -> tyre traction (slip beyond
+``mu`` x load) -> the 30 kg body's speed and yaw rate; the robot pose is integrated exactly
+along the arc for the mean body speeds of the step.  A step whose new footprint would touch a
+wall or an obstacle is not taken: the robot stops, the wheels stall, and ``collisions`` counts
+the contact onset.
 
-The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md): while
-it is off the amplifier's outputs float, so no current flows -- no drive and no back-EMF
-braking either -- and the wheels coast, slowed by friction alone (rolling resistance and the
-gearbox): a constant deceleration ``coast_decel_mps2`` of each wheel's rim speed, whatever the
-DACs hold.  (Enabled, the amplifier drives each motor to its target speed through the motor
-lag ``motor_tau_s``, braking included.)  ``set_enable_until`` sets the time the enable stays
-on; ``None`` (the default) is an enable strapped on.  While enabled, each amplifier adds its
-input offset (``amp_offset_left_v``/``amp_offset_right_v``: the zero error a DAC zero trim
-cancels) and the motor has a dead band (``deadband_v``: static friction, no motion below it,
-the speed line shifted by it above).
+The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md, in
+series with the e-stop contact): while it is off the amplifier's outputs float, so no current
+flows -- no drive and no back-EMF braking either -- and the wheels coast, slowed by friction
+alone (rolling resistance and the drive train: ``RobotParams.coast_decel_mps2``), whatever the
+DACs hold.  ``set_enable_until`` sets the time the heartbeat keeps the enable on; ``None`` (the
+default) is an enable strapped on; ``set_estop_open`` opens the e-stop contact.  The
+amplifiers' input offsets and dead band are in :meth:`RobotParams.effective_volts`.
 
 ``world.robot`` is the robot *as built*, the simulator's truth: a field not set there takes the
 configuration's value (:meth:`RobotParams.from_control`: ``control.wheel_radius``,
@@ -36,7 +35,7 @@ seed and the stream name, so a run is reproducible.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 import math
 import threading
 import time
@@ -45,17 +44,22 @@ import zlib
 
 import numpy as np
 
+from m4k_drivers.drive import (
+    DriveState,
+    LEFT,
+    parse_robot,
+    RIGHT,
+    RobotParams,
+    step_drive,
+    WorldConfigError,
+)
+from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
 
 __all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'World', 'WorldConfig',
            'WorldConfigError']
 
-LEFT, RIGHT = 0, 1
 REST_V = 0.01        # m/s: below this the robot is at rest (truth's rest_since_ns)
-
-
-class WorldConfigError(ValueError):
-    """Raise for a bad ``world:`` section; the message names the field."""
 
 
 class Pose(NamedTuple):
@@ -64,88 +68,6 @@ class Pose(NamedTuple):
     x: float
     y: float
     yaw: float
-
-
-@dataclass(frozen=True)
-class RobotParams:
-    """Physical parameters of the M4K base (paper Table 2, track width our choice)."""
-
-    wheel_diameter_m: float = 0.2032
-    gear_ratio: float = 12.0
-    track_width_m: float = 0.40
-    length_m: float = 0.45
-    width_m: float = 0.28
-    top_speed_mps: float = 2.0
-    motor_tau_s: float = 0.08
-    supply_v: float = 24.0
-    coast_decel_mps2: float = 0.3     # enable off: friction only (rolling + gearbox), m/s^2
-    amp_offset_left_v: float = 0.0      # amplifier input offset, armature volts (any sign)
-    amp_offset_right_v: float = 0.0
-    deadband_v: float = 0.0             # armature volts the motor needs before it turns
-
-    @classmethod
-    def from_control(cls, control: dict[str, Any] | None,
-                     body: dict[str, Any] | None = None) -> RobotParams:
-        """Return the robot ``control:`` and ``robot.body`` describe (unset keys: the defaults).
-
-        Full scale is the wheel speed at code 1023, so the top speed is that times the radius.
-        The body's footprint (``robot.body.length``/``width``, the URDF's) is the one the
-        simulator's contacts use.
-        """
-        base = cls()
-        if body is not None and not isinstance(body, dict):
-            raise WorldConfigError(f'robot.body: expected a mapping, got {body!r}')
-        for key, attr in (('length', 'length_m'), ('width', 'width_m')):
-            v = (body or {}).get(key)
-            if v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
-                    math.isfinite(v) and v > 0):
-                raise WorldConfigError(f'robot.body.{key}: must be a number > 0, got {v!r}')
-            base = replace(base, **{attr: float(v)})
-        if control is not None and not isinstance(control, dict):
-            raise WorldConfigError(f'control: expected a mapping, got {control!r}')
-        vals: dict[str, float] = {}
-        for key in ('wheel_radius', 'track_width', 'gear_ratio', 'full_scale_wheel_speed'):
-            v = (control or {}).get(key)
-            if v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
-                    math.isfinite(v) and v > 0):
-                raise WorldConfigError(f'control.{key}: must be a number > 0, got {v!r}')
-            vals[key] = float(v)
-        radius = vals.get('wheel_radius', base.wheel_radius_m)
-        out = replace(base, wheel_diameter_m=2.0 * radius,
-                      track_width_m=vals.get('track_width', base.track_width_m),
-                      gear_ratio=vals.get('gear_ratio', base.gear_ratio))
-        if 'full_scale_wheel_speed' in vals:
-            out = replace(out, top_speed_mps=vals['full_scale_wheel_speed'] * radius)
-        return out
-
-    def amp_offset_v(self, side: int) -> float:
-        """Return one amplifier's input offset in armature volts."""
-        return self.amp_offset_right_v if side == RIGHT else self.amp_offset_left_v
-
-    def drive_target(self, side: int, volts: float) -> float:
-        """Return the steady wheel speed (rad/s) the armature drive ``volts`` leads to."""
-        u = volts + self.amp_offset_v(side)
-        excess = max(abs(u) - self.deadband_v, 0.0)
-        return math.copysign(excess, u) / self.supply_v * self.max_wheel_rad_s
-
-    @property
-    def wheel_radius_m(self) -> float:
-        """Return the wheel radius."""
-        return self.wheel_diameter_m / 2.0
-
-    @property
-    def max_wheel_rad_s(self) -> float:
-        """Return the wheel speed at full armature voltage (top speed)."""
-        return self.top_speed_mps / self.wheel_radius_m
-
-    @property
-    def max_motor_rad_s(self) -> float:
-        """Return the motor-shaft speed at full armature voltage."""
-        return self.max_wheel_rad_s * self.gear_ratio
 
 
 class RobotState(NamedTuple):
@@ -160,6 +82,8 @@ class RobotState(NamedTuple):
     wheel_angle: tuple[float, float]   # rad, continuous
     collisions: int
     in_contact: bool
+    slip: tuple[float, float] = (0.0, 0.0)   # m/s, rim speed - ground speed of each contact
+    enabled: bool = True                     # the amplifiers' enable (heartbeat and e-stop)
 
 
 def _rect(xmin: float, ymin: float, xmax: float, ymax: float) -> list[tuple[float, ...]]:
@@ -204,6 +128,7 @@ class WorldConfig:
     surfaces: tuple[Surface, ...] = ()
     paths: tuple[Path | None, ...] = ()
     events: tuple[Event, ...] = ()
+    faults: tuple[Fault, ...] = ()        # m4k_drivers.faults: scheduled from the world's start
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = 'world',
@@ -214,10 +139,11 @@ class WorldConfig:
         """
         data = dict(data or {})
         unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s',
-                               'events'}
+                               'events', 'faults'}
         if unknown:
             raise WorldConfigError(f'{where}: unknown field(s) {sorted(unknown)!r}; valid: '
-                                   'walls, obstacles, start, robot, seed, step_s, events')
+                                   'walls, obstacles, start, robot, seed, step_s, events, '
+                                   'faults')
         cfg = cls() if robot is None else cls(robot=robot)
         walls = data.get('walls')
         if walls is not None:
@@ -252,26 +178,16 @@ class WorldConfig:
                 cfg = replace(cfg, events=parse_events(data['events'], f'{where}.events'))
             except SceneError as exc:
                 raise WorldConfigError(str(exc)) from None
+        if 'faults' in data:
+            try:
+                cfg = replace(cfg, faults=parse_faults(data['faults'], f'{where}.faults'))
+            except FaultError as exc:
+                raise WorldConfigError(str(exc)) from None
         if 'start' in data:
             cfg = replace(cfg, start=Pose(*_numbers(data['start'], 3, f'{where}.start')))
         if 'robot' in data:
-            rob = data['robot']
-            names = {f.name for f in fields(RobotParams)}
-            if not isinstance(rob, dict) or set(rob) - names:
-                raise WorldConfigError(f'{where}.robot: expected a mapping with keys from '
-                                       f'{sorted(names)}, got {rob!r}')
-            vals = {k: _numbers([v], 1, f'{where}.robot.{k}')[0] for k, v in rob.items()}
-            for k, v in vals.items():
-                if k.startswith('amp_offset_'):
-                    if abs(v) >= cfg.robot.supply_v:
-                        raise WorldConfigError(f'{where}.robot.{k}: must be within the supply '
-                                               f'(+/-{cfg.robot.supply_v} V), got {v!r}')
-                elif k == 'deadband_v':
-                    if v < 0:
-                        raise WorldConfigError(f'{where}.robot.{k}: must be >= 0, got {v!r}')
-                elif v <= 0:
-                    raise WorldConfigError(f'{where}.robot.{k}: must be > 0, got {v!r}')
-            cfg = replace(cfg, robot=replace(cfg.robot, **vals))
+            cfg = replace(cfg, robot=parse_robot(data['robot'], cfg.robot, f'{where}.robot',
+                                                 WorldConfigError))
         if 'seed' in data:
             if isinstance(data['seed'], bool) or not isinstance(data['seed'], int):
                 raise WorldConfigError(f'{where}.seed: expected an integer, got {data["seed"]!r}')
@@ -342,15 +258,30 @@ class World:
         self._t_ns = clock() if t0_ns is None else t0_ns
         self.rest_since_ns: int | None = self._t_ns   # since when |v| < REST_V (None: moving)
         self._pose = self.config.start
-        self._wheel_speed = [0.0, 0.0]
+        self._drive = DriveState()
+        self._wheel_speed = self._drive.wheel          # the same list: rad/s per wheel
         self._wheel_angle = [0.0, 0.0]
         self._volts = [0.0, 0.0]
         self._enable_until_ns: int | None = None
+        self._estop_open = False          # set by tests or a tool (set_estop_open)
+        self._start_ns = self._t_ns
+        # Faults: (kind, side) -> the wheel angles at its onset; scheduled ones from the
+        # config, forced ones from set_fault (tests).
+        self._faults: dict[tuple[str, int], tuple[float, float]] = {}
+        self._forced: set[tuple[str, int]] = set()
+        self._estop_scheduled = False
         self._v = 0.0
         self._w = 0.0
         self._accel = 0.0
+        # Ground-truth peaks of the longitudinal motion (contact steps excluded: a wall is
+        # not braking), m/s^2 and m/s.
+        self.peak_decel = 0.0
+        self.peak_accel = 0.0
+        self.peak_speed = 0.0
+        self.peak_slip = 0.0
         self.collisions = 0
         self.in_contact = False
+        self._contact_pose: Pose | None = None     # where the last contact happened
         self.min_clearance = self.clearance(self._pose)
         if self.collides(self._pose):
             raise WorldConfigError(f'world.start: the robot footprint at {tuple(self._pose)!r} '
@@ -392,15 +323,101 @@ class World:
             self._volts[side] = v
 
     def set_enable_until(self, t_ns: int | None) -> None:
-        """Keep the amplifier enable on until ``t_ns`` (None: always on, no heartbeat)."""
+        """Keep the heartbeat's enable on until ``t_ns`` (None: always on, no heartbeat)."""
         with self._lock:
             self._enable_until_ns = t_ns
 
-    def drive_enabled(self, t_ns: int | None = None) -> bool:
-        """Return True when the amplifiers are enabled at ``t_ns`` (default: world time)."""
+    def set_estop_open(self, is_open: bool) -> None:
+        """Open (True) or close the e-stop contact in series with the amplifier enable."""
+        with self._lock:
+            self._estop_open = bool(is_open)
+
+    @property
+    def estop_open(self) -> bool:
+        """Return True while the e-stop contact is open (pressed, or an ``estop`` fault)."""
+        return self._estop_open or self._estop_scheduled
+
+    # -- faults (m4k_drivers.faults) ------------------------------------------------------
+    def set_fault(self, kind: str, wheel: str | int = 'both', active: bool = True) -> None:
+        """Force a fault on or off now (tests); ``wheel``: left, right, both or 0/1."""
+        if kind not in KINDS:
+            raise ValueError(f'fault kind must be one of {", ".join(KINDS)}, got {kind!r}')
+        sides = {'left': (LEFT,), 'right': (RIGHT,), 'both': (LEFT, RIGHT), LEFT: (LEFT,),
+                 RIGHT: (RIGHT,)}.get(wheel)
+        if sides is None:
+            raise ValueError(f'wheel must be left, right, both, 0 or 1, got {wheel!r}')
+        self.now()
+        with self._lock:
+            for side in sides:
+                key = (kind, side)
+                if active:
+                    self._forced.add(key)
+                else:
+                    self._forced.discard(key)
+            self._update_faults()
+
+    def active_faults(self) -> list[dict[str, Any]]:
+        """Return the faults on now: [{kind, wheel}] (wheel: left/right)."""
+        with self._lock:
+            return [{'kind': k, 'wheel': ('left', 'right')[side]}
+                    for k, side in sorted(self._faults)]
+
+    def _update_faults(self) -> None:
+        t_s = (self._t_ns - self._start_ns) * 1e-9
+        want = set(self._forced)
+        for f in self.config.faults:
+            if f.active(t_s):
+                want.update((f.kind, side) for side in f.sides)
+        if want == set(self._faults):
+            return
+        for key in set(self._faults) - want:
+            del self._faults[key]
+        angles = (self._wheel_angle[LEFT], self._wheel_angle[RIGHT])
+        for key in want - set(self._faults):
+            self._faults[key] = angles            # onset: the readings continue from here
+        self._estop_scheduled = any(k == 'estop' for k, _ in self._faults)
+        for side in (LEFT, RIGHT):
+            self._drive.blocked[side] = ('wheel_stall', side) in self._faults
+
+    def encoder_angle(self, side: int, t_ns: int | None = None) -> tuple[float, bool]:
+        """Return (the angle one wheel's encoder reports at ``t_ns``, frozen?) under faults.
+
+        Without a fault it is the wheel's angle. Frozen: the reading of the onset, always the
+        same (the caller adds no noise). The faults compose in the wiring's order: the swap
+        (cables) picks the shaft, the flip and the freeze act on what that encoder reads.
+        """
+        t = self.clock() if t_ns is None else t_ns
+        own = self.wheel_angle_at(side, t)
+        with self._lock:
+            if not self._faults:
+                return own, False
+            other = 1 - side
+            angle = own
+            onset = self._faults.get(('encoder_swap', side))
+            if onset is not None:    # the other shaft's motion since the swap, from here on
+                angle = onset[side] + self.wheel_angle_at(other, t) - onset[other]
+            onset = self._faults.get(('encoder_sign_flip', side))
+            if onset is not None:
+                angle = 2.0 * onset[side] - angle
+            onset = self._faults.get(('encoder_frozen', side))
+            if onset is not None:
+                return onset[side], True
+            return angle, False
+
+    def heartbeat_enabled(self, t_ns: int | None = None) -> bool:
+        """Return the heartbeat monostable's output at ``t_ns`` (before the e-stop contact)."""
         with self._lock:
             until = self._enable_until_ns
             return until is None or (self._t_ns if t_ns is None else t_ns) < until
+
+    def drive_enabled(self, t_ns: int | None = None) -> bool:
+        """Return True when the amplifiers are enabled at ``t_ns`` (default: world time).
+
+        The enable line after the e-stop contact: the heartbeat's output, cut while the
+        contact is open.
+        """
+        with self._lock:
+            return not self.estop_open and self.heartbeat_enabled(t_ns)
 
     def motor_voltage(self, side: int) -> float:
         """Return the armature voltage last set for one motor."""
@@ -412,15 +429,15 @@ class World:
         self._steps += 1
         if self._moving or self._events:
             self._scene_step()
+        if self.config.faults or self._forced or self._faults:
+            self._update_faults()
         rob = self.robot
-        decay = math.exp(-dt / rob.motor_tau_s)
-        old = self._wheel_speed
-        until = self._enable_until_ns
-        enabled = until is None or self._t_ns < until
-        # Disabled: no drive at all (the amplifier's input offset goes with it).
-        targets = [rob.drive_target(side, self._volts[side]) if enabled else 0.0
-                   for side in (LEFT, RIGHT)]
-        if old[0] == 0.0 and old[1] == 0.0 and targets[0] == 0.0 and targets[1] == 0.0:
+        drv = self._drive
+        enabled = self.drive_enabled()
+        idle = not enabled or (rob.effective_volts(LEFT, self._volts[0]) == 0.0
+                               and rob.effective_volts(RIGHT, self._volts[1]) == 0.0)
+        if (idle and drv.v == 0.0 and drv.w == 0.0 and drv.wheel[0] == 0.0
+                and drv.wheel[1] == 0.0):
             self._accel = 0.0
             if self.rest_since_ns is None:
                 self.rest_since_ns = self._t_ns
@@ -434,20 +451,11 @@ class World:
                 if self._steps % self._clear_every == 0:
                     self._track_clearance()
             return
-        new = []
-        for side in (LEFT, RIGHT):
-            if enabled:
-                target = targets[side]
-                w_new = target + (old[side] - target) * decay
-            else:    # coasting: friction takes a fixed rim speed per second, down to rest
-                w_new = math.copysign(max(abs(old[side]) - rob.coast_decel_mps2
-                                          / rob.wheel_radius_m * dt, 0.0), old[side])
-            new.append(0.0 if abs(w_new) < 1e-9 else w_new)
-        mean_l = 0.5 * (old[0] + new[0])
-        mean_r = 0.5 * (old[1] + new[1])
-        r = rob.wheel_radius_m
-        v = 0.5 * (mean_l + mean_r) * r
-        w = (mean_r - mean_l) * r / rob.track_width_m
+        old_wheel = list(drv.wheel)
+        v_old, w_old = drv.v, drv.w
+        step_drive(rob, drv, (self._volts[0], self._volts[1]), enabled, dt)
+        v = 0.5 * (v_old + drv.v)
+        w = 0.5 * (w_old + drv.w)
         x, y, th = self._pose
         if abs(w) < 1e-12:
             cand = Pose(x + v * dt * math.cos(th), y + v * dt * math.sin(th), th)
@@ -456,31 +464,55 @@ class World:
             cand = Pose(x + v / w * (math.sin(th2) - math.sin(th)),
                         y - v / w * (math.cos(th2) - math.cos(th)),
                         math.atan2(math.sin(th2), math.cos(th2)))
-        v_old = self._v
         if self.collides(cand):
             if not self.in_contact:
                 self.collisions += 1
             self.in_contact = True
+            self._contact_pose = self._pose
             self.min_clearance = 0.0      # touching: the step into the surface is not taken
-            self._wheel_speed = [0.0, 0.0]
+            drv.wheel[0] = drv.wheel[1] = 0.0
+            drv.v = drv.w = 0.0
+            drv.slipping[0] = drv.slipping[1] = False
             self._v = self._w = 0.0
+            self._accel = (self._v - v_old) / dt
         else:
-            self.in_contact = False
+            # A drive pushing against the surface nudges the robot into it again and again:
+            # one contact until the robot has moved clear of where it touched (1 mm).
+            cp = self._contact_pose
+            self.in_contact = cp is not None and math.hypot(cand.x - cp.x, cand.y - cp.y) < 1e-3
+            if not self.in_contact:
+                self._contact_pose = None
             self.travelled += math.hypot(cand.x - self._pose.x, cand.y - self._pose.y)
             if self._moving_since is None and self.travelled > 0.005:
                 self._moving_since = self._t_ns
             self._pose = cand
-            self._wheel_speed = new
-            self._wheel_angle[0] += mean_l * dt
-            self._wheel_angle[1] += mean_r * dt
-            self._v, self._w = v, w
-        self._accel = (self._v - v_old) / dt
+            self._wheel_angle[0] += 0.5 * (old_wheel[0] + drv.wheel[0]) * dt
+            self._wheel_angle[1] += 0.5 * (old_wheel[1] + drv.wheel[1]) * dt
+            self._v, self._w = drv.v, drv.w
+            self._accel = (self._v - v_old) / dt
+            # Deceleration: the speed's magnitude shrinking (a reversal counts up to zero).
+            if v_old > 0.0:
+                decel = (v_old - max(self._v, 0.0)) / dt
+            elif v_old < 0.0:
+                decel = (min(self._v, 0.0) - v_old) / dt
+            else:
+                decel = 0.0
+            self.peak_decel = max(self.peak_decel, decel)
+            self.peak_accel = max(self.peak_accel, abs(self._accel) if decel <= 0.0 else 0.0)
+            self.peak_speed = max(self.peak_speed, abs(self._v))
+            s = rob.track_width_m / 2.0
+            for i in (LEFT, RIGHT):
+                self.peak_slip = max(self.peak_slip, abs(self._slip(i, s)))
         if abs(self._v) >= REST_V:
             self.rest_since_ns = None
         elif self.rest_since_ns is None:
             self.rest_since_ns = self._t_ns + self._step_ns    # at rest from the step's end
         if self._steps % self._clear_every == 0:
             self._track_clearance()
+
+    def _slip(self, side: int, half_track: float) -> float:
+        drv = self._drive
+        return drv.wheel[side] * self.robot.wheel_radius_m - drv.contact_speed(side, half_track)
 
     # -- the scene: moving obstacles, events, clearance ----------------------------------
     def _moving_s(self) -> float | None:
@@ -595,10 +627,13 @@ class World:
     def state(self) -> RobotState:
         """Return a snapshot of the robot at the world's current simulated time."""
         with self._lock:
+            s = self.robot.track_width_m / 2.0
             return RobotState(self._t_ns, self._pose, self._v, self._w, self._accel,
                               (self._wheel_speed[0], self._wheel_speed[1]),
                               (self._wheel_angle[0], self._wheel_angle[1]),
-                              self.collisions, self.in_contact)
+                              self.collisions, self.in_contact,
+                              (self._slip(LEFT, s), self._slip(RIGHT, s)),
+                              self.drive_enabled())
 
     def wheel_angle_at(self, side: int, t_ns: int | None = None) -> float:
         """Return one wheel's angle at ``t_ns`` (default: the clock's present), in rad.

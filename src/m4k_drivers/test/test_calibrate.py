@@ -22,6 +22,7 @@ import yaml
 from m4k_drivers import config as dconfig
 from m4k_drivers.sim_robot import wait_ready
 from m4k_drivers.simbus import read_truth
+from m4k_drivers.world import RobotParams
 from m4k_rt import config as rtconfig
 from m4k_rt.control.params import control_params
 
@@ -30,12 +31,23 @@ pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tie
 CALIBRATE = ['python', '-m', 'm4k_drivers.calibrate.cli']   # `ros2 run m4k_drivers calibrate`
 R_CFG, TRACK_CFG = 0.1016, 0.40
 TRUE = {'wheel_diameter_m': 2 * R_CFG * 0.97, 'track_width_m': TRACK_CFG * 1.05,
-        'top_speed_mps': 2.1, 'amp_offset_left_v': 0.3, 'amp_offset_right_v': -1.2,
-        'deadband_v': 0.9, 'supply_v': 24.0, 'motor_tau_s': 0.08}
+        'top_speed_mps': 2.1, 'amp_offset_left_v': 0.3, 'amp_offset_right_v': -1.6,
+        'deadband_v': 0.9, 'supply_v': 24.0}
+ROBOT = RobotParams(**TRUE)        # the simulator's physics for it (m4k_drivers.drive)
 R_TRUE = TRUE['wheel_diameter_m'] / 2
-FULL_SCALE_TRUE = TRUE['top_speed_mps'] / R_TRUE            # wheel rad/s per unit command
+# The motor's speed line: 1 / (ke N) rad/s per armature volt, 24 V per unit command; friction
+# shifts it by R * I_load volts, which the identification sees as dead band (docs/sim-physics.md).
+FULL_SCALE_TRUE = ROBOT.supply_v / (ROBOT.ke * ROBOT.gear_ratio)
+I_LOAD = (ROBOT.no_load_current_a + ROBOT.rolling_force_n * R_TRUE
+          / (ROBOT.gear_ratio * ROBOT.ke)) / ROBOT.gear_efficiency
 TRIM_TRUE = [-TRUE['amp_offset_left_v'] / 24.0 * 511, -TRUE['amp_offset_right_v'] / 24.0 * 511]
-DEADBAND_TRUE = TRUE['deadband_v'] / 24.0 * 511             # codes
+DEADBAND_TRUE = (TRUE['deadband_v'] + ROBOT.motor_resistance_ohm * I_LOAD) / 24.0 * 511
+# The sweep turns in place: each wheel drives its wheel inertia and half the yaw inertia
+# seen at the rim, against the back-EMF damping N^2 ke^2 eta / R.
+TAU_TRUE = ((ROBOT.wheel_inertia_total + ROBOT.yaw_inertia_kgm2 * R_TRUE ** 2
+             / (2 * (TRUE['track_width_m'] / 2) ** 2))
+            / (ROBOT.gear_ratio ** 2 * ROBOT.ke ** 2 * ROBOT.gear_efficiency
+               / ROBOT.motor_resistance_ohm))
 
 
 @pytest.fixture
@@ -45,7 +57,7 @@ def as_built(tmp_path, m4k_runtime_dir, procs):
     overlay.write_text(yaml.safe_dump({
         'devices': {k: {'enabled': False} for k in ('imu', 'sonar', 'led', 'lrf')},
         'world': {'walls': {'rectangle': [-6.0, -6.0, 6.0, 6.0]}, 'obstacles': [],
-                  'robot': {k: TRUE[k] for k in TRUE if k not in ('supply_v', 'motor_tau_s')}},
+                  'robot': {k: TRUE[k] for k in TRUE if k != 'supply_v'}},
     }))
     sim = procs.start(['python', '-m', 'm4k_drivers.sim_robot', '--overlay', str(overlay),
                        '--runtime-dir', m4k_runtime_dir,
@@ -160,7 +172,7 @@ def test_calibrate_recovers_the_true_robot_not_the_configured_one(tmp_path, as_b
         assert db == pytest.approx(DEADBAND_TRUE, rel=0.01)
     # The lag is timed from the host's write, so it includes the command path's latency (what
     # the speed loop sees too): a looser bound than the steady-state values.
-    assert rep['tau_s'] == pytest.approx(TRUE['motor_tau_s'], rel=0.1)
+    assert rep['tau_s'] == pytest.approx(TAU_TRUE, rel=0.1)
     kp, ki = ctl['pi']['kp'], ctl['pi']['ki']        # lambda tuning of the identified plant
     assert ki == pytest.approx(1 / (FULL_SCALE_TRUE * 0.15), rel=0.02)
     assert kp / ki == pytest.approx(rep['tau_s'], rel=1e-3)

@@ -90,15 +90,18 @@ def test_bad_as_built_values_are_refused_by_name(robot, message):
 
 
 def test_amplifier_offset_and_dead_band_on_ground_truth():
-    cfg = WorldConfig.from_dict({'robot': {'amp_offset_left_v': 1.2, 'amp_offset_right_v': 0.3,
+    # The left offset beyond dead band and friction (creeps), the right one inside (still).
+    cfg = WorldConfig.from_dict({'robot': {'amp_offset_left_v': 2.0, 'amp_offset_right_v': 0.3,
                                            'deadband_v': 0.9}, 'obstacles': []})
     t = [0]
     world = World(cfg, clock=lambda: t[0], t0_ns=0)
     t[0] = int(2e9)                                   # zero volts for 2 s
     world.now()
     left, right = world.state().wheel_speed
-    maxw = cfg.robot.max_wheel_rad_s
-    assert left == pytest.approx((1.2 - 0.9) / 24.0 * maxw, rel=1e-6)   # beyond the band: creeps
+    rob = cfg.robot
+    # the motor's speed line at (2.0 - 0.9) V, less the friction's share (drive.py)
+    assert left == pytest.approx(rob.steady_wheel_speed(0.0, LEFT), rel=1e-4)
+    assert 0.0 < left < (2.0 - 0.9) / 24.0 * rob.max_wheel_rad_s
     assert right == 0.0                                                 # inside: still
     world.set_enable_until(t[0])                      # enable dropped: no drive, offset gone
     t[0] += int(2e9)
@@ -108,8 +111,8 @@ def test_amplifier_offset_and_dead_band_on_ground_truth():
     world.set_motor_voltage(RIGHT, 6.0)
     t[0] += int(2e9)
     world.now()
-    assert world.state().wheel_speed[RIGHT] == pytest.approx((6.0 + 0.3 - 0.9) / 24.0 * maxw,
-                                                             rel=1e-6)
+    assert world.state().wheel_speed[RIGHT] == pytest.approx(
+        rob.steady_wheel_speed(6.0, RIGHT), rel=1e-4)
 
 
 def test_sim_robot_refuses_a_control_section_it_cannot_build_a_robot_from(tmp_path, capsys,

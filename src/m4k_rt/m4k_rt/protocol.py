@@ -105,6 +105,32 @@ class SonarStatus(IntEnum):
     FAULT = 3         # invalid: unmeasurable echo, clock step, inconsistent edges
 
 
+class SafetyFlag(IntFlag):
+    """SAFETY_STATUS.flags bits (the RT actuator's guard, supervision and e-stop state)."""
+
+    GUARD_ENABLED = 0x1
+    SLOW_DOWN = 0x2          # the slow-down zone is on
+    SUPERVISION = 0x4        # wheel supervision is on
+    TEST_WEAKENED = 0x8      # the guard runs weakened by the test-only hook
+    MOTOR_FAULT = 0x10       # a motor fault is latched
+    ESTOP_OPEN = 0x20        # the e-stop contact reads open now
+    E_STOP = 0x40            # the RT e-stop latch is engaged
+    GUARD_STOP = 0x80        # the guard's stop zone holds forward motion at zero now
+    SLOWING = 0x100          # the slow-down zone caps forward speed now
+
+
+class FaultCause(IntFlag):
+    """SAFETY_STATUS.fault_cause bits: why wheel supervision latched a motor fault."""
+
+    LEFT_WRONG_WAY = 0x01
+    RIGHT_WRONG_WAY = 0x02
+    LEFT_FROZEN = 0x04       # encoder angle unchanged while commanded (or a stalled wheel)
+    RIGHT_FROZEN = 0x08
+    LEFT_STALL = 0x10        # not moving at PI output saturation
+    RIGHT_STALL = 0x20
+    SWAPPED = 0x40           # each wheel answers the other's setpoint
+
+
 class RtFlag(IntFlag):
     """RT_STATUS.flags bits (set by rt_core's monitor task)."""
 
@@ -162,12 +188,27 @@ ODOM_MOTOR_STALE = int(OdomFlag.MOTOR_STALE)
 ODOM_CLAMPED = int(OdomFlag.CLAMPED)
 ODOM_E_STOP = int(OdomFlag.E_STOP)
 ODOM_HOLD = int(OdomFlag.HOLD)
+ODOM_MOTOR_FAULT = int(OdomFlag.MOTOR_FAULT)
+ODOM_ESTOP_OPEN = int(OdomFlag.ESTOP_OPEN)
+ODOM_SLOWDOWN = int(OdomFlag.SLOWDOWN)
+ENC_SAFE = int(EncoderStatus.SAFE)
+ENC_ESTOP_OPEN = int(EncoderStatus.ESTOP_OPEN)
 ENC_INVALID_MASK = int(EncoderStatus.INVALID)
 
 SONAR_OK = int(SonarStatus.OK)
 SONAR_NO_ECHO = int(SonarStatus.NO_ECHO)
 SONAR_TIMEOUT = int(SonarStatus.TIMEOUT)
 SONAR_FAULT = int(SonarStatus.FAULT)
+
+SAFETY_GUARD_ENABLED = int(SafetyFlag.GUARD_ENABLED)
+SAFETY_SLOW_DOWN = int(SafetyFlag.SLOW_DOWN)
+SAFETY_SUPERVISION = int(SafetyFlag.SUPERVISION)
+SAFETY_TEST_WEAKENED = int(SafetyFlag.TEST_WEAKENED)
+SAFETY_MOTOR_FAULT = int(SafetyFlag.MOTOR_FAULT)
+SAFETY_ESTOP_OPEN = int(SafetyFlag.ESTOP_OPEN)
+SAFETY_E_STOP = int(SafetyFlag.E_STOP)
+SAFETY_GUARD_STOP = int(SafetyFlag.GUARD_STOP)
+SAFETY_SLOWING = int(SafetyFlag.SLOWING)
 
 RT_FLAG_GC_FROZEN = int(RtFlag.GC_FROZEN)
 RT_FLAG_DMA_LATENCY = int(RtFlag.DMA_LATENCY)
@@ -217,10 +258,13 @@ class Kind(IntEnum):
     ODOM_RESET = 15
     APPLIED_VELOCITY = 16
     SET_POSE = 17
-    # Sent by the RT monitor on the `stat` port only (docs/internals.md); numbered apart from
-    # the kinds above since they were introduced as an extension.
+    FAULT_RESET = 18
+    # Sent by the RT monitor (FORBIDDEN_SITE, TASK_HEALTH on `stat` only, SAFETY_STATUS on
+    # `status`; docs/internals.md); numbered apart from the kinds above since they were
+    # introduced as an extension.
     FORBIDDEN_SITE = 64
     TASK_HEALTH = 65
+    SAFETY_STATUS = 66
 
 
 class ProtocolError(ValueError):
@@ -439,6 +483,41 @@ class SetPose(NamedTuple):
     yaw: float
 
 
+class FaultReset(NamedTuple):
+    """Motor fault reset: the request (NRT -> RT) and its answer carry one id.
+
+    The request's ``cleared`` is 0; the answer's is 1 when a latched fault was cleared, 0 when
+    none was latched.
+    """
+
+    request_id: int
+    cleared: int
+
+
+class SafetyStatus(NamedTuple):
+    """The guard's stated figures and the supervision / e-stop state (monitor, 1 Hz).
+
+    ``top_speed`` (m/s) the forward cap applied; ``sensor_speed`` the speed whose stop
+    distance is what the sensors see (0: unguarded); ``reaction_time`` (s),
+    ``brake_deceleration`` (m/s^2) and ``margin`` (m) of d(v); ``trip_distance`` (m) the
+    stop zone now; ``weaken`` (m) the test-only weakening; ``reverse_creep`` (m/s; 0: none);
+    ``flags`` SafetyFlag bits; ``fault_cause`` FaultCause bits of the latched fault;
+    ``motor_faults`` faults latched since rt_core started.
+    """
+
+    top_speed: float
+    sensor_speed: float
+    reaction_time: float
+    brake_deceleration: float
+    margin: float
+    trip_distance: float
+    weaken: float
+    reverse_creep: float
+    flags: int
+    fault_cause: int
+    motor_faults: int
+
+
 class ForbiddenSite(NamedTuple):
     """One call site of a task's forbidden calls (``event`` is a name of EVENT_CODES)."""
 
@@ -521,6 +600,8 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.ODOM_RESET, 'I', OdomReset),
     _spec(Kind.APPLIED_VELOCITY, 'dd', AppliedVelocity, (0, 2)),
     _spec(Kind.SET_POSE, 'Iddd', SetPose, (1, 4)),
+    _spec(Kind.FAULT_RESET, 'IB', FaultReset, ranges=((1, 0, 1),)),
+    _spec(Kind.SAFETY_STATUS, 'ddddddddIII', SafetyStatus, (0, 8)),
     _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
           ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,
           texts=(6, 7)),

@@ -80,6 +80,7 @@ class SharedState:
     audit_installed: bool = False    # the forbidden-call audit hook (RT_STATUS flags bit)
     robot: Any = None                # tasks.state.RobotState, set by the first robot body
     ports: dict[str, Any] = dataclasses.field(default_factory=dict)  # label -> RtXddpSocket
+    runtime_dir: str = ''            # the sockets' directory (the e-stop request file's too)
 
 
 register_body('monitor', make_monitor)
@@ -182,7 +183,7 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
         if (args.require_rt or rt.require_rt) and hard.degraded:
             _err('--require-rt: refusing to run degraded')
             return 1
-        shared = SharedState(cfg, hard, stop_event=stop.event)
+        shared = SharedState(cfg, hard, stop_event=stop.event, runtime_dir=runtime_dir)
         built: list[tuple[config.TaskConfig, Any]] = []
         for t in chosen:
             ports = {}

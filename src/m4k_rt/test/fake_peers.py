@@ -112,6 +112,7 @@ class FakeMotor:
         self.commands = []
         self.status = 0
         self.alive = True
+        self.frozen: list[float] | None = None   # report these angles (a frozen valid frame)
 
     def _advance(self, t_ns: int) -> None:
         if self.t_ns is None:
@@ -137,8 +138,9 @@ class FakeMotor:
             self.enable = msg.enable
             if not self.alive:
                 continue
-            raw = [int(a / (2 * math.pi) * 4096) % 4096 for a in self.angle]
-            self.ports.write('motor', p.Kind.ENCODERS, raw[0], raw[1], self.angle[0],
-                             self.angle[1], self.status, seq=len(self.commands), stamp=t_ns)
+            angle = self.angle if self.frozen is None else self.frozen
+            raw = [int(a / (2 * math.pi) * 4096) % 4096 for a in angle]
+            self.ports.write('motor', p.Kind.ENCODERS, raw[0], raw[1], angle[0],
+                             angle[1], self.status, seq=len(self.commands), stamp=t_ns)
             replies += 1
         return replies

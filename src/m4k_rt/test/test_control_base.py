@@ -12,7 +12,13 @@ from m4k_rt.control.base import (
 )
 from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
-from m4k_rt.protocol import ODOM_BRAKING, ODOM_CLAMPED, ODOM_GUARD, ODOM_MOTOR_STALE
+from m4k_rt.protocol import (
+    ODOM_BRAKING,
+    ODOM_CLAMPED,
+    ODOM_GUARD,
+    ODOM_MOTOR_STALE,
+    ODOM_SLOWDOWN,
+)
 
 MS = 1_000_000
 PERIOD_NS = 10 * MS
@@ -162,7 +168,7 @@ def test_guard_slow_cap_ramps_with_the_limiter():
     t = drive(ctl, plant, 100, t, cmd=(0.25, 0.0))
     drive(ctl, plant, 1, t, cmd=(0.25, 0.0), cap=0.1)
     assert ctl.v == pytest.approx(0.25 - 0.0037)   # decelerating toward the cap, not a jump
-    assert ctl.flags & ODOM_GUARD
+    assert ctl.flags & ODOM_SLOWDOWN and not ctl.flags & ODOM_GUARD
 
 
 def test_motor_lost_outputs_stale_then_hold_zero_until_fresh_command():

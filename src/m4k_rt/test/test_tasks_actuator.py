@@ -172,3 +172,118 @@ def test_factory_reads_control_section_from_task_params(rig):
     assert shared['robot'] is body.state
     body()                                     # no ctx: the body reads the clock itself
     assert body.cycles == 1
+
+
+def test_e_stop_contact_under_a_live_command_holds_until_release_and_a_fresh_command(rig):
+    # Through the real ports: the motor service reports the contact open (ENCODERS status
+    # ESTOP_OPEN) while the bridge keeps commanding; closing the contact restarts nothing;
+    # an E_STOP release then holds until a command newer than it.
+    body, motor, state = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.0))
+    assert body.ctl.v == pytest.approx(0.25)
+    motor.status = p.ENC_ESTOP_OPEN
+    t = run(rig, body, motor, t, 50, cmd=(0.25, 0.0), cmd_every=1)
+    assert state.odom_flags & p.ODOM_ESTOP_OPEN and state.odom_flags & p.ODOM_E_STOP
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)      # zero word, enable kept driven
+    assert body.ctl.pi_left.integral == 0.0 and body.ctl.pi_right.integral == 0.0
+    motor.status = 0                                           # contact closed again
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.0), cmd_every=1)
+    assert state.odom_flags & p.ODOM_E_STOP and body.ctl.v == 0.0
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)
+    rig.write('cmd', p.Kind.E_STOP, 0, stamp=t)               # the explicit release
+    t = run(rig, body, motor, t, 50)
+    assert state.odom_flags & p.ODOM_HOLD and body.ctl.v == 0.0
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.0))        # a fresh command drives
+    assert body.ctl.v == pytest.approx(0.25)
+    odoms = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY]
+    assert any(o.flags & p.ODOM_ESTOP_OPEN for o in odoms)
+
+
+def test_motor_fault_latches_drops_the_enable_and_only_a_reset_clears_it(rig):
+    body, motor, state = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.0))
+    motor.frozen = list(motor.angle)                           # frozen valid frames
+    t = run(rig, body, motor, t, 30, cmd=(0.25, 0.0))
+    assert state.odom_flags & p.ODOM_MOTOR_FAULT and state.mode == MODE_FAULT
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 0)
+    assert state.motor_fault_cause and state.motor_faults == 1
+    motor.frozen = None
+    t = run(rig, body, motor, t, 50, cmd=(0.25, 0.0))
+    assert state.odom_flags & p.ODOM_MOTOR_FAULT                # latched
+    rig.read_all('cmd')
+    rig.write('cmd', p.Kind.FAULT_RESET, 42, 0, stamp=t)
+    t = run(rig, body, motor, t, 20)
+    acks = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.FAULT_RESET]
+    assert acks == [p.FaultReset(42, 1)]
+    assert not state.odom_flags & p.ODOM_MOTOR_FAULT and state.odom_flags & p.ODOM_HOLD
+    assert body.ctl.v == 0.0                                    # the old command: held
+    t = run(rig, body, motor, t, 100, cmd=(0.25, 0.0))
+    assert body.ctl.v == pytest.approx(0.25) and state.motor_fault_cause == 0
+    rig.write('cmd', p.Kind.FAULT_RESET, 43, 0, stamp=t)
+    run(rig, body, motor, t, 2)
+    acks = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.FAULT_RESET]
+    assert acks == [p.FaultReset(43, 0)]                        # nothing was latched
+
+
+def _factory_shared(runtime_dir, tmp_cfg=None):
+    from m4k_rt import config
+    cfg = config.load(None, None)
+    return SimpleNamespace(config=cfg, runtime_dir=runtime_dir, robot=None)
+
+
+def test_actuator_starts_latched_when_the_bridge_persisted_an_e_stop(rig, m4k_runtime_dir,
+                                                                     capsys):
+    from m4k_rt.estop_request import write_request
+    shared = _factory_shared(m4k_runtime_dir)
+    task = [t for t in shared.config.tasks if t.name == 'actuator'][0]
+    body = make_actuator(task, rig.rt, shared)
+    assert not body.ctl.estop.engaged
+    write_request(m4k_runtime_dir, True)
+    shared = _factory_shared(m4k_runtime_dir)
+    body = make_actuator(task, rig.rt, shared)
+    assert body.ctl.estop.engaged
+    err = capsys.readouterr().err
+    assert 'e-stop latch ENGAGED at start-up' in err
+    assert 'collision guard: top forward speed 2.00 m/s' in err
+    write_request(m4k_runtime_dir, False)
+    assert not make_actuator(task, rig.rt, _factory_shared(m4k_runtime_dir)).ctl.estop.engaged
+
+
+def test_guard_weakening_hook_is_refused_without_test_hooks_and_stated_with_them(
+        rig, m4k_runtime_dir, monkeypatch, capsys):
+    shared = _factory_shared(m4k_runtime_dir)
+    task = [t for t in shared.config.tasks if t.name == 'actuator'][0]
+    monkeypatch.setenv('M4K_TEST_GUARD_WEAKEN_M', '0.1')
+    monkeypatch.delenv('M4K_TEST_HOOKS', raising=False)
+    with pytest.raises(ValueError, match='refused'):
+        make_actuator(task, rig.rt, shared)
+    monkeypatch.setenv('M4K_TEST_HOOKS', '1')
+    body = make_actuator(task, rig.rt, _factory_shared(m4k_runtime_dir))
+    assert body.guard.weaken == pytest.approx(0.1)
+    assert 'WEAKENED by 0.100 m' in capsys.readouterr().err
+    monkeypatch.setenv('M4K_TEST_GUARD_WEAKEN_M', '-1')
+    with pytest.raises(ValueError, match='metres'):
+        make_actuator(task, rig.rt, _factory_shared(m4k_runtime_dir))
+
+
+def test_top_speed_is_capped_where_the_sensors_cannot_see_far_enough(rig):
+    # a slow laser (1 s period) and weak brakes: d(v) outgrows 5.375 m below 2 m/s
+    from m4k_rt.tasks.actuator import guard_plan
+    params = control_params({'guard': {'reaction_time': 2.0, 'brake_deceleration': 0.5}})
+    plan = guard_plan(params, 0.01, None, {'body': {'length': 0.45},
+                                           'sensors': {'laser': {'pose': [0, 0, 0.2]}}})
+    assert plan.top_speed == pytest.approx(plan.sensor_speed) and plan.top_speed < 2.0
+    assert 'CAPPED BY THE SENSORS' in plan.line()
+    state = RobotState()
+    body = ActuatorBody(rig.rt['cmd'], rig.rt['motor'], state, params, 0.01, plan=plan)
+    motor = FakeMotor(rig, params.full_scale_wheel_speed)
+
+    def clear(t):
+        state.sonar_range = state.laser_front_min = math.inf
+        state.sonar_rx_ns = state.laser_rx_ns = t - MS
+    t = run(rig, body, motor, 0, 1, before_cycle=clear)
+    run(rig, body, motor, t, 800, cmd=(2.0, 0.0), before_cycle=clear)
+    assert body.ctl.v == pytest.approx(plan.top_speed)
+    assert state.odom_flags & p.ODOM_CLAMPED

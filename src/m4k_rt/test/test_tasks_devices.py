@@ -87,7 +87,7 @@ def _scan(front_mm):
 def test_lrf_front_sector_minimum_reaches_the_state(ports):
     rig = ports('lrf', 'lrf_out')
     state = RobotState()
-    body = LrfBody(rig.rt['lrf'], rig.rt['lrf_out'], state, front_sector_deg=30.0)
+    body = LrfBody(rig.rt['lrf'], rig.rt['lrf_out'], state, half_width=0.19)
     body(ctx(200 * MS))
     (h, req), = rig.read_all('lrf')
     assert req.arg == SCAN_REQUEST

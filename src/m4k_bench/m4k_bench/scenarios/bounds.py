@@ -80,10 +80,12 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     elif cause == 'bridge_killed':
         stop = p.cmd_vel_timeout + 2 * ta + brake
     elif cause == 'driver_host_killed':
-        from m4k_drivers.world import RobotParams
+        from m4k_drivers.world import RobotParams, WorldConfig
         motor = (raw.get('devices') or {}).get('motor') or {}
-        coast = float(((raw.get('world') or {}).get('robot') or {}).get(
-            'coast_decel_mps2', RobotParams.coast_decel_mps2))
+        # The coast-down is friction alone, derived from the robot as built (world.robot).
+        robot = RobotParams.from_control(raw.get('control'), (raw.get('robot') or {}).get('body'))
+        coast = WorldConfig.from_dict({'robot': (raw.get('world') or {}).get('robot') or {}},
+                                      robot=robot).robot.coast_decel_mps2
         hold = float(motor.get('heartbeat_hold_s', 0.05)) if motor.get('heartbeat', True) \
             else math.inf
         stop = hold + v / coast

@@ -30,6 +30,11 @@ _HANDLER = {
     'enc_zero': Param(list, [0, 0], '[left, right] AS5045 reading taken as wheel angle 0',
                       p.check_zero_pair),
 }
+def _check_line(value: object) -> str | None:
+    return None if value is None or (isinstance(value, int) and value >= 0) else \
+        'must be a line offset >= 0 or null'
+
+
 _HEARTBEAT = {
     'heartbeat': Param(bool, True, 'toggle the amplifier-enable line on every fresh command; '
                        'false = enable strapped on (a dead driver host leaves the motors '
@@ -38,6 +43,13 @@ _HEARTBEAT = {
     'heartbeat_line': Param(int, 25, 'line offset of the heartbeat output'),
     'heartbeat_hold_s': Param(float, 0.05, 'hold time of the enable monostable, s (hardware: '
                               'the RC of the retriggerable monostable; sim: modelled)'),
+    'estop_readback_chip': Param(str, '/dev/gpiochip0', 'gpiochip of the e-stop read-back '
+                                 'input'),
+    'estop_readback_line': Param((int, type(None)), None, 'line offset of the input that reads '
+                                 'the amplifier enable after the e-stop contact (low while the '
+                                 'handler drives the enable: contact open -> ENCODERS status '
+                                 'ESTOP_OPEN); null = not wired, the software cannot see the '
+                                 'contact (logged at configure)', _check_line),
     'sched_priority': Param(int, 50, 'SCHED_FIFO priority of the motor service thread (0: '
                             'SCHED_OTHER); below every RT task, above ordinary load, so the '
                             'heartbeat keeps its period on a busy machine'),
@@ -59,7 +71,14 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
         # must not drop the enable, so the hold spans at least three periods.
         raise ValueError(f'devices.motor.heartbeat_hold_s: must be >= 3 * period_s '
                          f'({3.0 * period!r} s), got {hold!r}')
-    return {k: params[k] for k in _HANDLER} | {'clock': ctx.clock}
+    if params['estop_readback_line'] is not None and params['heartbeat'] and (
+            params['estop_readback_chip'], params['estop_readback_line']) == (
+            params['heartbeat_chip'], params['heartbeat_line']):
+        raise ValueError(f"devices.motor.estop_readback_line: {params['estop_readback_line']!r} "
+                         f"is the heartbeat output on {params['heartbeat_chip']!r}; the "
+                         'read-back is a separate input after the e-stop contact')
+    return {k: params[k] for k in _HANDLER} | {
+        'clock': ctx.clock, 'enable_hold_s': hold if params['heartbeat'] else None}
 
 
 @register('motor', 'real', params=_COMMON | {
@@ -81,7 +100,7 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
                            'false and control.cmd_vel_timeout: 0 accepted (m4k_drivers.safety)'),
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHandler:
-    from m4k_drivers.motors.real import open_real_bus, open_real_enable
+    from m4k_drivers.motors.real import open_real_bus, open_real_enable, open_real_readback
     kw = _handler_kw(params, ctx)
     driven = params['ldac'] == 'gpio'
     if driven and (params['ldac_chip'] is None or params['ldac_line'] is None
@@ -102,10 +121,15 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
                              enc_speed_hz=params['enc_speed_hz'],
                              ldac_chip=params['ldac_chip'] if driven else None,
                              ldac_line=params['ldac_line'] if driven else None,
-                             enable=enable if params['heartbeat'] else None)
+                             enable=enable if params['heartbeat'] else None,
+                             readback=readback if params['estop_readback_line'] is not None
+                             else None)
 
     def enable() -> Any:
         return open_real_enable(params['heartbeat_chip'], params['heartbeat_line'])
+
+    def readback() -> Any:
+        return open_real_readback(params['estop_readback_chip'], params['estop_readback_line'])
     return MotorHandler(opener, name=name, **kw)
 
 
@@ -118,7 +142,9 @@ def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHan
     kw = _handler_kw(params, ctx)
     runtime_dir = ctx.sim_runtime_dir()
     line = (params['heartbeat_chip'], params['heartbeat_line']) if params['heartbeat'] else None
-    return MotorHandler(lambda: open_simbus_bus(runtime_dir, line), name=name, **kw)
+    back = (None if params['estop_readback_line'] is None
+            else (params['estop_readback_chip'], params['estop_readback_line']))
+    return MotorHandler(lambda: open_simbus_bus(runtime_dir, line, back), name=name, **kw)
 
 
 # How the driver host answers the RT side for this kind (m4k_drivers.motors.service).

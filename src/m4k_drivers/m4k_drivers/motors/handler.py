@@ -7,6 +7,13 @@ actuator periods, until a fresh command comes (docs/internals.md, driver host wa
 Every fresh command also toggles the amplifier-enable heartbeat line when the bus has one: the
 enable is a retriggerable monostable, so when this process dies or stalls the motors lose
 their drive within the monostable's hold time even though the DACs keep their last word.
+
+The e-stop read-back (``devices.motor.estop_readback_line``) is an input on the enable line
+after the e-stop contact. While this handler drives the enable -- its heartbeat live (the last
+command younger than the monostable's hold) or the enable strapped on -- and the read-back is
+low, the contact is open: every ENCODERS datagram then carries ``EncoderStatus.ESTOP_OPEN``
+(also when the read-back cannot be read: fail-safe). Without a read-back line the bit is never
+set, and configure logs that the software cannot see the contact.
 """
 
 from __future__ import annotations
@@ -56,7 +63,8 @@ class MotorHandler(DeviceHandler):
                  max_wheel_rad_s: float = 30.0, lead_bits: int = 1,
                  dac_sign: Sequence[int] = (1, 1), dac_zero_trim: Sequence[int] = (0, 0),
                  enc_direction: Sequence[int] = (1, 1), enc_zero: Sequence[int] = (0, 0),
-                 clock: Callable[[], int] = time.monotonic_ns, **kw: Any) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns,
+                 enable_hold_s: float | None = None, **kw: Any) -> None:
         super().__init__(name, **kw)
         for field, value, check in (('lead_bits', lead_bits, p.check_lead_bits),
                                     ('dac_sign', list(dac_sign), p.check_sign_pair),
@@ -85,11 +93,22 @@ class MotorHandler(DeviceHandler):
         self.written = (p.DAC_ZERO, p.DAC_ZERO)      # codes on the wires, after the trims
         self.mag_warnings = [0, 0]                   # frames with MagINC = MagDEC = 1
         self._mag_bad = [False, False]
+        # The heartbeat monostable's hold (None: no heartbeat, the enable is strapped on).
+        self.enable_hold_ns = None if enable_hold_s is None else int(enable_hold_s * 1e9)
+        self.estop_open = False              # the read-back's last verdict
+        self.estop_readback = 'none'         # where the read-back is wired (diagnostics)
 
     # -- hooks ----------------------------------------------------------------------------
     def on_configure(self) -> None:
         """Open the four SPI endpoints, zero the DACs and check both encoders answer."""
         self.bus = self._opener()
+        back = self.bus.readback
+        self.estop_readback = 'none' if back is None else back.where
+        if back is None:
+            self.log.warning('%s: no e-stop read-back (devices.motor.estop_readback_line: '
+                             'null): an open e-stop contact is not seen by the software, '
+                             'ENCODERS never carries ESTOP_OPEN', self.name)
+        self.estop_open = False
         self._write_codes(p.DAC_ZERO, p.DAC_ZERO)
         for side, port in enumerate(self.bus.encoders):
             try:
@@ -142,6 +161,8 @@ class MotorHandler(DeviceHandler):
             except p.EncoderFrameError as exc:
                 self.record_fault(exc)
                 status |= _FRAME_BITS[side]
+        if self._estop_read():
+            status |= EncoderStatus.ESTOP_OPEN
         if self.safe:
             status |= EncoderStatus.SAFE
         if self.write_error:
@@ -192,6 +213,28 @@ class MotorHandler(DeviceHandler):
         self.write_error = False
         self.codes = (left, right)
         self.written = out
+
+    def driving_enable(self, now_ns: int | None = None) -> bool:
+        """Return True while this handler drives the amplifier enable (heartbeat live)."""
+        if self.bus is None or self.bus.enable is None:
+            return self.bus is not None      # strapped on: always driven
+        if self.last_cmd_ns is None or self.enable_hold_ns is None:
+            return self.last_cmd_ns is not None
+        now = self.clock() if now_ns is None else now_ns
+        return now - self.last_cmd_ns < self.enable_hold_ns
+
+    def _estop_read(self) -> bool:
+        """Read the e-stop read-back; True (contact open) when driven and it reads low."""
+        back = None if self.bus is None else self.bus.readback
+        if back is None or not self.driving_enable():
+            self.estop_open = False
+            return False
+        try:
+            self.estop_open = not back.read()
+        except DriverError as exc:
+            self.record_fault(exc)
+            self.estop_open = True          # unknown contact: report it open (fail-safe)
+        return self.estop_open
 
     def make_safe(self) -> None:
         """Write the zero code to both DACs (outputs active, so the amplifier sees 0 V)."""

@@ -12,8 +12,8 @@ from typing import Callable, Protocol
 
 from m4k_drivers.handler import DeviceIOError, DriverError, wrap_os_error
 
-__all__ = ['EnableLine', 'LineLike', 'MotorBus', 'SpiLike', 'SpiPort', 'open_ldac',
-           'open_real_bus', 'open_real_enable']
+__all__ = ['EnableLine', 'InputLike', 'LineLike', 'MotorBus', 'ReadbackLine', 'SpiLike',
+           'SpiPort', 'open_ldac', 'open_real_bus', 'open_real_enable', 'open_real_readback']
 
 
 class SpiLike(Protocol):
@@ -84,23 +84,65 @@ class EnableLine:
             pass
 
 
+class InputLike(Protocol):
+    """An input GPIO line (python-periphery GPIO): read and close."""
+
+    def read(self) -> bool:
+        """Return the line level."""
+
+    def close(self) -> None:
+        """Release the line."""
+
+
+class ReadbackLine:
+    """The e-stop read-back: an input on the amplifier enable *after* the e-stop contact.
+
+    High while the enable reaches the amplifiers; low while the contact is open (pressed) --
+    or while nobody drives the enable (no heartbeat), which the handler tells apart.
+    """
+
+    def __init__(self, line: InputLike, where: str) -> None:
+        self.line = line
+        self.where = where
+        self.reads = 0
+
+    def read(self) -> bool:
+        """Return the level; OSError -> DeviceIOError naming the line."""
+        try:
+            level = bool(self.line.read())
+        except OSError as exc:
+            raise wrap_os_error(exc, self.where, 'e-stop read-back') from exc
+        self.reads += 1
+        return level
+
+    def close(self) -> None:
+        """Release the line, ignoring errors."""
+        try:
+            self.line.close()
+        except OSError:
+            pass
+
+
 class MotorBus:
     """The four SPI endpoints of the base (left/right DAC, left/right encoder), /LDAC, enable.
 
     ``ldac`` None: /LDAC is tied low on the board, every DAC output follows its own write.
     Otherwise the line idles high and :meth:`latch` pulses it low after both writes.
-    ``enable`` is the amplifier-enable heartbeat (None: enable strapped on).
+    ``enable`` is the amplifier-enable heartbeat (None: enable strapped on); ``readback`` the
+    e-stop read-back input (None: not wired, the contact's state is unknown to software).
     """
 
     def __init__(self, left_dac: SpiPort, right_dac: SpiPort, left_enc: SpiPort,
                  right_enc: SpiPort, ldac: LineLike | None = None,
-                 ldac_where: str = 'LDAC', enable: EnableLine | None = None) -> None:
+                 ldac_where: str = 'LDAC', enable: EnableLine | None = None,
+                 readback: ReadbackLine | None = None) -> None:
         self.dacs = (left_dac, right_dac)
         self.encoders = (left_enc, right_enc)
         self.ldac = ldac
         self.ldac_where = ldac_where
         self.latches = 0
         self.enable = enable
+        self.readback = readback
 
     def latch(self) -> None:
         """Pulse /LDAC low then high (a Python GPIO write pair lasts >> t_LD = 100 ns)."""
@@ -124,6 +166,8 @@ class MotorBus:
                 pass
         if self.enable is not None:
             self.enable.close()
+        if self.readback is not None:
+            self.readback.close()
 
 
 def open_spi(path: str, mode: int, speed_hz: int) -> SpiPort:
@@ -157,12 +201,26 @@ def open_real_enable(chip: str, line: int) -> EnableLine:
         raise wrap_os_error(exc, where) from exc
 
 
+def open_real_readback(chip: str, line: int) -> ReadbackLine:
+    """Request the e-stop read-back line as an input (the same GPIO class as the enable)."""
+    from periphery import GPIO
+    where = f'{chip} line {line} (e-stop read-back)'
+    try:
+        return ReadbackLine(GPIO(chip, line, 'in'), where)
+    except OSError as exc:
+        raise wrap_os_error(exc, where) from exc
+
+
 def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, *,
                   dac_mode: int = 0, dac_speed_hz: int = 1_000_000, enc_mode: int = 2,
                   enc_speed_hz: int = 500_000, ldac_chip: str | None = None,
                   ldac_line: int | None = None,
-                  enable: Callable[[], EnableLine] | None = None) -> MotorBus:
-    """Open the four spidev nodes, /LDAC if driven, the enable line (closing all on failure)."""
+                  enable: Callable[[], EnableLine] | None = None,
+                  readback: Callable[[], ReadbackLine] | None = None) -> MotorBus:
+    """Open the four spidev nodes, /LDAC if driven, the enable and read-back lines.
+
+    Everything opened is closed again when a later part fails.
+    """
     opened: list[SpiPort] = []
     try:
         for path, mode, speed in ((left_dac, dac_mode, dac_speed_hz),
@@ -171,11 +229,15 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
                                   (right_enc, enc_mode, enc_speed_hz)):
             opened.append(open_spi(path, mode, speed))
         ldac = None if ldac_chip is None else open_ldac(ldac_chip, int(ldac_line or 0))
+        line = back = None
         try:
             line = enable() if enable is not None else None
+            back = readback() if readback is not None else None
         except DriverError:
             if ldac is not None:
                 ldac.close()
+            if line is not None:
+                line.close()
             raise
     except DriverError:
         for port in opened:
@@ -183,4 +245,5 @@ def open_real_bus(left_dac: str, right_dac: str, left_enc: str, right_enc: str, 
         raise
     dac_l, dac_r, enc_l, enc_r = opened
     return MotorBus(dac_l, dac_r, enc_l, enc_r, ldac=ldac,
-                    ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)', enable=line)
+                    ldac_where=f'{ldac_chip} line {ldac_line} (LDAC)', enable=line,
+                    readback=back)

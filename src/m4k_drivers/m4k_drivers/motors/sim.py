@@ -16,11 +16,11 @@ import math
 
 from m4k_drivers.handler import DeviceProtocolError, DriverError, wrap_os_error
 from m4k_drivers.motors import protocol as p
-from m4k_drivers.motors.real import EnableLine, MotorBus, SpiPort
+from m4k_drivers.motors.real import EnableLine, MotorBus, ReadbackLine, SpiPort
 from m4k_drivers.world import World
 
-__all__ = ['EnableMonostable', 'SPI_NAMES', 'SimDac', 'SimEncoder', 'open_sim_bus',
-           'open_simbus_bus']
+__all__ = ['EnableMonostable', 'EstopReadback', 'SPI_NAMES', 'SimDac', 'SimEncoder',
+           'open_sim_bus', 'open_simbus_bus']
 
 # The four spidev nodes of the base as sim_robot names them on the sim-bus.
 SPI_NAMES = ('left_dac', 'right_dac', 'left_enc', 'right_enc')
@@ -75,10 +75,11 @@ class SimEncoder:
         self.fault: dict[str, bool] | None = None    # status-bit override for fault injection
 
     def raw(self) -> int:
-        """Return the current 12-bit reading with noise."""
-        angle = self.world.wheel_angle_at(self.side)   # the angle at the read time
+        """Return the current 12-bit reading with noise (what a faulty encoder says, too)."""
+        # The angle at the read time, as the world's encoder faults have it (m4k_drivers.faults)
+        angle, frozen = self.world.encoder_angle(self.side)
         counts = angle / (2.0 * math.pi) * p.ENC_COUNTS
-        if self.noise_lsb:
+        if self.noise_lsb and not frozen:
             counts += float(self.rng.normal(0.0, self.noise_lsb))
         return int(math.floor(counts)) % p.ENC_COUNTS
 
@@ -153,8 +154,38 @@ class EnableMonostable:
         raise OSError(22, 'heartbeat line was requested as an output: no edge events')
 
 
-def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None) -> MotorBus:
-    """Open the four SPI nodes (and the heartbeat line) of the sim_robot on its sim-bus."""
+class EstopReadback:
+    """The e-stop read-back input: the amplifier enable after the e-stop contact (a GPIO model).
+
+    High while the enable reaches the amplifiers (heartbeat live and contact closed); low while
+    the contact is open or the heartbeat has run out.
+    """
+
+    def __init__(self, world: World) -> None:
+        self.world = world
+        self.reads = 0
+
+    def write(self, value: bool, t_ns: int | None = None) -> None:
+        """Refuse: the read-back is an input."""
+        raise OSError(1, 'e-stop read-back was requested as an input')
+
+    def read(self) -> bool:
+        """Return the enable's level after the contact, now."""
+        self.world.now()
+        self.reads += 1
+        return self.world.drive_enabled()
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def wait_event(self, timeout_s: float) -> None:
+        """Raise: requested without edge detection."""
+        raise OSError(22, 'e-stop read-back was requested without edge events')
+
+
+def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None,
+                    readback_line: tuple[str, int] | None = None) -> MotorBus:
+    """Open the four SPI nodes, the heartbeat and read-back lines of sim_robot on its sim-bus."""
     from m4k_drivers.simbus import GpioClient, SpiClient
     opened: list[SpiPort] = []
     try:
@@ -164,16 +195,24 @@ def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None
                 opened.append(SpiPort(SpiClient(runtime_dir, name), where))
             except OSError as exc:
                 raise wrap_os_error(exc, where) from exc
-        line = None
+        line = back = None
         if enable_line is not None:
             where = f'sim-bus:{enable_line[0]} line {enable_line[1]}'
             try:
                 line = EnableLine(GpioClient(runtime_dir, *enable_line, 'low'), where)
             except OSError as exc:
                 raise wrap_os_error(exc, where) from exc
+        if readback_line is not None:
+            where = f'sim-bus:{readback_line[0]} line {readback_line[1]} (e-stop read-back)'
+            try:
+                back = ReadbackLine(GpioClient(runtime_dir, *readback_line, 'in'), where)
+            except OSError as exc:
+                if line is not None:
+                    line.close()
+                raise wrap_os_error(exc, where) from exc
     except DriverError:
         for port in opened:
             port.close()
         raise
     dac_l, dac_r, enc_l, enc_r = opened
-    return MotorBus(dac_l, dac_r, enc_l, enc_r, enable=line)
+    return MotorBus(dac_l, dac_r, enc_l, enc_r, enable=line, readback=back)

@@ -20,6 +20,16 @@ Order inside ``step``:
    voltage: the amplifier brakes the motor down with its own lag) and clear the integrators,
    so a residual integral or encoder quantization can never make a stopped robot creep.
 
+Between 1 and 2: the e-stop contact read back open (ENCODERS status ESTOP_OPEN in
+``e_stop.contact_samples`` consecutive samples: contact bounce and the read-back glitch when
+the heartbeat restarts are filtered) -> outputs zero (enable kept driven: its read-back
+shows the release), PI reset, the e-stop latch engaged; flags ESTOP_OPEN | E_STOP. A
+latched motor fault (``control.supervision``) -> outputs zero and the enable dropped, flag
+MOTOR_FAULT, until :meth:`reset_fault`. After step 4 the supervisor compares the wheel
+setpoints with the measured speeds and may latch the fault.
+The guard's configuration also caps the forward target at the top speed the sensors can stop
+for and reverse at a creep speed (``forward_limit``, ``reverse_limit``; flag CLAMPED).
+
 The e-stop latch (``control.estop``) overrides steps 2-3: while it is engaged, or released but
 no command has arrived since, both axes ramp to zero at the e-stop decelerations
 (``control.e_stop``) and the operator's command is ignored; flags E_STOP / HOLD, mode E_STOP.
@@ -61,14 +71,20 @@ from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.odometry import Odometry
 from m4k_rt.control.params import AxisLimits, ControlParams
 from m4k_rt.control.pid import WheelSpeedPI
+from m4k_rt.control.supervision import WheelSupervisor
 from m4k_rt.protocol import (
+    ENC_ESTOP_OPEN,
     ENC_INVALID_MASK,
+    ENC_SAFE,
     ODOM_BRAKING,
     ODOM_CLAMPED,
     ODOM_E_STOP,
+    ODOM_ESTOP_OPEN,
     ODOM_GUARD,
     ODOM_HOLD,
+    ODOM_MOTOR_FAULT,
     ODOM_MOTOR_STALE,
+    ODOM_SLOWDOWN,
     seq_newer,
 )
 
@@ -119,6 +135,16 @@ class BaseController:
         self._alpha = params.speed_filter_alpha
         self.estop = EStopLatch(params.e_stop_linear_deceleration,
                                 params.e_stop_angular_deceleration)
+        sv = params.supervision
+        self.supervisor = WheelSupervisor(
+            enabled=sv.enabled, speed_threshold=sv.speed_threshold, min_speed=sv.min_speed,
+            wrong_way_time=sv.wrong_way_time, frozen_time=sv.frozen_time,
+            stall_time=sv.stall_time, stall_ratio=sv.stall_ratio, swap_time=sv.swap_time)
+        self.estop_open = False     # the contact reads open (contact_samples in a row)
+        self._open_samples = 0
+        self._open_needed = params.e_stop.contact_samples
+        self.driver_safe = False    # the last valid ENCODERS said the driver holds DACs safe
+        self.fault_resets = 0
         self.commands_blocked = 0   # commands received while the e-stop latch was engaged
         self.pose_resets = 0
         self._enc_seq = -1          # last ENCODERS sequence number; -1: none yet
@@ -150,6 +176,10 @@ class BaseController:
         self.braking = False
         self._hold_since_ns = 0
         self._last_step_ns = 0
+        # Speed caps the guard's configuration implies (set by the actuator at build time):
+        # the top forward speed the sensors can stop for, the reverse creep (no rear sensor).
+        self.forward_limit = math.inf
+        self.reverse_limit = math.inf
 
     def command(self, linear: float, angular: float, rx_ns: int) -> None:
         """Take a fresh velocity command (already validated finite by the decoder).
@@ -167,6 +197,18 @@ class BaseController:
     def e_stop(self, engage: bool) -> None:
         """Latch (True) or release (False) the e-stop; takes effect at the next ``step``."""
         self.estop.set(engage)
+
+    def reset_fault(self) -> bool:
+        """Clear a latched motor fault (explicit request); return whether one was latched.
+
+        The robot then holds still until a velocity command arrives after the reset (in port
+        order), as after an e-stop release: the command from before the fault never restarts it.
+        """
+        was = self.supervisor.reset()
+        if was:
+            self.fault_resets += 1
+            self.estop.holding = True
+        return was
 
     def reset_pose(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> None:
         """Set the odometry pose (zero by default); speeds and the encoder baseline are kept."""
@@ -190,6 +232,15 @@ class BaseController:
                                  or not seq_newer(self._enc_seq, seq)):
             self.odom.rebase()
         self._enc_seq = -1 if seq is None else seq
+        if status & ENC_ESTOP_OPEN:
+            self._open_samples += 1
+            if self._open_samples >= self._open_needed:
+                self.estop_open = True
+        else:
+            self._open_samples = 0
+            self.estop_open = False
+        self.driver_safe = bool(status & ENC_SAFE)
+        self.supervisor.encoders(left_angle, right_angle)
         self.encoder_samples += 1
         self.enc_rx_ns = rx_ns
         odom = self.odom
@@ -228,15 +279,37 @@ class BaseController:
                 self.odom.zero_speeds()
                 self.left_speed = self.right_speed = 0.0
             self.motor_stale = True
+            self.supervisor.idle()
             self.hold_zero = True
             self.braking = False
             self._stop_outputs(0)
-            self.flags = ODOM_MOTOR_STALE | self._estop_flags()
+            self.flags = (ODOM_MOTOR_STALE | self._estop_flags()
+                          | (ODOM_MOTOR_FAULT if self.supervisor.latched else 0))
             self.mode = MODE_FAULT
             return
         if self.motor_stale:
             self.motor_stale = False
             self._hold_since_ns = now_ns
+        sup = self.supervisor
+        if self.estop_open:
+            # The contact cut the amplifier: whatever the PI would integrate is windup, and a
+            # release must not restart the robot, so the latch engages (cleared only by an
+            # explicit release, then a fresh command). The enable stays driven: its read-back
+            # is how the release of the contact is seen.
+            self.estop.engage()
+            sup.idle()
+            self.braking = False
+            self._stop_outputs(1)
+            self.flags = ODOM_ESTOP_OPEN | ODOM_E_STOP | (ODOM_MOTOR_FAULT if sup.latched
+                                                          else 0)
+            self.mode = MODE_E_STOP
+            return
+        if sup.latched:
+            self.braking = False
+            self._stop_outputs(0)
+            self.flags = ODOM_MOTOR_FAULT | self._estop_flags()
+            self.mode = MODE_FAULT
+            return
         if self.hold_zero and self.cmd_rx_ns > self._hold_since_ns:
             self.hold_zero = False
         # 2. command supervision
@@ -251,9 +324,16 @@ class BaseController:
         if cmd_stale:
             flags |= ODOM_BRAKING
         # 3. guard and limits
+        top_clamped = False
+        if tv > self.forward_limit:
+            tv = self.forward_limit
+            top_clamped = True
+        elif tv < -self.reverse_limit:
+            tv = -self.reverse_limit
+            top_clamped = True
         if tv > forward_cap:
             tv = forward_cap
-            flags |= ODOM_GUARD
+            flags |= ODOM_SLOWDOWN if forward_cap > 0.0 and not guard_active else ODOM_GUARD
         if guard_active:
             flags |= ODOM_GUARD
         estop = self.estop
@@ -292,7 +372,16 @@ class BaseController:
             self.left_code = command_to_code(ul)
             self.right_code = command_to_code(ur)
         self.enable = 1
-        if clamped or sat:
+        if self.driver_safe:
+            sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
+        elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.pi_left.saturated,
+                      self.pi_right.saturated):
+            self.braking = False
+            self._stop_outputs(0)
+            self.flags = ODOM_MOTOR_FAULT | self._estop_flags()
+            self.mode = MODE_FAULT
+            return
+        if clamped or sat or top_clamped:
             flags |= ODOM_CLAMPED
         self.flags = flags
         moving = abs(v) > _MOVING_EPS or abs(w) > _MOVING_EPS

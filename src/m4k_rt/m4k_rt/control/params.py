@@ -94,6 +94,11 @@ CONTROL: dict[str, Field] = {
     'e_stop.angular_deceleration': _pos(
         'rad/s^2', None, 'Latched e-stop ramp; null: the angular maximum deceleration.',
         nullable=True),
+    'e_stop.contact_samples': Field(
+        'int', 5, 'Consecutive ENCODERS samples with ESTOP_OPEN before the open contact counts '
+        '(5 = 50 ms): filters contact bounce and the read-back glitch when the enable '
+        'heartbeat restarts. The contact cuts the amplifier in hardware at once either way; '
+        'larger only delays the latch and the PI reset.', lo=1, hi=50),
     'pi.kp': _nonneg('1/(rad/s)', 0.02, 'Proportional gain of the wheel-speed PI '
                      '(normalized command per rad/s). Too high: oscillation.'),
     'pi.ki': _nonneg('1/rad', 0.4, 'Integral gain. Too high: overshoot; 0: steady-state '
@@ -106,23 +111,74 @@ CONTROL: dict[str, Field] = {
                      nullable=True),
     'guard.enabled': Field('bool', True, 'Collision guard on forward motion. false: the '
                            'robot drives into what its sensors see.'),
-    'guard.stop_distance': _nonneg('m', 0.35, 'Closer than this ahead of the front face '
-                                   '(any sensor), forward velocity is 0 this cycle; too small '
-                                   'to brake in: contact.'),
-    'guard.release_margin': _nonneg('m', 0.05, 'Hysteresis: released above stop_distance + '
-                                    'margin; 0 lets noise toggle the guard.'),
-    'guard.slow_distance': _nonneg('m', 0.0, 'Linear slow-down zone when > stop_distance; '
-                                   '0 = off. Must exceed stop_distance.'),
-    'guard.front_sector_deg': _pos('deg', 30.0, 'Laser sector (centred ahead) whose minimum '
-                                   'feeds the guard; at most the 240 deg scan.', hi=240.0),
+    'guard.stop_distance': _nonneg('m', 0.35, 'Margin of the speed-aware stop zone: the gap '
+                                   'kept ahead of the front face at rest. The stop zone is '
+                                   'd(v) = v t_react + v^2 / (2 brake_deceleration) + this; '
+                                   'too small: contact from sensor noise or a late reading.'),
+    'guard.release_margin': _nonneg('m', 0.05, 'Hysteresis: once stopped, released above '
+                                    'stop_distance + margin; 0 lets noise toggle the guard.'),
+    'guard.brake_deceleration': _pos(
+        'm/s^2', 1.5, 'a_brake: the deceleration the drive gives on a guard stop (zero '
+        'command, ramp bypassed), bounded by tyre traction (about mu g, mu <= 0.7) and the '
+        "amplifier's current limit. calibrate writes the measured value here. Too high: the "
+        'stop zone is too short and the robot hits what it sees at speed.', hi=9.81),
+    'guard.reaction_time': _pos(
+        's', None, 't_react of the stop zone; null: computed from the periods (2 x the '
+        'slowest guard sensor task period + the actuator period + pipeline_latency + '
+        'amplifier_lag). calibrate writes the measured command-to-deceleration time here. '
+        'Too low: the robot stops late.', nullable=True, hi=5.0),
+    'guard.pipeline_latency': _nonneg(
+        's', 0.02, 'Datagram hops sensor driver -> RT task -> actuator -> motor driver, in '
+        't_react (when reaction_time is null).'),
+    'guard.amplifier_lag': _nonneg(
+        's', 0.05, 'Time from the zero DAC word to full braking (amplifier and motor current '
+        'rise), in t_react (when reaction_time is null).'),
+    'guard.slow_down': Field('bool', True, 'Slow-down zone ahead of the stop zone: the forward '
+                             'target is capped at the inverse of d(v) with linear.'
+                             'max_deceleration, so the ramp can follow it. false: the robot '
+                             'drives at full speed until the stop zone brakes it hard.'),
+    'guard.slow_floor': _nonneg('m/s', 0.05, 'Lowest slow-down cap: the robot keeps this '
+                                'speed until the stop zone stops it (0: it creeps toward the '
+                                'stop line ever more slowly).'),
+    'guard.lateral_margin': _nonneg('m', 0.05, "Added to each side of the body's half width "
+                                    "for the laser's corridor test. 0: an obstacle grazing "
+                                    'the side is not seen.'),
+    'guard.reverse_creep_speed': _pos('m/s', 0.1, 'Reverse speed cap: no rear sensor guards '
+                                      'reversing, so it is limited to a creep. Higher: the '
+                                      'robot backs into what it cannot see faster.'),
+    'guard.laser_range': _pos('m', 5.6, 'Farthest range the laser measures (URG-04LX: 5.6 m): '
+                              'with the mount offset it bounds the top forward speed the guard '
+                              'can stop for.'),
+    'guard.sonar_range': _pos('m', 4.5, 'Farthest range the sonar measures (US-100: 4.5 m); '
+                              'bounds the top speed when the laser is not used.'),
     'guard.use_sonar': Field('bool', True, 'Feed the sonar to the guard.'),
-    'guard.use_laser': Field('bool', True, "Feed the laser's front sector to the guard."),
+    'guard.use_laser': Field('bool', True, "Feed the laser's corridor minimum to the guard."),
     'guard.sonar_timeout': _pos('s', 0.2, 'Without a valid sonar reading this long the sonar '
                                 'is stale (see stale_policy).'),
     'guard.laser_timeout': _pos('s', 0.5, 'Without a scan this long the laser is stale.'),
     'guard.stale_policy': Field('str', 'stop', 'stop: a stale sensor counts as an obstacle '
                                 '(fail-safe); ignore: drive on without it.',
                                 choices=STALE_POLICIES),
+    'supervision.enabled': Field('bool', True, 'Wheel supervision: wrong direction, stall, '
+                                 'frozen or swapped encoders latch a motor fault. false: a '
+                                 'wrong-sign encoder drives the PI to full scale.'),
+    'supervision.speed_threshold': _pos(
+        'rad/s', 0.5, 'Supervision acts while |wheel setpoint| is above this (0.5 rad/s = '
+        '5 cm/s at the rim). Too low: false trips from encoder quantization at crawl speed.'),
+    'supervision.min_speed': _pos(
+        'rad/s', 0.3, 'A measured wheel speed below this has no direction (the wrong-way and '
+        'swap tests ignore it).'),
+    'supervision.wrong_way_time': _pos('s', 0.1, 'A wheel turning against its setpoint this '
+                                       'long latches the fault.', hi=0.3),
+    'supervision.frozen_time': _pos('s', 0.15, 'An encoder angle unchanged this long while the '
+                                    'wheel is commanded latches the fault.', hi=0.3),
+    'supervision.stall_time': _pos('s', 0.2, 'A wheel below stall_ratio of its setpoint with '
+                                   'the PI output saturated this long latches the fault.',
+                                   hi=0.3),
+    'supervision.stall_ratio': _pos('', 0.2, 'Stall: measured speed below this fraction of the '
+                                    'setpoint.', hi=1.0),
+    'supervision.swap_time': _pos('s', 0.1, "Wheels answering each other's setpoints this "
+                                  'long (swapped channels) latch the fault.', hi=0.3),
 }
 
 
@@ -158,8 +214,16 @@ class GuardParams:
     enabled: bool = _d('guard.enabled')
     stop_distance: float = _d('guard.stop_distance')
     release_margin: float = _d('guard.release_margin')
-    slow_distance: float = _d('guard.slow_distance')
-    front_sector_deg: float = _d('guard.front_sector_deg')
+    brake_deceleration: float = _d('guard.brake_deceleration')
+    reaction_time: float | None = _d('guard.reaction_time')
+    pipeline_latency: float = _d('guard.pipeline_latency')
+    amplifier_lag: float = _d('guard.amplifier_lag')
+    slow_down: bool = _d('guard.slow_down')
+    slow_floor: float = _d('guard.slow_floor')
+    lateral_margin: float = _d('guard.lateral_margin')
+    reverse_creep_speed: float = _d('guard.reverse_creep_speed')
+    laser_range: float = _d('guard.laser_range')
+    sonar_range: float = _d('guard.sonar_range')
     use_sonar: bool = _d('guard.use_sonar')
     use_laser: bool = _d('guard.use_laser')
     sonar_timeout: float = _d('guard.sonar_timeout')
@@ -168,11 +232,26 @@ class GuardParams:
 
 
 @dataclass(frozen=True)
+class SupervisionParams:
+    """Wheel supervision settings (see ``control.supervision``)."""
+
+    enabled: bool = _d('supervision.enabled')
+    speed_threshold: float = _d('supervision.speed_threshold')
+    min_speed: float = _d('supervision.min_speed')
+    wrong_way_time: float = _d('supervision.wrong_way_time')
+    frozen_time: float = _d('supervision.frozen_time')
+    stall_time: float = _d('supervision.stall_time')
+    stall_ratio: float = _d('supervision.stall_ratio')
+    swap_time: float = _d('supervision.swap_time')
+
+
+@dataclass(frozen=True)
 class EStopParams:
     """Decelerations of the latched e-stop (``control.e_stop``); None: the axis's maximum."""
 
     linear_deceleration: float | None = None    # m/s^2
     angular_deceleration: float | None = None   # rad/s^2
+    contact_samples: int = 5                     # consecutive ESTOP_OPEN samples
 
 
 def _axis_deceleration(limits: AxisLimits) -> float:
@@ -206,6 +285,7 @@ class ControlParams:
         AxisLimits, {k: f.default for k, f in CONTROL.items()}, 'angular'))
     pi: PiGains = field(default_factory=PiGains)
     guard: GuardParams = field(default_factory=GuardParams)
+    supervision: SupervisionParams = field(default_factory=SupervisionParams)
     e_stop: EStopParams = field(default_factory=EStopParams)
 
     @property
@@ -239,13 +319,14 @@ def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> 
         **{k: v for k, v in flat.items() if '.' not in k},
         linear=_group(AxisLimits, flat, 'linear'), angular=_group(AxisLimits, flat, 'angular'),
         pi=_group(PiGains, flat, 'pi'), guard=_group(GuardParams, flat, 'guard'),
+        supervision=_group(SupervisionParams, flat, 'supervision'),
         e_stop=_group(EStopParams, flat, 'e_stop'))
-    guard = params.guard
-    g = f'{path}.guard'
-    if guard.slow_distance and guard.slow_distance <= guard.stop_distance:
-        raise ControlConfigError(f'{g}.slow_distance',
-                                 f'must be 0 (off) or > stop_distance ({guard.stop_distance!r}), '
-                                 f'got {guard.slow_distance!r}')
+    lin_dec = _axis_deceleration(params.linear)
+    if params.guard.brake_deceleration < lin_dec:
+        raise ControlConfigError(
+            f'{path}.guard.brake_deceleration',
+            f'must be >= linear.max_deceleration ({lin_dec!r}: the ramp cannot brake harder '
+            f'than the drive can), got {params.guard.brake_deceleration!r}')
     # An e-stop that brakes more gently than a stale command would stop the robot later than
     # losing the operator's link does.
     for axis, value, normal in (

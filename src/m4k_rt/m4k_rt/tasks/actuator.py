@@ -31,19 +31,37 @@ so a one-cycle event (a guard stop) is not lost to the 5:1 decimation.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+import math
+import os
+import sys
 import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
 from m4k_rt.control.base import BaseController
-from m4k_rt.control.guard import CollisionGuard
+from m4k_rt.control.guard import (
+    CollisionGuard,
+    front_offset,
+    reaction_time,
+    speed_for_distance,
+)
 from m4k_rt.control.params import control_params, ControlParams
+from m4k_rt.estop_request import read_request, request_path
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
-__all__ = ['ActuatorBody', 'control_section', 'make_actuator', 'make_guard']
+__all__ = ['ActuatorBody', 'control_section', 'GuardPlan', 'guard_plan', 'make_actuator',
+           'make_guard', 'TEST_HOOKS_ENV', 'WEAKEN_ENV']
+
+# Test-only: weaken the guard by this many metres (the scenario suite's negative control).
+# Read once when the actuator is built; refused unless TEST_HOOKS_ENV is '1'.
+TEST_HOOKS_ENV = 'M4K_TEST_HOOKS'
+WEAKEN_ENV = 'M4K_TEST_GUARD_WEAKEN_M'
+# Task periods assumed when the configuration has no such task (a bare test rig), s.
+_DEFAULT_PERIODS = {'lrf': 0.2, 'sonar': 0.03}
 
 _VELOCITY_CMD = Kind.VELOCITY_CMD
 _ENCODERS = Kind.ENCODERS
@@ -54,16 +72,125 @@ _E_STOP = Kind.E_STOP
 _ODOM_RESET = Kind.ODOM_RESET
 _SET_POSE = Kind.SET_POSE
 _APPLIED = Kind.APPLIED_VELOCITY
+_FAULT_RESET = Kind.FAULT_RESET
 
 
-def make_guard(params: ControlParams) -> CollisionGuard:
-    """Build the collision guard from the control parameters."""
+@dataclass(frozen=True)
+class GuardPlan:
+    """What the guard's configuration implies, fixed at start-up (stated, never silent).
+
+    ``reaction_time`` t_react (s) and ``brake_deceleration`` a_brake (m/s^2) of the stop zone
+    d(v) = v t_react + v^2 / (2 a_brake) + ``margin``; ``visible`` (m) how far ahead of the
+    front face the guard's full-face sensor sees (laser range less its mount offset; the
+    sonar's when the laser is not used; 0: no sensor); ``sensor_speed`` the speed whose d(v)
+    is ``visible`` (inf: unguarded); ``top_speed`` the forward cap actually applied (the
+    smaller of that and linear.max_velocity); ``reverse_creep`` the reverse cap (inf when the
+    guard is off); ``weaken`` the test-only weakening (m).
+    """
+
+    enabled: bool
+    reaction_time: float
+    brake_deceleration: float
+    margin: float
+    visible: float
+    sensor: str
+    sensor_speed: float
+    top_speed: float
+    reverse_creep: float
+    weaken: float
+    slow_down: bool = True
+    supervision: bool = True
+
+    def line(self) -> str:
+        """Return the start-up statement of the caps (one line)."""
+        if not self.enabled:
+            return ('collision guard DISABLED (control.guard.enabled false): no forward or '
+                    'reverse speed cap, nothing stops the robot for what its sensors see')
+        text = ('collision guard: top forward speed {:.2f} m/s ({}: d(v) = v * {:.3f} s + '
+                'v^2 / (2 * {:.2f} m/s^2) + {:.2f} m reaches the {:.2f} m the {} sees ahead of '
+                'the front face at {:.2f} m/s); reverse capped to {:.2f} m/s (no rear sensor)'
+                ).format(self.top_speed,
+                         'the configured linear.max_velocity' if self.top_speed <
+                         self.sensor_speed else 'CAPPED BY THE SENSORS',
+                         self.reaction_time, self.brake_deceleration, self.margin,
+                         self.visible, self.sensor, self.sensor_speed, self.reverse_creep)
+        if not self.supervision:
+            text += '; wheel supervision OFF (control.supervision.enabled false)'
+        if self.weaken:
+            text += ('; TEST HOOK: guard WEAKENED by {:.3f} m ({}) -- never on a real robot'
+                     .format(self.weaken, WEAKEN_ENV))
+        return text
+
+
+def _task_period(shared: Any, body: str) -> float:
+    cfg = getattr(shared, 'config', None)
+    for t in getattr(cfg, 'tasks', None) or ():
+        if getattr(t, 'body', None) == body or getattr(t, 'name', None) == body:
+            return float(t.period_ns) * 1e-9
+    return _DEFAULT_PERIODS[body]
+
+
+def test_weaken(environ: Mapping[str, str] = os.environ) -> float:
+    """Return the test-only guard weakening from the environment (0 when unset).
+
+    Raise ValueError when it is set without ``M4K_TEST_HOOKS=1`` or is not a number >= 0.
+    """
+    raw = environ.get(WEAKEN_ENV, '').strip()
+    if not raw:
+        return 0.0
+    if environ.get(TEST_HOOKS_ENV) != '1':
+        raise ValueError('{}={!r} refused: test hooks are off (set {}=1 in a test, never on a '
+                         'robot)'.format(WEAKEN_ENV, raw, TEST_HOOKS_ENV))
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0.0):
+        raise ValueError('{} must be a number of metres >= 0, got {!r}'.format(WEAKEN_ENV, raw))
+    return value
+
+
+def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None,
+               robot: Any = None, weaken: float = 0.0) -> GuardPlan:
+    """Compute t_react, the top forward speed and the reverse creep from the configuration."""
     g = params.guard
+    if g.use_laser:
+        sensor, period = 'laser', _task_period(shared, 'lrf')
+        visible = g.laser_range - front_offset(robot, 'laser')
+    elif g.use_sonar:
+        sensor, period = 'sonar', _task_period(shared, 'sonar')
+        visible = g.sonar_range - front_offset(robot, 'sonar')
+    else:
+        sensor, period, visible = 'no sensor', 0.0, 0.0
+    t_react = g.reaction_time
+    if t_react is None:
+        t_react = reaction_time(period, actuator_period, g.pipeline_latency, g.amplifier_lag)
+    if not g.enabled:
+        return GuardPlan(False, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
+                         math.inf, params.linear.max_velocity, math.inf, weaken, False,
+                         params.supervision.enabled)
+    sensor_speed = speed_for_distance(max(visible, 0.0), t_react, g.brake_deceleration,
+                                      g.stop_distance)
+    return GuardPlan(True, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
+                     sensor_speed, min(params.linear.max_velocity, sensor_speed),
+                     g.reverse_creep_speed, weaken, g.slow_down, params.supervision.enabled)
+
+
+def make_guard(params: ControlParams, plan: GuardPlan | None = None) -> CollisionGuard:
+    """Build the collision guard from the control parameters (and the start-up plan)."""
+    g = params.guard
+    if plan is None:
+        plan = guard_plan(params, 0.01)
     return CollisionGuard(enabled=g.enabled, stop_distance=g.stop_distance,
-                          release_margin=g.release_margin, slow_distance=g.slow_distance,
+                          release_margin=g.release_margin, slow_down=g.slow_down,
+                          slow_deceleration=(params.linear.max_acceleration
+                                             if params.linear.max_deceleration is None
+                                             else params.linear.max_deceleration),
+                          slow_floor=g.slow_floor, reaction_time=plan.reaction_time,
+                          brake_deceleration=g.brake_deceleration,
                           use_sonar=g.use_sonar, use_laser=g.use_laser,
                           sonar_timeout=g.sonar_timeout, laser_timeout=g.laser_timeout,
-                          stale_policy=g.stale_policy)
+                          stale_policy=g.stale_policy, weaken=plan.weaken)
 
 
 class ActuatorBody:
@@ -71,11 +198,17 @@ class ActuatorBody:
 
     def __init__(self, cmd_sock: RtPort, motor_sock: RtPort, state: RobotState,
                  params: ControlParams, period_s: float,
-                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns,
+                 plan: GuardPlan | None = None) -> None:
         self.params = params
         self.state = state
         self.ctl = BaseController(params, period_s)
-        self.guard = make_guard(params)
+        self.plan = plan if plan is not None else guard_plan(params, period_s)
+        self.guard = make_guard(params, self.plan)
+        if self.plan.enabled:
+            self.ctl.forward_limit = self.plan.top_speed
+            self.ctl.reverse_limit = self.plan.reverse_creep
+        state.set_guard_plan(self.plan)
         self._cmd_in = PortReader(cmd_sock)
         self._motor_in = PortReader(motor_sock)
         self._cmd_out = PortWriter(cmd_sock)
@@ -99,7 +232,8 @@ class ActuatorBody:
                 'odom_dropped': self._cmd_out.dropped,
                 'guard_activations': self.guard.activations,
                 'e_stop_engagements': c.estop.engagements, 'e_stop_releases': c.estop.releases,
-                'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets}
+                'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets,
+                'motor_faults': c.supervisor.faults, 'fault_resets': c.fault_resets}
 
     def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one actuator cycle (``ctx.t_start`` is the cycle's start time when given)."""
@@ -137,6 +271,13 @@ class ActuatorBody:
             elif kind == _ODOM_RESET:
                 ctl.reset_pose()
                 self._cmd_out.send(_ODOM_RESET, now, msg.request_id)
+            elif kind == _FAULT_RESET:
+                # Commands before the reset are taken before it (they stay held).
+                if latest is not None:
+                    ctl.command(latest.linear_x, latest.angular_z, now)
+                    latest = None
+                cleared = ctl.reset_fault()
+                self._cmd_out.send(_FAULT_RESET, now, msg.request_id, 1 if cleared else 0)
             elif kind == _SET_POSE:
                 ctl.reset_pose(msg.x, msg.y, msg.yaw)
                 o = ctl.odom
@@ -147,8 +288,9 @@ class ActuatorBody:
             ctl.command(latest.linear_x, latest.angular_z, now)
         # 3. guard + control
         guard = self.guard
+        speed = ctl.v if ctl.v > ctl.odom.v else ctl.odom.v
         cap = guard.evaluate(now, self._vmax, state.sonar_range, state.sonar_rx_ns,
-                             state.laser_front_min, state.laser_rx_ns)
+                             state.laser_front_min, state.laser_rx_ns, speed)
         ctl.step(now, cap, guard.active)
         # 4. outputs
         self._motor_out.send(_WHEEL_CMD, now, ctl.left_code, ctl.right_code, ctl.enable)
@@ -170,6 +312,13 @@ class ActuatorBody:
         state.y = odom.y
         state.yaw = odom.yaw
         state.guard_active = guard.active
+        state.guard_trip_distance = guard.trip_distance
+        sup = ctl.supervisor
+        state.motor_fault_cause = sup.cause
+        state.motor_faults = sup.faults
+        state.guard_slowing = guard.slowing
+        state.estop_open = ctl.estop_open
+        state.e_stop_engaged = ctl.estop.engaged
         state.mode = ctl.mode
         self.cycles += 1
         state.actuator_cycles = self.cycles
@@ -201,5 +350,20 @@ def raw_section(task: TaskConfig, shared: Any, name: str) -> Any:
 def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> ActuatorBody:
     """Build the actuator body from its task config, its ``cmd``/``motor`` ports and state."""
     params = control_params(control_section(task, shared))
-    return ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params,
-                        task.period_ns * 1e-9)
+    period = task.period_ns * 1e-9
+    plan = guard_plan(params, period, shared, raw_section(task, shared, 'robot'), test_weaken())
+    body = ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params, period,
+                        plan=plan)
+    # Start-up, before any loop runs: the one place the RT process may read the e-stop
+    # request the bridge persisted, and write to stderr.
+    lines = [plan.line()]
+    runtime_dir = getattr(shared, 'runtime_dir', '')
+    if runtime_dir and read_request(runtime_dir):
+        body.ctl.e_stop(True)
+        lines.append('e-stop latch ENGAGED at start-up: {} says the e-stop is requested '
+                     '(release it with e_stop false, then send a fresh command)'.format(
+                         request_path(runtime_dir)))
+    for line in lines:
+        sys.stderr.write('rt_core: {}\n'.format(line))
+    sys.stderr.flush()
+    return body

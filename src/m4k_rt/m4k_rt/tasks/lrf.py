@@ -4,8 +4,9 @@ Ports: ``lrf`` (driver host: REQUEST out, LASER_SCAN and DEVICE_STATUS in) and `
 (bridge: LASER_SCAN out). Pipeline like the other device tasks: each cycle drains the scan
 replying to the previous REQUEST (the URG-04LX takes 100 ms per scan, well inside the 200 ms
 period), forwards it unchanged (its stamp and device stamp are the measurement's), computes
-the minimum distance ahead of the body's front face in the front sector
-(``control.guard.front_sector_deg``) for the actuator's collision guard, then sends this cycle's
+the smallest gap between the body's front face and a point in its swept corridor
+(``control.guard.FrontCorridor``: body half width + ``control.guard.lateral_margin``) for the
+actuator's collision guard, then sends this cycle's
 REQUEST. A scan whose sector holds no valid point reports ``inf`` (nothing seen) but still
 refreshes ``laser_rx_ns``: the laser is alive.
 """
@@ -16,7 +17,7 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
-from m4k_rt.control.guard import front_offset, FrontSector
+from m4k_rt.control.guard import body_half_width, front_offset, FrontCorridor
 from m4k_rt.control.params import control_params
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.actuator import control_section, raw_section
@@ -36,10 +37,10 @@ class LrfBody(DeviceTaskBody):
     """Per-cycle body of the LRF task."""
 
     def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: RobotState,
-                 front_sector_deg: float = 30.0,
+                 half_width: float = 0.19,
                  clock: Callable[[], int] = time.monotonic_ns, front: float = 0.0) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
-        self.sector = FrontSector(front_sector_deg, front)
+        self.sector = FrontCorridor(half_width, front)
         self.scans = 0
 
     @property
@@ -74,8 +75,9 @@ class LrfBody(DeviceTaskBody):
 
 
 def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfBody:
-    """Build the LRF body from its ``lrf``/``lrf_out`` ports and the guard's sector width."""
+    """Build the LRF body from its ``lrf``/``lrf_out`` ports and the guard's corridor."""
     params = control_params(control_section(task, shared))
+    robot = raw_section(task, shared, 'robot')
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
-                   params.guard.front_sector_deg,
-                   front=front_offset(raw_section(task, shared, 'robot'), 'laser'))
+                   body_half_width(robot) + params.guard.lateral_margin,
+                   front=front_offset(robot, 'laser'))

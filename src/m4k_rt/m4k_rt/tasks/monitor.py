@@ -134,6 +134,28 @@ class StatsShipper:
                 c.peer_restarts)
             self._send(size, _TO_STATUS)
 
+    def _ship_safety(self, robot: Any, now: int) -> None:
+        """Send SAFETY_STATUS: the guard's stated caps and the supervision / e-stop state."""
+        plan = robot.guard_plan
+        sv = robot.motor_fault_cause
+        flags = ((protocol.SAFETY_GUARD_ENABLED if plan.enabled else 0)
+                 | (protocol.SAFETY_SLOW_DOWN if plan.slow_down else 0)
+                 | (protocol.SAFETY_SUPERVISION if plan.supervision else 0)
+                 | (protocol.SAFETY_TEST_WEAKENED if plan.weaken else 0)
+                 | (protocol.SAFETY_MOTOR_FAULT if sv else 0)
+                 | (protocol.SAFETY_ESTOP_OPEN if robot.estop_open else 0)
+                 | (protocol.SAFETY_E_STOP if robot.e_stop_engaged else 0)
+                 | (protocol.SAFETY_GUARD_STOP if robot.guard_active else 0)
+                 | (protocol.SAFETY_SLOWING if robot.guard_slowing else 0))
+        sensor = plan.sensor_speed if math.isfinite(plan.sensor_speed) else 0.0
+        creep = plan.reverse_creep if math.isfinite(plan.reverse_creep) else 0.0
+        size = protocol.encode_into(
+            self._buf, 0, protocol.Kind.SAFETY_STATUS, self.seq, now, plan.top_speed, sensor,
+            plan.reaction_time, plan.brake_deceleration, plan.margin,
+            robot.guard_trip_distance, plan.weaken, creep, flags, sv,
+            robot.motor_faults & 0xFFFFFFFF)
+        self._send(size, _TO_STATUS)
+
     def ship(self) -> None:
         """Send one batch: samples since the last batch, counters, call sites, status."""
         self._prepare()
@@ -209,6 +231,8 @@ class StatsShipper:
             if robot is not None and robot.actuator_cycles:
                 flags |= protocol.RT_FLAG_GUARD_VALID
                 guard = 1 if robot.guard_active else 0
+            if status_linked and robot is not None and robot.guard_plan is not None:
+                self._ship_safety(robot, now)
             size = protocol.encode_into(
                 buf, 0, protocol.Kind.RT_STATUS, self.seq, now, 1 if fifo_all else 0,
                 int(h.mem_locked), int(h.degraded or not fifo_all), guard, flags,

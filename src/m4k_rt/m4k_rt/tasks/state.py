@@ -11,7 +11,9 @@ value and a neighbouring field; nothing here needs a multi-field snapshot).
 Ownership (writer -> fields):
 
 * actuator: ``mode``, ``odom_flags``, ``v``, ``w``, ``x``, ``y``, ``yaw``, ``guard_active``,
-  ``motor_level``, ``motor_status``, ``motor_status_rx_ns``, ``actuator_cycles``
+  ``guard_trip_distance``, ``guard_slowing``, ``motor_fault_cause``, ``motor_faults``,
+  ``estop_open``, ``e_stop_engaged``, ``guard_plan`` (once, at build time), ``motor_level``,
+  ``motor_status``, ``motor_status_rx_ns``, ``actuator_cycles``
 * sonar:    ``sonar_range``, ``sonar_status``, ``sonar_rx_ns``, ``sonar_level``,
   ``sonar_device``, ``sonar_device_rx_ns``
 * lrf:      ``laser_front_min``, ``laser_rx_ns``, ``lrf_level``, ``lrf_status``,
@@ -54,7 +56,8 @@ class RobotState:
 
     __slots__ = (
         'mode', 'odom_flags', 'v', 'w', 'x', 'y', 'yaw', 'guard_active', 'motor_level',
-        'actuator_cycles',
+        'actuator_cycles', 'guard_trip_distance', 'guard_plan', 'motor_fault_cause',
+        'motor_faults', 'guard_slowing', 'estop_open', 'e_stop_engaged',
         'sonar_range', 'sonar_status', 'sonar_rx_ns', 'sonar_level',
         'laser_front_min', 'laser_rx_ns', 'lrf_level',
         'imu_rx_ns', 'imu_level',
@@ -74,6 +77,13 @@ class RobotState:
         self.y = 0.0
         self.yaw = 0.0
         self.guard_active = False
+        self.guard_trip_distance = 0.0   # m, the stop zone's length now (d(v))
+        self.guard_plan: Any = None      # tasks.actuator.GuardPlan, set at build time
+        self.motor_fault_cause = 0       # control.supervision FAULT_* bits of the latched fault
+        self.motor_faults = 0            # motor faults latched since start
+        self.guard_slowing = False       # the slow-down zone caps forward speed now
+        self.estop_open = False          # the e-stop contact reads open (ENCODERS status)
+        self.e_stop_engaged = False      # the e-stop latch is engaged
         self.motor_level = LEVEL_OK
         self.actuator_cycles = 0
         # sonar
@@ -113,6 +123,10 @@ class RobotState:
         setattr(self, device + '_level', msg.level)
         setattr(self, status_attr, msg)
         setattr(self, rx_attr, now_ns)
+
+    def set_guard_plan(self, plan: Any) -> None:
+        """Keep the guard's start-up plan (the actuator, at build time) for the monitor."""
+        self.guard_plan = plan
 
     def worst_device_level(self) -> int:
         """Return the highest DEVICE_STATUS level any device reported."""

@@ -1,0 +1,459 @@
+"""The simulated M4K drive train: amplifier, DC motors, 12:1 gears, tyres, body (pure physics).
+
+Per wheel: the DAC's armature command ``u`` (volts, plus the amplifier's input offset, less its
+dead band) -> a voltage-mode amplifier with a current limit: ``I = clamp((u - ke * w_m) / R,
++/-I_max)`` while enabled, ``I = 0`` while disabled (the outputs float: no drive and no
+back-EMF braking) -> motor torque ``kt * I`` (SI: ``kt = ke``) less the drive train's dry
+friction (the motor's no-load current, ``kt * I0``) -> the gear (``N`` = 12, efficiency ``eta``:
+``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when the wheel drives the
+motor, i.e. when braking) -> the wheel, whose inertia includes the rotor's reflected ``N^2 J_r``.
+
+The ground pushes each wheel with a traction force ``F`` (and the body with ``-F``... forward on
+the body). While the tyre holds (``|F| <= mu * load``), the wheel's rim speed equals the ground
+speed of its contact point; the force that keeps it so is solved each step, implicitly in the
+motor's back-EMF damping, so the 1 ms step is stable however stiff the motor is. When the force
+needed exceeds ``mu * load``, the wheel slips: the ground's force is kinetic friction
+``mu_kinetic * load`` against the slip, the wheel spins (or locks) on the motor's torque alone and
+the body follows only the friction -- so the encoders (on the wheel shafts) report a rotation
+the body did not make, as a real robot's odometry does. Rolling resistance (``Crr * load``) and
+the drive train's friction are dry (Coulomb) friction: below them nothing moves, at a stop they
+hold.
+
+Defaults and their sources: docs/sim-physics.md. Each parameter is declared once, in
+:data:`ROBOT_FIELDS` (type, default, unit, range, source); ``world.robot`` overrides them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+import math
+from typing import Any
+
+from m4k_rt.schema import Field
+
+__all__ = ['DriveState', 'G', 'LEFT', 'RIGHT', 'ROBOT_FIELDS', 'RobotParams', 'WorldConfigError',
+           'parse_robot', 'step_drive']
+
+LEFT, RIGHT = 0, 1
+G = 9.80665                   # m/s^2, standard gravity
+
+
+class WorldConfigError(ValueError):
+    """Raise for a bad ``world:`` section; the message names the field."""
+
+
+def _f(default: float, description: str, unit: str, lo: float | None = 0.0,
+       hi: float | None = None, lo_open: bool = True) -> Field:
+    return Field('float', default, description, unit=unit, lo=lo, hi=hi, lo_open=lo_open)
+
+
+# The robot as built: one declaration per parameter (docs/sim-physics.md gives the sources).
+ROBOT_FIELDS: dict[str, Field] = {
+    # geometry (paper Table 2; the track width is our choice, world.py)
+    'wheel_diameter_m': _f(0.2032, 'Wheel diameter (Table 2: 20.32 cm). Default: '
+                           '2 * control.wheel_radius.', 'm'),
+    'gear_ratio': _f(12.0, 'Motor turns per wheel turn (Table 2: 12:1). Default: '
+                     'control.gear_ratio.', ''),
+    'track_width_m': _f(0.40, 'Wheel centre to wheel centre (not in the paper). Default: '
+                        'control.track_width.', 'm'),
+    'length_m': _f(0.45, 'Body length, the contact footprint (Table 2). Default: '
+                   'robot.body.length.', 'm'),
+    'width_m': _f(0.28, 'Body width, the contact footprint (Table 2). Default: '
+                  'robot.body.width.', 'm'),
+    # drive
+    'top_speed_mps': _f(2.0, 'Straight-line speed on the floor at full armature voltage '
+                        '(Table 2: 2 m/s); sets the motor constant ke. Default: '
+                        'control.full_scale_wheel_speed * wheel radius.', 'm/s'),
+    'supply_v': _f(24.0, 'Amplifier supply: full-scale armature voltage (assumed 24 V).', 'V'),
+    'amp_offset_left_v': _f(0.0, 'Left amplifier input offset (the zero error a DAC zero trim '
+                            'cancels), armature volts, any sign within the supply.', 'V',
+                            lo=None),
+    'amp_offset_right_v': _f(0.0, 'Right amplifier input offset, armature volts.', 'V', lo=None),
+    'deadband_v': _f(0.0, 'Amplifier dead band: armature volts below which it gives no '
+                     'voltage (friction adds its own, see no_load_current_a).', 'V',
+                     lo_open=False),
+    'amp_current_limit_a': _f(3.0, "Amplifier's current (torque) limit, each motor: bounds "
+                              'drive and braking torque (assumed; docs/sim-physics.md: '
+                              '~1.7 m/s^2 drive, ~2.9 m/s^2 braking on the default base).', 'A'),
+    'motor_resistance_ohm': _f(0.6, 'Armature (terminal) resistance: with ke sets the back-EMF '
+                               "braking and the drive's time constant (~0.08 s; assumed, "
+                               '24 V 100-150 W brushed motor class).', 'ohm'),
+    'no_load_current_a': _f(0.3, "Motor no-load current: the drive train's dry friction "
+                            '(brushes, bearings, gear) kt * I0, also while coasting (assumed, '
+                            'same class).', 'A', lo_open=False),
+    'gear_efficiency': _f(0.9, 'Gear efficiency under load (spur/planetary 12:1: 0.85-0.95).',
+                          '', hi=1.0),
+    'rotor_inertia_kgm2': _f(5e-6, 'Motor rotor inertia (50 g cm^2, same motor class); '
+                             'reflected through the gear as N^2 J.', 'kg m^2',
+                             lo_open=False),
+    'wheel_inertia_kgm2': _f(0.005, 'One wheel with hub about its axle (~1 kg, 20 cm).',
+                             'kg m^2', lo_open=False),
+    # body and tyres
+    'mass_kg': _f(30.0, 'Whole robot (Table 2: 30 kg).', 'kg'),
+    'yaw_inertia_kgm2': _f(0.70, 'Yaw inertia about the centre (uniform 0.45 x 0.28 m box of '
+                           '30 kg: m (l^2 + w^2) / 12 = 0.70).', 'kg m^2'),
+    'drive_load_fraction': _f(1.0, 'Share of the weight on the two drive wheels (the rest on '
+                              'casters); each drive wheel carries half of it (CoG on the '
+                              'centre line; no load transfer modelled).', '', hi=1.0),
+    'mu': _f(0.6, 'Static tyre-floor friction coefficient (rubber on indoor floor: 0.6-0.7; '
+             'above 0.7 needs a source). Traction per wheel = mu * load.', '', hi=1.5),
+    'mu_kinetic': _f(0.5, 'Sliding friction coefficient of a slipping tyre (< mu).', '',
+                     hi=1.5),
+    'rolling_resistance': _f(0.015, 'Rolling resistance coefficient Crr (rubber tyre on a hard '
+                             'floor: 0.01-0.02).', '', lo_open=False, hi=0.2),
+}
+
+
+def _defaults() -> dict[str, float]:
+    return {k: float(f.default) for k, f in ROBOT_FIELDS.items()}
+
+
+_D = _defaults()
+
+
+@dataclass(frozen=True)
+class RobotParams:
+    """Physical parameters of the M4K base (:data:`ROBOT_FIELDS`: defaults, units, sources)."""
+
+    wheel_diameter_m: float = _D['wheel_diameter_m']
+    gear_ratio: float = _D['gear_ratio']
+    track_width_m: float = _D['track_width_m']
+    length_m: float = _D['length_m']
+    width_m: float = _D['width_m']
+    top_speed_mps: float = _D['top_speed_mps']
+    supply_v: float = _D['supply_v']
+    amp_offset_left_v: float = _D['amp_offset_left_v']
+    amp_offset_right_v: float = _D['amp_offset_right_v']
+    deadband_v: float = _D['deadband_v']
+    amp_current_limit_a: float = _D['amp_current_limit_a']
+    motor_resistance_ohm: float = _D['motor_resistance_ohm']
+    no_load_current_a: float = _D['no_load_current_a']
+    gear_efficiency: float = _D['gear_efficiency']
+    rotor_inertia_kgm2: float = _D['rotor_inertia_kgm2']
+    wheel_inertia_kgm2: float = _D['wheel_inertia_kgm2']
+    mass_kg: float = _D['mass_kg']
+    yaw_inertia_kgm2: float = _D['yaw_inertia_kgm2']
+    drive_load_fraction: float = _D['drive_load_fraction']
+    mu: float = _D['mu']
+    mu_kinetic: float = _D['mu_kinetic']
+    rolling_resistance: float = _D['rolling_resistance']
+
+    @classmethod
+    def from_control(cls, control: dict[str, Any] | None,
+                     body: dict[str, Any] | None = None) -> RobotParams:
+        """Return the robot ``control:`` and ``robot.body`` describe (unset keys: the defaults).
+
+        Full scale is the wheel speed at code 1023, so the top speed is that times the radius.
+        The body's footprint (``robot.body.length``/``width``, the URDF's) is the one the
+        simulator's contacts use.
+        """
+        base = cls()
+        if body is not None and not isinstance(body, dict):
+            raise WorldConfigError(f'robot.body: expected a mapping, got {body!r}')
+        for key, attr in (('length', 'length_m'), ('width', 'width_m')):
+            v = (body or {}).get(key)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                    math.isfinite(v) and v > 0):
+                raise WorldConfigError(f'robot.body.{key}: must be a number > 0, got {v!r}')
+            base = replace(base, **{attr: float(v)})
+        if control is not None and not isinstance(control, dict):
+            raise WorldConfigError(f'control: expected a mapping, got {control!r}')
+        vals: dict[str, float] = {}
+        for key in ('wheel_radius', 'track_width', 'gear_ratio', 'full_scale_wheel_speed'):
+            v = (control or {}).get(key)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                    math.isfinite(v) and v > 0):
+                raise WorldConfigError(f'control.{key}: must be a number > 0, got {v!r}')
+            vals[key] = float(v)
+        radius = vals.get('wheel_radius', base.wheel_radius_m)
+        out = replace(base, wheel_diameter_m=2.0 * radius,
+                      track_width_m=vals.get('track_width', base.track_width_m),
+                      gear_ratio=vals.get('gear_ratio', base.gear_ratio))
+        if 'full_scale_wheel_speed' in vals:
+            out = replace(out, top_speed_mps=vals['full_scale_wheel_speed'] * radius)
+        return out
+
+    def replace(self, **kw: float) -> RobotParams:
+        """Return a copy with some fields changed."""
+        return replace(self, **kw)
+
+    # -- derived quantities -----------------------------------------------------------------
+    @property
+    def wheel_radius_m(self) -> float:
+        """Return the wheel radius."""
+        return self.wheel_diameter_m / 2.0
+
+    @property
+    def max_wheel_rad_s(self) -> float:
+        """Return the wheel speed at full armature voltage on the floor (top speed)."""
+        return self.top_speed_mps / self.wheel_radius_m
+
+    @property
+    def max_motor_rad_s(self) -> float:
+        """Return the motor-shaft speed at full armature voltage."""
+        return self.max_wheel_rad_s * self.gear_ratio
+
+    @property
+    def wheel_load_n(self) -> float:
+        """Return the normal load on each drive wheel."""
+        return self.mass_kg * G * self.drive_load_fraction / 2.0
+
+    @property
+    def rolling_force_n(self) -> float:
+        """Return each wheel's rolling resistance force."""
+        return self.rolling_resistance * self.wheel_load_n
+
+    @property
+    def ke(self) -> float:
+        """Return the motor constant (V s/rad = N m/A) that makes top_speed_mps the top speed.
+
+        At the top speed the armature current carries the rolling resistance and the drive
+        train's friction through the gear: ``V = R I + ke w_m`` with
+        ``I = (I0 + F_rr r / (N ke)) / eta``, a quadratic in ``ke``.
+        """
+        n, eta, r = self.gear_ratio, self.gear_efficiency, self.wheel_radius_m
+        wm = self.max_motor_rad_s
+        a = self.supply_v - self.motor_resistance_ohm * self.no_load_current_a / eta
+        c = self.motor_resistance_ohm * self.rolling_force_n * r / (n * eta)
+        disc = a * a - 4.0 * wm * c
+        if disc <= 0.0 or a <= 0.0:
+            raise ValueError('world.robot: the supply cannot overcome the friction at any '
+                             'speed (raise supply_v or lower motor_resistance_ohm, '
+                             'no_load_current_a, rolling_resistance)')
+        return (a + math.sqrt(disc)) / (2.0 * wm)
+
+    @property
+    def wheel_inertia_total(self) -> float:
+        """Return one wheel's inertia with its rotor reflected through the gear."""
+        return self.wheel_inertia_kgm2 + self.gear_ratio ** 2 * self.rotor_inertia_kgm2
+
+    @property
+    def friction_torque_nm(self) -> float:
+        """Return the drive train's dry friction at the wheel (motor no-load current)."""
+        return self.gear_ratio * self.ke * self.no_load_current_a
+
+    @property
+    def equivalent_mass_kg(self) -> float:
+        """Return the mass the two wheels' torques accelerate in a straight line."""
+        return self.mass_kg + 2.0 * self.wheel_inertia_total / self.wheel_radius_m ** 2
+
+    @property
+    def motor_tau_s(self) -> float:
+        """Return the drive's time constant in a straight line below the current limit.
+
+        The back-EMF damping ``N^2 kt ke eta / R`` at each wheel against half the equivalent
+        mass: the first-order lag the PI (and ``calibrate``) see.
+        """
+        c = self.gear_ratio ** 2 * self.ke ** 2 * self.gear_efficiency / self.motor_resistance_ohm
+        return 0.5 * self.equivalent_mass_kg * self.wheel_radius_m ** 2 / c
+
+    @property
+    def coast_decel_mps2(self) -> float:
+        """Return the deceleration with the enable off (friction alone: coasting)."""
+        r = self.wheel_radius_m
+        return 2.0 * (self.rolling_force_n + self.friction_torque_nm / r) / self.equivalent_mass_kg
+
+    @property
+    def traction_decel_mps2(self) -> float:
+        """Return the hardest the tyres can stop the robot (static friction, both wheels)."""
+        return self.mu * G * self.drive_load_fraction
+
+    def braking_decel_mps2(self, enabled: bool = True) -> float:
+        """Return the peak deceleration of a zero (or full reverse) command from speed.
+
+        Enabled: the current limit's braking torque (``N kt I_max / eta`` at each wheel) plus
+        friction, capped by traction; disabled: friction only (coasting).
+        """
+        if not enabled:
+            return self.coast_decel_mps2
+        r = self.wheel_radius_m
+        brake = self.gear_ratio * self.ke * self.amp_current_limit_a / self.gear_efficiency
+        total = 2.0 * (brake / r + self.rolling_force_n + self.friction_torque_nm / r)
+        return min(total / self.equivalent_mass_kg, self.traction_decel_mps2)
+
+    def amp_offset_v(self, side: int) -> float:
+        """Return one amplifier's input offset in armature volts."""
+        return self.amp_offset_right_v if side == RIGHT else self.amp_offset_left_v
+
+    def effective_volts(self, side: int, volts: float) -> float:
+        """Return the armature voltage the amplifier gives for DAC volts (offset, dead band)."""
+        u = volts + self.amp_offset_v(side)
+        return math.copysign(max(abs(u) - self.deadband_v, 0.0), u)
+
+    def steady_wheel_speed(self, volts: float, side: int = LEFT) -> float:
+        """Return the steady wheel speed (rad/s) of a straight run with both wheels at ``volts``.
+
+        Below the friction nothing turns; above it the speed line is shifted by the current
+        the friction needs (the DC motor's torque-speed line at that load).
+        """
+        u = self.effective_volts(side, volts)
+        n, eta, r, ke = self.gear_ratio, self.gear_efficiency, self.wheel_radius_m, self.ke
+        load_i = (self.no_load_current_a + self.rolling_force_n * r / (n * ke)) / eta
+        excess = abs(u) - self.motor_resistance_ohm * load_i
+        if excess <= 0.0:
+            return 0.0
+        return math.copysign(excess / ke / n, u)
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        """Return the names ``world.robot`` accepts."""
+        return [f.name for f in fields(cls)]
+
+
+class DriveState:
+    """The moving state of the drive: wheel speeds, body speeds, which tyres slip."""
+
+    __slots__ = ('wheel', 'v', 'w', 'slipping', 'current', 'blocked')
+
+    def __init__(self) -> None:
+        self.wheel = [0.0, 0.0]           # rad/s, positive = forward
+        self.v = 0.0                      # body, m/s
+        self.w = 0.0                      # body yaw rate, rad/s
+        self.slipping = [False, False]
+        self.current = [0.0, 0.0]         # armature current, A
+        self.blocked = [False, False]     # a wheel mechanically blocked (fault injection)
+
+    def contact_speed(self, side: int, half_track: float) -> float:
+        """Return the ground speed of one wheel's contact point along the heading."""
+        return self.v + (half_track if side == RIGHT else -half_track) * self.w
+
+
+def _sign(x: float) -> float:
+    return 1.0 if x > 0.0 else -1.0 if x < 0.0 else 0.0
+
+
+def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], enabled: bool,
+               dt: float) -> None:
+    """Advance the drive by ``dt`` seconds (in place).
+
+    ``volts``: each amplifier's input in armature volts; ``enabled``: the amplifier enable.
+    """
+    n, eta, r = rob.gear_ratio, rob.gear_efficiency, rob.wheel_radius_m
+    ke, res = rob.ke, rob.motor_resistance_ohm
+    s = rob.track_width_m / 2.0
+    m, iz = rob.mass_kg, rob.yaw_inertia_kgm2
+    jw = rob.wheel_inertia_total
+    load = rob.wheel_load_n
+    fric_max = rob.friction_torque_nm + rob.rolling_force_n * r    # dry friction at the wheel
+    a_free = [0.0, 0.0]           # wheel torque but for traction, at the present speed
+    drive = [0.0, 0.0]            # the motor's torque at the wheel
+    p = [0.0, 0.0]                # dt / (J + c dt): implicit in the back-EMF damping
+    for i in (LEFT, RIGHT):
+        wi = st.wheel[i]
+        c = 0.0
+        if enabled:
+            u = rob.effective_volts(i, volts[i])
+            cur = (u - ke * n * wi) / res
+            if abs(cur) > rob.amp_current_limit_a:
+                cur = math.copysign(rob.amp_current_limit_a, cur)
+            else:
+                c = n * n * ke * ke / res       # d(torque)/d(speed) at the wheel, below the limit
+        else:
+            cur = 0.0
+        st.current[i] = cur
+        motoring = cur * wi >= 0.0
+        gain = n * (eta if motoring else 1.0 / eta)
+        tau = drive[i] = gain * ke * cur
+        c *= eta if motoring else 1.0 / eta
+        # Dry friction opposes the rotation; at a standstill it holds up to its maximum.
+        if wi != 0.0:
+            tau -= math.copysign(fric_max, wi)
+        else:
+            tau -= max(-fric_max, min(fric_max, tau))
+        a_free[i] = tau
+        p[i] = dt / (jw + c * dt)
+    c_wheel = [dt / pi - jw for pi in p]      # the damping each p was built with, * dt
+    # A wheel at rest whose drive is below its dry friction is held by that friction (like a
+    # blocked one: zero speed) as long as the torque needed to hold it stays below it too.
+    held = [st.blocked[i] or (st.wheel[i] == 0.0 and abs(drive[i]) <= fric_max)
+            for i in (LEFT, RIGHT)]
+    for i in (LEFT, RIGHT):
+        if held[i]:
+            st.wheel[i] = 0.0
+            a_free[i] = p[i] = 0.0
+    alpha, beta = dt / m, dt * s * s / iz
+    slip0 = [r * st.wheel[i] - st.contact_speed(i, s) for i in (LEFT, RIGHT)]
+    kin = [_sign(slip0[i]) for i in (LEFT, RIGHT)]     # direction of a sliding tyre's force
+    stuck = [not st.slipping[i] for i in (LEFT, RIGHT)]
+    x = alpha - beta
+    f = [0.0, 0.0]
+    for _ in range(5):
+        e = [r * st.wheel[i] + r * p[i] * a_free[i] - st.contact_speed(i, s)
+             for i in (LEFT, RIGHT)]
+        d = [r * r * p[i] + alpha + beta for i in (LEFT, RIGHT)]
+        for i in (LEFT, RIGHT):
+            if not stuck[i]:
+                f[i] = rob.mu_kinetic * load * kin[i]
+        if stuck[LEFT] and stuck[RIGHT]:
+            det = d[0] * d[1] - x * x
+            f[0] = (e[0] * d[1] - x * e[1]) / det
+            f[1] = (d[0] * e[1] - x * e[0]) / det
+        elif stuck[LEFT]:
+            f[0] = (e[0] - x * f[1]) / d[0]
+        elif stuck[RIGHT]:
+            f[1] = (e[1] - x * f[0]) / d[1]
+        over = [i for i in (LEFT, RIGHT) if stuck[i] and abs(f[i]) > rob.mu * load]
+        for i in over:              # beyond static friction: the tyre slides from now on
+            stuck[i] = False
+            st.slipping[i] = True
+            kin[i] = _sign(f[i])
+        # A held wheel the ground turns harder than its friction holds starts to roll.
+        freed = [i for i in (LEFT, RIGHT) if held[i] and not st.blocked[i] and stuck[i]
+                 and abs(drive[i] - f[i] * r) > fric_max]
+        for i in freed:
+            held[i] = False
+            p[i] = dt / (jw + c_wheel[i])
+            a_free[i] = drive[i] - math.copysign(fric_max, drive[i] - f[i] * r)
+        if not over and not freed:
+            break
+    old = list(st.wheel)
+    for i in (LEFT, RIGHT):
+        st.wheel[i] = old[i] + p[i] * (a_free[i] - f[i] * r)
+    st.v += alpha * (f[0] + f[1])
+    st.w += dt * s * (f[1] - f[0]) / iz
+    for i in (LEFT, RIGHT):
+        # A sliding tyre grips again when its slip has run out (reached or crossed zero).
+        if st.slipping[i]:
+            after = r * st.wheel[i] - st.contact_speed(i, s)
+            if abs(after) < 1e-4 or _sign(after) != kin[i]:
+                st.slipping[i] = False
+        # Dry friction stops a wheel: crossing zero with less drive than friction is a stop.
+        elif (old[i] != 0.0 and _sign(st.wheel[i]) != _sign(old[i])
+              and abs(drive[i]) <= fric_max):
+            st.wheel[i] = 0.0
+    if not any(st.slipping):      # gripping: the body goes where the wheels roll
+        st.v = 0.5 * r * (st.wheel[0] + st.wheel[1])
+        st.w = r * (st.wheel[1] - st.wheel[0]) / (2.0 * s)
+
+
+def parse_robot(rob: Any, base: RobotParams, where: str,
+                error: type[Exception] = WorldConfigError) -> RobotParams:
+    """Return ``base`` with the ``world.robot`` keys of ``rob`` applied (errors name the key)."""
+    names = RobotParams.field_names()
+    if not isinstance(rob, dict) or set(rob) - set(names):
+        raise error(f'{where}: expected a mapping with keys from {sorted(names)}, got {rob!r}')
+    vals: dict[str, float] = {}
+    for k, v in rob.items():
+        fld = ROBOT_FIELDS[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise error(f'{where}.{k}: expected finite numbers, got {[v]!r}')
+        reason = fld.problem(float(v))
+        if reason is not None:
+            raise error(f'{where}.{k}: {reason}')
+        vals[k] = float(v)
+    out = replace(base, **vals)
+    for k in ('amp_offset_left_v', 'amp_offset_right_v'):
+        if k in vals and abs(vals[k]) >= out.supply_v:
+            raise error(f'{where}.{k}: must be within the supply (+/-{out.supply_v} V), '
+                        f'got {vals[k]!r}')
+    if out.mu_kinetic > out.mu:
+        raise error(f'{where}.mu_kinetic: must be <= mu ({out.mu!r}), got {out.mu_kinetic!r}')
+    try:
+        _ = out.ke                    # the supply must overcome the friction
+    except ValueError as exc:
+        raise error(str(exc)) from None
+    return out

@@ -1,0 +1,183 @@
+"""The simulated drive on ground truth: braking within traction, slip, coasting (issue 28.1).
+
+Every number here is the world's own truth (body speed, pose, wheel angles) on a fake clock;
+the bounds come from the robot's parameters (``mu * g``, ``v^2 / (2 mu g)``), never from a run.
+"""
+
+import math
+
+import pytest
+
+from m4k_drivers.drive import G, ROBOT_FIELDS, RobotParams
+from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig, WorldConfigError
+
+FAR = WorldConfig.from_dict({'walls': {'rectangle': [-50, -50, 50, 50]}, 'obstacles': []}).walls
+OPEN = WorldConfig(walls=FAR, obstacles=())
+MS = 1_000_000
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0
+
+    def __call__(self):
+        return self.t
+
+
+def _world(robot=None):
+    clock = Clock()
+    cfg = OPEN if robot is None else WorldConfig(walls=FAR, obstacles=(), robot=robot)
+    return World(cfg, clock=clock, t0_ns=0), clock
+
+
+def _run(w, clock, seconds, each=None):
+    """Advance ``seconds`` in 1 ms steps; ``each(world)`` after every step."""
+    for _ in range(round(seconds * 1000)):
+        clock.t += MS
+        w.advance_to(clock.t)
+        if each is not None:
+            each(w)
+
+
+def _drive_to(w, clock, speed):
+    """Bring the robot to ``speed`` m/s on the volts its steady line needs; return the volts."""
+    rob = w.robot
+    lo, hi = 0.0, rob.supply_v
+    for _ in range(50):                   # the volts of that steady speed (bisection)
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if rob.steady_wheel_speed(mid) * rob.wheel_radius_m < speed \
+            else (lo, mid)
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, hi)
+    _run(w, clock, 4.0)
+    assert w.state().v == pytest.approx(speed, rel=0.01)
+    return hi
+
+
+def test_default_base_brakes_below_traction_and_states_its_figures():
+    rob = RobotParams()
+    assert rob.mu <= 0.7
+    assert rob.braking_decel_mps2() < rob.mu * G
+    assert rob.coast_decel_mps2 < rob.braking_decel_mps2()
+    # Table 2's base: 2 m/s at full voltage on the floor, 30 kg, 12:1, 20.32 cm wheels
+    assert rob.steady_wheel_speed(rob.supply_v) * rob.wheel_radius_m == pytest.approx(2.0)
+    assert (rob.mass_kg, rob.gear_ratio, rob.wheel_diameter_m) == (30.0, 12.0, 0.2032)
+    for name, fld in ROBOT_FIELDS.items():     # every parameter documented with its unit/source
+        assert fld.description and getattr(rob, name) == fld.default
+
+
+@pytest.mark.parametrize('v0', [0.5, 1.0, 2.0])
+def test_zero_command_brakes_at_most_mu_g_and_stops_no_shorter_than_traction_allows(v0):
+    w, clock = _world()
+    _drive_to(w, clock, v0)
+    x0, peak = w.state().pose.x, w.peak_decel
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, 0.0)
+    decel = []
+    _run(w, clock, 5.0, lambda w: decel.append(-w.state().accel))
+    s = w.state()
+    mu_g = w.robot.mu * G
+    assert abs(s.v) < 1e-6
+    assert max(decel) < mu_g and w.peak_decel < mu_g
+    assert w.peak_decel >= peak
+    assert s.pose.x - x0 >= v0 * v0 / (2.0 * mu_g)
+    # and the peak is the current limit's braking the robot's parameters give
+    assert max(decel) == pytest.approx(w.robot.braking_decel_mps2(), rel=0.02)
+
+
+def test_braking_from_2_mps_with_a_strong_amplifier_is_limited_by_the_tyres():
+    """Full reverse through a 20 A amplifier: the torque would give ~18 m/s^2; tyres slide."""
+    w, clock = _world(RobotParams(amp_current_limit_a=20.0))
+    _drive_to(w, clock, 2.0)
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, -w.robot.supply_v)
+    decel, slipped = [], []
+    _run(w, clock, 0.5, lambda w: (decel.append(-w.state().accel),
+                                  slipped.append(max(map(abs, w.state().slip)))))
+    assert max(decel) <= w.robot.mu * G + 1e-9
+    assert max(slipped) > 0.1          # the tyres slid: the wheels turned the other way first
+
+
+def test_hard_acceleration_slips_and_odometry_overstates_the_distance():
+    w, clock = _world(RobotParams(amp_current_limit_a=20.0))
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, w.robot.supply_v)
+    _run(w, clock, 1.0)
+    s = w.state()
+    odom = 0.5 * (s.wheel_angle[LEFT] + s.wheel_angle[RIGHT]) * w.robot.wheel_radius_m
+    assert w.peak_slip > 0.1
+    assert odom > s.pose.x + 0.05          # the encoders report rotation the body did not make
+    assert w.peak_accel <= w.robot.mu * G + 1e-9
+
+
+def test_gentle_drive_does_not_slip_and_odometry_matches_truth():
+    w, clock = _world()
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, 6.0)
+    _run(w, clock, 3.0)
+    s = w.state()
+    odom = 0.5 * (s.wheel_angle[LEFT] + s.wheel_angle[RIGHT]) * w.robot.wheel_radius_m
+    assert w.peak_slip < 1e-6
+    assert odom == pytest.approx(s.pose.x, abs=1e-6)
+
+
+def test_enable_dropped_coasts_on_friction_alone():
+    w, clock = _world()
+    volts = _drive_to(w, clock, 1.0)
+    w.set_enable_until(clock.t)             # the heartbeat stops: the amplifiers float
+    t0, x0 = clock.t, w.state().pose.x
+    _run(w, clock, 0.5)
+    s = w.state()
+    coast = w.robot.coast_decel_mps2
+    assert s.v == pytest.approx(1.0 - 0.5 * coast, abs=0.01)
+    assert w.motor_voltage(LEFT) == volts          # the DACs still hold their word
+    _run(w, clock, 1.0 / coast)
+    s = w.state()
+    assert s.v == 0.0
+    # coasting distance v^2 / (2 a), up to one step of the sampled deceleration
+    assert s.pose.x - x0 == pytest.approx(1.0 / (2.0 * coast), rel=0.02)
+    assert (clock.t - t0) * 1e-9 >= 1.0 / coast
+
+
+def test_estop_contact_cuts_the_enable_and_closing_it_drives_again():
+    w, clock = _world()
+    _drive_to(w, clock, 0.5)
+    w.set_estop_open(True)
+    assert not w.drive_enabled() and w.heartbeat_enabled()
+    _run(w, clock, 0.1)
+    assert w.state().accel == pytest.approx(-w.robot.coast_decel_mps2, rel=0.05)
+    w.set_estop_open(False)
+    _run(w, clock, 3.0)
+    assert w.state().v == pytest.approx(0.5, rel=0.01)
+
+
+def test_a_weak_push_does_not_move_the_robot_dry_friction_holds():
+    w, clock = _world()
+    rob = w.robot
+    below = 0.5 * rob.motor_resistance_ohm * rob.no_load_current_a
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, below)
+    _run(w, clock, 1.0)
+    assert w.state().v == 0.0 and w.state().wheel_speed == (0.0, 0.0)
+
+
+@pytest.mark.parametrize('robot, match', [
+    ({'mu': 0.0}, r'world\.robot\.mu: must be in \(0, 1\.5\]'),
+    ({'mu': 0.5, 'mu_kinetic': 0.6}, r'world\.robot\.mu_kinetic: must be <= mu'),
+    ({'gear_efficiency': 1.2}, r'world\.robot\.gear_efficiency: must be in \(0, 1\]'),
+    ({'mass_kg': 'heavy'}, r'world\.robot\.mass_kg: expected finite numbers'),
+    ({'motor_resistance_ohm': 50.0}, r'world\.robot: the supply cannot overcome'),
+])
+def test_bad_robot_parameters_are_refused_naming_the_field(robot, match):
+    with pytest.raises(WorldConfigError, match=match):
+        WorldConfig.from_dict({'robot': robot})
+
+
+def test_turning_in_place_keeps_the_centre_still():
+    w, clock = _world()
+    w.set_motor_voltage(LEFT, -6.0)
+    w.set_motor_voltage(RIGHT, 6.0)
+    _run(w, clock, 2.0)
+    s = w.state()
+    assert math.hypot(s.pose.x, s.pose.y) < 1e-9
+    assert s.w > 0.5 and w.peak_slip < 1e-6

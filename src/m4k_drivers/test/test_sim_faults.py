@@ -1,0 +1,158 @@
+"""Fault injection in the simulator (issue 28.3): encoders that lie in valid frames, a stalled
+wheel, the e-stop contact -- seen through the real motor handler and AS5045 frames, judged on
+the world's ground truth."""
+
+
+import pytest
+
+from m4k_drivers.faults import parse_faults
+from m4k_drivers.motors import MotorHandler, WheelCommand
+from m4k_drivers.motors import protocol as mp
+from m4k_drivers.motors.sim import open_sim_bus
+from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig, WorldConfigError
+from m4k_rt.protocol import EncoderStatus
+
+MS = 1_000_000
+FWD = mp.command_to_code(0.125)         # 0.25 m/s open loop
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0
+
+    def __call__(self):
+        return self.t
+
+
+def _rig(faults=None):
+    clock = Clock()
+    world_raw = {'walls': {'rectangle': [-20, -20, 20, 20]}, 'obstacles': []}
+    if faults is not None:
+        world_raw['faults'] = faults
+    world = World(WorldConfig.from_dict(world_raw), clock=clock, t0_ns=0)
+    h = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.0), clock=clock, period_s=0.01,
+                     watchdog_periods=10)
+    h.configure()
+    h.activate()
+    return h, world, clock
+
+
+def _drive(h, clock, left, right, seconds):
+    """Command (left, right) codes every 10 ms; return the encoder readings."""
+    out = []
+    for _ in range(round(seconds / 0.01)):
+        clock.t += 10 * MS
+        h.write(WheelCommand(left, right, 1))
+        r = h.read()
+        out.append(r.value)
+    return out
+
+
+def _valid(readings):
+    return all(r.status & EncoderStatus.INVALID == 0 for r in readings)
+
+
+def test_sign_flip_counts_backwards_in_valid_frames_while_the_wheel_goes_forward():
+    h, world, clock = _rig([{'at_s': 1.0, 'kind': 'encoder_sign_flip', 'wheel': 'left'}])
+    before = _drive(h, clock, FWD, FWD, 1.0)
+    truth0 = world.state().wheel_angle
+    after = _drive(h, clock, FWD, FWD, 1.0)
+    truth1 = world.state().wheel_angle
+    assert _valid(before + after)
+    assert truth1[LEFT] - truth0[LEFT] > 1.0                # the wheel turned forward
+    moved_l = after[-1].left_angle - before[-1].left_angle
+    moved_r = after[-1].right_angle - before[-1].right_angle
+    assert moved_l == pytest.approx(-(truth1[LEFT] - truth0[LEFT]), abs=0.02)
+    assert moved_r == pytest.approx(truth1[RIGHT] - truth0[RIGHT], abs=0.02)
+    assert world.active_faults() == [{'kind': 'encoder_sign_flip', 'wheel': 'left'}]
+    h.shutdown()
+
+
+def test_swapped_channels_report_the_other_wheel():
+    h, world, clock = _rig([{'at_s': 0.5, 'kind': 'encoder_swap'}])
+    before = _drive(h, clock, FWD, FWD, 0.5)
+    t0 = world.state().wheel_angle
+    back = mp.command_to_code(-0.125)
+    after = _drive(h, clock, back, FWD, 1.0)                # turn in place: left back
+    t1 = world.state().wheel_angle
+    assert _valid(before + after)
+    assert t1[LEFT] < t0[LEFT] and t1[RIGHT] > t0[RIGHT]
+    assert after[-1].left_angle - before[-1].left_angle == pytest.approx(
+        t1[RIGHT] - t0[RIGHT], abs=0.02)
+    assert after[-1].right_angle - before[-1].right_angle == pytest.approx(
+        t1[LEFT] - t0[LEFT], abs=0.02)
+    h.shutdown()
+
+
+def test_frozen_encoder_keeps_returning_the_same_valid_frame():
+    h, world, clock = _rig([{'at_s': 0.5, 'kind': 'encoder_frozen', 'wheel': 'right'}])
+    _drive(h, clock, FWD, FWD, 0.6)
+    frozen = _drive(h, clock, FWD, FWD, 1.0)
+    assert _valid(frozen)
+    assert len({r.right_raw for r in frozen}) == 1                  # the same value
+    assert frozen[-1].left_angle - frozen[0].left_angle > 1.0       # the other one moves
+    assert world.state().wheel_speed[RIGHT] > 1.0                    # and so does the wheel
+    h.shutdown()
+
+
+def test_stalled_wheel_does_not_turn_and_its_encoder_reads_no_motion():
+    h, world, clock = _rig([{'at_s': 0.5, 'kind': 'wheel_stall', 'wheel': 'left'}])
+    _drive(h, clock, FWD, FWD, 0.5)
+    stalled = _drive(h, clock, FWD, FWD, 1.0)
+    s = world.state()
+    assert _valid(stalled)
+    assert s.wheel_speed[LEFT] == 0.0
+    assert stalled[-1].left_angle == pytest.approx(stalled[0].left_angle, abs=0.01)
+    assert s.w > 0.1           # the right wheel pivots the robot about the blocked left one
+    world.set_fault('wheel_stall', 'left', active=False)       # forced faults add to the list
+    assert world.active_faults() == [{'kind': 'wheel_stall', 'wheel': 'left'}]   # scheduled
+    h.shutdown()
+
+
+def test_estop_contact_pressed_and_released_on_schedule_cuts_the_enable():
+    h, world, clock = _rig([{'at_s': 1.0, 'until_s': 2.0, 'kind': 'estop'}])
+    _drive(h, clock, FWD, FWD, 0.99)
+    assert world.drive_enabled() and not world.estop_open
+    v0 = world.state().v
+    _drive(h, clock, FWD, FWD, 0.5)
+    s = world.state()
+    assert world.estop_open and not world.drive_enabled()
+    # coasting on friction, whatever the DACs say
+    assert s.v == pytest.approx(v0 - 0.5 * world.robot.coast_decel_mps2, abs=0.01)
+    _drive(h, clock, FWD, FWD, 0.6)
+    assert not world.estop_open and world.drive_enabled()
+
+
+def test_forced_fault_from_a_test_and_its_release():
+    h, world, clock = _rig()
+    _drive(h, clock, FWD, FWD, 0.5)
+    world.set_fault('encoder_frozen', 'left')
+    a = _drive(h, clock, FWD, FWD, 0.3)
+    assert len({r.left_raw for r in a}) == 1
+    world.set_fault('encoder_frozen', 'left', active=False)
+    b = _drive(h, clock, FWD, FWD, 0.3)
+    assert len({r.left_raw for r in b}) > 10 and world.active_faults() == []
+    with pytest.raises(ValueError, match='fault kind must be'):
+        world.set_fault('gremlins')
+    h.shutdown()
+
+
+@pytest.mark.parametrize('faults, match', [
+    ('x', r'world\.faults: expected a list'),
+    ([{'kind': 'encoder_sign_flip', 'wheel': 'left'}], r'world\.faults\[0\]\.at_s: missing'),
+    ([{'at_s': 1, 'kind': 'gremlins'}], r'world\.faults\[0\]\.kind: expected one of'),
+    ([{'at_s': 1, 'kind': 'wheel_stall', 'wheel': 'middle'}],
+     r'world\.faults\[0\]\.wheel: expected left, right or both'),
+    ([{'at_s': 1, 'kind': 'encoder_swap', 'wheel': 'left'}], r'world\.faults\[0\]\.wheel'),
+    ([{'at_s': 2, 'until_s': 1, 'kind': 'estop'}], r'world\.faults\[0\]\.until_s: must be after'),
+    ([{'at_s': -1, 'kind': 'estop'}], r'world\.faults\[0\]\.at_s: expected seconds >= 0'),
+    ([{'at_s': 1, 'kind': 'estop', 'when': 3}], r"unknown field\(s\) \['when'\]"),
+])
+def test_bad_fault_entries_are_refused_naming_the_field(faults, match):
+    with pytest.raises(WorldConfigError, match=match):
+        WorldConfig.from_dict({'faults': faults})
+
+
+def test_fault_schedule_parses_wheels():
+    (f,) = parse_faults([{'at_s': 1.5, 'kind': 'wheel_stall', 'wheel': 'both'}])
+    assert f.sides == (0, 1) and f.active(1.5) and not f.active(1.4)
