@@ -41,7 +41,6 @@ import os
 import random
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -50,6 +49,7 @@ from typing import Any, Sequence, TextIO
 import numpy as np
 
 from m4k_bench.benchlib import provenance
+from m4k_bench.benchlib.stack import Child
 from m4k_bench.planning.dwa import DwaConfig
 from m4k_bench.planning.evaluate import (
     contacts,
@@ -59,7 +59,6 @@ from m4k_bench.planning.evaluate import (
     WorldGeometry,
 )
 from m4k_rt import config, description, rosargs
-from m4k_rt.proc import stop_process
 
 __all__ = ['judge', 'main', 'pose_rate']
 
@@ -93,33 +92,21 @@ def _log(msg: str) -> None:
     print(f'demo: {msg}', file=sys.stderr, flush=True)
 
 
-class _Child:
-    """A child process in its own session, its output in a log file."""
+def _child(name: str, argv: list[str], out_dir: str, env: dict[str, str]) -> Child:
+    """Start ``argv`` in its own session, its output in ``<out_dir>/<name>.log``.
 
-    def __init__(self, name: str, argv: list[str], log_path: str, env: dict[str, str]) -> None:
-        self.name = name
-        self.log_path = log_path
-        self._log = open(log_path, 'w', encoding='utf-8')  # noqa: SIM115 - closed in stop()
-        self.proc = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, env=env,
-                                     start_new_session=True)
+    Stopped with SIGINT to the whole session, as Ctrl-C would stop it.
+    """
+    return Child(name, argv, out_dir, env, stop_signal=signal.SIGINT, group=True)
 
-    def alive(self) -> bool:
-        return self.proc.poll() is None
 
-    def stop(self, timeout: float) -> int | None:
-        """SIGINT the process group, wait, then SIGKILL; return the exit code."""
-        rc = stop_process(self.proc, signal.SIGINT, timeout, on_escalate=lambda t: _log(
-            f'{self.name} did not stop within {t:g} s'))
-        self._log.close()
-        return rc
+def _stop(child: Child, timeout: float) -> int:
+    return child.stop(timeout, on_escalate=lambda t: _log(
+        f'{child.name} did not stop within {t:g} s'))
 
-    def tail(self, n: int = 15) -> str:
-        try:
-            with open(self.log_path, encoding='utf-8', errors='replace') as f:
-                return ''.join(f.readlines()[-n:])
-        except OSError:
-            return ''
+
+def _tail(child: Child, n: int = 15) -> str:
+    return '\n'.join(child.tail(n))
 
 
 def _bringup_argv(overlay: str | None, python_m: bool) -> list[str]:
@@ -502,23 +489,23 @@ def _results_dir(parent: str) -> str:
     return out
 
 
-def _drive(rec: Recorder, stack: _Child, env: dict[str, str], args: argparse.Namespace,
+def _drive(rec: Recorder, stack: Child, env: dict[str, str], args: argparse.Namespace,
            mount: Sequence[float], out_dir: str) -> tuple[bool, int]:
     """Start the planner and record until goal, timeout or failure; return (timed_out, rc)."""
     tty = sys.stderr.isatty()
     end = time.monotonic() + STARTUP_TIMEOUT_S
     while time.monotonic() < end and (not rec.odom or rec.scans == 0):
         if not stack.alive():
-            _log(f'the stack exited (code {stack.proc.returncode}):\n{stack.tail()}')
+            _log(f'the stack exited (code {stack.proc.returncode}):\n{_tail(stack)}')
             return False, 2
         rec.spin(0.1)
     if not rec.odom or rec.scans == 0:
-        _log(f'no odom/scan within {STARTUP_TIMEOUT_S:g} s; bringup log:\n{stack.tail()}')
+        _log(f'no odom/scan within {STARTUP_TIMEOUT_S:g} s; bringup log:\n{_tail(stack)}')
         return False, 2
     _log(f'stack up: odom and scan flowing; starting the planner (goal {tuple(args.goal)})')
     rec.t0 = time.monotonic()
-    planner = _Child('planner', _planner_argv(args.goal, mount, args.max_v, args.tolerance),
-                     os.path.join(out_dir, 'planner.log'), env)
+    planner = _child('planner', _planner_argv(args.goal, mount, args.max_v, args.tolerance),
+                     out_dir, env)
     timed_out, rc, last = True, 0, 0.0
     try:
         while time.monotonic() - rec.t0 < args.timeout:
@@ -528,7 +515,7 @@ def _drive(rec: Recorder, stack: _Child, env: dict[str, str], args: argparse.Nam
                 _progress(rec, args.goal, sys.stderr, tty)
             if not planner.alive() or not stack.alive():
                 who = planner if not planner.alive() else stack
-                _log(f'{who.name} exited (code {who.proc.returncode}):\n{who.tail()}')
+                _log(f'{who.name} exited (code {who.proc.returncode}):\n{_tail(who)}')
                 timed_out, rc = False, 1
                 break
             recent = [r[4] for r in rec.odom[-10:]]
@@ -540,7 +527,7 @@ def _drive(rec: Recorder, stack: _Child, env: dict[str, str], args: argparse.Nam
     finally:
         if tty:
             sys.stderr.write('\n')
-        planner.stop(10.0)
+        _stop(planner, 10.0)
         rec.spin(0.2)
     if timed_out:
         _log(f'timeout: goal not reached within {args.timeout:g} s')
@@ -581,11 +568,9 @@ def main(argv: Sequence[str] | None = None) -> int:
          f'{env["M4K_RUNTIME_DIR"]}')
     env['M4K_WORLD_REPORT'] = os.path.join(out_dir, WORLD_REPORT)
     rec = Recorder()
-    bag = _Child('record', [sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
-                            os.path.join(out_dir, 'bag')],
-                 os.path.join(out_dir, 'record.log'), env)
-    stack = _Child('bringup', _bringup_argv(args.config, args.python_m),
-                   os.path.join(out_dir, 'bringup.log'), env)
+    bag = _child('record', [sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
+                            os.path.join(out_dir, 'bag')], out_dir, env)
+    stack = _child('bringup', _bringup_argv(args.config, args.python_m), out_dir, env)
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         timed_out, rc = _drive(rec, stack, env, args, mount, out_dir)
@@ -594,8 +579,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         timed_out, rc = False, 130
     finally:
         signal.signal(signal.SIGTERM, previous)
-        bag.stop(STOP_TIMEOUT_S)
-        code = stack.stop(STOP_TIMEOUT_S)
+        _stop(bag, STOP_TIMEOUT_S)
+        code = _stop(stack, STOP_TIMEOUT_S)
         _log(f'stack stopped (bringup exit code {code})')
         rec.close()
         if tmp_runtime:

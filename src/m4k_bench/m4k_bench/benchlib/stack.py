@@ -66,14 +66,24 @@ def velocity_profile(t_s: float) -> tuple[float, float]:
 
 
 class Child:
-    """A child process in its own session, stderr to a log file, stopped by pid."""
+    """A child process in its own session, its output in a log file, stopped by pid or group.
+
+    The one wrapper of the bench's processes (the stacks of bench, soak and fuzz, and demo's
+    bringup, planner and recorder). Output goes to ``<log_dir>/<log_name>`` (default
+    ``<name>.log``, appended to, headed by the command line). ``stop`` sends ``stop_signal``
+    (SIGTERM) to the process, or to its whole session with ``group=True`` (demo SIGINTs
+    bringup's), then SIGKILL after the grace time.
+    """
 
     def __init__(self, name: str, argv: Sequence[str], log_dir: str,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, *, log_name: str | None = None,
+                 stop_signal: int = signal.SIGTERM, group: bool = False) -> None:
         """Start ``argv`` now."""
         self.name = name
+        self.stop_signal = stop_signal
+        self.group = group
         os.makedirs(log_dir, exist_ok=True)
-        self.log_path = os.path.join(log_dir, name + '.log')
+        self.log_path = os.path.join(log_dir, log_name or name + '.log')
         self._log = open(self.log_path, 'ab')
         self._log.write('$ {}\n'.format(' '.join(argv)).encode())
         self._log.flush()
@@ -86,9 +96,11 @@ class Child:
         """Tell whether the process still runs."""
         return self.proc.poll() is None
 
-    def stop(self, grace_s: float = 8.0) -> int:
-        """SIGTERM, wait ``grace_s``, then SIGKILL; return the exit code."""
-        rc = stop_process(self.proc, signal.SIGTERM, grace_s, group=False)
+    def stop(self, grace_s: float = 8.0,
+             on_escalate: Callable[[float], None] | None = None) -> int:
+        """Send the stop signal, wait ``grace_s``, then SIGKILL; return the exit code."""
+        rc = stop_process(self.proc, self.stop_signal, grace_s, group=self.group,
+                          on_escalate=on_escalate)
         self._log.close()
         assert rc is not None, f'{self.name} survived SIGKILL'
         return rc
