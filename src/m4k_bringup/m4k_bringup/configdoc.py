@@ -42,8 +42,7 @@ def rt_sections() -> list[Section]:
 
 
 def all_sections() -> list[schema.Section]:
-    """Return every section: the RT side, each device backend, the world, the bridge, the
-    live view."""
+    """Return every section: RT side, device backends, world, bridge and live view."""
     sections = rt_sections()
     sections += schema_sections()
     sections += world_sections()

@@ -99,7 +99,7 @@ def test_brake_run_measures_the_simulators_braking_and_a_reaction_within_two_per
     at once (no current rise modelled), so the fit finds ~0 up to the encoder noise.
     """
     from m4k_drivers.calibrate import fit
-    clock = SimClock()
+    clock = FakeClock()
     world = World(WorldConfig.from_dict({'obstacles': [], 'robot': robot,
                                          'walls': {'rectangle': [-9, -9, 9, 9]}}),
                   clock=clock, t0_ns=0)
