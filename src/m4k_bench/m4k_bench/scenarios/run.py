@@ -345,8 +345,9 @@ def _judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
         res.failures.append(f'travelled {res.travelled:.3f} m, expected {sc.distance_m:.3f} m '
                             f'(tolerance {b.distance_tol:.3f} m)')
     radius = scene.robot.wheel_radius_m
-    res.peak_speed = max(max(abs(float(x['v'])), abs(float(x['wheel_speed_left'])) * radius,
-                             abs(float(x['wheel_speed_right'])) * radius) for x in s)
+    res.peak_speed = max(max(abs(float(x['v'])),
+                             abs(float(x.get('wheel_speed_left', 0.0))) * radius,
+                             abs(float(x.get('wheel_speed_right', 0.0))) * radius) for x in s)
     if sc.max_speed is not None and not res.peak_speed < sc.max_speed:
         res.failures.append(f'peak speed {res.peak_speed:.3f} m/s on ground truth (body or wheel '
                             f'rim) >= {sc.max_speed:g} m/s')
