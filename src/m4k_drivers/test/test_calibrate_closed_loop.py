@@ -63,7 +63,8 @@ def calibrated():
     shipped = load_layered()['control']
     world, handler, clock = _robot()
     args = argparse.Namespace(hold=1.5, max_speed=0.25, levels=5, settle=0.6, measure=0.6,
-                              speed=0.15, distance=1.0, turns=1, lam=0.15)
+                              speed=0.15, distance=1.0, turns=1, lam=0.15, brake_speed=0.25,
+                              brake_settle=1.5)
     res = {}
     op = TruthOperator(world)
     with runs.MotorRig(handler, SteppingStop(clock), clock=clock.seconds) as rig:

@@ -44,7 +44,7 @@ from m4k_drivers.motors.handler import MotorHandler
 __all__ = ['STEPS', 'Operator', 'main']
 
 STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
-DEFAULT_STEPS = ('zero', 'sweep', 'straight', 'turn')     # brake: when asked for
+DEFAULT_STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
 
 
 class Operator:
