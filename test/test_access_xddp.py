@@ -166,7 +166,7 @@ def test_configured_group_admits_its_members_only(public_parent):
         assert outsider == dict.fromkeys(outsider, errno.EACCES), outsider
 
         def member():
-            with xddp.nrt_xddp_open('cmd', runtime_dir=rd, wait=2.0) as ep:
+            with xddp.nrt_xddp_open('cmd', runtime_dir=rd, wait=2.0, group=g.gr_gid) as ep:
                 ep.write(protocol.encode(protocol.Kind.VELOCITY_CMD, 5, 0, 0.5, 0.0))
                 data = ep.read(5.0)
             return protocol.decode(data)[0].kind
