@@ -26,7 +26,7 @@ def test_a_scenario_commands_and_short_version():
     ({'commands': [{'v': 'fast', 't': 1}]}, r'commands\[0\]\.v'),
     ({'expect': {'stop': 'bumper'}}, r'expect\.stop'),
     ({'expect': {}}, r'expect'),
-    ({'faults': [{'kill': 'rt_core', 'at': {'travelled': 1}}]}, r'faults\[0\]'),
+    ({'faults': [{'kill': 'nav2', 'at': {'travelled': 1}}]}, r'faults\[0\]'),
     ({'colour': 'red'}, r'unknown field'),
     ({'config': {'world': {}}}, r'x\.yaml\.config'),
 ])
@@ -51,10 +51,20 @@ def test_the_shipped_suite_loads():
 def test_bounds_follow_config():
     raw = config.load_layered(None, os.path.join(ROOT, 'config'))
     b = bounds.bounds(raw, 0.25, 'sonar')
-    # v^2 / 2a with 0.37 m/s^2; stop: 2 x 30 ms sonar + 10 ms actuator + v/0.37
+    # v^2 / 2a with 0.37 m/s^2
     assert b.distance_tol == pytest.approx(0.25 ** 2 / (2 * 0.37))
-    assert b.stop_s == pytest.approx(0.06 + 0.01 + 0.25 / 0.37)
-    assert b.trigger_clearance == pytest.approx(0.35)
+    # a guard stop is held to the speed-aware stop zone: t_react = 2 x 30 ms sonar + 10 ms
+    # actuator + 20 ms pipeline + 50 ms amplifier, braking at guard.brake_deceleration 1.5
+    g = raw['control']['guard']
+    assert (g['reaction_time'], g['brake_deceleration'], g['stop_distance']) == (None, 1.5, 0.35)
+    assert b.stop_s is None and b.t_react == pytest.approx(0.06 + 0.01 + 0.02 + 0.05)
+    assert b.stop_distance(0.25) == pytest.approx(
+        0.25 * 0.14 + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
+    # the guard's stop line: both sensors in use, so twice the slower one's (the laser's) period
+    lrf = raw['tasks']['lrf']['period_ms'] / 1000.0
+    assert lrf > 0.03 and g['use_laser'] and g['use_sonar']
+    assert bounds.stop_line(raw, 0.25) == pytest.approx(
+        0.25 * (2 * lrf + 0.01 + 0.02 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
     slower = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
                                                                sonar_timeout=1.0)))
     assert (bounds.bounds(slower, 0.25, 'sonar_unplugged').stop_s

@@ -220,6 +220,14 @@ class Dumper:
         self._thread = threading.Thread(target=self._run, name='flight_recorder', daemon=True)
         self._thread.start()
 
+    def set_topics(self, topics: Mapping[str, TopicSpec]) -> None:
+        """Replace what the ring keys are in a bag, as a new mapping.
+
+        A dump in progress keeps the one it started with; ring entries of a key no longer
+        listed are left out of later dumps.
+        """
+        self.topics = dict(topics)
+
     def submit(self, trigger: Trigger) -> None:
         """Queue a dump (returns at once)."""
         self._jobs.put(trigger)
@@ -259,6 +267,7 @@ class Dumper:
     def dump(self, trigger: Trigger) -> str:
         """Write the ring's window around ``trigger`` now; return the bag directory."""
         entries = self.ring.snapshot(trigger.wall_ns - self.pre_ns)
+        topics = self.topics         # once: set_topics may replace it meanwhile
         base = os.path.join(self.directory, 'flight_{}_{}'.format(_stamp(trigger.wall_ns),
                                                                   trigger.kind))
         path, n = base, 1
@@ -281,8 +290,8 @@ class Dumper:
         try:
             channels: dict[str, int] = {}
             seq: collections.Counter[str] = collections.Counter()
-            for key in _keys_in_order(entries, self.topics):
-                spec = self.topics[key]
+            for key in _keys_in_order(entries, topics):
+                spec = topics[key]
                 msgdef, digest = self._definition(spec.type_name)
                 channels[key] = bag.add_topic(spec.topic, spec.type_name, msgdef, digest,
                                               spec.qos, spec.qos_text)

@@ -3,8 +3,8 @@
 Always on with the bridge (``flight_recorder.enabled``). It keeps, in a bounded ring
 (:class:`m4k_bridge.flightrec.Ring`), the serialized messages of:
 
-* commands: ``cmd_vel`` as received (the bridge's type), ``e_stop``, and ``cmd_vel_out``, the
-  velocity the RT actuator applies;
+* commands: ``cmd_vel`` as received (the type the bridge subscribes), ``e_stop``, and
+  ``cmd_vel_out``, the velocity the RT actuator applies;
 * odometry: ``odom``;
 * guard and supervisor state: ``flight_recorder/rt_flags`` (diagnostic_msgs/DiagnosticStatus,
   kept here only, never published): the actuator's ODOMETRY flags by name (GUARD, SLOWDOWN,
@@ -15,10 +15,17 @@ Always on with the bridge (``flight_recorder.enabled``). It keeps, in a bounded 
 * RT timing: ``rt_status`` (per-task release latency, response time, overruns, deadline
   misses).
 
-It subscribes best effort (it never slows a publisher down) on the bridge's own node, and its
-callbacks only copy bytes into the ring. The triggers come from the RT datagrams the bridge
-decodes anyway (:meth:`FlightRecorder.on_datagram`), and a dump is written by a thread of its
-own (:class:`m4k_bridge.flightrec.Dumper`). It never runs in the RT process.
+The bridge's inputs, ``cmd_vel`` and ``e_stop``, are handed over by the bridge's own callbacks
+(:meth:`FlightRecorder.keep_cmd_vel`, :meth:`FlightRecorder.keep_e_stop`): the recorder keeps
+exactly what the bridge received, with the cmd_vel type actually subscribed (with
+``enable_stamped_cmd_vel: auto`` the bridge re-subscribes with the first publisher's type and
+tells :meth:`FlightRecorder.set_cmd_vel_type`), and the bridge holds one subscription per input
+topic (a second one would show in every matched count, and one participant cannot subscribe a
+topic with two types). The bridge's outputs it subscribes best effort (it never slows a
+publisher down) on the bridge's own node; its callbacks only copy bytes into the ring.
+The triggers come from the RT datagrams the bridge decodes anyway
+(:meth:`FlightRecorder.on_datagram`), and a dump is written by a thread of its own
+(:class:`m4k_bridge.flightrec.Dumper`). It never runs in the RT process.
 """
 
 from __future__ import annotations
@@ -82,17 +89,23 @@ class FlightRecorder:
         if not self.enabled:
             return
         ns = node.get_namespace().rstrip('/')
+        # Inputs: fed by the bridge's callbacks (no subscription here); topic names resolved.
+        self._cmd_vel_topic = node.resolve_topic_name(p.topic('cmd_vel'))
+        self._specs: dict[str, TopicSpec] = {
+            'e_stop': _spec(node.resolve_topic_name(p.topic('e_stop')), 'std_msgs/msg/Bool',
+                            _RELIABLE)}
+        self._cmd_vel_key = ''
+        self.set_cmd_vel_type(cmd_vel_type, dumper=False)
+        # Outputs of the bridge, as published.
         topics = {
-            'cmd_vel': (p.topic('cmd_vel'), cmd_vel_type, _BEST_EFFORT),
             'cmd_vel_out': (p.topic('cmd_vel_out'), 'geometry_msgs/msg/TwistStamped', _RELIABLE),
             'odom': (p.topic('odom'), 'nav_msgs/msg/Odometry', _RELIABLE),
-            'e_stop': (p.topic('e_stop'), 'std_msgs/msg/Bool', _RELIABLE),
             'e_stop_state': (p.topic('e_stop_state'), 'std_msgs/msg/Bool', _LATCHED),
             'rt_status': (p.topic('rt_status'), 'm4k_msgs/msg/RtStatus', _RELIABLE),
             'diagnostics': (p.topic('diagnostics'), 'diagnostic_msgs/msg/DiagnosticArray',
                             _RELIABLE),
         }
-        specs: dict[str, TopicSpec] = {}
+        specs = self._specs
         self._subs = []
         for key, (topic, type_name, qos) in topics.items():
             sub = node.create_subscription(_message_class(type_name), topic,
@@ -112,6 +125,33 @@ class FlightRecorder:
                  'dumped to {} on {}'.format(pre, post, self.ring.max_bytes, self.directory,
                                              ', '.join(('e_stop', 'guard_stop', 'motor_fault',
                                                         'deadline_miss', 'device_fault'))))
+
+    def set_cmd_vel_type(self, type_name: str, dumper: bool = True) -> None:
+        """Record cmd_vel as ``type_name`` from now on (the bridge re-subscribed with it).
+
+        Each type is its own ring key: a message of the type before is never written under the
+        new one (it is left out of later dumps; a bag topic has one type).
+        """
+        if not self.enabled:
+            return
+        key = 'cmd_vel:' + type_name
+        if key == self._cmd_vel_key:
+            return
+        self._specs.pop(self._cmd_vel_key, None)
+        self._specs[key] = _spec(self._cmd_vel_topic, type_name, _BEST_EFFORT)
+        if dumper and self.dumper is not None:
+            self.dumper.set_topics(self._specs)
+        self._cmd_vel_key = key
+
+    def keep_cmd_vel(self, msg: Any) -> None:
+        """Keep a cmd_vel message as the bridge received it (its callback; cheap)."""
+        if self.enabled:
+            self.ring.add(time.time_ns(), self._cmd_vel_key, serialize_message(msg))
+
+    def keep_e_stop(self, msg: Any) -> None:
+        """Keep an e_stop message as the bridge received it (its callback; cheap)."""
+        if self.enabled:
+            self.ring.add(time.time_ns(), 'e_stop', serialize_message(msg))
 
     def _keeper(self, key: str) -> Callable[[bytes], None]:
         ring = self.ring

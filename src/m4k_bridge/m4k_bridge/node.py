@@ -168,7 +168,9 @@ class BridgeNode(Node):
 
         # The flight recorder (docs/recording.md): a bounded ring of this node's topics, dumped
         # as a bag by a thread of its own on an e-stop, guard stop, fault or deadline miss.
+        # It has no subscription to the bridge's inputs: their callbacks hand it what arrives.
         self._flight = FlightRecorder(self, p, self._cmd_vel_type)
+        self._safety.record = self._flight.keep_e_stop
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
         # The cmd port's first datagram on every link is the e-stop, when one is requested.
         safety = self._safety
@@ -288,9 +290,11 @@ class BridgeNode(Node):
     # --- inbound: ROS -> RT ---------------------------------------------------------------------
 
     def _on_twist(self, msg: Twist) -> None:
+        self._flight.keep_cmd_vel(msg)      # as received, before any check
         self._command(msg.linear.x, msg.angular.z)
 
     def _on_twist_stamped(self, msg: TwistStamped) -> None:
+        self._flight.keep_cmd_vel(msg)
         stamp = msg.header.stamp
         if not self._safety.gate.accept(stamp.sec * 1_000_000_000 + stamp.nanosec):
             self.get_logger().warning(
@@ -523,8 +527,12 @@ class BridgeNode(Node):
         self._cmd_vel_auto = False
         chosen = self._cmd_vel_type if self._cmd_vel_type in types else types.pop()
         if chosen != self._cmd_vel_type:
+            # The one cmd_vel subscription of this node (the flight recorder is fed from its
+            # callbacks): gone before the other type is subscribed, as one participant cannot
+            # hold a topic with two types.
             self.destroy_subscription(self._cmd_vel_sub)
             self._cmd_vel_sub = self._subscribe_cmd_vel(chosen == _TWIST_STAMPED)
+            self._flight.set_cmd_vel_type(self._cmd_vel_type)
         self.get_logger().info('enable_stamped_cmd_vel auto: the first cmd_vel publisher on {} '
                                'uses {}: subscribed with that type'.format(self._cmd_vel_topic,
                                                                            chosen))

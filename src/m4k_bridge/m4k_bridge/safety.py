@@ -50,7 +50,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -146,6 +146,8 @@ class SafetyInterface:
                     'e-stop request ENGAGED from {} (persisted before a restart): cmd_vel gated, '
                     'the RT latch re-asserted on link; release with e_stop false'.format(
                         request_path(runtime_dir)))
+        # Every e_stop message as received, before it acts (the bridge's flight recorder).
+        self.record: Callable[[Bool], None] = lambda msg: None
         node.create_subscription(Bool, topic, self._on_e_stop, E_STOP_QOS)
         # The service callback awaits the acknowledgement, which the node's default
         # (mutually exclusive) group delivers: in that group it would block its own answer.
@@ -179,6 +181,7 @@ class SafetyInterface:
         return None
 
     def _on_e_stop(self, msg: Bool) -> None:
+        self.record(msg)
         self._request(bool(msg.data))
 
     def _request(self, engage: bool, why: str = '') -> None:

@@ -1,6 +1,7 @@
 """The bridge node in process: own rclpy Context, a fake RT side bound on the XDDP ports."""
 
 import math
+import os
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -14,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, Rel
 from sensor_msgs.msg import Imu, JointState, LaserScan, Range
 from std_msgs.msg import ColorRGBA, String
 from tf2_msgs.msg import TFMessage
+import yaml
 
 from m4k_bridge import params
 from m4k_bridge.node import BridgeNode, param_files
@@ -518,8 +520,9 @@ def test_enable_stamped_cmd_vel_drives(m4k_runtime_dir):
 
 @pytest.mark.parametrize('msg_type', [TwistStamped, Twist])
 def test_enable_stamped_cmd_vel_auto_takes_the_first_publishers_type_and_drives(
-        m4k_runtime_dir, msg_type):
-    h = Harness(m4k_runtime_dir, [Parameter('enable_stamped_cmd_vel', value='auto')])
+        m4k_runtime_dir, tmp_path, msg_type):
+    h = Harness(m4k_runtime_dir, [Parameter('enable_stamped_cmd_vel', value='auto'),
+                                  Parameter('flight_recorder.directory', value=str(tmp_path))])
     # the publisher in another participant (a laptop): one participant cannot hold both types
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
@@ -533,10 +536,27 @@ def test_enable_stamped_cmd_vel_auto_takes_the_first_publishers_type_and_drives(
         assert h.spin_until(lambda: got, timeout=15.0, each=lambda: (
             pub.publish(msg), got.extend(h.rt.recv_all('cmd'))))
         assert got[-1][1].linear_x == pytest.approx(0.2)
-        subs = h.bridge.get_subscriptions_info_by_topic('/cmd_vel')
-        assert [i.topic_type for i in subs if i.node_name == 'm4k_bridge'] == [
-            'geometry_msgs/msg/' + msg_type.__name__]
+
+        def bridge_types():          # the graph cache drops a destroyed subscription shortly after
+            return [i.topic_type for i in h.bridge.get_subscriptions_info_by_topic('/cmd_vel')
+                    if i.node_name == 'm4k_bridge']
+        h.spin_until(lambda: len(bridge_types()) == 1, timeout=5.0)
+        assert bridge_types() == ['geometry_msgs/msg/' + msg_type.__name__]
         assert h.bridge.p['enable_stamped_cmd_vel'] == 'auto'
+        # One subscription per input topic: the flight recorder is fed by the bridge's own.
+        assert [i.node_name for i in h.bridge.get_subscriptions_info_by_topic(
+            '/e_stop')].count('m4k_bridge') == 1
+        # ... and keeps cmd_vel as the bridge received it, with the type subscribed.
+        flight = h.bridge._flight
+        assert flight.trigger('e_stop', 'test')
+        flight.close()                          # writes the queued dump now
+        path = flight.dumper.written[-1]
+        with open(os.path.join(path, 'metadata.yaml'), encoding='utf-8') as f:
+            meta = yaml.safe_load(f)['rosbag2_bagfile_information']
+        listed = {t['topic_metadata']['name']: (t['topic_metadata']['type'], t['message_count'])
+                  for t in meta['topics_with_message_count']}
+        kind, count = listed['/cmd_vel']
+        assert kind == 'geometry_msgs/msg/' + msg_type.__name__ and count >= 1
     finally:
         laptop.destroy_node()
         rclpy.try_shutdown(context=ctx)
