@@ -150,4 +150,9 @@ def test_brake_results_go_to_the_guards_keys_of_the_overlay():
     assert doc == {'control': {'guard': {'brake_deceleration': 2.83, 'reaction_time': 0.012}}}
     assert any('brake_deceleration' in line for line in cli._comments(res))
     res['brake']['reaction_s'] = -0.001            # noise before the write: never negative
-    assert cli.overlay_doc(res)['control']['guard']['reaction_time'] == 0.0
+    # ... nor 0, which control.guard.reaction_time refuses: the 1 ms floor, and it loads.
+    doc = cli.overlay_doc(res)
+    assert doc['control']['guard']['reaction_time'] == cli.REACTION_FLOOR_S
+    from m4k_rt.config import deep_merge, load_layered
+    from m4k_rt.control.params import control_params
+    control_params(deep_merge(load_layered()['control'], doc['control']))

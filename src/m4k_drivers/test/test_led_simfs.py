@@ -178,3 +178,50 @@ def test_pwm_backend_configures_a_fresh_export_on_a_strict_kernel(leds):
     out = PwmOutput(0, [0, 1, 2], 1_000_000, root=os.path.dirname(sim.chip_dir), write=write)
     out.close()
     assert sim.poll() == (0.0, 0.0, 0.0) and sim.errors == 0, sim.last_error
+
+
+def test_a_write_landing_between_the_read_and_the_stamp_is_not_counted_twice(tmp_path,
+                                                                            monkeypatch):
+    """The race a loaded machine hits: the poll reads the bad value, the writer truncates the
+    file for its next write, then the poll takes the stamps -- the old write must not get the
+    new write's stamps (it would be counted again once that write settles)."""
+    import types
+
+    from m4k_drivers.led import simfs
+    # A poller too slow to interfere: this test does the interleaving itself.
+    sim = SysfsLeds(str(tmp_path / 'sys'), {'interface': 'pwm', 'chip': 0,
+                                            'channels': [0, 1, 2]}).start(period_s=3600)
+    try:
+        _interleave(sim, simfs, monkeypatch, types)
+    finally:
+        sim.close()
+
+
+def _interleave(sim, simfs, monkeypatch, types):
+    _write(os.path.join(sim.chip_dir, 'export'), '0')
+    sim.poll()
+    ch = os.path.join(sim.chip_dir, 'pwm0')
+    for attr, text in (('period', '1000'), ('duty_cycle', '400'), ('enable', '1')):
+        _write(os.path.join(ch, attr), text)
+    sim.poll()
+    _write(os.path.join(ch, 'duty_cycle'), '1500')
+    sim.poll()
+    assert sim.errors == 1
+    duty = os.path.join(ch, 'duty_cycle')
+    truncated = []
+
+    def stat(path, *a, **k):
+        if path == duty and not truncated:        # the writer's open('w') of the next write
+            open(duty, 'w').close()
+            truncated.append(path)
+        return os.stat(path, *a, **k)
+    fake_os = types.SimpleNamespace(**{n: getattr(os, n) for n in dir(os)
+                                       if not n.startswith('__')})
+    fake_os.stat = stat
+    monkeypatch.setattr(simfs, 'os', fake_os)
+    errors = sim.errors
+    sim.poll()                                    # reads 1500, then the file is truncated
+    monkeypatch.undo()
+    assert truncated and sim.errors == errors
+    _write(duty, '600')
+    assert sim.poll() == pytest.approx((0.6, 0.0, 0.0)) and sim.errors == errors

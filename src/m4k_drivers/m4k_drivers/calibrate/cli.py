@@ -43,6 +43,8 @@ from m4k_drivers.motors.handler import MotorHandler
 
 __all__ = ['STEPS', 'Operator', 'main']
 
+REACTION_FLOOR_S = 0.001   # s, the smallest guard reaction time the overlay writes
+
 STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
 DEFAULT_STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
 
@@ -332,7 +334,12 @@ def overlay_doc(res: dict[str, Any]) -> dict[str, Any]:
     if 'brake' in res:
         # The guard's physics (issue 28): its stop distance v t_react + v^2 / (2 a_brake).
         control['guard'] = {'brake_deceleration': round(res['brake']['decel_mps2'], 4),
-                            'reaction_time': round(max(res['brake']['reaction_s'], 0.0), 4)}
+                            # control.guard.reaction_time must be > 0: a reaction measured
+                            # at or below 0 (no command path latency, e.g. in simulated
+                            # time) is written as the 1 ms floor, not as a value the
+                            # loader refuses.
+                            'reaction_time': round(max(res['brake']['reaction_s'],
+                                                       REACTION_FLOOR_S), 4)}
     doc: dict[str, Any] = {'control': control} if control else {}
     if 'dac_zero_trim' in res:
         doc['devices'] = {'motor': {'dac_zero_trim': list(res['dac_zero_trim'])}}

@@ -139,6 +139,12 @@ class SysfsLeds:
                 stamps.append((st.st_mtime_ns, st.st_ctime_ns, st.st_size))
             except OSError:
                 stamps.append(None)
+        # The stamps must be those of the contents judged: a writer's open('w') may have
+        # truncated (or rewritten) a file since ``texts`` were read -- then the stamps are
+        # the next write's, and counting them would count this write again when that one
+        # settles. Not counted now: a later poll judges the settled files.
+        if [_read(path) for path in paths] != list(texts):
+            return
         sig = (tuple(texts), tuple(stamps))
         if self._rejected.get(site) == sig:
             return
