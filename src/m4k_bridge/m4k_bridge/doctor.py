@@ -265,8 +265,12 @@ def _msg_class(type_name: str) -> Any:
     return getattr(importlib.import_module('{}.msg'.format(pkg)), name)
 
 
-def discover(node: Node, limit: float, settle: float = 1.0) -> None:
-    """Spin until the graph (nodes, topics, endpoints) has not changed for settle seconds."""
+def discover(node: Node, limit: float, settle: float = 2.0) -> None:
+    """Spin until the graph (nodes, topics, endpoints) has not changed for settle seconds.
+
+    Two seconds: on a loaded host DDS discovery announces participants more than a second
+    apart, and a graph read in such a gap is missing the base (seen: "no m4k_bridge node").
+    """
     start = time.monotonic()
     last, changed = None, start
     while time.monotonic() - start < limit:
