@@ -418,6 +418,11 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
     if i_close is None:
         res.failures.append('e-stop: the contact never closed again during the drive')
         return
+    end = res.cmd_end_ns
+    if end is not None and int(s[i_close]['t_ns']) > end:
+        res.failures.append('e-stop: the contact closed after the commands ended: the release '
+                            'under a live command was not exercised')
+        return
     # the robot may still be coasting when the contact closes: from its rest on
     i_rest = next((i for i in range(i_close, len(s)) if abs(float(s[i]['v'])) < REST_V), None)
     if i_rest is None:
