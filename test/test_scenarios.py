@@ -150,8 +150,12 @@ def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(tmp_path, m4k
     env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
     res = run_scenario(sc, str(tmp_path), short=True, env=env)
     assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
-    assert any('after the stop line' in f or 'contact' in f or 'clearance' in f
-               for f in res.failures), res.failures
+    # for the intended reason: it reached the wall, crossed the stop line and stopped too late
+    # (not "its trigger never happened": a robot that never got near the wall proves nothing)
+    assert not any('never' in f for f in res.failures), res.failures
+    assert any('after the stop line' in f for f in res.failures), res.failures
+    assert res.stop_m is not None and res.stop_bound_m is not None
+    assert res.stop_m > res.stop_bound_m, (res.stop_m, res.stop_bound_m)
 
 
 def test_negative_control_supervision_off_with_a_flipped_encoder_fails(tmp_path, m4k_runtime_dir):
@@ -163,5 +167,8 @@ def test_negative_control_supervision_off_with_a_flipped_encoder_fails(tmp_path,
                     'supervision_off.yaml')
     res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
     assert not res.passed, 'the judge passed a runaway with supervision off'
-    assert any('peak speed' in f or 'motor fault not latched' in f for f in res.failures), \
+    # for the intended reason: the stack drove the motors and ran away on ground truth
+    assert not any('never driven' in f or 'did not come up' in f for f in res.failures), \
         res.failures
+    assert res.peak_speed > 0.5, (res.peak_speed, res.failures)
+    assert any('peak speed' in f for f in res.failures), res.failures

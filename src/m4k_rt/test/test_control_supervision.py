@@ -300,3 +300,44 @@ def test_a_short_estop_open_glitch_is_filtered():
     sim.status = 0
     sim.run(0.5, (0.5, 0.0))
     assert not sim.ctl.flags & ODOM_E_STOP and sim.ctl.v == pytest.approx(0.5)
+
+
+def test_no_false_trip_when_encoder_samples_come_late_and_bunched():
+    """One reverse reading (a hard stop's rebound) then a ~90 ms gap of the driver host.
+
+    The gap is shorter than motor_timeout (0.1 s), so the controller keeps stepping on the
+    last reading; counting those repeats as time latched "wrong way" on healthy wheels under
+    load (seen in make scenarios: low_obstacle, sonar_only_glass). Symptom time is encoder
+    time now: the repeats stand still, the next samples (forward) clear it.
+    """
+    from m4k_rt.control.supervision import WheelSupervisor
+    sup = WheelSupervisor()
+    angle = [0.0, 0.0]
+
+    def sample(speed):
+        for i in (0, 1):
+            angle[i] += speed * 0.01
+        sup.encoders(angle[0], angle[1])
+
+    sample(-0.6)                                   # the rebound, beyond min_speed (0.3)
+    assert not sup.step(0.01, 2.0, 2.0, -0.6, -0.6, False, False)
+    for _ in range(9):                             # 90 ms, no sample: the same old reading
+        assert not sup.step(0.01, 2.0, 2.0, -0.6, -0.6, False, False)
+    for _ in range(20):                            # samples again: the wheels go forward
+        sample(1.0)
+        assert not sup.step(0.01, 2.0, 2.0, 1.0, 1.0, False, False)
+    assert sup.faults == 0 and not sup.latched
+
+
+def test_a_flipped_encoder_still_latches_when_samples_are_bunched():
+    """Samples every third cycle only (the driver host late): still latched within 0.3 s."""
+    from m4k_rt.control.supervision import WheelSupervisor
+    sup = WheelSupervisor()
+    angle = 0.0
+    for k in range(30):                            # 0.3 s of cycles, 10 samples
+        if k % 3 == 0:
+            angle -= 1.0 * 0.03                    # the left wheel reads backwards
+            sup.encoders(angle, -angle)
+        if sup.step(0.01, 2.0, 2.0, -1.0, 1.0, False, False):
+            break
+    assert sup.latched and sup.cause & FaultCause.LEFT_WRONG_WAY

@@ -30,7 +30,9 @@ cause                  t_detect                                            trigg
 sonar_unplugged        sonar_timeout + 2 sonar periods + echo timeout       the unplug
                        + 1 actuator (and the robot must STAY at rest)
 laser_unplugged        laser_timeout + 1 lrf period + 1 actuator (stays)    the unplug
-bridge_killed          cmd_vel_timeout + 2 actuator                         the kill
+bridge_killed          cmd_vel_timeout + 2 actuator; then the speed ramp    the kill
+                       (``v / linear.max_deceleration`` replaces
+                       ``v / a_brake``: the timeout zeroes the target)
 driver_host_killed     heartbeat_hold_s, then the wheels coast on friction  the kill
                        (``v / world.robot.coast_decel_mps2`` replaces
                        ``v / a_brake``)
@@ -184,7 +186,9 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     elif cause == 'laser_unplugged':
         stop = g.laser_timeout + _period(raw, 'lrf') + ta + lag + brake
     elif cause == 'bridge_killed':
-        stop = p.cmd_vel_timeout + 2 * ta + lag + brake
+        # the command timeout zeroes the *target*: the speed limiter ramps it down at
+        # linear.max_deceleration (m4k_rt.control.base, step 2) -- not the guard's hard stop
+        stop = p.cmd_vel_timeout + 2 * ta + lag + v / min(decel, a_brake)
     elif cause == 'driver_host_killed':
         motor = (raw.get('devices') or {}).get('motor') or {}
         coast = float(_robot(raw).coast_decel_mps2)

@@ -418,6 +418,11 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
     if i_close is None:
         res.failures.append('e-stop: the contact never closed again during the drive')
         return
+    end = res.cmd_end_ns
+    if end is not None and int(s[i_close]['t_ns']) > end:
+        res.failures.append('e-stop: the contact closed after the commands ended: the release '
+                            'under a live command was not exercised')
+        return
     # the robot may still be coasting when the contact closes: from its rest on
     i_rest = next((i for i in range(i_close, len(s)) if abs(float(s[i]['v'])) < REST_V), None)
     if i_rest is None:
@@ -437,7 +442,7 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
 
 def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
                 s: list[dict[str, Any]]) -> None:
-    trig = _trigger(sc, s, raw)
+    trig = _trigger(sc, s, raw, b.t_react)
     if trig is None:
         res.failures.append(f'stop ({sc.stop}): its trigger never happened')
         return
@@ -499,18 +504,31 @@ def _peak_decel(s: list[dict[str, Any]]) -> float:
     return best
 
 
-def _trigger(sc: Scenario, s: list[dict[str, Any]], raw: dict[str, Any]
-             ) -> tuple[int, float, float] | None:
+def _trigger(sc: Scenario, s: list[dict[str, Any]], raw: dict[str, Any],
+             t_react: float | None = None) -> tuple[int, float, float] | None:
     """Return (ns, travelled m, v m/s) when the robot had to start stopping (ground truth).
 
     Guard stops: the sample where the judge's exact front clearance first falls below the
-    guard's stop line for the true speed, interpolated (linear in travelled) back to the
-    crossing between that sample and the one before.
+    guard's stop line, interpolated (linear in travelled) back to the crossing between that
+    sample and the one before. The line is sized by the highest true speed over the preceding
+    reaction time (``t_react``, the cause's), not the instantaneous one: once a guard brakes,
+    its speed -- and with it the instantaneous d(v) -- shrinks faster than the gap, so a guard
+    that tripped a few mm early (its sensors read a little short, it sizes d(v) by the larger
+    of commanded and measured speed) would never "cross" an instantaneous line at all. The
+    obligation is: within d(v) of the obstacle at the speed it was driving, the robot must be
+    braking; a guard acting late still crosses the line at full speed and is held to it.
     """
     if sc.stop in ('sonar', 'laser'):
         prev = None
+        window_ns = int(max(t_react or 0.0, SAMPLE_S) * 1e9)
+        recent: list[tuple[int, float]] = []
         for x in s:
             v = abs(float(x['v']))
+            t_x = int(x['t_ns'])
+            recent.append((t_x, v))
+            while recent and recent[0][0] < t_x - window_ns:
+                recent.pop(0)
+            v = max(u for _, u in recent)
             line = stop_line(raw, v)
             fc = x['front_clearance']
             if fc < line:

@@ -19,6 +19,12 @@ meaningless), the supervisor accumulates the time each symptom has held without 
   threshold (``swap_time``). Driving straight, swapped channels are harmless and invisible.
 
 A symptom that holds for its time latches the fault; a cycle without it resets its time.
+Every symptom time is *encoder* time: it advances only over cycles that brought a new
+ENCODERS sample, and a cycle without one neither adds nor resets it. The measured speeds of
+a cycle without a sample are the previous sample's, not news: under load the driver host's
+datagrams arrive late and bunched, and counting those repeats as time turned one reading
+(e.g. the few-mm rebound of a hard guard stop, taken just before a gap of ~90 ms) into a
+0.1 s "wrong way" and a latched fault on healthy wheels.
 All times are at most 0.3 s (the schema bounds them), so a fault latches within 0.3 s of
 sim time from the first cycle it is visible. The latch holds until :meth:`reset` (an explicit
 request from the bridge); the controller meanwhile zeroes the outputs and drops the enable.
@@ -106,13 +112,17 @@ class WheelSupervisor:
             self._left_moved = self._right_moved = self._fresh = False
             return False
         t = self._t
-        # A cycle without a new sample (the driver host late) says nothing about a frozen
-        # encoder: its time counts only over cycles that brought a sample.
+        # A cycle without a new sample (the driver host late) says nothing about the wheels:
+        # the symptom times count only over cycles that brought a sample.
         fresh = self._fresh
         th = self.threshold
         ms = self.min_speed
         cause = 0
         # per wheel: index offset 0 = left, 1 = right
+        if not fresh:
+            # no new sample: nothing measured this cycle; every symptom time stands still
+            self._left_moved = self._right_moved = False
+            return False
         for k in (0, 1):
             sp = sp_left if k == 0 else sp_right
             m = meas_left if k == 0 else meas_right
@@ -125,7 +135,7 @@ class WheelSupervisor:
                     t[k] = 0.0
                 if moved:
                     t[2 + k] = 0.0
-                elif fresh:
+                else:
                     t[2 + k] += dt
                 if sat and abs(m) < self.stall_ratio * abs(sp):
                     t[4 + k] += dt
