@@ -60,7 +60,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=240,
                           stdin=subprocess.DEVNULL)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert '[1/18] set-up' in proc.stderr            # plain progress lines (not a TTY); 18: the reaction phase
+    assert '[1/18] set-up' in proc.stderr   # plain progress (not a TTY); 18 with the reaction
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
