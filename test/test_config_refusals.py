@@ -68,7 +68,7 @@ def _bad_runtime_dirs(tmp_path):
             (foreign, 'owned by uid 54321')]
 
 
-@pytest.mark.skipif(os.geteuid() != 0, reason='chown to another uid needs root')
+@pytest.mark.needs_root('chown to another uid')
 def test_a_standalone_driver_host_refuses_a_runtime_directory_the_rt_side_would(
         procs, tmp_path, m4k_runtime_dir):
     for path, why in _bad_runtime_dirs(tmp_path):
@@ -79,7 +79,7 @@ def test_a_standalone_driver_host_refuses_a_runtime_directory_the_rt_side_would(
         assert why in err and str(path) in err, err
 
 
-@pytest.mark.skipif(os.geteuid() != 0, reason='chown to another uid needs root')
+@pytest.mark.needs_root('chown to another uid')
 def test_a_standalone_bridge_refuses_a_runtime_directory_the_rt_side_would(
         procs, tmp_path, m4k_runtime_dir):
     for path, why in _bad_runtime_dirs(tmp_path):

@@ -56,6 +56,11 @@ TOOLS = {
     'calibrate': (['--hold', '0', '--output', '{tmp}/o.yaml'], 2, r'--hold: must be in'),
     'liveview': (['--drive-s', '-1'], 2, r'--drive-s must be > 0 s, got -1.0'),
     'scenarios': (['{tmp}/none.yaml'], 2, r'scenarios: .*No such file'),
+    'doctor': (['--help'], 0, r'usage: doctor'),
+    'recipes': (['--help'], 0, r'usage: '),
+    'reaction': (['--help'], 0, r'usage: '),
+    'sonar_echo_width': (['--help'], 0, r'usage: '),
+    'flightrec_bench': (['--help'], 0, r'usage: '),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),
 }

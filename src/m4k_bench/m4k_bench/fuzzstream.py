@@ -98,6 +98,10 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return (f(rng), f(rng))
     if kind == K.SET_POSE:
         return (u(rng, 32), f(rng), f(rng), f(rng))
+    if kind == K.FAULT_RESET:
+        return (u(rng, 32), rng.randint(0, 1))
+    if kind == K.SAFETY_STATUS:
+        return tuple(f(rng) for _ in range(8)) + (u(rng, 32), u(rng, 32), u(rng, 32))
     if kind == K.FORBIDDEN_SITE:
         return ('fuzz', u(rng, 8), rng.choice(sorted(protocol.EVENT_NAMES)), u(rng, 32),
                 u(rng, 32), u(rng, 32), '/fuzz/' * rng.randint(0, 12) + 'body.py', 'cycle')
