@@ -35,10 +35,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
     SetParametersResult,
 )
 import rclpy
@@ -55,6 +51,7 @@ from std_msgs.msg import ColorRGBA, Header
 import yaml
 
 from m4k_bridge import convert, params
+from m4k_bridge.descriptors import descriptor
 from m4k_bridge.diagnostics import make_status, RtMonitor
 from m4k_bridge.faults import MotorFaultInterface, SafetyReport
 from m4k_bridge.flightrec_ros import FlightRecorder
@@ -81,35 +78,7 @@ _WATCH_PERIOD_S = 0.25
 _GRAPH_EVERY = 4          # watch ticks between looks at the cmd_vel publishers (1 s)
 _TWIST = 'geometry_msgs/msg/Twist'
 _TWIST_STAMPED = 'geometry_msgs/msg/TwistStamped'
-_TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
-          'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
-          'float[]': ParameterType.PARAMETER_DOUBLE_ARRAY}
-
-
-def _descriptor(f: Field) -> ParameterDescriptor:
-    """Return the ROS descriptor of a schema Field: type, range, read-only, unit, source."""
-    text = f.description
-    if f.unit:
-        text += ' Unit: {}.'.format(f.unit)
-    if f.derived_from and 'Derived' not in text:
-        text += ' Derived from {} of the layered configuration.'.format(f.derived_from)
-    if f.type == 'any':     # a bool or a keyword (enable_stamped_cmd_vel: auto)
-        return ParameterDescriptor(name=f.name, description=text, read_only=f.read_only,
-                                   dynamic_typing=True)
-    d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
-                            read_only=f.read_only)
-    if f.lo is not None and f.hi is not None:
-        if f.type == 'float':
-            d.floating_point_range = [FloatingPointRange(from_value=float(f.lo),
-                                                         to_value=float(f.hi), step=0.0)]
-        elif f.type == 'int':
-            d.integer_range = [IntegerRange(from_value=int(f.lo), to_value=int(f.hi), step=1)]
-        else:
-            d.additional_constraints = 'every element within [{}, {}]'.format(f.lo, f.hi)
-    if f.length is not None:
-        d.additional_constraints = ' '.join(filter(None, (
-            '{} elements;'.format(f.length), d.additional_constraints)))
-    return d
+_descriptor = descriptor
 
 
 def _diagnostic(s: Status) -> Any:

@@ -47,7 +47,6 @@ import time
 from typing import Any, Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 import rclpy
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
@@ -58,6 +57,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError
+from m4k_bridge.descriptors import descriptor
 from m4k_bridge.diagnostics import make_status
 from m4k_bridge.foxglove import params as fparams
 from m4k_bridge.foxglove import protocol as fp
@@ -65,15 +65,11 @@ from m4k_bridge.foxglove.access import AccessError, OriginPolicy, read_token_fil
 from m4k_bridge.foxglove.server import Server
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt import yamlload
-from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['FoxgloveNode', 'descriptor', 'main', 'subscription_qos']
 
 NODE_NAME = fparams.NODE_NAME
-_TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
-          'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
-          'str[]': ParameterType.PARAMETER_STRING_ARRAY}
 # A client's type name, checked before anything is imported by it.
 _TYPE_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*')
 _TOPIC_NAME = re.compile(r'~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
@@ -111,20 +107,6 @@ def full_type(name: str, kind: str = 'msg') -> str:
     if len(parts) == 3 and parts[1] == kind:
         return name
     raise ValueError('not a {} type name: {!r}'.format(kind, name))
-
-
-def descriptor(f: Field) -> ParameterDescriptor:
-    """Return the ROS descriptor of a schema Field: type, range, read-only, unit."""
-    text = f.description + (' Unit: {}.'.format(f.unit) if f.unit else '')
-    d = ParameterDescriptor(name=f.name, type=_TYPES[f.type], description=text,
-                            read_only=f.read_only)
-    if f.lo is not None and f.hi is not None:
-        if f.type == 'float':
-            d.floating_point_range = [FloatingPointRange(from_value=float(f.lo),
-                                                         to_value=float(f.hi), step=0.0)]
-        elif f.type == 'int':
-            d.integer_range = [IntegerRange(from_value=int(f.lo), to_value=int(f.hi), step=1)]
-    return d
 
 
 def _interface_class(type_name: str) -> Any:
