@@ -14,7 +14,7 @@ from wsenv import ROOT, stack_env
 
 from m4k_bench.scenarios import bounds, spec
 from m4k_bench.scenarios.geometry import Scene
-from m4k_bench.scenarios.run import _judge, Result, run_scenario
+from m4k_bench.scenarios.run import _judge, _trigger, Result, run_scenario
 from m4k_rt import config
 
 pytest.importorskip('rclpy')
@@ -101,34 +101,63 @@ def test_the_judge_triggers_on_the_leg_5cm_off_centre_and_bounds_the_stop():
     res = Result('leg', '', 4.0, samples=_drive_samples(0.5, react_x, b.a_brake))
     _judge(sc, res, b, raw)
     assert res.passed, res.failures
-    assert res.stop_m is not None and res.stop_m <= b.stop_distance(0.5)
-    # the same stop 0.1 m late (a weakened guard) fails on the stopping distance
+    assert res.stop_m is not None and res.stop_m <= res.stop_bound_m
+    # the same stop 0.1 m late (a weakened guard) goes too far past the line
     late = Result('leg', '', 4.0, samples=_drive_samples(0.5, react_x + 0.1, b.a_brake))
     _judge(sc, late, b, raw)
-    assert any('after the stop line' in f for f in late.failures), late.failures
+    assert any('past the stop line' in f for f in late.failures), late.failures
     # braking harder than the tyres can: physically impossible, fails
     hard = Result('leg', '', 4.0, samples=_drive_samples(0.5, cross_x, 1.5 * b.max_decel))
     _judge(sc, hard, b, raw)
     assert any('physically impossible' in f for f in hard.failures), hard.failures
 
 
-# Open (issue 28), measured on a quiet machine on this stop's code (3 of 34 worlds):
-# stops the sonar triggers overshoot the judge's bound by 1.4-2.2 cm at 0.19-0.24 m/s. The
-# bound takes the sonar path's reaction as 2 x 30 ms + 10 ms + 70 ms lag = 0.14 s; the
-# stops imply about 0.21-0.25 s. Kept visible here, not hidden: the judge still runs and
-# still prints the overshoot; the cause (where the extra ~0.1 s comes from) is not found yet.
-SONAR_REACTION_OPEN = {'low_obstacle', 'person_0_5', 'sonar_only_glass'}
+def _slowdown_samples(raw, wall_x, v0, late=0.0, soft=0.37, hard=2.9, front=0.225,
+                      soft_from=0.75):
+    """A slow-down approach: ``v0``, then ``soft`` braking ``soft_from`` m out, the guard's
+    hard stop where the exact gap reaches its stop line at the true speed (``late`` m later)."""
+    out, x, t, vv, rest, tripped = [], 0.0, 0, v0, None, False
+    while t < int(20e9):
+        out.append({'t_ns': t, 'x': x, 'y': 0.0, 'theta': 0.0, 'v': vv, 'w': 0.0,
+                    'travelled': x, 'contacts': 0, 'min_clearance': 1.0,
+                    'obstacle_offsets': [], 'rest_since_ns': rest})
+        gap = wall_x - front - x
+        if not tripped and gap + late < bounds.stop_line(raw, vv):
+            tripped = True
+        if tripped:
+            vv = max(vv - hard * 0.02, 0.0)
+        elif gap < soft_from:
+            vv = max(vv - soft * 0.02, 0.05)
+        x += vv * 0.02
+        t += int(0.02e9)
+        if vv == 0.0 and rest is None:
+            rest = t
+    return out
 
 
-def _param(sc):
-    if sc.name in SONAR_REACTION_OPEN:
-        return pytest.param(sc, id=sc.name, marks=pytest.mark.xfail(
-            reason='open (issue 28): the sonar stop path reacts in ~0.21-0.25 s against the '
-                   "judge's 0.14 s; overshoot 1.4-2.2 cm, no contact", strict=False))
-    return pytest.param(sc, id=sc.name)
+def test_the_judge_holds_a_slow_down_approach_to_its_speed_of_the_moment():
+    """The slow-down zone brings the robot in on a falling speed: the line sized by the speed
+    of 0.14 s before is crossed early, and the approach itself is not a late stop. A guard
+    tripping 10 cm late on the same approach fails, and so does a rest inside stop_distance."""
+    raw = _raw({'walls': {'rectangle': [-1.0, -3.0, 3.0, 3.0]}, 'obstacles': []})
+    sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.5, 't': 20.0}],
+                     'expect': {'stop': 'sonar'}}, 'wall.yaml')
+    b = bounds.bounds(raw, 0.5, 'sonar')
+    ok = Result('wall', '', 10.0, samples=_slowdown_samples(raw, 3.0, 0.5))
+    # the approach crosses the line sized by the earlier speed 0.28 m before it rests (the
+    # pattern wall_0_5 showed on the stack): that crossing is not where it had to stop
+    _judge(sc, ok, b, raw)
+    assert ok.passed, ok.failures
+    _, crossed, v_then = _trigger(sc, ok.samples, raw, b.t_react)
+    assert ok.samples[-1]['travelled'] - crossed > b.stop_distance(v_then)
+    # and at no sample is it further past the line at its own speed than its sensors allow
+    assert ok.stop_m is not None and ok.stop_m <= ok.stop_bound_m
+    late = Result('wall', '', 10.0, samples=_slowdown_samples(raw, 3.0, 0.5, late=0.1))
+    _judge(sc, late, b, raw)
+    assert any("inside the guard's stop_distance" in f for f in late.failures), late.failures
 
 
-@pytest.mark.parametrize('sc', [_param(s) for s in SCENARIOS])
+@pytest.mark.parametrize('sc', SCENARIOS, ids=[s.name for s in SCENARIOS])
 def test_scenario(sc, tmp_path, m4k_runtime_dir):
     res = run_scenario(sc, str(tmp_path), short=True, env=stack_env(m4k_runtime_dir))
     assert res.passed, (f'{sc.name}: {"; ".join(res.failures)} (travelled {res.travelled:.3f} m '
@@ -166,12 +195,11 @@ def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(tmp_path, m4k
     env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
     res = run_scenario(sc, str(tmp_path), short=True, env=env)
     assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
-    # for the intended reason: it reached the wall, crossed the stop line and stopped too late
-    # (not "its trigger never happened": a robot that never got near the wall proves nothing)
+    # for the intended reason: it reached the wall and stopped inside the distance the guard
+    # promises (not "its trigger never happened": a robot that never got near the wall proves
+    # nothing)
     assert not any('never' in f for f in res.failures), res.failures
-    assert any('after the stop line' in f for f in res.failures), res.failures
-    assert res.stop_m is not None and res.stop_bound_m is not None
-    assert res.stop_m > res.stop_bound_m, (res.stop_m, res.stop_bound_m)
+    assert any("inside the guard's stop_distance" in f for f in res.failures), res.failures
 
 
 def test_negative_control_supervision_off_with_a_flipped_encoder_fails(tmp_path, m4k_runtime_dir):

@@ -59,7 +59,8 @@ def test_bounds_follow_config():
     assert (g['reaction_time'], g['brake_deceleration'], g['stop_distance']) == (None, 1.5, 0.35)
     assert b.stop_s is None and b.t_react == pytest.approx(0.06 + 0.01 + 0.02 + 0.05)
     assert b.stop_distance(0.25) == pytest.approx(
-        0.25 * 0.14 + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
+        0.25 * (0.14 + bounds.SCHED_S) + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
+    assert b.reach(0.25) == pytest.approx(0.25 * (0.14 + bounds.SCHED_S) + bounds.STOP_MARGIN_M)
     # the guard's stop line: both sensors in use, so twice the slower one's (the laser's) period
     lrf = raw['tasks']['lrf']['period_ms'] / 1000.0
     assert lrf > 0.03 and g['use_laser'] and g['use_sonar']

@@ -6,9 +6,13 @@ Physics, not ramps. For a guard stop (``sonar`` / ``laser``) at ground-truth spe
   comes within ``stop_line(v)`` of the front face (:func:`stop_line`: the guard's configured
   stopping distance at that speed). The judge measures that on ground truth with exact geometry
   (:mod:`.geometry`) -- it never reads the guard, its log or any test hook;
-* the **allowed stopping distance** from that crossing to rest:
-  ``v * t_react + v^2 / (2 a_brake) + STOP_MARGIN_M``, with ``t_react`` the configured sensor
-  and actuator latency:
+* the **reach** past that line: at no ground-truth sample may the robot be further past the
+  line at its true speed ``v`` of the moment than ``v * (t_react + SCHED_S) + STOP_MARGIN_M``
+  (:meth:`Bounds.reach`: the guard sees the line crossed ``t_react`` late, then brakes and the
+  line falls faster than the gap), with ``t_react`` the configured sensor and actuator latency
+  and ``SCHED_S`` the machine's scheduling allowance (a straight approach's stopping distance
+  from the line, ``v * (t_react + SCHED_S) + v^2 / (2 a_brake) + STOP_MARGIN_M``, is what the
+  reaction bench holds a hard approach to):
 
   ======  ===================================================================
   cause   t_react (``guard.reaction_time`` instead when set: calibrated)
@@ -22,7 +26,11 @@ Physics, not ramps. For a guard stop (``sonar`` / ``laser``) at ground-truth spe
   ``mu * g``; with none configured, ``mu * g``). No ``v / max_deceleration`` ramp slack: the
   guard's stop bypasses the limiter's ramp.
 
-For the other causes a stop *time* from the trigger to rest, ``t_detect + lag + v / a_brake``:
+and the guard's promise: at rest, a static obstacle is no nearer than ``stop_distance`` less
+``STOP_MARGIN_M``.
+
+For the other causes a stop *time* from the trigger to rest,
+``t_detect + lag + v / a_brake + SCHED_S``:
 
 =====================  ==================================================  ==================
 cause                  t_detect                                            trigger
@@ -51,8 +59,8 @@ from typing import Any, Mapping
 from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
 from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
-__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds', 'stop_line',
-           'traction_limit']
+__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'SCHED_S', 'STOP_MARGIN_M', 'bounds',
+           'stop_line', 'traction_limit']
 
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
 URG_SCAN_S = 0.1     # URG-04LX: 600 rpm (PP SCAN)
@@ -61,6 +69,11 @@ G = 9.80665          # m/s^2, standard gravity
 # crossing (linear in travelled) and the 1 ms simulation step. Far below the 0.1 m a weakened
 # guard loses (the negative control), so a guard acting 10 cm late fails.
 STOP_MARGIN_M = 0.02
+# The scheduling allowance of the machine the suite runs on, added to every reaction and stop
+# time: the stack's wake-ups on a shared 2-vCPU VM, where even cyclictest sees outliers of
+# tens of ms (the bench's host stalls of 21-27 ms). At 0.5 m/s it is 1.5 cm; a guard acting
+# 10 cm late still fails at any speed the M4K drives.
+SCHED_S = 0.03
 # Rubber tyres on a hard floor: mu about 0.5-0.7 (issue 28). Used only when the world's robot
 # states no friction coefficient of its own (then its traction limit is the upper end, 0.7 g).
 DEFAULT_MU = 0.7
@@ -81,10 +94,23 @@ class Bounds:
     stays_stopped: bool = False   # the unplug causes: at rest until the end of the run
 
     def stop_distance(self, v: float) -> float | None:
-        """Return the allowed stopping distance from the stop line at ``v`` (guard stops)."""
+        """Return the stopping distance from the stop line at ``v`` on a straight approach.
+
+        ``v (t_react + SCHED_S) + v^2 / (2 a_brake) + STOP_MARGIN_M`` (guard stops; None for
+        the others): what the reaction bench holds a hard approach to.
+        """
         if self.t_react is None:
             return None
-        return abs(v) * self.t_react + v * v / (2.0 * self.a_brake) + STOP_MARGIN_M
+        return (abs(v) * (self.t_react + SCHED_S) + v * v / (2.0 * self.a_brake) +
+                STOP_MARGIN_M)
+
+    def reach(self, v: float) -> float:
+        """Return how far past the stop line at speed ``v`` the robot may get (guard stops).
+
+        ``v (t_react + SCHED_S) + STOP_MARGIN_M``: the guard sees the line crossed
+        ``t_react`` late; from then on it brakes, and the line falls faster than the gap.
+        """
+        return abs(v) * ((self.t_react or 0.0) + SCHED_S) + STOP_MARGIN_M
 
 
 def _period(raw: Mapping[str, Any], task: str) -> float:
@@ -195,4 +221,6 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
         hold = float(motor.get('heartbeat_hold_s', 0.05)) if motor.get('heartbeat', True) \
             else math.inf
         stop = hold + v / coast
+    if stop is not None:
+        stop += SCHED_S
     return Bounds(tol, stop, t_react, a_brake, mu_g, cause in UNPLUG_CAUSES)

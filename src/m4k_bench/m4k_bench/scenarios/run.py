@@ -26,7 +26,16 @@ from typing import Any, Callable
 
 import yaml
 
-from m4k_bench.scenarios.bounds import Bounds, bounds, REST_V, SAMPLE_S, STAY_M, stop_line
+from m4k_bench.scenarios.bounds import (
+    Bounds,
+    bounds,
+    REST_V,
+    SAMPLE_S,
+    SCHED_S,
+    STAY_M,
+    stop_line,
+    STOP_MARGIN_M,
+)
 from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.spec import Scenario
 from m4k_rt import config
@@ -457,13 +466,8 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
     rest = s[i_rest]
     res.stop_s = max(int(rest['rest_since_ns']) - t0, 0) / 1e9
     res.stop_m = max(float(rest['travelled']) - travelled0, 0.0)
-    allowed = b.stop_distance(v0)
-    if allowed is not None:
-        res.stop_bound_m = allowed
-        if res.stop_m > allowed:
-            res.failures.append(f'stopped {res.stop_m:.3f} m after the stop line at '
-                                f'{v0:.2f} m/s > {allowed:.3f} m (v t_react + v^2 / 2a + '
-                                f'margin: t_react {b.t_react:.3f} s, a {b.a_brake:.2f} m/s^2)')
+    if b.t_react is not None:
+        _judge_guard_stop(sc, res, b, raw, s, i_rest)
     if b.stop_s is not None and res.stop_s > b.stop_s:
         res.failures.append(f'stop took {res.stop_s:.3f} s > bound {b.stop_s:.3f} s')
     if b.stays_stopped:
@@ -477,6 +481,61 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
         elif held_s < 1.0:
             res.failures.append(f'stop ({sc.stop}): at rest only {held_s:.2f} s before the run '
                                 f'ended: staying stopped not shown')
+
+
+def _deepest(s: list[dict[str, Any]], raw: dict[str, Any], b: Bounds,
+             i_rest: int) -> tuple[float, float, float] | None:
+    """Return ``(depth m, v m/s, allowed m)`` where the robot got deepest past its allowance.
+
+    The depth of a ground-truth sample is how far the exact front clearance is inside the stop
+    line at the true speed of that moment; its allowance is what the guard's sensors owe it,
+    ``v (t_react + SCHED_S) + STOP_MARGIN_M``. None when the robot never got past the line.
+    """
+    worst: tuple[float, float, float] | None = None
+    for x in s[:i_rest + 1]:
+        v = abs(float(x['v']))
+        depth = stop_line(raw, v) - float(x['front_clearance'])
+        if depth <= 0.0:
+            continue
+        allowed = b.reach(v)
+        if worst is None or depth - allowed > worst[0] - worst[2]:
+            worst = (depth, v, allowed)
+    return worst
+
+
+def _judge_guard_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
+                      s: list[dict[str, Any]], i_rest: int) -> None:
+    """Judge a guard stop (sonar / laser) on ground truth: two obligations.
+
+    1. **In time.** The robot never gets further past the stop line at its true speed ``v``
+       of the moment than its sensors' reaction lets it: ``v (t_react + SCHED_S) +
+       STOP_MARGIN_M`` (:meth:`Bounds.reach`). Once the guard sees the line crossed it brakes,
+       the speed falls and the line with it faster than the gap closes. The speed is the
+       instantaneous one: with the slow-down zone the robot comes in on a falling speed riding
+       the line, and a line sized by an earlier, higher speed would hold that approach to a
+       stopping distance it never had to keep.
+    2. **The promise.** Among static obstacles, it comes to rest no nearer than the guard's
+       ``stop_distance`` less ``STOP_MARGIN_M``: d(v) is sized so that it does, at every speed.
+    """
+    from m4k_rt.control.params import control_params
+    worst = _deepest(s, raw, b, i_rest)
+    if worst is not None:
+        depth, v_at, allowed = worst
+        res.stop_m, res.stop_bound_m = depth, allowed
+        if depth > allowed:
+            res.failures.append(f'went {depth:.3f} m past the stop line at {v_at:.2f} m/s > '
+                                f'{allowed:.3f} m (v (t_react + sched) + margin: t_react '
+                                f'{b.t_react:.3f} s, sched {SCHED_S:.3f} s)')
+    else:
+        res.stop_m, res.stop_bound_m = 0.0, b.reach(res.peak_speed)
+    if any(o.get('path') for o in (sc.world.get('obstacles') or []) if isinstance(o, dict)):
+        return        # a person walking on: the gap can close after the stop
+    promise = control_params(raw.get('control')).guard.stop_distance
+    at_rest = float(s[i_rest]['front_clearance'])
+    if at_rest < promise - STOP_MARGIN_M:
+        res.failures.append(f'came to rest {at_rest:.3f} m from the obstacle ahead: inside the '
+                            f"guard's stop_distance {promise:.3f} m (less the judge's "
+                            f'{STOP_MARGIN_M:.3f} m margin)')
 
 
 def _m(v: float | None) -> float:
