@@ -44,6 +44,22 @@ def test_hysteresis_releases_only_beyond_margin():
     assert g.evaluate(NOW, 2.0, 0.36, NOW, INF, NOW) != 0.0   # above stop: stays released
 
 
+def test_release_waits_until_the_slow_floor_could_move_without_tripping_again():
+    """Stopped at a wall on the slow-down approach, a held forward command and sonar noise of a
+    few mm must not release the guard: the robot would set off at the slow floor and trip again
+    at once (stop-go chatter, seen on the stack at 0.39 m with a 0.40 m release)."""
+    g = guard(slow_down=True, reaction_time=0.48, brake_deceleration=1.5, slow_floor=0.05)
+    floor_d = g.stop_distance_at(0.05)          # 0.05 * 0.48 + 0.05^2 / 3 + 0.35 = 0.3748
+    assert floor_d == pytest.approx(0.05 * 0.48 + 0.05 ** 2 / 3.0 + 0.35)
+    assert g.evaluate(NOW, 2.0, 0.39, NOW, INF, NOW, speed=0.09) == 0.0     # tripped at 0.09
+    for d in (0.395, 0.40, 0.41, floor_d + 0.049):      # noise at rest: still stopped
+        assert g.evaluate(NOW, 2.0, d, NOW, INF, NOW, speed=0.0) == 0.0, d
+    cap = g.evaluate(NOW, 2.0, floor_d + 0.051, NOW, INF, NOW, speed=0.0)
+    assert not g.active and cap >= 0.05
+    # moving off at the cap it gives, it is not inside the stop zone
+    assert g.evaluate(NOW, 2.0, floor_d + 0.051, NOW, INF, NOW, speed=cap) == cap
+
+
 def test_stop_zone_grows_with_speed():
     g = guard(slow_down=False, reaction_time=0.5, brake_deceleration=2.0)
     # d(1 m/s) = 0.5 + 1/4 + 0.35 = 1.1 m: an obstacle at 1.0 m stops a robot at 1 m/s ...

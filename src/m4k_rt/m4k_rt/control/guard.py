@@ -16,8 +16,11 @@ away (reverse is capped to a creep speed elsewhere: there is no rear sensor).
   stop bound has no v / max_deceleration term. v is the larger of the commanded and the
   measured forward speed (a robot that runs faster than commanded is judged by what it does).
 * **Hysteresis.** Once stopped, the guard releases only when the distance exceeds
-  d(0) + ``release_margin`` (the robot is at rest then), so a reading jittering around the
-  threshold does not make the robot lurch.
+  d(``slow_floor``) + ``release_margin`` (and the stop zone at the present speed; d(0) +
+  margin without the slow-down zone): a released robot sets off again at no less than the
+  slow floor, so a release nearer than the distance that speed needs would stop it again at
+  once. A reading jittering around the threshold
+  (the US-100's few mm) therefore never makes a robot held at a wall lurch on and stop again.
 * **Slow-down zone** (``slow_down``, on by default): ahead of the stop zone the forward
   target is capped at v_slow(d), the inverse of d(v) with the comfortable deceleration of
   the speed ramp (``slow_deceleration``, the linear.max_deceleration), so the ramp that
@@ -183,7 +186,11 @@ class CollisionGuard:
         trip = self.stop_distance_at(v)
         self.trip_distance = trip
         if self.active:
-            if d > self.stop_distance + self.release_margin and d > trip:
+            # with the slow-down zone a released robot starts again at the slow floor:
+            # releasing nearer than that speed's d(v) would trip again at once (stop-go
+            # chatter on sensor noise)
+            rel = self.stop_distance_at(self.slow_floor) if self.slow_down else self.stop_distance
+            if d > rel + self.release_margin and d > trip:
                 self.active = False
         elif d < trip:
             self.active = True

@@ -116,7 +116,8 @@ CONTROL: dict[str, Field] = {
                                    'd(v) = v t_react + v^2 / (2 brake_deceleration) + this; '
                                    'too small: contact from sensor noise or a late reading.'),
     'guard.release_margin': _nonneg('m', 0.05, 'Hysteresis: once stopped, released above '
-                                    'stop_distance + margin; 0 lets noise toggle the guard.'),
+                                    'd(slow_floor) + margin (stop_distance + margin without '
+                                    'the slow-down zone); 0 lets noise toggle the guard.'),
     'guard.brake_deceleration': _pos(
         'm/s^2', 1.5, 'a_brake: the deceleration the drive gives on a guard stop (zero '
         'command, ramp bypassed), bounded by tyre traction (about mu g, mu <= 0.7) and the '
