@@ -148,6 +148,28 @@ def test_guard_stop_limits_forward_within_the_same_cycle():
     assert (ctl.left_code, ctl.right_code) == (512, 512)
 
 
+@pytest.mark.parametrize('w', [0.002, -0.03, 0.3])
+def test_a_guard_stop_while_steering_never_backs_the_robot_up(w):
+    """A hard guard stop from 0.5 m/s with a small rotation in the command (heading hold, a
+    nav stack's correction): the wheels brake from ~4.9 rad/s to the rotation's setpoints with
+    the ramp bypassed. Seen on the stack: the integrators wound up over that braking and then
+    drove the robot backwards at 0.24 m/s for 5 cm, nobody commanding it."""
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 300, t, cmd=(0.5, w))
+    assert ctl.v == pytest.approx(0.5)
+    forward = []
+    for _ in range(150):
+        t = drive(ctl, plant, 1, t, cmd=(0.5, w), cap=0.0, guard_active=True)
+        forward.append((plant.speed[0] + plant.speed[1]) / 2.0 * R_WHEEL)
+    assert ctl.v == 0.0
+    assert min(forward) > -0.01, f'backed up at {min(forward):.3f} m/s'
+    assert abs(forward[-1]) < 0.005
+    # and the rotation is still done (turning away stays allowed)
+    assert ctl.odom.w == pytest.approx(w, abs=0.05)
+
+
 def test_guard_allows_rotation_and_reverse():
     ctl, p = make()
     plant = Plant(p.full_scale_wheel_speed)

@@ -19,6 +19,9 @@ Order inside ``step``:
    measured wheel speeds, DAC codes. Zero wheel setpoints output code 512 (zero armature
    voltage: the amplifier brakes the motor down with its own lag) and clear the integrators,
    so a residual integral or encoder quantization can never make a stopped robot creep.
+   While a guard stop still brakes the robot forward, both wheel setpoints are zero (the
+   rotation in the command waits until the robot has stopped): a PI braking toward the
+   rotation's setpoints would wind up over the transient and drive the wheels backwards.
 
 Between 1 and 2: the e-stop contact read back open (ENCODERS status ESTOP_OPEN in
 ``e_stop.contact_samples`` consecutive samples: contact bounce and the read-back glitch when
@@ -98,6 +101,9 @@ MODE_E_STOP = 5
 MODE_NAMES = ('idle', 'driving', 'braking', 'obstacle', 'fault', 'e_stop')
 
 _MOVING_EPS = 1e-3   # m/s or rad/s below which the commanded base counts as stopped
+# rad/s, sum of the measured wheel speeds above which a guard stop is still braking the
+# robot forward (0.1 rad/s each: 1 cm/s on 0.1 m wheels)
+_GUARD_BRAKING = 0.2
 
 
 def _limiter(limits: AxisLimits) -> SpeedLimiter:
@@ -359,6 +365,12 @@ class BaseController:
         # 4. kinematics and wheel control
         wl, wr = self.kin.inverse(v, w)
         wl, wr, sat = self.kin.saturate(wl, wr, self.wheel_limit)
+        if forward_cap <= 0.0 and self.left_speed + self.right_speed > _GUARD_BRAKING:
+            # A guard stop still braking the robot forward: both wheels brake (zero setpoints,
+            # below), the rotation waits until the robot has stopped. The PI would otherwise
+            # integrate the braking transient toward the rotation's setpoints and then drive
+            # the wheels past them -- backwards (0.24 m/s in reverse on the stack).
+            wl = wr = 0.0
         self.left_setpoint = wl
         self.right_setpoint = wr
         if wl == 0.0 and wr == 0.0:
