@@ -157,6 +157,26 @@ def test_the_judge_holds_a_slow_down_approach_to_its_speed_of_the_moment():
     assert any("inside the guard's stop_distance" in f for f in late.failures), late.failures
 
 
+def test_the_judge_fails_a_robot_that_backs_up_after_its_stop():
+    """Nobody commands reverse: 5 cm backwards after the guard's stop (the PI windup seen on
+    chair_leg_right_edge) fails; 5 mm of settling does not."""
+    raw = _raw({'walls': {'rectangle': [-1.0, -3.0, 3.0, 3.0]}, 'obstacles': []})
+    sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.5, 't': 20.0}],
+                     'expect': {'stop': 'sonar'}}, 'wall.yaml')
+    b = bounds.bounds(raw, 0.5, 'sonar')
+    for back, fails in ((0.05, True), (0.005, False)):
+        samples = _slowdown_samples(raw, 3.0, 0.5)
+        last = samples[-1]
+        for k in range(1, 11):
+            samples.append(dict(last, t_ns=last['t_ns'] + k * int(0.02e9),
+                                x=last['x'] - back * k / 10, v=-back / 0.2))
+        samples += [dict(samples[-1], t_ns=samples[-1]['t_ns'] + k * int(0.02e9), v=0.0)
+                    for k in range(1, 51)]
+        res = Result('wall', '', 10.0, samples=samples)
+        _judge(sc, res, b, raw)
+        assert any('backed up' in f for f in res.failures) == fails, (back, res.failures)
+
+
 @pytest.mark.parametrize('sc', SCENARIOS, ids=[s.name for s in SCENARIOS])
 def test_scenario(sc, tmp_path, m4k_runtime_dir):
     res = run_scenario(sc, str(tmp_path), short=True, env=stack_env(m4k_runtime_dir))

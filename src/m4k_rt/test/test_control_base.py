@@ -170,6 +170,27 @@ def test_a_guard_stop_while_steering_never_backs_the_robot_up(w):
     assert ctl.odom.w == pytest.approx(w, abs=0.05)
 
 
+@pytest.mark.parametrize('band, backs_up', [(None, False), (1e9, True)])
+def test_a_guard_release_mid_brake_never_backs_the_robot_up(band, backs_up):
+    """The guard trips at 1 m/s and releases 50 ms later (the obstacle left its corridor):
+    the ramp restarts from 0 under a slow-down cap with the wheels still at ~9 rad/s. The PI
+    brakes them to the cap; integrating that transient (no integral band) wound up a reverse
+    command that backed the robot up (seen on person_top). The default band prevents it."""
+    section = None if band is None else {'pi': {'integral_band': band}}
+    ctl, p = make(**(section or {}))
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 400, t, cmd=(1.0, 0.0))
+    assert ctl.v == pytest.approx(1.0)
+    t = drive(ctl, plant, 5, t, cmd=(1.0, 0.0), cap=0.0, guard_active=True)
+    forward = []
+    for _ in range(200):
+        t = drive(ctl, plant, 1, t, cmd=(1.0, 0.0), cap=0.05)
+        forward.append((plant.speed[0] + plant.speed[1]) / 2.0 * R_WHEEL)
+    assert (min(forward) < -0.01) == backs_up, min(forward)
+    assert forward[-1] == pytest.approx(0.05, abs=0.01)
+
+
 def test_guard_allows_rotation_and_reverse():
     ctl, p = make()
     plant = Plant(p.full_scale_wheel_speed)

@@ -1,3 +1,5 @@
+import math
+
 import pytest
 
 from m4k_rt.control.pid import PidError, WheelSpeedPI
@@ -72,3 +74,14 @@ def test_reset_clears_integral():
 def test_bad_gains_are_rejected(kwargs, field):
     with pytest.raises(PidError, match=field):
         WheelSpeedPI(**kwargs)
+
+
+def test_the_integral_band_leaves_transients_to_p_and_feed_forward():
+    pi = WheelSpeedPI(0.02, 0.4, 0.05, band=1.5)
+    pi.update(0.0, 9.0, 0.01)             # braking from 9 rad/s: |error| 9 > 1.5
+    assert pi.integral == 0.0
+    pi.update(0.0, 1.0, 0.01)             # within the band: integrates
+    assert pi.integral == pytest.approx(0.4 * -1.0 * 0.01)
+    for bad in (0.0, -1.0, math.nan, True):
+        with pytest.raises(PidError, match='band'):
+            WheelSpeedPI(0.02, 0.4, band=bad)

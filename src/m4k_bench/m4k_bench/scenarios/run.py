@@ -96,6 +96,13 @@ def _stop(proc: subprocess.Popen[bytes], timeout: float = 20.0) -> None:
             pass
 
 
+IMU_FRESH_S = 0.2    # an IMU heading older than this is not steered on (imu_unplugged)
+
+
+def _yaw(q: Any) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
 class _Ros:
     """The runner's ROS side: cmd_vel out, odom/scan seen."""
 
@@ -116,15 +123,28 @@ class _Ros:
         self.estop_pub = self.node.create_publisher(Bool, 'e_stop', 10)
         self.odom = self.scan = 0
         self.yaw: float | None = None       # the robot's own heading (odometry), for ``hold``
+        self.imu_yaw: float | None = None   # the IMU's heading, preferred for ``hold``
+        self.imu_at = -math.inf             # monotonic s of the last IMU message
         self.node.create_subscription(Odometry, 'odom', self._on_odom, qos_profile_sensor_data)
+        from sensor_msgs.msg import Imu
+        self.node.create_subscription(Imu, 'imu', self._on_imu, qos_profile_sensor_data)
         self.node.create_subscription(LaserScan, 'scan', self._on_scan, qos_profile_sensor_data)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
 
     def _on_odom(self, msg: Any) -> None:
         self.odom += 1
-        q = msg.pose.pose.orientation
-        self.yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        self.yaw = _yaw(msg.pose.pose.orientation)
+
+    def _on_imu(self, msg: Any) -> None:
+        q = msg.orientation
+        self.imu_yaw = _yaw(q)
+        self.imu_at = time.monotonic()
+
+    def heading(self) -> tuple[float | None, float | None]:
+        """Return (IMU yaw while fresh else None, odometry yaw)."""
+        fresh = time.monotonic() - self.imu_at < IMU_FRESH_S
+        return (self.imu_yaw if fresh else None), self.yaw
 
     def _on_scan(self, msg: Any) -> None:
         self.scan += 1
@@ -223,17 +243,22 @@ def _commander(ros: _Ros, plan: list[tuple[float, float, float, bool]], done: th
                stop: threading.Event) -> threading.Thread:
     """Publish the plan's segments at 20 Hz on their own clock (never held up by sampling).
 
-    A ``hold`` segment steers on the odometry heading (the robot's own estimate, as a
-    navigation stack would; the verdict stays on ground truth): w = -gain * error.
+    A ``hold`` segment steers on the robot's own heading, as a navigation stack fusing its IMU
+    would: the IMU's yaw while it reports (odometry's heading drifts with the wheels' slip and
+    an uncalibrated track, and edge-of-face obstacles need the path straight to the cm), else
+    odometry's. The verdict stays on ground truth: w = -gain * error.
     """
     def run() -> None:
         t_seg = nxt = time.monotonic()
         for v, w, dur, hold in plan:
-            target = ros.yaw
+            targets = ros.heading()
             while not stop.is_set() and time.monotonic() - t_seg < dur:
-                yaw = ros.yaw
-                if hold and target is not None and yaw is not None:
-                    err = math.remainder(yaw - target, 2.0 * math.pi)
+                err = None
+                for target, yaw in zip(targets, ros.heading(), strict=True):
+                    if hold and target is not None and yaw is not None:
+                        err = math.remainder(yaw - target, 2.0 * math.pi)
+                        break
+                if err is not None:
                     w = max(-HOLD_MAX_W, min(HOLD_MAX_W, -HOLD_GAIN * err))
                 ros.send(v, w)
                 nxt += CMD_PERIOD_S
@@ -362,6 +387,11 @@ def _judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
                             f'rim) >= {sc.max_speed:g} m/s')
     if sc.motor_fault:
         _judge_motor_fault(res, s)
+    elif all(c.v >= 0.0 for c in sc.commands):
+        back = _backed_up(s)
+        if back > STAY_M:
+            res.failures.append(f'backed up {back:.3f} m on ground truth with no reverse '
+                                f'command: a motion nobody commanded')
     if sc.still_after_estop:
         _judge_estop_release(res, s)
     if sc.max_w_after_kill is not None:
@@ -375,6 +405,18 @@ def _judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
                                     f'{s[hit]["killed"]} >= {sc.max_w_after_kill:g}')
     if sc.stop:
         _judge_stop(sc, res, b, raw, s)
+
+
+def _backed_up(s: list[dict[str, Any]]) -> float:
+    """Return how far the body moved backwards along its own heading (m, ground truth)."""
+    back = 0.0
+    for a, c in zip(s, s[1:], strict=False):
+        th = float(a['theta'])
+        step = ((float(c['x']) - float(a['x'])) * math.cos(th) +
+                (float(c['y']) - float(a['y'])) * math.sin(th))
+        if step < 0.0:
+            back -= step
+    return back
 
 
 FAULT_HOLD_S = 1.0   # a latched fault: outputs zero and at rest this long before the commands end

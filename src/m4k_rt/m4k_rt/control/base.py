@@ -128,9 +128,11 @@ class BaseController:
         self.wheel_limit = params.wheel_limit
         pi = params.pi
         self.pi_left = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
-                                    anti_windup=pi.anti_windup, kt=pi.kt)
+                                    anti_windup=pi.anti_windup, kt=pi.kt,
+                                    band=pi.integral_band)
         self.pi_right = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
-                                     anti_windup=pi.anti_windup, kt=pi.kt)
+                                     anti_windup=pi.anti_windup, kt=pi.kt,
+                                     band=pi.integral_band)
         self._fb_window = params.speed_feedback_window
         self._fb_min_ns = max(1, int(0.5 * self._fb_window * self.period * 1e9))
         self.odom = Odometry(params.wheel_radius, params.track_width,

@@ -109,6 +109,11 @@ CONTROL: dict[str, Field] = {
                             choices=ANTI_WINDUP_MODES),
     'pi.kt': _nonneg('', None, 'Back-calculation tracking gain; null: ki / kp.',
                      nullable=True),
+    'pi.integral_band': _pos('rad/s', 1.5, 'Integral separation: the integrator moves only '
+                             'while the wheel-speed error is within this band, so a transient '
+                             '(a guard stop, its release) cannot wind it up to drive the wheels '
+                             'past the setpoint -- backwards after a stop. Too small: slow '
+                             'correction of a load change; too large: windup on transients.'),
     'guard.enabled': Field('bool', True, 'Collision guard on forward motion. false: the '
                            'robot drives into what its sensors see.'),
     'guard.stop_distance': _nonneg('m', 0.35, 'Margin of the speed-aware stop zone: the gap '
@@ -206,6 +211,7 @@ class PiGains:
     kff: float | None = _d('pi.kff')    # None: 1 / full_scale_wheel_speed
     anti_windup: str = _d('pi.anti_windup')
     kt: float | None = _d('pi.kt')      # back-calculation tracking gain; None: ki / kp
+    integral_band: float = _d('pi.integral_band')   # rad/s, integral separation
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,13 @@ Anti-windup, selectable:
   saturated and the error pushes further into saturation.
 * ``'back_calculation'``: the integrator is driven back by ``kt * (u_sat - u)`` so that it
   tracks the saturated output; ``kt`` defaults to ``ki / kp`` (tracking time = Ti).
+
+Integral separation (``band``, rad/s): the integrator moves only while ``|error| <= band``.
+Saturation is not the only windup: braking from 1 m/s to a stop after a guard trip (or a
+release) stays inside the output range, and integrating that transient's large error left
+the integrator holding a reverse command that backed the robot up once the wheels reached
+the setpoint. The integrator's job is the steady error of load and friction; transients are
+left to feed-forward and P.
 """
 
 from __future__ import annotations
@@ -28,10 +35,11 @@ class WheelSpeedPI:
     """PI speed controller with feed-forward, output saturation and anti-windup."""
 
     __slots__ = ('kp', 'ki', 'kff', 'kt', 'limit', 'anti_windup', 'integral', 'saturated',
-                 '_back_calc')
+                 'band', '_back_calc')
 
     def __init__(self, kp: float, ki: float, kff: float = 0.0, *, limit: float = 1.0,
-                 anti_windup: str = 'clamping', kt: float | None = None) -> None:
+                 anti_windup: str = 'clamping', kt: float | None = None,
+                 band: float = math.inf) -> None:
         for name, value in (('kp', kp), ('ki', ki), ('kff', kff)):
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0.0:
                 raise PidError(f'{name} must be a finite number >= 0, got {value!r}')
@@ -43,12 +51,16 @@ class WheelSpeedPI:
             kt = ki / kp if kp > 0.0 else 0.0
         if not isinstance(kt, (int, float)) or not math.isfinite(kt) or kt < 0.0:
             raise PidError(f'kt must be a finite number >= 0, got {kt!r}')
+        if isinstance(band, bool) or not isinstance(band, (int, float)) or math.isnan(band) \
+                or band <= 0.0:
+            raise PidError(f'band must be a number > 0 (inf: always integrate), got {band!r}')
         self.kp = float(kp)
         self.ki = float(ki)
         self.kff = float(kff)
         self.kt = float(kt)
         self.limit = float(limit)
         self.anti_windup = anti_windup
+        self.band = float(band)
         self._back_calc = anti_windup == 'back_calculation'
         self.integral = 0.0
         self.saturated = False
@@ -62,7 +74,9 @@ class WheelSpeedPI:
         """Return the saturated command for one control period of ``dt`` seconds."""
         error = setpoint - measured
         base = self.kff * setpoint + self.kp * error
-        integral = self.integral + self.ki * error * dt
+        integral = self.integral
+        if -self.band <= error <= self.band:
+            integral += self.ki * error * dt
         u = base + integral
         lim = self.limit
         if u > lim:
