@@ -241,7 +241,9 @@ def identify(rig: runs.MotorRig, steps: list[str], args: argparse.Namespace, ctl
                   * (args.settle + args.measure))
         op.confirm(f'Lag run: the robot drives straight about {travel:.1f} m at up to '
                    f'{args.speed:.2f} of full scale (clear path, 0.5 m beyond). Go?')
-        pls = runs.lag(rig, args.speed, args.settle, args.measure, op.say)
+        band = res.get('deadband_codes')
+        pls = runs.lag(rig, args.speed, args.settle, args.measure, op.say,
+                       sum(band) / len(band) if band else 0.0)
         top = max(abs(pl.speed) for pl in pls)
         tau = fit.tau_from_plateaus(pls, 0.1 * top)
         if not tau > 0:

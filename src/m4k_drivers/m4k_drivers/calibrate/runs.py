@@ -278,7 +278,7 @@ def turn(rig: MotorRig, heading_rad: float, radius_m: float, track_m: float, spe
 
 
 def lag(rig: MotorRig, speed: float, settle_s: float, measure_s: float,
-        log: Callable[[str], None]) -> list[fit.Plateau]:
+        log: Callable[[str], None], deadband_codes: float = 0.0) -> list[fit.Plateau]:
     """Drive straight through plateaus at :data:`LAG_LEVELS` of ``speed`` (fraction of full scale).
 
     Both wheels get the same command (plus the straight run's heading correction, which is
@@ -286,6 +286,8 @@ def lag(rig: MotorRig, speed: float, settle_s: float, measure_s: float,
     *mean* wheel angle: the straight-line (common) mode, the body's mass on the wheels -- the
     plant the wheel-speed PI drives in, unlike the sweep's in-place turn, where the wheels move
     only the yaw inertia.  Consecutive plateaus time the lag (:func:`fit.tau_from_plateaus`).
+    ``deadband_codes`` (the sweep's, when known) is added to every level, so that even the
+    lowest plateau turns the wheels well clear of the dead band and its static friction.
     """
     if not 0 < speed <= MAX_SPEED:
         raise Aborted(f'lag run speed must be in (0, {MAX_SPEED}], got {speed!r}')
@@ -293,7 +295,7 @@ def lag(rig: MotorRig, speed: float, settle_s: float, measure_s: float,
     s = start
     out = []
     for level in LAG_LEVELS:
-        x = round(level * speed * fit.DAC_SPAN)
+        x = round(max(deadband_codes, 0.0) + level * speed * fit.DAC_SPAN)
         t0: float | None = None
         samples: list[Sample] = []
         while t0 is None or samples[-1].t - t0 < settle_s + measure_s:
