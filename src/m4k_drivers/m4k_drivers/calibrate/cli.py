@@ -10,7 +10,7 @@ for what only a person can measure; answers come from stdin, one per line.
    give ``dac_zero_trim`` (mid of the dead band), the dead band, ``full_scale_wheel_speed``
    and the in-place lag; the new trims are used from here on and checked by a second zero hold.
 3. ``lag``: drive straight through three plateaus of ``--speed`` (half, three quarters, all of
-   it; about 0.9 m): the straight-line lag of the wheel speed, from small steps in the linear
+   it; about 0.8 m): the straight-line lag of the wheel speed, from small steps in the linear
    region, and the suggested PI gains (lambda tuning on it).
 4. ``straight``: drive straight about ``--distance`` m; you measure the distance travelled:
    ``wheel_radius``.
@@ -112,10 +112,13 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--max-speed', type=float, default=0.25,
                     help=f'sweep top, fraction of full scale (<= {runs.MAX_SPEED})')
     ap.add_argument('--levels', type=int, default=6, help='sweep levels per direction (3..10)')
-    ap.add_argument('--settle', type=float, default=0.6, help='sweep: s to settle per level')
-    ap.add_argument('--measure', type=float, default=0.6, help='sweep: s measured per level')
+    ap.add_argument('--settle', type=float, default=0.6,
+                    help='sweep and lag run: s to settle per level')
+    ap.add_argument('--measure', type=float, default=0.6,
+                    help='sweep and lag run: s measured per level')
     ap.add_argument('--speed', type=float, default=0.15,
-                    help='straight run and turns, fraction of full scale (<= 0.25)')
+                    help='lag run (its top), straight run and turns, fraction of full '
+                    'scale (<= 0.25)')
     ap.add_argument('--distance', type=float, default=1.0, help='straight run, m (0.2..3)')
     ap.add_argument('--turns', type=int, default=1, help='full turns each way (1..3)')
     ap.add_argument('--brake-speed', type=float, default=0.25,

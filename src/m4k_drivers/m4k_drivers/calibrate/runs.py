@@ -1,4 +1,4 @@
-"""The bounded motor runs of ``calibrate``: zero hold, code sweep, straight run, in-place turn.
+"""The bounded motor runs of ``calibrate``: zero hold, sweep, lag, straight, turn, brake.
 
 Every run goes through the motor handler's normal path (:class:`MotorRig`: one fresh
 WHEEL_CMD with enable = 1 per actuator period, so the driver watchdog is fed and the
