@@ -43,8 +43,10 @@ I_LOAD = (ROBOT.no_load_current_a + ROBOT.rolling_force_n * R_TRUE
 TRIM_TRUE = [-TRUE['amp_offset_left_v'] / 24.0 * 511, -TRUE['amp_offset_right_v'] / 24.0 * 511]
 DEADBAND_TRUE = (TRUE['deadband_v'] + ROBOT.motor_resistance_ohm * I_LOAD) / 24.0 * 511
 # The sweep turns in place: each wheel drives its wheel inertia and half the yaw inertia
-# seen at the rim, against the back-EMF damping N^2 ke^2 eta / R.
-TAU_TRUE = ((ROBOT.wheel_inertia_total + ROBOT.yaw_inertia_kgm2 * R_TRUE ** 2
+# seen at the rim, against the back-EMF damping N^2 ke^2 eta / R. The lag step drives straight:
+# each wheel carries half the body's mass too -- the simulator's motor_tau_s.
+TAU_STRAIGHT_TRUE = ROBOT.motor_tau_s
+TAU_TURN_TRUE = ((ROBOT.wheel_inertia_total + ROBOT.yaw_inertia_kgm2 * R_TRUE ** 2
              / (2 * (TRUE['track_width_m'] / 2) ** 2))
             / (ROBOT.gear_ratio ** 2 * ROBOT.ke ** 2 * ROBOT.gear_efficiency
                / ROBOT.motor_resistance_ohm))
@@ -170,11 +172,13 @@ def test_calibrate_recovers_the_true_robot_not_the_configured_one(tmp_path, as_b
         assert code == round(exact) and abs(code - true) < 1, (code, exact, true)
     for db in rep['deadband_codes']:
         assert db == pytest.approx(DEADBAND_TRUE, rel=0.01)
-    # The lag is timed from the host's write, so it includes the command path's latency (what
-    # the speed loop sees too): a looser bound than the steady-state values.
-    assert rep['tau_s'] == pytest.approx(TAU_TRUE, rel=0.1)
-    kp, ki = ctl['pi']['kp'], ctl['pi']['ki']        # lambda tuning of the identified plant
+    # The lags are timed from the host's write, so they include the command path's latency
+    # (what the speed loop sees too): a looser bound than the steady-state values.
+    assert rep['tau_turn_s'] == pytest.approx(TAU_TURN_TRUE, rel=0.1)
+    assert rep['tau_s'] == pytest.approx(TAU_STRAIGHT_TRUE, rel=0.1)
+    kp, ki = ctl['pi']['kp'], ctl['pi']['ki']        # lambda tuning of the straight-line plant
     assert ki == pytest.approx(1 / (FULL_SCALE_TRUE * 0.15), rel=0.02)
+    assert kp / ki == pytest.approx(TAU_STRAIGHT_TRUE, rel=0.1)
     assert kp / ki == pytest.approx(rep['tau_s'], rel=1e-3)
     # The zero hold had the amplifier enabled: the right wheel (zero error beyond the dead
     # band) crept before the trim and stood still after it.

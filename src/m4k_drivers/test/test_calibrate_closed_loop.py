@@ -17,6 +17,7 @@ from fakeclock import FakeClock, SteppingStop
 import pytest
 
 from m4k_drivers.calibrate import cli, runs
+from m4k_drivers.drive import DriveState, step_drive
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import World, WorldConfig
@@ -114,13 +115,36 @@ def test_calibrated_values_are_the_robot_as_built(calibrated):
     assert trim == (round(-0.3 / 24 * 511), round(1.2 / 24 * 511))
 
 
-@pytest.mark.xfail(strict=True, reason='open: since the drive physics (current limit, friction, '
-                   'body inertia) calibrate identifies the wheel lag as ~0.044 s where the '
-                   "simulator's motor_tau_s is 0.082 s; the step response is no longer first "
-                   'order and the lag fit has not been redone (see the closing note)')
+def _straight_step_lag(rob, v1=3.0, v2=4.0, dt=1e-3):
+    """Time the simulated drive itself: a small straight-line step of both armatures, v1 -> v2.
+
+    The gap between the wheel angle and its final asymptote, over the speed step, is the lag of
+    a first-order response (the area above it); below the current limit the drive is one.
+    """
+    st = DriveState()
+    volts = tuple(v1 - rob.amp_offset_v(side) for side in (0, 1))
+    for _ in range(3000):
+        step_drive(rob, st, volts, True, dt)
+    w1 = st.wheel[0]
+    volts = tuple(v2 - rob.amp_offset_v(side) for side in (0, 1))
+    speeds = []
+    for _ in range(3000):
+        step_drive(rob, st, volts, True, dt)
+        speeds.append(st.wheel[0])
+        assert abs(st.current[0]) < rob.amp_current_limit_a      # linear: no current limit
+    w2 = speeds[-1]
+    return sum(w2 - w for w in speeds) * dt / (w2 - w1)
+
+
 def test_calibrated_pi_follows_the_robots_lag(calibrated):
     shipped, cal, trim = calibrated
     rob = _robot()[0].robot
+    # The truth is the simulator's: the straight-line time constant of its drive below the
+    # current limit, which drive.py derives from its physical parameters (motor_tau_s) and
+    # which a small step on the simulated drive shows. It is the lag the PI zero must cancel
+    # (kp / ki = tau, lambda tuning); the in-place turn's lag (the wheels move the yaw inertia
+    # only, about half of it) is not.
+    assert _straight_step_lag(rob) == pytest.approx(rob.motor_tau_s, rel=0.01)
     assert cal['pi']['kp'] / cal['pi']['ki'] == pytest.approx(rob.motor_tau_s, rel=0.05)
 
 

@@ -86,6 +86,8 @@ def test_commands_beyond_the_cap_are_refused():
             rig.command(512 + 200, 512)
         with pytest.raises(runs.Aborted, match=r'sweep speed must be in \(0, 0\.3\]'):
             runs.sweep(rig, 0.5, 3, 0.2, 0.2, print)
+        with pytest.raises(runs.Aborted, match=r'lag run speed must be in \(0, 0\.3\]'):
+            runs.lag(rig, 0.4, 0.2, 0.2, print)
     assert world.pose().x == 0.0
 
 
@@ -115,6 +117,32 @@ def test_brake_run_measures_the_simulators_braking_and_a_reaction_within_two_per
     assert b.decel_mps2 == pytest.approx(truth, rel=0.05)
     assert -0.5 * handler.period_s <= b.reaction_s <= 2 * handler.period_s
     assert b.speed_mps == pytest.approx(0.25 * world.robot.top_speed_mps, rel=0.1)
+    assert abs(world.state().v) < 0.01                              # stopped at the end
+
+
+@pytest.mark.parametrize('robot', [{}, {'mass_kg': 40.0, 'motor_resistance_ohm': 0.8,
+                                    'deadband_v': 0.9}])
+def test_lag_run_times_the_simulators_straight_line_time_constant(robot):
+    """The lag run's small straight steps give the drive's time constant (docs/sim-physics.md).
+
+    Truth: RobotParams.motor_tau_s, derived from the simulator's physical parameters (the
+    straight-line back-EMF damping against half the body's mass); within 5 % with encoder
+    noise. The steps stay below the current limit (the linear region), so the fit is not the
+    current-limited ramp of a step from rest, and the plateaus start above the dead band.
+    """
+    from m4k_drivers.calibrate import fit
+    clock = FakeClock()
+    world = World(WorldConfig.from_dict({'obstacles': [], 'robot': robot,
+                                         'walls': {'rectangle': [-9, -9, 9, 9]}}),
+                  clock=clock, t0_ns=0)
+    handler = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.5), clock=clock)
+    band = robot.get('deadband_v', 0.0) / 24.0 * fit.DAC_SPAN
+    with runs.MotorRig(handler, SteppingStop(clock), clock=clock.seconds) as rig:
+        plateaus = runs.lag(rig, 0.15, 0.6, 0.6, print, band)
+    speeds = [pl.speed for pl in plateaus]
+    assert speeds[0] > 0.5 and speeds[0] < speeds[1] < speeds[2]
+    tau = fit.tau_from_plateaus(plateaus, 0.1 * speeds[-1])
+    assert tau == pytest.approx(world.robot.motor_tau_s, rel=0.05)
     assert abs(world.state().v) < 0.01                              # stopped at the end
 
 

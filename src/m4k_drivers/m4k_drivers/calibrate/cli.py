@@ -8,12 +8,15 @@ for what only a person can measure; answers come from stdin, one per line.
 1. ``zero``: hold code 512 with the amplifier *enabled* and report each wheel's creep.
 2. ``sweep``: turn in place through a staircase of codes, both ways: the code-to-speed lines
    give ``dac_zero_trim`` (mid of the dead band), the dead band, ``full_scale_wheel_speed``
-   and the motor lag; the new trims are used from here on and checked by a second zero hold.
-3. ``straight``: drive straight about ``--distance`` m; you measure the distance travelled:
+   and the in-place lag; the new trims are used from here on and checked by a second zero hold.
+3. ``lag``: drive straight through three plateaus of ``--speed`` (half, three quarters, all of
+   it; about 0.8 m): the straight-line lag of the wheel speed, from small steps in the linear
+   region, and the suggested PI gains (lambda tuning on it).
+4. ``straight``: drive straight about ``--distance`` m; you measure the distance travelled:
    ``wheel_radius``.
-4. ``turn``: turn in place ``--turns`` full turns counter-clockwise, then clockwise; you
+5. ``turn``: turn in place ``--turns`` full turns counter-clockwise, then clockwise; you
    measure each angle: ``track_width``.
-5. ``brake`` (only when asked for in ``--steps``): drive straight at ``--brake-speed``, then
+6. ``brake``: drive straight at ``--brake-speed``, then
    command zero (amplifier on, as the guard's stop does) and fit the encoders' speed:
    ``control.guard.brake_deceleration`` (m/s^2) and ``control.guard.reaction_time`` (s,
    from the host's zero command to the wheels' deceleration); the robot travels about 1.5 m.
@@ -45,8 +48,8 @@ __all__ = ['STEPS', 'Operator', 'main']
 
 REACTION_FLOOR_S = 0.001   # s, the smallest guard reaction time the overlay writes
 
-STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
-DEFAULT_STEPS = ('zero', 'sweep', 'straight', 'turn', 'brake')
+STEPS = ('zero', 'sweep', 'lag', 'straight', 'turn', 'brake')
+DEFAULT_STEPS = STEPS
 
 
 class Operator:
@@ -109,10 +112,13 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--max-speed', type=float, default=0.25,
                     help=f'sweep top, fraction of full scale (<= {runs.MAX_SPEED})')
     ap.add_argument('--levels', type=int, default=6, help='sweep levels per direction (3..10)')
-    ap.add_argument('--settle', type=float, default=0.6, help='sweep: s to settle per level')
-    ap.add_argument('--measure', type=float, default=0.6, help='sweep: s measured per level')
+    ap.add_argument('--settle', type=float, default=0.6,
+                    help='sweep and lag run: s to settle per level')
+    ap.add_argument('--measure', type=float, default=0.6,
+                    help='sweep and lag run: s measured per level')
     ap.add_argument('--speed', type=float, default=0.15,
-                    help='straight run and turns, fraction of full scale (<= 0.25)')
+                    help='lag run (its top), straight run and turns, fraction of full '
+                    'scale (<= 0.25)')
     ap.add_argument('--distance', type=float, default=1.0, help='straight run, m (0.2..3)')
     ap.add_argument('--turns', type=int, default=1, help='full turns each way (1..3)')
     ap.add_argument('--brake-speed', type=float, default=0.25,
@@ -223,15 +229,35 @@ def identify(rig: runs.MotorRig, steps: list[str], args: argparse.Namespace, ctl
     if 'sweep' in steps:
         op.confirm('Sweep: the robot turns in place both ways (about 15 s). Go?')
         sw = runs.sweep(rig, args.max_speed, args.levels, args.settle, args.measure, op.say)
-        res.update(_sweep_result(sw, handler.dac_sign, handler.dac_zero_trim, args.lam))
+        res.update(_sweep_result(sw, handler.dac_sign, handler.dac_zero_trim))
         handler.dac_zero_trim = tuple(res['dac_zero_trim'])
         op.say(f'sweep: dac_zero_trim {res["dac_zero_trim"]} (exact '
                f'{[round(v, 2) for v in res["dac_zero_trim_exact"]]}), dead band '
                f'{[round(v, 1) for v in res["deadband_codes"]]} codes, full_scale_wheel_speed '
-               f'{res["full_scale_wheel_speed"]:.4f} rad/s, motor lag {res["tau_s"] * 1e3:.1f} '
-               f'ms; using the new trims from now on')
+               f'{res["full_scale_wheel_speed"]:.4f} rad/s, in-place lag '
+               f'{res["tau_turn_s"] * 1e3:.1f} ms; using the new trims from now on')
         res['zero_hold_after'] = _hold(rig, args.hold, op, 'with the new trims')
     radius = ctl.wheel_radius
+    if 'lag' in steps:
+        full = res.get('full_scale_wheel_speed', ctl.full_scale_wheel_speed)
+        travel = (sum(runs.LAG_LEVELS) * args.speed * full * radius
+                  * (args.settle + args.measure))
+        op.confirm(f'Lag run: the robot drives straight about {travel:.1f} m at up to '
+                   f'{args.speed:.2f} of full scale (clear path, 0.5 m beyond). Go?')
+        band = res.get('deadband_codes')
+        pls = runs.lag(rig, args.speed, args.settle, args.measure, op.say,
+                       sum(band) / len(band) if band else 0.0)
+        top = max(abs(pl.speed) for pl in pls)
+        tau = fit.tau_from_plateaus(pls, 0.1 * top)
+        if not tau > 0:
+            raise fit.FitError(f'lag run: the wheels led the command by {-tau * 1e3:.1f} ms '
+                               '(an encoder or drive fault?)')
+        kp, ki = fit.pi_gains(full, tau, args.lam)
+        res['tau_s'] = tau
+        res['lag'] = {'speeds_rad_s': [pl.speed for pl in pls], 'codes': [pl.x for pl in pls]}
+        res['pi'] = {'kp': kp, 'ki': ki, 'lambda_s': args.lam, 'full_scale': full}
+        op.say(f'lag: straight-line wheel lag {tau * 1e3:.1f} ms; PI kp {kp:.5f}, ki {ki:.5f} '
+               f'(lambda {args.lam} s)')
     if 'straight' in steps:
         op.confirm(f'Straight run: mark the axle centre on the floor; the robot drives forward '
                    f'about {args.distance:.2f} m (clear path, 0.5 m beyond). Go?')
@@ -293,8 +319,8 @@ def _hold(rig: runs.MotorRig, seconds: float, op: Operator, when: str) -> dict[s
     return {'creep_rad_s': list(creep), 'creeping': moving}
 
 
-def _sweep_result(sw: runs.Sweep, sign: tuple[int, ...], trim: tuple[int, ...],
-                  lam: float) -> dict[str, Any]:
+def _sweep_result(sw: runs.Sweep, sign: tuple[int, ...],
+                  trim: tuple[int, ...]) -> dict[str, Any]:
     models, taus = [], []
     for side in (0, 1):
         pls = sw.plateaus[side]
@@ -311,15 +337,15 @@ def _sweep_result(sw: runs.Sweep, sign: tuple[int, ...], trim: tuple[int, ...],
         raise fit.FitError(f'identified dac_zero_trim {trims}: {reason}; the amplifier zero '
                            'is too far off: adjust it in hardware first')
     full = sum(m.full_scale for m in models) / 2
-    tau = sorted(taus)[len(taus) // 2]
-    kp, ki = fit.pi_gains(full, tau, lam)
     return {
         'dac_zero_trim': trims, 'dac_zero_trim_exact': exact,
         'deadband_codes': [m.deadband_codes for m in models],
         'full_scale_wheel_speed': full,
         'full_scale_per_wheel': [m.full_scale for m in models],
         'lines': [{'forward': vars(m.forward), 'backward': vars(m.backward)} for m in models],
-        'tau_s': tau, 'pi': {'kp': kp, 'ki': ki, 'lambda_s': lam},
+        # The lag of turning in place (the wheels move the yaw inertia only): reported, not
+        # tuned on; the PI comes from the straight-line lag of the ``lag`` step.
+        'tau_turn_s': sorted(taus)[len(taus) // 2],
     }
 
 
@@ -366,10 +392,14 @@ def _comments(res: dict[str, Any]) -> list[str]:
               "  dac_zero_trim = middle of each wheel's dead band (codes, exact "
               + ', '.join(f'{v:+.2f}' for v in res['dac_zero_trim_exact']) + '); dead band '
               + ', '.join(f'+/-{v:.1f}' for v in res['deadband_codes'])
-              + ' codes (the PI integrator covers it)',
-              f'  pi: lambda tuning of K/(tau s + 1), K = full scale, tau = {res["tau_s"]:.4f} s '
-              f'(lag of the angle asymptotes): kp = tau/(K lambda), ki = 1/(K lambda), '
-              f'lambda = {res["pi"]["lambda_s"]} s']
+              + ' codes (the PI integrator covers it); lag turning in place '
+              f'{res["tau_turn_s"]:.4f} s (not used for the PI)']
+    if 'pi' in res:
+        pi = res['pi']
+        c.append(f'  pi: lambda tuning of K/(tau s + 1), K = full scale {pi["full_scale"]:.4f}, '
+                 f'tau = {res["tau_s"]:.4f} s (straight-line lag: gap of the mean wheel angle '
+                 f'asymptotes over small steps): kp = tau/(K lambda), ki = 1/(K lambda), '
+                 f'lambda = {pi["lambda_s"]} s')
     if 'brake' in res:
         b = res['brake']
         c.append(f'  guard.brake_deceleration / reaction_time: zero command from a steady '

@@ -14,7 +14,11 @@ what it does not model:
   ``t0`` the angle approaches the line ``theta(t0) + w2 (t - t0) - (w2 - w1) tau``, so the
   gap at ``t0`` between the two plateaus' fitted lines is ``(w2 - w1) * tau``.  ``t0`` is when
   the host wrote the command, so the lag includes the command path's latency -- which the
-  speed loop sees as well;
+  speed loop sees as well.  Exact for a first-order response (the gap is the area above it),
+  i.e. for steps small enough to stay below the amplifier's current limit.  Which lag depends
+  on the motion: ``calibrate``'s lag run steps the *mean* wheel angle on a straight run (the
+  body's mass on the wheels: the lag the PI is tuned on); its sweep turns in place (only the
+  yaw inertia: a faster lag, reported, not tuned on);
 * braking: from a steady straight run, the command goes to zero (code 512, amplifier on).
   The mean wheel speed (angle differences) falls along a line while the amplifier's current
   limit brakes; the line fitted between 85 % and 40 % of the steady speed gives the

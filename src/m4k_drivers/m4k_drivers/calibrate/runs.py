@@ -1,4 +1,4 @@
-"""The bounded motor runs of ``calibrate``: zero hold, code sweep, straight run, in-place turn.
+"""The bounded motor runs of ``calibrate``: zero hold, sweep, lag, straight, turn, brake.
 
 Every run goes through the motor handler's normal path (:class:`MotorRig`: one fresh
 WHEEL_CMD with enable = 1 per actuator period, so the driver watchdog is fed and the
@@ -26,13 +26,18 @@ from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_rt.protocol import EncoderStatus
 
-__all__ = ['MAX_SPEED', 'Aborted', 'MotorRig', 'Sample', 'Sweep', 'brake', 'hold', 'straight',
-           'sweep', 'turn']
+__all__ = ['LAG_LEVELS', 'MAX_SPEED', 'Aborted', 'MotorRig', 'Sample', 'Sweep', 'brake', 'hold',
+           'lag', 'straight', 'sweep', 'turn']
 
 MAX_SPEED = 0.3               # fraction of full scale, any run (0.6 m/s rim speed on the M4K)
 STOP_SPEED = 0.05             # rad/s: a wheel slower than this counts as stopped
 BAD_RUN_MAX = 5               # encoder readings with frame/jump errors in a row: a fault
 _BAD = EncoderStatus.INVALID           # frame or jump error on either wheel: angles untrusted
+# The lag run's plateaus, fractions of its speed: two up-steps of a quarter of it each. Small
+# enough that the amplifier stays below its current limit (on the default sim base a 0.0375
+# full-scale step, 0.9 V, asks ~1.5 A over the ~0.5 A load, of 3 A): the linear region the
+# wheel-speed PI works in, not the current-limited ramp of a step from rest.
+LAG_LEVELS = (0.5, 0.75, 1.0)
 
 
 class Aborted(RuntimeError):
@@ -270,6 +275,45 @@ def turn(rig: MotorRig, heading_rad: float, radius_m: float, track_m: float, spe
     if not math.isfinite(end.left + end.right):
         raise Aborted('turn: no encoder reading')
     return end.left - start.left, end.right - start.right
+
+
+def lag(rig: MotorRig, speed: float, settle_s: float, measure_s: float,
+        log: Callable[[str], None], deadband_codes: float = 0.0) -> list[fit.Plateau]:
+    """Drive straight through plateaus at :data:`LAG_LEVELS` of ``speed`` (fraction of full scale).
+
+    Both wheels get the same command (plus the straight run's heading correction, which is
+    differential and so leaves the mean untouched).  Return each plateau's steady line of the
+    *mean* wheel angle: the straight-line (common) mode, the body's mass on the wheels -- the
+    plant the wheel-speed PI drives in, unlike the sweep's in-place turn, where the wheels move
+    only the yaw inertia.  Consecutive plateaus time the lag (:func:`fit.tau_from_plateaus`).
+    ``deadband_codes`` (the sweep's, when known) is added to every level, so that even the
+    lowest plateau turns the wheels well clear of the dead band and its static friction.
+    """
+    if not 0 < speed <= MAX_SPEED:
+        raise Aborted(f'lag run speed must be in (0, {MAX_SPEED}], got {speed!r}')
+    start = rig.wait_stopped()
+    s = start
+    out = []
+    for level in LAG_LEVELS:
+        x = round(max(deadband_codes, 0.0) + level * speed * fit.DAC_SPAN)
+        t0: float | None = None
+        samples: list[Sample] = []
+        while t0 is None or samples[-1].t - t0 < settle_s + measure_s:
+            corr = 40.0 * ((s.left - start.left) - (s.right - start.right))
+            t, s = rig.command(_code(x - corr / 2), _code(x + corr / 2))
+            if t0 is None:
+                t0 = t
+            if not samples or s is not samples[-1]:
+                samples.append(s)
+            elif rig.clock() - t0 > settle_s + measure_s + 1.0:
+                raise Aborted('lag run: no valid encoder reading')
+        steady = [q for q in samples if q.t - t0 >= settle_s]
+        pl = fit.fit_plateau(x, t0, [q.t for q in steady],
+                             [0.5 * (q.left + q.right) for q in steady])
+        out.append(pl)
+        log(f'lag: code 512{x:+d} straight: mean wheel speed {pl.speed:+.3f} rad/s')
+    rig.wait_stopped()
+    return out
 
 
 def brake(rig: MotorRig, speed: float, settle_s: float,
