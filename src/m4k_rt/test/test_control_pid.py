@@ -82,6 +82,9 @@ def test_the_integral_band_leaves_transients_to_p_and_feed_forward():
     assert pi.integral == 0.0
     pi.update(0.0, 1.0, 0.01)             # within the band: integrates
     assert pi.integral == pytest.approx(0.4 * -1.0 * 0.01)
+    pi.reset()
+    pi.update(3.0, 0.0, 0.01)             # underspeed (a stalled wheel): integrates
+    assert pi.integral == pytest.approx(0.4 * 3.0 * 0.01)
     for bad in (0.0, -1.0, math.nan, True):
         with pytest.raises(PidError, match='band'):
             WheelSpeedPI(0.02, 0.4, band=bad)

@@ -109,11 +109,12 @@ CONTROL: dict[str, Field] = {
                             choices=ANTI_WINDUP_MODES),
     'pi.kt': _nonneg('', None, 'Back-calculation tracking gain; null: ki / kp.',
                      nullable=True),
-    'pi.integral_band': _pos('rad/s', 1.5, 'Integral separation: the integrator moves only '
-                             'while the wheel-speed error is within this band, so a transient '
-                             '(a guard stop, its release) cannot wind it up to drive the wheels '
-                             'past the setpoint -- backwards after a stop. Too small: slow '
-                             'correction of a load change; too large: windup on transients.'),
+    'pi.integral_band': _pos('rad/s', 1.5, 'Integral separation on braking: while a wheel '
+                             'turns faster than its setpoint by more than this, the integrator '
+                             'holds, so a braking transient (a guard stop, its release) cannot '
+                             'wind it up to drive the wheels past the setpoint -- backwards '
+                             'after a stop. Underspeed (load, stall) integrates as always. Too '
+                             'small: slow correction of an overspeed; too large: windup.'),
     'guard.enabled': Field('bool', True, 'Collision guard on forward motion. false: the '
                            'robot drives into what its sensors see.'),
     'guard.stop_distance': _nonneg('m', 0.35, 'Margin of the speed-aware stop zone: the gap '

@@ -12,12 +12,13 @@ Anti-windup, selectable:
 * ``'back_calculation'``: the integrator is driven back by ``kt * (u_sat - u)`` so that it
   tracks the saturated output; ``kt`` defaults to ``ki / kp`` (tracking time = Ti).
 
-Integral separation (``band``, rad/s): the integrator moves only while ``|error| <= band``.
+Integral separation on braking (``band``, rad/s): while the wheel turns faster than its
+setpoint by more than ``band`` (``|measured| > |setpoint|``), the integrator does not move.
 Saturation is not the only windup: braking from 1 m/s to a stop after a guard trip (or a
 release) stays inside the output range, and integrating that transient's large error left
 the integrator holding a reverse command that backed the robot up once the wheels reached
-the setpoint. The integrator's job is the steady error of load and friction; transients are
-left to feed-forward and P.
+the setpoint. An underspeed error (a load, a stalled wheel) is integrated as before -- the
+stall supervision relies on the output saturating against it.
 """
 
 from __future__ import annotations
@@ -75,7 +76,7 @@ class WheelSpeedPI:
         error = setpoint - measured
         base = self.kff * setpoint + self.kp * error
         integral = self.integral
-        if -self.band <= error <= self.band:
+        if (-self.band <= error <= self.band) or abs(measured) <= abs(setpoint):
             integral += self.ki * error * dt
         u = base + integral
         lim = self.limit
