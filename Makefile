@@ -5,7 +5,9 @@
 #   make test                         lint + colcon test of every package + workspace tests
 #                                     (about 16 min on a 2-vCPU VM)
 #   make check                        lint + the unit tiers: make test without the tests marked
-#                                     e2e (they start the stack, processes or ROS nodes)
+#                                     e2e (they start the stack, processes or ROS nodes); lint,
+#                                     colcon test and the workspace tier side by side (about
+#                                     3 min on a 2-vCPU VM; 4.5 min when it is busy elsewhere)
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
 #                                     and the guard's reaction (about 45 min; QUICK=1 about 9 min)
 #   make bench RUNS=2                 two full runs, one after the other -> docs/results/bench-1, -2

@@ -73,7 +73,15 @@ def _is_transport(name: str) -> bool:
     return name.split('.')[0] in _TRANSPORTS
 
 
+_PROBED: dict[str, list[str]] = {}   # module -> what importing it loaded (probed once a run)
+
+
 def _loaded_by(modules: list[str], tmp_path) -> dict[str, list[str]]:
+    """Return what importing each module loads, each in a fresh interpreter.
+
+    A module is probed once per test run: the ROS check and the declared-dependency check read
+    the same probe instead of starting every interpreter twice.
+    """
     env = stack_env(str(tmp_path))
 
     def probe(mod: str) -> tuple[str, list[str]]:
@@ -82,8 +90,11 @@ def _loaded_by(modules: list[str], tmp_path) -> dict[str, list[str]]:
         assert r.returncode == 0, f'importing {mod} failed:\n{r.stderr}'
         return mod, json.loads(r.stdout.strip().splitlines()[-1])
 
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        return dict(pool.map(probe, modules))
+    missing = [m for m in modules if m not in _PROBED]
+    if missing:
+        with ThreadPoolExecutor(max_workers=4) as pool:
+            _PROBED.update(pool.map(probe, missing))
+    return {m: _PROBED[m] for m in modules}
 
 
 def _pkg_modules(pkg: str) -> list[str]:

@@ -49,7 +49,7 @@ from typing import Any, Sequence, TextIO
 import numpy as np
 
 from m4k_bench.benchlib import provenance
-from m4k_bench.benchlib.stack import Child
+from m4k_bench.benchlib.stack import Child, start_child
 from m4k_bench.planning.dwa import DwaConfig
 from m4k_bench.planning.evaluate import (
     contacts,
@@ -97,10 +97,10 @@ def _child(name: str, argv: list[str], out_dir: str, env: dict[str, str]) -> Chi
 
     Stopped with SIGINT to the whole session, as Ctrl-C would stop it.
     """
-    return Child(name, argv, out_dir, env, stop_signal=signal.SIGINT, group=True)
+    return start_child(name, argv, out_dir, env, stop_signal=signal.SIGINT, group=True)
 
 
-def _stop(child: Child, timeout: float) -> int:
+def _stop(child: Child, timeout: float) -> int | None:
     return child.stop(timeout, on_escalate=lambda t: _log(
         f'{child.name} did not stop within {t:g} s'))
 
@@ -496,7 +496,7 @@ def _drive(rec: Recorder, stack: Child, env: dict[str, str], args: argparse.Name
     end = time.monotonic() + STARTUP_TIMEOUT_S
     while time.monotonic() < end and (not rec.odom or rec.scans == 0):
         if not stack.alive():
-            _log(f'the stack exited (code {stack.proc.returncode}):\n{_tail(stack)}')
+            _log(f'the stack exited (code {stack.returncode}):\n{_tail(stack)}')
             return False, 2
         rec.spin(0.1)
     if not rec.odom or rec.scans == 0:
@@ -515,7 +515,7 @@ def _drive(rec: Recorder, stack: Child, env: dict[str, str], args: argparse.Name
                 _progress(rec, args.goal, sys.stderr, tty)
             if not planner.alive() or not stack.alive():
                 who = planner if not planner.alive() else stack
-                _log(f'{who.name} exited (code {who.proc.returncode}):\n{_tail(who)}')
+                _log(f'{who.name} exited (code {who.returncode}):\n{_tail(who)}')
                 timed_out, rc = False, 1
                 break
             recent = [r[4] for r in rec.odom[-10:]]

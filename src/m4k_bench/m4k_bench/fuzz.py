@@ -360,8 +360,8 @@ def run(args: argparse.Namespace,
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir)
     probes = stallprobe.StallProbes()
     rt_args = ['--config', args.config] if args.config else []
-    core = stack.Child('rt_core', stack.entry_argv('m4k_rt.rt_core', *rt_args),
-                       os.path.join(runtime_dir, 'logs'), env)
+    core = stack.start_child('rt_core', stack.entry_argv('m4k_rt.rt_core', *rt_args),
+                             os.path.join(runtime_dir, 'logs'), env)
     failures: list[str] = []
     results: list[PortResult] = []
     obs = None

@@ -44,6 +44,7 @@ from typing import Any, Sequence
 
 from m4k_bench import core_bench, soaktime
 from m4k_bench.benchlib import provenance, stack, system
+from m4k_bringup.child import Child
 from m4k_rt import config, recorder, rosargs, xddp
 from m4k_rt.proc import stop_process
 
@@ -256,9 +257,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                'warmup_s': warmup, 'stress': not args.no_stress,
                                'machine': system.machine_info(),
                                'provenance': provenance.provenance()}
-    with open(log_path, 'w') as log:
-        bu = subprocess.Popen(argv_bu, env=env, stdout=log, stderr=subprocess.STDOUT,
-                              start_new_session=True)
+    bu = Child('bringup', argv_bu, env, log_path=log_path, log_append=False, log_header=False,
+               stop_signal=signal.SIGINT, group=False, stop_timeout=60.0).start()
     stat = StatReader(runtime_dir)
     stop_cmd = threading.Event()
     stress = None
@@ -272,7 +272,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         end = time.monotonic() + 60.0
         while set(children(bu.pid)) != set(NAMES):
-            if time.monotonic() > end or bu.poll() is not None:
+            if time.monotonic() > end or not bu.alive():
                 raise RuntimeError('the stack did not start; see {}'.format(log_path))
             time.sleep(0.2)
         stat.thread.start()
@@ -309,7 +309,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             t = now - t0
             # The counters every second (the monitor ships them at 1 Hz), RSS every --sample.
             timeline.poll(now, stat.tasks())
-            if now < next_rss and bu.poll() is None and t < args.duration:
+            if now < next_rss and bu.alive() and t < args.duration:
                 time.sleep(min(1.0, max(0.0, args.duration - t)))
                 continue
             next_rss += args.sample
@@ -320,7 +320,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 k = rss_kib(pid)
                 if k is not None:
                     rss[name].append((t, k))
-            if bu.poll() is not None or t >= args.duration:
+            if not bu.alive() or t >= args.duration:
                 break
             if now >= next_report:
                 next_report += 30.0
@@ -342,8 +342,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for p in cts.values():
             stop_process(p, signal.SIGINT, 30, group=False)   # SIGINT: it writes its histogram
         stat.close()
-        bu_rc = bu.poll()
-        stop_process(bu, signal.SIGINT, 60, group=False)
+        bu_rc = None if bu.alive() else bu.returncode
+        bu.stop()
         shutil.rmtree(tmp, ignore_errors=True)
     log_text = open(log_path, errors='replace').read()
     summary['bringup_exit'] = bu.returncode

@@ -36,7 +36,6 @@ import os
 import shutil
 import signal
 import socket
-import subprocess
 import sys
 import tempfile
 import threading
@@ -47,16 +46,16 @@ import yaml
 
 from m4k_bridge import params as bridge_params
 from m4k_bringup import robots
+from m4k_bringup.child import Child
 from m4k_drivers import simbus
 from m4k_rt import config, rosargs
 from m4k_rt.control.params import control_params
-from m4k_rt.proc import stop_process
 from m4k_rt.rt_core import InstanceLock
-from m4k_rt.stopsignals import blocked_stop_signals, run_stoppable, StopSignals
+from m4k_rt.stopsignals import run_stoppable, StopSignals
 
 __all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
            'foxglove_spec', 'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready',
-           'sim_robot_spec', 'uses_sim']
+           'sim_robot_spec', 'supervised_child', 'uses_sim']
 
 STABLE_S = 30.0           # a child running this long has its backoff reset
 STOP_TIMEOUT_S = 8.0      # per child, then SIGKILL
@@ -198,86 +197,19 @@ class Console:
                 self._status = ''
 
 
-class Child:
-    """One supervised child process; its output is copied to the console with a prefix."""
+def supervised_child(spec: ChildSpec, argv: list[str], env: Mapping[str, str],
+                     console: Console) -> Child:
+    """Return bringup's child for ``spec``: output to the console with a ``[name]`` prefix.
 
-    def __init__(self, spec: ChildSpec, argv: list[str], env: Mapping[str, str],
-                 console: Console) -> None:
-        self.spec = spec
-        self.argv = argv
-        self.env = dict(env)
-        self.console = console
-        self.proc: subprocess.Popen | None = None
-        self.restarts = 0
-        self.failures = 0          # consecutive failures (backoff exponent)
-        self.started_at = 0.0
-        self.next_start = 0.0      # monotonic time of a pending restart (0: none)
-        self.last_rc: int | None = None
-        self._reader: threading.Thread | None = None
-
-    def start(self) -> None:
-        """Start the process (own process group, so a terminal Ctrl-C reaches bringup only)."""
-        argv = list(self.argv)
-        setpriv = shutil.which('setpriv')
-        if setpriv:
-            argv = [setpriv, '--pdeathsig', 'TERM', '--', *argv]
-        # Stop signals blocked until the child has its handlers (it unblocks them then): a
-        # SIGTERM from stop() while the child still starts up stops it cleanly, never kills it.
-        with blocked_stop_signals():
-            self.proc = subprocess.Popen(argv, env=self.env, stdin=subprocess.DEVNULL,
-                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                         process_group=0, text=True, errors='replace',
-                                         bufsize=1)
-        self.started_at = time.monotonic()
-        self.next_start = 0.0
-        self._reader = threading.Thread(target=self._copy, args=(self.proc,),
-                                        name='bringup:' + self.spec.name, daemon=True)
-        self._reader.start()
-
-    def _copy(self, proc: subprocess.Popen) -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            self.console.line('[{}] {}'.format(self.spec.name, line.rstrip('\n')))
-
-    @property
-    def running(self) -> bool:
-        """Return True while the process runs."""
-        return self.proc is not None and self.proc.poll() is None
-
-    def reap(self) -> int | None:
-        """Return the exit code once the process has ended (after its output is copied)."""
-        if self.proc is None:
-            return None
-        rc = self.proc.poll()
-        if rc is None:
-            return None
-        self._finish()
-        self.last_rc = rc
-        self.proc = None
-        return rc
-
-    def _finish(self) -> None:
-        if self._reader is not None:
-            self._reader.join(2.0)
-            self._reader = None
-        if self.proc is not None and self.proc.stdout is not None:
-            self.proc.stdout.close()
-
-    def stop(self, timeout: float = STOP_TIMEOUT_S) -> int | None:
-        """SIGTERM, wait ``timeout``, then SIGKILL; return the exit code (None if not running)."""
-        proc = self.proc
-        self.next_start = 0.0
-        if proc is None:
-            return None
-        # The process only: it stops its own children in order (a group signal would not).
-        stop_process(proc, signal.SIGTERM, timeout, group=False, close_streams=False,
-                     on_escalate=lambda t: self.console.line(
-                         'bringup: {} did not stop within {:.0f} s: SIGKILL'.format(
-                             self.spec.name, t)))
-        self._finish()
-        self.last_rc = proc.returncode
-        self.proc = None
-        return self.last_rc
+    Stopped by SIGTERM to the process only (it stops its own children in order; a group signal
+    would not), SIGKILL after ``STOP_TIMEOUT_S``.
+    """
+    name = spec.name
+    return Child(name, argv, env, supervised=True, ready=spec.ready,
+                 on_line=lambda line: console.line('[{}] {}'.format(name, line)),
+                 stop_signal=signal.SIGTERM, group=False, stop_timeout=STOP_TIMEOUT_S,
+                 on_escalate=lambda t: console.line(
+                     'bringup: {} did not stop within {:.0f} s: SIGKILL'.format(name, t)))
 
 
 class Supervisor:
@@ -305,9 +237,9 @@ class Supervisor:
             if stopping():
                 return
             c.start()
-            if c.spec.ready is not None:
+            if c.ready is not None:
                 deadline = self.clock() + READY_TIMEOUT_S
-                while (not c.spec.ready() and c.running and not stopping()
+                while (not c.ready() and c.alive() and not stopping()
                        and self.clock() < deadline):
                     time.sleep(0.05)
 
@@ -325,30 +257,30 @@ class Supervisor:
                 if rc == CONFIG_ERROR:
                     self.fatal = (CONFIG_ERROR, '{} exited with code 2 (configuration error or '
                                   'another stack running; see its message above)'.format(
-                                      c.spec.name))
+                                      c.name))
                     return
                 c.failures = 1 if ran > STABLE_S else c.failures + 1
                 if c.failures > self.max_restarts:
                     self.fatal = (1, '{} failed {} times in a row; giving up'.format(
-                        c.spec.name, c.failures))
+                        c.name, c.failures))
                     return
                 delay = restart_delay(c.failures)
                 c.next_start = now + delay
                 self.console.line('bringup: {} exited with code {} after {:.1f} s; restart {} '
-                                  'in {:.1f} s'.format(c.spec.name, rc, ran, c.restarts + 1,
+                                  'in {:.1f} s'.format(c.name, rc, ran, c.restarts + 1,
                                                        delay))
             elif c.next_start and now >= c.next_start:
                 c.restarts += 1
                 c.start()
                 self.console.line('bringup: {} restarted (restart {})'.format(
-                    c.spec.name, c.restarts))
+                    c.name, c.restarts))
 
     def stop_all(self) -> None:
         """Stop children in reverse start order (bridge, driver host, rt_core, sim_robot)."""
         for c in reversed(self.children):
             rc = c.stop()
             if rc is not None:
-                self.console.line('bringup: {} stopped (exit code {})'.format(c.spec.name, rc))
+                self.console.line('bringup: {} stopped (exit code {})'.format(c.name, rc))
 
 
 def sim_robot_spec(runtime_dir: str, overlay: str | None = None) -> ChildSpec:
@@ -628,7 +560,7 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
     env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir, PYTHONUNBUFFERED='1')
     console = Console(sys.stdout, sys.stderr, sys.stdout.isatty())
-    children = [Child(s, resolve_command(s, args.python_m), env, console)
+    children = [supervised_child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,
                                      args.foxglove_address if args.foxglove else None,
                                      args.foxglove_port, args.namespace, extra,
@@ -655,7 +587,7 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
             sup.step()
             now = time.monotonic()
             if now >= next_status:
-                down = [c.spec.name for c in children if not c.running]
+                down = [c.name for c in children if not c.alive()]
                 console.status(format_status(status.rt if status else None,
                                              status.levels if status else {}, sup.restarts,
                                              now - t0, down))

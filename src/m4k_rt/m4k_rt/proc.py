@@ -1,10 +1,11 @@
 """Stop a child process and everything it left in its process group: the one stop ladder.
 
-Every m4k tool that starts processes -- bringup's supervisor, the bench, the demo, the soak
-and the tests' process fixture -- starts them in a process group of their own and stops them
-through :func:`stop_process`: signal, wait, escalate to SIGKILL, then SIGKILL whatever is left
-in the group (grandchildren), reap, close the pipes. NRT code, ROS-free, in the lowest package
-so that the RT core's own tests use it too.
+Every m4k tool that starts processes -- bringup's supervisor, the bench, the demo, the scenario
+runner, fuzz, the soak (the stack's processes through ``m4k_bringup.child.Child``, the one
+process wrapper) and the tests' process fixture -- starts them in a process group of their own
+and stops them through :func:`stop_process`: signal, wait, escalate to SIGKILL, then SIGKILL
+whatever is left in the group (grandchildren), reap, close the pipes. NRT code, ROS-free, in
+the lowest package so that the RT core's own tests use it too.
 """
 
 from __future__ import annotations

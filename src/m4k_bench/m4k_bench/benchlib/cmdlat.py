@@ -126,13 +126,13 @@ def run_cmd_latency(trials: int, runtime_dir: str, log_dir: str, *,
     import rclpy
     from rclpy.context import Context
 
-    from m4k_bench.benchlib.stack import Child, entry_argv
+    from m4k_bench.benchlib.stack import entry_argv, start_child
 
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     xddp.ensure_runtime_dir(runtime_dir)
-    rt = Child('cmdlat.rt_core', entry_argv('m4k_rt.rt_core', '--tasks', 'actuator'), log_dir,
-               env)
-    bridge = Child('cmdlat.bridge', entry_argv('m4k_bridge.node'), log_dir, env)
+    rt = start_child('cmdlat.rt_core', entry_argv('m4k_rt.rt_core', '--tasks', 'actuator'),
+                     log_dir, env)
+    bridge = start_child('cmdlat.bridge', entry_argv('m4k_bridge.node'), log_dir, env)
     probe = MotorProbe(runtime_dir).start()
     ctx = Context()
     rclpy.init(context=ctx)

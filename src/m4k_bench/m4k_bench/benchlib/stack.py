@@ -6,7 +6,8 @@ Both drive the same simulated robot: a ``sim_robot`` process started first (as b
 Children are started by module entry point (``python -c 'from MOD import main; ...'``), so the
 bench works from the source tree and from the colcon install alike, each in its own session
 with stderr logged to ``<results>/logs/``. They are stopped by their own pid (SIGTERM, then
-SIGKILL after a grace period), never by name.
+SIGKILL after a grace period), never by name: each is a :class:`m4k_bringup.child.Child`,
+the one process wrapper, started by :func:`start_child`.
 
 :func:`start_stack` is the one place that starts the robot stack for a measurement.
 
@@ -24,18 +25,17 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
 import threading
 import time
 from typing import Any, Callable, Sequence
 
 from m4k_bench.benchlib import liveclient, system
+from m4k_bringup.child import Child
 from m4k_rt import protocol, recorder, xddp
-from m4k_rt.proc import stop_process
 
-__all__ = ['Child', 'CMD_PERIOD_S', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
-           'ros_commander', 'start_sim_robot', 'start_stack', 'velocity_profile']
+__all__ = ['CMD_PERIOD_S', 'Child', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
+           'ros_commander', 'start_child', 'start_sim_robot', 'start_stack', 'velocity_profile']
 
 CMD_PERIOD_S = 0.05   # 20 Hz, as the paper's navigation stack
 _ENTRY = 'import sys; from {} import {} as _m; sys.exit(_m())'
@@ -65,60 +65,21 @@ def velocity_profile(t_s: float) -> tuple[float, float]:
     return (0.25 if phase else -0.25), 0.0
 
 
-class Child:
-    """A child process in its own session, its output in a log file, stopped by pid or group.
+def start_child(name: str, argv: Sequence[str], log_dir: str,
+                env: dict[str, str] | None = None, *, log_name: str | None = None,
+                stop_signal: int = signal.SIGTERM, group: bool = False) -> Child:
+    """Start a bench child (:class:`m4k_bringup.child.Child`) in its own session, now.
 
-    The one wrapper of the bench's processes (the stacks of bench, soak and fuzz, and demo's
-    bringup, planner and recorder). Output goes to ``<log_dir>/<log_name>`` (default
-    ``<name>.log``, appended to, headed by the command line). ``stop`` sends ``stop_signal``
-    (SIGTERM) to the process, or to its whole session with ``group=True`` (demo SIGINTs
-    bringup's), then SIGKILL after the grace time.
+    The bench's processes (the stacks of bench, soak and fuzz, and demo's bringup, planner and
+    recorder) log to ``<log_dir>/<log_name>`` (default ``<name>.log``, appended to, headed by
+    the command line). ``stop`` sends ``stop_signal`` (SIGTERM) to the process, or to its whole
+    session with ``group=True`` (demo SIGINTs bringup's), then SIGKILL after the grace time
+    (8 s unless given); a process that survives SIGKILL is an AssertionError.
     """
-
-    def __init__(self, name: str, argv: Sequence[str], log_dir: str,
-                 env: dict[str, str] | None = None, *, log_name: str | None = None,
-                 stop_signal: int = signal.SIGTERM, group: bool = False) -> None:
-        """Start ``argv`` now."""
-        self.name = name
-        self.stop_signal = stop_signal
-        self.group = group
-        os.makedirs(log_dir, exist_ok=True)
-        self.log_path = os.path.join(log_dir, log_name or name + '.log')
-        self._log = open(self.log_path, 'ab')
-        self._log.write('$ {}\n'.format(' '.join(argv)).encode())
-        self._log.flush()
-        self.proc = subprocess.Popen(list(argv), stdin=subprocess.DEVNULL,
-                                     stdout=self._log, stderr=self._log,
-                                     env=env, start_new_session=True)
-        self.pid = self.proc.pid
-
-    def alive(self) -> bool:
-        """Tell whether the process still runs."""
-        return self.proc.poll() is None
-
-    def stop(self, grace_s: float = 8.0,
-             on_escalate: Callable[[float], None] | None = None) -> int:
-        """Send the stop signal, wait ``grace_s``, then SIGKILL; return the exit code."""
-        rc = stop_process(self.proc, self.stop_signal, grace_s, group=self.group,
-                          on_escalate=on_escalate)
-        self._log.close()
-        assert rc is not None, f'{self.name} survived SIGKILL'
-        return rc
-
-    def wait(self, timeout: float) -> int | None:
-        """Wait up to ``timeout`` s for the exit; return the code or None."""
-        try:
-            return self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            return None
-
-    def tail(self, lines: int = 6) -> list[str]:
-        """Return the last lines of the log."""
-        try:
-            with open(self.log_path, 'rb') as f:
-                return f.read().decode(errors='replace').strip().splitlines()[-lines:]
-        except OSError:
-            return []
+    os.makedirs(log_dir, exist_ok=True)
+    return Child(name, argv, env, log_path=os.path.join(log_dir, log_name or name + '.log'),
+                 stop_signal=stop_signal, group=group, stop_timeout=8.0,
+                 must_end=True).start()
 
 
 def start_sim_robot(runtime_dir: str, log_dir: str, name: str,
@@ -129,7 +90,7 @@ def start_sim_robot(runtime_dir: str, log_dir: str, name: str,
     """
     from m4k_bringup import bringup
     spec = bringup.sim_robot_spec(runtime_dir)
-    child = Child(name + '.sim_robot', entry_argv(spec.module, *spec.args), log_dir, env)
+    child = start_child(name + '.sim_robot', entry_argv(spec.module, *spec.args), log_dir, env)
     deadline = time.monotonic() + timeout_s
     while not bringup.sim_ready(runtime_dir):
         if not child.alive() or time.monotonic() > deadline:
@@ -175,17 +136,17 @@ def start_stack(name: str, runtime_dir: str, log_dir: str, env: dict[str, str], 
     kids = {}
     if driver_host:     # the robot the driver host drives: first, and stopped last
         kids['sim_robot'] = start_sim_robot(runtime_dir, log_dir, name, env)
-    kids['rt_core'] = Child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args),
-                            log_dir, env)
+    kids['rt_core'] = start_child(name + '.rt_core', entry_argv('m4k_rt.rt_core', *rt_args),
+                                  log_dir, env)
     if driver_host:
-        kids['driver_host'] = Child(name + '.driver_host', entry_argv('m4k_drivers.host'),
-                                    log_dir, env)
+        kids['driver_host'] = start_child(name + '.driver_host',
+                                          entry_argv('m4k_drivers.host'), log_dir, env)
     if bridge:
-        kids['bridge'] = Child(name + '.bridge', entry_argv(
+        kids['bridge'] = start_child(name + '.bridge', entry_argv(
             'm4k_bridge.node', '--ros-args', '-p',
             'ports.status:={}'.format(UNUSED_STATUS_LABEL)), log_dir, env)
     if bridge and live_port is not None:    # the live view (Foxglove WebSocket), on localhost
-        kids['foxglove'] = Child(name + '.foxglove', entry_argv(
+        kids['foxglove'] = start_child(name + '.foxglove', entry_argv(
             'm4k_bridge.foxglove.node', '--ros-args', '-p', 'port:={:d}'.format(live_port)),
             log_dir, env)
     return kids
@@ -268,7 +229,7 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
             out.cpu_s = cpu1 - cpu0
             out.cpu_percent = 100.0 * (cpu1 - cpu0) / out.cpu_window_s
         if rt.alive():
-            rt.proc.send_signal(signal.SIGTERM)
+            rt.send_signal(signal.SIGTERM)
         # rt_core ships the tail of every ring after its tasks stop: keep reading until it exits.
         end = time.monotonic() + 10.0
         while time.monotonic() < end:
@@ -381,8 +342,8 @@ def run_baseline(duration_s: float, csv_path: str, log_dir: str, name: str, *,
         return {'exit': None, 'csv': None, 'log_tail': [str(exc)]}
     stop = threading.Event()
     commander = ros_commander(stop)
-    child = Child(name, entry_argv('m4k_bench.baseline', '--duration', str(duration_s),
-                                   '--timing-csv', csv_path), log_dir, env)
+    child = start_child(name, entry_argv('m4k_bench.baseline', '--duration', str(duration_s),
+                                         '--timing-csv', csv_path), log_dir, env)
     if on_started is not None:
         on_started()
     t0 = time.monotonic()

@@ -17,7 +17,6 @@ import os
 import random
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -38,6 +37,7 @@ from m4k_bench.scenarios.bounds import (
 )
 from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.spec import Scenario
+from m4k_bringup.child import Child
 from m4k_rt import config
 
 __all__ = ['Result', 'run_scenario']
@@ -82,18 +82,13 @@ def _bringup_argv(overlay: str) -> list[str]:
     return argv + ['--python-m', '--config', overlay]
 
 
-def _stop(proc: subprocess.Popen[bytes], timeout: float = 20.0) -> None:
-    for sig, wait in ((signal.SIGINT, timeout), (signal.SIGKILL, 5.0)):
-        if proc.poll() is not None:
-            return
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            return
-        try:
-            proc.wait(wait)
-        except subprocess.TimeoutExpired:
-            pass
+def _bringup(argv: list[str], env: dict[str, str], log_path: str) -> Child:
+    """Return the stack's bringup for one run: its own session, output to ``log_path``.
+
+    Stopped as Ctrl-C would: SIGINT to its whole session, 20 s, then SIGKILL (5 s).
+    """
+    return Child('bringup', argv, env, log_path=log_path, log_append=False, log_header=False,
+                 stop_signal=signal.SIGINT, group=True, stop_timeout=20.0, kill_timeout=5.0)
 
 
 IMU_FRESH_S = 0.2    # an IMU heading older than this is not steered on (imu_unplugged)
@@ -204,14 +199,12 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
     os.environ.setdefault('ROS_DOMAIN_ID', env['ROS_DOMAIN_ID'])
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     log_path = os.path.join(work_dir, f'{sc.name}.bringup.log')
-    log = open(log_path, 'wb')  # noqa: SIM115 - closed below
-    proc = subprocess.Popen(_bringup_argv(overlay_path), stdout=log, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, env=env, start_new_session=True)
+    proc = _bringup(_bringup_argv(overlay_path), env, log_path).start()
     ros = _Ros()
     try:
         end = time.monotonic() + STARTUP_TIMEOUT_S
         while time.monotonic() < end and (ros.odom == 0 or ros.scan == 0):
-            if proc.poll() is not None:
+            if not proc.alive():
                 break
             ros.spin(0.1)
         if ros.odom == 0 or ros.scan == 0:
@@ -226,8 +219,7 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
         _drive(sc, cmds, ros, runtime_dir, proc.pid, res, children, _held_at_stop(sc, raw))
     finally:
         ros.close()
-        _stop(proc)
-        log.close()
+        proc.stop()
         with open(log_path, 'rb') as f:
             res.log_tail = b'\n'.join(f.read().splitlines()[-15:]).decode(errors='replace')
         shutil.rmtree(runtime_dir, ignore_errors=True)

@@ -1,0 +1,200 @@
+"""One child process of the stack: the one process wrapper of m4k.
+
+Every tool that starts a process of the stack -- bringup's supervisor, the bench, the demo, the
+scenario runner, fuzz and soak -- starts it as a :class:`Child`:
+
+* in a process group of its own: a new session (``start_new_session``), or, for bringup's
+  ``supervised`` children, a new process group in bringup's session (a terminal Ctrl-C reaches
+  bringup only), with ``setpriv --pdeathsig TERM`` when available and the stop signals blocked
+  until the child has installed its handlers;
+* its output (stdout and stderr) either copied line by line to ``on_line`` (bringup's console)
+  or written to the log file ``log_path`` (appended to unless ``log_append`` is false, headed by
+  the command line unless ``log_header`` is false), or inherited;
+* stopped by the one stop ladder, :func:`m4k_rt.proc.stop_process`: ``stop_signal`` to the
+  process (or to its whole group with ``group=True``), wait ``stop_timeout`` s, then SIGKILL
+  (``on_escalate(timeout)`` called first) and wait ``kill_timeout`` s, then SIGKILL whatever
+  is left in its group; the exit code is returned and kept in ``last_rc``.
+
+ROS-free and import-light, so the bench imports it without loading bringup's launch machinery.
+The supervisor's restart bookkeeping (``restarts``, ``failures``, ``next_start``) lives here
+too: it belongs to the process, and tools that do not restart simply leave it at zero.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import signal
+import subprocess
+import threading
+import time
+from typing import BinaryIO, Callable, Mapping, Sequence
+
+from m4k_rt.proc import stop_process
+from m4k_rt.stopsignals import blocked_stop_signals
+
+__all__ = ['Child', 'STOP_TIMEOUT_S']
+
+STOP_TIMEOUT_S = 8.0      # default wait after the stop signal, then SIGKILL
+
+
+class Child:
+    """One child process: started in its own process group, logged, stopped by the ladder.
+
+    Nothing runs until :meth:`start`. ``env`` None inherits this process's environment.
+    ``ready``: for bringup, a check that the child is up (the next one starts then).
+    ``must_end``: :meth:`stop` raises AssertionError when even SIGKILL did not end the process
+    (the bench's children), instead of returning None (bringup's, which stops the others).
+    """
+
+    def __init__(self, name: str, argv: Sequence[str], env: Mapping[str, str] | None = None,
+                 *, log_path: str | None = None, log_append: bool = True,
+                 log_header: bool = True, on_line: Callable[[str], None] | None = None,
+                 stop_signal: int = signal.SIGTERM, group: bool = False,
+                 stop_timeout: float = STOP_TIMEOUT_S, kill_timeout: float = 5.0,
+                 on_escalate: Callable[[float], None] | None = None,
+                 supervised: bool = False, ready: Callable[[], bool] | None = None,
+                 must_end: bool = False) -> None:
+        """Describe the child; :meth:`start` starts it."""
+        if log_path is not None and on_line is not None:
+            raise ValueError('a child logs to a file or to on_line, not both')
+        self.name = name
+        self.argv = list(argv)
+        self.env = dict(env) if env is not None else None
+        self.log_path = log_path
+        self.log_append = log_append
+        self.log_header = log_header
+        self.on_line = on_line
+        self.stop_signal = stop_signal
+        self.group = group
+        self.stop_timeout = stop_timeout
+        self.kill_timeout = kill_timeout
+        self.on_escalate = on_escalate
+        self.supervised = supervised
+        self.ready = ready
+        self.must_end = must_end
+        self.proc: subprocess.Popen | None = None
+        self.pid = 0
+        self.restarts = 0
+        self.failures = 0          # consecutive failures (backoff exponent)
+        self.started_at = 0.0
+        self.next_start = 0.0      # monotonic time of a pending restart (0: none)
+        self.last_rc: int | None = None
+        self._log: BinaryIO | None = None
+        self._reader: threading.Thread | None = None
+
+    def start(self) -> Child:
+        """Start the process; return self."""
+        argv = list(self.argv)
+        out: int | BinaryIO | None = None
+        if self.log_path is not None:
+            log = open(self.log_path, 'ab' if self.log_append else 'wb')  # noqa: SIM115
+            if self.log_header:
+                log.write('$ {}\n'.format(' '.join(argv)).encode())
+                log.flush()
+            out = self._log = log      # closed in _finish
+        elif self.on_line is not None:
+            out = subprocess.PIPE
+        if self.supervised:
+            setpriv = shutil.which('setpriv')
+            if setpriv:
+                argv = [setpriv, '--pdeathsig', 'TERM', '--', *argv]
+        text = self.on_line is not None      # lines for the console: text, line-buffered
+        # Stop signals blocked until a supervised child has its handlers (it unblocks them
+        # then): a SIGTERM from stop() while it still starts up stops it cleanly, never kills it.
+        with blocked_stop_signals() if self.supervised else contextlib.nullcontext():
+            self.proc = subprocess.Popen(
+                argv, env=self.env, stdin=subprocess.DEVNULL, stdout=out,
+                stderr=subprocess.STDOUT if text else out,
+                start_new_session=not self.supervised,
+                process_group=0 if self.supervised else None,
+                text=text, errors='replace' if text else None, bufsize=1 if text else -1)
+        self.pid = self.proc.pid
+        self.started_at = time.monotonic()
+        self.next_start = 0.0
+        if self.on_line is not None:
+            self._reader = threading.Thread(target=self._copy, args=(self.proc,),
+                                            name='bringup:' + self.name, daemon=True)
+            self._reader.start()
+        return self
+
+    def _copy(self, proc: subprocess.Popen) -> None:
+        assert proc.stdout is not None and self.on_line is not None
+        for line in proc.stdout:
+            self.on_line(line.rstrip('\n'))
+
+    def alive(self) -> bool:
+        """Tell whether the process runs."""
+        return self.proc is not None and self.proc.poll() is None
+
+    @property
+    def returncode(self) -> int | None:
+        """Return the exit code once the process has ended (None while it runs)."""
+        return self.proc.returncode if self.proc is not None else self.last_rc
+
+    def send_signal(self, sig: int) -> None:
+        """Send ``sig`` to the process (not its group) while it runs."""
+        if self.proc is not None:
+            self.proc.send_signal(sig)
+
+    def wait(self, timeout: float) -> int | None:
+        """Wait up to ``timeout`` s for the exit; return the code or None."""
+        if self.proc is None:
+            return self.last_rc
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return None
+
+    def reap(self) -> int | None:
+        """Return the exit code once the process has ended (after its output is copied)."""
+        if self.proc is None:
+            return None
+        rc = self.proc.poll()
+        if rc is None:
+            return None
+        self._finish()
+        self.last_rc = rc
+        self.proc = None
+        return rc
+
+    def _finish(self) -> None:
+        if self._reader is not None:
+            self._reader.join(2.0)
+            self._reader = None
+        if self.proc is not None and self.proc.stdout is not None:
+            self.proc.stdout.close()
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def stop(self, grace_s: float | None = None,
+             on_escalate: Callable[[float], None] | None = None) -> int | None:
+        """Send the stop signal, wait ``grace_s`` (default ``stop_timeout``), then SIGKILL.
+
+        Return the exit code (None if not running, or if even SIGKILL did not end it and
+        ``must_end`` is false).
+        """
+        proc = self.proc
+        self.next_start = 0.0
+        if proc is None:
+            return None
+        rc = stop_process(proc, self.stop_signal,
+                          self.stop_timeout if grace_s is None else grace_s, group=self.group,
+                          kill_timeout=self.kill_timeout, close_streams=False,
+                          on_escalate=on_escalate or self.on_escalate)
+        self._finish()
+        self.last_rc = rc
+        self.proc = None
+        assert rc is not None or not self.must_end, f'{self.name} survived SIGKILL'
+        return rc
+
+    def tail(self, lines: int = 6) -> list[str]:
+        """Return the last lines of the log file ([] without one)."""
+        if self.log_path is None:
+            return []
+        try:
+            with open(self.log_path, 'rb') as f:
+                return f.read().decode(errors='replace').strip().splitlines()[-lines:]
+        except OSError:
+            return []

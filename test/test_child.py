@@ -1,0 +1,106 @@
+"""m4k_bringup.child.Child, the one process wrapper: log capture, exit codes, the stop ladder."""
+
+import os
+import signal
+import sys
+import time
+
+import pytest
+
+from m4k_bringup.child import Child
+
+# Ignores SIGTERM, starts a grandchild in its process group, prints both pids, waits.
+STUBBORN = ('import signal, subprocess, sys, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); '
+            'g = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"]); '
+            'print("pids", g.pid, flush=True); time.sleep(120)')
+
+
+def _gone(pid: int, wait_s: float = 10.0) -> bool:
+    """Tell whether ``pid`` has ended (reaped or a zombie), waiting up to ``wait_s``."""
+    end = time.monotonic() + wait_s
+    while time.monotonic() < end:
+        try:
+            with open(f'/proc/{pid}/stat') as f:
+                if f.read().rsplit(')', 1)[1].split()[0] == 'Z':
+                    return True
+        except OSError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _wait_for(pred, wait_s: float = 20.0) -> bool:
+    end = time.monotonic() + wait_s
+    while not pred() and time.monotonic() < end:
+        time.sleep(0.05)
+    return pred()
+
+
+def test_a_log_file_child_is_headed_appended_and_reports_its_exit_code(tmp_path):
+    log = str(tmp_path / 'x.log')
+    argv = [sys.executable, '-c', 'import sys; print("out"); print("err", file=sys.stderr); '
+            'sys.exit(3)']
+    c = Child('x', argv, log_path=log).start()
+    assert c.wait(30.0) == 3
+    assert not c.alive() and c.returncode == 3
+    assert c.stop() == 3 and c.last_rc == 3 and c.proc is None
+    assert c.stop() is None                 # stopped already
+    again = Child('x', argv, log_path=log).start()       # appended, a second header
+    assert again.wait(30.0) == 3 and again.stop() == 3
+    text = open(log).read()
+    assert text.count('$ ' + ' '.join(argv)) == 2 and text.count('out\n') == 2
+    assert text.count('err\n') == 2
+    assert c.tail(2)[-1] in ('out', 'err')
+
+
+def test_a_log_file_child_can_truncate_and_go_without_a_header(tmp_path):
+    log = tmp_path / 'x.log'
+    log.write_text('old\n')
+    c = Child('x', [sys.executable, '-c', 'print("new")'], log_path=str(log), log_append=False,
+              log_header=False).start()
+    assert c.wait(30.0) == 0
+    c.stop()
+    assert log.read_text() == 'new\n'
+
+
+def test_the_stop_ladder_escalates_to_sigkill_and_clears_the_group(tmp_path):
+    escalated = []
+    c = Child('stubborn', [sys.executable, '-c', STUBBORN], log_path=str(tmp_path / 's.log'),
+              stop_timeout=0.5, on_escalate=escalated.append, must_end=True).start()
+    assert _wait_for(lambda: c.tail()[-1].startswith('pids ')), c.tail()
+    grandchild = int(c.tail()[-1].split()[1])
+    rc = c.stop()
+    assert rc == -signal.SIGKILL and escalated == [0.5]
+    assert _gone(grandchild)              # the group sweep after the process ended
+
+
+GRANDCHILD = ('import sys, time\ntry:\n    print("ready", flush=True); time.sleep(120)\n'
+              'except KeyboardInterrupt:\n    open(sys.argv[1], "w").write("SIGINT")\n')
+PARENT = ('import subprocess, sys\n'
+          'g = subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]])\n'
+          'try:\n    g.wait()\nexcept KeyboardInterrupt:\n    g.wait()\n')
+
+
+def test_a_group_stop_signals_the_whole_group(tmp_path):
+    mark = tmp_path / 'grandchild-got'
+    c = Child('g', [sys.executable, '-c', PARENT, GRANDCHILD, str(mark)],
+              log_path=str(tmp_path / 'g.log'), stop_signal=signal.SIGINT, group=True,
+              stop_timeout=30.0).start()
+    assert _wait_for(lambda: c.tail()[-1] == 'ready'), c.tail()
+    assert c.stop() == 0
+    assert mark.read_text() == 'SIGINT'
+
+
+def test_a_console_child_copies_its_lines_and_is_reaped():
+    lines: list[str] = []
+    c = Child('c', [sys.executable, '-c', 'print("one"); print("two"); raise SystemExit(4)'],
+              dict(os.environ), on_line=lines.append, supervised=True)
+    c.start()
+    assert _wait_for(lambda: not c.alive())
+    assert c.reap() == 4 and c.last_rc == 4 and c.proc is None and lines == ['one', 'two']
+    assert c.started_at > 0 and c.pid > 0
+
+
+def test_a_child_logs_to_a_file_or_to_a_console_not_both(tmp_path):
+    with pytest.raises(ValueError):
+        Child('x', ['true'], log_path=str(tmp_path / 'x.log'), on_line=print)
