@@ -12,7 +12,9 @@ offsets the simulator reports for each sample). Two measures, per ground-truth s
   edge: a 4 cm table leg anywhere across it counts) -- exact: each segment is clipped to the
   band and the nearest clipped point taken (a segment's distance ahead is linear along it, so
   its minimum is at an end of the clipped piece). A surface inside the body's half-length
-  counts 0 (contact).
+  counts 0 (contact). The guard judge widens the band by the guard's ``lateral_margin`` on each
+  side: the corridor the guard watches and promises to stop for, so a leg a robot drifting a
+  few cm sideways brings into that margin is owed the same stop.
 """
 
 from __future__ import annotations
@@ -85,8 +87,11 @@ def _inside(poly: np.ndarray, x: float, y: float) -> bool:
 class Scene:
     """The world model of one scenario: the simulator's footprint, the walls, the obstacles."""
 
-    def __init__(self, raw: Mapping[str, Any]) -> None:
+    def __init__(self, raw: Mapping[str, Any], lateral: float = 0.0) -> None:
         """Build from the layered configuration (``world:``, ``control:``, ``robot.body``).
+
+        ``lateral`` (m) widens the front band on each side: the guard judge passes the guard's
+        ``lateral_margin``, the corridor the guard promises to stop for.
 
         The world model is the simulator's own: the same ``m4k_drivers`` validation and
         defaults sim_robot applies to the same configuration.
@@ -103,7 +108,7 @@ class Scene:
         local = np.asarray(self._world.footprint(_pose(0.0, 0.0, 0.0)), dtype=float)
         self.local_footprint = local             # the footprint in base_link (x forward)
         self.front_x = float(local[:, 0].max())  # the front face, m ahead of base_link
-        self.band = (float(local[:, 1].min()), float(local[:, 1].max()))
+        self.band = (float(local[:, 1].min()) - lateral, float(local[:, 1].max()) + lateral)
 
     def footprint(self, x: float, y: float, yaw: float) -> np.ndarray:
         """Return the footprint polygon at a pose (the simulator's own function)."""

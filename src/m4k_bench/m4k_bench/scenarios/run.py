@@ -279,8 +279,8 @@ def _held_at_stop(sc: Scenario, raw: dict[str, Any]) -> Callable[[list[dict[str,
     if sc.stop not in ('sonar', 'laser'):
         return lambda s: False
     from m4k_rt.control.params import control_params
-    scene = Scene(raw)
     g = control_params(raw.get('control')).guard
+    scene = Scene(raw, lateral=g.lateral_margin)
     near = stop_line(raw, 0.0) + g.release_margin + 0.1
 
     def held(s: list[dict[str, Any]]) -> bool:
@@ -344,7 +344,9 @@ def _judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     if not s:
         res.failures.append('no ground truth sampled')
         return
-    scene = Scene(raw)
+    from m4k_rt.control.params import control_params
+    # the front band the guard watches: the face and the guard's lateral margin each side
+    scene = Scene(raw, lateral=control_params(raw.get('control')).guard.lateral_margin)
     for x in s:                       # the judge's own geometry, on every ground-truth sample
         x['clearance'], x['front_clearance'] = scene.judge_sample(x)
     last = s[-1]
