@@ -107,7 +107,8 @@ def scenario_facts() -> dict[str, Any]:
     rows = _table_rows(text)
     if not rows:
         raise ArtifactError('docs/results/scenarios/README.md: no scenario table')
-    head = re.search(r'`make scenarios` at (?P<commit>\w+), (?P<when>[^,]+), (?P<s>\d+) s', text)
+    head = re.search(r'`make scenarios` at (?:commit )?(?P<commit>\w+)[^\n]*?[,;] '
+                     r'(?P<when>\d{4}-\d\d-\d\d \d\d:\d\d UTC), (?P<s>\d+) s', text)
     return {'n': len(rows), 'passed': sum(r[-1] == 'PASS' for r in rows),
             'commit': head['commit'] if head else '?', 'when': head['when'] if head else '?',
             'seconds': int(head['s']) if head else None,

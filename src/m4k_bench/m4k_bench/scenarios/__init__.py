@@ -54,6 +54,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         scs = [s for s in scs if s.name in args.only]
     os.makedirs(args.results, exist_ok=True)
     results = []
+    prov = provenance.provenance()    # before the run writes its own results into the tree
     t_all = time.monotonic()
     with tempfile.TemporaryDirectory(prefix='m4k-scenarios-') as work:
         for i, sc in enumerate(scs, 1):
@@ -72,7 +73,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not res.passed and res.log_tail:
                 print('    bringup log tail:\n      ' + res.log_tail.replace('\n', '\n      '),
                       file=sys.stderr)
-    prov = provenance.provenance()
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
     header = (f'# Scenario suite ({"short" if args.short else "full"} versions)\n\n'
               f'`make scenarios` at {provenance.text(prov)}; {stamp}, '
