@@ -157,6 +157,49 @@ def test_the_judge_holds_a_slow_down_approach_to_its_speed_of_the_moment():
     assert any("inside the guard's stop_distance" in f for f in late.failures), late.failures
 
 
+def _intrusion_samples(react_s, v=1.0, appear_x=1.0, hard=2.9):
+    """1 m/s; a person steps in from the side 0.6 m ahead of the face when the robot is at
+    ``appear_x``; the robot brakes at ``hard`` ``react_s`` later."""
+    out, x, t, vv, rest, t_in = [], 0.0, 0, v, None, None
+    while t < int(10e9):
+        inside = x >= appear_x
+        if inside and t_in is None:
+            t_in = t
+        out.append({'t_ns': t, 'x': x, 'y': 0.0, 'theta': 0.0, 'v': vv, 'w': 0.0,
+                    'travelled': x, 'contacts': 0, 'min_clearance': 1.0, 'rest_since_ns': rest,
+                    'obstacle_offsets': [[0.0, -2.0 if inside else 0.0]]})
+        if t_in is not None and t - t_in >= react_s * 1e9:
+            vv = max(vv - hard * 0.02, 0.0)
+        x += vv * 0.02
+        t += int(0.02e9)
+        if vv == 0.0 and rest is None:
+            rest = t
+    return out
+
+
+@pytest.mark.parametrize('react_s, fails', [(0.15, False), (0.4, True)])
+def test_the_judge_holds_an_intrusion_to_the_stopping_distance_from_its_moment(react_s, fails):
+    """A person steps in 0.6 m ahead of a robot at 1 m/s, deep inside its stop line: no guard
+    keeps that out, so the judge asks the straight-approach stopping distance from that moment
+    (person_1_0 failed the reach rule with the robot stopped 0.38 m short)."""
+    front = 0.225
+    y0 = 1.0 + front + 0.6
+    world = {'walls': {'rectangle': [-1.0, -4.0, 12.0, 4.0]},
+             'obstacles': [{'polygon': [[y0, 2.0], [y0 + 0.25, 2.0], [y0 + 0.25, 2.45],
+                                        [y0, 2.45]],
+                            'path': {'start': {'travelled': 1.0},
+                                     'waypoints': [[0, 0, 0], [0.1, 0, -2.0]]}}]}
+    raw = _raw(world)
+    sc = spec.parse({'world': world, 'commands': [{'v': 1.0, 't': 10.0}],
+                     'expect': {'stop': 'sonar'}}, 'intrusion.yaml')
+    b = bounds.bounds(raw, 1.0, 'sonar')
+    res = Result('intrusion', '', 10.0, samples=_intrusion_samples(react_s))
+    _judge(sc, res, b, raw)
+    assert not any(f.startswith('went ') for f in res.failures), res.failures
+    assert any('stepped in' in f for f in res.failures) == fails, res.failures
+    assert not fails or not res.passed
+
+
 def test_the_judge_fails_a_robot_that_backs_up_after_its_stop():
     """Nobody commands reverse: 5 cm backwards after the guard's stop (the PI windup seen on
     chair_leg_right_edge) fails; 5 mm of settling does not."""

@@ -519,23 +519,54 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
                                 f'ended: staying stopped not shown')
 
 
+INTRUSION_M = 0.01   # m the gap may close beyond the robot's travel in one sample (noise)
+
+
 def _deepest(s: list[dict[str, Any]], raw: dict[str, Any], b: Bounds,
-             i_rest: int) -> tuple[float, float, float] | None:
-    """Return ``(depth m, v m/s, allowed m)`` where the robot got deepest past its allowance.
+             i_rest: int) -> tuple[float, float, float, str] | None:
+    """Return ``(measure m, v m/s, allowed m, kind)`` of the worst passage past the stop line.
 
     The depth of a ground-truth sample is how far the exact front clearance is inside the stop
-    line at the true speed of that moment; its allowance is what the guard's sensors owe it,
-    ``v (t_react + SCHED_S) + STOP_MARGIN_M``. None when the robot never got past the line.
+    line at the true speed of that moment. A passage is a run of samples inside the line. One
+    the robot drove into: its measure is its deepest depth, allowed ``v (t_react + SCHED_S) +
+    STOP_MARGIN_M`` at that sample's speed (kind ``'reach'``). One entered by the gap closing
+    more than ``INTRUSION_M`` beyond the robot's own travel since the previous sample is an
+    *intrusion* -- an obstacle that stepped in inside the line (a person at 1 m/s) or walks
+    towards the robot; the guard sizes its line by its own speed only, so it is
+    held to the straight-approach stopping distance from that moment: its measure is the travel
+    to rest, allowed :meth:`Bounds.stop_distance` (kind ``'intrusion'``).
+    None when the robot never got past the line.
     """
-    worst: tuple[float, float, float] | None = None
+    worst: tuple[float, float, float, str] | None = None
+
+    def keep(c: tuple[float, float, float, str]) -> None:
+        nonlocal worst
+        if worst is None or c[0] - c[2] > worst[0] - worst[2]:
+            worst = c
+
+    entry: tuple[float, float, bool] | None = None     # (travelled, v, intrusion)
+    prev: dict[str, Any] | None = None
     for x in s[:i_rest + 1]:
         v = abs(float(x['v']))
         depth = stop_line(raw, v) - float(x['front_clearance'])
+        if entry is not None and entry[2]:
+            continue           # an intrusion is held from its moment to rest (below)
         if depth <= 0.0:
+            entry, prev = None, x
             continue
-        allowed = b.reach(v)
-        if worst is None or depth - allowed > worst[0] - worst[2]:
-            worst = (depth, v, allowed)
+        if entry is None:
+            # the gap closed by more than the robot drove since the last sample: the
+            # obstacle moved in (stepped into the band, or walks towards the robot)
+            moved_in = prev is not None and (
+                float(prev['front_clearance']) - float(x['front_clearance']) >
+                float(x['travelled']) - float(prev['travelled']) + INTRUSION_M)
+            entry = (float(x['travelled']), v, moved_in)
+        prev = x
+        if not entry[2]:
+            keep((depth, v, b.reach(v), 'reach'))
+    if entry is not None and entry[2]:
+        keep((float(s[i_rest]['travelled']) - entry[0], entry[1],
+              b.stop_distance(entry[1]) or 0.0, 'intrusion'))
     return worst
 
 
@@ -545,8 +576,10 @@ def _judge_guard_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
 
     1. **In time.** The robot never gets further past the stop line at its true speed ``v``
        of the moment than its sensors' reaction lets it: ``v (t_react + SCHED_S) +
-       STOP_MARGIN_M`` (:meth:`Bounds.reach`). Once the guard sees the line crossed it brakes,
-       the speed falls and the line with it faster than the gap closes. The speed is the
+       STOP_MARGIN_M`` (:meth:`Bounds.reach`); where an obstacle stepped in past the line, it
+       stops within the straight-approach stopping distance from then (:func:`_deepest`).
+       Once the guard sees the line crossed it brakes, the speed falls and the line with it
+       faster than the gap closes. The speed is the
        instantaneous one: with the slow-down zone the robot comes in on a falling speed riding
        the line, and a line sized by an earlier, higher speed would hold that approach to a
        stopping distance it never had to keep.
@@ -556,12 +589,17 @@ def _judge_guard_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
     from m4k_rt.control.params import control_params
     worst = _deepest(s, raw, b, i_rest)
     if worst is not None:
-        depth, v_at, allowed = worst
-        res.stop_m, res.stop_bound_m = depth, allowed
-        if depth > allowed:
-            res.failures.append(f'went {depth:.3f} m past the stop line at {v_at:.2f} m/s > '
+        measure, v_at, allowed, kind = worst
+        res.stop_m, res.stop_bound_m = measure, allowed
+        if measure > allowed and kind == 'reach':
+            res.failures.append(f'went {measure:.3f} m past the stop line at {v_at:.2f} m/s > '
                                 f'{allowed:.3f} m (v (t_react + sched) + margin: t_react '
                                 f'{b.t_react:.3f} s, sched {SCHED_S:.3f} s)')
+        elif measure > allowed:
+            res.failures.append(f'an obstacle stepped in past the stop line at {v_at:.2f} m/s '
+                                f'and the robot went {measure:.3f} m on > {allowed:.3f} m '
+                                f'(v (t_react + sched) + v^2 / 2a + margin: t_react '
+                                f'{b.t_react:.3f} s, a {b.a_brake:.2f} m/s^2)')
     else:
         res.stop_m, res.stop_bound_m = 0.0, b.reach(res.peak_speed)
     if any(o.get('path') for o in (sc.world.get('obstacles') or []) if isinstance(o, dict)):
