@@ -73,20 +73,26 @@ def test_the_five_rays_missed_the_leg_the_judge_sees():
     assert scene.front_clearance(0.0, 0.0, 0.0) == pytest.approx(2.275)
 
 
-def _drive_samples(v, stop_at_x, decel, leg_y=0.05):
-    """Ground-truth samples of a robot braking at ``decel`` from ``v`` once at ``stop_at_x``."""
+def _truth_run(v, seconds, next_speed, offsets=lambda x: []):
+    """Ground-truth samples every 20 ms of a robot driving straight along x from 0 at ``v``:
+    ``next_speed(t_ns, x, v)`` is the speed of the next step, ``offsets(x)`` the obstacles'."""
     out, x, t, vv, rest = [], 0.0, 0, v, None
-    while t < int(8e9):
+    while t < int(seconds * 1e9):
         out.append({'t_ns': t, 'x': x, 'y': 0.0, 'theta': 0.0, 'v': vv, 'w': 0.0,
                     'travelled': x, 'contacts': 0, 'min_clearance': 1.0,
-                    'obstacle_offsets': [], 'rest_since_ns': rest})
-        if x >= stop_at_x:
-            vv = max(vv - decel * 0.02, 0.0)
+                    'obstacle_offsets': offsets(x), 'rest_since_ns': rest})
+        vv = next_speed(t, x, vv)
         x += vv * 0.02
         t += int(0.02e9)
         if vv == 0.0 and rest is None:
             rest = t
     return out
+
+
+def _drive_samples(v, stop_at_x, decel):
+    """Ground-truth samples of a robot braking at ``decel`` from ``v`` once at ``stop_at_x``."""
+    return _truth_run(v, 8.0, lambda t, x, vv: max(vv - decel * 0.02, 0.0) if x >= stop_at_x
+                      else vv)
 
 
 def test_the_judge_triggers_on_the_leg_5cm_off_centre_and_bounds_the_stop():
@@ -116,23 +122,16 @@ def _slowdown_samples(raw, wall_x, v0, late=0.0, soft=0.37, hard=2.9, front=0.22
                       soft_from=0.75):
     """A slow-down approach: ``v0``, then ``soft`` braking ``soft_from`` m out, the guard's
     hard stop where the exact gap reaches its stop line at the true speed (``late`` m later)."""
-    out, x, t, vv, rest, tripped = [], 0.0, 0, v0, None, False
-    while t < int(20e9):
-        out.append({'t_ns': t, 'x': x, 'y': 0.0, 'theta': 0.0, 'v': vv, 'w': 0.0,
-                    'travelled': x, 'contacts': 0, 'min_clearance': 1.0,
-                    'obstacle_offsets': [], 'rest_since_ns': rest})
+    tripped = False
+
+    def next_speed(t, x, vv):
+        nonlocal tripped
         gap = wall_x - front - x
-        if not tripped and gap + late < bounds.stop_line(raw, vv):
-            tripped = True
+        tripped = tripped or gap + late < bounds.stop_line(raw, vv)
         if tripped:
-            vv = max(vv - hard * 0.02, 0.0)
-        elif gap < soft_from:
-            vv = max(vv - soft * 0.02, 0.05)
-        x += vv * 0.02
-        t += int(0.02e9)
-        if vv == 0.0 and rest is None:
-            rest = t
-    return out
+            return max(vv - hard * 0.02, 0.0)
+        return max(vv - soft * 0.02, 0.05) if gap < soft_from else vv
+    return _truth_run(v0, 20.0, next_speed)
 
 
 def test_the_judge_holds_a_slow_down_approach_to_its_speed_of_the_moment():
@@ -160,21 +159,16 @@ def test_the_judge_holds_a_slow_down_approach_to_its_speed_of_the_moment():
 def _intrusion_samples(react_s, v=1.0, appear_x=1.0, hard=2.9):
     """1 m/s; a person steps in from the side 0.6 m ahead of the face when the robot is at
     ``appear_x``; the robot brakes at ``hard`` ``react_s`` later."""
-    out, x, t, vv, rest, t_in = [], 0.0, 0, v, None, None
-    while t < int(10e9):
-        inside = x >= appear_x
-        if inside and t_in is None:
+    t_in = None
+
+    def next_speed(t, x, vv):
+        nonlocal t_in
+        if x >= appear_x and t_in is None:
             t_in = t
-        out.append({'t_ns': t, 'x': x, 'y': 0.0, 'theta': 0.0, 'v': vv, 'w': 0.0,
-                    'travelled': x, 'contacts': 0, 'min_clearance': 1.0, 'rest_since_ns': rest,
-                    'obstacle_offsets': [[0.0, -2.0 if inside else 0.0]]})
-        if t_in is not None and t - t_in >= react_s * 1e9:
-            vv = max(vv - hard * 0.02, 0.0)
-        x += vv * 0.02
-        t += int(0.02e9)
-        if vv == 0.0 and rest is None:
-            rest = t
-    return out
+        return max(vv - hard * 0.02, 0.0) if t_in is not None and t - t_in >= react_s * 1e9 \
+            else vv
+    return _truth_run(v, 10.0, next_speed,
+                      lambda x: [[0.0, -2.0 if x >= appear_x else 0.0]])
 
 
 @pytest.mark.parametrize('react_s, fails', [(0.15, False), (0.4, True)])

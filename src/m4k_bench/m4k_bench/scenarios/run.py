@@ -491,7 +491,7 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
     if trig is None:
         res.failures.append(f'stop ({sc.stop}): its trigger never happened')
         return
-    t0, travelled0, v0 = trig
+    t0, travelled0, _ = trig       # its speed: the guard judge uses each sample's own
     # The simulator stamps when the robot came to rest (1 ms steps): the first sample
     # after the trigger that reports rest says since when, whatever the sampling jitter.
     i_rest = next((i for i, x in enumerate(s)
