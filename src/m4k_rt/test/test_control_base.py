@@ -191,6 +191,31 @@ def test_a_guard_release_mid_brake_never_backs_the_robot_up(band, backs_up):
     assert forward[-1] == pytest.approx(0.05, abs=0.01)
 
 
+@pytest.mark.parametrize('wound', [0.0, -0.04, -0.08])
+def test_the_end_of_a_deceleration_ramp_never_backs_the_robot_up(wound):
+    """Drive at 0.25 m/s, then command zero: the ramp brings the setpoints down at 0.37 m/s^2.
+    On the stack the loop's latency jitter lets the robot run ahead of the ramp and the
+    integrators end it holding braking torque (``wound``, as a share of full scale); with the
+    wheels stopped and the setpoints a few mrad/s from zero, that torque alone backed
+    ``person_crossing`` up 1.3 cm (before the fix this test backed up 3.3 mm at -0.04 and 1 cm
+at -0.08, at 7 cm/s; now 1.6 mm at -0.08, the brake's overshoot). The wheels may overshoot
+rest by the brake's lag; they are never driven on backwards."""
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 200, t, cmd=(0.25, 0.0))
+    speeds, wind = [], bool(wound)
+    for _ in range(150):
+        if wind and ctl.left_setpoint < 0.5:       # once, near the end of the ramp
+            ctl.pi_left.integral = ctl.pi_right.integral = wound
+            wind = False
+        t = drive(ctl, plant, 1, t, cmd=(0.0, 0.0), cmd_every=1)
+        speeds.append(min(plant.speed))
+    back = -sum(min(s, 0.0) for s in speeds) * R_WHEEL * 0.01
+    assert back < 0.002, f'backed up {back:.4f} m (at up to {min(speeds) * R_WHEEL:.3f} m/s)'
+    assert ctl.v == 0.0 and abs(plant.speed[0]) < 0.01
+
+
 def test_guard_allows_rotation_and_reverse():
     ctl, p = make()
     plant = Plant(p.full_scale_wheel_speed)

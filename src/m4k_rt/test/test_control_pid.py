@@ -56,7 +56,32 @@ def test_integrator_still_works_when_error_pulls_out_of_saturation():
     pi.integral = 0.99
     assert pi.update(5.0, 0.0, DT) == 1.0   # pushes further: frozen
     assert pi.integral == 0.99
-    assert pi.update(-5.0, 0.0, DT) == pytest.approx(0.94)
+    # the wheel still rolling backwards (the setpoint's way): the integrator unwinds freely
+    assert pi.update(-5.0, -1.0, DT) == pytest.approx(0.95)
+
+
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_a_wheel_at_rest_is_never_pushed_against_its_setpoint(sign):
+    """The end of a deceleration ramp: the wheel has stopped while the setpoint is still a
+    few mrad/s its way and the integrator holds the ramp's braking torque. The output is zero,
+    not that torque (it drove a stopped robot backwards), and no reverse torque stays stored."""
+    pi = WheelSpeedPI(kp=0.03, ki=0.4, kff=0.05)
+    pi.integral = -0.04 * sign
+    assert pi.update(0.01 * sign, 0.0, DT) == 0.0
+    assert pi.update(0.005 * sign, 0.0, DT) == 0.0
+    # the stored torque is gone: a fresh setpoint its way drives the wheel its way at once
+    assert sign * pi.update(1.0 * sign, 0.0, DT) > 0.0
+    # a wheel rolling the other way (pushed, on a slope) is driven the setpoint's way
+    pi.integral = -0.04 * sign
+    assert sign * pi.update(0.5 * sign, -2.0 * sign, DT) > 0.0
+
+
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_a_wheel_faster_than_its_setpoint_is_still_braked(sign):
+    pi = WheelSpeedPI(kp=0.1, ki=0.4, kff=0.05)
+    assert sign * pi.update(1.0 * sign, 6.0 * sign, DT) < 0.0     # braking torque, its sign
+    pi.integral = -0.05 * sign
+    assert sign * pi.update(0.01 * sign, 0.3 * sign, DT) < 0.0    # still turning its way
 
 
 def test_reset_clears_integral():

@@ -37,7 +37,14 @@ def table(results: Sequence[Result], header: str = '') -> str:
 
 
 CSV_KEYS = ('t', 'x', 'y', 'theta', 'v', 'w', 'wheel_speed_left', 'wheel_speed_right',
-            'travelled', 'clearance', 'front_clearance', 'min_clearance', 'contacts')
+            'travelled', 'clearance', 'front_clearance', 'min_clearance', 'contacts',
+            'motor_volts_left', 'motor_volts_right', 'slip_left', 'slip_right', 'accel')
+
+
+def _row(s: dict) -> list:
+    volts = s.get('motor_volts') or ('', '')
+    return [volts[0] if k == 'motor_volts_left' else volts[1] if k == 'motor_volts_right'
+            else s.get(k, '') for k in CSV_KEYS]
 
 
 def write_csv(res: Result, path: str) -> None:
@@ -47,7 +54,7 @@ def write_csv(res: Result, path: str) -> None:
         out = csv.writer(f)
         out.writerow(CSV_KEYS)
         for s in res.samples:
-            out.writerow([s.get(k, '') for k in CSV_KEYS])
+            out.writerow(_row(s))
 
 
 def _walls(world: dict[str, Any]) -> list[tuple[float, ...]]:

@@ -87,6 +87,12 @@ class WheelSpeedPI:
         else:
             u_sat = u
         self.saturated = u_sat != u
+        if (u_sat < 0.0 < setpoint and measured <= 0.0) or \
+                (u_sat > 0.0 > setpoint and measured >= 0.0):
+            # Not turning the setpoint's way: never push against it (see the module notes).
+            self.integral = -base
+            self.saturated = False
+            return 0.0
         if self.saturated:
             if self._back_calc:
                 integral += self.kt * (u_sat - u) * dt
