@@ -31,9 +31,11 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from typing import Any, Iterator
@@ -42,14 +44,19 @@ import pytest
 
 from m4k_rt.proc import stop_process
 
-__all__ = ['pytest_configure', 'pytest_runtest_setup', 'pytest_runtest_logreport',
-           'pytest_collectreport', 'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir',
+__all__ = ['pytest_configure', 'pytest_unconfigure', 'pytest_runtest_setup',
+           'pytest_runtest_logreport', 'pytest_collectreport', 'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir',
            'procs', 'ProcessGroup', 'child_pids', 'socket_fds', 'examples',
            'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 100)))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
+# What the stack keeps between runs (the flight recorder's dumps, the persisted e-stop request
+# when no runtime directory is given) goes under XDG_STATE_HOME: a private one per test
+# session, removed at its end, so no test writes into the user's ~/.local/state.
+_STATE_HOME = tempfile.mkdtemp(prefix='m4k-test-state-')
+os.environ['XDG_STATE_HOME'] = _STATE_HOME
 
 _LEAK_GRACE_S = 3.0
 
@@ -175,6 +182,11 @@ def forbidden_skips(skips: list[tuple[str, str]], euid: int) -> list[tuple[str, 
         return euid != 0 and why.startswith(_NEEDS_ROOT)
 
     return [(node, why) for node, why in skips if not accepted(why)]
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """Remove the session's private state directory."""
+    shutil.rmtree(_STATE_HOME, ignore_errors=True)
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
