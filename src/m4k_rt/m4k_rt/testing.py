@@ -45,7 +45,8 @@ import pytest
 from m4k_rt.proc import stop_process
 
 __all__ = ['pytest_configure', 'pytest_unconfigure', 'pytest_runtest_setup',
-           'pytest_runtest_logreport', 'pytest_collectreport', 'pytest_sessionfinish', 'leak_check', 'm4k_runtime_dir',
+           'pytest_runtest_logreport', 'pytest_collectreport', 'pytest_sessionfinish',
+           'leak_check', 'm4k_runtime_dir',
            'procs', 'ProcessGroup', 'child_pids', 'socket_fds', 'examples',
            'HYPOTHESIS_PROFILE_ENV', 'FUZZ_FACTOR']
 
