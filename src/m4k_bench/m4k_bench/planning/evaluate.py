@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from m4k_bench.planning.dwa import footprint_clearance
+from m4k_rt.schema import ConfigError
 
 __all__ = ['EvaluateError', 'WorldGeometry', 'contacts', 'densify', 'odom_to_world',
            'trajectory_clearance']
@@ -29,7 +30,7 @@ _DEFAULT_RECT = (-0.8, -1.5, 4.2, 1.5)
 _DEFAULT_OBSTACLE = ((1.5, -0.25), (1.5, 0.25), (1.9, 0.0))
 
 
-class EvaluateError(ValueError):
+class EvaluateError(ConfigError):
     """Raise for a world section that cannot be read; the message names the field."""
 
 
