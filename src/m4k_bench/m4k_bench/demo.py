@@ -409,7 +409,7 @@ def judge(goal_reached: bool, truth: dict[str, Any] | None) -> dict[str, Any]:
 
 def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], tolerance: float,
              max_v: float, out_dir: str, timed_out: bool) -> dict[str, Any]:
-    geom = WorldGeometry.from_config(raw.get('world'))
+    geom = WorldGeometry.from_config(raw.get('world'), raw)
     odom = np.array([r for r in rec.odom if r[0] >= 0.0], dtype=float).reshape(-1, 7)
     cmd = np.array(rec.cmd, dtype=float).reshape(-1, 3)
     world = odom_to_world(odom[:, 1:4], geom.start)
@@ -544,7 +544,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         raw = description.fill_sim_mounts(config.load_layered(args.config))
-        WorldGeometry.from_config(raw.get('world'))
+        WorldGeometry.from_config(raw.get('world'), raw)
     except (config.ConfigError, EvaluateError, OSError, description.DescriptionError) as exc:
         _log(f'configuration: {exc}')
         return 2
