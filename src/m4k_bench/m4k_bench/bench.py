@@ -550,7 +550,7 @@ class Bench:
                 if not self.stress_bin:
                     self.summ['skipped'][cond] = 'stress-ng missing'
                     continue
-                with system.Stress(self.stress_bin, run_s + 60.0):
+                with system.stress(self.stress_bin, run_s + 60.0):
                     rnd[cond] = fn()
             else:
                 rnd[cond] = fn()

@@ -27,7 +27,6 @@ import os
 import platform
 import random
 import shutil
-import signal
 import statistics
 import subprocess
 import sys
@@ -37,6 +36,7 @@ from typing import Any, Sequence
 
 import yaml
 
+from m4k_bringup.child import Child
 from m4k_rt import rosargs
 
 __all__ = ['main', 'run_once']
@@ -85,10 +85,10 @@ def run_once(enabled: bool, window_s: float, warmup_s: float, env: dict[str, str
     _overlay(overlay, enabled, window_s, dumps)
     env = dict(env, M4K_RUNTIME_DIR=os.path.join(tmp, 'rt'))
     log_path = os.path.join(tmp, 'bringup.log')
-    with open(log_path, 'w') as log:
-        proc = subprocess.Popen([sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
-                                 '--no-status', '--config', overlay], env=env, stdout=log,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+    # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
+    proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
+                             '--no-status', '--config', overlay], env, log_path=log_path,
+                 stop_timeout=40.0, must_end=True).start()
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node('flightrec_bench', context=ctx)
@@ -103,7 +103,7 @@ def run_once(enabled: bool, window_s: float, warmup_s: float, env: dict[str, str
     try:
         deadline = time.monotonic() + 90
         while not (got and len(got[-1][1].tasks) >= 5):
-            if time.monotonic() > deadline or proc.poll() is not None:
+            if time.monotonic() > deadline or not proc.alive():
                 raise RuntimeError('the stack did not come up:\n' + open(
                     log_path, errors='replace').read()[-3000:])
             ex.spin_once(timeout_sec=0.1)
@@ -144,12 +144,7 @@ def run_once(enabled: bool, window_s: float, warmup_s: float, env: dict[str, str
         ex.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(40)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        proc.stop()
         if keep_logs:
             os.makedirs(keep_logs, exist_ok=True)
             shutil.copy(log_path, os.path.join(keep_logs, 'bringup-{}-{}.log'.format(

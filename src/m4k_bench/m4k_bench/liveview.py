@@ -25,14 +25,13 @@ import os
 import random
 import re
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import time
 from typing import Any, Sequence
 
 from m4k_bench.benchlib import provenance
+from m4k_bringup.child import Child
 from m4k_rt import rosargs
 
 SUB = 'foxglove.websocket.v1'
@@ -217,14 +216,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     tmp = tempfile.mkdtemp(prefix='m4k-liveview-')
     env['M4K_RUNTIME_DIR'] = os.path.join(tmp, 'rt')
     log_path = os.path.join(tmp, 'bringup.log')
-    with open(log_path, 'w') as log:
-        proc = subprocess.Popen([sys.executable, '-m', 'm4k_bringup.bringup', '--no-status',
-                                 '--foxglove', '--foxglove-port', '0'], env=env,
-                                stdout=log, stderr=subprocess.STDOUT)
+    # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
+    proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--no-status',
+                             '--foxglove', '--foxglove-port', '0'], env, log_path=log_path,
+                 stop_timeout=40.0, must_end=True).start()
     try:
         port = None
         deadline = time.monotonic() + 60
-        while port is None and time.monotonic() < deadline and proc.poll() is None:
+        while port is None and time.monotonic() < deadline and proc.alive():
             m = re.search(r'WebSocket server on ws://127\.0\.0\.1:(\d+)',
                           open(log_path, errors='replace').read())
             port = int(m.group(1)) if m else None
@@ -234,12 +233,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         got = asyncio.run(collect(port, args.drive_s))
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(40)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        proc.stop()
         shutil.rmtree(tmp, ignore_errors=True)
     os.makedirs(args.results, exist_ok=True)
     render(got, os.path.join(args.results, 'liveview.png'))

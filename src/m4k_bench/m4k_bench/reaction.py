@@ -34,7 +34,6 @@ import math
 import os
 import random
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -43,6 +42,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import yaml
+
+from m4k_bringup.child import Child
 
 __all__ = ['main', 'run_reaction']
 
@@ -280,22 +281,19 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
     with open(overlay, 'w', encoding='utf-8') as f:
         yaml.safe_dump(_overlay(rng.randrange(1 << 30)), f)
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
-    procs: list[subprocess.Popen[bytes]] = []
+    procs: list[Child] = []
     sim = cmd = None
     rows: list[dict[str, Any]] = []
-    logs: list[Any] = []
     try:
         sim = _Sim(overlay, runtime_dir)
         raw = sim.raw
         os.makedirs(os.path.join(out_dir, 'logs'), exist_ok=True)
-        logs += [open(os.path.join(out_dir, 'logs', n + '.log'), 'wb')  # noqa: SIM115
-                 for n in ('driver_host', 'rt_core')]
-        procs.append(subprocess.Popen([sys.executable, '-m', 'm4k_drivers.host', '--overlay',
-                                       overlay], env=env, stdout=logs[0],
-                                      stderr=subprocess.STDOUT, start_new_session=True))
-        procs.append(subprocess.Popen([sys.executable, '-m', 'm4k_rt.rt_core', '--config',
-                                       overlay], env=env, stdout=logs[1],
-                                      stderr=subprocess.STDOUT, start_new_session=True))
+        for name, argv in (('driver_host', ['m4k_drivers.host', '--overlay', overlay]),
+                           ('rt_core', ['m4k_rt.rt_core', '--config', overlay])):
+            procs.append(Child(name, [sys.executable, '-m', *argv], env,
+                               log_path=os.path.join(out_dir, 'logs', name + '.log'),
+                               log_append=False, log_header=False, stop_timeout=10.0,
+                               must_end=True).start())
         cmd = _Commander(runtime_dir)
         plan = [(speeds[0], trials)] + [(v, speed_trials) for v in speeds[1:]]
         for v_cmd, n in plan:
@@ -318,16 +316,9 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         if cmd is not None:
             cmd.close()
         for pr in procs:
-            pr.terminate()
-            try:
-                pr.wait(10.0)
-            except subprocess.TimeoutExpired:
-                pr.kill()
-                pr.wait(5.0)
+            pr.stop()             # SIGTERM, 10 s, SIGKILL
         if sim is not None:
             sim.close()
-        for lg in logs:
-            lg.close()
         shutil.rmtree(work, ignore_errors=True)
     _write(out_dir, rows, summary)
     return summary
