@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
 import math
 import os
@@ -48,7 +47,7 @@ from typing import Any, Sequence, TextIO
 
 import numpy as np
 
-from m4k_bench.benchlib import provenance
+from m4k_bench.benchlib import provenance, results
 from m4k_bench.benchlib.stack import Child, start_child
 from m4k_bench.planning.dwa import DwaConfig
 from m4k_bench.planning.evaluate import (
@@ -470,14 +469,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
 
 
 def _results_dir(parent: str) -> str:
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
-    os.makedirs(parent, exist_ok=True)
-    out = os.path.join(parent, f'demo-{stamp}')
-    n = 1
-    while os.path.exists(out):
-        n += 1
-        out = os.path.join(parent, f'demo-{stamp}-{n}')
-    os.makedirs(out)
+    out = results.stamped_dir(parent, 'demo-')
     link = os.path.join(parent, 'demo-latest')
     try:
         if os.path.islink(link):

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import importlib
 import json
 import math
 import os
@@ -31,17 +30,13 @@ import time
 from typing import Any, Sequence
 
 from m4k_bench.benchlib import provenance
+from m4k_bridge.interfaces import interface_class
 from m4k_bringup.child import Child
 from m4k_rt import rosargs
 
 SUB = 'foxglove.websocket.v1'
 TOPICS = ('/scan', '/odom', '/tf', '/tf_static', '/robot_description', '/diagnostics', '/sonar',
           '/imu')
-
-
-def _cls(schema_name: str) -> Any:
-    pkg, kind, name = schema_name.split('/')
-    return getattr(importlib.import_module('{}.{}'.format(pkg, kind)), name)
 
 
 def _yaw(q: Any) -> float:
@@ -83,7 +78,7 @@ async def collect(port: int, drive_s: float) -> dict[str, list[tuple[float, Any]
                 raise RuntimeError('not advertised: {}'.format(set(TOPICS) - set(channels)))
             await pump(0.2)
         for i, t in enumerate(TOPICS):
-            subs[i] = (t, _cls(channels[t]['schemaName']))
+            subs[i] = (t, interface_class(channels[t]['schemaName']))
         await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
             {'id': i, 'channelId': channels[t]['id']} for i, t in enumerate(TOPICS)]}))
         await ws.send(json.dumps({'op': 'advertise', 'channels': [

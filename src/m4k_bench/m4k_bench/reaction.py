@@ -29,7 +29,6 @@ test: nothing here asserts a time.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import random
@@ -43,6 +42,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import yaml
 
+from m4k_bench.benchlib import provenance, results
 from m4k_bringup.child import Child
 
 __all__ = ['main', 'run_reaction']
@@ -366,15 +366,15 @@ def _pct(xs: list[float], q: float) -> float | None:
 
 
 def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
-    with open(os.path.join(out_dir, 'reaction.json'), 'w', encoding='utf-8') as f:
-        json.dump({'summary': s, 'trials': rows}, f, indent=1, default=str)
-        f.write('\n')
+    doc = results.write_json(os.path.join(out_dir, 'reaction.json'),
+                             {'summary': s, 'trials': rows}, indent=1)
     keys = ('v_cmd', 'v', 'stop_line_m', 'reaction_s', 'stop_m', 'contacts', 'clearance_m')
     with open(os.path.join(out_dir, 'reaction.csv'), 'w', encoding='utf-8') as f:
         f.write(','.join(keys) + '\n')
         for r in rows:
             f.write(','.join('' if r.get(k) is None else str(r.get(k)) for k in keys) + '\n')
     lines = ['# Guard reaction time and stopping distance (simulator clock)', '',
+             f'Measured at {provenance.text(doc["provenance"])}.', '',
              f'Reaction: an obstacle crossing the stop line on ground truth -> the first braking '
              f'DAC word the simulator receives, {s["trials"]} trials at random cycle phases '
              f'(the first speed).', '',
@@ -400,8 +400,7 @@ def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
     if s['failed']:
         lines += ['', f'{len(s["failed"])} trial(s) without a braking word: '
                   + '; '.join(str(r.get('error', 'none within 5 s')) for r in s['failed'])]
-    with open(os.path.join(out_dir, 'reaction.md'), 'w', encoding='utf-8') as f:
-        f.write('\n'.join(lines) + '\n')
+    results.write_text(os.path.join(out_dir, 'reaction.md'), '\n'.join(lines))
     _plot(out_dir, rows, s)
 
 

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
 import os
 import shutil
@@ -42,7 +41,7 @@ import time
 from typing import Any, Sequence
 
 from m4k_bench import core_bench, soaktime
-from m4k_bench.benchlib import provenance, stack, system
+from m4k_bench.benchlib import provenance, results, stack, system
 from m4k_bringup.child import Child
 from m4k_rt import config, recorder, rosargs, xddp
 
@@ -229,9 +228,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the soak; return 0 when every verdict passed, 1 otherwise."""
     args = _parse(argv)
     warmup = args.warmup if args.warmup is not None else min(60.0, args.duration / 4)
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
-    outdir = os.path.join(args.results, 'soak-' + stamp)
-    os.makedirs(outdir, exist_ok=True)
+    stamp = results.stamp()
+    outdir = results.stamped_dir(args.results, 'soak-', when=stamp)
     cfg = config.load(args.config)
     act = next((t for t in cfg.tasks if t.name == 'actuator'), cfg.tasks[0])
     period_us = act.period_ns // 1000
