@@ -198,7 +198,7 @@ def test_bridge_with_a_bad_parameter_file_exits_2_naming_the_field(procs, tmp_pa
                      str(bad)], env=stack_env(m4k_runtime_dir))
     _, err = p.communicate(timeout=30)
     assert p.returncode == 2, err
-    assert "parameter 'cmd_vel_timeout'" in err and 'within [0.0, 60.0]' in err
+    assert "parameter 'cmd_vel_timeout'" in err and 'must be in 0..60' in err
 
 
 def test_bridge_with_a_misspelt_parameter_exits_2(procs, tmp_path, m4k_runtime_dir):

@@ -104,3 +104,31 @@ def test_a_console_child_copies_its_lines_and_is_reaped():
 def test_a_child_logs_to_a_file_or_to_a_console_not_both(tmp_path):
     with pytest.raises(ValueError):
         Child('x', ['true'], log_path=str(tmp_path / 'x.log'), on_line=print)
+
+
+def test_a_piped_child_talks_through_its_streams_and_they_are_closed_when_it_stops():
+    c = Child('echo', [sys.executable, '-c', 'import sys; line = sys.stdin.readline(); '
+                       'print(line.upper(), end=""); print("err", file=sys.stderr)'],
+              pipes=('stdin', 'stdout', 'stderr')).start()
+    c.proc.stdin.write('hello\n')
+    c.proc.stdin.flush()
+    assert c.proc.stdout.readline() == 'HELLO\n'
+    assert c.proc.stderr.readline() == 'err\n'
+    streams = (c.proc.stdin, c.proc.stdout, c.proc.stderr)
+    assert c.wait(20.0) == 0
+    assert c.stop(5.0) == 0 and c.returncode == 0
+    assert all(s.closed for s in streams)
+
+
+def test_a_child_discards_its_output_to_devnull_and_can_be_pinned():
+    cpu = min(os.sched_getaffinity(0))
+    c = Child('quiet', [sys.executable, '-c', 'import os, time; print(sorted('
+                        'os.sched_getaffinity(0)), flush=True); time.sleep(120)'],
+              log_path=os.devnull, log_header=False, cpu=cpu).start()
+    assert os.sched_getaffinity(c.pid) == {cpu}
+    assert c.stop(5.0) == -signal.SIGTERM
+
+
+def test_pipes_name_the_standard_streams_only():
+    with pytest.raises(ValueError, match='pipes'):
+        Child('x', ['true'], pipes=('stdout', 'fd3'))

@@ -44,7 +44,7 @@ from typing import AbstractSet, Any, Callable, Sequence
 
 import numpy as np
 
-from m4k_bench.benchlib import analysis, plots, provenance, report, rounds, stack, system
+from m4k_bench.benchlib import analysis, plots, provenance, report, results, rounds, stack, system
 from m4k_bench.benchlib import progress as progress_mod
 from m4k_rt import config as rt_config_mod
 from m4k_rt import cycleprof, rosargs
@@ -266,13 +266,8 @@ class Bench:
         self.plan = args.plan
         self.skip = set(filter(None, args.skip.split(',')))
         now = datetime.datetime.now(datetime.timezone.utc)
-        self.stamp = now.strftime('%Y%m%dT%H%M%SZ')
-        os.makedirs(args.results, exist_ok=True)
-        self.outdir = os.path.join(args.results, self.stamp)
-        n = 1
-        while os.path.exists(self.outdir):
-            n += 1
-            self.outdir = os.path.join(args.results, '{}-{}'.format(self.stamp, n))
+        self.stamp = results.stamp(now)
+        self.outdir = results.stamped_dir(args.results, when=self.stamp)
         os.makedirs(os.path.join(self.outdir, 'raw'))
         self.logs = os.path.join(self.outdir, 'logs')
         self.tmp = tempfile.mkdtemp(prefix='m4k-bench-')
@@ -550,7 +545,7 @@ class Bench:
                 if not self.stress_bin:
                     self.summ['skipped'][cond] = 'stress-ng missing'
                     continue
-                with system.Stress(self.stress_bin, run_s + 60.0):
+                with system.stress(self.stress_bin, run_s + 60.0):
                     rnd[cond] = fn()
             else:
                 rnd[cond] = fn()

@@ -28,6 +28,7 @@ from typing import Any, cast, Sequence
 
 import numpy as np
 
+from m4k_bringup.child import Child
 from m4k_rt import config, cycleprof, recorder, rosargs, timing, xddp
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.echo import EchoPeer
@@ -59,11 +60,12 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
     rec = recorder.Recorder(warmup_cycles=WARMUP_CYCLES)
     with EchoPeer(labels, runtime_dir):
         link = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
-        proc = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.PIPE, text=True)
-        assert proc.stderr is not None  # stderr=PIPE
+        child = Child('rt_core', argv, env, pipes=('stderr',), log_path=os.devnull,
+                      log_header=False, stop_timeout=10.0).start()
+        proc = child.proc
+        assert proc is not None and proc.stderr is not None  # stderr piped
         try:
-            while proc.poll() is None:
+            while child.alive():
                 data = link.read(0.2)
                 if data:
                     rec.feed(data)
@@ -74,10 +76,7 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
                 rec.feed(data)
             err = proc.stderr.read()
         finally:
-            if proc.poll() is None:
-                proc.terminate()
-                proc.wait(10)
-            proc.stderr.close()
+            child.stop()          # SIGTERM, 10 s, SIGKILL; closes the pipe
             link.close()
     summ = rec.summary()
     focus_t = next((t for t in summ['tasks'] if t['name'] == focus), None)
@@ -85,7 +84,7 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
     if profile and os.path.exists(prof_path):
         with open(prof_path, encoding='utf-8') as f:
             prof = json.load(f)
-    return {'tasks': [t['name'] for t in summ['tasks']], 'exit_code': proc.returncode,
+    return {'tasks': [t['name'] for t in summ['tasks']], 'exit_code': child.returncode,
             'cycle_profile': prof,
             'focus': focus, 'latency_us': focus_t and focus_t['latency_us'],
             'jitter_us': focus_t and focus_t['jitter_us'],

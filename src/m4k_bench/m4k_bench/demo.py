@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
 import math
 import os
@@ -48,7 +47,7 @@ from typing import Any, Sequence, TextIO
 
 import numpy as np
 
-from m4k_bench.benchlib import provenance
+from m4k_bench.benchlib import provenance, results
 from m4k_bench.benchlib.stack import Child, start_child
 from m4k_bench.planning.dwa import DwaConfig
 from m4k_bench.planning.evaluate import (
@@ -409,7 +408,7 @@ def judge(goal_reached: bool, truth: dict[str, Any] | None) -> dict[str, Any]:
 
 def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], tolerance: float,
              max_v: float, out_dir: str, timed_out: bool) -> dict[str, Any]:
-    geom = WorldGeometry.from_config(raw.get('world'))
+    geom = WorldGeometry.from_config(raw.get('world'), raw)
     odom = np.array([r for r in rec.odom if r[0] >= 0.0], dtype=float).reshape(-1, 7)
     cmd = np.array(rec.cmd, dtype=float).reshape(-1, 3)
     world = odom_to_world(odom[:, 1:4], geom.start)
@@ -470,14 +469,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
 
 
 def _results_dir(parent: str) -> str:
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
-    os.makedirs(parent, exist_ok=True)
-    out = os.path.join(parent, f'demo-{stamp}')
-    n = 1
-    while os.path.exists(out):
-        n += 1
-        out = os.path.join(parent, f'demo-{stamp}-{n}')
-    os.makedirs(out)
+    out = results.stamped_dir(parent, 'demo-')
     link = os.path.join(parent, 'demo-latest')
     try:
         if os.path.islink(link):
@@ -544,7 +536,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         raw = description.fill_sim_mounts(config.load_layered(args.config))
-        WorldGeometry.from_config(raw.get('world'))
+        WorldGeometry.from_config(raw.get('world'), raw)
     except (config.ConfigError, EvaluateError, OSError, description.DescriptionError) as exc:
         _log(f'configuration: {exc}')
         return 2

@@ -45,7 +45,6 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import shutil
 import sys
 import tempfile
@@ -473,9 +472,7 @@ def _summarize(args: argparse.Namespace, cfg: config.RtConfig, obs: fuzzlinks.Ob
     return {
         'seed': args.seed, 'count': args.count, 'seconds_per_port': args.seconds_per_port,
         'config': args.config, 'quiet_s': quiet_s,
-        'machine': {'node': platform.node(), 'kernel': platform.release(),
-                    'cpus': os.cpu_count(), 'python': platform.python_version()},
-        'provenance': provenance.provenance(),
+        'provenance': provenance.provenance(),     # commit, machine (results writer's)
         'rt_status': None if st is None else dict(st._asdict()),
         # What rt_core could not send to the fuzzer's own links (its socket full): lost
         # batches, which show as missing samples above.

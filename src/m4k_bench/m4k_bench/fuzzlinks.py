@@ -9,12 +9,13 @@ NRT side of any other port, :func:`send`) as a process of its own.
 from __future__ import annotations
 
 import select
-import subprocess
+import signal
 import sys
 import time
 from typing import Callable, Iterator, Mapping
 
 from m4k_bench import fuzzstream
+from m4k_bringup.child import Child
 from m4k_rt import protocol, recorder, xddp
 
 __all__ = ['MONITOR_PORTS', 'Observer', 'Sender', 'send']
@@ -175,15 +176,21 @@ def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
 
 
 class Sender:
-    """A sender process for one port; ``done`` once it wrote its whole stream."""
+    """The sender process of one port (a :class:`m4k_bringup.child.Child`) and its stream.
+
+    ``done`` once it wrote its whole stream, ``sent`` how much; ``error`` when it failed.
+    """
 
     def __init__(self, label: str, count: int, seed: int, seconds: float,
                  env: Mapping[str, str]) -> None:
-        self.proc = subprocess.Popen(
+        self.child = Child(
+            'fuzz send ' + label,
             [sys.executable, '-m', 'm4k_bench.fuzz', 'send', label, str(count), str(seed),
              str(seconds)],
-            env=dict(env), stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True, start_new_session=True)
+            env, pipes=('stdin', 'stdout', 'stderr'), stop_signal=signal.SIGKILL).start()
+        proc = self.child.proc
+        assert proc is not None
+        self.proc = proc
         self.error: str | None = None
         self.done = False
         self.sent = 0
@@ -201,21 +208,15 @@ class Sender:
             self.sent = int(line.split()[1])
             self.done = True
         else:
-            self.proc.wait(10.0)
+            self.child.wait(10.0)
             self.error = 'sender failed: {}'.format(self.proc.stderr.read().strip()[-300:])
 
     def release(self) -> None:
-        """Let the sender close its link and exit (killed by pid after 30 s)."""
+        """Let the sender close its link and exit (SIGKILLed after 30 s); close its pipes."""
         assert self.proc.stdin is not None
         try:
             self.proc.stdin.close()
         except OSError:
             pass
-        try:
-            self.proc.wait(30.0)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        for f in (self.proc.stdout, self.proc.stderr):
-            if f is not None:
-                f.close()
+        self.child.wait(30.0)
+        self.child.stop()

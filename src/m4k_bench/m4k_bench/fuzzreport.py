@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from m4k_bench.benchlib import provenance
+
 __all__ = ['format_report']
 
 
@@ -22,7 +24,7 @@ def format_report(out: dict[str, Any]) -> str:
     """Return the Markdown report of one fuzz run."""
     w = out.get('windows_s', {})
     st = out.get('rt_status') or {}
-    m = out.get('machine', {})
+    prov = out.get('provenance')
     lines = [
         '# m4k fuzz', '',
         '`make fuzz` (`fuzz --count {count} --seed {seed} --seconds-per-port {spp:g}{cfg}`): '
@@ -34,11 +36,12 @@ def format_report(out: dict[str, Any]) -> str:
         'TASK_HEALTH, RT_STATUS).'.format(
             count=out['count'], seed=out['seed'], spp=out['seconds_per_port'],
             cfg=' --config {}'.format(out['config']) if out.get('config') else ''), '',
-        'Result: **{}**. Machine: {} ({}, {} CPUs, Python {}); rt_core: {}, memory {}, {}. '
+        'Result: **{}**. Measured at {} (Python {}); rt_core: {}, memory {}, {}. '
         'Quiet window {:.0f} s, then the campaign {:.0f} s; {:.0f} s wall in all. Replay: '
         '`make fuzz SEED={}`.'.format(
-            'all verdicts hold' if out['ok'] else 'FAILED', m.get('node'), m.get('kernel'),
-            m.get('cpus'), m.get('python'),
+            'all verdicts hold' if out['ok'] else 'FAILED',
+            provenance.text(prov) if prov else 'an unknown commit and machine',
+            (prov or {}).get('machine', {}).get('python'),
             'SCHED_FIFO' if st.get('policy') else 'NOT SCHED_FIFO',
             'locked' if st.get('mem_locked') else 'NOT locked',
             'degraded' if st.get('degraded') else 'not degraded', w.get('quiet', 0.0),

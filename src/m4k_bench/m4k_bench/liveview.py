@@ -18,31 +18,25 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import importlib
 import json
 import math
 import os
 import random
 import re
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import time
 from typing import Any, Sequence
 
 from m4k_bench.benchlib import provenance
+from m4k_bridge.interfaces import interface_class
+from m4k_bringup.child import Child
 from m4k_rt import rosargs
 
 SUB = 'foxglove.websocket.v1'
 TOPICS = ('/scan', '/odom', '/tf', '/tf_static', '/robot_description', '/diagnostics', '/sonar',
           '/imu')
-
-
-def _cls(schema_name: str) -> Any:
-    pkg, kind, name = schema_name.split('/')
-    return getattr(importlib.import_module('{}.{}'.format(pkg, kind)), name)
 
 
 def _yaw(q: Any) -> float:
@@ -84,7 +78,7 @@ async def collect(port: int, drive_s: float) -> dict[str, list[tuple[float, Any]
                 raise RuntimeError('not advertised: {}'.format(set(TOPICS) - set(channels)))
             await pump(0.2)
         for i, t in enumerate(TOPICS):
-            subs[i] = (t, _cls(channels[t]['schemaName']))
+            subs[i] = (t, interface_class(channels[t]['schemaName']))
         await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
             {'id': i, 'channelId': channels[t]['id']} for i, t in enumerate(TOPICS)]}))
         await ws.send(json.dumps({'op': 'advertise', 'channels': [
@@ -217,14 +211,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     tmp = tempfile.mkdtemp(prefix='m4k-liveview-')
     env['M4K_RUNTIME_DIR'] = os.path.join(tmp, 'rt')
     log_path = os.path.join(tmp, 'bringup.log')
-    with open(log_path, 'w') as log:
-        proc = subprocess.Popen([sys.executable, '-m', 'm4k_bringup.bringup', '--no-status',
-                                 '--foxglove', '--foxglove-port', '0'], env=env,
-                                stdout=log, stderr=subprocess.STDOUT)
+    # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
+    proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--no-status',
+                             '--foxglove', '--foxglove-port', '0'], env, log_path=log_path,
+                 stop_timeout=40.0, must_end=True).start()
     try:
         port = None
         deadline = time.monotonic() + 60
-        while port is None and time.monotonic() < deadline and proc.poll() is None:
+        while port is None and time.monotonic() < deadline and proc.alive():
             m = re.search(r'WebSocket server on ws://127\.0\.0\.1:(\d+)',
                           open(log_path, errors='replace').read())
             port = int(m.group(1)) if m else None
@@ -234,12 +228,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         got = asyncio.run(collect(port, args.drive_s))
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(40)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        proc.stop()
         shutil.rmtree(tmp, ignore_errors=True)
     os.makedirs(args.results, exist_ok=True)
     render(got, os.path.join(args.results, 'liveview.png'))

@@ -29,12 +29,10 @@ test: nothing here asserts a time.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import random
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -43,6 +41,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import yaml
+
+from m4k_bench.benchlib import provenance, results
+from m4k_bringup.child import Child
 
 __all__ = ['main', 'run_reaction']
 
@@ -280,22 +281,19 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
     with open(overlay, 'w', encoding='utf-8') as f:
         yaml.safe_dump(_overlay(rng.randrange(1 << 30)), f)
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
-    procs: list[subprocess.Popen[bytes]] = []
+    procs: list[Child] = []
     sim = cmd = None
     rows: list[dict[str, Any]] = []
-    logs: list[Any] = []
     try:
         sim = _Sim(overlay, runtime_dir)
         raw = sim.raw
         os.makedirs(os.path.join(out_dir, 'logs'), exist_ok=True)
-        logs += [open(os.path.join(out_dir, 'logs', n + '.log'), 'wb')  # noqa: SIM115
-                 for n in ('driver_host', 'rt_core')]
-        procs.append(subprocess.Popen([sys.executable, '-m', 'm4k_drivers.host', '--overlay',
-                                       overlay], env=env, stdout=logs[0],
-                                      stderr=subprocess.STDOUT, start_new_session=True))
-        procs.append(subprocess.Popen([sys.executable, '-m', 'm4k_rt.rt_core', '--config',
-                                       overlay], env=env, stdout=logs[1],
-                                      stderr=subprocess.STDOUT, start_new_session=True))
+        for name, argv in (('driver_host', ['m4k_drivers.host', '--overlay', overlay]),
+                           ('rt_core', ['m4k_rt.rt_core', '--config', overlay])):
+            procs.append(Child(name, [sys.executable, '-m', *argv], env,
+                               log_path=os.path.join(out_dir, 'logs', name + '.log'),
+                               log_append=False, log_header=False, stop_timeout=10.0,
+                               must_end=True).start())
         cmd = _Commander(runtime_dir)
         plan = [(speeds[0], trials)] + [(v, speed_trials) for v in speeds[1:]]
         for v_cmd, n in plan:
@@ -318,16 +316,9 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         if cmd is not None:
             cmd.close()
         for pr in procs:
-            pr.terminate()
-            try:
-                pr.wait(10.0)
-            except subprocess.TimeoutExpired:
-                pr.kill()
-                pr.wait(5.0)
+            pr.stop()             # SIGTERM, 10 s, SIGKILL
         if sim is not None:
             sim.close()
-        for lg in logs:
-            lg.close()
         shutil.rmtree(work, ignore_errors=True)
     _write(out_dir, rows, summary)
     return summary
@@ -375,15 +366,15 @@ def _pct(xs: list[float], q: float) -> float | None:
 
 
 def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
-    with open(os.path.join(out_dir, 'reaction.json'), 'w', encoding='utf-8') as f:
-        json.dump({'summary': s, 'trials': rows}, f, indent=1, default=str)
-        f.write('\n')
+    doc = results.write_json(os.path.join(out_dir, 'reaction.json'),
+                             {'summary': s, 'trials': rows}, indent=1)
     keys = ('v_cmd', 'v', 'stop_line_m', 'reaction_s', 'stop_m', 'contacts', 'clearance_m')
     with open(os.path.join(out_dir, 'reaction.csv'), 'w', encoding='utf-8') as f:
         f.write(','.join(keys) + '\n')
         for r in rows:
             f.write(','.join('' if r.get(k) is None else str(r.get(k)) for k in keys) + '\n')
     lines = ['# Guard reaction time and stopping distance (simulator clock)', '',
+             f'Measured at {provenance.text(doc["provenance"])}.', '',
              f'Reaction: an obstacle crossing the stop line on ground truth -> the first braking '
              f'DAC word the simulator receives, {s["trials"]} trials at random cycle phases '
              f'(the first speed).', '',
@@ -409,8 +400,7 @@ def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
     if s['failed']:
         lines += ['', f'{len(s["failed"])} trial(s) without a braking word: '
                   + '; '.join(str(r.get('error', 'none within 5 s')) for r in s['failed'])]
-    with open(os.path.join(out_dir, 'reaction.md'), 'w', encoding='utf-8') as f:
-        f.write('\n'.join(lines) + '\n')
+    results.write_text(os.path.join(out_dir, 'reaction.md'), '\n'.join(lines))
     _plot(out_dir, rows, s)
 
 

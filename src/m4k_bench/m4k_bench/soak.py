@@ -30,12 +30,10 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -43,10 +41,9 @@ import time
 from typing import Any, Sequence
 
 from m4k_bench import core_bench, soaktime
-from m4k_bench.benchlib import provenance, stack, system
+from m4k_bench.benchlib import provenance, results, stack, system
 from m4k_bringup.child import Child
 from m4k_rt import config, recorder, rosargs, xddp
-from m4k_rt.proc import stop_process
 
 __all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
 
@@ -193,7 +190,7 @@ class StatReader:
 
 
 def _cyclictest(duration_s: float, priority: int, interval_us: int, hist_path: str,
-                verbose_path: str) -> subprocess.Popen[str] | None:
+                verbose_path: str) -> Child | None:
     exe = shutil.which('cyclictest')
     if not exe:
         return None
@@ -201,13 +198,13 @@ def _cyclictest(duration_s: float, priority: int, interval_us: int, hist_path: s
     # -h <period>: every sample above the period lands in "Histogram Overflows". -v: one line
     # per sample (thread: cycle: latency us) for the timeline; --spike: every sample above
     # period - 1 us (= the overflows) with its CLOCK_MONOTONIC wake-up time, printed at exit.
-    with open(verbose_path, 'w') as out:
-        return subprocess.Popen([exe, '-m', '-p', str(priority), '-i', str(interval_us), '-l',
-                                 str(loops), '-q', '-h', str(interval_us),
-                                 '--histfile={}'.format(hist_path), '-v',
-                                 '--spike={}'.format(interval_us - 1), '--spike-nodes=10000'],
-                                stdout=out, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True)
+    # Stopped by SIGINT (it writes its histogram then), SIGKILL after 30 s.
+    return Child('cyclictest', [exe, '-m', '-p', str(priority), '-i', str(interval_us), '-l',
+                                str(loops), '-q', '-h', str(interval_us),
+                                '--histfile={}'.format(hist_path), '-v',
+                                '--spike={}'.format(interval_us - 1), '--spike-nodes=10000'],
+                 log_path=verbose_path, log_append=False, log_header=False,
+                 pipes=('stderr',), stop_signal=signal.SIGINT, stop_timeout=30.0).start()
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -231,9 +228,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the soak; return 0 when every verdict passed, 1 otherwise."""
     args = _parse(argv)
     warmup = args.warmup if args.warmup is not None else min(60.0, args.duration / 4)
-    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
-    outdir = os.path.join(args.results, 'soak-' + stamp)
-    os.makedirs(outdir, exist_ok=True)
+    stamp = results.stamp()
+    outdir = results.stamped_dir(args.results, 'soak-', when=stamp)
     cfg = config.load(args.config)
     act = next((t for t in cfg.tasks if t.name == 'actuator'), cfg.tasks[0])
     period_us = act.period_ns // 1000
@@ -265,8 +261,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                stop_signal=signal.SIGINT, group=False, stop_timeout=60.0).start()
     stat = StatReader(runtime_dir)
     stop_cmd = threading.Event()
-    stress = None
-    cts: dict[str, subprocess.Popen[str]] = {}
+    stress: Child | None = None
+    cts: dict[str, Child] = {}
     ct_start: dict[str, float] = {}
     timeline: soaktime.CounterTimeline | None = None
     t0 = t_first = t_last = time.monotonic()
@@ -290,9 +286,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 log_path))
         stress_ng = tools.get('stress-ng')
         if not args.no_stress and stress_ng:
-            stress = system.Stress(stress_ng, args.duration)
-            stress.__enter__()
-            summary['stress_command'] = stress.command_line
+            stress = system.start_stress(stress_ng, args.duration)
+            summary['stress_command'] = ' '.join(stress.argv)
         # Counters from here on only: the stack's start-up transient is not the soak's.
         end = time.monotonic() + 10.0
         while 'actuator' not in stat.tasks() and time.monotonic() < end:
@@ -342,9 +337,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if cmd_thread is not None:
             cmd_thread.join(5.0)
         if stress is not None:
-            stress.__exit__(None, None, None)
-        for p in cts.values():
-            stop_process(p, signal.SIGINT, 30, group=False)   # SIGINT: it writes its histogram
+            stress.stop()
+        for ct in cts.values():
+            ct.stop()             # SIGINT: it writes its histogram
         stat.close()
         bu_rc = None if bu.alive() else bu.returncode
         bu.stop()

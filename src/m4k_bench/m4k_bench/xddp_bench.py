@@ -14,14 +14,15 @@ task's timerfd wake-up and is the same on both sides). Timing is reported, never
 import argparse
 import os
 import select
+import signal
 import socket
-import subprocess
 import sys
 import tempfile
 import threading
 import time
 from typing import Callable
 
+from m4k_bringup.child import Child
 from m4k_rt import rosargs, xddp
 
 _PAYLOAD = bytes(range(32))
@@ -41,14 +42,15 @@ def _percentiles(samples_ns: list[int]) -> dict[str, float]:
             'min_us': s[0] / 1000.0}
 
 
-def _spawn(*args: str, cpu: int | None = None) -> subprocess.Popen:
+def _spawn(*args: str, cpu: int | None = None) -> Child:
+    """Start an echo peer; its first stdout line says it is ready.
+
+    It exits when the link closes; :meth:`Child.stop` SIGKILLs one that did not.
+    """
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(filter(None, [_PKG_ROOT, env.get('PYTHONPATH')]))
-    proc = subprocess.Popen([sys.executable, '-m', 'm4k_bench.xddp_bench', *args],
-                            env=env, stdout=subprocess.PIPE, text=True)
-    if cpu is not None:
-        os.sched_setaffinity(proc.pid, {cpu})
-    return proc
+    return Child('echo peer', [sys.executable, '-m', 'm4k_bench.xddp_bench', *args], env,
+                 pipes=('stdout',), stop_signal=signal.SIGKILL, cpu=cpu).start()
 
 
 def _echo_xddp(port: int, runtime_dir: str) -> None:
@@ -112,11 +114,11 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
     try:
         deadline = time.monotonic() + 30.0
         while not rt.poll_peer():
-            if time.monotonic() > deadline or peer.poll() is not None:
+            if time.monotonic() > deadline or not peer.alive():
                 raise RuntimeError('XDDP echo peer did not link')
             time.sleep(0.001)
-        assert peer.stdout is not None
-        peer.stdout.readline()
+        assert peer.proc is not None and peer.proc.stdout is not None
+        peer.proc.stdout.readline()
 
         def body() -> list[int]:
             buf = bytearray(rt.max_datagram)
@@ -139,13 +141,8 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
         return _in_rt_thread(body, priority, cpu)
     finally:
         rt.close()
-        try:
-            peer.wait(5.0)
-        except subprocess.TimeoutExpired:
-            peer.kill()
-            peer.wait()
-        if peer.stdout is not None:
-            peer.stdout.close()
+        peer.wait(5.0)
+        peer.stop()
 
 
 def _raw_rtt(n: int, runtime_dir: str, priority: int,
@@ -162,8 +159,8 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int,
         listener.settimeout(30.0)
         conn, _ = listener.accept()
         conn.setblocking(False)
-        assert peer.stdout is not None
-        peer.stdout.readline()
+        assert peer.proc is not None and peer.proc.stdout is not None
+        peer.proc.stdout.readline()
 
         def body() -> list[int]:
             clock = time.monotonic_ns
@@ -191,13 +188,8 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int,
         if os.path.exists(path):
             os.unlink(path)
         if peer is not None:
-            try:
-                peer.wait(5.0)
-            except subprocess.TimeoutExpired:
-                peer.kill()
-                peer.wait()
-            if peer.stdout is not None:
-                peer.stdout.close()
+            peer.wait(5.0)
+            peer.stop()
 
 
 def run_rtt(n: int, runtime_dir: str | None, *, port: int = 31, priority: int = 80,

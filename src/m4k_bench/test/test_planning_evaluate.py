@@ -31,10 +31,11 @@ def test_world_section_is_read_like_the_simulator_reads_it():
 
 @pytest.mark.parametrize('world,match', [
     ({'walls': {'rectangle': [0, 0, 1]}}, r'world\.walls\.rectangle: expected a list of 4'),
-    ({'walls': 'room'}, r'world\.walls: expected segments'),
-    ({'obstacles': [[[0, 0], [1, 0]]]}, r'world\.obstacles\[0\]: expected >= 3 points'),
-    ({'obstacles': [[[0, 0], [1, 0], [0, math.nan]]]}, r'world\.obstacles\[0\]\[2\]: expected'),
+    ({'walls': 'room'}, r'world\.walls: expected a list of \[x1, y1, x2, y2\] segments'),
+    ({'obstacles': [[[0, 0], [1, 0]]]}, r'world\.obstacles\[0\]'),
+    ({'obstacles': [[[0, 0], [1, 0], [0, math.nan]]]}, r'world\.obstacles\[0\]'),
     ({'start': [0, 0]}, r'world\.start: expected a list of 3 numbers'),
+    ({'colour': 'red'}, r'world: unknown field'),
 ])
 def test_bad_world_section_names_the_field(world, match):
     with pytest.raises(EvaluateError, match=match):
@@ -54,6 +55,19 @@ def test_clearance_along_a_trajectory_and_contact_onsets():
     assert contacts(clear) == 1
     assert contacts(np.array([0.0, 0.1, 0.0, 0.0, 0.2, -0.1])) == 3
     assert contacts(np.array([])) == 0
+
+
+def test_footprint_is_the_simulators_robot_body():
+    # The judge's footprint is the simulated robot's: robot.body of the layered configuration,
+    # overridden by world.robot -- what m4k_drivers.world.World.footprint collides with.
+    from m4k_drivers.config import validate as driver_config
+    doc = {'robot': {'body': {'length': 0.6, 'width': 0.3}}, 'control': {}}
+    sim = driver_config({'world': {}}, control=doc['control'], body=doc['robot']['body'])
+    g = WorldGeometry.from_config({}, doc)
+    assert (g.length, g.width) == (sim.world.robot.length_m, sim.world.robot.width_m) == \
+        (0.6, 0.3)
+    g = WorldGeometry.from_config({'robot': {'width_m': 0.5}}, doc)
+    assert (g.length, g.width) == (0.6, 0.5)
 
 
 def test_odom_poses_map_through_the_start_pose():

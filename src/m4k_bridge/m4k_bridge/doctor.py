@@ -31,6 +31,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from m4k_bridge import params
 from m4k_bridge.graphcheck import check, Endpoint
+from m4k_bridge.interfaces import interface_class
 
 __all__ = ['Doctor', 'main']
 
@@ -106,7 +107,7 @@ class Doctor:
                 _TF_STATIC_QOS if static else _ANY_QOS))
         for _key, topic, typ in self._rated(eps):
             self.counts[topic] = 0
-            cls = _msg_class(typ)
+            cls = interface_class(typ)
             self.subs.append(self.node.create_subscription(
                 cls, topic, self._count_callback(topic), _ANY_QOS))
         self._t0 = time.monotonic()
@@ -257,12 +258,6 @@ class Doctor:
         out += self.rate_problems(eps)
         out += self.parameter_problems()
         return out
-
-
-def _msg_class(type_name: str) -> Any:
-    import importlib
-    pkg, _msg, name = type_name.split('/')
-    return getattr(importlib.import_module('{}.msg'.format(pkg)), name)
 
 
 def discover(node: Node, limit: float, settle: float = 2.0) -> None:

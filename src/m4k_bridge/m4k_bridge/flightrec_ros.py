@@ -48,6 +48,7 @@ from m4k_bridge.flightrec import (
     Trigger,
     Triggers,
 )
+from m4k_bridge.interfaces import interface_class
 from m4k_rt import protocol
 
 __all__ = ['FlightRecorder']
@@ -108,7 +109,7 @@ class FlightRecorder:
         specs = self._specs
         self._subs = []
         for key, (topic, type_name, qos) in topics.items():
-            sub = node.create_subscription(_message_class(type_name), topic,
+            sub = node.create_subscription(interface_class(type_name), topic,
                                            self._keeper(key), _SUB_QOS, raw=True)
             self._subs.append(sub)
             specs[key] = _spec(sub.topic_name, type_name, qos)
@@ -209,7 +210,3 @@ class FlightRecorder:
             self.dumper.close()
 
 
-def _message_class(type_name: str) -> Any:
-    import importlib
-    pkg, _, name = type_name.split('/')
-    return getattr(importlib.import_module(pkg + '.msg'), name)

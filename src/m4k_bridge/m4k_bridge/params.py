@@ -30,7 +30,7 @@ from typing import Any, Callable, Mapping
 
 from m4k_rt import description
 from m4k_rt.control.params import control_params, ControlConfigError, ControlParams
-from m4k_rt.schema import Field
+from m4k_rt.schema import ConfigError, Field
 
 __all__ = [
     'BridgeParams', 'DERIVED', 'NODE_NAME', 'ParamError', 'ParamSpec', 'PORT_ROLES', 'SPECS',
@@ -54,12 +54,12 @@ _FRAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_./-]*$')
 _LABEL = re.compile(r'^[A-Za-z0-9_][A-Za-z0-9_.-]{0,31}$')
 
 
-class ParamError(ValueError):
+class ParamError(ConfigError):
     """A bridge parameter has a wrong value; ``name`` is the parameter, ``reason`` why."""
 
     def __init__(self, name: str, reason: str) -> None:
         super().__init__('parameter {!r}: {}'.format(name, reason))
-        self.name = name
+        self.path = self.name = name
         self.reason = reason
 
 
@@ -383,33 +383,25 @@ def _kind(v: Any) -> str:
 
 
 def validate(name: str, value: Any) -> str | None:
-    """Return why ``value`` is wrong for parameter ``name``, or None when it is fine."""
+    """Return why ``value`` is wrong for parameter ``name``, or None when it is fine.
+
+    rclpy's typing comes first (a parameter keeps the type of its default, and an integer is
+    not a double); the value is then judged by its schema Field (:meth:`Field.problem`), as
+    the configuration files are.
+    """
     s = _BY_NAME.get(name)
     if s is None:
         return 'unknown parameter (known: {})'.format(', '.join(sorted(_BY_NAME)))
-    if s.type == 'any':          # a bool or a keyword (enable_stamped_cmd_vel: auto)
-        return s.check(value) if s.check is not None else None
-    want = _kind(s.default)
-    got = _kind(value)
-    if want == 'double' and got == 'int':
-        # rclpy types parameters by their YAML spelling and refuses an integer for a double.
-        return 'expected a double, got the integer {!r} (write {!r})'.format(value, float(value))
-    if want != got:
-        return 'expected a {}, got {!r}'.format(want, value)
-    items = list(value) if want == 'double[]' else [value] if want == 'double' else []
-    if want == 'double[]':
-        if s.length is not None and len(items) != s.length:
-            return 'expected {} numbers, got {}: {!r}'.format(s.length, len(items), value)
-        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in items):
-            return 'expected numbers, got {!r}'.format(value)
-    for x in items:
-        if not math.isfinite(x):
-            return 'must be finite, got {!r}'.format(value)
-        if (s.lo is not None and x < s.lo) or (s.hi is not None and x > s.hi):
-            return 'must be within [{}, {}], got {!r}'.format(s.lo, s.hi, value)
-    if s.check is not None:
-        return s.check(value)
-    return None
+    if s.type != 'any':          # 'any': a bool or a keyword (enable_stamped_cmd_vel: auto)
+        want = _kind(s.default)
+        got = _kind(value)
+        if want == 'double' and got == 'int':
+            # rclpy types parameters by their YAML spelling and refuses an integer for a double.
+            return 'expected a double, got the integer {!r} (write {!r})'.format(
+                value, float(value))
+        if want != got:
+            return 'expected a {}, got {!r}'.format(want, value)
+    return s.problem(list(value) if isinstance(value, array.array) else value)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,7 +9,9 @@ scenario runner, fuzz and soak -- starts it as a :class:`Child`:
   until the child has installed its handlers;
 * its output (stdout and stderr) either copied line by line to ``on_line`` (bringup's console)
   or written to the log file ``log_path`` (appended to unless ``log_append`` is false, headed by
-  the command line unless ``log_header`` is false), or inherited;
+  the command line unless ``log_header`` is false; ``os.devnull`` discards it), or inherited;
+  the streams named in ``pipes`` (``stdin``, ``stdout``, ``stderr``) are text pipes the caller
+  reads or writes through ``proc`` instead (a tool that parses its child's output);
 * stopped by the one stop ladder, :func:`m4k_rt.proc.stop_process`: ``stop_signal`` to the
   process (or to its whole group with ``group=True``), wait ``stop_timeout`` s, then SIGKILL
   (``on_escalate(timeout)`` called first) and wait ``kill_timeout`` s, then SIGKILL whatever
@@ -23,6 +25,7 @@ too: it belongs to the process, and tools that do not restart simply leave it at
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 import signal
 import subprocess
@@ -54,10 +57,14 @@ class Child:
                  stop_timeout: float = STOP_TIMEOUT_S, kill_timeout: float = 5.0,
                  on_escalate: Callable[[float], None] | None = None,
                  supervised: bool = False, ready: Callable[[], bool] | None = None,
-                 must_end: bool = False) -> None:
+                 must_end: bool = False, pipes: Sequence[str] = (),
+                 cpu: int | None = None) -> None:
         """Describe the child; :meth:`start` starts it."""
         if log_path is not None and on_line is not None:
             raise ValueError('a child logs to a file or to on_line, not both')
+        if set(pipes) - {'stdin', 'stdout', 'stderr'} or (pipes and on_line is not None):
+            raise ValueError('pipes are stdin, stdout and stderr, and not with on_line, got '
+                             '{!r}'.format(pipes))
         self.name = name
         self.argv = list(argv)
         self.env = dict(env) if env is not None else None
@@ -73,6 +80,8 @@ class Child:
         self.supervised = supervised
         self.ready = ready
         self.must_end = must_end
+        self.pipes = tuple(pipes)
+        self.cpu = cpu             # pinned to this CPU once started (None: not pinned)
         self.proc: subprocess.Popen | None = None
         self.pid = 0
         self.restarts = 0
@@ -99,17 +108,24 @@ class Child:
             setpriv = shutil.which('setpriv')
             if setpriv:
                 argv = [setpriv, '--pdeathsig', 'TERM', '--', *argv]
-        text = self.on_line is not None      # lines for the console: text, line-buffered
+        console = self.on_line is not None   # lines for the console: text, line-buffered
+        text = console or bool(self.pipes)
+        pipe = subprocess.PIPE
         # Stop signals blocked until a supervised child has its handlers (it unblocks them
         # then): a SIGTERM from stop() while it still starts up stops it cleanly, never kills it.
         with blocked_stop_signals() if self.supervised else contextlib.nullcontext():
             self.proc = subprocess.Popen(
-                argv, env=self.env, stdin=subprocess.DEVNULL, stdout=out,
-                stderr=subprocess.STDOUT if text else out,
+                argv, env=self.env,
+                stdin=pipe if 'stdin' in self.pipes else subprocess.DEVNULL,
+                stdout=pipe if 'stdout' in self.pipes else out,
+                stderr=(pipe if 'stderr' in self.pipes else subprocess.STDOUT if console
+                        else out),
                 start_new_session=not self.supervised,
                 process_group=0 if self.supervised else None,
-                text=text, errors='replace' if text else None, bufsize=1 if text else -1)
+                text=text, errors='replace' if text else None, bufsize=1 if console else -1)
         self.pid = self.proc.pid
+        if self.cpu is not None:
+            os.sched_setaffinity(self.pid, {self.cpu})
         self.started_at = time.monotonic()
         self.next_start = 0.0
         if self.on_line is not None:
@@ -162,8 +178,11 @@ class Child:
         if self._reader is not None:
             self._reader.join(2.0)
             self._reader = None
-        if self.proc is not None and self.proc.stdout is not None:
-            self.proc.stdout.close()
+        if self.proc is not None:
+            for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+                if stream is not None:
+                    with contextlib.suppress(OSError):
+                        stream.close()
         if self._log is not None:
             self._log.close()
             self._log = None

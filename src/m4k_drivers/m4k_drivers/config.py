@@ -26,6 +26,7 @@ from m4k_drivers import registry
 from m4k_drivers.drive import ROBOT_FIELDS
 from m4k_drivers.handler import DriverError
 from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
+from m4k_rt import schema
 from m4k_rt.config import deep_merge as merge
 from m4k_rt.config import find_config_dir
 from m4k_rt.schema import Field, REQUIRED, Section
@@ -38,7 +39,7 @@ __all__ = ['COMMON', 'DEFAULT_PORTS', 'KERNEL_STANDIN', 'ConfigError', 'DriverCo
 DEFAULT_PORTS = {'motor': 2, 'imu': 3, 'led': 5, 'sonar': 7, 'lrf': 9}
 
 
-class ConfigError(DriverError, ValueError):
+class ConfigError(DriverError, schema.ConfigError):
     """Raise for a bad configuration; the message names the field."""
 
 

@@ -30,7 +30,7 @@ from functools import cached_property
 import math
 from typing import Any
 
-from m4k_rt.schema import Field
+from m4k_rt.schema import ConfigError, Field
 
 __all__ = ['DriveState', 'G', 'LEFT', 'RIGHT', 'ROBOT_FIELDS', 'RobotParams', 'WorldConfigError',
            'parse_robot', 'step_drive']
@@ -39,7 +39,7 @@ LEFT, RIGHT = 0, 1
 G = 9.80665                   # m/s^2, standard gravity
 
 
-class WorldConfigError(ValueError):
+class WorldConfigError(ConfigError):
     """Raise for a bad ``world:`` section; the message names the field."""
 
 

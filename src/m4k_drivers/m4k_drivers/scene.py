@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
+from m4k_rt.schema import ConfigError
+
 __all__ = ['EVENT_TARGETS', 'Event', 'Path', 'Start', 'SURFACES', 'Surface', 'TALL',
            'parse_events', 'parse_obstacle']
 
@@ -46,7 +48,7 @@ EVENT_TARGETS = ('sonar', 'lrf', 'imu')
 TALL = math.inf
 
 
-class SceneError(ValueError):
+class SceneError(ConfigError):
     """A bad obstacle or event entry; the message names the field."""
 
 

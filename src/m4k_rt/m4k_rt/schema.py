@@ -12,8 +12,9 @@ wrong value does. The same table
 
 Tables: :data:`RUNTIME`, :data:`TASK` (one entry of ``tasks``), :data:`PORT` (``ports.<label>``)
 here and used by :mod:`m4k_rt.config`; :data:`ROBOT` here, used by :mod:`m4k_rt.description`;
-``CONTROL`` beside the control dataclasses (:mod:`m4k_rt.control.params`, whose choices come
-from the PI and the guard); the bridge's parameters in
+``CONTROL`` derived from the control dataclasses, whose fields carry their Fields
+(:func:`setting`, :func:`section`, :func:`table`; :mod:`m4k_rt.control.params`); the bridge's
+parameters in
 :data:`m4k_bridge.params.SPECS`; each device backend's fields next to its factory
 (``m4k_drivers.registry.Param``, turned into Fields). Checks across fields (a task's offset
 inside its period, a slow-down zone beyond the stop distance) stay in the loaders.
@@ -28,21 +29,31 @@ from typing import Any, Callable, Iterable, Mapping, NoReturn, Sequence
 
 __all__ = [
     'ConfigError', 'Field', 'PORT', 'REQUIRED', 'ROBOT', 'RUNTIME', 'Section', 'TASK',
-    'check_keys', 'markdown', 'validate_tree',
+    'build', 'check_keys', 'markdown', 'section', 'setting', 'table', 'validate_tree',
 ]
 
 
 class ConfigError(ValueError):
     """A configuration value is wrong; ``path`` names the field, ``value`` is what was found.
 
-    The one error of the configuration (:mod:`m4k_rt.config` re-exports it); the control
-    section's ``ControlConfigError`` and the robot description's ``DescriptionError`` are
-    subclasses, so ``except ConfigError`` catches every configuration mistake of the RT side.
+    The one configuration error type of the project (:mod:`m4k_rt.config` re-exports it).
+    Each source has a subclass: the control section's ``ControlConfigError``, the robot
+    description's ``DescriptionError``, the driver host's ``m4k_drivers.config.ConfigError``,
+    the world's ``WorldConfigError``, the scene's ``SceneError``, the bridge's and the
+    planner's ``ParamError``, the planner's ``DwaConfigError``, the scenario files'
+    ``ScenarioError`` and the demo judge's ``EvaluateError``; ``except ConfigError`` catches
+    every configuration mistake. Built as ``ConfigError(path, message)`` or, by the sources
+    that format their own text, ``ConfigError('path: message')``.
     """
 
-    def __init__(self, path: str, message: str, value: Any = None) -> None:
-        """Build 'path: message'."""
-        super().__init__('{}: {}'.format(path, message))
+    def __init__(self, path: str, message: str | None = None, value: Any = None) -> None:
+        """Build 'path: message' (or take a whole 'path: message' text)."""
+        if message is None:
+            text = path
+            path = text.partition(': ')[0] if ': ' in text else ''
+        else:
+            text = '{}: {}'.format(path, message)
+        super().__init__(text)
         self.path = path
         self.value = value
 
@@ -271,6 +282,70 @@ def validate_tree(table: Mapping[str, Field], m: Any, path: str,
         else:
             out[key] = copy.deepcopy(field.default)
     return out
+
+
+# --- settings declared on dataclasses ---------------------------------------------------------
+#
+# A frozen dataclass whose fields carry their Field (``kp: float = setting(Field(...))``) is the
+# one declaration of a section: :func:`table` derives the dotted schema table from it (docs,
+# validation), :func:`build` turns a validated flat mapping back into the dataclass. The code
+# that runs reads plain dataclass attributes; no table is consulted per cycle.
+
+_SETTING = 'm4k.setting'
+_SECTION = 'm4k.section'
+
+
+def setting(f: Field) -> Any:
+    """Return a dataclass field declared by ``f`` (its default is ``f.default``)."""
+    if isinstance(f.default, (list, dict)):
+        d = f.default
+        return dataclasses.field(default_factory=lambda: copy.deepcopy(d),
+                                 metadata={_SETTING: f})
+    return dataclasses.field(default=f.default, metadata={_SETTING: f})
+
+
+def section(cls: type, fields: Mapping[str, Field] | None = None) -> Any:
+    """Return a dataclass field holding the nested section ``cls``.
+
+    Its table is ``cls``'s own settings, or ``fields`` when one class serves several sections
+    with different defaults and units (the linear and angular axis limits).
+    """
+    tab = dict(fields) if fields is not None else table(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    if {k.split('.', 1)[0] for k in tab} != names:
+        raise TypeError('{}: table keys {} do not match the fields {}'.format(
+            cls.__name__, sorted(tab), sorted(names)))
+    return dataclasses.field(
+        default_factory=lambda: build(cls, {k: f.default for k, f in tab.items()}),
+        metadata={_SECTION: (cls, tab)})
+
+
+def table(cls: type) -> dict[str, Field]:
+    """Return the dotted table (``pi.kp`` -> Field) a settings dataclass declares, in order."""
+    out: dict[str, Field] = {}
+    for f in dataclasses.fields(cls):
+        if _SETTING in f.metadata:
+            out[f.name] = f.metadata[_SETTING]
+        elif _SECTION in f.metadata:
+            for k, sub in f.metadata[_SECTION][1].items():
+                out['{}.{}'.format(f.name, k)] = sub
+        else:
+            raise TypeError('{}.{} is neither a setting nor a section'.format(
+                cls.__name__, f.name))
+    return out
+
+
+def build(cls: type, flat: Mapping[str, Any]) -> Any:
+    """Return ``cls`` built from a validated dotted mapping (what :func:`validate_tree` gives)."""
+    kw: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if _SECTION in f.metadata:
+            p = f.name + '.'
+            kw[f.name] = build(f.metadata[_SECTION][0], {k[len(p):]: v for k, v in flat.items()
+                                                         if k.startswith(p)})
+        elif f.name in flat:
+            kw[f.name] = flat[f.name]
+    return cls(**kw)
 
 
 # --- RT core: runtime, tasks, ports (config/m4k.yaml) -----------------------------------------

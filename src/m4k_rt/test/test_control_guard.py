@@ -3,16 +3,26 @@ import math
 import pytest
 
 from m4k_rt.control.guard import CollisionGuard, GuardError
+from m4k_rt.control.params import ControlParams
 
 MS = 1_000_000
 INF = math.inf
 NOW = 10_000 * MS
 
 
+_DEFAULTS = ControlParams()
+
+
 def guard(**kw):
-    kw.setdefault('stop_distance', 0.35)
+    """A guard with the declared defaults (GuardParams), no slow-down, t_react 0.48 s."""
+    g = _DEFAULTS.guard
+    for name in ('enabled', 'stop_distance', 'release_margin', 'slow_floor',
+                 'brake_deceleration', 'use_sonar', 'use_laser', 'sonar_timeout',
+                 'laser_timeout', 'stale_policy'):
+        kw.setdefault(name, getattr(g, name))
     kw.setdefault('slow_down', False)
-    kw.setdefault('release_margin', 0.05)
+    kw.setdefault('slow_deceleration', _DEFAULTS.linear.max_deceleration)
+    kw.setdefault('reaction_time', 0.48)
     return CollisionGuard(**kw)
 
 

@@ -67,3 +67,58 @@ def test_shipped_control_yaml_is_valid():
     assert p.odom_every_n == 5
     assert (p.odom_velocity_window, p.speed_feedback_window) == (5, 2)
     assert p.linear.max_acceleration == 0.37
+
+
+# --- one declaration: the dataclasses carry their Fields, CONTROL is derived -----------------
+
+def _leaves(obj, prefix=''):
+    import dataclasses
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if dataclasses.is_dataclass(v):
+            yield from _leaves(v, prefix + f.name + '.')
+        else:
+            yield prefix + f.name, v, f.type
+
+
+def test_control_table_is_derived_from_the_dataclasses_and_matches_their_defaults():
+    from m4k_rt.control.params import CONTROL, ControlParams
+    leaves = list(_leaves(ControlParams()))
+    assert [k for k, _, _ in leaves] == list(CONTROL)
+    for key, value, annotation in leaves:
+        f = CONTROL[key]
+        assert value == f.default, key
+        assert ('None' in annotation) == f.nullable, key       # float | None <-> nullable
+        assert annotation.split(' |')[0] == f.type, key
+        assert f.description, key
+
+
+def test_validated_values_land_in_the_dataclass_fields():
+    from m4k_rt.control.params import CONTROL
+    p = control_params({'pi': {'kp': 0.5}, 'angular': {'max_jerk': 3},
+                        'guard': {'stale_policy': 'ignore'}, 'odom_every_n': 2})
+    assert (p.pi.kp, p.angular.max_jerk, p.guard.stale_policy, p.odom_every_n) == \
+        (0.5, 3.0, 'ignore', 2)
+    assert isinstance(p.angular.max_jerk, float)                # coerced by its Field
+    assert p.linear.max_jerk is CONTROL['linear.max_jerk'].default
+
+
+def test_a_dataclass_field_without_a_declaration_is_refused():
+    import dataclasses
+
+    from m4k_rt.schema import Field, section, setting, table
+
+    @dataclasses.dataclass(frozen=True)
+    class Bad:
+        a: float = setting(Field('float', 1.0, 'declared'))
+        b: float = 2.0
+
+    with pytest.raises(TypeError, match='Bad.b'):
+        table(Bad)
+
+    @dataclasses.dataclass(frozen=True)
+    class Shared:
+        x: float
+
+    with pytest.raises(TypeError, match='do not match'):
+        section(Shared, {'y': Field('float', 1.0)})

@@ -84,3 +84,12 @@ def test_every_rt_field_has_a_description_and_a_default_inside_its_range():
             if not field.required and field.default is not None and not isinstance(
                     field.default, str) and field.type in ('int', 'float', 'float[]'):
                 assert field.problem(field.default) is None, (path, name)
+
+
+def test_every_config_error_is_one_type_with_a_path():
+    e = schema.ConfigError('world.start: expected 3 numbers, got 1')
+    assert (str(e), e.path) == ('world.start: expected 3 numbers, got 1', 'world.start')
+    e = schema.ConfigError('tasks.led.priority', 'expected an int in 1..99, got 120', 120)
+    assert (str(e), e.path, e.value) == (
+        'tasks.led.priority: expected an int in 1..99, got 120', 'tasks.led.priority', 120)
+    assert isinstance(e, ValueError)

@@ -9,10 +9,11 @@ target shows its figures.
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 from m4k_bench.benchlib import analysis
 from m4k_bench.benchlib.analysis import RATIOS
+from m4k_bench.benchlib.results import md_table
 from m4k_rt import recorder
 
 __all__ = ['CONDITION_LABELS', 'fmt_spread', 'md_table', 'method_lines', 'readme_snippet',
@@ -46,13 +47,6 @@ def _g(d: Mapping[str, Any] | None, *path: str) -> Any:
             return None
         d = d[k]
     return d
-
-
-def md_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
-    """Return a Markdown table's lines."""
-    out = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
-    out += ['| ' + ' | '.join(str(c) for c in r) + ' |' for r in rows]
-    return out
 
 
 def fmt_spread(sp: Mapping[str, Any] | None, digits: int = 2) -> str:

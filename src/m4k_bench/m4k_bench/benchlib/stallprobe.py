@@ -26,6 +26,7 @@ import sys
 import threading
 from typing import Any, Sequence
 
+from m4k_bringup.child import Child
 from m4k_rt import sched
 from m4k_rt.timerfd import monotonic_ns, TimerFd
 
@@ -104,17 +105,17 @@ class StallProbes:
         self.info: dict[int, dict[str, Any]] = {}
         self.summary: dict[int, dict[str, Any]] = {}
         self._lock = threading.Lock()
-        self._procs: list[tuple[int, subprocess.Popen[str]]] = []
+        self._procs: list[Child] = []
         self._threads: list[threading.Thread] = []
         for cpu in sorted(os.sched_getaffinity(0)):
-            p = subprocess.Popen(
-                [sys.executable, '-m', 'm4k_bench.benchlib.stallprobe', '--cpu', str(cpu),
-                 '--period-ns', str(period_ns), '--threshold-ns', str(threshold_ns),
-                 '--priority', str(priority)],
-                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                text=True, start_new_session=True)
-            self._procs.append((cpu, p))
-            th = threading.Thread(target=self._read, args=(cpu, p), daemon=True,
+            c = Child('stallprobe-{}'.format(cpu),
+                      [sys.executable, '-m', 'm4k_bench.benchlib.stallprobe', '--cpu', str(cpu),
+                       '--period-ns', str(period_ns), '--threshold-ns', str(threshold_ns),
+                       '--priority', str(priority)],
+                      pipes=('stdout',), log_path=os.devnull, log_header=False,
+                      stop_timeout=5.0).start()
+            self._procs.append(c)
+            th = threading.Thread(target=self._read, args=(cpu, c.proc), daemon=True,
                                   name='stallprobe-{}'.format(cpu))
             th.start()
             self._threads.append(th)
@@ -146,20 +147,15 @@ class StallProbes:
 
     def stop(self) -> list[Stall]:
         """Stop every probe (SIGTERM by pid, SIGKILL after 5 s); return all stalls seen."""
-        for _, p in self._procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for _, p in self._procs:
-            try:
-                p.wait(5.0)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        for c in self._procs:
+            if c.alive():
+                c.send_signal(signal.SIGTERM)
+        for c in self._procs:
+            c.wait(5.0)
         for th in self._threads:
             th.join(5.0)
-        for _, p in self._procs:
-            if p.stdout is not None:
-                p.stdout.close()
+        for c in self._procs:
+            c.stop()          # SIGKILL for one that did not end; closes its pipe
         return self.snapshot()
 
 

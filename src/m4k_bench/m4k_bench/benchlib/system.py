@@ -3,26 +3,26 @@
 * :func:`ensure_tools` finds cyclictest and stress-ng and, when missing and running as root,
   installs them from the distribution (``apt-get install -y rt-tests stress-ng``); otherwise it
   says exactly what to install.
-* :class:`Stress` runs stress-ng in its own process group for one measurement and stops it by
-  that group's id (never by name).
+* :func:`stress` runs stress-ng (a :class:`m4k_bringup.child.Child`) in its own process group
+  for one measurement and stops it by that group's id (never by name).
 * :func:`machine_info` describes the machine and kernel for the report.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import shutil
-import signal
 import subprocess
 import sys
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
-from m4k_rt.proc import stop_process
+from m4k_bringup.child import Child
 
-__all__ = ['DmaLatency', 'STRESS_ARGS', 'Stress', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
-           'machine_info', 'proc_cpu_seconds']
+__all__ = ['DmaLatency', 'STRESS_ARGS', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
+           'machine_info', 'proc_cpu_seconds', 'start_stress', 'stress']
 
 # tool -> Debian package
 TOOL_PACKAGES = {'cyclictest': 'rt-tests', 'stress-ng': 'stress-ng'}
@@ -59,39 +59,33 @@ def ensure_tools(log: Callable[[str], None], install: bool = True) -> dict[str, 
     return found
 
 
-class Stress:
-    """stress-ng running in its own process group for the duration of a ``with`` block."""
+def start_stress(binary: str, timeout_s: float, args: tuple[str, ...] = STRESS_ARGS,
+                 settle_s: float = 1.0) -> Child:
+    """Start ``stress-ng ARGS --timeout T`` (T bounds it even if we die) as a :class:`Child`.
 
-    def __init__(self, binary: str, timeout_s: float, args: tuple[str, ...] = STRESS_ARGS,
-                 settle_s: float = 1.0) -> None:
-        """Prepare ``stress-ng ARGS --timeout T`` (T bounds it even if we die)."""
-        self.argv = [binary, *args, '--timeout', '{}s'.format(int(timeout_s) + 1)]
-        self.settle_s = settle_s
-        self.proc: subprocess.Popen[bytes] | None = None
+    Its output is discarded; it runs in a process group of its own, and ``stop()`` ends it and
+    every worker by that group (SIGTERM, 5 s, SIGKILL), never by name. It is given
+    ``settle_s`` to load the machine; a stress-ng that exits at once is a RuntimeError.
+    """
+    child = Child('stress-ng', [binary, *args, '--timeout', '{}s'.format(int(timeout_s) + 1)],
+                  log_path=os.devnull, log_header=False, group=True, stop_timeout=5.0).start()
+    time.sleep(settle_s)
+    if not child.alive():
+        rc = child.stop()
+        raise RuntimeError('stress-ng exited at once (code {}): {}'.format(
+            rc, ' '.join(child.argv)))
+    return child
 
-    @property
-    def command_line(self) -> str:
-        """Return the command line, for the report."""
-        return ' '.join(self.argv)
 
-    def __enter__(self) -> Stress:
-        """Start stress-ng and give its workers a moment to load the machine."""
-        self.proc = subprocess.Popen(self.argv, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL, start_new_session=True)
-        time.sleep(self.settle_s)
-        if self.proc.poll() is not None:
-            raise RuntimeError('stress-ng exited at once (code {}): {}'.format(
-                self.proc.returncode, self.command_line))
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        """Stop stress-ng and its workers (its own process group) and reap it."""
-        proc = self.proc
-        if proc is None:
-            return
-        self.proc = None
-        # SIGTERM to the group; the final group SIGKILL ends workers that outlive the parent
-        stop_process(proc, signal.SIGTERM, 5.0)
+@contextlib.contextmanager
+def stress(binary: str, timeout_s: float, args: tuple[str, ...] = STRESS_ARGS,
+           settle_s: float = 1.0) -> Iterator[Child]:
+    """Run stress-ng (:func:`start_stress`) for the duration of a ``with`` block."""
+    child = start_stress(binary, timeout_s, args, settle_s)
+    try:
+        yield child
+    finally:
+        child.stop()
 
 
 class DmaLatency:

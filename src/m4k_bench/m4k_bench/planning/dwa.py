@@ -43,6 +43,8 @@ from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
+from m4k_rt.schema import ConfigError
+
 __all__ = ['DwaConfig', 'DwaConfigError', 'DwaError', 'DwaInputError', 'DwaPlanner', 'Plan',
            'State', 'dynamic_window', 'footprint_clearance', 'rollout', 'sample_window']
 
@@ -51,7 +53,7 @@ class DwaError(ValueError):
     """Base of the planner's errors."""
 
 
-class DwaConfigError(DwaError):
+class DwaConfigError(DwaError, ConfigError):
     """Raise for a bad planner parameter; the message names the field and the bad value."""
 
 

@@ -1,11 +1,11 @@
 """Judge a recorded drive against the simulated room (pure: numpy, no ROS).
 
-The demo records the odometry trajectory over ROS; this module loads the room geometry from the
-same ``world:`` configuration section the driver host's simulator uses (m4k_rt must not import
-m4k_drivers, so the small schema -- ``walls`` as segments or ``{rectangle: [...]}``,
-``obstacles`` as polygons, ``start`` -- is read here again) and measures the footprint's
-clearance to every wall and obstacle along the trajectory. A contact is an entry into
-clearance <= ``contact_eps``.
+The demo records the odometry trajectory over ROS; this module reads the room with the
+simulator's own world model (:meth:`m4k_drivers.world.WorldConfig.from_dict`, the same
+parser, defaults and robot footprint the driver host's simulator uses: ``robot.body`` of the
+layered configuration, overridden by ``world.robot``) and measures the footprint's clearance
+to every wall and obstacle along the trajectory. A contact is an entry into clearance <=
+``contact_eps``.
 
 Frames: odometry starts at zero at the world's ``start`` pose, so odom poses are mapped into
 the world frame through ``start`` before they are compared with the geometry.
@@ -20,34 +20,15 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from m4k_bench.planning.dwa import footprint_clearance
+from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
+from m4k_rt.schema import ConfigError
 
 __all__ = ['EvaluateError', 'WorldGeometry', 'contacts', 'densify', 'odom_to_world',
            'trajectory_clearance']
 
-# The paper's room (Fig. 8) as the simulator defaults it, for a config without ``world:``.
-_DEFAULT_RECT = (-0.8, -1.5, 4.2, 1.5)
-_DEFAULT_OBSTACLE = ((1.5, -0.25), (1.5, 0.25), (1.9, 0.0))
 
-
-class EvaluateError(ValueError):
+class EvaluateError(ConfigError):
     """Raise for a world section that cannot be read; the message names the field."""
-
-
-def _rect(xmin: float, ymin: float, xmax: float, ymax: float) -> list[tuple[float, ...]]:
-    return [(xmin, ymin, xmax, ymin), (xmax, ymin, xmax, ymax),
-            (xmax, ymax, xmin, ymax), (xmin, ymax, xmin, ymin)]
-
-
-def _floats(value: Any, n: int, where: str) -> tuple[float, ...]:
-    if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise EvaluateError(f'{where}: expected a list of {n} numbers, got {value!r}')
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise EvaluateError(f'{where}: expected numbers, got {value!r}') from None
-    if not all(math.isfinite(v) for v in out):
-        raise EvaluateError(f'{where}: expected finite numbers, got {value!r}')
-    return out
 
 
 @dataclass(frozen=True)
@@ -57,40 +38,33 @@ class WorldGeometry:
     walls: tuple[tuple[float, ...], ...]
     obstacles: tuple[tuple[tuple[float, float], ...], ...]
     start: tuple[float, float, float]
-    length: float = 0.45
-    width: float = 0.28
+    length: float
+    width: float
 
     @classmethod
-    def from_config(cls, world: Mapping[str, Any] | None) -> WorldGeometry:
-        """Build from a ``world:`` config section (None or {}: the simulator's defaults)."""
-        world = dict(world or {})
-        walls_raw = world.get('walls')
-        if walls_raw is None:
-            walls = _rect(*_DEFAULT_RECT)
-        elif isinstance(walls_raw, Mapping) and set(walls_raw) == {'rectangle'}:
-            walls = _rect(*_floats(walls_raw['rectangle'], 4, 'world.walls.rectangle'))
-        elif isinstance(walls_raw, list):
-            walls = [_floats(s, 4, f'world.walls[{i}]') for i, s in enumerate(walls_raw)]
-        else:
-            raise EvaluateError(f'world.walls: expected segments or {{rectangle: [...]}}, got '
-                                f'{walls_raw!r}')
-        obstacles: list[tuple[tuple[float, float], ...]] = []
-        raw_obs = world.get('obstacles', [list(_DEFAULT_OBSTACLE)]) or []
-        if not isinstance(raw_obs, list):
-            raise EvaluateError(f'world.obstacles: expected a list of polygons, got {raw_obs!r}')
-        for i, poly in enumerate(raw_obs):
-            if isinstance(poly, Mapping):    # {polygon, height, surface, path}: its outline
-                poly = poly.get('polygon')   # at rest (m4k_drivers.scene)
-            if not isinstance(poly, (list, tuple)) or len(poly) < 3:
-                raise EvaluateError(f'world.obstacles[{i}]: expected >= 3 points, got {poly!r}')
-            obstacles.append(tuple(_floats(p, 2, f'world.obstacles[{i}][{j}]')  # type: ignore
-                                   for j, p in enumerate(poly)))
-        start = _floats(world.get('start', [0.0, 0.0, 0.0]), 3, 'world.start')
-        robot = world.get('robot') or {}
-        length = float(robot.get('length_m', 0.45))
-        width = float(robot.get('width_m', 0.28))
-        return cls(tuple(tuple(w) for w in walls), tuple(obstacles),
-                   (start[0], start[1], start[2]), length, width)
+    def from_world(cls, world: WorldConfig) -> WorldGeometry:
+        """Return the geometry of the simulator's world model (obstacles at rest)."""
+        return cls(tuple(tuple(w) for w in world.walls),
+                   tuple(tuple(p) for p in world.obstacles),
+                   (world.start.x, world.start.y, world.start.yaw),
+                   world.robot.length_m, world.robot.width_m)
+
+    @classmethod
+    def from_config(cls, world: Mapping[str, Any] | None,
+                    doc: Mapping[str, Any] | None = None) -> WorldGeometry:
+        """Build from a ``world:`` section (None or {}: the simulator's defaults).
+
+        ``doc``, the layered configuration, gives the robot the world's ``robot:`` keys
+        override, as the driver host builds it (``control:`` and ``robot.body``).
+        """
+        try:
+            base = None
+            if doc is not None:
+                body = (doc.get('robot') or {}).get('body')
+                base = RobotParams.from_control(doc.get('control'), body)
+            return cls.from_world(WorldConfig.from_dict(dict(world or {}), robot=base))
+        except WorldConfigError as exc:
+            raise EvaluateError(str(exc)) from None
 
     def segments(self) -> list[tuple[float, ...]]:
         """Return every wall and obstacle edge as (x1, y1, x2, y2)."""

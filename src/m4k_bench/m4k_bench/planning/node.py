@@ -41,6 +41,7 @@ from std_msgs.msg import String
 
 from m4k_bench.planning.dwa import DwaConfig, DwaError, DwaPlanner, State
 from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError
+from m4k_rt.schema import ConfigError
 from m4k_rt.stopsignals import StopSignals
 
 __all__ = ['NODE_NAME', 'PlannerNode', 'main']
@@ -90,7 +91,7 @@ def _yaw(q: Any) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
 
-class ParamError(ValueError):
+class ParamError(ConfigError):
     """Raise for a bad node parameter; the message names it."""
 
 

@@ -20,6 +20,7 @@ import time
 from typing import Sequence
 
 from m4k_bench.benchlib import provenance
+from m4k_bench.benchlib.results import write_text
 
 __all__ = ['main']
 
@@ -80,8 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"number is the simulator's ground truth (sim_truth), never odometry. Bounds from "
               f'config/ (m4k_bench.scenarios.bounds); the scenarios are config/scenarios/*.yaml; '
               f'one plot per scenario beside this file.')
-    with open(os.path.join(args.results, 'README.md'), 'w', encoding='utf-8') as f:
-        f.write(report.table(results, header))
+    write_text(os.path.join(args.results, 'README.md'), report.table(results, header))
     n_ok = sum(r.passed for r in results)
     print(f'scenarios: {n_ok}/{len(results)} passed; {args.results}/README.md', file=sys.stderr)
     return 0 if n_ok == len(results) else 1

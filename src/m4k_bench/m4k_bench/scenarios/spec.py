@@ -43,6 +43,7 @@ from typing import Any
 import yaml
 
 from m4k_rt import yamlload
+from m4k_rt.schema import ConfigError
 
 __all__ = ['Command', 'Fault', 'Scenario', 'ScenarioError', 'STOP_CAUSES', 'load', 'load_dir']
 
@@ -51,7 +52,7 @@ STOP_CAUSES = ('sonar', 'laser', 'sonar_unplugged', 'laser_unplugged', 'bridge_k
 KILLABLE = ('driver_host', 'bridge', 'rt_core')
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ConfigError):
     """A bad scenario file; the message names the file and the field."""
 
 

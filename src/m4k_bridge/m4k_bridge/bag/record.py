@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import importlib
 import os
 import signal
 import sys
@@ -45,6 +44,7 @@ from m4k_bridge import params as bridge_params
 from m4k_bridge.bag.metadata import qos_entries
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError, split_type, type_hash
 from m4k_bridge.bag.writer import BagError, BagExistsError, BagWriter, recover
+from m4k_bridge.interfaces import interface_class
 
 __all__ = ['DEFAULT_TOPICS', 'Recorder', 'SYNC_PERIOD_S', 'main', 'qos_yaml']
 
@@ -80,8 +80,8 @@ def _sec_nsec(duration: Any) -> tuple[int, int]:
 
 
 def _message_class(type_name: str) -> Any:
-    package, name = split_type(type_name)
-    return getattr(importlib.import_module(package + '.msg'), name)
+    package, name = split_type(type_name)       # MsgDefError for a name that is no message
+    return interface_class('{}/msg/{}'.format(package, name))
 
 
 def _subscription_qos(profiles: Sequence[Any]) -> QoSProfile:

@@ -38,7 +38,6 @@ client reads slower than the data comes), WARN while a client is dropping.
 from __future__ import annotations
 
 import collections
-import importlib
 import os
 import re
 import sys
@@ -63,6 +62,7 @@ from m4k_bridge.foxglove import params as fparams
 from m4k_bridge.foxglove import protocol as fp
 from m4k_bridge.foxglove.access import AccessError, OriginPolicy, read_token_file
 from m4k_bridge.foxglove.server import Server
+from m4k_bridge.interfaces import interface_class
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt import yamlload
 from m4k_rt.stopsignals import StopSignals
@@ -107,11 +107,6 @@ def full_type(name: str, kind: str = 'msg') -> str:
     if len(parts) == 3 and parts[1] == kind:
         return name
     raise ValueError('not a {} type name: {!r}'.format(kind, name))
-
-
-def _interface_class(type_name: str) -> Any:
-    pkg, kind, name = type_name.split('/')
-    return getattr(importlib.import_module('{}.{}'.format(pkg, kind)), name)
 
 
 class FoxgloveNode(Node):
@@ -206,7 +201,7 @@ class FoxgloveNode(Node):
 
     def _serve_topic(self, topic: str, type_name: str, profiles: list[Any]) -> None:
         try:
-            cls = _interface_class(full_type(type_name))
+            cls = interface_class(full_type(type_name))
             schema = message_definition(type_name)
         except (MsgDefError, ImportError, AttributeError, ValueError) as exc:
             self._skipped.add(topic)
@@ -233,7 +228,7 @@ class FoxgloveNode(Node):
                 continue
             try:
                 req, resp = fp.service_definitions(tname)
-                cls = _interface_class(tname)
+                cls = interface_class(tname)
             except (OSError, LookupError, ImportError, AttributeError, ValueError) as exc:
                 self.get_logger().warning('not serving service {}: {}'.format(name, exc))
                 self._service_ids[name] = 0
@@ -296,7 +291,7 @@ class FoxgloveNode(Node):
         if graph and tname not in graph:
             return '{}: the graph has it as {}, not {}'.format(topic, graph[0], tname)
         try:
-            cls = _interface_class(tname)
+            cls = interface_class(tname)
         except (ImportError, AttributeError, ValueError) as exc:
             return '{}: cannot publish {}: {}'.format(topic, tname, exc)
         self._post(lambda: self._make_publisher(key, topic, cls, tname))

@@ -42,12 +42,12 @@ from typing import Sequence
 
 import numpy as np
 
+from m4k_rt.control.dac import DAC_SPAN  # codes from zero to full scale
+
 __all__ = ['Braking', 'FitError', 'Plateau', 'SpeedLine', 'WheelModel', 'braking', 'fit_line',
            'fit_plateau',
            'new_trim', 'pi_gains', 'radius_from_run', 'speed_line', 'tau_from_plateaus',
            'track_from_turn', 'wheel_model']
-
-DAC_SPAN = 511               # codes from zero to full scale (m4k_rt.control.dac)
 
 
 class FitError(ValueError):

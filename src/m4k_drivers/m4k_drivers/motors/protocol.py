@@ -53,12 +53,13 @@ import math
 from typing import NamedTuple, TypeGuard
 
 from m4k_drivers.handler import DeviceProtocolError
-from m4k_rt.control.dac import code_to_command, command_to_code  # the one owner
-from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # DAC codes 0..1023, 512 = 0
+
+# The one owner of the mapping and of the codes (m4k_rt.protocol: 0..1023, 512 = 0).
+from m4k_rt.control.dac import code_to_command, command_to_code, DAC_MAX, DAC_SPAN, DAC_ZERO
 
 __all__ = [
-    'DAC_MAX', 'DAC_ZERO', 'DeviceProtocolError', 'ENC_COUNTS', 'ENC_READ_LEN', 'DacFrame',
-    'EncoderFrame',
+    'DAC_MAX', 'DAC_SPAN', 'DAC_ZERO', 'DeviceProtocolError', 'ENC_COUNTS', 'ENC_READ_LEN',
+    'DacFrame', 'EncoderFrame',
     'EncoderFieldWarning', 'EncoderFrameError', 'EncoderJumpError', 'Unwrapper',
     'code_to_command', 'code_to_volts',
     'command_to_code', 'decode_dac', 'decode_encoder', 'encode_dac', 'encode_encoder',
@@ -67,7 +68,6 @@ __all__ = [
 ]
 
 DAC_BITS = 10
-DAC_SPAN = DAC_MAX - DAC_ZERO          # 511 codes from zero to full forward
 
 ENC_BITS = 12
 ENC_COUNTS = 1 << ENC_BITS

@@ -8,10 +8,12 @@ same mapping; a test cross-checks both.
 
 from __future__ import annotations
 
-DAC_ZERO = 512
+from m4k_rt.protocol import DAC_MAX, DAC_ZERO  # the wire format owns the codes
+
+__all__ = ['DAC_MAX', 'DAC_MIN', 'DAC_SPAN', 'DAC_ZERO', 'code_to_command', 'command_to_code']
+
 DAC_MIN = 0
-DAC_MAX = 1023
-DAC_SPAN = 511  # codes per unit normalized command
+DAC_SPAN = DAC_MAX - DAC_ZERO  # 511 codes per unit normalized command
 
 
 def command_to_code(command: float) -> int:
@@ -28,6 +30,6 @@ def command_to_code(command: float) -> int:
 def code_to_command(code: int) -> float:
     """Return the normalized command in [-1, 1] for a DAC code 0..1023."""
     if code < DAC_MIN or code > DAC_MAX:
-        raise ValueError(f'DAC code must be in 0..1023, got {code!r}')
+        raise ValueError(f'DAC code must be in {DAC_MIN}..{DAC_MAX}, got {code!r}')
     c = (code - DAC_ZERO) / DAC_SPAN
     return -1.0 if c < -1.0 else c

@@ -107,13 +107,16 @@ class CollisionGuard:
                  'stale_policy', 'active', 'slowing', 'sonar_stale', 'laser_stale',
                  'distance', 'activations', 'trip_distance')
 
-    def __init__(self, *, enabled: bool = True, stop_distance: float = 0.35,
-                 release_margin: float = 0.05, slow_down: bool = True,
-                 slow_deceleration: float = 0.37, slow_floor: float = 0.05,
-                 reaction_time: float = 0.48, brake_deceleration: float = 1.5,
-                 use_sonar: bool = True, use_laser: bool = True, sonar_timeout: float = 0.2,
-                 laser_timeout: float = 0.5, stale_policy: str = 'stop',
-                 weaken: float = 0.0) -> None:
+    def __init__(self, *, enabled: bool, stop_distance: float, release_margin: float,
+                 slow_down: bool, slow_deceleration: float, slow_floor: float,
+                 reaction_time: float, brake_deceleration: float, use_sonar: bool,
+                 use_laser: bool, sonar_timeout: float, laser_timeout: float,
+                 stale_policy: str, weaken: float = 0.0) -> None:
+        """Take the ``control.guard`` settings, the slow-down deceleration and t_react.
+
+        The settings' defaults and ranges are declared once, in
+        :class:`m4k_rt.control.params.GuardParams`; ``make_guard`` passes them.
+        """
         self.stop_distance = _check('stop_distance', stop_distance)
         self.release_margin = _check('release_margin', release_margin)
         self.slow_deceleration = _check('slow_deceleration', slow_deceleration, positive=True)

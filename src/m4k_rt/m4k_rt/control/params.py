@@ -1,21 +1,26 @@
 """Control parameters: the ``control:`` section of ``config/control.yaml``, validated (pure).
 
-:data:`CONTROL` is the section's schema (:class:`m4k_rt.schema.Field`: type, default, unit,
-range or choices, what a wrong value does); ``control_params(mapping)`` validates a parsed
-section against it into frozen dataclasses (whose defaults are the table's) and raises
+Each setting is declared once, on its dataclass field, by its :class:`m4k_rt.schema.Field`
+(type, default, unit, range or choices, what a wrong value does): ``kp: float =
+setting(Field(...))``. :data:`CONTROL`, the section's dotted table that validates the file
+and generates ``docs/configuration.md``, is derived from the dataclasses
+(:func:`m4k_rt.schema.table`); the linear and angular limits share :class:`AxisLimits`,
+whose two tables :func:`_axis` makes.
+``control_params(mapping)`` validates a parsed section into the frozen dataclasses and raises
 ``ControlConfigError`` naming the offending field with its dotted path and the bad value, e.g.
 ``control.linear.max_acceleration: expected a number > 0, got -1``. Unknown keys are errors
-too: a misspelt key would otherwise silently keep a default.
+too: a misspelt key would otherwise silently keep a default. The RT tasks read plain dataclass
+attributes; no table is looked up per cycle.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 from m4k_rt.control.guard import STALE_POLICIES
 from m4k_rt.control.pid import ANTI_WINDUP_MODES
-from m4k_rt.schema import ConfigError, Field, validate_tree
+from m4k_rt.schema import build, ConfigError, Field, section, setting, table, validate_tree
 
 # Longest speed window in samples (1 s at the 10 ms actuator period): the ring is preallocated.
 MAX_SPEED_WINDOW = 100
@@ -41,225 +46,182 @@ def _nonneg(unit: str, default: float | None, description: str,
 
 
 def _axis(name: str, unit: str, vel: float, acc: float, dec: float | None) -> dict[str, Field]:
-    p = name + '.'
     return {
-        p + 'max_velocity': _pos(
+        'max_velocity': _pos(
             unit, vel, "Speed limit; commands beyond it are clamped (also the bridge's "
             'max_{}_velocity). Above what the motors reach, the PI saturates.'.format(name)),
-        p + 'max_acceleration': _pos(
+        'max_acceleration': _pos(
             unit + '/s', acc, 'Acceleration limit of the ramp. Too high: wheel slip and '
             'current peaks; too low: sluggish response.'),
-        p + 'max_deceleration': _pos(
+        'max_deceleration': _pos(
             unit + '/s', dec, 'Deceleration limit (braking on timeout too); null: '
             'max_acceleration. Too low lengthens every stop.', nullable=True),
-        p + 'max_jerk': _pos(
+        'max_jerk': _pos(
             unit + '/s^2', None, 'Jerk limit; null: none. Low values smooth the ramp and '
             'lengthen stops.', nullable=True),
     }
 
 
-CONTROL: dict[str, Field] = {
-    'wheel_radius': _pos('m', 0.1016, 'Wheel radius (Table 2: 20.32 cm diameter). Wrong: '
-                         'odometry and commanded speeds scale by the error.'),
-    'track_width': _pos('m', 0.40, 'Wheel centre to wheel centre. Wrong: turn rates and '
-                        'odometry heading scale by the error.'),
-    'gear_ratio': _pos('', 12.0, 'Motor turns per wheel turn (Table 2).'),
-    'full_scale_wheel_speed': _pos(
-        'rad/s', 19.685, 'Wheel speed at DAC code 1023 (feed-forward). Wrong: the PI must '
-        'make up the difference, with overshoot.'),
-    'max_wheel_speed': _pos('rad/s', None, 'Wheel command saturation; null: '
-                            'full_scale_wheel_speed.', nullable=True),
-    'cmd_vel_timeout': _nonneg(
-        's', 0.5, 'Without VELOCITY_CMD this long, the actuator brakes at the deceleration '
-        "limit; 0 = off (the robot keeps the last command forever). The bridge's "
-        'cmd_vel_timeout is derived from it.'),
-    'motor_timeout': _pos('s', 0.1, 'Without valid ENCODERS this long the motor is stale: '
-                          'outputs zero, disabled.'),
-    'odom_every_n': Field('int', 5, 'ODOMETRY every n-th actuator cycle (5 x 10 ms = 50 ms, '
-                          'the paper). Larger: coarser odom for Nav2.', lo=1),
-    'odom_velocity_window': Field(
-        'int', 5, 'Encoder samples the published twist is differenced over (1 = 10 ms: noisy '
-        'with a 12-bit encoder).', lo=1, hi=MAX_SPEED_WINDOW),
-    'speed_feedback_window': Field(
-        'int', 2, 'Samples the PI wheel speed is differenced over. Longer: less DAC chatter, '
-        'more lag and overshoot.', lo=1, hi=MAX_SPEED_WINDOW),
-    'speed_filter_alpha': Field(
-        'float', 1.0, 'EMA weight of a new wheel-speed sample for the PI; 1 = no filter. Low '
-        'values add lag.', lo=0, lo_open=True, hi=1.0),
-    **_axis('linear', 'm/s', 2.0, 0.37, 0.37),
-    **_axis('angular', 'rad/s', 1.5, 1.85, None),
-    'e_stop.linear_deceleration': _pos(
-        'm/s^2', None, 'Latched e-stop ramp; null: linear.max_deceleration. Below it is '
-        'refused (the e-stop may not stop later than a stale command).', nullable=True),
-    'e_stop.angular_deceleration': _pos(
-        'rad/s^2', None, 'Latched e-stop ramp; null: the angular maximum deceleration.',
-        nullable=True),
-    'e_stop.contact_samples': Field(
-        'int', 5, 'Consecutive ENCODERS samples with ESTOP_OPEN before the open contact counts '
-        '(5 = 50 ms): filters contact bounce and the read-back glitch when the enable '
-        'heartbeat restarts. The contact cuts the amplifier in hardware at once either way; '
-        'larger only delays the latch and the PI reset.', lo=1, hi=50),
-    'pi.kp': _nonneg('1/(rad/s)', 0.02, 'Proportional gain of the wheel-speed PI '
-                     '(normalized command per rad/s). Too high: oscillation.'),
-    'pi.ki': _nonneg('1/rad', 0.4, 'Integral gain. Too high: overshoot; 0: steady-state '
-                     'error under load.'),
-    'pi.kff': _nonneg('1/(rad/s)', None, 'Feed-forward gain; null: 1 / '
-                      'full_scale_wheel_speed.', nullable=True),
-    'pi.anti_windup': Field('str', 'clamping', 'Integrator anti-windup at saturation.',
-                            choices=ANTI_WINDUP_MODES),
-    'pi.kt': _nonneg('', None, 'Back-calculation tracking gain; null: ki / kp.',
-                     nullable=True),
-    'pi.integral_band': _pos('rad/s', 1.5, 'Integral separation on braking: while a wheel '
-                             'turns faster than its setpoint by more than this, the integrator '
-                             'holds, so a braking transient (a guard stop, its release) cannot '
-                             'wind it up to drive the wheels past the setpoint -- backwards '
-                             'after a stop. Underspeed (load, stall) integrates as always. Too '
-                             'small: slow correction of an overspeed; too large: windup.'),
-    'guard.enabled': Field('bool', True, 'Collision guard on forward motion. false: the '
-                           'robot drives into what its sensors see.'),
-    'guard.stop_distance': _nonneg('m', 0.35, 'Margin of the speed-aware stop zone: the gap '
-                                   'kept ahead of the front face at rest. The stop zone is '
-                                   'd(v) = v t_react + v^2 / (2 brake_deceleration) + this; '
-                                   'too small: contact from sensor noise or a late reading.'),
-    'guard.release_margin': _nonneg('m', 0.05, 'Hysteresis: once stopped, released above '
-                                    'd(slow_floor) + margin (stop_distance + margin without '
-                                    'the slow-down zone); 0 lets noise toggle the guard.'),
-    'guard.brake_deceleration': _pos(
-        'm/s^2', 1.5, 'a_brake: the deceleration the drive gives on a guard stop (zero '
-        'command, ramp bypassed), bounded by tyre traction (about mu g, mu <= 0.7) and the '
-        "amplifier's current limit. calibrate writes the measured value here. Too high: the "
-        'stop zone is too short and the robot hits what it sees at speed.', hi=9.81),
-    'guard.reaction_time': _pos(
-        's', None, 't_react of the stop zone; null: computed from the periods (2 x the '
-        'slowest guard sensor task period + the actuator period + pipeline_latency + '
-        'amplifier_lag). calibrate writes the measured command-to-deceleration time here. '
-        'Too low: the robot stops late.', nullable=True, hi=5.0),
-    'guard.pipeline_latency': _nonneg(
-        's', 0.02, 'Datagram hops sensor driver -> RT task -> actuator -> motor driver, in '
-        't_react (when reaction_time is null).'),
-    'guard.amplifier_lag': _nonneg(
-        's', 0.05, 'Time from the zero DAC word to full braking (amplifier and motor current '
-        'rise), in t_react (when reaction_time is null).'),
-    'guard.slow_down': Field('bool', True, 'Slow-down zone ahead of the stop zone: the forward '
-                             'target is capped at the inverse of d(v) with linear.'
-                             'max_deceleration, so the ramp can follow it. false: the robot '
-                             'drives at full speed until the stop zone brakes it hard.'),
-    'guard.slow_floor': _nonneg('m/s', 0.05, 'Lowest slow-down cap: the robot keeps this '
-                                'speed until the stop zone stops it (0: it creeps toward the '
-                                'stop line ever more slowly).'),
-    'guard.lateral_margin': _nonneg('m', 0.05, "Added to each side of the body's half width "
-                                    "for the laser's corridor test. 0: an obstacle grazing "
-                                    'the side is not seen.'),
-    'guard.reverse_creep_speed': _pos('m/s', 0.1, 'Reverse speed cap: no rear sensor guards '
-                                      'reversing, so it is limited to a creep. Higher: the '
-                                      'robot backs into what it cannot see faster.'),
-    'guard.laser_range': _pos('m', 5.6, 'Farthest range the laser measures (URG-04LX: 5.6 m): '
-                              'with the mount offset it bounds the top forward speed the guard '
-                              'can stop for.'),
-    'guard.sonar_range': _pos('m', 4.5, 'Farthest range the sonar measures (US-100: 4.5 m); '
-                              'bounds the top speed when the laser is not used.'),
-    'guard.use_sonar': Field('bool', True, 'Feed the sonar to the guard.'),
-    'guard.use_laser': Field('bool', True, "Feed the laser's corridor minimum to the guard."),
-    'guard.sonar_timeout': _pos('s', 0.2, 'Without a valid sonar reading this long the sonar '
-                                'is stale (see stale_policy).'),
-    'guard.laser_timeout': _pos('s', 0.5, 'Without a scan this long the laser is stale.'),
-    'guard.stale_policy': Field('str', 'stop', 'stop: a stale sensor counts as an obstacle '
-                                '(fail-safe); ignore: drive on without it.',
-                                choices=STALE_POLICIES),
-    'supervision.enabled': Field('bool', True, 'Wheel supervision: wrong direction, stall, '
-                                 'frozen or swapped encoders latch a motor fault. false: a '
-                                 'wrong-sign encoder drives the PI to full scale.'),
-    'supervision.speed_threshold': _pos(
-        'rad/s', 0.5, 'Supervision acts while |wheel setpoint| is above this (0.5 rad/s = '
-        '5 cm/s at the rim). Too low: false trips from encoder quantization at crawl speed.'),
-    'supervision.min_speed': _pos(
-        'rad/s', 0.3, 'A measured wheel speed below this has no direction (the wrong-way and '
-        'swap tests ignore it).'),
-    'supervision.wrong_way_time': _pos('s', 0.1, 'A wheel turning against its setpoint this '
-                                       'long latches the fault.', hi=0.3),
-    'supervision.frozen_time': _pos('s', 0.15, 'An encoder angle unchanged this long while the '
-                                    'wheel is commanded latches the fault.', hi=0.3),
-    'supervision.stall_time': _pos('s', 0.2, 'A wheel below stall_ratio of its setpoint with '
-                                   'the PI output saturated this long latches the fault.',
-                                   hi=0.3),
-    'supervision.stall_ratio': _pos('', 0.2, 'Stall: measured speed below this fraction of the '
-                                    'setpoint.', hi=1.0),
-    'supervision.swap_time': _pos('s', 0.1, "Wheels answering each other's setpoints this "
-                                  'long (swapped channels) latch the fault.', hi=0.3),
-}
-
-
-def _d(name: str) -> Any:
-    return CONTROL[name].default
-
 
 @dataclass(frozen=True)
 class AxisLimits:
-    """Limits of one axis (linear in m/s, m/s^2, m/s^3 or angular in rad/s, ...)."""
+    """Limits of one axis (linear in m/s, m/s^2, m/s^3 or angular in rad/s, ...).
 
-    max_velocity: float = _d('linear.max_velocity')
-    max_acceleration: float = _d('linear.max_acceleration')
-    max_deceleration: float | None = None   # None: same as max_acceleration
-    max_jerk: float | None = None           # None: no jerk limit
+    Declared by :func:`_axis` for each axis (defaults and units differ); None: see the table.
+    """
 
-
-@dataclass(frozen=True)
-class PiGains:
-    """Wheel-speed PI gains (normalized command per rad/s)."""
-
-    kp: float = _d('pi.kp')
-    ki: float = _d('pi.ki')
-    kff: float | None = _d('pi.kff')    # None: 1 / full_scale_wheel_speed
-    anti_windup: str = _d('pi.anti_windup')
-    kt: float | None = _d('pi.kt')      # back-calculation tracking gain; None: ki / kp
-    integral_band: float = _d('pi.integral_band')   # rad/s, integral separation
-
-
-@dataclass(frozen=True)
-class GuardParams:
-    """Collision guard settings (see ``control.guard``)."""
-
-    enabled: bool = _d('guard.enabled')
-    stop_distance: float = _d('guard.stop_distance')
-    release_margin: float = _d('guard.release_margin')
-    brake_deceleration: float = _d('guard.brake_deceleration')
-    reaction_time: float | None = _d('guard.reaction_time')
-    pipeline_latency: float = _d('guard.pipeline_latency')
-    amplifier_lag: float = _d('guard.amplifier_lag')
-    slow_down: bool = _d('guard.slow_down')
-    slow_floor: float = _d('guard.slow_floor')
-    lateral_margin: float = _d('guard.lateral_margin')
-    reverse_creep_speed: float = _d('guard.reverse_creep_speed')
-    laser_range: float = _d('guard.laser_range')
-    sonar_range: float = _d('guard.sonar_range')
-    use_sonar: bool = _d('guard.use_sonar')
-    use_laser: bool = _d('guard.use_laser')
-    sonar_timeout: float = _d('guard.sonar_timeout')
-    laser_timeout: float = _d('guard.laser_timeout')
-    stale_policy: str = _d('guard.stale_policy')
-
-
-@dataclass(frozen=True)
-class SupervisionParams:
-    """Wheel supervision settings (see ``control.supervision``)."""
-
-    enabled: bool = _d('supervision.enabled')
-    speed_threshold: float = _d('supervision.speed_threshold')
-    min_speed: float = _d('supervision.min_speed')
-    wrong_way_time: float = _d('supervision.wrong_way_time')
-    frozen_time: float = _d('supervision.frozen_time')
-    stall_time: float = _d('supervision.stall_time')
-    stall_ratio: float = _d('supervision.stall_ratio')
-    swap_time: float = _d('supervision.swap_time')
+    max_velocity: float
+    max_acceleration: float
+    max_deceleration: float | None   # None: same as max_acceleration
+    max_jerk: float | None           # None: no jerk limit
 
 
 @dataclass(frozen=True)
 class EStopParams:
     """Decelerations of the latched e-stop (``control.e_stop``); None: the axis's maximum."""
 
-    linear_deceleration: float | None = None    # m/s^2
-    angular_deceleration: float | None = None   # rad/s^2
-    contact_samples: int = 5                     # consecutive ESTOP_OPEN samples
+    linear_deceleration: float | None = setting(_pos(
+        'm/s^2', None, 'Latched e-stop ramp; null: linear.max_deceleration. Below it is '
+        'refused (the e-stop may not stop later than a stale command).', nullable=True))
+    angular_deceleration: float | None = setting(_pos(
+        'rad/s^2', None, 'Latched e-stop ramp; null: the angular maximum deceleration.',
+        nullable=True))
+    contact_samples: int = setting(Field(
+        'int', 5, 'Consecutive ENCODERS samples with ESTOP_OPEN before the open contact counts '
+        '(5 = 50 ms): filters contact bounce and the read-back glitch when the enable '
+        'heartbeat restarts. The contact cuts the amplifier in hardware at once either way; '
+        'larger only delays the latch and the PI reset.', lo=1, hi=50))
+
+
+@dataclass(frozen=True)
+class PiGains:
+    """Wheel-speed PI gains (normalized command per rad/s)."""
+
+    kp: float = setting(_nonneg(
+        '1/(rad/s)', 0.02, 'Proportional gain of the wheel-speed PI '
+        '(normalized command per rad/s). Too high: oscillation.'))
+    ki: float = setting(_nonneg(
+        '1/rad', 0.4, 'Integral gain. Too high: overshoot; 0: steady-state '
+        'error under load.'))
+    kff: float | None = setting(_nonneg(
+        '1/(rad/s)', None, 'Feed-forward gain; null: 1 / '
+        'full_scale_wheel_speed.', nullable=True))
+    anti_windup: str = setting(Field(
+        'str', 'clamping', 'Integrator anti-windup at saturation.',
+        choices=ANTI_WINDUP_MODES))
+    kt: float | None = setting(_nonneg(
+        '', None, 'Back-calculation tracking gain; null: ki / kp.',
+        nullable=True))
+    integral_band: float = setting(_pos(
+        'rad/s', 1.5, 'Integral separation on braking: while a wheel '
+        'turns faster than its setpoint by more than this, the integrator '
+        'holds, so a braking transient (a guard stop, its release) cannot '
+        'wind it up to drive the wheels past the setpoint -- backwards '
+        'after a stop. Underspeed (load, stall) integrates as always. Too '
+        'small: slow correction of an overspeed; too large: windup.'))
+
+
+@dataclass(frozen=True)
+class GuardParams:
+    """Collision guard settings (see ``control.guard``)."""
+
+    enabled: bool = setting(Field(
+        'bool', True, 'Collision guard on forward motion. false: the '
+        'robot drives into what its sensors see.'))
+    stop_distance: float = setting(_nonneg(
+        'm', 0.35, 'Margin of the speed-aware stop zone: the gap '
+        'kept ahead of the front face at rest. The stop zone is '
+        'd(v) = v t_react + v^2 / (2 brake_deceleration) + this; '
+        'too small: contact from sensor noise or a late reading.'))
+    release_margin: float = setting(_nonneg(
+        'm', 0.05, 'Hysteresis: once stopped, released above '
+        'd(slow_floor) + margin (stop_distance + margin without '
+        'the slow-down zone); 0 lets noise toggle the guard.'))
+    brake_deceleration: float = setting(_pos(
+        'm/s^2', 1.5, 'a_brake: the deceleration the drive gives on a guard stop (zero '
+        'command, ramp bypassed), bounded by tyre traction (about mu g, mu <= 0.7) and the '
+        "amplifier's current limit. calibrate writes the measured value here. Too high: the "
+        'stop zone is too short and the robot hits what it sees at speed.', hi=9.81))
+    reaction_time: float | None = setting(_pos(
+        's', None, 't_react of the stop zone; null: computed from the periods (2 x the '
+        'slowest guard sensor task period + the actuator period + pipeline_latency + '
+        'amplifier_lag). calibrate writes the measured command-to-deceleration time here. '
+        'Too low: the robot stops late.', nullable=True, hi=5.0))
+    pipeline_latency: float = setting(_nonneg(
+        's', 0.02, 'Datagram hops sensor driver -> RT task -> actuator -> motor driver, in '
+        't_react (when reaction_time is null).'))
+    amplifier_lag: float = setting(_nonneg(
+        's', 0.05, 'Time from the zero DAC word to full braking (amplifier and motor current '
+        'rise), in t_react (when reaction_time is null).'))
+    slow_down: bool = setting(Field(
+        'bool', True, 'Slow-down zone ahead of the stop zone: the forward '
+        'target is capped at the inverse of d(v) with linear.'
+        'max_deceleration, so the ramp can follow it. false: the robot '
+        'drives at full speed until the stop zone brakes it hard.'))
+    slow_floor: float = setting(_nonneg(
+        'm/s', 0.05, 'Lowest slow-down cap: the robot keeps this '
+        'speed until the stop zone stops it (0: it creeps toward the '
+        'stop line ever more slowly).'))
+    lateral_margin: float = setting(_nonneg(
+        'm', 0.05, "Added to each side of the body's half width "
+        "for the laser's corridor test. 0: an obstacle grazing "
+        'the side is not seen.'))
+    reverse_creep_speed: float = setting(_pos(
+        'm/s', 0.1, 'Reverse speed cap: no rear sensor guards '
+        'reversing, so it is limited to a creep. Higher: the '
+        'robot backs into what it cannot see faster.'))
+    laser_range: float = setting(_pos(
+        'm', 5.6, 'Farthest range the laser measures (URG-04LX: 5.6 m): '
+        'with the mount offset it bounds the top forward speed the guard '
+        'can stop for.'))
+    sonar_range: float = setting(_pos(
+        'm', 4.5, 'Farthest range the sonar measures (US-100: 4.5 m); '
+        'bounds the top speed when the laser is not used.'))
+    use_sonar: bool = setting(Field(
+        'bool', True, 'Feed the sonar to the guard.'))
+    use_laser: bool = setting(Field(
+        'bool', True, "Feed the laser's corridor minimum to the guard."))
+    sonar_timeout: float = setting(_pos(
+        's', 0.2, 'Without a valid sonar reading this long the sonar '
+        'is stale (see stale_policy).'))
+    laser_timeout: float = setting(_pos(
+        's', 0.5, 'Without a scan this long the laser is stale.'))
+    stale_policy: str = setting(Field(
+        'str', 'stop', 'stop: a stale sensor counts as an obstacle '
+        '(fail-safe); ignore: drive on without it.',
+        choices=STALE_POLICIES))
+
+
+@dataclass(frozen=True)
+class SupervisionParams:
+    """Wheel supervision settings (see ``control.supervision``)."""
+
+    enabled: bool = setting(Field(
+        'bool', True, 'Wheel supervision: wrong direction, stall, '
+        'frozen or swapped encoders latch a motor fault. false: a '
+        'wrong-sign encoder drives the PI to full scale.'))
+    speed_threshold: float = setting(_pos(
+        'rad/s', 0.5, 'Supervision acts while |wheel setpoint| is above this (0.5 rad/s = '
+        '5 cm/s at the rim). Too low: false trips from encoder quantization at crawl speed.'))
+    min_speed: float = setting(_pos(
+        'rad/s', 0.3, 'A measured wheel speed below this has no direction (the wrong-way and '
+        'swap tests ignore it).'))
+    wrong_way_time: float = setting(_pos(
+        's', 0.1, 'A wheel turning against its setpoint this '
+        'long latches the fault.', hi=0.3))
+    frozen_time: float = setting(_pos(
+        's', 0.15, 'An encoder angle unchanged this long while the '
+        'wheel is commanded latches the fault.', hi=0.3))
+    stall_time: float = setting(_pos(
+        's', 0.2, 'A wheel below stall_ratio of its setpoint with '
+        'the PI output saturated this long latches the fault.',
+        hi=0.3))
+    stall_ratio: float = setting(_pos(
+        '', 0.2, 'Stall: measured speed below this fraction of the '
+        'setpoint.', hi=1.0))
+    swap_time: float = setting(_pos(
+        's', 0.1, "Wheels answering each other's setpoints this "
+        'long (swapped channels) latch the fault.', hi=0.3))
 
 
 def _axis_deceleration(limits: AxisLimits) -> float:
@@ -267,35 +229,49 @@ def _axis_deceleration(limits: AxisLimits) -> float:
             else limits.max_deceleration)
 
 
-def _group(cls: Any, flat: Mapping[str, Any], prefix: str) -> Any:
-    return cls(**{k[len(prefix) + 1:]: v for k, v in flat.items()
-                  if k.startswith(prefix + '.')})
-
-
 @dataclass(frozen=True)
 class ControlParams:
-    """All parameters of the base controller (defaults: :data:`CONTROL`)."""
+    """All parameters of the base controller: the one declaration of ``control:``."""
 
-    wheel_radius: float = _d('wheel_radius')
-    track_width: float = _d('track_width')
-    gear_ratio: float = _d('gear_ratio')
-    full_scale_wheel_speed: float = _d('full_scale_wheel_speed')
-    max_wheel_speed: float | None = _d('max_wheel_speed')   # None: full scale
-    cmd_vel_timeout: float = _d('cmd_vel_timeout')          # s; 0 disables the brake
-    motor_timeout: float = _d('motor_timeout')
-    odom_every_n: int = _d('odom_every_n')
-    odom_velocity_window: int = _d('odom_velocity_window')
-    speed_feedback_window: int = _d('speed_feedback_window')
-    speed_filter_alpha: float = _d('speed_filter_alpha')
-    linear: AxisLimits = field(default_factory=lambda: _group(
-        AxisLimits, {k: f.default for k, f in CONTROL.items()}, 'linear'))
-    angular: AxisLimits = field(default_factory=lambda: _group(
-        AxisLimits, {k: f.default for k, f in CONTROL.items()}, 'angular'))
-    pi: PiGains = field(default_factory=PiGains)
-    guard: GuardParams = field(default_factory=GuardParams)
-    supervision: SupervisionParams = field(default_factory=SupervisionParams)
-    e_stop: EStopParams = field(default_factory=EStopParams)
-
+    wheel_radius: float = setting(_pos(
+        'm', 0.1016, 'Wheel radius (Table 2: 20.32 cm diameter). Wrong: '
+        'odometry and commanded speeds scale by the error.'))
+    track_width: float = setting(_pos(
+        'm', 0.40, 'Wheel centre to wheel centre. Wrong: turn rates and '
+        'odometry heading scale by the error.'))
+    gear_ratio: float = setting(_pos(
+        '', 12.0, 'Motor turns per wheel turn (Table 2).'))
+    full_scale_wheel_speed: float = setting(_pos(
+        'rad/s', 19.685, 'Wheel speed at DAC code 1023 (feed-forward). Wrong: the PI must '
+        'make up the difference, with overshoot.'))
+    max_wheel_speed: float | None = setting(_pos(
+        'rad/s', None, 'Wheel command saturation; null: '
+        'full_scale_wheel_speed.', nullable=True))
+    cmd_vel_timeout: float = setting(_nonneg(
+        's', 0.5, 'Without VELOCITY_CMD this long, the actuator brakes at the deceleration '
+        "limit; 0 = off (the robot keeps the last command forever). The bridge's "
+        'cmd_vel_timeout is derived from it.'))
+    motor_timeout: float = setting(_pos(
+        's', 0.1, 'Without valid ENCODERS this long the motor is stale: '
+        'outputs zero, disabled.'))
+    odom_every_n: int = setting(Field(
+        'int', 5, 'ODOMETRY every n-th actuator cycle (5 x 10 ms = 50 ms, '
+        'the paper). Larger: coarser odom for Nav2.', lo=1))
+    odom_velocity_window: int = setting(Field(
+        'int', 5, 'Encoder samples the published twist is differenced over (1 = 10 ms: noisy '
+        'with a 12-bit encoder).', lo=1, hi=MAX_SPEED_WINDOW))
+    speed_feedback_window: int = setting(Field(
+        'int', 2, 'Samples the PI wheel speed is differenced over. Longer: less DAC chatter, '
+        'more lag and overshoot.', lo=1, hi=MAX_SPEED_WINDOW))
+    speed_filter_alpha: float = setting(Field(
+        'float', 1.0, 'EMA weight of a new wheel-speed sample for the PI; 1 = no filter. Low '
+        'values add lag.', lo=0, lo_open=True, hi=1.0))
+    linear: AxisLimits = section(AxisLimits, _axis('linear', 'm/s', 2.0, 0.37, 0.37))
+    angular: AxisLimits = section(AxisLimits, _axis('angular', 'rad/s', 1.5, 1.85, None))
+    e_stop: EStopParams = section(EStopParams)
+    pi: PiGains = section(PiGains)
+    guard: GuardParams = section(GuardParams)
+    supervision: SupervisionParams = section(SupervisionParams)
     @property
     def e_stop_linear_deceleration(self) -> float:
         """Return the e-stop's linear deceleration actually used [m/s^2]."""
@@ -320,15 +296,14 @@ class ControlParams:
                 else self.max_wheel_speed)
 
 
-def control_params(section: Mapping[str, Any] | None, path: str = 'control') -> ControlParams:
+# The section's dotted table, derived from the declaration above (docs, validation, bridge).
+CONTROL: dict[str, Field] = table(ControlParams)
+
+
+def control_params(mapping: Mapping[str, Any] | None, path: str = 'control') -> ControlParams:
     """Validate the ``control:`` mapping and return ``ControlParams`` (defaults fill gaps)."""
-    flat = validate_tree(CONTROL, section, path, ControlConfigError)
-    params = ControlParams(
-        **{k: v for k, v in flat.items() if '.' not in k},
-        linear=_group(AxisLimits, flat, 'linear'), angular=_group(AxisLimits, flat, 'angular'),
-        pi=_group(PiGains, flat, 'pi'), guard=_group(GuardParams, flat, 'guard'),
-        supervision=_group(SupervisionParams, flat, 'supervision'),
-        e_stop=_group(EStopParams, flat, 'e_stop'))
+    params: ControlParams = build(
+        ControlParams, validate_tree(CONTROL, mapping, path, ControlConfigError))
     lin_dec = _axis_deceleration(params.linear)
     if params.guard.brake_deceleration < lin_dec:
         raise ControlConfigError(
