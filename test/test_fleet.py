@@ -23,9 +23,11 @@ reaction), and the motor service drops part of the wheel commands as older than 
 two-period freshness window.
 The waits are therefore long and the judgments are on where each robot went, which direction
 it turned and that it reached the commanded speed -- never on how fast it got there. A bridge
-starved at the moment of the drop may still forward the commands it received before it (the
-robot then drives on for at most the cmd_vel timeout after the last one): the stopped robot
-is judged from its last motion on, for HOLD_S and for as long as r2 needs to turn on.
+starved at the moment of the drop may still forward commands it took in before it, for at most
+cmd_vel_timeout after they arrived (later ones it drops, counted cmd_vel_late: before that
+rule such a robot was seen driving short bursts up to 16 s after its link went down); the
+stopped robot is judged from its last motion on, for HOLD_S and for as long as r2 needs to
+turn on.
 Needs root (namespaces); every namespace and link is removed at the end.
 """
 
