@@ -1,7 +1,8 @@
 """The 'laptop' of test_fleet: drives several namespaced robots and watches their TF trees.
 
 ``python netns_fleet.py CONTROL STATUS r1 r2 ...``: every 50 ms it reads CONTROL (JSON,
-robot -> linear.x to publish on /<robot>/cmd_vel, or absent: publish nothing for it) and
+robot -> the command to publish on /<robot>/cmd_vel: a number (linear.x) or a pair
+[linear.x, angular.z]; absent or null: publish nothing for it) and
 writes STATUS (JSON): per robot how many subscriptions its cmd_vel publisher matched, how many
 commands it sent, and every (parent, child) transform heard on /<robot>/tf and
 /<robot>/tf_static, so the test sees each robot's tree as a tf listener of that robot would.
@@ -53,7 +54,9 @@ def main(control: str, status: str, robots: list) -> int:
             for r, v in word.items():
                 if r in pubs and v is not None:
                     msg = Twist()
-                    msg.linear.x = float(v)
+                    vx, wz = (v, 0.0) if isinstance(v, (int, float)) else v
+                    msg.linear.x = float(vx)
+                    msg.angular.z = float(wz)
                     pubs[r].publish(msg)
                     sent[r] += 1
             tmp = status + '.tmp'

@@ -9,15 +9,30 @@ carry the data past a cut link). Ground truth is each simulator's.
 * each robot's namespaced cmd_vel reaches that robot's bridge and no other (the laptop's
   publisher on /rN/cmd_vel matches exactly one subscription across the link);
 * each TF tree is whole and separate: on /rN/tf and /rN/tf_static only rN/ frames, one tree
-  from rN/odom to the laser.
+  from rN/odom to the laser;
+* each robot is driven by its own cmd_vel, on its own simulator's truth: r1 forward, r2 turning
+  on the spot, r3 commanded zero and standing, each only as commanded;
+* a link drop stops only that robot: r1's link down while it drives, the laptop still
+  commanding all three; r1 stops on its RT actuator's command supervision (no VELOCITY_CMD for
+  control.cmd_vel_timeout) and stays stopped, r2 turns on, r3 stands.
 
-Not here yet (issue 29): driving each robot by its own cmd_vel judged on ground truth, and a
-link drop stopping only that robot -- on this shared 2-core VM three stacks overran their RT
-tasks so far that the motor service dropped the commands as stale and no robot reached speed.
+Three full stacks on this shared 2-core VM are more than its cores (each idle stack is ~0.6-1
+core: bridge, simulator, driver host, RT core): the robots drive in bursts, stopping whenever
+a starved process makes a guard sensor, the encoders or the commands late (the fail-safe
+reaction), and the motor service drops part of the wheel commands as older than its
+two-period freshness window.
+The waits are therefore long and the judgments are on where each robot went, which direction
+it turned and that it reached the commanded speed -- never on how fast it got there. A bridge
+starved at the moment of the drop may still forward commands it took in before it, for at most
+cmd_vel_timeout after they arrived (later ones it drops, counted cmd_vel_late: before that
+rule such a robot was seen driving short bursts up to 16 s after its link went down); the
+stopped robot is judged from its last motion on, for HOLD_S and for as long as r2 needs to
+turn on.
 Needs root (namespaces); every namespace and link is removed at the end.
 """
 
 import json
+import math
 import os
 import random
 import shutil
@@ -147,7 +162,98 @@ def _tree_is_whole_and_own(edges, robot):
         assert robot + '/' + f in frames, (robot, f)
 
 
-def test_three_robots_one_argument_each_cmd_vel_apart_trees_whole_and_apart(
+# What the laptop commands, each robot something else: (linear.x m/s, angular.z rad/s).
+V, W = 0.2, 0.6
+COMMANDS = {'r1': [V, 0.0], 'r2': [0.0, W], 'r3': [0.0, 0.0]}
+DRIVE_M = 0.4        # r1's true travel, r2's true turn, before the link drop
+TURN_RAD = 1.5
+AT_REST = 0.005      # m/s of true speed (test_estop_e2e)
+AT_REST_W = 0.02     # rad/s of true turn rate
+STILL_M = 0.005      # m of true travel at rest
+SPEED_TOL = 0.02     # m/s or rad/s: the true speed reached the commanded one
+STRAIGHT_RAD = 0.1   # rad of true heading change while r1 drives straight
+# A wheel PI braking on late feedback (commands dropped as stale, encoders late) may overshoot
+# into a brief reverse: seen once at -0.025 m/s for 0.2 s (1.7 mm back) on a loaded VM.
+BACK_TOL = 0.05      # m/s or rad/s the other way at any moment
+RETREAT_M = 0.01     # m r1 may fall back behind the furthest point it reached
+SPOT_M = 0.02        # m the centre of r2 may move while it turns on the spot
+HOLD_S = 3.0         # s the stopped robot is watched staying stopped (6 cmd_vel timeouts)
+LONG_S = 180         # s any one wait may take (three stacks on 2 shared cores)
+
+
+def _dead(procs):
+    return any(p.poll() is not None for p in procs)
+
+
+def _alive(robots, laptop, tmp_path):
+    for r, p in robots.items():
+        assert p.poll() is None, (tmp_path / (r + '.err')).read_text()[-3000:]
+    assert laptop.poll() is None, (tmp_path / 'laptop.err').read_text()[-3000:]
+
+
+def _travel(reports):
+    """Return the true straight-line distance between the first and the last report (m)."""
+    if len(reports) < 2:
+        return 0.0
+    (x0, y0, _), (x1, y1, _) = reports[0]['pose'], reports[-1]['pose']
+    return math.hypot(x1 - x0, y1 - y0)
+
+
+def _retreat(reports):
+    """Return how far (m) the robot fell back behind the furthest point it reached, along x."""
+    furthest, worst = -math.inf, 0.0
+    for g in reports:
+        furthest = max(furthest, g['pose'][0])
+        worst = max(worst, furthest - g['pose'][0])
+    return worst
+
+
+def _turned(reports):
+    """Return the true heading change over the reports, unwrapped (rad)."""
+    total = 0.0
+    for a, b in zip(reports, reports[1:], strict=False):
+        d = b['pose'][2] - a['pose'][2]
+        total += math.atan2(math.sin(d), math.cos(d))
+    return total
+
+
+def _vw(reports):
+    """Return (t s, v, w, motor_enabled) of each report, for a failure message."""
+    return [(round(g['t_ns'] / 1e9, 3), round(g['v'], 4), round(g['w'], 4),
+             g.get('motor_enabled')) for g in reports]
+
+
+def _at_rest(g):
+    return abs(g['v']) < AT_REST and abs(g['w']) < AT_REST_W
+
+
+def _moving_as_commanded(reports):
+    """Assert on ground truth that each robot moves as COMMANDS says, and only so.
+
+    On a loaded machine a robot may drive in bursts (its commands late past the RT
+    actuator's cmd_vel timeout, it brakes, and drives on with the next): judged here are
+    the direction, that the commanded speed was reached, and the robots that must not move.
+    """
+    if 'r1' in reports:      # forward and straight, up to the commanded speed
+        g = reports['r1']
+        assert max(x['v'] for x in g) > V - SPEED_TOL, _vw(g)[-20:]
+        assert all(x['v'] > -BACK_TOL for x in g), _vw(g)
+        assert _retreat(g) < RETREAT_M, (_retreat(g), _vw(g))
+        assert abs(_turned(g)) < STRAIGHT_RAD, (_turned(g), _vw(g))
+    if 'r2' in reports:      # counter-clockwise on the spot, up to the commanded rate
+        g = reports['r2']
+        assert max(x['w'] for x in g) > W - SPEED_TOL, _vw(g)[-20:]
+        assert all(x['w'] > -BACK_TOL for x in g), _vw(g)
+        assert all(abs(x['v']) < SPEED_TOL for x in g), _vw(g)
+        assert _travel(g) < SPOT_M, _travel(g)
+    if 'r3' in reports:      # commanded zero: stands
+        g = reports['r3']
+        assert len(g) >= 2
+        assert all(_at_rest(x) for x in g), _vw(g)
+        assert _travel(g) < STILL_M and abs(_turned(g)) < 0.01, _vw(g)
+
+
+def test_three_robots_one_argument_each_trees_apart_driven_apart_link_drop_stops_one(
         fleet, procs, tmp_path):
     overlay = write_overlay(tmp_path, {'world': {'start': START}})
     truths, robots = {}, {}
@@ -192,7 +298,63 @@ def test_three_robots_one_argument_each_cmd_vel_apart_trees_whole_and_apart(
         assert all(s[r]['matched'] == 1 for r in ROBOTS), s
         for r, p in robots.items():
             assert p.poll() is None, (tmp_path / (r + '.err')).read_text()[-3000:]
+
+        # each robot driven by its own cmd_vel, judged on its own simulator's truth
+        _say(control, COMMANDS)
+        t0 = {r: truths[r].latest()['t_ns'] for r in ROBOTS}
+
+        def since(r, t_ns):
+            return [g for g in truths[r].reports if g['t_ns'] >= t_ns]
+
+        def driven():
+            return (_travel(since('r1', t0['r1'])) > DRIVE_M
+                    and _turned(since('r2', t0['r2'])) > TURN_RAD)
+        _wait(lambda: driven() or _dead(everyone), LONG_S,
+              'r1 to drive {} m and r2 to turn {} rad'.format(DRIVE_M, TURN_RAD), truths)
+        _alive(robots, laptop, tmp_path)
+        _moving_as_commanded({r: since(r, t0[r]) for r in ROBOTS})
+
+        # r1's link down while r1 drives, the laptop still commanding all three. r1 stops on
+        # its RT actuator's command supervision: no VELOCITY_CMD for control.cmd_vel_timeout
+        # (0.5 s) -> target zero, ramped down at the deceleration limit (flag BRAKING; the
+        # bridge only labels its cmd_vel input idle). It stays stopped; r2 and r3 carry on.
+        _wait(lambda: truths['r1'].latest()['v'] > V / 2 or _dead(everyone), LONG_S,
+              'r1 to be driving before its link goes down', truths)
+        sent = _status(status)
+        fleet.down('r1')
+        t_down = {r: truths[r].latest()['t_ns'] for r in ROBOTS}
+        (tmp_path / 'down').write_text(str(t_down['r1']))
+
+        def resting(r):
+            """Return the time r has been at rest since t_down (s; 0 while it moves)."""
+            g = since(r, t_down[r])
+            moving = [x['t_ns'] for x in g if not _at_rest(x)]
+            calm = [x for x in g if x['t_ns'] > max(moving, default=0)]
+            return (calm[-1]['t_ns'] - calm[0]['t_ns']) / 1e9 if len(calm) >= 2 else 0.0
+        _wait(lambda: resting('r1') > HOLD_S or _dead(everyone), LONG_S,
+              'r1 to stop after its link went down and stay stopped {} s'.format(HOLD_S),
+              truths)
+        _alive(robots, laptop, tmp_path)
+        t_rest = next((x['t_ns'] for x in reversed(since('r1', t_down['r1']))
+                       if not _at_rest(x)), t_down['r1'])
+        t_more = {r: truths[r].latest()['t_ns'] for r in ROBOTS}
+        _wait(lambda: _dead(everyone) or _turned(since('r2', t_more['r2'])) > TURN_RAD / 2,
+              LONG_S, 'r2 to turn on after r1 stopped', truths)
+        _alive(robots, laptop, tmp_path)
+        after = {r: since(r, t_more[r]) for r in ROBOTS}
+        rest = [x for x in since('r1', t_rest) if x['t_ns'] > t_rest]
+        assert len(rest) >= 2 and len(after['r1']) >= 2, _vw(rest)
+        assert all(_at_rest(x) for x in rest), (t_down['r1'] / 1e9, _vw(rest))
+        assert _travel(rest) < STILL_M, _vw(rest)
+        # r2 still turns on the spot as commanded, r3 still stands
+        _moving_as_commanded({'r2': after['r2'], 'r3': after['r3']})
+        # the laptop kept commanding all three, and still reaches r2 and r3
+        now = _status(status)
+        assert all(now[r]['sent'] > sent[r]['sent'] for r in ROBOTS), (sent, now)
+        assert now['r2']['matched'] == 1 and now['r3']['matched'] == 1, now
     finally:
+        for r in ROBOTS:     # for a failure's post-mortem: every truth report seen
+            (tmp_path / ('truth-' + r + '.json')).write_text(json.dumps(truths[r].reports))
         for proc in [laptop] + list(robots.values()):
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)

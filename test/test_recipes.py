@@ -15,6 +15,7 @@
 import copy
 import math
 import os
+import types
 
 import consumers
 import pytest
@@ -25,6 +26,8 @@ import yaml
 from m4k_bridge import graphcheck, params, safety
 from m4k_bringup import recipes
 from m4k_rt import config, description
+from m4k_rt.control.params import control_params
+from m4k_rt.tasks.actuator import guard_plan
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 CONFIG = os.path.join(ROOT, 'config')
@@ -182,6 +185,39 @@ def test_nav2_controller_and_smoother_limits_are_control_yaml_s(rel):
         ang['max_velocity'])
     assert mppi['vx_max'] == vs['max_velocity'][0] <= lin['max_velocity']
     assert n['behavior_server']['rotational_acc_lim'] == ang['max_acceleration']
+
+
+@pytest.mark.parametrize('rel', (NAV2, NAV2_MUX))
+def test_nav2_speeds_are_the_collision_guards_caps(rel):
+    # what rt_core states at start-up: the guard's top forward speed and its reverse creep
+    layered = config.load_layered(config_dir=CONFIG)
+    cfg = config.parse(layered)
+    plan = guard_plan(control_params(layered['control']),
+                      cfg.task('actuator').period_ns * 1e-9, types.SimpleNamespace(config=cfg),
+                      layered['robot'])
+    n = _nodes(_load(rel))
+    vs, mppi = n['velocity_smoother'], n['controller_server']['FollowPath']
+    assert (mppi['vx_max'], mppi['vx_min']) == (plan.top_speed, -plan.reverse_creep)
+    assert vs['max_velocity'][0] == plan.top_speed and vs['min_velocity'][0] == \
+        -plan.reverse_creep
+
+
+def test_a_changed_guard_or_top_speed_moves_the_nav2_speeds():
+    changed = copy.deepcopy(config.load_layered(config_dir=CONFIG))
+    changed['control']['linear']['max_velocity'] = 0.8
+    changed['control']['guard']['reverse_creep_speed'] = 0.05
+    n = _nodes(yaml.safe_load(recipes.generate(changed)[NAV2]))
+    assert n['controller_server']['FollowPath']['vx_max'] == 0.8
+    assert n['velocity_smoother']['min_velocity'][0] == -0.05
+    # a laser that sees less than the top speed needs: the guard's (lower) cap, not 0.8
+    changed['control']['guard']['laser_range'] = 1.0
+    vx = _nodes(yaml.safe_load(recipes.generate(changed)[NAV2]))[
+        'controller_server']['FollowPath']['vx_max']
+    assert 0.0 < vx < 0.8
+    # with the guard off nothing caps reverse but the base
+    changed['control']['guard']['enabled'] = False
+    n = _nodes(yaml.safe_load(recipes.generate(changed)[NAV2]))
+    assert n['velocity_smoother']['min_velocity'][0] == -0.8
 
 
 def test_slam_toolbox_uses_the_urg_range_and_the_odometry_child_frame():

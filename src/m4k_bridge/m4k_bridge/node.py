@@ -65,7 +65,7 @@ from m4k_rt import config, description, protocol, xddp, yamlload
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
-__all__ = ['BridgeNode', 'main', 'param_files']
+__all__ = ['BridgeNode', 'late_command_s', 'main', 'param_files']
 
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 # cmd_vel is taken best effort: a reliable reader makes a reliable writer (Nav2, teleop) keep
@@ -83,6 +83,18 @@ _descriptor = descriptor
 
 def _diagnostic(s: Status) -> Any:
     return make_status(s.name, s.level, s.message, s.values, hardware_id=s.hardware_id)
+
+
+def late_command_s(received_ns: int, now_ns: int, timeout_s: float) -> float | None:
+    """Return how long a command waited since it arrived, when longer than ``timeout_s``.
+
+    None: in time, or not judged (no reception time from the middleware: 0; the timeout
+    off: 0). Both times are this machine's system clock.
+    """
+    if received_ns <= 0 or timeout_s <= 0:
+        return None
+    waited = (now_ns - received_ns) * 1e-9
+    return waited if waited > timeout_s else None
 
 
 class BridgeNode(Node):
@@ -258,12 +270,16 @@ class BridgeNode(Node):
 
     # --- inbound: ROS -> RT ---------------------------------------------------------------------
 
-    def _on_twist(self, msg: Twist) -> None:
+    def _on_twist(self, msg: Twist, info: Any) -> None:
         self._flight.keep_cmd_vel(msg)      # as received, before any check
+        if self._waited_too_long(info):
+            return
         self._command(msg.linear.x, msg.angular.z)
 
-    def _on_twist_stamped(self, msg: TwistStamped) -> None:
+    def _on_twist_stamped(self, msg: TwistStamped, info: Any) -> None:
         self._flight.keep_cmd_vel(msg)
+        if self._waited_too_long(info):
+            return
         stamp = msg.header.stamp
         if not self._safety.gate.accept(stamp.sec * 1_000_000_000 + stamp.nanosec):
             self.get_logger().warning(
@@ -271,6 +287,26 @@ class BridgeNode(Node):
                     self._safety.gate.rejected), throttle_duration_sec=1.0)
             return
         self._command(msg.twist.linear.x, msg.twist.angular.z)
+
+    def _waited_too_long(self, info: Any) -> bool:
+        """Drop (and count) a cmd_vel that waited in this node longer than cmd_vel_timeout.
+
+        ``info`` is rclpy's MessageInfo: its ``received_timestamp`` is when the middleware
+        took the sample in on this machine (system clock, never the sender's). A starved bridge
+        can run its callbacks seconds after the commands arrived -- after a link drop, for
+        commands from before it -- and by then the RT actuator has braked on their absence;
+        forwarding one would restart the robot on a command its sender has long replaced.
+        """
+        rx_ns = int((info or {}).get('received_timestamp', 0) or 0)
+        late_s = late_command_s(rx_ns, time.time_ns(), self.p['cmd_vel_timeout'])
+        if late_s is None:
+            return False
+        n = self.health.on_cmd_problem('cmd_vel_late', time.monotonic_ns())
+        self.get_logger().warning(
+            'cmd_vel processed {:.2f} s after it arrived (> cmd_vel_timeout {} s: a stall?): '
+            'dropped ({} so far)'.format(late_s, self.p['cmd_vel_timeout'], n),
+            throttle_duration_sec=1.0)
+        return True
 
     def _command(self, linear_x: float, angular_z: float) -> None:
         if self._safety.gating:
@@ -478,11 +514,11 @@ class BridgeNode(Node):
     def _subscribe_cmd_vel(self, stamped: bool) -> Any:
         """Subscribe cmd_vel as TwistStamped or Twist; remember which."""
         self._cmd_vel_type = _TWIST_STAMPED if stamped else _TWIST
-        if stamped:
-            return self.create_subscription(TwistStamped, self.p.topic('cmd_vel'),
-                                            self._on_twist_stamped, _CMD_VEL_QOS)
-        return self.create_subscription(Twist, self.p.topic('cmd_vel'), self._on_twist,
-                                        _CMD_VEL_QOS)
+        # Two-argument callbacks: rclpy passes each message's MessageInfo (its stubs type only
+        # the one-argument form).
+        callback: Any = self._on_twist_stamped if stamped else self._on_twist
+        return self.create_subscription(TwistStamped if stamped else Twist,
+                                        self.p.topic('cmd_vel'), callback, _CMD_VEL_QOS)
 
     def _decide_cmd_vel_type(self) -> None:
         """enable_stamped_cmd_vel auto: take the type of the first cmd_vel publisher, once."""

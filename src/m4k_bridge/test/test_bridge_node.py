@@ -18,7 +18,7 @@ from tf2_msgs.msg import TFMessage
 import yaml
 
 from m4k_bridge import params
-from m4k_bridge.node import BridgeNode, param_files
+from m4k_bridge.node import BridgeNode, late_command_s, param_files
 from m4k_msgs.msg import RtStatus
 from m4k_rt import protocol, xddp
 
@@ -145,6 +145,43 @@ def test_cmd_vel_is_forwarded_clamped_and_nan_rejected(harness):
     drain()
     # Only clamped commands still in flight arrive; nothing of the NaN ones is forwarded.
     assert all(c.linear_x == 2.0 for _, c in got), got
+
+
+def test_a_cmd_vel_that_waited_past_the_timeout_in_the_bridge_is_dropped(harness):
+    # A bridge that runs its callbacks late (starved, stalled) must not forward commands
+    # that arrived longer than cmd_vel_timeout ago: the RT actuator has braked on their
+    # absence, and after a link drop their sender cannot follow them up.
+    timeout = harness.bridge.p['cmd_vel_timeout']
+    pub = harness.peer.create_publisher(Twist, 'cmd_vel', 10)
+    assert harness.spin_until(lambda: pub.get_subscription_count() >= 1)
+    got = []
+
+    def drain():
+        got.extend(c for h, c in harness.rt.recv_all('cmd')
+                   if h.kind == protocol.Kind.VELOCITY_CMD)
+    old = Twist()
+    old.linear.x = 0.3
+    for _ in range(3):
+        pub.publish(old)         # taken in by the middleware now, run by nobody yet
+    time.sleep(timeout + 0.5)
+    drain()
+    got.clear()
+    assert harness.spin_until(lambda: harness.bridge.health.counters['cmd_vel_late'] >= 1,
+                              each=drain)
+    harness.spin_until(lambda: False, timeout=0.5, each=drain)
+    assert not any(c.linear_x == 0.3 for c in got), got
+    # fresh commands still drive
+    fresh = Twist()
+    fresh.linear.x = 0.25
+    assert harness.spin_until(lambda: any(c.linear_x == 0.25 for c in got),
+                              each=lambda: (pub.publish(fresh), drain()))
+
+
+def test_late_command_s_judges_the_wait_on_this_machines_clock():
+    assert late_command_s(0, 10**10, 0.5) is None            # no reception time: not judged
+    assert late_command_s(10**9, 10**10, 0.0) is None        # timeout off
+    assert late_command_s(10**10 - 4 * 10**8, 10**10, 0.5) is None
+    assert late_command_s(10**10 - 6 * 10**8, 10**10, 0.5) == pytest.approx(0.6)
 
 
 def test_shutdown_sends_a_zero_command(m4k_runtime_dir):

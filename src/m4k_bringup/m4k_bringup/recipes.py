@@ -26,6 +26,7 @@ import argparse
 import difflib
 import os
 import sys
+import types
 from typing import Any, Mapping, Sequence
 
 import yaml
@@ -33,12 +34,8 @@ import yaml
 from m4k_bridge import params as bridge_params
 from m4k_drivers.lrf.sim import URG04LX_PP
 from m4k_rt import config as rt_config
-
-# Navigation's own speed choice (not a property of the base): Nav2 plans at most this fast,
-# however fast control.linear.max_velocity lets the base go. At 0.5 m/s and 0.37 m/s^2 the
-# base needs 0.34 m to stop, inside the 3 m local costmap and the 5.6 m laser range.
-NAV_MAX_LINEAR_VELOCITY = 0.5      # m/s
-NAV_MAX_REVERSE_VELOCITY = 0.25    # m/s (the laser sees nothing behind the robot)
+from m4k_rt.control.params import control_params
+from m4k_rt.tasks.actuator import guard_plan
 
 # The laser's range as the URG-04LX reports it in PP (DMIN, DMAX; mm): 0.02 .. 5.6 m.
 LASER_MIN_RANGE = int(URG04LX_PP['DMIN']) / 1000.0
@@ -81,11 +78,24 @@ class Names:
 
 
 def _limits(layered: Mapping[str, Any]) -> dict[str, float]:
+    """Return the velocity and acceleration limits Nav2 plans with.
+
+    The speeds are the RT collision guard's caps, as rt_core states them at start-up: forward
+    its top speed (control.linear.max_velocity, or less when the sensors cannot see far enough
+    to stop from it), backwards its reverse creep (no rear sensor); with the guard off,
+    control.linear.max_velocity both ways. A planner faster than these would only be clamped
+    by the base. Accelerations and the turn rate are control.yaml's.
+    """
     control = layered['control']
     lin, ang = control['linear'], control['angular']
+    cfg = rt_config.parse(layered)
+    shared = types.SimpleNamespace(config=cfg)
+    plan = guard_plan(control_params(control), cfg.task('actuator').period_ns * 1e-9, shared,
+                      layered.get('robot'))
+    top = float(lin['max_velocity'])
     return {
-        'vx': min(float(lin['max_velocity']), NAV_MAX_LINEAR_VELOCITY),
-        'vx_rev': min(float(lin['max_velocity']), NAV_MAX_REVERSE_VELOCITY),
+        'vx': min(top, plan.top_speed),
+        'vx_rev': min(top, plan.reverse_creep),
         'wz': float(ang['max_velocity']),
         'ax': float(lin['max_acceleration']),
         'dx': float(lin['max_deceleration'] or lin['max_acceleration']),
