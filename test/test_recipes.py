@@ -220,6 +220,24 @@ def test_a_changed_guard_or_top_speed_moves_the_nav2_speeds():
     assert n['velocity_smoother']['min_velocity'][0] == -0.8
 
 
+def test_the_local_costmap_reaches_as_far_as_nav2_needs_to_stop():
+    layered = config.load_layered(config_dir=CONFIG)
+    n = _nodes(_load(NAV2))
+    local = n['local_costmap/local_costmap']
+    vx = n['controller_server']['FollowPath']['vx_max']
+    decel = -n['controller_server']['FollowPath']['ax_min']
+    stop = vx ** 2 / (2 * decel) + layered['robot']['body']['length'] / 2
+    laser = local['obstacle_layer']['scan']['raytrace_max_range']
+    assert local['width'] == local['height']
+    # the window reaches the stop (plus the body) ahead, or the laser's whole range
+    assert local['width'] / 2 >= min(stop, laser), (local['width'], stop, laser)
+    assert local['width'] / 2 <= laser + 1
+    # a slow robot keeps Nav2's stock 3 m window
+    slow = copy.deepcopy(layered)
+    slow['control']['linear']['max_velocity'] = 0.3
+    assert _nodes(yaml.safe_load(recipes.generate(slow)[NAV2]))['local_costmap/local_costmap']['width'] == 3
+
+
 def test_slam_toolbox_uses_the_urg_range_and_the_odometry_child_frame():
     p = _nodes(_load('slam_toolbox/mapper_params_online_async.yaml'))['slam_toolbox']
     assert p['max_laser_range'] == pytest.approx(5.6)

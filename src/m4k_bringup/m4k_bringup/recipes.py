@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import math
 import os
 import sys
 import types
@@ -111,6 +112,22 @@ def _footprint(layered: Mapping[str, Any]) -> str:
     return '[' + ', '.join('[{:g}, {:g}]'.format(*p) for p in pts) + ']'
 
 
+INFLATION_RADIUS_M = 0.45
+
+
+def local_window_m(lim: Mapping[str, float], length_m: float, laser_max_m: float) -> int:
+    """Return the side of the local costmap (m): it reaches as far as Nav2 needs to stop.
+
+    From the planned top speed at control.yaml's deceleration, plus half the body and the
+    inflation, in whole metres both ways (Nav2's stock 3 m at least); never beyond what the
+    laser sees (a window past its range holds nothing the controller could use). Planning at
+    2 m/s inside the stock 3 m window would aim the controller at space it cannot see the end
+    of the stop in (5.4 m at 0.37 m/s^2).
+    """
+    reach = lim['vx'] ** 2 / (2.0 * lim['dx']) + length_m / 2.0 + INFLATION_RADIUS_M
+    return int(min(max(3, 2 * math.ceil(reach)), 2 * math.ceil(laser_max_m)))
+
+
 def _scan_source(n: Names, max_range: float) -> dict[str, Any]:
     return {
         'topic': n.bridge_topic('scan'),
@@ -137,10 +154,11 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
     def ros(p: dict[str, Any]) -> dict[str, Any]:
         return {'ros__parameters': p}
 
+    window = local_window_m(lim, float(layered['robot']['body']['length']), laser_max)
     local = {
         'update_frequency': 5.0, 'publish_frequency': 2.0,
         'global_frame': odom, 'robot_base_frame': base,
-        'rolling_window': True, 'width': 3, 'height': 3, 'resolution': 0.05,
+        'rolling_window': True, 'width': window, 'height': window, 'resolution': 0.05,
         'footprint': foot,
         'plugins': ['obstacle_layer', 'range_layer', 'inflation_layer'],
         'obstacle_layer': {'plugin': 'nav2_costmap_2d::ObstacleLayer', 'enabled': True,
@@ -149,7 +167,7 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
                         'topics': [n.bridge_topic('sonar')],
                         'clear_on_max_reading': True},   # with sonar_no_echo: max_range
         'inflation_layer': {'plugin': 'nav2_costmap_2d::InflationLayer',
-                            'inflation_radius': 0.45, 'cost_scaling_factor': 3.0},
+                            'inflation_radius': INFLATION_RADIUS_M, 'cost_scaling_factor': 3.0},
     }
     glob = {
         'update_frequency': 1.0, 'publish_frequency': 1.0,
