@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 
 _NS = 1e-9
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
 
 
 def _sinc(a: float) -> float:
@@ -240,13 +242,32 @@ class Odometry:
         ds = 0.5 * r * (dl + dr)
         dth = r * (dr - dl) / self.track_width
         half = 0.5 * dth
-        chord = ds * _sinc(half)
-        heading = self.yaw + half
+        # _sinc(), normalize_angle() and AngleHistory.push() written out (every actuator
+        # cycle runs this): the same operations, without three calls
+        if abs(half) < 1e-4:
+            chord = ds * (1.0 - half * half / 6.0)
+        else:
+            chord = ds * (math.sin(half) / half)
+        yaw = self.yaw
+        heading = yaw + half
         self.x += chord * math.cos(heading)
         self.y += chord * math.sin(heading)
-        self.yaw = normalize_angle(self.yaw + dth)
+        yaw = math.fmod(yaw + dth, _TWO_PI)
+        if yaw > _PI:
+            yaw -= _TWO_PI
+        elif yaw <= -_PI:
+            yaw += _TWO_PI
+        self.yaw = yaw
         hist = self.history
-        hist.push(stamp_ns, left_angle, right_angle)
+        h = hist._head + 1
+        if h == hist.capacity:
+            h = 0
+        hist._head = h
+        hist._t[h] = stamp_ns
+        hist._l[h] = left_angle
+        hist._r[h] = right_angle
+        if hist.count < hist.capacity:
+            hist.count += 1
         if hist.rates(self.velocity_window, self.min_baseline_ns):
             wl = hist.left_rate
             wr = hist.right_rate

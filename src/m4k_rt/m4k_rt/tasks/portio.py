@@ -86,9 +86,10 @@ class PortReader:
         peer writes anyway is counted, never used, and draining also links a (re)started peer
         now rather than at the next datagram forwarded.
         """
-        self.start_cycle()
+        self.budget = DRAIN_MAX
         n = 0
-        while self.next() is not None:
+        nxt = self.next
+        while nxt() is not None:
             n += 1
         return n
 
@@ -96,7 +97,7 @@ class PortReader:
 class PortWriter:
     """Encode and send datagrams on one RT XDDP socket."""
 
-    __slots__ = ('sock', 'buf', 'view', 'seq', 'sent', 'dropped', 'encode_errors')
+    __slots__ = ('sock', 'buf', 'view', 'seq', 'sent', 'dropped', 'encode_errors', '_fixed')
 
     def __new__(cls, *args: Any, **kwargs: Any) -> PortWriter:
         """Return a timed writer when the cycle profile is on (decided at start-up)."""
@@ -112,12 +113,16 @@ class PortWriter:
         self.sent = 0
         self.dropped = 0         # no peer / peer's buffer full (the socket counts why)
         self.encode_errors = 0
+        # kind -> (pack_into of header + payload, the view of its bytes in ``buf``), made once:
+        # a send then slices nothing and looks up one dict.
+        self._fixed: dict[int, tuple[Any, memoryview]] = {
+            k: (pack, self.view[:n]) for k, (pack, n) in FIXED_PACKERS.items() if n <= size}
 
     def send(self, kind: int, stamp_ns: int, *fields: Any) -> bool:
         """Encode one datagram and send it; return False when it was not sent (counted)."""
-        fixed = FIXED_PACKERS.get(kind)
+        fixed = self._fixed.get(kind)
         if fixed is not None:   # every kind a task sends: one pack_into, the bytes of encode_into
-            pack, n = fixed
+            pack, data = fixed
             try:
                 pack(self.buf, 0, MAGIC, VERSION, kind, self.seq, stamp_ns, *fields)
             except PACK_ERRORS:
@@ -129,8 +134,9 @@ class PortWriter:
             except ProtocolError:
                 self.encode_errors += 1
                 return False
+            data = self.view[:n]
         self.seq = (self.seq + 1) & SEQ_MASK
-        if self.sock.send(self.view[:n]):
+        if self.sock.send(data):
             self.sent += 1
             return True
         self.dropped += 1
