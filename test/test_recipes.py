@@ -235,7 +235,8 @@ def test_the_local_costmap_reaches_as_far_as_nav2_needs_to_stop():
     # a slow robot keeps Nav2's stock 3 m window
     slow = copy.deepcopy(layered)
     slow['control']['linear']['max_velocity'] = 0.3
-    assert _nodes(yaml.safe_load(recipes.generate(slow)[NAV2]))['local_costmap/local_costmap']['width'] == 3
+    local = _nodes(yaml.safe_load(recipes.generate(slow)[NAV2]))['local_costmap/local_costmap']
+    assert local['width'] == 3
 
 
 def test_slam_toolbox_uses_the_urg_range_and_the_odometry_child_frame():
