@@ -13,12 +13,18 @@ import threading
 
 
 class FakeClock:
-    """A monotonic clock in ns: ``clock()`` reads it, tests set or advance ``clock.t``."""
+    """A monotonic clock in ns: ``clock()`` reads it, tests set or advance ``clock.t``.
 
-    def __init__(self, t: int = 0) -> None:
+    ``step_ns``: advance by this much before every read (a handler polled once per period sees
+    time pass without the test moving it).
+    """
+
+    def __init__(self, t: int = 0, step_ns: int = 0) -> None:
         self.t = t
+        self.step_ns = step_ns
 
     def __call__(self) -> int:
+        self.t += self.step_ns
         return self.t
 
     def seconds(self) -> float:

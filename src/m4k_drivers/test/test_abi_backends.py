@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers.abi import uapi as u
@@ -46,15 +47,9 @@ def kernel():
 
 
 # -- motors: MCP4911 + AS5045 on spidev, /LDAC and the heartbeat on GPIO ---------------------
-class _Clock:
-    """The handler's clock: 10 ms per reading, so the jump filter sees a wheel speed."""
 
-    def __init__(self) -> None:
-        self.t = 0
-
-    def __call__(self) -> int:
-        self.t += 10_000_000
-        return self.t
+# The handler's clock: 10 ms per reading (FakeClock(step_ns=...)), so the jump filter sees a
+# wheel speed.
 
 
 class _Rig:
@@ -78,7 +73,8 @@ class _Rig:
                                  '/dev/spidev1.1', ldac_chip=CHIP if ldac else None,
                                  ldac_line=22 if ldac else None,
                                  enable=lambda: open_real_enable(CHIP, 25))
-        return MotorHandler(opener, name='motor', clock=_Clock())
+        # 10 ms per reading, so the jump filter sees a wheel speed
+        return MotorHandler(opener, name='motor', clock=FakeClock(step_ns=10_000_000))
 
 
 @pytest.mark.parametrize('ldac', [False, True])

@@ -6,6 +6,7 @@ the bounds come from the robot's parameters (``mu * g``, ``v^2 / (2 mu g)``), ne
 
 import math
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers.drive import G, ROBOT_FIELDS, RobotParams
@@ -16,16 +17,8 @@ OPEN = WorldConfig(walls=FAR, obstacles=())
 MS = 1_000_000
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-
 def _world(robot=None):
-    clock = Clock()
+    clock = FakeClock()
     cfg = OPEN if robot is None else WorldConfig(walls=FAR, obstacles=(), robot=robot)
     return World(cfg, clock=clock, t0_ns=0), clock
 

@@ -5,6 +5,7 @@ a SimRobot on a fake clock; the contact is opened on the world, the verdict is t
 status bit the handler sends to the RT side.
 """
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers import config as dconfig
@@ -19,23 +20,12 @@ MS = 1_000_000
 OPEN = EncoderStatus.ESTOP_OPEN
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-    def sleep(self, s):
-        self.t += int(s * 1e9)
-
-
 @pytest.fixture
 def rig(m4k_runtime_dir):
     made = []
 
     def build(readback_line=26, faults=None, heartbeat=True):
-        clock = Clock()
+        clock = FakeClock()
         motor = {'backend': 'sim', 'estop_readback_line': readback_line,
                  'heartbeat': heartbeat}
         world = {'walls': {'rectangle': [-9, -9, 9, 9]}, 'obstacles': []}

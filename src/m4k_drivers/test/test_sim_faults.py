@@ -3,6 +3,7 @@ wheel, the e-stop contact -- seen through the real motor handler and AS5045 fram
 the world's ground truth."""
 
 
+from fakeclock import FakeClock
 import pytest
 
 from m4k_drivers.faults import parse_faults
@@ -16,16 +17,8 @@ MS = 1_000_000
 FWD = mp.command_to_code(0.125)         # 0.25 m/s open loop
 
 
-class Clock:
-    def __init__(self):
-        self.t = 0
-
-    def __call__(self):
-        return self.t
-
-
 def _rig(faults=None):
-    clock = Clock()
+    clock = FakeClock()
     world_raw = {'walls': {'rectangle': [-20, -20, 20, 20]}, 'obstacles': []}
     if faults is not None:
         world_raw['faults'] = faults
