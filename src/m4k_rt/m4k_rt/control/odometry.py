@@ -259,15 +259,7 @@ class Odometry:
             yaw += _TWO_PI
         self.yaw = yaw
         hist = self.history
-        h = hist._head + 1
-        if h == hist.capacity:
-            h = 0
-        hist._head = h
-        hist._t[h] = stamp_ns
-        hist._l[h] = left_angle
-        hist._r[h] = right_angle
-        if hist.count < hist.capacity:
-            hist.count += 1
+        hist.push(stamp_ns, left_angle, right_angle)
         if hist.rates(self.velocity_window, self.min_baseline_ns):
             wl = hist.left_rate
             wr = hist.right_rate
