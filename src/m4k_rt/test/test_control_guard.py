@@ -70,6 +70,32 @@ def test_release_waits_until_the_slow_floor_could_move_without_tripping_again():
     assert g.evaluate(NOW, 2.0, floor_d + 0.051, NOW, INF, NOW, speed=cap) == cap
 
 
+def test_a_trip_holds_while_the_robot_brakes_unless_the_way_ahead_clears():
+    """Tripped 5 mm inside the line at 0.5 m/s by a static panel: as the robot brakes, the
+    stop zone at its falling speed shrinks below the panel's distance. That is no release (it
+    was one: the robot drove on at the slow-down cap, a brake-and-go toward the panel); the
+    trip holds until the robot has braked to the slow floor, then the at-rest rule applies.
+    A way ahead that really clears (the obstacle beyond the trip's zone) releases at once."""
+    g = guard(slow_down=True, reaction_time=0.48, brake_deceleration=1.5, slow_floor=0.05)
+    d0 = g.stop_distance_at(0.5)
+    assert g.evaluate(NOW, 2.0, d0 - 0.005, NOW, INF, NOW, speed=0.5) == 0.0
+    travelled = 0.0
+    for v in (0.45, 0.4, 0.33, 0.25, 0.15, 0.08):      # braking; the zone falls below the gap
+        travelled += 0.01
+        gap = d0 - 0.005 - travelled
+        assert g.stop_distance_at(v) < gap or v > 0.3
+        assert g.evaluate(NOW, 2.0, gap, NOW, INF, NOW, speed=v) == 0.0, v
+    # braked to the slow floor at a gap beyond the at-rest release: the at-rest rule
+    cap = g.evaluate(NOW, 2.0, d0 - 0.07, NOW, INF, NOW, speed=0.04)
+    assert not g.active and cap >= 0.05
+    # a person walking out of the corridor mid-brake: released at once
+    g2 = guard(slow_down=True, reaction_time=0.48, brake_deceleration=1.5, slow_floor=0.05)
+    assert g2.evaluate(NOW, 2.0, 0.6, NOW, INF, NOW, speed=0.5) == 0.0
+    assert g2.evaluate(NOW, 2.0, 0.62, NOW, INF, NOW, speed=0.4) == 0.0   # still there
+    assert g2.evaluate(NOW, 2.0, INF, NOW, INF, NOW, speed=0.35) == INF
+    assert not g2.active
+
+
 def test_stop_zone_grows_with_speed():
     g = guard(slow_down=False, reaction_time=0.5, brake_deceleration=2.0)
     # d(1 m/s) = 0.5 + 1/4 + 0.35 = 1.1 m: an obstacle at 1.0 m stops a robot at 1 m/s ...

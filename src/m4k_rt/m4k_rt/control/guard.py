@@ -15,6 +15,13 @@ away (reverse is capped to a creep speed elsewhere: there is no rear sensor).
   it physically can (a_brake is that figure, configured or measured by ``calibrate``), so the
   stop bound has no v / max_deceleration term. v is the larger of the commanded and the
   measured forward speed (a robot that runs faster than commanded is judged by what it does).
+* **A trip holds until the robot has braked.** While the robot is still faster than
+  ``slow_floor`` after a trip, the guard releases only when the obstacle is beyond the stop
+  zone it tripped on (d(v) at the trip, the largest while braking) plus ``release_margin``:
+  the way ahead really cleared (a person walked out of the corridor). The stop zone shrinking
+  with the falling speed is no release: it let a robot tripped 5 mm inside its line at
+  0.5 m/s release after 4 cm of braking and drive on at the slow-down cap, a brake-and-go
+  toward the obstacle that stretched the stop from 0.05 m to 0.29 m (``reaction``).
 * **Hysteresis.** Once stopped, the guard releases only when the distance exceeds
   d(``slow_floor``) + ``release_margin`` (and the stop zone at the present speed; d(0) +
   margin without the slow-down zone): a released robot sets off again at no less than the
@@ -105,7 +112,7 @@ class CollisionGuard:
                  'reaction_time', 'brake_deceleration', 'slow_deceleration', 'weaken',
                  'use_sonar', 'use_laser', 'sonar_timeout_ns', 'laser_timeout_ns',
                  'stale_policy', 'active', 'slowing', 'sonar_stale', 'laser_stale',
-                 'distance', 'activations', 'trip_distance')
+                 'distance', 'activations', 'trip_distance', 'held_trip')
 
     def __init__(self, *, enabled: bool, stop_distance: float, release_margin: float,
                  slow_down: bool, slow_deceleration: float, slow_floor: float,
@@ -148,6 +155,7 @@ class CollisionGuard:
         self.laser_stale = False
         self.distance = math.inf
         self.trip_distance = self.stop_distance
+        self.held_trip = 0.0            # the stop zone a trip holds while the robot brakes
 
     def stop_distance_at(self, v: float) -> float:
         """Return the stop zone's length d(v) ahead of the front face at speed ``v`` (m)."""
@@ -198,10 +206,17 @@ class CollisionGuard:
             # releasing nearer than that speed's d(v) would trip again at once (stop-go
             # chatter on sensor noise)
             rel = self.stop_distance_at(self.slow_floor) if self.slow_down else self.stop_distance
+            if speed > self.slow_floor:
+                # still braking: the zone of the trip holds (see the module notes)
+                if trip > self.held_trip:
+                    self.held_trip = trip
+                if rel < self.held_trip:
+                    rel = self.held_trip
             if d > rel + self.release_margin and d > trip:
                 self.active = False
         elif d < trip:
             self.active = True
+            self.held_trip = trip
             self.activations += 1
         if self.active:
             self.slowing = False
