@@ -74,9 +74,15 @@ def test_the_stop_ladder_escalates_to_sigkill_and_clears_the_group(tmp_path):
     assert _gone(grandchild)              # the group sweep after the process ended
 
 
-GRANDCHILD = ('import sys, time\ntry:\n    print("ready", flush=True); time.sleep(120)\n'
+# Both install Python's SIGINT handler themselves: started from a non-interactive shell's
+# background job the test process (and so every child) inherits SIGINT ignored, and Python
+# then leaves it ignored -- the group's SIGINT would reach nobody.
+GRANDCHILD = ('import signal, sys, time\n'
+              'signal.signal(signal.SIGINT, signal.default_int_handler)\n'
+              'try:\n    print("ready", flush=True); time.sleep(120)\n'
               'except KeyboardInterrupt:\n    open(sys.argv[1], "w").write("SIGINT")\n')
-PARENT = ('import subprocess, sys\n'
+PARENT = ('import signal, subprocess, sys\n'
+          'signal.signal(signal.SIGINT, signal.default_int_handler)\n'
           'g = subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]])\n'
           'try:\n    g.wait()\nexcept KeyboardInterrupt:\n    g.wait()\n')
 
