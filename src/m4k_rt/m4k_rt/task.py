@@ -187,62 +187,6 @@ class RtTask:
             _current.task = None
 
     def _loop_cyclic(self) -> None:
-        if self.profile is not None:
-            self._loop_profiled()
-            return
-        # The hot path of every task: wait_period() and the body call fused into one loop over
-        # locals (same order, same records, same counters; the profiled loop below keeps the
-        # layered form). A cyclic body must not call wait_period() itself: the loop waits.
-        body = self.body
-        failed = self._body_failed
-        tfd = self._tfd
-        if tfd is None:
-            raise TaskError('no timer: the loop runs in the task thread only')
-        read = tfd.read
-        clock = monotonic_ns
-        # SampleRing.record written out over the ring's arrays: one writer (this thread),
-        # the row first, then ``total`` (readers take a row once total counts it).
-        ring = self.ring
-        cap = ring.capacity
-        a_rel, a_start, a_end, a_exp = ring.t_rel, ring.t_start, ring.t_end, ring.expirations
-        update_rusage = self.rusage.update
-        period = self.period_ns
-        rel = self.t_rel
-        cycles = self.cycles
-        mask = _RUSAGE_MASK
-        while True:
-            if self._stop:
-                raise TaskStopped
-            exp = read()
-            t_start = clock()
-            if self._stop:
-                raise TaskStopped
-            rel += exp * period
-            self.t_rel = rel
-            self.t_start = t_start
-            self.expirations = exp
-            if exp > 1:
-                self.overruns += exp - 1
-            try:
-                body(self)
-            except Exception as exc:  # noqa: BLE001 -- counted and reported, task keeps going
-                failed(exc)
-            t_end = clock()
-            total = ring.total
-            i = total % cap
-            a_rel[i] = rel
-            a_start[i] = t_start
-            a_end[i] = t_end
-            a_exp[i] = exp
-            ring.total = total + 1
-            if t_end > rel + period:
-                self.deadline_misses += 1
-            cycles += 1
-            self.cycles = cycles
-            if not cycles & mask:
-                update_rusage(cycles)
-
-    def _loop_profiled(self) -> None:
         body = self.body
         wait = self.wait_period
         while True:

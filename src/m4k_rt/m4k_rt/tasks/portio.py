@@ -86,10 +86,9 @@ class PortReader:
         peer writes anyway is counted, never used, and draining also links a (re)started peer
         now rather than at the next datagram forwarded.
         """
-        self.budget = DRAIN_MAX
+        self.start_cycle()
         n = 0
-        nxt = self.next
-        while nxt() is not None:
+        while self.next() is not None:
             n += 1
         return n
 
@@ -97,7 +96,7 @@ class PortReader:
 class PortWriter:
     """Encode and send datagrams on one RT XDDP socket."""
 
-    __slots__ = ('sock', 'buf', 'view', 'seq', 'sent', 'dropped', 'encode_errors', '_fixed')
+    __slots__ = ('sock', 'buf', 'view', 'seq', 'sent', 'dropped', 'encode_errors')
 
     def __new__(cls, *args: Any, **kwargs: Any) -> PortWriter:
         """Return a timed writer when the cycle profile is on (decided at start-up)."""
@@ -113,16 +112,12 @@ class PortWriter:
         self.sent = 0
         self.dropped = 0         # no peer / peer's buffer full (the socket counts why)
         self.encode_errors = 0
-        # kind -> (pack_into of header + payload, the view of its bytes in ``buf``), made once:
-        # a send then slices nothing and looks up one dict.
-        self._fixed: dict[int, tuple[Any, memoryview]] = {
-            k: (pack, self.view[:n]) for k, (pack, n) in FIXED_PACKERS.items() if n <= size}
 
     def send(self, kind: int, stamp_ns: int, *fields: Any) -> bool:
         """Encode one datagram and send it; return False when it was not sent (counted)."""
-        fixed = self._fixed.get(kind)
+        fixed = FIXED_PACKERS.get(kind)
         if fixed is not None:   # every kind a task sends: one pack_into, the bytes of encode_into
-            pack, data = fixed
+            pack, n = fixed
             try:
                 pack(self.buf, 0, MAGIC, VERSION, kind, self.seq, stamp_ns, *fields)
             except PACK_ERRORS:
@@ -134,9 +129,8 @@ class PortWriter:
             except ProtocolError:
                 self.encode_errors += 1
                 return False
-            data = self.view[:n]
         self.seq = (self.seq + 1) & SEQ_MASK
-        if self.sock.send(data):
+        if self.sock.send(self.view[:n]):
             self.sent += 1
             return True
         self.dropped += 1
