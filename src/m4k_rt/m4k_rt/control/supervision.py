@@ -118,42 +118,31 @@ class WheelSupervisor:
         th = self.threshold
         ms = self.min_speed
         cause = 0
+        # per wheel: index offset 0 = left, 1 = right
         if not fresh:
             # no new sample: nothing measured this cycle; every symptom time stands still
             self._left_moved = self._right_moved = False
             return False
-        # The two wheels written out (left: t[0] wrong, t[2] frozen, t[4] stall; right: t[1],
-        # t[3], t[5]): the same tests as one loop over both, without its per-wheel picks.
-        if sp_left > th or sp_left < -th:
-            if (meas_left > ms and sp_left < 0.0) or (meas_left < -ms and sp_left > 0.0):
-                t[0] += dt
+        for k in (0, 1):
+            sp = sp_left if k == 0 else sp_right
+            m = meas_left if k == 0 else meas_right
+            moved = self._left_moved if k == 0 else self._right_moved
+            sat = saturated_left if k == 0 else saturated_right
+            if sp > th or sp < -th:
+                if (m > ms and sp < 0.0) or (m < -ms and sp > 0.0):
+                    t[k] += dt
+                else:
+                    t[k] = 0.0
+                if moved:
+                    t[2 + k] = 0.0
+                else:
+                    t[2 + k] += dt
+                if sat and abs(m) < self.stall_ratio * abs(sp):
+                    t[4 + k] += dt
+                else:
+                    t[4 + k] = 0.0
             else:
-                t[0] = 0.0
-            if self._left_moved:
-                t[2] = 0.0
-            else:
-                t[2] += dt
-            if saturated_left and abs(meas_left) < self.stall_ratio * abs(sp_left):
-                t[4] += dt
-            else:
-                t[4] = 0.0
-        else:
-            t[0] = t[2] = t[4] = 0.0
-        if sp_right > th or sp_right < -th:
-            if (meas_right > ms and sp_right < 0.0) or (meas_right < -ms and sp_right > 0.0):
-                t[1] += dt
-            else:
-                t[1] = 0.0
-            if self._right_moved:
-                t[3] = 0.0
-            else:
-                t[3] += dt
-            if saturated_right and abs(meas_right) < self.stall_ratio * abs(sp_right):
-                t[5] += dt
-            else:
-                t[5] = 0.0
-        else:
-            t[1] = t[3] = t[5] = 0.0
+                t[k] = t[2 + k] = t[4 + k] = 0.0
         self._left_moved = self._right_moved = self._fresh = False
         diff = sp_left - sp_right
         if (diff > th or diff < -th) and (sp_left > th or sp_left < -th
@@ -169,20 +158,17 @@ class WheelSupervisor:
         eps = 1e-9
         if t[6] >= self.swap_time - eps:
             cause |= _SWAPPED
-        wrong = self.wrong_way_time - eps
-        if t[0] >= wrong:
+        if t[0] >= self.wrong_way_time - eps:
             cause |= _LEFT_WRONG
-        if t[1] >= wrong:
+        if t[1] >= self.wrong_way_time - eps:
             cause |= _RIGHT_WRONG
-        frozen = self.frozen_time - eps
-        if t[2] >= frozen:
+        if t[2] >= self.frozen_time - eps:
             cause |= _LEFT_FROZEN
-        if t[3] >= frozen:
+        if t[3] >= self.frozen_time - eps:
             cause |= _RIGHT_FROZEN
-        stall = self.stall_time - eps
-        if t[4] >= stall:
+        if t[4] >= self.stall_time - eps:
             cause |= _LEFT_STALL
-        if t[5] >= stall:
+        if t[5] >= self.stall_time - eps:
             cause |= _RIGHT_STALL
         if cause:
             self.cause = cause
