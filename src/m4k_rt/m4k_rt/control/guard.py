@@ -193,13 +193,8 @@ class CollisionGuard:
         if self.weaken and d != 0.0:
             d += self.weaken     # test-only: a fail-safe stale stop is never weakened
         self.distance = d
-        # d(v) of stop_distance(), written out: this runs every actuator cycle
-        margin = self.stop_distance
-        if speed > 0.0:
-            trip = (speed * self.reaction_time + speed * speed / (2.0 * self.brake_deceleration)
-                    + margin)
-        else:
-            trip = margin
+        v = speed if speed > 0.0 else 0.0
+        trip = self.stop_distance_at(v)
         self.trip_distance = trip
         if self.active:
             # with the slow-down zone a released robot starts again at the slow floor:
