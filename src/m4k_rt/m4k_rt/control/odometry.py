@@ -22,8 +22,6 @@ from __future__ import annotations
 import math
 
 _NS = 1e-9
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
 
 
 def _sinc(a: float) -> float:
@@ -242,22 +240,11 @@ class Odometry:
         ds = 0.5 * r * (dl + dr)
         dth = r * (dr - dl) / self.track_width
         half = 0.5 * dth
-        # _sinc(), normalize_angle() and AngleHistory.push() written out (every actuator
-        # cycle runs this): the same operations, without three calls
-        if abs(half) < 1e-4:
-            chord = ds * (1.0 - half * half / 6.0)
-        else:
-            chord = ds * (math.sin(half) / half)
-        yaw = self.yaw
-        heading = yaw + half
+        chord = ds * _sinc(half)
+        heading = self.yaw + half
         self.x += chord * math.cos(heading)
         self.y += chord * math.sin(heading)
-        yaw = math.fmod(yaw + dth, _TWO_PI)
-        if yaw > _PI:
-            yaw -= _TWO_PI
-        elif yaw <= -_PI:
-            yaw += _TWO_PI
-        self.yaw = yaw
+        self.yaw = normalize_angle(self.yaw + dth)
         hist = self.history
         hist.push(stamp_ns, left_angle, right_angle)
         if hist.rates(self.velocity_window, self.min_baseline_ns):
