@@ -15,18 +15,36 @@ configured; sockets are 0600 (0660).
 Message mode (``SOCK_SEQPACKET``) keeps datagram boundaries; stream mode (``SOCK_STREAM``)
 carries bytes. ``max_datagram`` is kept at most ``poolsz // 2`` so every send fits a single
 kernel buffer and is all-or-nothing in both modes.
+
+Two transports carry the datagrams of a linked port (message mode only for ``shm``):
+
+* ``socket``: every datagram is a ``send``/``recv`` on the linked Unix socket.
+* ``shm``: the socket only does the rendezvous, access control, handshake and liveness. At link
+  time the RT side creates two single-producer single-consumer rings of fixed slots in one
+  sealed memfd region and an eventfd, and passes both fds to the peer with the handshake
+  (SCM_RIGHTS). The RT side then sends by copying into a slot (plus one ``eventfd_write`` to
+  wake the NRT reader) and receives by reading a slot: no other system call per datagram.
+  It looks at the socket (peer gone, second opener) every :data:`SHM_LIVENESS_NS`. Each slot
+  carries ``seq, length, crc32, ack``: the writer publishes ``seq`` last, the reader accepts a
+  slot only when ``seq`` is the one it expects and the CRC32 of the payload, seeded with
+  ``seq`` and ``length``, matches; it acknowledges with ``ack = seq`` after copying. See
+  docs/design-notes.md, 9c, for why that is safe without memory barriers.
 """
 
 from dataclasses import asdict, dataclass
 import errno
+import fcntl
 import grp
+import mmap
 import os
 import re
 import select
 import socket
 import stat
+import struct
 import time
 from typing import Any
+import zlib
 
 DEFAULT_MAX_PORTS = 32
 DEFAULT_POOLSZ = 65536
@@ -34,7 +52,14 @@ DEFAULT_MAX_DATAGRAM = 4096
 DEFAULT_HANDSHAKE_TIMEOUT = 5.0  # the RT side accepts when its task polls: one period at most
 HANDSHAKE_OK = b'\x01'
 HANDSHAKE_BUSY = b'\x00'
+HANDSHAKE_SHM = b'\x02'  # linked, datagrams go through the shared-memory rings passed along
 MODES = {'message': socket.SOCK_SEQPACKET, 'stream': socket.SOCK_STREAM}
+TRANSPORTS = ('socket', 'shm')
+DEFAULT_TRANSPORT = 'socket'
+SHM_LIVENESS_NS = 100_000_000  # the RT side looks at its socket (peer gone? opener?) this often
+SHM_TORN_GIVEUP_NS = 50_000_000  # a published slot failing its CRC this long is malformed
+SHM_MIN_SLOTS = 4
+DEFAULT_SHM_SOCKET_JUNK = 8  # datagrams a peer wrongly sent on an shm link's socket, per look
 
 _SEND_FLAGS = socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL
 _LABEL_RE = re.compile(r'[A-Za-z0-9_][A-Za-z0-9_.-]{0,31}\Z')
@@ -77,7 +102,8 @@ class XddpCounters:
     dropped_no_peer: int = 0
     dropped_full: int = 0
     dropped_oversize: int = 0  # sends empty/above max_datagram, receives above the buffer
-    malformed: int = 0  # counted by the receiver via count_malformed()
+    malformed: int = 0  # counted by the receiver via count_malformed(); corrupt shm slots
+    torn: int = 0  # shm: a published slot failing its CRC when first read (retried)
     peer_restarts: int = 0  # peers linked after the first one
     peer_lost: int = 0  # peer EOF / EPIPE / ECONNRESET
     busy_rejects: int = 0  # openers refused because a peer was linked
@@ -244,6 +270,194 @@ def _socket_alive(path: str) -> bool:
     return True
 
 
+_SLOT_HDR = 16  # seq u32, length u32, crc32 u32 (written by the producer), ack u32 (consumer)
+_SLOT_ALIGN = 64  # a cache line: two slots never share one
+_U32 = struct.Struct('<I')
+_SEQ_LEN_CRC = struct.Struct('<III')
+_LEN_CRC = struct.Struct('<II')
+_SHM_OFFER = struct.Struct('<4sHHIII')  # magic, version, reserved, slots per ring, slot, region
+_SHM_MAGIC = b'M4KS'
+_SHM_VERSION = 1
+_SHM_SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
+_M32 = 0xFFFFFFFF
+_GOLDEN = 0x9E3779B1  # spreads seq over the CRC seed
+_clock = time.monotonic_ns
+
+# _ShmRing.get_into results besides a length > 0 and 0 (nothing published)
+SHM_DROPPED = -1  # larger than the reader's buffer or the slot, or empty: dropped (oversize)
+SHM_TORN = -2  # published seq, failing check: first seen now (counted torn), retried
+SHM_TORN_WAIT = -4  # the same slot still failing: retried, not counted again
+SHM_CORRUPT = -3  # still failing after SHM_TORN_GIVEUP_NS: skipped, counted malformed
+
+
+def shm_geometry(poolsz: int, max_datagram: int) -> tuple[int, int]:
+    """Return (slots per ring, slot size) of a port: slots of max_datagram, poolsz per ring."""
+    slot = -(-(_SLOT_HDR + max_datagram) // _SLOT_ALIGN) * _SLOT_ALIGN
+    return max(SHM_MIN_SLOTS, poolsz // slot), slot
+
+
+class _ShmRing:
+    """One single-producer single-consumer ring of fixed datagram slots in a shared mapping.
+
+    Slot ``seq % nslots`` carries datagram ``seq`` (1, 2, ...): the producer copies the payload,
+    writes length and CRC32 (seeded with seq and length), then ``seq``; the consumer accepts the
+    slot when ``seq`` is exactly the one it expects and the CRC matches, copies it, then writes
+    ``ack = seq``; the producer reuses a slot only once its ack is that of the previous lap.
+    Either side keeps only its own counter; equality on 32-bit values makes a torn read of
+    ``seq`` or ``ack`` (written byte by byte) look "not yet", never "done".
+    """
+
+    __slots__ = ('mv', 'base', 'nslots', 'slot_size', 'cap', 'wseq', 'rseq', 'torn_seq',
+                 'torn_since')
+
+    def __init__(self, mv: memoryview, base: int, nslots: int, slot_size: int) -> None:
+        self.mv = mv
+        self.base = base
+        self.nslots = nslots
+        self.slot_size = slot_size
+        self.cap = slot_size - _SLOT_HDR
+        self.wseq = 1  # producer: next seq to publish
+        self.rseq = 1  # consumer: next seq expected
+        self.torn_seq = 0
+        self.torn_since = 0
+
+    def put(self, data: bytes | bytearray | memoryview) -> bool:
+        """Publish one datagram; False when the ring is full (the oldest slot not acked).
+
+        A datagram longer than a slot is published as a marker (length, no payload) that the
+        consumer counts as dropped oversize, as a socket receiver counts a truncated one.
+        """
+        seq = self.wseq
+        nslots = self.nslots
+        mv = self.mv
+        slot = self.base + (seq % nslots) * self.slot_size
+        if seq > nslots and _U32.unpack_from(mv, slot + 12)[0] != (seq - nslots) & _M32:
+            return False
+        s32 = seq & _M32
+        n = len(data)
+        seed = (s32 * _GOLDEN + n) & _M32
+        if n > self.cap:
+            crc = seed  # == zlib.crc32(b'', seed): the marker has no payload
+        else:
+            mv[slot + _SLOT_HDR:slot + _SLOT_HDR + n] = data
+            crc = zlib.crc32(data, seed)
+        _LEN_CRC.pack_into(mv, slot + 4, n, crc)
+        _U32.pack_into(mv, slot, s32)  # published: last
+        self.wseq = seq + 1
+        return True
+
+    def get_into(self, buf: bytearray | memoryview) -> int:
+        """Copy the next published datagram into ``buf``; return its length, 0 if none yet.
+
+        Negative: SHM_DROPPED, SHM_TORN, SHM_TORN_WAIT or SHM_CORRUPT (see there).
+        """
+        seq = self.rseq
+        s32 = seq & _M32
+        mv = self.mv
+        slot = self.base + (seq % self.nslots) * self.slot_size
+        got, n, crc = _SEQ_LEN_CRC.unpack_from(mv, slot)
+        if got != s32:
+            return 0
+        seed = (s32 * _GOLDEN + n) & _M32
+        p = slot + _SLOT_HDR
+        if n > self.cap:
+            if crc != seed:
+                return self._torn(seq, slot)
+            result = SHM_DROPPED
+        else:
+            src = mv[p:p + n]
+            # CRC first, copy after: the copy reads what the CRC read or newer, and the
+            # producer writes this slot again only after our ack.
+            if zlib.crc32(src, seed) != crc:
+                return self._torn(seq, slot)
+            if 0 < n <= len(buf):
+                buf[:n] = src
+                result = n
+            else:
+                result = SHM_DROPPED
+        _U32.pack_into(mv, slot + 12, s32)  # ack: after the copy (control-dependent on it)
+        self.rseq = seq + 1
+        return result
+
+    def _torn(self, seq: int, slot: int) -> int:
+        now = _clock()
+        if self.torn_seq != seq:
+            self.torn_seq = seq
+            self.torn_since = now
+            return SHM_TORN
+        if now - self.torn_since < SHM_TORN_GIVEUP_NS:
+            return SHM_TORN_WAIT
+        _U32.pack_into(self.mv, slot + 12, seq & _M32)  # not a late store: corrupt, skip it
+        self.rseq = seq + 1
+        return SHM_CORRUPT
+
+
+class _ShmRegion:
+    """The shared mapping of one link: ring 0 carries RT -> NRT, ring 1 NRT -> RT."""
+
+    __slots__ = ('mm', 'mv', 'efd', 'to_nrt', 'to_rt')
+
+    def __init__(self, mm: mmap.mmap, efd: int, nslots: int, slot_size: int) -> None:
+        self.mm = mm
+        self.mv = memoryview(mm)
+        self.efd = efd
+        self.to_nrt = _ShmRing(self.mv, 0, nslots, slot_size)
+        self.to_rt = _ShmRing(self.mv, nslots * slot_size, nslots, slot_size)
+
+    def close(self) -> None:
+        self.to_nrt.mv = self.to_rt.mv = memoryview(b'')
+        self.mv.release()
+        self.mm.close()
+        if self.efd >= 0:
+            os.close(self.efd)
+            self.efd = -1
+
+
+def _shm_create(port: int, nslots: int, slot_size: int) -> tuple[_ShmRegion, int, bytes]:
+    """Create a link's region: (region, memfd to pass, offer bytes). The caller closes memfd."""
+    size = 2 * nslots * slot_size
+    size = -(-size // mmap.PAGESIZE) * mmap.PAGESIZE
+    fd = os.memfd_create('m4k-xddp{}'.format(port), os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+    try:
+        os.fchmod(fd, 0o600)
+        os.ftruncate(fd, size)
+        # The peer gets this fd: sealed, it can neither shrink the region under our mapping
+        # (SIGBUS in the RT process) nor grow it.
+        fcntl.fcntl(fd, fcntl.F_ADD_SEALS, _SHM_SEALS)
+        mm = mmap.mmap(fd, size)
+        efd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
+    except BaseException:
+        os.close(fd)
+        raise
+    offer = HANDSHAKE_SHM + _SHM_OFFER.pack(_SHM_MAGIC, _SHM_VERSION, 0, nslots, slot_size, size)
+    return _ShmRegion(mm, efd, nslots, slot_size), fd, offer
+
+
+def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
+    """Map the region an RT side offered (NRT side); closes ``fds`` on failure."""
+    try:
+        if len(msg) != 1 + _SHM_OFFER.size or len(fds) != 2:
+            raise XddpError('RT side of {} sent a malformed shm offer ({} bytes, {} fds)'.format(
+                path, len(msg), len(fds)), path, errno.EPROTO)
+        magic, version, _, nslots, slot_size, size = _SHM_OFFER.unpack_from(msg, 1)
+        if magic != _SHM_MAGIC or version != _SHM_VERSION:
+            raise XddpError('RT side of {} offers shm version {!r}/{}, this peer speaks {}'.format(
+                path, magic, version, _SHM_VERSION), path, errno.EPROTO)
+        mfd, efd = fds
+        if (nslots < 1 or slot_size <= _SLOT_HDR or slot_size % _SLOT_ALIGN
+                or 2 * nslots * slot_size > size or os.fstat(mfd).st_size != size):
+            raise XddpError('RT side of {} offers an inconsistent shm region'.format(path),
+                            path, errno.EPROTO)
+        mm = mmap.mmap(mfd, size)
+    except BaseException:
+        for fd in fds:
+            os.close(fd)
+        raise
+    os.close(mfd)
+    os.set_blocking(efd, False)
+    return _ShmRegion(mm, efd, nslots, slot_size)
+
+
 class RtXddpSocket:
     """RT side of one port: a non-blocking listener with at most one linked NRT peer.
 
@@ -254,10 +468,16 @@ class RtXddpSocket:
     def __init__(self, port: int, label: str | None = None, *, mode: str = 'message',
                  poolsz: int = DEFAULT_POOLSZ, max_datagram: int = DEFAULT_MAX_DATAGRAM,
                  runtime_dir: str | None = None, max_ports: int = DEFAULT_MAX_PORTS,
-                 group: str | int | None = None) -> None:
+                 group: str | int | None = None, transport: str = DEFAULT_TRANSPORT) -> None:
         if mode not in MODES:
             raise XddpPortError('mode {!r} is not one of {}'.format(mode, sorted(MODES)),
                                 None, errno.EINVAL)
+        if transport not in TRANSPORTS:
+            raise XddpPortError('transport {!r} is not one of {}'.format(
+                transport, list(TRANSPORTS)), None, errno.EINVAL)
+        if transport == 'shm' and mode != 'message':
+            raise XddpPortError('the shm transport carries datagrams: it needs message mode, '
+                                'not {}'.format(mode), None, errno.EINVAL)
         if isinstance(poolsz, bool) or not isinstance(poolsz, int) or poolsz < 1024:
             raise XddpPortError('poolsz {!r} must be an int >= 1024'.format(poolsz),
                                 None, errno.EINVAL)
@@ -268,9 +488,16 @@ class RtXddpSocket:
         self.port = _check_port(port, max_ports)
         self.label = None if label is None else _check_label(label)
         self.mode = mode
+        self.transport = transport
         self.poolsz = poolsz
         self.max_datagram = max_datagram
         self.counters = XddpCounters()
+        self._shm_slots, self._shm_slot_size = shm_geometry(poolsz, max_datagram)
+        self._region: _ShmRegion | None = None
+        self._tx: _ShmRing | None = None  # shm: RT -> NRT ring while linked
+        self._rx: _ShmRing | None = None  # shm: NRT -> RT ring while linked
+        self._efd = -1
+        self._next_check = 0
         self._gid = _gid(group)
         self.runtime_dir = ensure_runtime_dir(runtime_dir, group)
         self.path = port_path(port, self.runtime_dir, max_ports)
@@ -396,13 +623,30 @@ class RtXddpSocket:
                     pass
                 conn.close()
                 continue
+            region = None
             try:
                 conn.setblocking(False)
                 self._set_buffers(conn)
-                conn.send(HANDSHAKE_OK, _SEND_FLAGS)
-            except OSError:  # the opener is already gone
+                if self.transport == 'shm':
+                    region, mfd, offer = _shm_create(
+                        self.port, self._shm_slots, self._shm_slot_size)
+                    try:
+                        socket.send_fds(conn, [offer], [mfd, region.efd], _SEND_FLAGS)
+                    finally:
+                        os.close(mfd)
+                else:
+                    conn.send(HANDSHAKE_OK, _SEND_FLAGS)
+            except OSError:  # the opener is already gone (or no memory for the region)
+                if region is not None:
+                    region.close()
                 conn.close()
                 continue
+            if region is not None:
+                self._region = region
+                self._tx = region.to_nrt
+                self._rx = region.to_rt
+                self._efd = region.efd
+                self._next_check = _clock() + SHM_LIVENESS_NS
             self._peer = conn
             fd = conn.fileno()
             self._poll.register(fd, select.POLLIN)
@@ -416,6 +660,12 @@ class RtXddpSocket:
         if peer is None:
             return
         self._peer = None
+        region = self._region
+        if region is not None:
+            # Fresh rings for the next peer: a restarted peer never sees this one's data.
+            self._region = self._tx = self._rx = None
+            self._efd = -1
+            region.close()
         fd = peer.fileno()
         self._poll.unregister(fd)
         self._ppoll.unregister(fd)
@@ -430,6 +680,11 @@ class RtXddpSocket:
         if not 0 < n <= self.max_datagram:
             c.dropped_oversize += 1
             return False
+        tx = self._tx
+        if tx is not None:
+            if _clock() >= self._next_check:
+                self._shm_check()
+                tx = self._tx
         peer = self._peer
         if peer is None:
             if self._lpoll.poll(0):
@@ -438,6 +693,17 @@ class RtXddpSocket:
             if peer is None:
                 c.dropped_no_peer += 1
                 return False
+            tx = self._tx
+        if tx is not None:
+            if not tx.put(data):
+                c.dropped_full += 1
+                return False
+            try:
+                os.eventfd_write(self._efd, 1)  # wake the NRT reader
+            except OSError:
+                pass  # cannot happen below 2**64 - 2 pending wakes; the datagram is in anyway
+            c.sent += 1
+            return True
         try:
             sent = peer.send(data, _SEND_FLAGS)
         except BlockingIOError:
@@ -461,8 +727,35 @@ class RtXddpSocket:
 
         Accepts a waiting opener first. A message-mode datagram larger than ``buf`` is
         discarded and counted ``dropped_oversize``; in stream mode up to ``len(buf)`` bytes
-        are returned.
+        are returned. With the shm transport, a linked port reads its ring (no system call)
+        and looks at its socket every SHM_LIVENESS_NS.
         """
+        rx = self._rx
+        if rx is not None:
+            if _clock() >= self._next_check:
+                self._shm_check()
+                rx = self._rx
+                if rx is None:
+                    return 0
+            c = self.counters
+            while True:
+                n = rx.get_into(buf)
+                if n > 0:
+                    c.received += 1
+                    return n
+                if n == 0 or n == SHM_TORN_WAIT:
+                    return 0
+                if n == SHM_DROPPED:
+                    c.dropped_oversize += 1
+                elif n == SHM_TORN:
+                    c.torn += 1
+                    return 0
+                else:  # SHM_CORRUPT
+                    c.malformed += 1
+        if self.transport == 'shm':
+            if self._lpoll.poll(0):
+                self._accept_pending()  # the new peer has nothing in its ring yet
+            return 0
         poll = self._poll.poll
         lfd = self._lfd
         while True:
@@ -489,6 +782,28 @@ class RtXddpSocket:
                 continue
             self.counters.received += 1
             return n
+
+    def _shm_check(self) -> None:
+        """Shm transport: accept or refuse an opener, notice a peer gone (system calls)."""
+        self._next_check = _clock() + SHM_LIVENESS_NS
+        for fd, _ in self._poll.poll(0):
+            if fd == self._lfd:
+                self._accept_pending()  # a second opener is refused; a hung-up peer replaced
+                continue
+            peer = self._peer
+            if peer is None or fd != peer.fileno():
+                continue
+            for _ in range(DEFAULT_SHM_SOCKET_JUNK):
+                try:
+                    junk = peer.recv(64, socket.MSG_DONTWAIT)
+                except BlockingIOError:
+                    break
+                except OSError:  # ECONNRESET
+                    junk = b''
+                if not junk:
+                    self._drop_peer()  # EOF: the peer is gone; its rings go with it
+                    break
+                self.counters.malformed += 1  # a peer writing the socket, not its ring
 
     def recv(self) -> bytes | None:
         """Receive one pending datagram as bytes, or None (allocates: not for RT loops)."""
@@ -537,14 +852,37 @@ class RtXddpSocket:
 
 
 class NrtXddpEndpoint:
-    """NRT side of one port: blocking reads and writes with timeouts."""
+    """NRT side of one port: blocking reads and writes with timeouts.
 
-    def __init__(self, sock: socket.socket, path: str, mode: str) -> None:
+    With the shm transport (``region`` given) datagrams go through the link's rings; the
+    socket only tells that the RT side is gone (EOF), and :meth:`fileno` is an epoll fd that
+    is readable when a datagram was published or the RT side went away.
+    """
+
+    def __init__(self, sock: socket.socket, path: str, mode: str,
+                 region: _ShmRegion | None = None) -> None:
         self._sock: socket.socket | None = sock
         self.path = path
         self.mode = mode
+        self.transport = 'socket' if region is None else 'shm'
         self._buf = bytearray(_NRT_BUFSZ)
         self._flags = socket.MSG_TRUNC if mode == 'message' else 0
+        self._region = region
+        self._gone = False
+        self._epoll: select.epoll | None = None
+        self._spoll: select.poll | None = None
+        if region is not None:
+            try:
+                self._epoll = select.epoll(2, select.EPOLL_CLOEXEC)
+                self._epoll.register(region.efd, select.EPOLLIN)
+                self._epoll.register(sock.fileno(), select.EPOLLIN | select.EPOLLRDHUP)
+            except BaseException:
+                region.close()
+                if self._epoll is not None:
+                    self._epoll.close()
+                raise
+            self._spoll = select.poll()
+            self._spoll.register(sock.fileno(), select.POLLIN | select.POLLRDHUP)
 
     def _live(self) -> socket.socket:
         if self._sock is None:
@@ -558,6 +896,8 @@ class NrtXddpEndpoint:
         forever) and BrokenPipeError when the RT side closed or died; never return b''.
         """
         sock = self._live()
+        if self._region is not None:
+            return self._shm_read(timeout)
         sock.settimeout(timeout)
         try:
             n = sock.recv_into(self._buf, 0, self._flags)
@@ -581,6 +921,9 @@ class NrtXddpEndpoint:
         if not len(data):
             raise ValueError('cannot write an empty datagram to {}'.format(self.path))
         sock = self._live()
+        if self._region is not None:
+            self._shm_write(data, timeout)
+            return
         sock.settimeout(timeout)
         try:
             sock.sendall(data, socket.MSG_NOSIGNAL)
@@ -594,9 +937,71 @@ class NrtXddpEndpoint:
             raise XddpError('cannot write {} bytes to {}: {}'.format(
                 len(data), self.path, exc.strerror), self.path, exc.errno) from exc
 
+    def _shm_gone(self) -> None:
+        """Look at the socket: EOF or reset means the RT side is gone (sets ``_gone``)."""
+        sock = self._live()
+        try:
+            junk = sock.recv(64, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return
+        except OSError:  # ECONNRESET
+            junk = b''
+        if junk:
+            raise XddpError('RT side of {} wrote {} bytes on the socket of an shm link'.format(
+                self.path, len(junk)), self.path, errno.EPROTO)
+        self._gone = True
+
+    def _shm_read(self, timeout: float | None) -> bytes:
+        assert self._region is not None and self._epoll is not None
+        ring = self._region.to_nrt
+        efd = self._region.efd
+        buf = self._buf
+        wait = self._epoll.poll
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            n = ring.get_into(buf)
+            if n > 0:
+                return bytes(buf[:n])
+            if n == SHM_DROPPED or n == SHM_CORRUPT:
+                continue  # cannot come from our RT side; skipped, look at the next one
+            if self._gone:  # what was published before the RT side went is delivered first
+                raise BrokenPipeError(errno.EPIPE, 'RT side of {} is gone'.format(self.path))
+            pause = -1.0 if deadline is None else max(0.0, deadline - time.monotonic())
+            if n < 0:  # a slot not complete yet (weakly ordered stores): look again soon
+                pause = 0.0002 if pause < 0 else min(pause, 0.0002)
+            events = wait(pause)
+            for fd, _ in events:
+                if fd == efd:
+                    try:
+                        os.eventfd_read(efd)  # consumed before the ring is read again
+                    except BlockingIOError:
+                        pass
+                else:
+                    self._shm_gone()
+            if not events and n == 0 and deadline is not None and time.monotonic() >= deadline:
+                raise TimeoutError(errno.ETIMEDOUT, 'nothing received on {} within {}s'.format(
+                    self.path, timeout))
+
+    def _shm_write(self, data: bytes | bytearray | memoryview, timeout: float | None) -> None:
+        assert self._region is not None and self._spoll is not None
+        ring = self._region.to_rt
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            if not self._gone and self._spoll.poll(0):
+                self._shm_gone()
+            if self._gone:
+                raise BrokenPipeError(errno.EPIPE, 'RT side of {} is gone'.format(self.path))
+            if ring.put(data):
+                return  # the RT side reads it at its next cycle: no wake-up
+            if deadline is not None and time.monotonic() >= deadline:
+                raise TimeoutError(errno.ETIMEDOUT, 'write to {} blocked for {}s'.format(
+                    self.path, timeout))
+            time.sleep(0.0005)  # full: the RT side frees slots as it runs
+
     def fileno(self) -> int:
-        """Return the socket's fd (for selectors / poll)."""
-        return self._live().fileno()
+        """Return the fd for selectors / poll: the socket's, or with shm an epoll fd."""
+        sock = self._live()
+        return sock.fileno() if self._epoll is None else self._epoll.fileno()
 
     @property
     def closed(self) -> bool:
@@ -607,6 +1012,10 @@ class NrtXddpEndpoint:
         """Close the endpoint (the RT side sees EOF and counts a lost peer)."""
         sock, self._sock = self._sock, None
         if sock is not None:
+            if self._epoll is not None:
+                self._epoll.close()
+            if self._region is not None:
+                self._region.close()
             sock.close()
 
     def __enter__(self) -> 'NrtXddpEndpoint':
@@ -652,17 +1061,23 @@ def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
                   runtime_dir: str | None = None, max_ports: int = DEFAULT_MAX_PORTS,
                   mode: str | None = None,
                   handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT,
-                  group: str | int | None = None) -> NrtXddpEndpoint:
+                  group: str | int | None = None,
+                  transport: str | None = None) -> NrtXddpEndpoint:
     """Open the NRT side of a port by number or label (like ``open('/dev/rtpN')``).
 
     ``wait=0`` fails fast with XddpNotBoundError, ``None`` waits forever, a float waits that
     many seconds for the RT side to bind. ``mode=None`` detects message or stream mode.
+    ``transport=None`` takes the transport the RT side offers; ``'socket'`` or ``'shm'``
+    refuses the other one with XddpPortError.
     Raise XddpBusyError when another NRT peer is linked, XddpError when the runtime
     directory fails :func:`check_runtime_dir` (with the configured ``group``).
     """
     if mode is not None and mode not in MODES:
         raise XddpPortError('mode {!r} is not one of {}'.format(mode, sorted(MODES)),
                             None, errno.EINVAL)
+    if transport is not None and transport not in TRANSPORTS:
+        raise XddpPortError('transport {!r} is not one of {}'.format(
+            transport, list(TRANSPORTS)), None, errno.EINVAL)
     path = port_path(port_or_label, runtime_dir, max_ports)
     check_runtime_dir(os.path.dirname(path), group)
     deadline = None if wait is None else time.monotonic() + wait
@@ -671,7 +1086,10 @@ def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
             sock, found_mode = _connect(path, mode, handshake_timeout)
             try:
                 sock.settimeout(handshake_timeout)
-                answer = sock.recv(1)
+                # Message mode: the whole answer (one byte, or the shm offer with its two
+                # fds). Stream mode: one byte, the RT side's data may follow right behind it.
+                msg, fds, flags, _ = socket.recv_fds(
+                    sock, 1 + _SHM_OFFER.size if found_mode == 'message' else 1, 2)
             except TimeoutError:
                 sock.close()
                 raise XddpError('RT side of {} did not accept within {}s'.format(
@@ -680,9 +1098,30 @@ def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
                 sock.close()
                 raise _NotBoundYet(exc.errno or errno.ECONNRESET,
                                    'reset during handshake') from None
-            if answer == HANDSHAKE_OK:
+            answer = msg[:1]
+            if answer == HANDSHAKE_SHM and transport != 'socket':
+                try:
+                    if flags & (socket.MSG_CTRUNC | socket.MSG_TRUNC):
+                        for fd in fds:
+                            os.close(fd)
+                        raise XddpError('shm offer of {} truncated'.format(path), path,
+                                        errno.EPROTO)
+                    region = _shm_accept_offer(msg, fds, path)
+                except BaseException:
+                    sock.close()
+                    raise
+                return NrtXddpEndpoint(sock, path, found_mode, region)
+            for fd in fds:
+                os.close(fd)
+            if answer == HANDSHAKE_OK and transport != 'shm':
                 return NrtXddpEndpoint(sock, path, found_mode)
             sock.close()
+            if answer in (HANDSHAKE_OK, HANDSHAKE_SHM):
+                raise XddpPortError('port {!r} ({}) is served over the {} transport; this peer '
+                                    'was opened for {}'.format(
+                                        port_or_label, path,
+                                        'shm' if answer == HANDSHAKE_SHM else 'socket',
+                                        transport), path, errno.EPROTONOSUPPORT)
             if answer == HANDSHAKE_BUSY:
                 raise XddpBusyError('port {!r} already has an NRT peer: {}'.format(
                     port_or_label, path), path, errno.EBUSY)
@@ -703,8 +1142,9 @@ class NrtLink:
                  retry_interval: float = 0.5, max_ports: int = DEFAULT_MAX_PORTS,
                  mode: str | None = None, write_timeout: float | None = 1.0,
                  handshake_timeout: float = DEFAULT_HANDSHAKE_TIMEOUT,
-                 group: str | int | None = None) -> None:
+                 group: str | int | None = None, transport: str | None = None) -> None:
         port_path(port_or_label, runtime_dir, max_ports)  # validate now, not on first use
+        self.transport = transport
         self.port_or_label = port_or_label
         self.runtime_dir = runtime_dir
         self.group = group
@@ -736,7 +1176,8 @@ class NrtLink:
         try:
             ep = nrt_xddp_open(self.port_or_label, wait=0.0, runtime_dir=self.runtime_dir,
                                max_ports=self.max_ports, mode=self.mode,
-                               handshake_timeout=self.handshake_timeout, group=self.group)
+                               handshake_timeout=self.handshake_timeout, group=self.group,
+                               transport=self.transport)
         except OSError as exc:  # not bound, busy, permission: keep trying, keep the reason
             self.last_error = exc
             return None
