@@ -142,7 +142,8 @@ def receive_sizes(cfg: config.RtConfig) -> dict[str, int]:
             for label in t.ports:
                 s = xddp.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
                                       max_datagram=rt.max_datagram, runtime_dir=scratch,
-                                      max_ports=rt.max_ports, group=rt.group)
+                                      max_ports=rt.max_ports, group=rt.group,
+                                      transport=rt.transport)
                 socks.append(s)
                 ports[label] = shared.ports[label] = s
             body = tasks.get_factory(t.body)(t, ports, shared)

@@ -49,6 +49,7 @@ class RuntimeConfig:
     poolsz: int = _d('poolsz')
     max_datagram: int = _d('max_datagram')
     max_ports: int = _d('max_ports')
+    transport: str = _d('transport')
 
 
 @dataclasses.dataclass(frozen=True)

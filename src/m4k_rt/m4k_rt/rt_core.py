@@ -191,7 +191,8 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
                 try:
                     s = xddp.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
                                           max_datagram=rt.max_datagram, runtime_dir=runtime_dir,
-                                          max_ports=rt.max_ports, group=rt.group)
+                                          max_ports=rt.max_ports, group=rt.group,
+                                          transport=rt.transport)
                 except OSError as exc:
                     _err('cannot bind port {} ({!r}) for task {}: {}'.format(
                         cfg.ports[label], label, t.name, exc))

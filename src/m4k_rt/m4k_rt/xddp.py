@@ -468,7 +468,9 @@ class RtXddpSocket:
     def __init__(self, port: int, label: str | None = None, *, mode: str = 'message',
                  poolsz: int = DEFAULT_POOLSZ, max_datagram: int = DEFAULT_MAX_DATAGRAM,
                  runtime_dir: str | None = None, max_ports: int = DEFAULT_MAX_PORTS,
-                 group: str | int | None = None, transport: str = DEFAULT_TRANSPORT) -> None:
+                 group: str | int | None = None, transport: str | None = None) -> None:
+        if transport is None:
+            transport = DEFAULT_TRANSPORT
         if mode not in MODES:
             raise XddpPortError('mode {!r} is not one of {}'.format(mode, sorted(MODES)),
                                 None, errno.EINVAL)

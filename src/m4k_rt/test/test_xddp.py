@@ -1,4 +1,8 @@
-"""Tests for m4k_rt.xddp: XDDP emulation over Unix sockets (RT side + NRT side)."""
+"""Tests for m4k_rt.xddp: XDDP emulation over Unix sockets (RT side + NRT side).
+
+Every test runs over both transports (``socket`` and ``shm``, the ``transport`` fixture sets
+the default the RT side binds with): the same contract. Stream mode is socket-only.
+"""
 
 import errno
 import os
@@ -22,8 +26,14 @@ PKG_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(m4k_rt.__file__)))
 WAIT = 10.0  # generous upper bound for anything that must happen; never asserted as timing
 
 
+@pytest.fixture(params=xddp.TRANSPORTS)
+def transport(request, monkeypatch):
+    monkeypatch.setattr(xddp, 'DEFAULT_TRANSPORT', request.param)
+    return request.param
+
+
 @pytest.fixture
-def rundir(monkeypatch):
+def rundir(monkeypatch, transport):
     # A short path (AF_UNIX paths are limited to 107 bytes) whose parent any user may
     # traverse, so the permission tests exercise our own directory and socket modes.
     base = tempfile.mkdtemp(prefix='m4kx', dir='/tmp')
@@ -127,12 +137,12 @@ ECHO_PEER = """
 # ---- data flow ----
 
 @pytest.mark.parametrize('label', [None, 'cmd'])
-def test_message_mode_carries_datagrams_both_ways_with_boundaries(rundir, label):
+def test_message_mode_carries_datagrams_both_ways_with_boundaries(rundir, label, transport):
     rt = xddp.rt_xddp_bind(1, label)
     try:
         ep = open_while_polling([rt], label or 1)
         with ep:
-            assert rt.connected and ep.mode == 'message'
+            assert rt.connected and ep.mode == 'message' and ep.transport == transport
             sizes = [1, 2, 100, 4096, 7]
             for i, size in enumerate(sizes):
                 assert rt.send(bytes([i]) * size)
@@ -151,7 +161,7 @@ def test_message_mode_carries_datagrams_both_ways_with_boundaries(rundir, label)
 
 
 def test_stream_mode_carries_bytes_both_ways(rundir):
-    rt = xddp.rt_xddp_bind(2, mode='stream')
+    rt = xddp.rt_xddp_bind(2, mode='stream', transport='socket')
     try:
         with open_while_polling([rt], 2) as ep:
             assert ep.mode == 'stream'
@@ -173,7 +183,7 @@ def test_stream_mode_carries_bytes_both_ways(rundir):
 
 
 def test_explicit_mode_mismatch_is_a_port_error(rundir):
-    rt = xddp.rt_xddp_bind(2, mode='stream')
+    rt = xddp.rt_xddp_bind(2, mode='stream', transport='socket')
     try:
         with pytest.raises(XddpPortError, match='message mode'):
             xddp.nrt_xddp_open(2, mode='message')
@@ -316,21 +326,22 @@ def test_killed_nrt_peer_is_dropped_and_a_restarted_one_relinks(rundir):
         rt.close()
 
 
-def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rundir):
+def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rundir, transport):
     proc = spawn("""
         import time
         from m4k_rt import xddp
-        rt = xddp.rt_xddp_bind(8, 'sonar')
+        rt = xddp.rt_xddp_bind(8, 'sonar', transport={!r})
         print('bound', flush=True)
         while True:
             rt.poll_peer()
             time.sleep(0.001)
-    """)
+    """.format(transport))
     try:
         assert proc.stdout.readline().strip() == 'bound'
         ep = xddp.nrt_xddp_open('sonar', wait=WAIT)
         proc.send_signal(signal.SIGKILL)
         proc.wait(WAIT)
+        assert ep.transport == transport
         with ep, pytest.raises(BrokenPipeError):
             ep.read(WAIT)
     finally:
@@ -345,16 +356,16 @@ def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rund
             assert ep.read(WAIT) == b'new'
 
 
-def test_bind_refuses_a_port_held_by_a_live_process_without_disturbing_it(rundir):
+def test_bind_refuses_a_port_held_by_a_live_process_without_disturbing_it(rundir, transport):
     proc = spawn("""
         import sys
         from m4k_rt import xddp
-        rt = xddp.rt_xddp_bind(9, 'lrf')
+        rt = xddp.rt_xddp_bind(9, 'lrf', transport={!r})
         print('bound', flush=True)
         sys.stdin.readline()
         print(rt.poll_peer(), rt.counters.busy_rejects, rt.counters.peer_lost, flush=True)
         rt.close()
-    """)
+    """.format(transport))
     try:
         assert proc.stdout.readline().strip() == 'bound'
         with pytest.raises(XddpBusyError) as info:
@@ -402,7 +413,8 @@ def test_oversize_and_empty_sends_are_dropped_and_counted(rundir):
 
 @pytest.mark.parametrize('mode', ['message', 'stream'])
 def test_full_queue_drops_without_blocking_and_every_accepted_datagram_arrives(rundir, mode):
-    rt = xddp.rt_xddp_bind(5, mode=mode, poolsz=16384, max_datagram=1000)
+    rt = xddp.rt_xddp_bind(5, mode=mode, poolsz=16384, max_datagram=1000,
+                           transport='socket' if mode == 'stream' else None)
     try:
         with open_while_polling([rt], 5) as ep:
             results = [rt.send(b'z' * 1000) for _ in range(2000)]  # peer is not reading
@@ -431,7 +443,7 @@ def test_send_without_peer_is_dropped_and_counted(rundir):
         assert counters['dropped_no_peer'] == 3 and counters['sent'] == 0
         assert set(counters) == {
             'sent', 'received', 'dropped_no_peer', 'dropped_full', 'dropped_oversize',
-            'malformed', 'peer_restarts', 'peer_lost', 'busy_rejects'}
+            'malformed', 'torn', 'peer_restarts', 'peer_lost', 'busy_rejects'}
         rt.count_malformed()
         assert rt.counters.malformed == 1
 
