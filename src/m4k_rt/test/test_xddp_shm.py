@@ -1,0 +1,278 @@
+"""The shm transport of m4k_rt.xddp: what test_xddp.py (run over both transports) cannot see.
+
+The region and its fds as a raw peer receives them, the negotiation, torn and corrupt slots,
+a peer writing its socket instead of its ring, garbage rings, fresh rings per link.
+"""
+
+import fcntl
+import mmap
+import os
+import random
+import selectors
+import shutil
+import socket
+import struct
+import tempfile
+import threading
+import time
+import zlib
+
+import pytest
+
+from m4k_rt import schema, xddp
+from m4k_rt.xddp import XddpPortError
+
+WAIT = 10.0  # generous upper bound for anything that must happen; never asserted as timing
+
+
+@pytest.fixture
+def rundir(monkeypatch):
+    base = tempfile.mkdtemp(prefix='m4ks', dir='/tmp')
+    path = os.path.join(base, 'rt')
+    monkeypatch.setenv('M4K_RUNTIME_DIR', path)
+    yield path
+    shutil.rmtree(base, ignore_errors=True)
+
+
+def until(predicate, what, step=None):
+    deadline = time.monotonic() + WAIT
+    while not predicate():
+        if step:
+            step()
+        assert time.monotonic() < deadline, 'timed out waiting for ' + what
+        time.sleep(0.001)
+
+
+def open_while_polling(rt, *args, **kwargs):
+    result = {}
+
+    def target():
+        try:
+            result['ep'] = xddp.nrt_xddp_open(*args, **kwargs)
+        except Exception as exc:  # handed to the test thread
+            result['exc'] = exc
+
+    thread = threading.Thread(target=target)
+    thread.start()
+    try:
+        until(lambda: not thread.is_alive(), 'nrt_xddp_open', step=rt.poll_peer)
+    finally:
+        thread.join()
+    if 'exc' in result:
+        raise result['exc']
+    return result['ep']
+
+
+def raw_link(rt, path):
+    """Connect as a raw peer would; return (socket, handshake bytes, fds) once accepted."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    sock.settimeout(WAIT)
+    sock.connect(path)
+    until(rt.poll_peer, 'accept')
+    msg, fds, flags, _ = socket.recv_fds(sock, 64, 4)
+    assert not flags & socket.MSG_CTRUNC
+    return sock, msg, fds
+
+
+def publish(ring, seq, payload, crc=None, seq_field=None):
+    """Write slot ``seq`` of ``ring`` by hand, as the producer does (seq last)."""
+    mv = ring.mv
+    slot = ring.base + (seq % ring.nslots) * ring.slot_size
+    mv[slot + 16:slot + 16 + len(payload)] = payload
+    seed = (seq * 0x9E3779B1 + len(payload)) & 0xFFFFFFFF
+    struct.pack_into('<II', mv, slot + 4, len(payload),
+                     zlib.crc32(payload, seed) if crc is None else crc)
+    if seq_field is not False:
+        struct.pack_into('<I', mv, slot, seq if seq_field is None else seq_field)
+
+
+def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
+    with xddp.rt_xddp_bind(3, 'imu', transport='shm', poolsz=8192, max_datagram=1000) as rt:
+        sock, msg, fds = raw_link(rt, rt.path)
+        try:
+            assert msg[:1] == xddp.HANDSHAKE_SHM and len(fds) == 2
+            magic, version, _, nslots, slot, size = struct.unpack_from('<4sHHIII', msg, 1)
+            assert (magic, version) == (b'M4KS', 1)
+            assert (nslots, slot) == xddp.shm_geometry(8192, 1000) == (8, 1024)
+            mfd, efd = fds
+            st = os.fstat(mfd)
+            assert st.st_size == size >= 2 * nslots * slot
+            assert st.st_mode & 0o777 == 0o600
+            assert os.readlink('/proc/self/fd/{}'.format(mfd)).startswith('/memfd:m4k-xddp3')
+            assert os.readlink('/proc/self/fd/{}'.format(efd)) == 'anon_inode:[eventfd]'
+            seals = fcntl.fcntl(mfd, fcntl.F_GET_SEALS)
+            want = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
+            assert seals & want == want
+            with pytest.raises(PermissionError):
+                os.ftruncate(mfd, 0)  # a peer cannot pull the pages from under the RT side
+            with pytest.raises(PermissionError):
+                os.ftruncate(mfd, size * 2)
+            # Nothing of the link is in the file system: the runtime dir holds the socket
+            # and the label only.
+            assert sorted(os.listdir(rundir)) == ['label.imu', 'xddp3']
+            # A datagram the RT side sends is in ring 0 and wakes the eventfd.
+            assert rt.send(b'hello')
+            assert os.eventfd_read(efd) == 1
+            ring = xddp._ShmRing(memoryview(mmap.mmap(mfd, size)), 0, nslots,
+                                 slot)
+            buf = bytearray(64)
+            assert ring.get_into(buf) == 5 and buf[:5] == b'hello'
+            ring.mv.release()
+        finally:
+            for fd in fds:
+                os.close(fd)
+            sock.close()
+
+
+def test_a_raw_peer_is_told_shm_and_a_peer_asking_the_other_transport_is_refused(rundir):
+    with xddp.rt_xddp_bind(1, 'cmd', transport='shm') as rt:
+        with pytest.raises(XddpPortError, match='served over the shm transport'):
+            open_while_polling(rt, 'cmd', transport='socket')
+        until(lambda: rt.recv_into(bytearray(8)) == 0 and not rt.connected, 'refused peer')
+        with open_while_polling(rt, 'cmd', transport='shm') as ep:
+            assert ep.transport == 'shm'
+    with xddp.rt_xddp_bind(1, 'cmd', transport='socket') as rt:
+        with pytest.raises(XddpPortError, match='served over the socket transport'):
+            open_while_polling(rt, 'cmd', transport='shm')
+        with pytest.raises(XddpPortError, match='transport'):
+            xddp.nrt_xddp_open('cmd', transport='udp')
+
+
+def test_shm_is_message_mode_only_and_transport_is_validated(rundir):
+    with pytest.raises(XddpPortError, match='message mode'):
+        xddp.rt_xddp_bind(2, mode='stream', transport='shm')
+    with pytest.raises(XddpPortError, match='transport'):
+        xddp.rt_xddp_bind(2, transport='pipe')
+    field = schema.RUNTIME['transport']
+    assert field.default == 'socket' and set(field.choices) == set(xddp.TRANSPORTS)
+    assert field.validate('runtime.transport', 'shm') == 'shm'
+    with pytest.raises(Exception, match='runtime.transport'):
+        field.validate('runtime.transport', 'pipe')
+
+
+def test_unpublished_torn_and_stale_slots_are_never_delivered(rundir, monkeypatch):
+    buf = bytearray(256)
+    with xddp.rt_xddp_bind(4, transport='shm', poolsz=4096, max_datagram=100) as rt, \
+            open_while_polling(rt, 4) as ep:
+        ring = ep._region.to_rt
+        c = rt.counters
+        # Payload, length and CRC written, seq not yet: "not published".
+        publish(ring, 1, b'first', seq_field=False)
+        assert rt.recv_into(buf) == 0 and c.received == 0 and c.torn == 0
+        # Seq visible before the CRC (weakly ordered stores): detected, counted once, retried.
+        publish(ring, 1, b'first', crc=0x12345678)
+        assert rt.recv_into(buf) == 0 and rt.recv_into(buf) == 0
+        assert c.torn == 1 and c.received == 0
+        # The late store lands: delivered.
+        publish(ring, 1, b'first')
+        assert rt.recv_into(buf) == 5 and buf[:5] == b'first' and c.received == 1
+        ring.wseq = 2  # the endpoint's own writes go on from here
+        # A new lap's seq over the previous lap's payload and CRC: the CRC is seeded with
+        # seq and length, so the stale slot does not pass.
+        for seq in range(2, ring.nslots + 1):
+            ep.write(bytes([seq]))
+            assert rt.recv_into(buf) == 1 and buf[0] == seq
+        stale = ring.nslots + 1  # reuses slot 1, which holds b'first' for seq 1
+        struct.pack_into('<I', ring.mv, ring.base + (stale % ring.nslots) * ring.slot_size,
+                         stale)
+        assert rt.recv_into(buf) == 0 and c.torn == 2
+        # A slot that stays bad is corrupt, not late: skipped after the give-up time and
+        # counted malformed; the next datagram is delivered.
+        monkeypatch.setattr(xddp, 'SHM_TORN_GIVEUP_NS', 0)
+        ring.wseq = stale + 1
+        ep.write(b'after')
+        assert rt.recv_into(buf) == 5 and buf[:5] == b'after'
+        assert c.malformed == 1 and c.torn == 2 and c.received == ring.nslots + 1
+
+
+def test_ring_full_and_oversize_are_counted_and_the_ring_recovers(rundir):
+    buf = bytearray(128)
+    with xddp.rt_xddp_bind(5, transport='shm', poolsz=4096, max_datagram=100) as rt, \
+            open_while_polling(rt, 5) as ep:
+        nslots = ep._region.to_nrt.nslots
+        results = [rt.send(bytes([i]) * 10) for i in range(nslots + 5)]
+        assert results == [True] * nslots + [False] * 5
+        assert rt.counters.dropped_full == 5 and rt.counters.sent == nslots
+        assert [ep.read(0) for _ in range(nslots)] == [bytes([i]) * 10 for i in range(nslots)]
+        with pytest.raises(TimeoutError):
+            ep.read(0)
+        assert rt.send(b'again') and ep.read(WAIT) == b'again'
+        # NRT -> RT: a full ring makes a write wait, then time out (the RT side is not reading)
+        for i in range(nslots):
+            ep.write(bytes([i]))
+        with pytest.raises(TimeoutError):
+            ep.write(b'no room', 0.01)
+        # larger than a slot: published as a marker the RT side counts as oversize
+        got = [rt.recv_into(buf) for _ in range(nslots)]
+        assert got == [1] * nslots
+        ep.write(b'x' * 500)
+        ep.write(b'y' * 100)
+        assert rt.recv_into(bytearray(50)) == 0  # 500 > slot, 100 > the buffer: both dropped
+        assert rt.counters.dropped_oversize == 2
+        ep.write(b'z')
+        assert rt.recv_into(buf) == 1 and buf[0] == ord('z')
+
+
+def test_garbage_in_the_rings_never_breaks_the_rt_side(rundir, monkeypatch):
+    monkeypatch.setattr(xddp, 'SHM_TORN_GIVEUP_NS', 0)
+    buf = bytearray(4096)
+    rng = random.Random(33)
+    with xddp.rt_xddp_bind(6, transport='shm', poolsz=8192) as rt, \
+            open_while_polling(rt, 6) as ep:
+        region = ep._region
+        for _ in range(200):
+            start = rng.randrange(len(region.mv))
+            chunk = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 64)))
+            chunk = chunk[:len(region.mv) - start]
+            region.mv[start:start + len(chunk)] = chunk
+            for _ in range(4):
+                assert 0 <= rt.recv_into(buf) <= len(buf)
+            rt.send(b'still alive')  # full or not: counted, never raised
+        c = rt.counters
+        assert c.sent + c.dropped_full == 200
+
+
+def test_bytes_written_on_the_socket_of_an_shm_link_are_counted_malformed(rundir):
+    with xddp.rt_xddp_bind(7, transport='shm') as rt, open_while_polling(rt, 7) as ep:
+        ep._sock.send(b'not through the ring')
+        until(lambda: rt.recv_into(bytearray(64)) == 0 and rt.counters.malformed == 1,
+              'socket look')
+        assert rt.connected
+        ep.write(b'ring')
+        until(lambda: rt.recv() == b'ring', 'ring datagram')
+
+
+def test_a_new_peer_gets_fresh_rings_never_the_old_peers_data(rundir):
+    with xddp.rt_xddp_bind(8, transport='shm') as rt:
+        first = open_while_polling(rt, 8)
+        assert rt.send(b'for the first peer only')
+        first.close()
+        until(lambda: rt.recv_into(bytearray(64)) == 0 and not rt.connected, 'peer loss')
+        assert rt.counters.peer_lost == 1
+        with open_while_polling(rt, 8) as second:
+            with pytest.raises(TimeoutError):
+                second.read(0.05)
+            assert rt.send(b'for the second')
+            assert second.read(WAIT) == b'for the second'
+        assert rt.counters.peer_restarts == 1
+
+
+def test_the_nrt_fileno_wakes_on_data_and_on_rt_death(rundir):
+    rt = xddp.rt_xddp_bind(9, transport='shm')
+    ep = open_while_polling(rt, 9)
+    try:
+        with selectors.DefaultSelector() as sel:
+            sel.register(ep.fileno(), selectors.EVENT_READ)
+            assert sel.select(0) == []
+            rt.send(b'one')
+            assert len(sel.select(WAIT)) == 1
+            assert ep.read(0) == b'one'
+            rt.close()
+            assert len(sel.select(WAIT)) == 1
+            with pytest.raises(BrokenPipeError):
+                ep.read(WAIT)
+            with pytest.raises(BrokenPipeError):
+                ep.write(b'x')
+    finally:
+        ep.close()
+        rt.close()
