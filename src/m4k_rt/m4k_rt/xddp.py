@@ -393,14 +393,21 @@ class _ShmRing:
 
 
 class _ShmRegion:
-    """The shared mapping of one link: ring 0 carries RT -> NRT, ring 1 NRT -> RT."""
+    """The shared mapping of one link: ring 0 carries RT -> NRT, ring 1 NRT -> RT.
 
-    __slots__ = ('mm', 'mv', 'efd', 'to_nrt', 'to_rt')
+    ``efd`` wakes the NRT side (the RT side writes it per datagram sent); ``efd_rt`` is
+    written by the NRT side per datagram it writes, for RT-side users that wait instead of
+    running periodically (the round-trip bench); the RT tasks never read it.
+    """
 
-    def __init__(self, mm: mmap.mmap, efd: int, nslots: int, slot_size: int) -> None:
+    __slots__ = ('mm', 'mv', 'efd', 'efd_rt', 'to_nrt', 'to_rt')
+
+    def __init__(self, mm: mmap.mmap, efd: int, efd_rt: int, nslots: int,
+                 slot_size: int) -> None:
         self.mm = mm
         self.mv = memoryview(mm)
         self.efd = efd
+        self.efd_rt = efd_rt
         self.to_nrt = _ShmRing(self.mv, 0, nslots, slot_size)
         self.to_rt = _ShmRing(self.mv, nslots * slot_size, nslots, slot_size)
 
@@ -408,9 +415,10 @@ class _ShmRegion:
         self.to_nrt.mv = self.to_rt.mv = memoryview(b'')
         self.mv.release()
         self.mm.close()
-        if self.efd >= 0:
-            os.close(self.efd)
-            self.efd = -1
+        for fd in (self.efd, self.efd_rt):
+            if fd >= 0:
+                os.close(fd)
+        self.efd = self.efd_rt = -1
 
 
 def _shm_create(port: int, nslots: int, slot_size: int) -> tuple[_ShmRegion, int, bytes]:
@@ -426,24 +434,25 @@ def _shm_create(port: int, nslots: int, slot_size: int) -> tuple[_ShmRegion, int
         fcntl.fcntl(fd, fcntl.F_ADD_SEALS, _SHM_SEALS)
         mm = mmap.mmap(fd, size)
         efd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
+        efd_rt = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
     except BaseException:
         os.close(fd)
         raise
     offer = HANDSHAKE_SHM + _SHM_OFFER.pack(_SHM_MAGIC, _SHM_VERSION, 0, nslots, slot_size, size)
-    return _ShmRegion(mm, efd, nslots, slot_size), fd, offer
+    return _ShmRegion(mm, efd, efd_rt, nslots, slot_size), fd, offer
 
 
 def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
     """Map the region an RT side offered (NRT side); closes ``fds`` on failure."""
     try:
-        if len(msg) != 1 + _SHM_OFFER.size or len(fds) != 2:
+        if len(msg) != 1 + _SHM_OFFER.size or len(fds) != 3:
             raise XddpError('RT side of {} sent a malformed shm offer ({} bytes, {} fds)'.format(
                 path, len(msg), len(fds)), path, errno.EPROTO)
         magic, version, _, nslots, slot_size, size = _SHM_OFFER.unpack_from(msg, 1)
         if magic != _SHM_MAGIC or version != _SHM_VERSION:
             raise XddpError('RT side of {} offers shm version {!r}/{}, this peer speaks {}'.format(
                 path, magic, version, _SHM_VERSION), path, errno.EPROTO)
-        mfd, efd = fds
+        mfd, efd, efd_rt = fds
         if (nslots < 1 or slot_size <= _SLOT_HDR or slot_size % _SLOT_ALIGN
                 or 2 * nslots * slot_size > size or os.fstat(mfd).st_size != size):
             raise XddpError('RT side of {} offers an inconsistent shm region'.format(path),
@@ -455,7 +464,8 @@ def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
         raise
     os.close(mfd)
     os.set_blocking(efd, False)
-    return _ShmRegion(mm, efd, nslots, slot_size)
+    os.set_blocking(efd_rt, False)
+    return _ShmRegion(mm, efd, efd_rt, nslots, slot_size)
 
 
 class RtXddpSocket:
@@ -598,7 +608,14 @@ class RtXddpSocket:
         return self._peer is not None
 
     def fileno(self) -> int:
-        """Return the linked peer's fd, else the listener's (for bounded waits)."""
+        """Return the linked peer's fd, else the listener's (for bounded waits).
+
+        With the shm transport, a linked port returns the eventfd the peer writes per
+        datagram: readable once it wrote; whoever waits on it resets it (os.eventfd_read).
+        """
+        region = self._region
+        if region is not None:
+            return region.efd_rt
         peer = self._peer
         return peer.fileno() if peer is not None else self._lfd
 
@@ -633,7 +650,8 @@ class RtXddpSocket:
                     region, mfd, offer = _shm_create(
                         self.port, self._shm_slots, self._shm_slot_size)
                     try:
-                        socket.send_fds(conn, [offer], [mfd, region.efd], _SEND_FLAGS)
+                        socket.send_fds(conn, [offer], [mfd, region.efd, region.efd_rt],
+                                        _SEND_FLAGS)
                     finally:
                         os.close(mfd)
                 else:
@@ -994,7 +1012,9 @@ class NrtXddpEndpoint:
             if self._gone:
                 raise BrokenPipeError(errno.EPIPE, 'RT side of {} is gone'.format(self.path))
             if ring.put(data):
-                return  # the RT side reads it at its next cycle: no wake-up
+                # The RT tasks read it at their next cycle; a waiting RT-side user wakes.
+                os.eventfd_write(self._region.efd_rt, 1)
+                return
             if deadline is not None and time.monotonic() >= deadline:
                 raise TimeoutError(errno.ETIMEDOUT, 'write to {} blocked for {}s'.format(
                     self.path, timeout))
@@ -1091,7 +1111,7 @@ def nrt_xddp_open(port_or_label: int | str, *, wait: float | None = 0.0,
                 # Message mode: the whole answer (one byte, or the shm offer with its two
                 # fds). Stream mode: one byte, the RT side's data may follow right behind it.
                 msg, fds, flags, _ = socket.recv_fds(
-                    sock, 1 + _SHM_OFFER.size if found_mode == 'message' else 1, 2)
+                    sock, 1 + _SHM_OFFER.size if found_mode == 'message' else 1, 3)
             except TimeoutError:
                 sock.close()
                 raise XddpError('RT side of {} did not accept within {}s'.format(

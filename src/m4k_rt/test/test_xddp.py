@@ -227,6 +227,13 @@ def test_fileno_selects_on_the_peer_once_linked(rundir):
                 ep.read(0)
             with pytest.raises(TimeoutError):
                 ep.read(0.01)
+            # The RT side's fd (a waiting user's, not the tasks'): readable once the peer wrote.
+            with selectors.DefaultSelector() as rsel:
+                rsel.register(rt.fileno(), selectors.EVENT_READ)
+                assert rsel.select(0) == []
+                ep.write(b'pong')
+                assert len(rsel.select(WAIT)) == 1
+                assert rt_recv_wait(rt, bytearray(64)) == b'pong'
     finally:
         rt.close()
 

@@ -90,16 +90,17 @@ def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
     with xddp.rt_xddp_bind(3, 'imu', transport='shm', poolsz=8192, max_datagram=1000) as rt:
         sock, msg, fds = raw_link(rt, rt.path)
         try:
-            assert msg[:1] == xddp.HANDSHAKE_SHM and len(fds) == 2
+            assert msg[:1] == xddp.HANDSHAKE_SHM and len(fds) == 3
             magic, version, _, nslots, slot, size = struct.unpack_from('<4sHHIII', msg, 1)
             assert (magic, version) == (b'M4KS', 1)
             assert (nslots, slot) == xddp.shm_geometry(8192, 1000) == (8, 1024)
-            mfd, efd = fds
+            mfd, efd, efd_rt = fds
             st = os.fstat(mfd)
             assert st.st_size == size >= 2 * nslots * slot
             assert st.st_mode & 0o777 == 0o600
             assert os.readlink('/proc/self/fd/{}'.format(mfd)).startswith('/memfd:m4k-xddp3')
-            assert os.readlink('/proc/self/fd/{}'.format(efd)) == 'anon_inode:[eventfd]'
+            for fd in (efd, efd_rt):
+                assert os.readlink('/proc/self/fd/{}'.format(fd)) == 'anon_inode:[eventfd]'
             seals = fcntl.fcntl(mfd, fcntl.F_GET_SEALS)
             want = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
             assert seals & want == want
