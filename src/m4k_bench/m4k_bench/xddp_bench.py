@@ -9,6 +9,10 @@ receives the way every RT task body does (:class:`m4k_rt.tasks.portio.PortReader
 ``poll`` and then calls ``recv_into`` on a plain non-blocking SOCK_SEQPACKET socket, so the
 difference is the emulation's own cost on the tasks' path (the wait itself stands in for the
 task's timerfd wake-up and is the same on both sides). Timing is reported, never asserted.
+
+``--transport shm`` runs the XDDP side over the shared-memory rings instead: the measuring
+thread waits in the same ``poll`` on the port's fd (with shm, the eventfd the peer writes per
+datagram; reset after the wait) and receives from the ring; the raw run is unchanged.
 """
 
 import argparse
@@ -108,8 +112,8 @@ def _in_rt_thread(body: Callable[[], list[int]], priority: int,
 
 
 def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
-              cpu: int | None) -> tuple[list[int], bool]:
-    rt = xddp.rt_xddp_bind(port, runtime_dir=runtime_dir)
+              cpu: int | None, transport: str = 'socket') -> tuple[list[int], bool]:
+    rt = xddp.rt_xddp_bind(port, runtime_dir=runtime_dir, transport=transport)
     peer = _spawn('--echo-xddp', str(port), '--runtime-dir', runtime_dir, cpu=cpu)
     try:
         deadline = time.monotonic() + 30.0
@@ -124,15 +128,22 @@ def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
             buf = bytearray(rt.max_datagram)
             clock = time.monotonic_ns
             readable = select.poll()
-            readable.register(rt.fileno(), select.POLLIN)
+            wake_fd = rt.fileno()
+            readable.register(wake_fd, select.POLLIN)
             wait = readable.poll
+            shm = transport == 'shm'
             samples = []
             for i in range(n + _WARMUP):
                 t0 = clock()
                 if not rt.send(_PAYLOAD):
                     raise RuntimeError('XDDP send dropped: {}'.format(rt.counters.as_dict()))
-                if not wait(_REPLY_TIMEOUT_MS) or not rt.recv_into(buf):
+                if not wait(_REPLY_TIMEOUT_MS):
                     raise RuntimeError('no XDDP echo within {} ms'.format(_REPLY_TIMEOUT_MS))
+                if shm:
+                    os.eventfd_read(wake_fd)
+                if not rt.recv_into(buf):
+                    raise RuntimeError('XDDP echo signalled but not received: {}'.format(
+                        rt.counters.as_dict()))
                 t1 = clock()
                 if i >= _WARMUP:
                     samples.append(t1 - t0)
@@ -193,7 +204,7 @@ def _raw_rtt(n: int, runtime_dir: str, priority: int,
 
 
 def run_rtt(n: int, runtime_dir: str | None, *, port: int = 31, priority: int = 80,
-            cpu: int | None = -1) -> dict:
+            cpu: int | None = -1, transport: str = 'socket') -> dict:
     """Measure ``n`` XDDP and raw SEQPACKET round trips; return µs percentiles for both.
 
     Both transports run with the measuring thread and the echo peer pinned to the same CPU
@@ -207,12 +218,12 @@ def run_rtt(n: int, runtime_dir: str | None, *, port: int = 31, priority: int = 
     runtime_dir = xddp.ensure_runtime_dir(runtime_dir)
     if cpu == -1:
         cpu = max(os.sched_getaffinity(0))
-    xddp_samples, fifo = _xddp_rtt(n, runtime_dir, port, priority, cpu)
+    xddp_samples, fifo = _xddp_rtt(n, runtime_dir, port, priority, cpu, transport)
     raw_samples, _ = _raw_rtt(n, runtime_dir, priority, cpu)
     xs = _percentiles(xddp_samples)
     rs = _percentiles(raw_samples)
     return {'xddp': xs, 'raw': rs, 'sched_fifo': fifo, 'payload_bytes': len(_PAYLOAD),
-            'cpu': cpu,
+            'cpu': cpu, 'transport': transport,
             'p50_ratio': xs['p50_us'] / rs['p50_us'] if rs['p50_us'] else float('nan')}
 
 
@@ -226,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--cpu', type=int, default=-1,
                         help='CPU for the measuring thread and the echo peer (-1: the last '
                         'one; -2: no pinning)')
+    parser.add_argument('--transport', choices=xddp.TRANSPORTS, default='socket',
+                        help='XDDP transport of the measured port (default %(default)s)')
     parser.add_argument('--echo-xddp', type=int, metavar='PORT', help=argparse.SUPPRESS)
     parser.add_argument('--echo-raw', metavar='PATH', help=argparse.SUPPRESS)
     args = rosargs.parse_args(parser, argv)
@@ -237,9 +250,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory(prefix='m4kb') as tmp:
         result = run_rtt(args.n, args.runtime_dir or os.path.join(tmp, 'rt'), port=args.port,
-                         cpu=None if args.cpu == -2 else args.cpu)
-    print('round trip of a {}-byte datagram, n={}, RT thread SCHED_FIFO: {}, CPU: {}'.format(
-        result['payload_bytes'], args.n, result['sched_fifo'], result['cpu']))
+                         cpu=None if args.cpu == -2 else args.cpu, transport=args.transport)
+    print('round trip of a {}-byte datagram, n={}, RT thread SCHED_FIFO: {}, CPU: {}, XDDP '
+          'transport: {}'.format(result['payload_bytes'], args.n, result['sched_fifo'],
+                                 result['cpu'], args.transport))
     print('{:<10}{:>10}{:>10}{:>10}{:>10}'.format('transport', 'min us', 'p50 us', 'p99 us',
                                                   'max us'))
     for name in ('xddp', 'raw'):

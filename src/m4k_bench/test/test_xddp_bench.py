@@ -19,8 +19,10 @@ def rundir(monkeypatch):
     shutil.rmtree(base, ignore_errors=True)
 
 
-def test_rtt_benchmark_runs_both_transports(rundir):
-    result = xddp_bench.run_rtt(20, rundir)
+@pytest.mark.parametrize('transport', ['socket', 'shm'])
+def test_rtt_benchmark_runs_both_transports(rundir, transport):
+    result = xddp_bench.run_rtt(20, rundir, transport=transport)
+    assert result['transport'] == transport
     for name in ('xddp', 'raw'):
         r = result[name]
         assert r['n'] == 20

@@ -270,8 +270,9 @@ def _socket_alive(path: str) -> bool:
     return True
 
 
-_SLOT_HDR = 16  # seq u32, length u32, crc32 u32 (written by the producer), ack u32 (consumer)
-_SLOT_ALIGN = 64  # a cache line: two slots never share one
+_SLOT = 128  # bytes per slot; a datagram takes ceil((16 + length) / _SLOT) consecutive slots
+_HDR = 16  # seq u32, length u32, crc32 u32, reserved u32: at a datagram's first slot
+_LINE = 64  # cache line: the consumer's ack array and the producer's slots never share one
 _U32 = struct.Struct('<I')
 _SEQ_LEN_CRC = struct.Struct('<III')
 _LEN_CRC = struct.Struct('<II')
@@ -280,70 +281,101 @@ _SHM_MAGIC = b'M4KS'
 _SHM_VERSION = 1
 _SHM_SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
 _M32 = 0xFFFFFFFF
+_SKIP = 0xFFFFFFFF  # length of a wrap marker: the rest of the ring is skipped
 _GOLDEN = 0x9E3779B1  # spreads seq over the CRC seed
 _clock = time.monotonic_ns
 
 # _ShmRing.get_into results besides a length > 0 and 0 (nothing published)
-SHM_DROPPED = -1  # larger than the reader's buffer or the slot, or empty: dropped (oversize)
+SHM_DROPPED = -1  # larger than the reader's buffer or the ring, or empty: dropped (oversize)
 SHM_TORN = -2  # published seq, failing check: first seen now (counted torn), retried
 SHM_TORN_WAIT = -4  # the same slot still failing: retried, not counted again
 SHM_CORRUPT = -3  # still failing after SHM_TORN_GIVEUP_NS: skipped, counted malformed
 
 
 def shm_geometry(poolsz: int, max_datagram: int) -> tuple[int, int]:
-    """Return (slots per ring, slot size) of a port: slots of max_datagram, poolsz per ring."""
-    slot = -(-(_SLOT_HDR + max_datagram) // _SLOT_ALIGN) * _SLOT_ALIGN
-    return max(SHM_MIN_SLOTS, poolsz // slot), slot
+    """Return (slots per ring, ring bytes) of a port: about poolsz per direction.
+
+    At least enough slots for two datagrams of ``max_datagram`` bytes, so one always fits.
+    """
+    need = -(-(_HDR + max_datagram) // _SLOT)
+    nslots = max(poolsz // _SLOT, 2 * need, SHM_MIN_SLOTS)
+    return nslots, _ring_bytes(nslots)
+
+
+def _ring_bytes(nslots: int) -> int:
+    return -(-4 * nslots // _LINE) * _LINE + nslots * _SLOT
 
 
 class _ShmRing:
-    """One single-producer single-consumer ring of fixed datagram slots in a shared mapping.
+    """One single-producer single-consumer datagram ring in a shared mapping.
 
-    Slot ``seq % nslots`` carries datagram ``seq`` (1, 2, ...): the producer copies the payload,
-    writes length and CRC32 (seeded with seq and length), then ``seq``; the consumer accepts the
-    slot when ``seq`` is exactly the one it expects and the CRC matches, copies it, then writes
-    ``ack = seq``; the producer reuses a slot only once its ack is that of the previous lap.
-    Either side keeps only its own counter; equality on 32-bit values makes a torn read of
-    ``seq`` or ``ack`` (written byte by byte) look "not yet", never "done".
+    Layout: ``nslots`` u32 acks (written by the consumer only), then ``nslots`` slots of
+    ``_SLOT`` bytes (written by the producer only). Slots have absolute numbers that only grow
+    (the first lap is ``nslots .. 2 * nslots - 1``, so zeroed memory is never "published");
+    slot ``x`` lives at index ``x % nslots``. A datagram of ``n`` bytes takes ``k`` consecutive
+    slots from its first slot ``x``: the producer copies the payload behind a 16-byte header,
+    writes length and CRC32 (seeded with ``x`` and ``n``), then ``seq = x`` last. One that
+    does not fit before the end of the ring leaves a wrap marker (length ``_SKIP``) and starts
+    at index 0. The consumer accepts the datagram at ``x`` when ``seq`` is exactly ``x`` and
+    the CRC of the bytes it copied matches, then writes ``ack[i] = x + j`` for each of its
+    slots. The producer reuses slot ``y`` once ``ack[y % nslots] == y - nslots``, i.e. the
+    consumer finished the previous lap there; it checks the furthest slot it needs, as the
+    consumer goes in order. Equality on 32-bit values makes a torn read of ``seq`` or
+    ``ack`` (stored byte by byte) look "not yet", never "done".
     """
 
-    __slots__ = ('mv', 'base', 'nslots', 'slot_size', 'cap', 'wseq', 'rseq', 'torn_seq',
-                 'torn_since')
+    __slots__ = ('mv', 'acks', 'slots', 'nslots', 'cap', 'wseq', 'rseq', 'torn_seq',
+                 'torn_since', '_dst', '_dstbuf')
 
-    def __init__(self, mv: memoryview, base: int, nslots: int, slot_size: int) -> None:
+    def __init__(self, mv: memoryview, base: int, nslots: int) -> None:
         self.mv = mv
-        self.base = base
         self.nslots = nslots
-        self.slot_size = slot_size
-        self.cap = slot_size - _SLOT_HDR
-        self.wseq = 1  # producer: next seq to publish
-        self.rseq = 1  # consumer: next seq expected
-        self.torn_seq = 0
+        self.acks = base
+        self.slots = base + -(-4 * nslots // _LINE) * _LINE
+        self.cap = nslots * _SLOT - _HDR  # the largest datagram the ring can carry
+        self.wseq = nslots  # producer: absolute number of its next slot
+        self.rseq = nslots  # consumer: absolute number of the next slot to look at
+        self.torn_seq = -1
         self.torn_since = 0
+        self._dst: memoryview | None = None  # a view of the last receive buffer (CRC of the copy)
+        self._dstbuf: object = None
 
     def put(self, data: bytes | bytearray | memoryview) -> bool:
-        """Publish one datagram; False when the ring is full (the oldest slot not acked).
+        """Publish one datagram; False when the ring is full (counted by the caller).
 
-        A datagram longer than a slot is published as a marker (length, no payload) that the
-        consumer counts as dropped oversize, as a socket receiver counts a truncated one.
+        A datagram longer than the ring is published as a one-slot marker (length, no
+        payload) that the consumer counts as dropped oversize, as a socket receiver counts a
+        truncated one.
         """
-        seq = self.wseq
+        w = self.wseq
         nslots = self.nslots
         mv = self.mv
-        slot = self.base + (seq % nslots) * self.slot_size
-        if seq > nslots and _U32.unpack_from(mv, slot + 12)[0] != (seq - nslots) & _M32:
-            return False
-        s32 = seq & _M32
         n = len(data)
+        k = 1 if n > self.cap else (n + _HDR + _SLOT - 1) // _SLOT
+        i = w % nslots
+        skip = nslots - i if i + k > nslots else 0
+        last = w + skip + k - 1  # the furthest slot needed; all before it are older
+        if last >= 2 * nslots and _U32.unpack_from(
+                mv, self.acks + 4 * (last % nslots))[0] != (last - nslots) & _M32:
+            return False
+        if skip:
+            slot = self.slots + i * _SLOT
+            s32 = w & _M32
+            _LEN_CRC.pack_into(mv, slot + 4, _SKIP, (s32 * _GOLDEN + _SKIP) & _M32)
+            _U32.pack_into(mv, slot, s32)
+            w += skip
+            i = 0
+        slot = self.slots + i * _SLOT
+        s32 = w & _M32
         seed = (s32 * _GOLDEN + n) & _M32
         if n > self.cap:
             crc = seed  # == zlib.crc32(b'', seed): the marker has no payload
         else:
-            mv[slot + _SLOT_HDR:slot + _SLOT_HDR + n] = data
+            mv[slot + _HDR:slot + _HDR + n] = data
             crc = zlib.crc32(data, seed)
         _LEN_CRC.pack_into(mv, slot + 4, n, crc)
         _U32.pack_into(mv, slot, s32)  # published: last
-        self.wseq = seq + 1
+        self.wseq = w + k
         return True
 
     def get_into(self, buf: bytearray | memoryview) -> int:
@@ -351,45 +383,70 @@ class _ShmRing:
 
         Negative: SHM_DROPPED, SHM_TORN, SHM_TORN_WAIT or SHM_CORRUPT (see there).
         """
-        seq = self.rseq
-        s32 = seq & _M32
+        nslots = self.nslots
         mv = self.mv
-        slot = self.base + (seq % self.nslots) * self.slot_size
-        got, n, crc = _SEQ_LEN_CRC.unpack_from(mv, slot)
-        if got != s32:
-            return 0
-        seed = (s32 * _GOLDEN + n) & _M32
-        p = slot + _SLOT_HDR
-        if n > self.cap:
-            if crc != seed:
-                return self._torn(seq, slot)
-            result = SHM_DROPPED
-        else:
-            src = mv[p:p + n]
-            # CRC first, copy after: the copy reads what the CRC read or newer, and the
-            # producer writes this slot again only after our ack.
-            if zlib.crc32(src, seed) != crc:
-                return self._torn(seq, slot)
-            if 0 < n <= len(buf):
-                buf[:n] = src
-                result = n
+        while True:
+            r = self.rseq
+            i = r % nslots
+            slot = self.slots + i * _SLOT
+            s32 = r & _M32
+            got, n, crc = _SEQ_LEN_CRC.unpack_from(mv, slot)
+            if got != s32:
+                return 0
+            seed = (s32 * _GOLDEN + n) & _M32
+            if n == _SKIP or n > self.cap:
+                if crc != seed:
+                    return self._torn(r)
+                k = nslots - i if n == _SKIP else 1
+                result = 0 if n == _SKIP else SHM_DROPPED
             else:
-                result = SHM_DROPPED
-        _U32.pack_into(mv, slot + 12, s32)  # ack: after the copy (control-dependent on it)
-        self.rseq = seq + 1
-        return result
+                k = (n + _HDR + _SLOT - 1) // _SLOT
+                if i + k > nslots:
+                    return self._torn(r)
+                p = slot + _HDR
+                if 0 < n <= len(buf):
+                    # Copy, then check the copy: what is delivered is what was checked, and
+                    # the acks below depend on the check, so on the copy's loads.
+                    buf[:n] = mv[p:p + n]
+                    dst = self._dst
+                    if buf is not self._dstbuf or dst is None:
+                        dst = self._view(buf)
+                    if zlib.crc32(dst[:n], seed) != crc:
+                        return self._torn(r)
+                    result = n
+                else:
+                    if zlib.crc32(mv[p:p + n], seed) != crc:
+                        return self._torn(r)
+                    result = SHM_DROPPED
+            a = self.acks + 4 * i
+            for j in range(k):
+                _U32.pack_into(mv, a + 4 * j, (r + j) & _M32)
+            self.rseq = r + k
+            if result:
+                return result
+            # a wrap marker: the datagram after it is at index 0
 
-    def _torn(self, seq: int, slot: int) -> int:
+    def _view(self, buf: bytearray | memoryview) -> memoryview:
+        self._dstbuf = buf
+        self._dst = view = memoryview(buf)
+        return view
+
+    def _torn(self, r: int) -> int:
         now = _clock()
-        if self.torn_seq != seq:
-            self.torn_seq = seq
+        if self.torn_seq != r:
+            self.torn_seq = r
             self.torn_since = now
             return SHM_TORN
         if now - self.torn_since < SHM_TORN_GIVEUP_NS:
             return SHM_TORN_WAIT
-        _U32.pack_into(self.mv, slot + 12, seq & _M32)  # not a late store: corrupt, skip it
-        self.rseq = seq + 1
+        # Not a late store: a corrupt slot. Skip it (one slot: the length is not trusted).
+        _U32.pack_into(self.mv, self.acks + 4 * (r % self.nslots), r & _M32)
+        self.rseq = r + 1
         return SHM_CORRUPT
+
+    def release(self) -> None:
+        self._dst = self._dstbuf = None
+        self.mv = memoryview(b'')
 
 
 class _ShmRegion:
@@ -402,17 +459,17 @@ class _ShmRegion:
 
     __slots__ = ('mm', 'mv', 'efd', 'efd_rt', 'to_nrt', 'to_rt')
 
-    def __init__(self, mm: mmap.mmap, efd: int, efd_rt: int, nslots: int,
-                 slot_size: int) -> None:
+    def __init__(self, mm: mmap.mmap, efd: int, efd_rt: int, nslots: int) -> None:
         self.mm = mm
         self.mv = memoryview(mm)
         self.efd = efd
         self.efd_rt = efd_rt
-        self.to_nrt = _ShmRing(self.mv, 0, nslots, slot_size)
-        self.to_rt = _ShmRing(self.mv, nslots * slot_size, nslots, slot_size)
+        self.to_nrt = _ShmRing(self.mv, 0, nslots)
+        self.to_rt = _ShmRing(self.mv, _ring_bytes(nslots), nslots)
 
     def close(self) -> None:
-        self.to_nrt.mv = self.to_rt.mv = memoryview(b'')
+        self.to_nrt.release()
+        self.to_rt.release()
         self.mv.release()
         self.mm.close()
         for fd in (self.efd, self.efd_rt):
@@ -421,9 +478,9 @@ class _ShmRegion:
         self.efd = self.efd_rt = -1
 
 
-def _shm_create(port: int, nslots: int, slot_size: int) -> tuple[_ShmRegion, int, bytes]:
+def _shm_create(port: int, nslots: int) -> tuple[_ShmRegion, int, bytes]:
     """Create a link's region: (region, memfd to pass, offer bytes). The caller closes memfd."""
-    size = 2 * nslots * slot_size
+    size = 2 * _ring_bytes(nslots)
     size = -(-size // mmap.PAGESIZE) * mmap.PAGESIZE
     fd = os.memfd_create('m4k-xddp{}'.format(port), os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
     try:
@@ -438,8 +495,8 @@ def _shm_create(port: int, nslots: int, slot_size: int) -> tuple[_ShmRegion, int
     except BaseException:
         os.close(fd)
         raise
-    offer = HANDSHAKE_SHM + _SHM_OFFER.pack(_SHM_MAGIC, _SHM_VERSION, 0, nslots, slot_size, size)
-    return _ShmRegion(mm, efd, efd_rt, nslots, slot_size), fd, offer
+    offer = HANDSHAKE_SHM + _SHM_OFFER.pack(_SHM_MAGIC, _SHM_VERSION, 0, nslots, _SLOT, size)
+    return _ShmRegion(mm, efd, efd_rt, nslots), fd, offer
 
 
 def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
@@ -448,13 +505,15 @@ def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
         if len(msg) != 1 + _SHM_OFFER.size or len(fds) != 3:
             raise XddpError('RT side of {} sent a malformed shm offer ({} bytes, {} fds)'.format(
                 path, len(msg), len(fds)), path, errno.EPROTO)
-        magic, version, _, nslots, slot_size, size = _SHM_OFFER.unpack_from(msg, 1)
-        if magic != _SHM_MAGIC or version != _SHM_VERSION:
-            raise XddpError('RT side of {} offers shm version {!r}/{}, this peer speaks {}'.format(
-                path, magic, version, _SHM_VERSION), path, errno.EPROTO)
+        magic, version, _, nslots, slot, size = _SHM_OFFER.unpack_from(msg, 1)
+        if magic != _SHM_MAGIC or version != _SHM_VERSION or slot != _SLOT:
+            raise XddpError('RT side of {} offers shm version {!r}/{} with {}-byte slots, this '
+                            'peer speaks {} with {}'.format(path, magic, version, slot,
+                                                            _SHM_VERSION, _SLOT),
+                            path, errno.EPROTO)
         mfd, efd, efd_rt = fds
-        if (nslots < 1 or slot_size <= _SLOT_HDR or slot_size % _SLOT_ALIGN
-                or 2 * nslots * slot_size > size or os.fstat(mfd).st_size != size):
+        if (nslots < SHM_MIN_SLOTS or 2 * _ring_bytes(nslots) > size
+                or os.fstat(mfd).st_size != size):
             raise XddpError('RT side of {} offers an inconsistent shm region'.format(path),
                             path, errno.EPROTO)
         mm = mmap.mmap(mfd, size)
@@ -465,7 +524,7 @@ def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
     os.close(mfd)
     os.set_blocking(efd, False)
     os.set_blocking(efd_rt, False)
-    return _ShmRegion(mm, efd, efd_rt, nslots, slot_size)
+    return _ShmRegion(mm, efd, efd_rt, nslots)
 
 
 class RtXddpSocket:
@@ -504,7 +563,7 @@ class RtXddpSocket:
         self.poolsz = poolsz
         self.max_datagram = max_datagram
         self.counters = XddpCounters()
-        self._shm_slots, self._shm_slot_size = shm_geometry(poolsz, max_datagram)
+        self._shm_slots = shm_geometry(poolsz, max_datagram)[0]
         self._region: _ShmRegion | None = None
         self._tx: _ShmRing | None = None  # shm: RT -> NRT ring while linked
         self._rx: _ShmRing | None = None  # shm: NRT -> RT ring while linked
@@ -647,8 +706,7 @@ class RtXddpSocket:
                 conn.setblocking(False)
                 self._set_buffers(conn)
                 if self.transport == 'shm':
-                    region, mfd, offer = _shm_create(
-                        self.port, self._shm_slots, self._shm_slot_size)
+                    region, mfd, offer = _shm_create(self.port, self._shm_slots)
                     try:
                         socket.send_fds(conn, [offer], [mfd, region.efd, region.efd_rt],
                                         _SEND_FLAGS)

@@ -75,9 +75,9 @@ def raw_link(rt, path):
 
 
 def publish(ring, seq, payload, crc=None, seq_field=None):
-    """Write slot ``seq`` of ``ring`` by hand, as the producer does (seq last)."""
+    """Write the datagram at absolute slot ``seq`` of ``ring`` by hand, as the producer does."""
     mv = ring.mv
-    slot = ring.base + (seq % ring.nslots) * ring.slot_size
+    slot = ring.slots + (seq % ring.nslots) * 128
     mv[slot + 16:slot + 16 + len(payload)] = payload
     seed = (seq * 0x9E3779B1 + len(payload)) & 0xFFFFFFFF
     struct.pack_into('<II', mv, slot + 4, len(payload),
@@ -92,11 +92,13 @@ def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
         try:
             assert msg[:1] == xddp.HANDSHAKE_SHM and len(fds) == 3
             magic, version, _, nslots, slot, size = struct.unpack_from('<4sHHIII', msg, 1)
-            assert (magic, version) == (b'M4KS', 1)
-            assert (nslots, slot) == xddp.shm_geometry(8192, 1000) == (8, 1024)
+            assert (magic, version, slot) == (b'M4KS', 1, 128)
+            # poolsz bytes of 128-byte slots per direction, plus one u32 ack per slot
+            assert (nslots, slot * nslots + 4 * nslots) == xddp.shm_geometry(8192, 1000) \
+                == (64, 8448)
             mfd, efd, efd_rt = fds
             st = os.fstat(mfd)
-            assert st.st_size == size >= 2 * nslots * slot
+            assert st.st_size == size >= 2 * 8448 and size % mmap.PAGESIZE == 0
             assert st.st_mode & 0o777 == 0o600
             assert os.readlink('/proc/self/fd/{}'.format(mfd)).startswith('/memfd:m4k-xddp3')
             for fd in (efd, efd_rt):
@@ -114,8 +116,7 @@ def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
             # A datagram the RT side sends is in ring 0 and wakes the eventfd.
             assert rt.send(b'hello')
             assert os.eventfd_read(efd) == 1
-            ring = xddp._ShmRing(memoryview(mmap.mmap(mfd, size)), 0, nslots,
-                                 slot)
+            ring = xddp._ShmRing(memoryview(mmap.mmap(mfd, size)), 0, nslots)
             buf = bytearray(64)
             assert ring.get_into(buf) == 5 and buf[:5] == b'hello'
             ring.mv.release()
@@ -157,25 +158,25 @@ def test_unpublished_torn_and_stale_slots_are_never_delivered(rundir, monkeypatc
             open_while_polling(rt, 4) as ep:
         ring = ep._region.to_rt
         c = rt.counters
+        first = ring.wseq
         # Payload, length and CRC written, seq not yet: "not published".
-        publish(ring, 1, b'first', seq_field=False)
+        publish(ring, first, b'first', seq_field=False)
         assert rt.recv_into(buf) == 0 and c.received == 0 and c.torn == 0
         # Seq visible before the CRC (weakly ordered stores): detected, counted once, retried.
-        publish(ring, 1, b'first', crc=0x12345678)
+        publish(ring, first, b'first', crc=0x12345678)
         assert rt.recv_into(buf) == 0 and rt.recv_into(buf) == 0
         assert c.torn == 1 and c.received == 0
         # The late store lands: delivered.
-        publish(ring, 1, b'first')
+        publish(ring, first, b'first')
         assert rt.recv_into(buf) == 5 and buf[:5] == b'first' and c.received == 1
-        ring.wseq = 2  # the endpoint's own writes go on from here
+        ring.wseq = first + 1  # the endpoint's own writes go on from here
         # A new lap's seq over the previous lap's payload and CRC: the CRC is seeded with
         # seq and length, so the stale slot does not pass.
-        for seq in range(2, ring.nslots + 1):
-            ep.write(bytes([seq]))
-            assert rt.recv_into(buf) == 1 and buf[0] == seq
-        stale = ring.nslots + 1  # reuses slot 1, which holds b'first' for seq 1
-        struct.pack_into('<I', ring.mv, ring.base + (stale % ring.nslots) * ring.slot_size,
-                         stale)
+        for j in range(1, ring.nslots):
+            ep.write(bytes([j]))
+            assert rt.recv_into(buf) == 1 and buf[0] == j
+        stale = first + ring.nslots  # the slot of b'first', one lap later
+        struct.pack_into('<I', ring.mv, ring.slots + (stale % ring.nslots) * 128, stale)
         assert rt.recv_into(buf) == 0 and c.torn == 2
         # A slot that stays bad is corrupt, not late: skipped after the give-up time and
         # counted malformed; the next datagram is delivered.
@@ -206,9 +207,9 @@ def test_ring_full_and_oversize_are_counted_and_the_ring_recovers(rundir):
         # larger than a slot: published as a marker the RT side counts as oversize
         got = [rt.recv_into(buf) for _ in range(nslots)]
         assert got == [1] * nslots
-        ep.write(b'x' * 500)
+        ep.write(b'x' * 5000)
         ep.write(b'y' * 100)
-        assert rt.recv_into(bytearray(50)) == 0  # 500 > slot, 100 > the buffer: both dropped
+        assert rt.recv_into(bytearray(50)) == 0  # 5000 > the ring, 100 > the buffer: dropped
         assert rt.counters.dropped_oversize == 2
         ep.write(b'z')
         assert rt.recv_into(buf) == 1 and buf[0] == ord('z')
@@ -277,3 +278,40 @@ def test_the_nrt_fileno_wakes_on_data_and_on_rt_death(rundir):
     finally:
         ep.close()
         rt.close()
+
+
+@pytest.mark.parametrize('seed', range(5))
+def test_random_sizes_wrap_in_order_with_boundaries_and_exact_full_drops(seed):
+    # Producer and consumer as two ring objects over one buffer, as the two processes have.
+    rng = random.Random(seed)
+    nslots, size = xddp.shm_geometry(4096, 1000)
+    mem = memoryview(bytearray(size))
+    prod, cons = xddp._ShmRing(mem, 0, nslots), xddp._ShmRing(mem, 0, nslots)
+    sent, got, full = [], [], 0
+    buf = bytearray(1000)
+    for i in range(3000):
+        if rng.random() < 0.55:
+            data = bytes([i & 0xFF]) * rng.choice([1, 20, 111, 112, 113, 500, 1000])
+            if prod.put(data):
+                sent.append(data)
+            else:
+                full += 1
+                # full means: the slots this one needs (wrap included) are not acked yet
+                assert len(sent) > len(got)
+        else:
+            n = cons.get_into(buf)
+            assert n >= 0
+            if n:
+                got.append(bytes(buf[:n]))
+    while (n := cons.get_into(buf)) > 0:
+        got.append(bytes(buf[:n]))
+    assert got == sent and full > 0 and prod.wseq == cons.rseq
+
+
+def test_a_burst_of_small_datagrams_fits_as_in_a_socket_buffer(rundir):
+    # The monitor ships ~25 small datagrams per batch: poolsz holds them all, as the socket
+    # buffer does.
+    with xddp.rt_xddp_bind(10, transport='shm') as rt, open_while_polling(rt, 10) as ep:
+        assert all(rt.send(bytes([i]) * 60) for i in range(200))
+        assert [ep.read(0) for _ in range(200)] == [bytes([i]) * 60 for i in range(200)]
+        assert rt.counters.dropped_full == 0
