@@ -270,7 +270,9 @@ def _socket_alive(path: str) -> bool:
     return True
 
 
-_SLOT = 128  # bytes per slot; a datagram takes ceil((16 + length) / _SLOT) consecutive slots
+# A datagram takes ceil((16 + length) / 128) consecutive slots. The hot paths of _ShmRing
+# write these two as literals (``(n + 143) >> 7``, ``i << 7``, ``slot + 16``).
+_SLOT = 128  # bytes per slot
 _HDR = 16  # seq u32, length u32, crc32 u32, reserved u32: at a datagram's first slot
 _LINE = 64  # cache line: the consumer's ack array and the producer's slots never share one
 _U32 = struct.Struct('<I')
@@ -295,10 +297,12 @@ SHM_CORRUPT = -3  # still failing after SHM_TORN_GIVEUP_NS: skipped, counted mal
 def shm_geometry(poolsz: int, max_datagram: int) -> tuple[int, int]:
     """Return (slots per ring, ring bytes) of a port: about poolsz per direction.
 
-    At least enough slots for two datagrams of ``max_datagram`` bytes, so one always fits.
+    A power of two (slot numbers wrap at 2**32 without a gap), at least enough slots for two
+    datagrams of ``max_datagram`` bytes, so one always fits.
     """
     need = -(-(_HDR + max_datagram) // _SLOT)
-    nslots = max(poolsz // _SLOT, 2 * need, SHM_MIN_SLOTS)
+    n = max(poolsz // _SLOT, 2 * need, SHM_MIN_SLOTS)
+    nslots = 1 << (n - 1).bit_length()
     return nslots, _ring_bytes(nslots)
 
 
@@ -306,30 +310,39 @@ def _ring_bytes(nslots: int) -> int:
     return -(-4 * nslots // _LINE) * _LINE + nslots * _SLOT
 
 
+_pack_u32 = _U32.pack_into
+_unpack_u32 = _U32.unpack_from
+_pack_len_crc = _LEN_CRC.pack_into
+_unpack_seq_len_crc = _SEQ_LEN_CRC.unpack_from
+_crc32 = zlib.crc32
+
+
 class _ShmRing:
     """One single-producer single-consumer datagram ring in a shared mapping.
 
-    Layout: ``nslots`` u32 acks (written by the consumer only), then ``nslots`` slots of
-    ``_SLOT`` bytes (written by the producer only). Slots have absolute numbers that only grow
-    (the first lap is ``nslots .. 2 * nslots - 1``, so zeroed memory is never "published");
-    slot ``x`` lives at index ``x % nslots``. A datagram of ``n`` bytes takes ``k`` consecutive
-    slots from its first slot ``x``: the producer copies the payload behind a 16-byte header,
-    writes length and CRC32 (seeded with ``x`` and ``n``), then ``seq = x`` last. One that
-    does not fit before the end of the ring leaves a wrap marker (length ``_SKIP``) and starts
-    at index 0. The consumer accepts the datagram at ``x`` when ``seq`` is exactly ``x`` and
-    the CRC of the bytes it copied matches, then writes ``ack[i] = x + j`` for each of its
-    slots. The producer reuses slot ``y`` once ``ack[y % nslots] == y - nslots``, i.e. the
-    consumer finished the previous lap there; it checks the furthest slot it needs, as the
-    consumer goes in order. Equality on 32-bit values makes a torn read of ``seq`` or
-    ``ack`` (stored byte by byte) look "not yet", never "done".
+    Layout: ``nslots`` (a power of two) u32 acks, written by the consumer only, then
+    ``nslots`` slots of 128 bytes, written by the producer only. Slots have 32-bit absolute
+    numbers that only grow (wrapping at 2**32); slot ``x`` lives at index ``x % nslots``.
+    A datagram of ``n`` bytes takes ``k`` consecutive slots from its first slot ``x``: the
+    producer copies the payload behind a 16-byte header, writes length and CRC32 (seeded
+    with ``x`` and ``n``), then ``seq = x`` last. One that does not fit before the end of the
+    ring leaves a wrap marker (length ``_SKIP``) and starts at index 0. The consumer accepts
+    the datagram at ``x`` when ``seq`` is exactly ``x`` and the CRC of the bytes it copied
+    matches, then writes ``ack = x + j`` into the ack of each of its slots. The producer
+    reuses slot ``y`` once its ack is ``y - nslots``: the consumer finished the previous lap
+    there; it checks the furthest slot it needs, as the consumer goes in order. The region's
+    creator makes the first lap free (ack ``i`` at index ``i``; numbering starts at
+    ``nslots``, so zeroed slots are never "published"). Equality on 32-bit values makes a
+    torn read of ``seq`` or ``ack`` (stored byte by byte) look "not yet", never "done".
     """
 
-    __slots__ = ('mv', 'acks', 'slots', 'nslots', 'cap', 'wseq', 'rseq', 'torn_seq',
+    __slots__ = ('mv', 'acks', 'slots', 'nslots', 'mask', 'cap', 'wseq', 'rseq', 'torn_seq',
                  'torn_since', '_dst', '_dstbuf')
 
     def __init__(self, mv: memoryview, base: int, nslots: int) -> None:
         self.mv = mv
         self.nslots = nslots
+        self.mask = nslots - 1
         self.acks = base
         self.slots = base + -(-4 * nslots // _LINE) * _LINE
         self.cap = nslots * _SLOT - _HDR  # the largest datagram the ring can carry
@@ -340,6 +353,11 @@ class _ShmRing:
         self._dst: memoryview | None = None  # a view of the last receive buffer (CRC of the copy)
         self._dstbuf: object = None
 
+    def init_acks(self) -> None:
+        """Make the first lap free (by the region's creator, before the peer has it)."""
+        for i in range(self.nslots):
+            _pack_u32(self.mv, self.acks + 4 * i, i)
+
     def put(self, data: bytes | bytearray | memoryview) -> bool:
         """Publish one datagram; False when the ring is full (counted by the caller).
 
@@ -347,35 +365,48 @@ class _ShmRing:
         payload) that the consumer counts as dropped oversize, as a socket receiver counts a
         truncated one.
         """
+        n = len(data)
         w = self.wseq
+        i = w & self.mask
+        k = (n + 143) >> 7  # slots: (16 + n) / 128, rounded up
+        if i + k > self.nslots or n > self.cap:
+            return self._put_wrapped(data, n, w, i)
+        mv = self.mv
+        last = i + k - 1
+        if _unpack_u32(mv, self.acks + 4 * last)[0] != (w + last - i - self.nslots) & _M32:
+            return False  # full: the consumer is still on the previous lap there
+        slot = self.slots + (i << 7)
+        mv[slot + 16:slot + 16 + n] = data
+        _pack_len_crc(mv, slot + 4, n, _crc32(data, (w * _GOLDEN + n) & _M32))
+        _pack_u32(mv, slot, w)  # published: last
+        self.wseq = (w + k) & _M32
+        return True
+
+    def _put_wrapped(self, data: bytes | bytearray | memoryview, n: int, w: int,
+                     i: int) -> bool:
         nslots = self.nslots
         mv = self.mv
-        n = len(data)
-        k = 1 if n > self.cap else (n + _HDR + _SLOT - 1) // _SLOT
-        i = w % nslots
+        k = 1 if n > self.cap else (n + 143) >> 7
         skip = nslots - i if i + k > nslots else 0
-        last = w + skip + k - 1  # the furthest slot needed; all before it are older
-        if last >= 2 * nslots and _U32.unpack_from(
-                mv, self.acks + 4 * (last % nslots))[0] != (last - nslots) & _M32:
+        last = (w + skip + k - 1) & _M32  # the furthest slot needed; all before it are older
+        if _unpack_u32(mv, self.acks + 4 * (last & self.mask))[0] != (last - nslots) & _M32:
             return False
         if skip:
-            slot = self.slots + i * _SLOT
-            s32 = w & _M32
-            _LEN_CRC.pack_into(mv, slot + 4, _SKIP, (s32 * _GOLDEN + _SKIP) & _M32)
-            _U32.pack_into(mv, slot, s32)
-            w += skip
+            slot = self.slots + (i << 7)
+            _pack_len_crc(mv, slot + 4, _SKIP, (w * _GOLDEN + _SKIP) & _M32)
+            _pack_u32(mv, slot, w)
+            w = (w + skip) & _M32
             i = 0
-        slot = self.slots + i * _SLOT
-        s32 = w & _M32
-        seed = (s32 * _GOLDEN + n) & _M32
+        slot = self.slots + (i << 7)
+        seed = (w * _GOLDEN + n) & _M32
         if n > self.cap:
             crc = seed  # == zlib.crc32(b'', seed): the marker has no payload
         else:
-            mv[slot + _HDR:slot + _HDR + n] = data
-            crc = zlib.crc32(data, seed)
-        _LEN_CRC.pack_into(mv, slot + 4, n, crc)
-        _U32.pack_into(mv, slot, s32)  # published: last
-        self.wseq = w + k
+            mv[slot + 16:slot + 16 + n] = data
+            crc = _crc32(data, seed)
+        _pack_len_crc(mv, slot + 4, n, crc)
+        _pack_u32(mv, slot, w)
+        self.wseq = (w + k) & _M32
         return True
 
     def get_into(self, buf: bytearray | memoryview) -> int:
@@ -383,48 +414,59 @@ class _ShmRing:
 
         Negative: SHM_DROPPED, SHM_TORN, SHM_TORN_WAIT or SHM_CORRUPT (see there).
         """
-        nslots = self.nslots
+        r = self.rseq
+        i = r & self.mask
         mv = self.mv
-        while True:
-            r = self.rseq
-            i = r % nslots
-            slot = self.slots + i * _SLOT
-            s32 = r & _M32
-            got, n, crc = _SEQ_LEN_CRC.unpack_from(mv, slot)
-            if got != s32:
-                return 0
-            seed = (s32 * _GOLDEN + n) & _M32
-            if n == _SKIP or n > self.cap:
-                if crc != seed:
-                    return self._torn(r)
-                k = nslots - i if n == _SKIP else 1
-                result = 0 if n == _SKIP else SHM_DROPPED
-            else:
-                k = (n + _HDR + _SLOT - 1) // _SLOT
-                if i + k > nslots:
-                    return self._torn(r)
-                p = slot + _HDR
-                if 0 < n <= len(buf):
-                    # Copy, then check the copy: what is delivered is what was checked, and
-                    # the acks below depend on the check, so on the copy's loads.
-                    buf[:n] = mv[p:p + n]
-                    dst = self._dst
-                    if buf is not self._dstbuf or dst is None:
-                        dst = self._view(buf)
-                    if zlib.crc32(dst[:n], seed) != crc:
-                        return self._torn(r)
-                    result = n
-                else:
-                    if zlib.crc32(mv[p:p + n], seed) != crc:
-                        return self._torn(r)
-                    result = SHM_DROPPED
-            a = self.acks + 4 * i
-            for j in range(k):
-                _U32.pack_into(mv, a + 4 * j, (r + j) & _M32)
-            self.rseq = r + k
-            if result:
-                return result
-            # a wrap marker: the datagram after it is at index 0
+        slot = self.slots + (i << 7)
+        got: int
+        n: int
+        crc: int
+        got, n, crc = _unpack_seq_len_crc(mv, slot)
+        if got != r:
+            return 0
+        k = (n + 143) >> 7
+        if n > self.cap or not 0 < n <= len(buf) or i + k > self.nslots:
+            return self._get_special(buf, r, i, n, crc)
+        # Copy, then check the copy: what is delivered is what was checked, and the ack
+        # below depends on the check, so on the copy's loads.
+        buf[:n] = mv[slot + 16:slot + 16 + n]
+        dst = self._dst
+        if buf is not self._dstbuf or dst is None:
+            dst = self._view(buf)
+        if _crc32(dst[:n], (r * _GOLDEN + n) & _M32) != crc:
+            return self._torn(r)
+        if k == 1:
+            _pack_u32(mv, self.acks + 4 * i, r)
+        else:
+            self._ack(r, i, k)
+        self.rseq = (r + k) & _M32
+        return n
+
+    def _get_special(self, buf: bytearray | memoryview, r: int, i: int, n: int,
+                     crc: int) -> int:
+        """Handle a wrap marker, an oversize marker, a datagram larger than ``buf``, garbage."""
+        mv = self.mv
+        seed = (r * _GOLDEN + n) & _M32
+        if n == _SKIP or n > self.cap:
+            if crc != seed:
+                return self._torn(r)
+            k = self.nslots - i if n == _SKIP else 1
+        else:
+            k = (n + 143) >> 7
+            slot = self.slots + (i << 7)
+            if i + k > self.nslots or _crc32(mv[slot + 16:slot + 16 + n], seed) != crc:
+                return self._torn(r)
+        self._ack(r, i, k)
+        self.rseq = (r + k) & _M32
+        if n == _SKIP:
+            return self.get_into(buf)  # the datagram after the marker is at index 0
+        return SHM_DROPPED  # larger than buf or the ring, or empty
+
+    def _ack(self, r: int, i: int, k: int) -> None:
+        mv = self.mv
+        a = self.acks + 4 * i
+        for j in range(k):
+            _pack_u32(mv, a + 4 * j, (r + j) & _M32)
 
     def _view(self, buf: bytearray | memoryview) -> memoryview:
         self._dstbuf = buf
@@ -440,8 +482,8 @@ class _ShmRing:
         if now - self.torn_since < SHM_TORN_GIVEUP_NS:
             return SHM_TORN_WAIT
         # Not a late store: a corrupt slot. Skip it (one slot: the length is not trusted).
-        _U32.pack_into(self.mv, self.acks + 4 * (r % self.nslots), r & _M32)
-        self.rseq = r + 1
+        _pack_u32(self.mv, self.acks + 4 * (r & self.mask), r)
+        self.rseq = (r + 1) & _M32
         return SHM_CORRUPT
 
     def release(self) -> None:
@@ -496,7 +538,10 @@ def _shm_create(port: int, nslots: int) -> tuple[_ShmRegion, int, bytes]:
         os.close(fd)
         raise
     offer = HANDSHAKE_SHM + _SHM_OFFER.pack(_SHM_MAGIC, _SHM_VERSION, 0, nslots, _SLOT, size)
-    return _ShmRegion(mm, efd, efd_rt, nslots), fd, offer
+    region = _ShmRegion(mm, efd, efd_rt, nslots)
+    region.to_nrt.init_acks()
+    region.to_rt.init_acks()
+    return region, fd, offer
 
 
 def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
@@ -512,7 +557,7 @@ def _shm_accept_offer(msg: bytes, fds: list[int], path: str) -> _ShmRegion:
                                                             _SHM_VERSION, _SLOT),
                             path, errno.EPROTO)
         mfd, efd, efd_rt = fds
-        if (nslots < SHM_MIN_SLOTS or 2 * _ring_bytes(nslots) > size
+        if (nslots < SHM_MIN_SLOTS or nslots & (nslots - 1) or 2 * _ring_bytes(nslots) > size
                 or os.fstat(mfd).st_size != size):
             raise XddpError('RT side of {} offers an inconsistent shm region'.format(path),
                             path, errno.EPROTO)
@@ -759,10 +804,18 @@ class RtXddpSocket:
             c.dropped_oversize += 1
             return False
         tx = self._tx
-        if tx is not None:
+        if tx is not None:  # shm, linked: no system call but the wake of the NRT reader
             if _clock() >= self._next_check:
-                self._shm_check()
-                tx = self._tx
+                return self._send_shm_slow(data)
+            if tx.put(data):
+                try:
+                    os.eventfd_write(self._efd, 1)
+                except OSError:
+                    pass  # only at 2**64 - 2 pending wakes; the datagram is in anyway
+                c.sent += 1
+                return True
+            c.dropped_full += 1
+            return False
         peer = self._peer
         if peer is None:
             if self._lpoll.poll(0):
@@ -771,17 +824,8 @@ class RtXddpSocket:
             if peer is None:
                 c.dropped_no_peer += 1
                 return False
-            tx = self._tx
-        if tx is not None:
-            if not tx.put(data):
-                c.dropped_full += 1
-                return False
-            try:
-                os.eventfd_write(self._efd, 1)  # wake the NRT reader
-            except OSError:
-                pass  # cannot happen below 2**64 - 2 pending wakes; the datagram is in anyway
-            c.sent += 1
-            return True
+            if self._tx is not None:
+                return self._send_shm_slow(data)
         try:
             sent = peer.send(data, _SEND_FLAGS)
         except BlockingIOError:
@@ -800,6 +844,28 @@ class RtXddpSocket:
         c.sent += 1
         return True
 
+    def _send_shm_slow(self, data: bytes | bytearray | memoryview) -> bool:
+        """Shm: look at the socket first (peer gone? opener?), then send if still linked."""
+        c = self.counters
+        self._shm_check()
+        tx = self._tx
+        if tx is None:
+            if self._lpoll.poll(0):
+                self._accept_pending()
+            tx = self._tx
+            if tx is None:
+                c.dropped_no_peer += 1
+                return False
+        if not tx.put(data):
+            c.dropped_full += 1
+            return False
+        try:
+            os.eventfd_write(self._efd, 1)
+        except OSError:
+            pass
+        c.sent += 1
+        return True
+
     def recv_into(self, buf: bytearray | memoryview) -> int:
         """Receive one pending datagram into ``buf`` without blocking; return 0 if none.
 
@@ -809,27 +875,17 @@ class RtXddpSocket:
         and looks at its socket every SHM_LIVENESS_NS.
         """
         rx = self._rx
-        if rx is not None:
+        if rx is not None:  # shm, linked: no system call
             if _clock() >= self._next_check:
                 self._shm_check()
-                rx = self._rx
-                if rx is None:
-                    return 0
-            c = self.counters
-            while True:
-                n = rx.get_into(buf)
-                if n > 0:
-                    c.received += 1
-                    return n
-                if n == 0 or n == SHM_TORN_WAIT:
-                    return 0
-                if n == SHM_DROPPED:
-                    c.dropped_oversize += 1
-                elif n == SHM_TORN:
-                    c.torn += 1
-                    return 0
-                else:  # SHM_CORRUPT
-                    c.malformed += 1
+                return 0 if self._rx is None else self._recv_shm(buf, 0)
+            n = rx.get_into(buf)
+            if n > 0:
+                self.counters.received += 1
+                return n
+            if n == 0:
+                return 0
+            return self._recv_shm(buf, n)
         if self.transport == 'shm':
             if self._lpoll.poll(0):
                 self._accept_pending()  # the new peer has nothing in its ring yet
@@ -860,6 +916,28 @@ class RtXddpSocket:
                 continue
             self.counters.received += 1
             return n
+
+    def _recv_shm(self, buf: bytearray | memoryview, n: int) -> int:
+        """Count what the ring's reader reported (``n`` < 0) and read on, or read (``n`` 0)."""
+        c = self.counters
+        rx = self._rx
+        assert rx is not None
+        while True:
+            if n > 0:
+                c.received += 1
+                return n
+            if n == SHM_DROPPED:
+                c.dropped_oversize += 1
+            elif n == SHM_TORN:
+                c.torn += 1
+                return 0
+            elif n == SHM_CORRUPT:
+                c.malformed += 1
+            elif n < 0:  # SHM_TORN_WAIT: the same slot, already counted
+                return 0
+            n = rx.get_into(buf)
+            if n == 0:
+                return 0
 
     def _shm_check(self) -> None:
         """Shm transport: accept or refuse an opener, notice a peer gone (system calls)."""

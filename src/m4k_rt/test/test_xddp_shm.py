@@ -287,6 +287,7 @@ def test_random_sizes_wrap_in_order_with_boundaries_and_exact_full_drops(seed):
     nslots, size = xddp.shm_geometry(4096, 1000)
     mem = memoryview(bytearray(size))
     prod, cons = xddp._ShmRing(mem, 0, nslots), xddp._ShmRing(mem, 0, nslots)
+    prod.init_acks()
     sent, got, full = [], [], 0
     buf = bytearray(1000)
     for i in range(3000):
