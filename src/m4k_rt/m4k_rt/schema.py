@@ -392,8 +392,8 @@ RUNTIME: dict[str, Field] = {
         'float', 100.0, "The task set's first common release this long after start-up.",
         unit='ms', lo=0, hi=10000, expect='ms in 0..10000'),
     'poolsz': Field(
-        'int', 65536, 'Socket buffer per port (XDDP_POOLSZ analogue). Too small: datagrams '
-        'are dropped (counted) when a peer is slow.', unit='bytes', lo=4096, hi=1 << 26,
+        'int', 65536, 'Socket buffer per port (XDDP_POOLSZ analogue); with transport shm the '
+        'ring each way. Too small: datagrams are dropped (counted) when a peer is slow.', unit='bytes', lo=4096, hi=1 << 26,
         expect='bytes in 4096..67108864'),
     'max_datagram': Field(
         'int', 4096, 'Larger datagrams are dropped and counted, never sent. Too small: laser '
@@ -404,10 +404,10 @@ RUNTIME: dict[str, Field] = {
         expect='an int in 1..1024'),
     'transport': Field(
         'str', 'socket', 'How linked ports carry datagrams. socket: a send/recv on the Unix '
-        'socket per datagram. shm: two rings of max_datagram slots (poolsz bytes each way) in '
-        'shared memory passed at link time; the RT side makes no system call per received '
-        'datagram and one eventfd write per sent one, and notices a lost peer within 100 ms. '
-        'Peers follow what the RT side offers.', choices=('socket', 'shm')),
+        'socket per datagram. shm: two rings (poolsz bytes each way) in shared memory passed '
+        'at link time; the RT side makes no system call per received datagram and one '
+        'eventfd write per sent one, and notices a lost peer within 100 ms (message mode '
+        'only). Peers follow what the RT side offers.', choices=('socket', 'shm')),
 }
 
 TASK: dict[str, Field] = {

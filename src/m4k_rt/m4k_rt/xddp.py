@@ -20,15 +20,16 @@ Two transports carry the datagrams of a linked port (message mode only for ``shm
 
 * ``socket``: every datagram is a ``send``/``recv`` on the linked Unix socket.
 * ``shm``: the socket only does the rendezvous, access control, handshake and liveness. At link
-  time the RT side creates two single-producer single-consumer rings of fixed slots in one
-  sealed memfd region and an eventfd, and passes both fds to the peer with the handshake
-  (SCM_RIGHTS). The RT side then sends by copying into a slot (plus one ``eventfd_write`` to
-  wake the NRT reader) and receives by reading a slot: no other system call per datagram.
-  It looks at the socket (peer gone, second opener) every :data:`SHM_LIVENESS_NS`. Each slot
-  carries ``seq, length, crc32, ack``: the writer publishes ``seq`` last, the reader accepts a
-  slot only when ``seq`` is the one it expects and the CRC32 of the payload, seeded with
-  ``seq`` and ``length``, matches; it acknowledges with ``ack = seq`` after copying. See
-  docs/design-notes.md, 9c, for why that is safe without memory barriers.
+  time the RT side creates two single-producer single-consumer datagram rings in one sealed
+  memfd region and two eventfds, and passes the fds to the peer with the handshake
+  (SCM_RIGHTS). The RT side then sends by copying into the ring (plus one ``eventfd_write``
+  to wake the NRT reader) and receives by reading the ring: no other system call per
+  datagram. It looks at the socket (peer gone, second opener) every :data:`SHM_LIVENESS_NS`.
+  A datagram's first slot carries ``seq, length, crc32``: the writer publishes ``seq`` last,
+  the reader accepts it only when ``seq`` is the one it expects and the CRC32 of the bytes it
+  copied, seeded with ``seq`` and ``length``, matches, then acknowledges its slots in an ack
+  array only it writes (:class:`_ShmRing`). See docs/design-notes.md, 9c, for why that is
+  safe without memory barriers.
 """
 
 from dataclasses import asdict, dataclass
