@@ -19,7 +19,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu, LaserScan, Range
-from test_bringup import cmdline, start_bringup, write_overlay
+from test_bringup import BASE_OVERLAY, cmdline, start_bringup, write_overlay
 import yaml
 
 from m4k_msgs.msg import RtStatus
@@ -197,6 +197,19 @@ def _still_since_stamp(odom, tol=0.002):
     return _stamp_ns(first)
 
 
+# The RT process's ports over either transport (runtime.transport): the same behaviour.
+SHM = {'runtime': {**BASE_OVERLAY['runtime'], 'transport': 'shm'}}
+TRANSPORTS = pytest.mark.parametrize('stack', [{}, SHM], ids=['socket', 'shm'], indirect=True)
+
+
+def _rt_ring_maps(proc):
+    """Return how many XDDP shm regions rt_core (a child of ``proc``) has mapped."""
+    pids = [p for p in child_pids(proc.pid) if 'm4k_rt.rt_core' in cmdline(p)]
+    assert pids, 'no rt_core process'
+    with open('/proc/{}/maps'.format(pids[0]), encoding='utf-8') as f:
+        return sum('/memfd:m4k-xddp' in line for line in f)
+
+
 def test_drive_distance_follows_the_limits_and_the_robot_stops_after_the_timeout(stack):
     user, _, _ = stack
     params = control_params(_control())
@@ -357,9 +370,13 @@ def test_nan_cmd_vel_is_rejected_and_the_robot_does_not_move(stack):
     assert 'non-finite' in (tmp_path / 'bringup.err').read_text()
 
 
-def test_bridge_survives_an_rt_core_restart_and_reports_the_gap(stack):
+@TRANSPORTS
+def test_bridge_survives_an_rt_core_restart_and_reports_the_gap(stack, request):
     user, proc, tmp_path = stack
     err = (lambda: (tmp_path / 'bringup.err').read_text())  # noqa: E731
+    # Ground truth of the transport in use: the RT process maps one region per linked port.
+    shm = request.node.callspec.id == 'shm'
+    assert (_rt_ring_maps(proc) > 0) == shm
 
     def pid_of(module):
         pids = [p for p in child_pids(proc.pid) if module in cmdline(p)]
@@ -395,3 +412,4 @@ def test_bridge_survives_an_rt_core_restart_and_reports_the_gap(stack):
     user.spin_until(lambda: 'bridge restarted' in err(), 15, 'the bridge restart')
     user.got['odom'].clear()
     user.spin_until(lambda: user.got['odom'], 30, 'odom from the restarted bridge')
+    assert (_rt_ring_maps(proc) > 0) == shm  # the restarted rt_core, relinked the same way
