@@ -74,14 +74,18 @@ def test_start_inside_obstacle_is_a_config_error():
 
 
 @pytest.mark.parametrize('section, match', [
-    ({'walls': {'rectangle': [0, 0, 1]}}, r'world\.walls\.rectangle: expected a list of 4'),
-    ({'walls': [[0, 0, 1, 'x']]}, r'world\.walls\[0\]: expected finite numbers'),
+    ({'walls': {'rectangle': [0, 0, 1]}},
+     r'world\.walls\.rectangle: expected \[xmin, ymin, xmax, ymax\] \(4 finite numbers\), got'),
+    ({'walls': [[0, 0, 1, 'x']]},
+     r"world\.walls\[0\]: expected \[x1, y1, x2, y2\] \(4 finite numbers\), got \[0, 0, 1, 'x'\]"),
     ({'obstacles': [[[0, 0], [1, 1]]]}, r'world\.obstacles\[0\]: expected a polygon'),
     ({'start': [0, 0]}, r'world\.start: expected a list of 3'),
     ({'robot': {'track_width_m': -1}}, r'world\.robot\.track_width_m: must be > 0'),
-    ({'robot': {'wheels': 3}}, r'world\.robot: expected a mapping with keys'),
+    ({'robot': {'wheels': 3}},
+     r'world\.robot\.wheels: unknown key \(allowed: amp_current_limit_a, '),
     ({'seed': 1.5}, r'world\.seed: expected an integer'),
-    ({'gravity': 9.8}, r"world: unknown field\(s\) \['gravity'\]"),
+    ({'gravity': 9.8},
+     r'world\.gravity: unknown key \(allowed: events, faults, obstacles, robot, seed, '),
 ])
 def test_world_config_errors_name_the_field(section, match):
     with pytest.raises(WorldConfigError, match=match):
