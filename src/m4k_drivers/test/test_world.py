@@ -220,3 +220,14 @@ def test_world_report_failure_is_logged_once_and_recovery_once(m4k_runtime_dir, 
     msgs = [r.getMessage() for r in caplog.records if 'world report' in r.getMessage()]
     assert len(msgs) == 2 and msgs[1].endswith('written again')
     assert len(json.loads((where / 'world.json').read_text())['pose']) == 3
+
+
+def test_world_scene_and_fault_errors_are_config_errors():
+    # One configuration error type (m4k_rt.schema.ConfigError), a subclass per source.
+    from m4k_drivers.faults import FaultError
+    from m4k_drivers.scene import SceneError
+    from m4k_rt.schema import ConfigError
+    assert all(issubclass(c, ConfigError) for c in (WorldConfigError, FaultError, SceneError))
+    with pytest.raises(ConfigError) as info:
+        WorldConfig.from_dict({'faults': [{'at_s': 1, 'kind': 'estop', 'until_s': 0.5}]})
+    assert info.value.path == 'world.faults[0].until_s'

@@ -8,7 +8,8 @@ wrong value does. The same table
   (``tasks.led.priority: expected an int in 1..99, got 120``): :meth:`Field.validate`;
 * builds the bridge's ROS ``ParameterDescriptor`` objects (``m4k_bridge.node``);
 * generates ``docs/configuration.md`` (:func:`markdown`, driven by ``m4k_bringup.configdoc``,
-  which gathers every package's sections; a test fails when the committed page differs).
+  which gathers every package's sections; a test fails when the committed page differs) and
+  ``docs/bench-configuration.md`` (``m4k_bench.configdoc``: the planner, the scenario files).
 
 Tables: :data:`RUNTIME`, :data:`TASK` (one entry of ``tasks``), :data:`PORT` (``ports.<label>``)
 here and used by :mod:`m4k_rt.config`; :data:`ROBOT` here, used by :mod:`m4k_rt.description`;
@@ -16,8 +17,12 @@ here and used by :mod:`m4k_rt.config`; :data:`ROBOT` here, used by :mod:`m4k_rt.
 (:func:`setting`, :func:`section`, :func:`table`; :mod:`m4k_rt.control.params`); the bridge's
 parameters in
 :data:`m4k_bridge.params.SPECS`; each device backend's fields next to its factory
-(``m4k_drivers.registry.Param``, turned into Fields). Checks across fields (a task's offset
-inside its period, a slow-down zone beyond the stop distance) stay in the loaders.
+(``m4k_drivers.registry.Param``, turned into Fields); the simulated world on its dataclasses
+(``m4k_drivers.drive.RobotParams``, ``m4k_drivers.world.WorldConfig``, ``m4k_drivers.scene``,
+``m4k_drivers.faults``); the planner on ``m4k_bench.planning.dwa.DwaConfig`` and in
+``m4k_bench.planning.params``; the scenario files in ``m4k_bench.scenarios.spec``. Checks
+across fields (a task's offset inside its period, a slow-down zone beyond the stop distance)
+stay in the loaders.
 """
 
 from __future__ import annotations
@@ -40,9 +45,10 @@ class ConfigError(ValueError):
     The one configuration error type of the project (:mod:`m4k_rt.config` re-exports it).
     Each source has a subclass: the control section's ``ControlConfigError``, the robot
     description's ``DescriptionError``, the driver host's ``m4k_drivers.config.ConfigError``,
-    the world's ``WorldConfigError``, the scene's ``SceneError``, the bridge's and the
-    planner's ``ParamError``, the planner's ``DwaConfigError``, the scenario files'
-    ``ScenarioError`` and the demo judge's ``EvaluateError``; ``except ConfigError`` catches
+    the world's ``WorldConfigError``, the scene's ``SceneError``, the simulated faults'
+    ``FaultError``, the bridge's and the planner's ``ParamError``, the planner's
+    ``DwaConfigError``, the scenario files' ``ScenarioError`` and the demo judge's
+    ``EvaluateError``; ``except ConfigError`` catches
     every configuration mistake. Built as ``ConfigError(path, message)`` or, by the sources
     that format their own text, ``ConfigError('path: message')``.
     """
