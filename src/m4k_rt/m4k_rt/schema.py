@@ -418,8 +418,8 @@ RUNTIME: dict[str, Field] = {
         unit='ms', lo=0, hi=10000, expect='ms in 0..10000'),
     'poolsz': Field(
         'int', 65536, 'Socket buffer per port (XDDP_POOLSZ analogue); with transport shm the '
-        'ring each way. Too small: datagrams are dropped (counted) when a peer is slow.', unit='bytes', lo=4096, hi=1 << 26,
-        expect='bytes in 4096..67108864'),
+        'ring each way. Too small: datagrams are dropped (counted) when a peer is slow.',
+        unit='bytes', lo=4096, hi=1 << 26, expect='bytes in 4096..67108864'),
     'max_datagram': Field(
         'int', 4096, 'Larger datagrams are dropped and counted, never sent. Too small: laser '
         'scans (about 1.4 kB) never arrive.', unit='bytes', lo=64, hi=65536,
