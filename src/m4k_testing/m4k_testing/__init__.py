@@ -326,8 +326,17 @@ class ProcessGroup:
 
     def stop(self, proc: subprocess.Popen, sig: int = signal.SIGTERM,
              timeout: float = 10.0) -> int:
-        """Signal the process's group, wait, escalate to SIGKILL; return the exit code."""
-        return self._stop(self._children.pop(proc.pid), sig, timeout)
+        """Signal the process's group, wait, escalate to SIGKILL; return the exit code.
+
+        Stopping a process this group has already stopped returns its exit code again (a
+        test's ``finally`` may stop what its body stopped).
+        """
+        child = self._children.pop(proc.pid, None)
+        if child is not None:
+            return self._stop(child, sig, timeout)
+        if proc.returncode is None:
+            raise ValueError(f'{proc.args!r} was not started by this process group')
+        return proc.returncode
 
     def stop_all(self) -> None:
         """Stop every process started through this group, the last started first."""

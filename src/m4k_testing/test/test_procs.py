@@ -43,6 +43,16 @@ def test_a_started_process_is_a_child_in_a_session_of_its_own(procs):
     assert isinstance(child, Child) and child.proc is proc
     assert child.name == os.path.basename(sys.executable)
     assert procs.stop(proc) == 0 and procs._children == {}
+    assert procs.stop(proc) == 0                 # stopped already: the same code again
+
+
+def test_a_process_from_elsewhere_is_not_stopped_by_the_group(procs):
+    other = subprocess.Popen([sys.executable, '-c', 'pass'])
+    try:
+        with pytest.raises(ValueError, match='not started by this process group'):
+            procs.stop(other)
+    finally:
+        other.wait(60)
 
 
 def test_the_streams_go_where_the_test_says(procs, tmp_path):
