@@ -1,7 +1,8 @@
 """One child process of the stack: the one process wrapper of m4k.
 
 Every tool that starts a process of the stack -- bringup's supervisor, the bench, the demo, the
-scenario runner, fuzz and soak -- starts it as a :class:`Child`:
+scenario runner, fuzz and soak, and the tests' ``procs`` fixture (m4k_testing) -- starts it as a
+:class:`Child`:
 
 * in a process group of its own: a new session (``start_new_session``), or, for bringup's
   ``supervised`` children, a new process group in bringup's session (a terminal Ctrl-C reaches
