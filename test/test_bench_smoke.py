@@ -8,6 +8,7 @@ import copy
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 
@@ -57,10 +58,23 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
             'sys.exit(main())', '--quick', '--duration', '2', '--rounds', '1', '--rtt-n', '200',
             '--cmd-trials', '3', '--rates', '500', '--no-install', '--results', str(results),
             '--publish', str(publish)]
-    proc = subprocess.run(argv, capture_output=True, text=True, timeout=240,
-                          stdin=subprocess.DEVNULL)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert '[1/18] set-up' in proc.stderr   # plain progress (not a TTY); 18 with the reaction
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            stdin=subprocess.DEVNULL)
+    try:
+        stdout, stderr = proc.communicate(timeout=360)
+    except subprocess.TimeoutExpired:
+        # SIGINT first: the bench stops its own children (stacks in their own sessions, which
+        # a SIGKILL of the bench alone would leave running), then the kill.
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+        raise
+    assert proc.returncode == 0, stderr[-3000:]
+    # plain progress (not a TTY); 20 with the reaction and the two channel floors
+    assert '[1/20] set-up' in stderr
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
@@ -87,6 +101,10 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
         assert set(rnd[cond]['hardening']) >= {'ok', 'policy', 'mem_locked', 'degraded'}
         assert rnd[cond]['cpu_per_cycle_us'] is not None
     assert rnd['floor']['cpu_per_cycle_us'] > 0
+    # the channel floors: the bare floor plus a task cycle's socket calls / shared memory
+    for ch in ('socket', 'shm'):
+        fl = rnd['floor_' + ch]
+        assert fl['channel'] == ch and fl['cpu_per_cycle_us'] > 0, fl
     # the paired run: rt_core and the floor in one window, beside the stack and cyclictest
     paired = rnd['m4k_floor_paired']
     assert paired['floor']['cpu_per_cycle_us'] > 0 and paired['cpu_per_cycle_us'] > 0

@@ -92,7 +92,7 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     """Return a rough wall-time estimate of the plan (start-up of each run included)."""
     per_cond = plan['condition_s'] + WARMUP_S + 5.0
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)
-    per_round += 0 if 'floor' in skip else plan['floor_s'] + 2.0
+    per_round += 0 if 'floor' in skip else 3 * (plan['floor_s'] + 2.0)   # + two channels
     per_round += 0 if 'breakdown' in skip else per_cond
     per_round += 0 if 'floor_paired' in skip else per_cond
     per_round += 0 if 'rtt' in skip else plan['rtt_n'] * 2 * 1e-4 + 2.0
@@ -278,7 +278,7 @@ class Bench:
         os.environ.update({k: self.env[k] for k in ('ROS_DOMAIN_ID',
                                                     'ROS_AUTOMATIC_DISCOVERY_RANGE')})
         per_round = len([c for c in ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt')
-                         if c not in self.skip])
+                         if c not in self.skip]) + (0 if 'floor' in self.skip else 2)
         per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz) + (
             SCALING_TARGET_HZ in args.rates_hz)
         steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1) + (
@@ -445,7 +445,8 @@ class Bench:
         r = ct.join()
         return None if r is None else {'latency_us': r} if 'error' not in r else r
 
-    def _floor(self, seconds: float, probe: bool = False) -> dict[str, Any] | None:
+    def _floor(self, seconds: float, probe: bool = False,
+               channel: str = 'none') -> dict[str, Any] | None:
         if not self.task_rates:
             return None
         from m4k_bench.benchlib import floor
@@ -453,7 +454,7 @@ class Bench:
         out = floor.run_floor_child([int(t['period_ns']) for t in ts],
                                     [int(t['priority']) for t in ts],
                                     [int(t['offset_ns']) for t in ts], seconds, self.env,
-                                    probe=probe)
+                                    probe=probe, channel=channel)
         if isinstance(out, str):
             self._note(out)
             return None
@@ -520,6 +521,12 @@ class Bench:
         if 'floor' not in self.skip:
             p.phase(pre + 'Python floor (bare timerfd loops)', plan['floor_s'] + 2.0)
             rnd['floor'] = self._floor(plan['floor_s'])
+            # What the channel alone costs above the floor: its socket calls, or the same
+            # datagrams through shared memory (floor.py --channel).
+            for ch in ('socket', 'shm'):
+                p.phase(pre + "Python floor + a task cycle's {} traffic".format(ch),
+                        plan['floor_s'] + 2.0)
+                rnd['floor_' + ch] = self._floor(plan['floor_s'], channel=ch)
         runs: dict[str, tuple[str, Callable[[], Any]]] = {
             'ct_idle': ('cyclictest alone, idle', lambda: self._cyclictest_alone(cond_s)),
             'm4k_idle': ('m4k full stack, idle', lambda: self._m4k(

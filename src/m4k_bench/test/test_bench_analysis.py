@@ -175,15 +175,16 @@ def test_plan_durations_quick_full_and_overrides():
         bench.plan_durations(False, None, None, 0)
 
 
-def test_the_full_plan_fits_in_45_minutes_and_quick_in_13():
+def test_the_full_plan_fits_in_47_minutes_and_quick_in_14():
     # 35 (was 30): the scaling sweep now runs in every round, not once; 38: the paired
     # floor run and cyclictest alone at 1 kHz (the stricter denominators) in every round;
     # 41: the live view with a viewer (m4k_live) in every round; 45 (quick 13): the guard's
     # reaction phase, 215 s estimated in the full plan (50 trials at 0.5 m/s, the published
     # figure's count, + 5 each at 1.0 and 2.0 m/s; the same trials alone took ~7 min on the
-    # loaded VM, docs/results/reaction), 79 s in the quick one.
-    assert bench.estimate_s(bench.FULL) <= 45 * 60
-    assert bench.estimate_s(bench.QUICK) <= 13 * 60
+    # loaded VM, docs/results/reaction), 79 s in the quick one; 47 (quick 14): the two channel
+    # floors (socket, shared memory) beside the bare floor in every round.
+    assert bench.estimate_s(bench.FULL) <= 47 * 60
+    assert bench.estimate_s(bench.QUICK) <= 14 * 60
 
 
 def test_bench_rejects_unknown_skip_phase(capsys):
@@ -285,3 +286,35 @@ def test_floor_probe_weights_threads_by_cycles():
         {'cold_p50': 6.0, 'warm_p50': 2.0, 'cold_p99': 12.0, 'warm_p99': 4.0, 'n': 100}])
     assert got['cold_p50'] == pytest.approx(9.0) and got['warm_p50'] == pytest.approx(2.0)
     assert got['cold_over_warm_p50'] == pytest.approx(4.5) and got['n'] == 400
+
+
+def test_floor_channel_traffic_moves_a_task_cycles_datagrams():
+    from m4k_bench.benchlib import floor
+    sock, close = floor._channel_call('socket')
+    try:
+        assert sock() == 0                                  # nothing sent yet: port empty
+        assert sock() == 2 * floor._DATAGRAM                # the two of the cycle before
+        assert sock() == 2 * floor._DATAGRAM                # and nothing piles up
+    finally:
+        close()
+    shm, close = floor._channel_call('shm')
+    try:
+        assert [shm(), shm(), shm()] == [0, 2, 4]           # sequence numbers read back
+    finally:
+        close()
+    assert floor._channel_call('none')[0] is None
+    with pytest.raises(ValueError, match='channel'):
+        floor._channel_call('pipe')
+
+
+def test_loop_cost_reports_what_the_channel_alone_costs():
+    rounds_ = [{'round': k, 'floor': {'cpu_per_cycle_us': 40.0},
+                'floor_socket': {'cpu_per_cycle_us': 40.0 * s},
+                'floor_shm': {'cpu_per_cycle_us': 40.0 * m}}
+               for k, (s, m) in enumerate([(2.0, 1.25), (2.5, 1.5), (2.25, 1.0)])]
+    r = analysis.round_ratios(rounds_)
+    assert r['socket_channel_floor_over_floor']['values'] == pytest.approx([2.0, 2.5, 2.25])
+    assert r['shm_channel_floor_over_floor']['spread']['median'] == pytest.approx(1.25)
+    lc = analysis.loop_cost(rounds_)
+    assert lc['channel_floor_cpu_per_cycle_us']['socket']['median'] == pytest.approx(90.0)
+    assert lc['channel_floor_cpu_per_cycle_us']['shm']['max'] == pytest.approx(60.0)

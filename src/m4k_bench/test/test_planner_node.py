@@ -119,7 +119,7 @@ def test_bad_dwa_parameter_is_named():
     context = rclpy.context.Context()
     rclpy.init(context=context)
     try:
-        with pytest.raises(ParamError, match=r'dwa\.max_v: must be >= 0, got -1\.0'):
+        with pytest.raises(ParamError, match=r'dwa\.max_v: must be > 0, got -1\.0'):
             PlannerNode(context=context,
                         parameter_overrides=[Parameter('dwa.max_v', value=-1.0)])
         with pytest.raises(ParamError, match='laser_mount'):

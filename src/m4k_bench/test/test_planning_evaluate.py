@@ -30,12 +30,13 @@ def test_world_section_is_read_like_the_simulator_reads_it():
 
 
 @pytest.mark.parametrize('world,match', [
-    ({'walls': {'rectangle': [0, 0, 1]}}, r'world\.walls\.rectangle: expected a list of 4'),
+    ({'walls': {'rectangle': [0, 0, 1]}},
+     r'world\.walls\.rectangle: expected \[xmin, ymin, xmax, ymax\] \(4 finite numbers\)'),
     ({'walls': 'room'}, r'world\.walls: expected a list of \[x1, y1, x2, y2\] segments'),
     ({'obstacles': [[[0, 0], [1, 0]]]}, r'world\.obstacles\[0\]'),
     ({'obstacles': [[[0, 0], [1, 0], [0, math.nan]]]}, r'world\.obstacles\[0\]'),
     ({'start': [0, 0]}, r'world\.start: expected a list of 3 numbers'),
-    ({'colour': 'red'}, r'world: unknown field'),
+    ({'colour': 'red'}, r'world\.colour: unknown key \(allowed: events, faults, '),
 ])
 def test_bad_world_section_names_the_field(world, match):
     with pytest.raises(EvaluateError, match=match):

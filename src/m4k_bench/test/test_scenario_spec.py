@@ -27,7 +27,7 @@ def test_a_scenario_commands_and_short_version():
     ({'expect': {'stop': 'bumper'}}, r'expect\.stop'),
     ({'expect': {}}, r'expect'),
     ({'faults': [{'kill': 'nav2', 'at': {'travelled': 1}}]}, r'faults\[0\]'),
-    ({'colour': 'red'}, r'unknown field'),
+    ({'colour': 'red'}, r'x\.yaml\.colour: unknown key \(allowed: commands, '),
     ({'config': {'world': {}}}, r'x\.yaml\.config'),
 ])
 def test_bad_scenarios_name_the_field(change, message):

@@ -24,8 +24,10 @@ from typing import Any
 
 from m4k_drivers import registry
 from m4k_drivers.drive import ROBOT_FIELDS
+from m4k_drivers.faults import FAULT
 from m4k_drivers.handler import DriverError
-from m4k_drivers.world import RobotParams, WorldConfig, WorldConfigError
+from m4k_drivers.scene import EVENT, OBSTACLE, PATH
+from m4k_drivers.world import RobotParams, WORLD, WorldConfig, WorldConfigError
 from m4k_rt import schema
 from m4k_rt.config import deep_merge as merge
 from m4k_rt.config import find_config_dir
@@ -132,13 +134,28 @@ def kernel_standin(raw: Any) -> bool:
 
 
 def world_sections() -> list[Section]:
-    """Return the schema Section of ``world.robot`` (the simulated robot), for the docs."""
-    title = 'world.robot: the simulated robot as built (config/devices.yaml)'
-    return [Section('world.robot', title, ROBOT_FIELDS,
-                    "The simulator's physics (m4k_drivers.drive); sources and the braking they "
-                    "give: docs/sim-physics.md. Geometry unset here takes the control section's "
-                    'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
-                    'and the supply must overcome the friction.')]
+    """Return the schema Sections of ``world:`` (the simulated room and robot), for the docs."""
+    where = '(config/devices.yaml, a scenario file)'
+    return [
+        Section('world', f'world: the simulated room {where}', WORLD,
+                'Read by sim_robot (the simulator) and by the judges of the demo and the '
+                'scenarios, which use the same world model.'),
+        Section('world.robot', 'world.robot: the simulated robot as built (config/devices.yaml)',
+                ROBOT_FIELDS,
+                "The simulator's physics (m4k_drivers.drive); sources and the braking they "
+                "give: docs/sim-physics.md. Geometry unset here takes the control section's "
+                'value. Checked together: |amp_offset_*_v| < supply_v, mu_kinetic <= mu, '
+                'and the supply must overcome the friction.'),
+        Section('world.obstacles[]', 'world.obstacles[]: one obstacle given as a mapping',
+                OBSTACLE, 'What each sensor makes of a surface: m4k_drivers.scene.'),
+        Section('world.obstacles[].path', 'world.obstacles[].path: a moving obstacle', PATH,
+                'start.travelled and start.after must both be reached; {} or null: at the '
+                "robot's first motion."),
+        Section('world.events[]', 'world.events[]: a change of the simulated hardware', EVENT),
+        Section('world.faults[]', 'world.faults[]: a fault the simulator injects', FAULT,
+                'Checked together: until_s after at_s; wheel given for the per-wheel kinds '
+                'only.'),
+    ]
 
 
 def schema_sections() -> list[Section]:

@@ -19,18 +19,21 @@ the body did not make, as a real robot's odometry does. Rolling resistance (``Cr
 the drive train's friction are dry (Coulomb) friction: below them nothing moves, at a stop they
 hold.
 
-Defaults and their sources: docs/sim-physics.md. Each parameter is declared once, in
-:data:`ROBOT_FIELDS` (type, default, unit, range, source); ``world.robot`` overrides them.
+Defaults and their sources: docs/sim-physics.md. Each parameter is declared once, on its
+:class:`RobotParams` field (type, default, unit, range, source; :data:`ROBOT_FIELDS` is the
+table derived from them); ``world.robot`` overrides them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from functools import cached_property
 import math
-from typing import Any
+from typing import Any, Callable, Mapping
 
-from m4k_rt.schema import ConfigError, Field
+from m4k_rt import schema
+from m4k_rt.control.params import CONTROL
+from m4k_rt.schema import check_keys, ConfigError, Field, setting, table
 
 __all__ = ['DriveState', 'G', 'LEFT', 'RIGHT', 'ROBOT_FIELDS', 'RobotParams', 'WorldConfigError',
            'parse_robot', 'step_drive']
@@ -48,96 +51,75 @@ def _f(default: float, description: str, unit: str, lo: float | None = 0.0,
     return Field('float', default, description, unit=unit, lo=lo, hi=hi, lo_open=lo_open)
 
 
-# The robot as built: one declaration per parameter (docs/sim-physics.md gives the sources).
-ROBOT_FIELDS: dict[str, Field] = {
-    # geometry (paper Table 2; the track width is our choice, world.py)
-    'wheel_diameter_m': _f(0.2032, 'Wheel diameter (Table 2: 20.32 cm). Default: '
-                           '2 * control.wheel_radius.', 'm'),
-    'gear_ratio': _f(12.0, 'Motor turns per wheel turn (Table 2: 12:1). Default: '
-                     'control.gear_ratio.', ''),
-    'track_width_m': _f(0.40, 'Wheel centre to wheel centre (not in the paper). Default: '
-                        'control.track_width.', 'm'),
-    'length_m': _f(0.45, 'Body length, the contact footprint (Table 2). Default: '
-                   'robot.body.length.', 'm'),
-    'width_m': _f(0.28, 'Body width, the contact footprint (Table 2). Default: '
-                  'robot.body.width.', 'm'),
-    # drive
-    'top_speed_mps': _f(2.0, 'Straight-line speed on the floor at full armature voltage '
-                        '(Table 2: 2 m/s); sets the motor constant ke. Default: '
-                        'control.full_scale_wheel_speed * wheel radius.', 'm/s'),
-    'supply_v': _f(24.0, 'Amplifier supply: full-scale armature voltage (assumed 24 V).', 'V'),
-    'amp_offset_left_v': _f(0.0, 'Left amplifier input offset (the zero error a DAC zero trim '
-                            'cancels), armature volts, any sign within the supply.', 'V',
-                            lo=None),
-    'amp_offset_right_v': _f(0.0, 'Right amplifier input offset, armature volts.', 'V', lo=None),
-    'deadband_v': _f(0.0, 'Amplifier dead band: armature volts below which it gives no '
-                     'voltage (friction adds its own, see no_load_current_a).', 'V',
-                     lo_open=False),
-    'amp_current_limit_a': _f(3.0, "Amplifier's current (torque) limit, each motor: bounds "
-                              'drive and braking torque (assumed; docs/sim-physics.md: '
-                              '~1.7 m/s^2 drive, ~2.9 m/s^2 braking on the default base).', 'A'),
-    'motor_resistance_ohm': _f(0.6, 'Armature (terminal) resistance: with ke sets the back-EMF '
-                               "braking and the drive's time constant (~0.08 s; assumed, "
-                               '24 V 100-150 W brushed motor class).', 'ohm'),
-    'no_load_current_a': _f(0.3, "Motor no-load current: the drive train's dry friction "
-                            '(brushes, bearings, gear) kt * I0, also while coasting (assumed, '
-                            'same class).', 'A', lo_open=False),
-    'gear_efficiency': _f(0.9, 'Gear efficiency under load (spur/planetary 12:1: 0.85-0.95).',
-                          '', hi=1.0),
-    'rotor_inertia_kgm2': _f(5e-6, 'Motor rotor inertia (50 g cm^2, same motor class); '
-                             'reflected through the gear as N^2 J.', 'kg m^2',
-                             lo_open=False),
-    'wheel_inertia_kgm2': _f(0.005, 'One wheel with hub about its axle (~1 kg, 20 cm).',
-                             'kg m^2', lo_open=False),
-    # body and tyres
-    'mass_kg': _f(30.0, 'Whole robot (Table 2: 30 kg).', 'kg'),
-    'yaw_inertia_kgm2': _f(0.70, 'Yaw inertia about the centre (uniform 0.45 x 0.28 m box of '
-                           '30 kg: m (l^2 + w^2) / 12 = 0.70).', 'kg m^2'),
-    'drive_load_fraction': _f(1.0, 'Share of the weight on the two drive wheels (the rest on '
-                              'casters); each drive wheel carries half of it (CoG on the '
-                              'centre line; no load transfer modelled).', '', hi=1.0),
-    'mu': _f(0.6, 'Static tyre-floor friction coefficient (rubber on indoor floor: 0.6-0.7; '
-             'above 0.7 needs a source). Traction per wheel = mu * load.', '', hi=1.5),
-    'mu_kinetic': _f(0.5, 'Sliding friction coefficient of a slipping tyre (< mu).', '',
-                     hi=1.5),
-    'rolling_resistance': _f(0.015, 'Rolling resistance coefficient Crr (rubber tyre on a hard '
-                             'floor: 0.01-0.02).', '', lo_open=False, hi=0.2),
-}
-
-
-def _defaults() -> dict[str, float]:
-    return {k: float(f.default) for k, f in ROBOT_FIELDS.items()}
-
-
-_D = _defaults()
-
-
 @dataclass(frozen=True)
 class RobotParams:
-    """Physical parameters of the M4K base (:data:`ROBOT_FIELDS`: defaults, units, sources)."""
+    """Physical parameters of the M4K base: each field declared once, with its schema Field.
 
-    wheel_diameter_m: float = _D['wheel_diameter_m']
-    gear_ratio: float = _D['gear_ratio']
-    track_width_m: float = _D['track_width_m']
-    length_m: float = _D['length_m']
-    width_m: float = _D['width_m']
-    top_speed_mps: float = _D['top_speed_mps']
-    supply_v: float = _D['supply_v']
-    amp_offset_left_v: float = _D['amp_offset_left_v']
-    amp_offset_right_v: float = _D['amp_offset_right_v']
-    deadband_v: float = _D['deadband_v']
-    amp_current_limit_a: float = _D['amp_current_limit_a']
-    motor_resistance_ohm: float = _D['motor_resistance_ohm']
-    no_load_current_a: float = _D['no_load_current_a']
-    gear_efficiency: float = _D['gear_efficiency']
-    rotor_inertia_kgm2: float = _D['rotor_inertia_kgm2']
-    wheel_inertia_kgm2: float = _D['wheel_inertia_kgm2']
-    mass_kg: float = _D['mass_kg']
-    yaw_inertia_kgm2: float = _D['yaw_inertia_kgm2']
-    drive_load_fraction: float = _D['drive_load_fraction']
-    mu: float = _D['mu']
-    mu_kinetic: float = _D['mu_kinetic']
-    rolling_resistance: float = _D['rolling_resistance']
+    Type, default, unit, range and source of every parameter are on its field
+    (docs/sim-physics.md gives the sources); :data:`ROBOT_FIELDS` is the table derived from
+    them, which validates ``world.robot`` and generates the docs.
+    """
+
+    # geometry (paper Table 2; the track width is our choice, world.py)
+    wheel_diameter_m: float = setting(_f(
+        0.2032, 'Wheel diameter (Table 2: 20.32 cm). Default: 2 * control.wheel_radius.', 'm'))
+    gear_ratio: float = setting(_f(
+        12.0, 'Motor turns per wheel turn (Table 2: 12:1). Default: control.gear_ratio.', ''))
+    track_width_m: float = setting(_f(
+        0.40, 'Wheel centre to wheel centre (not in the paper). Default: control.track_width.',
+        'm'))
+    length_m: float = setting(_f(
+        0.45, 'Body length, the contact footprint (Table 2). Default: robot.body.length.', 'm'))
+    width_m: float = setting(_f(
+        0.28, 'Body width, the contact footprint (Table 2). Default: robot.body.width.', 'm'))
+    # drive
+    top_speed_mps: float = setting(_f(
+        2.0, 'Straight-line speed on the floor at full armature voltage (Table 2: 2 m/s); sets '
+        'the motor constant ke. Default: control.full_scale_wheel_speed * wheel radius.', 'm/s'))
+    supply_v: float = setting(_f(
+        24.0, 'Amplifier supply: full-scale armature voltage (assumed 24 V).', 'V'))
+    amp_offset_left_v: float = setting(_f(
+        0.0, 'Left amplifier input offset (the zero error a DAC zero trim cancels), armature '
+        'volts, any sign within the supply.', 'V', lo=None))
+    amp_offset_right_v: float = setting(_f(
+        0.0, 'Right amplifier input offset, armature volts.', 'V', lo=None))
+    deadband_v: float = setting(_f(
+        0.0, 'Amplifier dead band: armature volts below which it gives no voltage (friction adds '
+        'its own, see no_load_current_a).', 'V', lo_open=False))
+    amp_current_limit_a: float = setting(_f(
+        3.0, "Amplifier's current (torque) limit, each motor: bounds drive and braking torque "
+        '(assumed; docs/sim-physics.md: ~1.7 m/s^2 drive, ~2.9 m/s^2 braking on the default '
+        'base).', 'A'))
+    motor_resistance_ohm: float = setting(_f(
+        0.6, "Armature (terminal) resistance: with ke sets the back-EMF braking and the drive's "
+        'time constant (~0.08 s; assumed, 24 V 100-150 W brushed motor class).', 'ohm'))
+    no_load_current_a: float = setting(_f(
+        0.3, "Motor no-load current: the drive train's dry friction (brushes, bearings, gear) "
+        'kt * I0, also while coasting (assumed, same class).', 'A', lo_open=False))
+    gear_efficiency: float = setting(_f(
+        0.9, 'Gear efficiency under load (spur/planetary 12:1: 0.85-0.95).', '', hi=1.0))
+    rotor_inertia_kgm2: float = setting(_f(
+        5e-6, 'Motor rotor inertia (50 g cm^2, same motor class); reflected through the gear as '
+        'N^2 J.', 'kg m^2', lo_open=False))
+    wheel_inertia_kgm2: float = setting(_f(
+        0.005, 'One wheel with hub about its axle (~1 kg, 20 cm).', 'kg m^2', lo_open=False))
+    # body and tyres
+    mass_kg: float = setting(_f(30.0, 'Whole robot (Table 2: 30 kg).', 'kg'))
+    yaw_inertia_kgm2: float = setting(_f(
+        0.70, 'Yaw inertia about the centre (uniform 0.45 x 0.28 m box of 30 kg: '
+        'm (l^2 + w^2) / 12 = 0.70).', 'kg m^2'))
+    drive_load_fraction: float = setting(_f(
+        1.0, 'Share of the weight on the two drive wheels (the rest on casters); each drive '
+        'wheel carries half of it (CoG on the centre line; no load transfer modelled).', '',
+        hi=1.0))
+    mu: float = setting(_f(
+        0.6, 'Static tyre-floor friction coefficient (rubber on indoor floor: 0.6-0.7; above 0.7 '
+        'needs a source). Traction per wheel = mu * load.', '', hi=1.5))
+    mu_kinetic: float = setting(_f(
+        0.5, 'Sliding friction coefficient of a slipping tyre (<= mu).', '', hi=1.5))
+    rolling_resistance: float = setting(_f(
+        0.015, 'Rolling resistance coefficient Crr (rubber tyre on a hard floor: 0.01-0.02).',
+        '', lo_open=False, hi=0.2))
 
     @classmethod
     def from_control(cls, control: dict[str, Any] | None,
@@ -149,33 +131,28 @@ class RobotParams:
         simulator's contacts use.
         """
         base = cls()
-        if body is not None and not isinstance(body, dict):
-            raise WorldConfigError(f'robot.body: expected a mapping, got {body!r}')
-        for key, attr in (('length', 'length_m'), ('width', 'width_m')):
-            v = (body or {}).get(key)
-            if v is None:
+        given: dict[str, float] = {}
+        for where, section, keys, table_ in (
+                ('robot.body', body, _BODY_KEYS, schema.ROBOT),
+                ('control', control, _CONTROL_KEYS, CONTROL)):
+            if section is None:
                 continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
-                    math.isfinite(v) and v > 0):
-                raise WorldConfigError(f'robot.body.{key}: must be a number > 0, got {v!r}')
-            base = replace(base, **{attr: float(v)})
-        if control is not None and not isinstance(control, dict):
-            raise WorldConfigError(f'control: expected a mapping, got {control!r}')
-        vals: dict[str, float] = {}
-        for key in ('wheel_radius', 'track_width', 'gear_ratio', 'full_scale_wheel_speed'):
-            v = (control or {}).get(key)
-            if v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
-                    math.isfinite(v) and v > 0):
-                raise WorldConfigError(f'control.{key}: must be a number > 0, got {v!r}')
-            vals[key] = float(v)
-        radius = vals.get('wheel_radius', base.wheel_radius_m)
+            if not isinstance(section, Mapping):
+                raise WorldConfigError(where, f'expected a mapping, got {section!r}')
+            for key in keys:
+                v = section.get(key)
+                if v is not None:     # null or absent: the simulator's default
+                    name = key if where == 'control' else f'body.{key}'
+                    given[key] = float(table_[name].validate(f'{where}.{key}', v,
+                                                             WorldConfigError))
+        radius = given.get('wheel_radius', base.wheel_radius_m)
         out = replace(base, wheel_diameter_m=2.0 * radius,
-                      track_width_m=vals.get('track_width', base.track_width_m),
-                      gear_ratio=vals.get('gear_ratio', base.gear_ratio))
-        if 'full_scale_wheel_speed' in vals:
-            out = replace(out, top_speed_mps=vals['full_scale_wheel_speed'] * radius)
+                      length_m=given.get('length', base.length_m),
+                      width_m=given.get('width', base.width_m),
+                      track_width_m=given.get('track_width', base.track_width_m),
+                      gear_ratio=given.get('gear_ratio', base.gear_ratio))
+        if 'full_scale_wheel_speed' in given:
+            out = replace(out, top_speed_mps=given['full_scale_wheel_speed'] * radius)
         return out
 
     def replace(self, **kw: float) -> RobotParams:
@@ -302,7 +279,14 @@ class RobotParams:
     @classmethod
     def field_names(cls) -> list[str]:
         """Return the names ``world.robot`` accepts."""
-        return [f.name for f in fields(cls)]
+        return list(ROBOT_FIELDS)
+
+
+# The table of ``world.robot``, derived from the declaration above (validation, docs).
+ROBOT_FIELDS: dict[str, Field] = table(RobotParams)
+# The configuration's values the simulated robot defaults to (RobotParams.from_control).
+_BODY_KEYS = ('length', 'width')
+_CONTROL_KEYS = ('wheel_radius', 'track_width', 'gear_ratio', 'full_scale_wheel_speed')
 
 
 class DriveState:
@@ -432,29 +416,26 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
 
 
 def parse_robot(rob: Any, base: RobotParams, where: str,
-                error: type[Exception] = WorldConfigError) -> RobotParams:
-    """Return ``base`` with the ``world.robot`` keys of ``rob`` applied (errors name the key)."""
-    names = RobotParams.field_names()
-    if not isinstance(rob, dict) or set(rob) - set(names):
-        raise error(f'{where}: expected a mapping with keys from {sorted(names)}, got {rob!r}')
-    vals: dict[str, float] = {}
-    for k, v in rob.items():
-        fld = ROBOT_FIELDS[k]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise error(f'{where}.{k}: expected finite numbers, got {[v]!r}')
-        reason = fld.problem(float(v))
-        if reason is not None:
-            raise error(f'{where}.{k}: {reason}')
-        vals[k] = float(v)
+                error: Callable[[str, str], Exception] = WorldConfigError) -> RobotParams:
+    """Return ``base`` with the ``world.robot`` keys of ``rob`` applied (errors name the key).
+
+    Each value is judged by its field's declaration (:data:`ROBOT_FIELDS`); what involves
+    several fields is checked here: the offsets within the supply, ``mu_kinetic <= mu``, and a
+    supply that overcomes the friction. ``error(path, message)`` builds the exception.
+    """
+    if not isinstance(rob, Mapping):
+        raise error(where, f'expected a mapping of {", ".join(ROBOT_FIELDS)}, got {rob!r}')
+    check_keys(rob, ROBOT_FIELDS, where, error)
+    vals = {k: ROBOT_FIELDS[k].validate(f'{where}.{k}', v, error) for k, v in rob.items()}
     out = replace(base, **vals)
     for k in ('amp_offset_left_v', 'amp_offset_right_v'):
         if k in vals and abs(vals[k]) >= out.supply_v:
-            raise error(f'{where}.{k}: must be within the supply (+/-{out.supply_v} V), '
+            raise error(f'{where}.{k}', f'must be within the supply (+/-{out.supply_v} V), '
                         f'got {vals[k]!r}')
     if out.mu_kinetic > out.mu:
-        raise error(f'{where}.mu_kinetic: must be <= mu ({out.mu!r}), got {out.mu_kinetic!r}')
+        raise error(f'{where}.mu_kinetic', f'must be <= mu ({out.mu!r}), got {out.mu_kinetic!r}')
     try:
         _ = out.ke                    # the supply must overcome the friction
     except ValueError as exc:
-        raise error(str(exc)) from None
+        raise error(where, str(exc).partition(': ')[2]) from None
     return out

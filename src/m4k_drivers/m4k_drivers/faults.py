@@ -18,15 +18,20 @@ report the other wheel's motion from there, a frozen one keeps its last value (n
 A stalled wheel is blocked mechanically (it does not turn; its tyre slides if the body is
 pushed), and its encoder honestly reads no motion. ``estop`` opens the e-stop contact in
 series with the amplifier enable: the motors coast.
+
+An entry's keys are declared once, in :data:`FAULT` (schema Fields: validation and docs); the
+parser checks by hand only what involves several keys (``until_s`` after ``at_s``, ``wheel``
+given exactly for the per-wheel kinds).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 from typing import Any
 
-__all__ = ['ENCODER_KINDS', 'Fault', 'FaultError', 'KINDS', 'parse_faults']
+from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
+
+__all__ = ['ENCODER_KINDS', 'FAULT', 'Fault', 'FaultError', 'KINDS', 'parse_faults']
 
 ENCODER_KINDS = ('encoder_sign_flip', 'encoder_swap', 'encoder_frozen')
 KINDS = ENCODER_KINDS + ('wheel_stall', 'estop')
@@ -34,8 +39,24 @@ _NO_WHEEL = ('encoder_swap', 'estop')        # whole-robot faults: no ``wheel`` 
 WHEELS = {'left': (0,), 'right': (1,), 'both': (0, 1)}
 
 
-class FaultError(ValueError):
+class FaultError(ConfigError):
     """Raise for a bad ``faults`` entry; the message names the field."""
+
+
+# One entry of world.faults.
+FAULT: dict[str, Field] = {
+    'at_s': Field('float', REQUIRED, 'World time after the simulator started at which the '
+                  'fault begins.', unit='s', lo=0, expect='seconds >= 0'),
+    'until_s': Field('float', None, 'World time it ends (after at_s); null: to the end.',
+                     unit='s', lo=0, nullable=True, expect='seconds >= 0 or null'),
+    'kind': Field('str', REQUIRED, 'encoder_sign_flip: the encoder counts backwards; '
+                  'encoder_swap: the two encoder channels crossed; encoder_frozen: the magnet '
+                  'slips (the reading stops); wheel_stall: the wheel blocked; estop: the e-stop '
+                  'contact opens (the motors coast). Every frame stays valid.', choices=KINDS),
+    'wheel': Field('str', None, 'The wheel(s) of a per-wheel kind; not given for encoder_swap '
+                   'and estop (they concern both).', choices=tuple(WHEELS), nullable=True,
+                   expect='left, right or both'),
+}
 
 
 @dataclass(frozen=True)
@@ -52,47 +73,26 @@ class Fault:
         return t_s >= self.at_s and (self.until_s is None or t_s < self.until_s)
 
 
-def _seconds(v: Any, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-        raise FaultError(f'{where}: expected seconds >= 0, got {v!r}')
-    return float(v)
-
-
 def parse_faults(data: Any, where: str = 'world.faults') -> tuple[Fault, ...]:
     """Return the faults of a ``faults:`` list (errors name the entry and field)."""
     if data is None:
         return ()
     if not isinstance(data, list):
-        raise FaultError(f'{where}: expected a list of faults, got {data!r}')
+        raise FaultError(where, f'expected a list of faults, got {data!r}')
     out = []
     for i, entry in enumerate(data):
         at = f'{where}[{i}]'
-        if not isinstance(entry, dict):
-            raise FaultError(f'{at}: expected a mapping with at_s, kind (and wheel), '
-                             f'got {entry!r}')
-        unknown = sorted(set(entry) - {'at_s', 'until_s', 'kind', 'wheel'})
-        if unknown:
-            raise FaultError(f'{at}: unknown field(s) {unknown!r}; valid: at_s, until_s, '
-                             'kind, wheel')
-        kind = entry.get('kind')
-        if kind not in KINDS:
-            raise FaultError(f'{at}.kind: expected one of {", ".join(KINDS)}, got {kind!r}')
-        if 'at_s' not in entry:
-            raise FaultError(f'{at}.at_s: missing (seconds after the simulator started)')
-        start = _seconds(entry['at_s'], f'{at}.at_s')
-        until = entry.get('until_s')
-        if until is not None:
-            until = _seconds(until, f'{at}.until_s')
-            if until <= start:
-                raise FaultError(f'{at}.until_s: must be after at_s ({start!r}), got {until!r}')
+        v = validate_tree(FAULT, entry, at, FaultError)
+        start, until, kind = v['at_s'], v['until_s'], v['kind']
+        if until is not None and until <= start:
+            raise FaultError(f'{at}.until_s', f'must be after at_s ({start!r}), got {until!r}')
         if kind in _NO_WHEEL:
             if 'wheel' in entry:
-                raise FaultError(f'{at}.wheel: {kind} concerns both wheels; remove wheel')
+                raise FaultError(f'{at}.wheel', f'{kind} concerns both wheels; remove wheel')
             sides: tuple[int, ...] = (0, 1)
+        elif v['wheel'] is None:
+            raise FaultError(f'{at}.wheel', f'missing: {kind} needs left, right or both')
         else:
-            wheel = entry.get('wheel')
-            if wheel not in WHEELS:
-                raise FaultError(f'{at}.wheel: expected left, right or both, got {wheel!r}')
-            sides = WHEELS[wheel]
+            sides = WHEELS[v['wheel']]
         out.append(Fault(kind, sides, start, until))
     return tuple(out)

@@ -29,6 +29,11 @@ Events (``world.events``) change the simulated hardware during a drive, executed
 
     events:
       - {at: {travelled: 1.0}, unplug: sonar}     # sonar | lrf | imu
+
+Every key is declared once, by its schema Field (:mod:`m4k_rt.schema`): on the dataclass that
+holds it (:class:`Start`, :class:`Event`) or in the entry's table (:data:`OBSTACLE`,
+:data:`PATH`); the parsers below validate with them and the docs are generated from them.
+Only what involves several values is checked by hand (waypoint times increasing).
 """
 
 from __future__ import annotations
@@ -36,12 +41,21 @@ from __future__ import annotations
 import bisect
 from dataclasses import dataclass
 import math
-from typing import Any
+from typing import Any, Callable
 
-from m4k_rt.schema import ConfigError
+from m4k_rt.schema import (
+    build,
+    ConfigError,
+    Field,
+    REQUIRED,
+    section,
+    setting,
+    table,
+    validate_tree,
+)
 
-__all__ = ['EVENT_TARGETS', 'Event', 'Path', 'Start', 'SURFACES', 'Surface', 'TALL',
-           'parse_events', 'parse_obstacle']
+__all__ = ['EVENT', 'EVENT_TARGETS', 'Event', 'OBSTACLE', 'PATH', 'Path', 'START', 'Start',
+           'SURFACES', 'SceneError', 'Surface', 'TALL', 'parse_events', 'parse_obstacle']
 
 SURFACES = ('normal', 'soft', 'glass', 'black')
 EVENT_TARGETS = ('sonar', 'lrf', 'imu')
@@ -64,8 +78,12 @@ class Surface:
 class Start:
     """When a path or an event begins: the robot covered ``travelled`` m, moved ``after`` s."""
 
-    travelled: float = 0.0
-    after: float = 0.0
+    travelled: float = setting(Field(
+        'float', 0.0, 'Begins once the robot has truly covered this path length (ground '
+        'truth, not odometry).', unit='m', lo=0))
+    after: float = setting(Field(
+        'float', 0.0, 'Begins this long after the robot first moved (both conditions must '
+        'hold; {} = at the first motion).', unit='s', lo=0))
 
     def reached(self, travelled: float, moving_s: float | None) -> bool:
         """Return True once the robot has moved and both conditions hold."""
@@ -98,75 +116,72 @@ class Path:
 class Event:
     """A change of the simulated hardware at a moment of the drive."""
 
-    at: Start
-    unplug: str
+    at: Start = section(Start)
+    unplug: str = setting(Field(
+        'str', REQUIRED, 'The device whose cable is pulled: its simulated hardware stops '
+        'answering as unplugged hardware does (the driver reports it, the guard treats a '
+        'guard sensor as stale).', choices=EVENT_TARGETS))
 
 
-def _num(v: Any, where: str, positive: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise SceneError(f'{where}: expected a finite number, got {v!r}')
-    if positive and v <= 0:
-        raise SceneError(f'{where}: must be > 0, got {v!r}')
-    return float(v)
+def _min_items(n: int, what: str) -> Callable[[Any], str | None]:
+    def check(v: Any) -> str | None:
+        return None if len(v) >= n else f'expected {what}, got {v!r}'
+    return check
 
 
-def _start(v: Any, where: str) -> Start:
-    if v is None:
-        return Start()
-    if not isinstance(v, dict) or set(v) - {'travelled', 'after'}:
-        raise SceneError(f'{where}: expected a mapping with travelled (m) and/or after (s), '
-                         f'got {v!r}')
-    vals = {k: _num(x, f'{where}.{k}') for k, x in v.items()}
-    if any(x < 0 for x in vals.values()):
-        raise SceneError(f'{where}: must be >= 0, got {v!r}')
-    return Start(**vals)
+START: dict[str, Field] = table(Start)
+EVENT: dict[str, Field] = table(Event)
+_POLYGON_WHAT = 'a polygon of at least 3 [x, y] points'
+# One obstacle given as a mapping (a bare list is its polygon: tall, normal, still).
+OBSTACLE: dict[str, Field] = {
+    'polygon': Field('list', REQUIRED, 'Outline at rest, world frame: [[x, y], ...] (the '
+                     "robot's body touches it whatever its height or surface).", unit='m',
+                     expect=_POLYGON_WHAT, check=_min_items(3, _POLYGON_WHAT)),
+    'height': Field('float', None, 'Top above the floor; null: taller than every sensor. A '
+                    'sensor mounted higher does not see it (a low box under the laser plane is '
+                    'sonar-only).', unit='m', lo=0, lo_open=True, nullable=True),
+    'surface': Field('str', 'normal', 'normal: both sensors see it; soft: no sonar echo; '
+                     'glass: the laser passes through; black: the laser reports error code 2.',
+                     choices=SURFACES),
+    'path': Field('map', None, 'A moving obstacle (a person): offsets of the outline in time '
+                  '(see world.obstacles[].path); null: it stands still.', nullable=True),
+}
+PATH: dict[str, Field] = {
+    **{'start.' + k: f for k, f in START.items()},
+    'waypoints': Field('list', REQUIRED, '[[t, dx, dy], ...]: offset dx, dy (m) of the outline '
+                       't s after the start; times start >= 0 and increase; held before the '
+                       'first and after the last, linear between.', expect='a list of [t, dx, dy]',
+                       check=_min_items(1, 'a list of [t, dx, dy]')),
+}
+_POINT = Field('float[]', REQUIRED, length=2, expect='[x, y]')
+_WAYPOINT = Field('float[]', REQUIRED, length=3, expect='[t, dx, dy]')
 
 
 def _path(v: Any, where: str) -> Path:
-    if not isinstance(v, dict) or set(v) - {'start', 'waypoints'} or 'waypoints' not in v:
-        raise SceneError(f'{where}: expected {{start: ..., waypoints: [[t, dx, dy], ...]}}, '
-                         f'got {v!r}')
-    wps = v['waypoints']
-    if not isinstance(wps, list) or not wps:
-        raise SceneError(f'{where}.waypoints: expected a list of [t, dx, dy], got {wps!r}')
-    rows = []
-    for i, w in enumerate(wps):
-        if not isinstance(w, list) or len(w) != 3:
-            raise SceneError(f'{where}.waypoints[{i}]: expected [t, dx, dy], got {w!r}')
-        rows.append(tuple(_num(x, f'{where}.waypoints[{i}]') for x in w))
+    flat = validate_tree(PATH, v, where, SceneError)
+    rows = [_WAYPOINT.validate(f'{where}.waypoints[{i}]', w, SceneError)
+            for i, w in enumerate(flat['waypoints'])]
     ts = [r[0] for r in rows]
     if ts[0] < 0 or any(b <= a for a, b in zip(ts, ts[1:], strict=False)):
-        raise SceneError(f'{where}.waypoints: times must start >= 0 and increase, got {ts!r}')
-    return Path(_start(v.get('start'), f'{where}.start'), tuple(ts),
-                tuple(r[1] for r in rows), tuple(r[2] for r in rows))
+        raise SceneError(f'{where}.waypoints', f'times must start >= 0 and increase, got {ts!r}')
+    start = build(Start, {k.split('.', 1)[1]: x for k, x in flat.items() if '.' in k})
+    return Path(start, tuple(ts), tuple(r[1] for r in rows), tuple(r[2] for r in rows))
 
 
 def parse_obstacle(v: Any, where: str
                    ) -> tuple[tuple[tuple[float, float], ...], Surface, Path | None]:
     """Return (polygon, surface, path or None) of one ``world.obstacles`` entry."""
     if isinstance(v, dict):
-        extra = set(v) - {'polygon', 'height', 'surface', 'path'}
-        if extra or 'polygon' not in v:
-            raise SceneError(f'{where}: expected a polygon or a mapping with polygon and '
-                             f'optional height, surface, path; got {v!r}')
-        poly_raw = v['polygon']
-        height = TALL if v.get('height') is None else _num(v['height'], f'{where}.height', True)
-        kind = v.get('surface', 'normal')
-        if kind not in SURFACES:
-            raise SceneError(f'{where}.surface: expected one of {SURFACES}, got {kind!r}')
-        path = _path(v['path'], f'{where}.path') if v.get('path') is not None else None
+        flat = validate_tree(OBSTACLE, v, where, SceneError)
+        height = TALL if flat['height'] is None else flat['height']
+        path = None if flat['path'] is None else _path(flat['path'], f'{where}.path')
+        poly_raw, surface = flat['polygon'], Surface(height, flat['surface'])
         where = f'{where}.polygon'
     else:
-        poly_raw, height, kind, path = v, TALL, 'normal', None
-    if not isinstance(poly_raw, list) or len(poly_raw) < 3:
-        raise SceneError(f'{where}: expected a polygon of at least 3 [x, y] points, '
-                         f'got {poly_raw!r}')
-    poly = []
-    for j, p in enumerate(poly_raw):
-        if not isinstance(p, list) or len(p) != 2:
-            raise SceneError(f'{where}[{j}]: expected [x, y], got {p!r}')
-        poly.append((_num(p[0], f'{where}[{j}]'), _num(p[1], f'{where}[{j}]')))
-    return tuple(poly), Surface(height, kind), path
+        poly_raw = OBSTACLE['polygon'].validate(where, v, SceneError)
+        surface, path = Surface(), None
+    points = [_POINT.validate(f'{where}[{j}]', p, SceneError) for j, p in enumerate(poly_raw)]
+    return tuple((x, y) for x, y in points), surface, path
 
 
 def parse_events(v: Any, where: str = 'world.events') -> tuple[Event, ...]:
@@ -174,14 +189,11 @@ def parse_events(v: Any, where: str = 'world.events') -> tuple[Event, ...]:
     if v is None:
         return ()
     if not isinstance(v, list):
-        raise SceneError(f'{where}: expected a list of {{at: ..., unplug: ...}}, got {v!r}')
+        raise SceneError(where, f'expected a list of {{at: ..., unplug: ...}}, got {v!r}')
     out = []
     for i, e in enumerate(v):
-        if not isinstance(e, dict) or set(e) != {'at', 'unplug'}:
-            raise SceneError(f'{where}[{i}]: expected {{at: {{travelled|after}}, unplug: '
-                             f'{"|".join(EVENT_TARGETS)}}}, got {e!r}')
-        if e['unplug'] not in EVENT_TARGETS:
-            raise SceneError(f'{where}[{i}].unplug: expected one of {EVENT_TARGETS}, '
-                             f'got {e["unplug"]!r}')
-        out.append(Event(_start(e['at'], f'{where}[{i}].at'), e['unplug']))
+        at = f'{where}[{i}]'
+        if isinstance(e, dict) and 'at' not in e:     # no default moment: say when
+            raise SceneError(f'{at}.at', 'missing ({travelled: m} and/or {after: s})')
+        out.append(build(Event, validate_tree(EVENT, e, at, SceneError)))
     return tuple(out)

@@ -35,11 +35,11 @@ seed and the stream name, so a run is reproducible.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import math
 import threading
 import time
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 import zlib
 
 import numpy as np
@@ -55,8 +55,9 @@ from m4k_drivers.drive import (
 )
 from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
+from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
 
-__all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'World', 'WorldConfig',
+__all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'WORLD', 'World', 'WorldConfig',
            'WorldConfigError']
 
 REST_V = 0.01        # m/s: below this the robot is at rest (truth's rest_since_ns)
@@ -91,44 +92,97 @@ def _rect(xmin: float, ymin: float, xmax: float, ymax: float) -> list[tuple[floa
             (xmax, ymax, xmin, ymax), (xmin, ymax, xmin, ymin)]
 
 
-def _numbers(value: Any, n: int | None, where: str) -> tuple[float, ...]:
-    if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n):
-        want = f'a list of {n} numbers' if n else 'a list of numbers'
-        raise WorldConfigError(f'{where}: expected {want}, got {value!r}')
-    out = []
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise WorldConfigError(f'{where}: expected finite numbers, got {value!r}')
-        out.append(float(v))
-    return tuple(out)
+_WALLS_WHAT = 'a list of [x1, y1, x2, y2] segments or {rectangle: [xmin, ymin, xmax, ymax]}'
+_SEGMENT = Field('float[]', REQUIRED, length=4, expect='[x1, y1, x2, y2] (4 finite numbers)')
+_RECTANGLE = Field('float[]', REQUIRED, length=4,
+                   expect='[xmin, ymin, xmax, ymax] (4 finite numbers)')
 
 
-def _point(value: Any, where: str) -> tuple[float, float]:
-    x, y = _numbers(value, 2, where)
-    return x, y
+def _walls(v: Any, where: str) -> tuple[tuple[float, ...], ...]:
+    """Return the segments of a validated ``walls`` value (a list, or a rectangle)."""
+    if isinstance(v, dict):
+        check_keys(v, ['rectangle'], where, WorldConfigError)
+        if 'rectangle' not in v:
+            raise WorldConfigError(f'{where}.rectangle', 'missing')
+        return tuple(_rect(*_RECTANGLE.validate(f'{where}.rectangle', v['rectangle'],
+                                                WorldConfigError)))
+    return tuple(tuple(_SEGMENT.validate(f'{where}[{i}]', s, WorldConfigError))
+                 for i, s in enumerate(v))
+
+
+def _obstacles(v: Any, where: str) -> dict[str, Any]:
+    polys, surfaces, paths = [], [], []
+    for i, entry in enumerate(v or []):
+        try:
+            poly, surface, path = parse_obstacle(entry, f'{where}[{i}]')
+        except SceneError as exc:
+            raise WorldConfigError(str(exc)) from None
+        polys.append(poly)
+        surfaces.append(surface)
+        paths.append(path)
+    return {'obstacles': tuple(polys), 'surfaces': tuple(surfaces), 'paths': tuple(paths)}
+
+
+def _events(v: Any, where: str) -> dict[str, Any]:
+    try:
+        return {'events': parse_events(v, where)}
+    except SceneError as exc:
+        raise WorldConfigError(str(exc)) from None
+
+
+def _faults(v: Any, where: str) -> dict[str, Any]:
+    try:
+        return {'faults': parse_faults(v, where)}
+    except FaultError as exc:
+        raise WorldConfigError(str(exc)) from None
 
 
 # Paper Fig. 8: a room of white panel boards, the robot at the start, a triangular obstacle
 # about 1.5 m ahead (its flat side faces the robot) and a goal 3 m ahead.
-DEFAULT_WALLS = tuple(_rect(-0.8, -1.5, 4.2, 1.5))
+_ROOM = [-0.8, -1.5, 4.2, 1.5]
 DEFAULT_OBSTACLE = ((1.5, -0.25), (1.5, 0.25), (1.9, 0.0))
+DEFAULT_WALLS = tuple(_rect(*_ROOM))
 
 
 @dataclass(frozen=True)
 class WorldConfig:
-    """Room walls (segments x1,y1,x2,y2), obstacle polygons, start pose, robot, seed."""
+    """Room walls (segments x1,y1,x2,y2), obstacle polygons, start pose, robot, seed.
 
-    walls: tuple[tuple[float, ...], ...] = DEFAULT_WALLS
-    obstacles: tuple[tuple[tuple[float, float], ...], ...] = (DEFAULT_OBSTACLE,)
-    start: Pose = Pose(0.0, 0.0, 0.0)
-    robot: RobotParams = field(default_factory=RobotParams)
-    seed: int = 0
-    step_s: float = 0.001
+    Each key of the ``world:`` section is declared once, on its field (schema Fields: type,
+    default, unit, range, what it does); :meth:`from_dict` validates with them. ``walls`` and
+    ``obstacles`` hold the parsed shapes (segments, polygons) of what the file writes.
+    """
+
+    walls: tuple[tuple[float, ...], ...] = setting(Field(
+        'list|map', {'rectangle': _ROOM}, 'The room: wall segments [[x1, y1, x2, y2], ...] or '
+        '{rectangle: [xmin, ymin, xmax, ymax]} (default: the 5 x 3 m room of the paper, Fig. '
+        '8). The laser, sonar and the contact test see them.', unit='m', nullable=True,
+        expect=_WALLS_WHAT), value=DEFAULT_WALLS)
+    obstacles: tuple[tuple[tuple[float, float], ...], ...] = setting(Field(
+        'list', [[list(p) for p in DEFAULT_OBSTACLE]], 'Obstacles: each a polygon [[x, y], ...] '
+        '(tall, normal, still) or a mapping (world.obstacles[]: height, surface, path). '
+        "Default: the paper's triangle 1.5 m ahead; null or []: none.", unit='m',
+        nullable=True, expect='a list of obstacles'), value=(DEFAULT_OBSTACLE,))
+    start: Pose = setting(Field(
+        'float[]', [0.0, 0.0, 0.0], 'Start pose [x m, y m, yaw rad] in the world frame; '
+        'odometry starts at zero here. A footprint overlapping a wall or an obstacle is '
+        'refused.', length=3), value=Pose(0.0, 0.0, 0.0))
+    robot: RobotParams = section(RobotParams)
+    seed: int = setting(Field(
+        'int', 0, 'Seed of every noise stream (each device its own, from the seed and its '
+        'name): the same seed, the same run.', expect='an integer'))
+    step_s: float = setting(Field(
+        'float', 0.001, 'Fixed physics step; results do not depend on how often callers look. '
+        'Larger: faster but coarser contacts and motor dynamics.', unit='s', lo=1e-5, hi=0.05))
     # Parallel to ``obstacles`` (empty: every obstacle tall, normal and still; m4k_drivers.scene)
-    surfaces: tuple[Surface, ...] = ()
-    paths: tuple[Path | None, ...] = ()
-    events: tuple[Event, ...] = ()
-    faults: tuple[Fault, ...] = ()        # m4k_drivers.faults: scheduled from the world's start
+    surfaces: tuple[Surface, ...] = derived(())
+    paths: tuple[Path | None, ...] = derived(())
+    events: tuple[Event, ...] = setting(Field(
+        'list', [], 'Changes of the simulated hardware during the drive (world.events[]).',
+        nullable=True, expect='a list of {at: ..., unplug: ...}'), value=())
+    faults: tuple[Fault, ...] = setting(Field(
+        'list', [], 'Faults scheduled from the world start (world.faults[]).',
+        nullable=True, expect='a list of faults'), value=())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = 'world',
@@ -137,67 +191,34 @@ class WorldConfig:
 
         ``robot`` is the base the ``robot:`` keys override (default: the paper's M4K).
         """
-        data = dict(data or {})
-        unknown = set(data) - {'walls', 'obstacles', 'start', 'robot', 'seed', 'step_s',
-                               'events', 'faults'}
-        if unknown:
-            raise WorldConfigError(f'{where}: unknown field(s) {sorted(unknown)!r}; valid: '
-                                   'walls, obstacles, start, robot, seed, step_s, events, '
-                                   'faults')
+        if data is None:
+            data = {}
+        if not isinstance(data, Mapping):
+            raise WorldConfigError(where, f'expected a mapping, got {data!r}')
+        check_keys(data, WORLD, where, WorldConfigError)
         cfg = cls() if robot is None else cls(robot=robot)
-        walls = data.get('walls')
-        if walls is not None:
-            if isinstance(walls, dict) and set(walls) == {'rectangle'}:
-                cfg = replace(cfg, walls=tuple(_rect(*_numbers(walls['rectangle'], 4,
-                                                               f'{where}.walls.rectangle'))))
-            elif isinstance(walls, list):
-                cfg = replace(cfg, walls=tuple(_numbers(s, 4, f'{where}.walls[{i}]')
-                                               for i, s in enumerate(walls)))
+        kw: dict[str, Any] = {}
+        for key, value in data.items():
+            path = f'{where}.{key}'
+            if key == 'robot':
+                kw['robot'] = parse_robot(value, cfg.robot, path, WorldConfigError)
+                continue
+            value = WORLD[key].validate(path, value, WorldConfigError)
+            if value is None and key == 'walls':
+                continue                     # null: the default room
+            if key in _CONVERT:
+                kw.update(_CONVERT[key](value, path))
             else:
-                raise WorldConfigError(f'{where}.walls: expected a list of [x1, y1, x2, y2] '
-                                       f'segments or {{rectangle: [xmin, ymin, xmax, ymax]}}, '
-                                       f'got {walls!r}')
-        if 'obstacles' in data:
-            obs = data['obstacles'] or []
-            if not isinstance(obs, list):
-                raise WorldConfigError(f'{where}.obstacles: expected a list of polygons, '
-                                       f'got {obs!r}')
-            polys, surfaces, paths = [], [], []
-            for i, entry in enumerate(obs):
-                try:
-                    poly, surface, path = parse_obstacle(entry, f'{where}.obstacles[{i}]')
-                except SceneError as exc:
-                    raise WorldConfigError(str(exc)) from None
-                polys.append(poly)
-                surfaces.append(surface)
-                paths.append(path)
-            cfg = replace(cfg, surfaces=tuple(surfaces), paths=tuple(paths))
-            cfg = replace(cfg, obstacles=tuple(polys))
-        if 'events' in data:
-            try:
-                cfg = replace(cfg, events=parse_events(data['events'], f'{where}.events'))
-            except SceneError as exc:
-                raise WorldConfigError(str(exc)) from None
-        if 'faults' in data:
-            try:
-                cfg = replace(cfg, faults=parse_faults(data['faults'], f'{where}.faults'))
-            except FaultError as exc:
-                raise WorldConfigError(str(exc)) from None
-        if 'start' in data:
-            cfg = replace(cfg, start=Pose(*_numbers(data['start'], 3, f'{where}.start')))
-        if 'robot' in data:
-            cfg = replace(cfg, robot=parse_robot(data['robot'], cfg.robot, f'{where}.robot',
-                                                 WorldConfigError))
-        if 'seed' in data:
-            if isinstance(data['seed'], bool) or not isinstance(data['seed'], int):
-                raise WorldConfigError(f'{where}.seed: expected an integer, got {data["seed"]!r}')
-            cfg = replace(cfg, seed=data['seed'])
-        if 'step_s' in data:
-            step = _numbers([data['step_s']], 1, f'{where}.step_s')[0]
-            if not 1e-5 <= step <= 0.05:
-                raise WorldConfigError(f'{where}.step_s: must be in [1e-5, 0.05] s, got {step!r}')
-            cfg = replace(cfg, step_s=step)
-        return cfg
+                kw[key] = Pose(*value) if key == 'start' else value
+        return replace(cfg, **kw)
+
+
+# The keys of ``world:``, derived from the declaration above (world.robot: ROBOT_FIELDS).
+WORLD: dict[str, Field] = {k: f for k, f in table(WorldConfig).items() if '.' not in k}
+WORLD['robot'] = Field('map', {}, 'The simulated robot as built (world.robot); unset keys: '
+                       "the configuration's values.")
+_CONVERT = {'walls': lambda v, where: {'walls': _walls(v, where)},
+            'obstacles': _obstacles, 'events': _events, 'faults': _faults}
 
 
 def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:

@@ -74,7 +74,7 @@ def test_the_simulated_robot_is_the_configured_one_unless_world_robot_says_other
     built = dconfig.validate({'world': {'robot': {'track_width_m': 0.5}}}, control=control)
     assert built.world.robot.track_width_m == 0.5
     assert built.world.robot.wheel_radius_m == pytest.approx(0.1)
-    with pytest.raises(WorldConfigError, match=r'control\.wheel_radius: must be a number > 0'):
+    with pytest.raises(WorldConfigError, match=r'control\.wheel_radius: must be > 0, got -1'):
         RobotParams.from_control({'wheel_radius': -1})
     with pytest.raises(dconfig.ConfigError, match=r'control: expected a mapping'):
         dconfig.validate({}, control=[0.1])
@@ -122,14 +122,14 @@ def test_sim_robot_refuses_a_control_section_it_cannot_build_a_robot_from(tmp_pa
     overlay.write_text('control: {wheel_radius: big}\n')
     assert sim_robot.main(['--overlay', str(overlay), '--runtime-dir', m4k_runtime_dir,
                            '--priority', '0']) == 2
-    assert "control.wheel_radius: must be a number > 0, got 'big'" in capsys.readouterr().err
+    assert "control.wheel_radius: expected a number, got 'big'" in capsys.readouterr().err
 
 
 def test_the_simulated_footprint_is_the_robot_body_and_the_shipped_world_sets_no_geometry():
     body = {'length': 0.5, 'width': 0.3}
     rob = dconfig.validate({'world': {}}, control={}, body=body).world.robot
     assert (rob.length_m, rob.width_m) == (0.5, 0.3)
-    with pytest.raises(WorldConfigError, match=r'robot\.body\.width: must be a number > 0'):
+    with pytest.raises(WorldConfigError, match=r'robot\.body\.width: must be > 0, got 0'):
         RobotParams.from_control({}, {'width': 0})
     # One source per physical value: the shipped world.robot leaves wheel, track, gear, top
     # speed and footprint to control.yaml and robot.yaml.

@@ -139,7 +139,8 @@ def test_forced_fault_from_a_test_and_its_release():
     ([{'at_s': 1, 'kind': 'encoder_swap', 'wheel': 'left'}], r'world\.faults\[0\]\.wheel'),
     ([{'at_s': 2, 'until_s': 1, 'kind': 'estop'}], r'world\.faults\[0\]\.until_s: must be after'),
     ([{'at_s': -1, 'kind': 'estop'}], r'world\.faults\[0\]\.at_s: expected seconds >= 0'),
-    ([{'at_s': 1, 'kind': 'estop', 'when': 3}], r"unknown field\(s\) \['when'\]"),
+    ([{'at_s': 1, 'kind': 'estop', 'when': 3}],
+     r'world\.faults\[0\]\.when: unknown key \(allowed: at_s, kind, until_s, wheel\)'),
 ])
 def test_bad_fault_entries_are_refused_naming_the_field(faults, match):
     with pytest.raises(WorldConfigError, match=match):

@@ -74,14 +74,18 @@ def test_start_inside_obstacle_is_a_config_error():
 
 
 @pytest.mark.parametrize('section, match', [
-    ({'walls': {'rectangle': [0, 0, 1]}}, r'world\.walls\.rectangle: expected a list of 4'),
-    ({'walls': [[0, 0, 1, 'x']]}, r'world\.walls\[0\]: expected finite numbers'),
+    ({'walls': {'rectangle': [0, 0, 1]}},
+     r'world\.walls\.rectangle: expected \[xmin, ymin, xmax, ymax\] \(4 finite numbers\), got'),
+    ({'walls': [[0, 0, 1, 'x']]},
+     r"world\.walls\[0\]: expected \[x1, y1, x2, y2\] \(4 finite numbers\), got \[0, 0, 1, 'x'\]"),
     ({'obstacles': [[[0, 0], [1, 1]]]}, r'world\.obstacles\[0\]: expected a polygon'),
     ({'start': [0, 0]}, r'world\.start: expected a list of 3'),
     ({'robot': {'track_width_m': -1}}, r'world\.robot\.track_width_m: must be > 0'),
-    ({'robot': {'wheels': 3}}, r'world\.robot: expected a mapping with keys'),
+    ({'robot': {'wheels': 3}},
+     r'world\.robot\.wheels: unknown key \(allowed: amp_current_limit_a, '),
     ({'seed': 1.5}, r'world\.seed: expected an integer'),
-    ({'gravity': 9.8}, r"world: unknown field\(s\) \['gravity'\]"),
+    ({'gravity': 9.8},
+     r'world\.gravity: unknown key \(allowed: events, faults, obstacles, robot, seed, '),
 ])
 def test_world_config_errors_name_the_field(section, match):
     with pytest.raises(WorldConfigError, match=match):
@@ -216,3 +220,14 @@ def test_world_report_failure_is_logged_once_and_recovery_once(m4k_runtime_dir, 
     msgs = [r.getMessage() for r in caplog.records if 'world report' in r.getMessage()]
     assert len(msgs) == 2 and msgs[1].endswith('written again')
     assert len(json.loads((where / 'world.json').read_text())['pose']) == 3
+
+
+def test_world_scene_and_fault_errors_are_config_errors():
+    # One configuration error type (m4k_rt.schema.ConfigError), a subclass per source.
+    from m4k_drivers.faults import FaultError
+    from m4k_drivers.scene import SceneError
+    from m4k_rt.schema import ConfigError
+    assert all(issubclass(c, ConfigError) for c in (WorldConfigError, FaultError, SceneError))
+    with pytest.raises(ConfigError) as info:
+        WorldConfig.from_dict({'faults': [{'at_s': 1, 'kind': 'estop', 'until_s': 0.5}]})
+    assert info.value.path == 'world.faults[0].until_s'

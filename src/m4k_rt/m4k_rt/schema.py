@@ -8,7 +8,8 @@ wrong value does. The same table
   (``tasks.led.priority: expected an int in 1..99, got 120``): :meth:`Field.validate`;
 * builds the bridge's ROS ``ParameterDescriptor`` objects (``m4k_bridge.node``);
 * generates ``docs/configuration.md`` (:func:`markdown`, driven by ``m4k_bringup.configdoc``,
-  which gathers every package's sections; a test fails when the committed page differs).
+  which gathers every package's sections; a test fails when the committed page differs) and
+  ``docs/bench-configuration.md`` (``m4k_bench.configdoc``: the planner, the scenario files).
 
 Tables: :data:`RUNTIME`, :data:`TASK` (one entry of ``tasks``), :data:`PORT` (``ports.<label>``)
 here and used by :mod:`m4k_rt.config`; :data:`ROBOT` here, used by :mod:`m4k_rt.description`;
@@ -16,8 +17,12 @@ here and used by :mod:`m4k_rt.config`; :data:`ROBOT` here, used by :mod:`m4k_rt.
 (:func:`setting`, :func:`section`, :func:`table`; :mod:`m4k_rt.control.params`); the bridge's
 parameters in
 :data:`m4k_bridge.params.SPECS`; each device backend's fields next to its factory
-(``m4k_drivers.registry.Param``, turned into Fields). Checks across fields (a task's offset
-inside its period, a slow-down zone beyond the stop distance) stay in the loaders.
+(``m4k_drivers.registry.Param``, turned into Fields); the simulated world on its dataclasses
+(``m4k_drivers.drive.RobotParams``, ``m4k_drivers.world.WorldConfig``, ``m4k_drivers.scene``,
+``m4k_drivers.faults``); the planner on ``m4k_bench.planning.dwa.DwaConfig`` and in
+``m4k_bench.planning.params``; the scenario files in ``m4k_bench.scenarios.spec``. Checks
+across fields (a task's offset inside its period, a slow-down zone beyond the stop distance)
+stay in the loaders.
 """
 
 from __future__ import annotations
@@ -29,7 +34,8 @@ from typing import Any, Callable, Iterable, Mapping, NoReturn, Sequence
 
 __all__ = [
     'ConfigError', 'Field', 'PORT', 'REQUIRED', 'ROBOT', 'RUNTIME', 'Section', 'TASK',
-    'build', 'check_keys', 'markdown', 'section', 'setting', 'table', 'validate_tree',
+    'build', 'check_keys', 'derived', 'markdown', 'section', 'setting', 'table',
+    'validate_tree',
 ]
 
 
@@ -39,9 +45,10 @@ class ConfigError(ValueError):
     The one configuration error type of the project (:mod:`m4k_rt.config` re-exports it).
     Each source has a subclass: the control section's ``ControlConfigError``, the robot
     description's ``DescriptionError``, the driver host's ``m4k_drivers.config.ConfigError``,
-    the world's ``WorldConfigError``, the scene's ``SceneError``, the bridge's and the
-    planner's ``ParamError``, the planner's ``DwaConfigError``, the scenario files'
-    ``ScenarioError`` and the demo judge's ``EvaluateError``; ``except ConfigError`` catches
+    the world's ``WorldConfigError``, the scene's ``SceneError``, the simulated faults'
+    ``FaultError``, the bridge's and the planner's ``ParamError``, the planner's
+    ``DwaConfigError``, the scenario files' ``ScenarioError`` and the demo judge's
+    ``EvaluateError``; ``except ConfigError`` catches
     every configuration mistake. Built as ``ConfigError(path, message)`` or, by the sources
     that format their own text, ``ConfigError('path: message')``.
     """
@@ -293,15 +300,33 @@ def validate_tree(table: Mapping[str, Field], m: Any, path: str,
 
 _SETTING = 'm4k.setting'
 _SECTION = 'm4k.section'
+_DERIVED = 'm4k.derived'
 
 
-def setting(f: Field) -> Any:
-    """Return a dataclass field declared by ``f`` (its default is ``f.default``)."""
-    if isinstance(f.default, (list, dict)):
-        d = f.default
+_AS_DECLARED: Any = object()
+
+
+def setting(f: Field, value: Any = _AS_DECLARED) -> Any:
+    """Return a dataclass field declared by ``f`` (its default is ``f.default``).
+
+    ``value``: the dataclass default when the field holds the file's value in another shape
+    (the world's walls: ``{rectangle: [...]}`` in the file and the docs, segments in the
+    dataclass); the caller converts a validated value the same way.
+    """
+    d = f.default if value is _AS_DECLARED else value
+    if isinstance(d, (list, dict)):
         return dataclasses.field(default_factory=lambda: copy.deepcopy(d),
                                  metadata={_SETTING: f})
-    return dataclasses.field(default=f.default, metadata={_SETTING: f})
+    return dataclasses.field(default=d, metadata={_SETTING: f})
+
+
+def derived(default: Any) -> Any:
+    """Return a dataclass field that is no setting: computed from the settings by the loader.
+
+    :func:`table` and :func:`build` pass it by (the world's per-obstacle surfaces and paths,
+    parsed from its ``obstacles`` entries).
+    """
+    return dataclasses.field(default=default, metadata={_DERIVED: True})
 
 
 def section(cls: type, fields: Mapping[str, Field] | None = None) -> Any:
@@ -311,7 +336,7 @@ def section(cls: type, fields: Mapping[str, Field] | None = None) -> Any:
     with different defaults and units (the linear and angular axis limits).
     """
     tab = dict(fields) if fields is not None else table(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = {f.name for f in dataclasses.fields(cls) if _DERIVED not in f.metadata}
     if {k.split('.', 1)[0] for k in tab} != names:
         raise TypeError('{}: table keys {} do not match the fields {}'.format(
             cls.__name__, sorted(tab), sorted(names)))
@@ -329,7 +354,7 @@ def table(cls: type) -> dict[str, Field]:
         elif _SECTION in f.metadata:
             for k, sub in f.metadata[_SECTION][1].items():
                 out['{}.{}'.format(f.name, k)] = sub
-        else:
+        elif _DERIVED not in f.metadata:
             raise TypeError('{}.{} is neither a setting nor a section'.format(
                 cls.__name__, f.name))
     return out
@@ -494,12 +519,16 @@ def _code(text: str) -> str:
     return '`{}`'.format(text) if text else ''
 
 
-def markdown(sections: Sequence[Section], preamble: str = '') -> str:
-    """Return the configuration reference page for ``sections``."""
-    out = ['# Configuration reference', '',
-           '<!-- Generated by `config_doc --markdown` (m4k_bringup) from the schema '
-           "(m4k_rt/schema.py, m4k_bridge/params.py, each device backend's registration). "
-           'Do not edit: a test compares this page with the generated one. -->', '']
+_STACK_SOURCE = ('`config_doc --markdown` (m4k_bringup) from the schema (m4k_rt/schema.py, '
+                 "m4k_bridge/params.py, each device backend's registration)")
+
+
+def markdown(sections: Sequence[Section], preamble: str = '',
+             title: str = 'Configuration reference', source: str = _STACK_SOURCE) -> str:
+    """Return the configuration reference page for ``sections`` (``source``: its generator)."""
+    out = ['# ' + title, '',
+           '<!-- Generated by {}. Do not edit: a test compares this page with the generated '
+           'one. -->'.format(source), '']
     if preamble:
         out += [preamble, '']
     for sec in sections:

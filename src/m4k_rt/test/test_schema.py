@@ -93,3 +93,21 @@ def test_every_config_error_is_one_type_with_a_path():
     assert (str(e), e.path, e.value) == (
         'tasks.led.priority: expected an int in 1..99, got 120', 'tasks.led.priority', 120)
     assert isinstance(e, ValueError)
+
+
+def test_a_setting_may_hold_the_parsed_shape_and_a_derived_field_is_no_setting():
+    import dataclasses
+
+    @dataclasses.dataclass(frozen=True)
+    class Room:
+        walls: tuple = schema.setting(Field('list', [[0, 0, 1, 0]], 'Segments.'),
+                                      value=((0.0, 0.0, 1.0, 0.0),))
+        seed: int = schema.setting(Field('int', 0, 'Seed.'))
+        kinds: tuple = schema.derived(())
+
+    # The dataclass holds the parsed default, the table (docs, validation) the file's form.
+    assert Room().walls == ((0.0, 0.0, 1.0, 0.0),) and Room().kinds == ()
+    table = schema.table(Room)
+    assert list(table) == ['walls', 'seed'] and table['walls'].default == [[0, 0, 1, 0]]
+    assert schema.build(Room, {'seed': 3}) == Room(seed=3)
+

@@ -202,6 +202,14 @@ RATIOS: tuple[Ratio, ...] = (
     Ratio('release_p999_over_cyclictest_alone_stress', 'actuator release p99.9 ÷ cyclictest '
           'alone p99.9, stress-ng', ('m4k_stress', 'latency_us', 'p999'),
           ('ct_stress', 'latency_us', 'p999')),
+    # The channel's share: a floor that also makes a task cycle's socket calls (or moves the
+    # same datagrams through shared memory), over the bare floor of the same round.
+    Ratio('socket_channel_floor_over_floor', "Python floor + a task cycle's socket calls ÷ "
+          'Python floor, alone', ('floor_socket', 'cpu_per_cycle_us'),
+          ('floor', 'cpu_per_cycle_us')),
+    Ratio('shm_channel_floor_over_floor', 'Python floor + the same datagrams through shared '
+          'memory ÷ Python floor, alone', ('floor_shm', 'cpu_per_cycle_us'),
+          ('floor', 'cpu_per_cycle_us')),
     Ratio('cpu_per_cycle_over_floor_alone', 'RT process CPU per task cycle (full stack, idle) '
           '÷ Python floor run alone', ('m4k_idle', 'cpu_per_cycle_us'),
           ('floor', 'cpu_per_cycle_us')),
@@ -375,6 +383,8 @@ def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     ok, _ = hardened_rounds(rounds_)
     m4k = [_get(r, 'm4k_idle', 'cpu_per_cycle_us') for r in ok]
     floor = [_get(r, 'floor', 'cpu_per_cycle_us') for r in ok]
+    channels = {ch: spread([_get(r, 'floor_' + ch, 'cpu_per_cycle_us') for r in ok])
+                for ch in ('socket', 'shm')}
     bodies: dict[str, list[Any]] = {}
     for r in ok:
         for name, v in (_get(r, 'm4k_idle', 'task_response_p50_us') or {}).items():
@@ -384,6 +394,7 @@ def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     return {'m4k_cpu_per_cycle_us': spread(m4k), 'floor_cpu_per_cycle_us': spread(floor),
             'paired_m4k_cpu_per_cycle_us': spread(paired),
             'paired_floor_cpu_per_cycle_us': spread(paired_floor),
+            'channel_floor_cpu_per_cycle_us': channels,
             'body_response_p50_us': {k: spread(v) for k, v in bodies.items()},
             'breakdown': cycle_breakdown(rounds_)}
 

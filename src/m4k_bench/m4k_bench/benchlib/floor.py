@@ -15,6 +15,15 @@ in a task), the second the same code warm. The medians of both over the run test
 caches after every sleep" hypothesis inside a periodic loop (a probed floor's CPU per cycle is
 not the floor's; the bench runs it apart).
 
+With ``--channel socket`` every cycle also makes the system calls a device task's channel
+makes on the XDDP emulation's Unix sockets, and nothing else (no m4k code): a ``poll(0)`` and two
+``recv_into`` of the two datagrams the thread sent itself in the cycle before, a ``poll(0)`` that
+finds the socket empty, two non-blocking ``send`` -- the traffic of an actuator or IMU cycle (a
+request to the driver host, the state to the bridge, one reply in). ``--channel shm`` moves the
+same two datagrams through a shared mapping with ``pack_into`` / ``unpack_from`` instead (no
+system call). Their CPU per cycle is what the channel alone costs above the floor: the least an
+RT loop that talks over that channel can cost, whatever its Python does.
+
 Run as a child process (``python -m m4k_bench.benchlib.floor --periods-ms 10,10,20 ...``); it
 prints one JSON line: CPU µs per cycle, cycles and thread CPU per thread, and the release
 latency (µs, from the missed release, as cyclictest) per thread.
@@ -26,7 +35,11 @@ import argparse
 from array import array
 import gc
 import json
+import mmap
 import os
+import select
+import socket
+import struct
 import sys
 import threading
 import time
@@ -35,7 +48,10 @@ from typing import Callable, Sequence
 from m4k_rt import sched, timing
 from m4k_rt.timerfd import monotonic_ns, TimerFd
 
-__all__ = ['main', 'run_floor', 'run_floor_child']
+__all__ = ['CHANNELS', 'main', 'run_floor', 'run_floor_child']
+
+CHANNELS = ('none', 'socket', 'shm')
+_DATAGRAM = 48                            # bytes: a WHEEL_CMD-sized datagram
 
 
 def _probe_call() -> Callable[[], object]:
@@ -50,8 +66,51 @@ def _probe_call() -> Callable[[], object]:
     return call
 
 
+def _channel_call(channel: str) -> tuple[Callable[[], int] | None, Callable[[], None]]:
+    """Return one cycle's channel traffic (None for ``none``) and its clean-up."""
+    if channel == 'none':
+        return None, lambda: None
+    if channel == 'socket':
+        a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        b.setblocking(False)
+        p = select.poll()
+        p.register(b, select.POLLIN)
+        poll, recv_into, send = p.poll, b.recv_into, a.send
+        out, rbuf = bytes(_DATAGRAM), bytearray(4096)
+        flags = socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL
+
+        def sock() -> int:
+            got = 0
+            if poll(0):                       # the two datagrams of the cycle before
+                got = recv_into(rbuf) + recv_into(rbuf)
+            poll(0)                           # the port found empty
+            send(out, flags)                  # the request to the driver host
+            send(out, flags)                  # the state to the bridge
+            return got
+
+        def close() -> None:
+            a.close()
+            b.close()
+        return sock, close
+    if channel == 'shm':
+        region = mmap.mmap(-1, 4096)
+        st = struct.Struct('<IIqdddddd')     # 64 bytes: header and six fields
+        pack, unpack = st.pack_into, st.unpack_from
+        seq = [0]
+
+        def shm() -> int:
+            n = seq[0] + 1
+            seq[0] = n
+            got = unpack(region, 128)[1] + unpack(region, 192)[1]   # the cycle before's two
+            pack(region, 128, 1, n, 0, 0.1, 0.2, 0.0, 0.0, 0.0, 0.0)   # two datagrams out
+            pack(region, 192, 2, n, 0, 0.1, 0.2, 0.0, 0.0, 0.0, 0.0)
+            return got
+        return shm, region.close
+    raise ValueError('channel {!r}: expected one of {}'.format(channel, ', '.join(CHANNELS)))
+
+
 def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
-          probe: bool = False) -> None:
+          probe: bool = False, channel: str = 'none') -> None:
     try:
         sched.set_thread_fifo(priority)
         out['fifo'] = True
@@ -69,6 +128,7 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
     cpu = time.thread_time_ns
     c0 = 0
     call = _probe_call() if probe else None
+    io, io_close = _channel_call(channel)
     cold_a, warm_a = array('q', bytes(8 * cap)), array('q', bytes(8 * cap))
     try:
         while n < cap:
@@ -76,6 +136,8 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
                 c0 = cpu()                    # after the first wake: start-up not counted
             exp = read()                      # wake + read
             t = clock()                       # clock read
+            if io is not None:
+                io()                          # --channel: the channel's traffic
             if call is not None:
                 p0 = cpu()
                 call()                        # cold: the first code after the sleep
@@ -90,6 +152,7 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
         c1 = cpu()
     finally:
         tfd.close()
+        io_close()
     if call is not None and n > 2:
         cold = timing.describe([v * 1e-3 for v in cold_a[1:n]])
         warm = timing.describe([v * 1e-3 for v in warm_a[1:n]])
@@ -103,7 +166,8 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
 
 
 def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
-              offsets_ns: Sequence[int], seconds: float, probe: bool = False) -> dict:
+              offsets_ns: Sequence[int], seconds: float, probe: bool = False,
+              channel: str = 'none') -> dict:
     """Run one bare loop per period for ``seconds`` in this process; return the measurements."""
     rep = sched.harden(priority=max(priorities), cpu_dma_latency=False)
     gc.collect()
@@ -113,7 +177,7 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     base = timing.first_release(now + 200_000_000, max(periods_ns))
     stop = base + int(seconds * 1e9)
     outs: list[dict] = [{} for _ in periods_ns]
-    threads = [threading.Thread(target=_loop, args=(p, pr, base + o, stop, out, probe),
+    threads = [threading.Thread(target=_loop, args=(p, pr, base + o, stop, out, probe, channel),
                                 daemon=True)
                for p, pr, o, out in zip(periods_ns, priorities, offsets_ns, outs, strict=True)]
     cpu0 = time.process_time()
@@ -129,7 +193,8 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     return {'cpu_per_cycle_us': cpu_ns * 1e-3 / cycles if cycles else None,
             'probe_us': _weighted_probe(probes) if probes else None,
             'process_cpu_s': time.process_time() - cpu0, 'wall_s': wall, 'seconds': seconds,
-            'mem_locked': rep.mem_locked, 'fifo': all(o.get('fifo') for o in outs),
+            'channel': channel, 'mem_locked': rep.mem_locked,
+            'fifo': all(o.get('fifo') for o in outs),
             'threads': [dict(o, period_ns=p) for o, p in zip(outs, periods_ns, strict=True)]}
 
 
@@ -145,7 +210,8 @@ def _weighted_probe(probes: Sequence[dict]) -> dict:
 
 def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
                     offsets_ns: Sequence[int], seconds: float,
-                    env: dict[str, str] | None = None, probe: bool = False) -> dict | str:
+                    env: dict[str, str] | None = None, probe: bool = False,
+                    channel: str = 'none') -> dict | str:
     """Run the floor in a child process (hardened like rt_core); return its JSON or why not."""
     import subprocess
 
@@ -155,7 +221,7 @@ def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
         '--periods-ms', ','.join('{:g}'.format(p / 1e6) for p in periods_ns),
         '--priorities', ','.join(str(p) for p in priorities),
         '--offsets-ms', ','.join('{:g}'.format(o / 1e6) for o in offsets_ns),
-        '--seconds', str(seconds), *(['--probe'] if probe else []))
+        '--seconds', str(seconds), '--channel', channel, *(['--probe'] if probe else []))
     try:
         p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
                            env=env, check=False)
@@ -176,6 +242,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--seconds', type=float, default=5.0)
     ap.add_argument('--probe', action='store_true',
                     help='time a cold and a warm decode in every cycle (the cache A-B)')
+    ap.add_argument('--channel', choices=CHANNELS, default='none',
+                    help="add a task cycle's channel traffic: its socket calls, or the same "
+                         'datagrams through shared memory')
     args = ap.parse_args(argv)
     periods = [int(float(x) * 1e6) for x in args.periods_ms.split(',')]
     prios = [int(x) for x in args.priorities.split(',')]
@@ -183,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else [0] * len(periods)
     if not len(periods) == len(prios) == len(offs):
         ap.error('--periods-ms, --priorities and --offsets-ms differ in length')
-    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe), sys.stdout)
+    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe, args.channel), sys.stdout)
     sys.stdout.write('\n')
     sys.stdout.flush()
     os._exit(0)  # daemon timer threads: leave at once

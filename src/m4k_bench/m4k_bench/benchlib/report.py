@@ -197,7 +197,15 @@ def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
             ['m4k full stack, idle', fmt_spread(lc.get('m4k_cpu_per_cycle_us'), 1)],
             ['Python floor, alone', fmt_spread(lc.get('floor_cpu_per_cycle_us'), 1)],
             ['m4k ÷ floor alone',
-             fmt_spread(_g(summ, 'ratios', 'cpu_per_cycle_over_floor_alone', 'spread'))]]
+             fmt_spread(_g(summ, 'ratios', 'cpu_per_cycle_over_floor_alone', 'spread'))],
+            ["Python floor + a task cycle's socket calls (poll, 2 recv, poll, 2 send), alone",
+             fmt_spread(_g(lc, 'channel_floor_cpu_per_cycle_us', 'socket'), 1)],
+            ['  ÷ floor alone: what the socket channel alone costs',
+             fmt_spread(_g(summ, 'ratios', 'socket_channel_floor_over_floor', 'spread'))],
+            ['Python floor + the same datagrams through shared memory, alone',
+             fmt_spread(_g(lc, 'channel_floor_cpu_per_cycle_us', 'shm'), 1)],
+            ['  ÷ floor alone',
+             fmt_spread(_g(summ, 'ratios', 'shm_channel_floor_over_floor', 'spread'))]]
     lines += md_table(['CPU per cycle (µs)', 'median (min–max, rounds)'], rows)
     lines += ['', "Breakdown: what each task's body costs per cycle (response p50, median "
               'over rounds) and the per-cycle bookkeeping of `RtTask.wait_period` without the '

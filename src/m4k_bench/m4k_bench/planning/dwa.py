@@ -36,16 +36,16 @@ Poses are ``(x, y, yaw)`` in the odom frame; obstacle points an (N, 2) odom-fram
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 import enum
 import math
 from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from m4k_rt.schema import ConfigError
+from m4k_rt.schema import check_keys, ConfigError, Field, setting, table
 
-__all__ = ['DwaConfig', 'DwaConfigError', 'DwaError', 'DwaInputError', 'DwaPlanner', 'Plan',
+__all__ = ['DWA', 'DwaConfig', 'DwaConfigError', 'DwaError', 'DwaInputError', 'DwaPlanner', 'Plan',
            'State', 'dynamic_window', 'footprint_clearance', 'rollout', 'sample_window']
 
 
@@ -71,87 +71,111 @@ class State(enum.Enum):
     GOAL_REACHED = 'goal_reached'
 
 
+def _pos(default: float, unit: str, description: str, hi: float | None = None) -> Any:
+    return setting(Field('float', default, description, unit=unit, lo=0, lo_open=True, hi=hi))
+
+
+def _nonneg(default: float, unit: str, description: str) -> Any:
+    return setting(Field('float', default, description, unit=unit, lo=0))
+
+
+def _samples(default: int, description: str) -> Any:
+    return setting(Field('int', default, description, lo=2, expect='an integer >= 2'))
+
+
 @dataclass(frozen=True)
 class DwaConfig:
-    """Planner parameters (SI units: m, s, rad); defaults fit the M4K of the paper."""
+    """Planner parameters (SI units: m, s, rad); defaults fit the M4K of the paper.
 
-    max_v: float = 0.25             # m/s, the paper's experiments (Table 2 top speed is 2 m/s)
-    min_v: float = 0.0              # m/s, the paper's local planner minimum (no reversing)
-    max_w: float = 1.0              # rad/s
-    acc_v: float = 0.37             # m/s^2, Table 2
-    acc_w: float = 1.85             # rad/s^2, 0.37 m/s^2 per wheel over a 0.40 m track
-    dt: float = 0.05                # s, control period (the paper's 50 ms)
-    window_time: float = 0.5        # s: the window holds velocities reachable this soon
-    horizon: float = 2.0            # s, arc simulation time
-    sim_step: float = 0.1           # s between collision-checked samples along an arc
-    v_samples: int = 6
-    w_samples: int = 15
-    length: float = 0.45            # m, footprint along x (Table 2 body)
-    width: float = 0.28             # m, footprint along y
-    margin: float = 0.06            # m, footprint inflation: closer arcs are rejected
-    clearance_ref: float = 0.40     # m, clearance beyond which an arc is not penalised
-    probe_length: float = 1.2       # m of path along each arc's curvature checked for room
-    probe_step: float = 0.1         # m between probe samples (a score, not the safety check)
-    probe_min_v: float = 0.05       # m/s: slower arcs are probed with this speed's curvature
-    goal_weight: float = 1.0
-    free_weight: float = 1.0
-    heading_weight: float = 0.4
-    clearance_weight: float = 1.2
-    velocity_weight: float = 0.25
-    smooth_weight: float = 0.05
-    goal_tolerance: float = 0.05    # m
-    goal_brake: float = 0.5         # fraction of acc_v planned for braking to the goal
-    latency: float = 0.2            # s from command to motion (period, ramp, motor, odometry)
-    stuck_time: float = 4.0         # s
-    stuck_distance: float = 0.04    # m
-    recovery_w: float = 0.6         # rad/s
-    recovery_min_angle: float = 0.6  # rad
-    crop_extra: float = 0.1         # m beyond the reach of any arc where points still matter
+    Each field is declared once, by its schema Field (type, default, unit, range, what a wrong
+    value does): the node's ``dwa.*`` parameters, their descriptors, the validation and the
+    docs come from it. Construction validates (:data:`DWA`); the checks across fields are in
+    :meth:`__post_init__`.
+    """
+
+    max_v: float = _pos(0.25, 'm/s', "Highest forward speed commanded (the paper's "
+                        'experiments: 0.25; Table 2 top speed: 2).')
+    min_v: float = setting(Field(
+        'float', 0.0, "Lowest linear speed, within [-max_v, max_v]; 0 = never reverse (the "
+        "paper's local planner).", unit='m/s'))
+    max_w: float = _pos(1.0, 'rad/s', 'Highest turn rate commanded.')
+    acc_v: float = _pos(0.37, 'm/s^2', 'Linear acceleration limit (Table 2: 0.37); too high: '
+                        'arcs the robot cannot follow.')
+    acc_w: float = _pos(1.85, 'rad/s^2', 'Angular acceleration limit (0.37 m/s^2 per wheel over '
+                        'a 0.40 m track).')
+    dt: float = _pos(0.05, 's', "Control period the planner assumes (the paper's 50 ms; keep "
+                     '1/rate_hz).')
+    window_time: float = _pos(0.5, 's', 'The dynamic window holds the velocities reachable '
+                              'this soon.')
+    horizon: float = _pos(2.0, 's', 'Arc simulation time; too short: sees obstacles late.')
+    sim_step: float = _pos(0.1, 's', 'Time between collision-checked samples along an arc '
+                           '(<= horizon).')
+    v_samples: int = _samples(6, 'Linear velocity samples across the window.')
+    w_samples: int = _samples(15, 'Angular velocity samples across the window.')
+    length: float = _pos(0.45, 'm', 'Footprint along x (Table 2 body: 0.45).')
+    width: float = _pos(0.28, 'm', 'Footprint along y (Table 2 body: 0.28).')
+    margin: float = _nonneg(0.06, 'm', 'Footprint inflation: arcs closer to a scan point are '
+                            'rejected.')
+    clearance_ref: float = _nonneg(0.40, 'm', 'Clearance beyond which an arc is not penalised '
+                                   '(> margin).')
+    probe_length: float = _pos(1.2, 'm', "Path along each arc's curvature checked for free "
+                               'room.')
+    probe_step: float = _pos(0.1, 'm', 'Between free-path probe samples (a score, not the '
+                             'safety check; <= probe_length).')
+    probe_min_v: float = _pos(0.05, 'm/s', "Slower arcs are probed with this speed's "
+                              'curvature.')
+    goal_weight: float = _nonneg(1.0, '', 'Cost weight: closest approach of an arc to the goal.')
+    free_weight: float = _nonneg(1.0, '', "Cost weight: lack of free path along the arc's "
+                                 'curvature.')
+    heading_weight: float = _nonneg(0.4, '', 'Cost weight: heading error toward the goal at the '
+                                    "arc's end.")
+    clearance_weight: float = _nonneg(1.2, '', 'Cost weight: clearance below clearance_ref.')
+    velocity_weight: float = _nonneg(0.25, '', 'Cost weight: speed below max_v.')
+    smooth_weight: float = _nonneg(0.05, '', 'Cost weight: change of turn rate (against '
+                                   'dithering).')
+    goal_tolerance: float = _pos(0.05, 'm', 'Position tolerance at the goal.')
+    goal_brake: float = _pos(0.5, '', 'Fraction of acc_v planned for braking to the goal; '
+                             'high: overshoot.', hi=1.0)
+    latency: float = _nonneg(0.2, 's', 'From command to motion (period, ramp, motor, '
+                             'odometry), used when braking for the goal; low: overshoot.')
+    stuck_time: float = _pos(4.0, 's', 'Without progress (or standing still) this long, the '
+                             'rotate recovery starts.')
+    stuck_distance: float = _nonneg(0.04, 'm', 'Motion within stuck_time that counts as '
+                                    'progress.')
+    recovery_w: float = _pos(0.6, 'rad/s', 'Rotate-in-place speed of the recovery (<= max_w).')
+    recovery_min_angle: float = _nonneg(0.6, 'rad', 'Turned before the recovery may end.')
+    crop_extra: float = _nonneg(0.1, 'm', 'Beyond the reach of any arc, where scan points '
+                                'still matter.')
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.type == 'int':
-                if isinstance(value, bool) or not isinstance(value, int) or value < 2:
-                    raise DwaConfigError(f'{f.name}: expected an integer >= 2, got {value!r}')
-                continue
-            if (isinstance(value, bool) or not isinstance(value, (int, float))
-                    or not math.isfinite(value)):
-                raise DwaConfigError(f'{f.name}: expected a finite number, got {value!r}')
-            if f.name != 'min_v' and value < 0.0:
-                raise DwaConfigError(f'{f.name}: must be >= 0, got {value!r}')
-        for name in ('max_v', 'max_w', 'acc_v', 'acc_w', 'dt', 'window_time', 'horizon',
-                     'sim_step', 'length', 'width', 'goal_tolerance', 'stuck_time',
-                     'recovery_w', 'probe_length', 'probe_step', 'probe_min_v', 'goal_brake'):
-            if getattr(self, name) <= 0.0:
-                raise DwaConfigError(f'{name}: must be > 0, got {getattr(self, name)!r}')
+        for name, f in DWA.items():
+            f.validate(name, getattr(self, name), DwaConfigError)
         if not -self.max_v <= self.min_v <= self.max_v:
-            raise DwaConfigError(f'min_v: must be within [-max_v, max_v], got {self.min_v!r}')
-        if self.goal_brake > 1.0:
-            raise DwaConfigError(f'goal_brake: must be <= 1, got {self.goal_brake!r}')
+            raise DwaConfigError('min_v', f'must be within [-max_v, max_v] '
+                                 f'({-self.max_v!r}..{self.max_v!r}), got {self.min_v!r}')
         if self.sim_step > self.horizon:
-            raise DwaConfigError(f'sim_step: must be <= horizon ({self.horizon!r}), got '
+            raise DwaConfigError('sim_step', f'must be <= horizon ({self.horizon!r}), got '
                                  f'{self.sim_step!r}')
         if self.probe_step > self.probe_length:
-            raise DwaConfigError(f'probe_step: must be <= probe_length ({self.probe_length!r}), '
-                                 f'got {self.probe_step!r}')
+            raise DwaConfigError('probe_step', f'must be <= probe_length '
+                                 f'({self.probe_length!r}), got {self.probe_step!r}')
         if self.clearance_ref <= self.margin:
-            raise DwaConfigError(f'clearance_ref: must be > margin ({self.margin!r}), got '
+            raise DwaConfigError('clearance_ref', f'must be > margin ({self.margin!r}), got '
                                  f'{self.clearance_ref!r}')
         if self.recovery_w > self.max_w:
-            raise DwaConfigError(f'recovery_w: must be <= max_w ({self.max_w!r}), got '
+            raise DwaConfigError('recovery_w', f'must be <= max_w ({self.max_w!r}), got '
                                  f'{self.recovery_w!r}')
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any] | None) -> DwaConfig:
+    def from_mapping(cls, data: Mapping[str, Any] | None, path: str = 'dwa') -> DwaConfig:
         """Build from a mapping (e.g. a YAML section), naming an unknown field on error."""
         data = dict(data or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise DwaConfigError(f'unknown field(s) {unknown!r}; valid: '
-                                 f'{", ".join(sorted(names))}')
+        check_keys(data, DWA, path, DwaConfigError)
         return replace(cls(), **data)
+
+
+# The planner's table, derived from the declaration above (node parameters, docs).
+DWA: dict[str, Field] = table(DwaConfig)
 
 
 class Plan(NamedTuple):

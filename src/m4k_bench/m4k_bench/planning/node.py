@@ -13,15 +13,16 @@ The measured velocity handed to the planner is the rate of change of the odometr
 between messages (the twist's 10 ms encoder quotient spikes); the twist is used for the first
 message only. Fail-safe: no odometry within ``odom_timeout`` or no scan within
 ``scan_timeout`` -> zero command. The goal (odom frame) comes from ``goal_x`` / ``goal_y``
-(NaN: none) and may be changed at run time with ``ros2 param set``. Every ``dwa.*`` parameter is a
-:class:`m4k_bench.planning.dwa.DwaConfig` field; a bad one stops the node with exit code 2 and a
-message naming it. Run: ``python -m m4k_bench.planning.node --ros-args -p goal_x:=3.0``.
+(NaN: none) and may be changed at run time with ``ros2 param set``. Every parameter is declared
+once, by its schema Field (:mod:`m4k_bench.planning.params`; every ``dwa.*`` one is a
+:class:`m4k_bench.planning.dwa.DwaConfig` field): descriptors and validation come from it, and
+a bad value stops the node with exit code 2 and a message naming it.
+Run: ``python -m m4k_bench.planning.node --ros-args -p goal_x:=3.0``.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import fields
 import math
 import sys
 import time
@@ -29,8 +30,13 @@ from typing import Any, Sequence
 
 from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterException,
+)
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -39,60 +45,20 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import String
 
-from m4k_bench.planning.dwa import DwaConfig, DwaError, DwaPlanner, State
+from m4k_bench.planning.dwa import DWA, DwaConfig, DwaError, DwaPlanner, State
+from m4k_bench.planning.params import ParamError, problem, SPECS
 from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError
-from m4k_rt.schema import ConfigError
+from m4k_bridge.descriptors import descriptor
 from m4k_rt.stopsignals import StopSignals
 
-__all__ = ['NODE_NAME', 'PlannerNode', 'main']
+__all__ = ['NODE_NAME', 'ParamError', 'PlannerNode', 'main']
 
 NODE_NAME = 'm4k_planner'
 _ODOM_HISTORY = 200          # odometry poses kept to look up the pose at a scan's stamp
 _MIN_RATE_DT_NS = 20_000_000  # odometry messages closer than this are not differentiated
 
-_DWA_DOC = {
-    'max_v': 'm/s, highest forward speed commanded (paper: 0.25)',
-    'min_v': 'm/s, lowest linear speed; 0 = never reverse (paper: 0)',
-    'max_w': 'rad/s, highest turn rate commanded',
-    'acc_v': 'm/s^2, linear acceleration limit (Table 2: 0.37); too high: arcs the robot '
-             'cannot follow',
-    'acc_w': 'rad/s^2, angular acceleration limit',
-    'dt': 's, planning period assumed by the planner (keep 1/rate_hz)',
-    'window_time': 's, the dynamic window holds velocities reachable this soon',
-    'horizon': 's, arc simulation time; too short: sees obstacles late',
-    'sim_step': 's between collision-checked samples along an arc',
-    'v_samples': 'linear velocity samples across the window (>= 2)',
-    'w_samples': 'angular velocity samples across the window (>= 2)',
-    'length': 'm, footprint length along x (Table 2: 0.45)',
-    'width': 'm, footprint width along y (Table 2: 0.28)',
-    'margin': 'm, footprint inflation; arcs closer to a scan point are rejected',
-    'clearance_ref': 'm, clearance beyond which an arc is not penalised (> margin)',
-    'probe_length': 'm of path along each arc curvature checked for free room',
-    'probe_step': 'm between free-path probe samples',
-    'probe_min_v': "m/s, slower arcs are probed with this speed's curvature",
-    'goal_weight': 'cost weight: closest approach of an arc to the goal',
-    'free_weight': 'cost weight: lack of free path along the arc curvature',
-    'heading_weight': 'cost weight: heading error toward the goal at the arc end',
-    'clearance_weight': 'cost weight: clearance below clearance_ref',
-    'velocity_weight': 'cost weight: speed below max_v',
-    'smooth_weight': 'cost weight: change of turn rate',
-    'goal_tolerance': 'm, position tolerance at the goal',
-    'latency': 's from command to motion, used when braking for the goal; low: overshoot',
-    'goal_brake': 'fraction of acc_v planned for braking to the goal (0..1]; high: overshoot',
-    'stuck_time': 's without progress (or standing still) before the rotate recovery',
-    'stuck_distance': 'm of motion within stuck_time that counts as progress',
-    'recovery_w': 'rad/s, rotate-in-place speed of the recovery (<= max_w)',
-    'recovery_min_angle': 'rad turned before the recovery may end',
-    'crop_extra': "m beyond any arc's reach where scan points are still considered",
-}
-
-
 def _yaw(q: Any) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-
-
-class ParamError(ConfigError):
-    """Raise for a bad node parameter; the message names it."""
 
 
 class PlannerNode(Node):
@@ -105,31 +71,15 @@ class PlannerNode(Node):
         """
         super().__init__(NODE_NAME, **kwargs)
         d = self._declare
-        self.rate_hz = d('rate_hz', 20.0, 'Hz, cmd_vel publication rate (paper: 50 ms)')
-        goal_x = d('goal_x', math.nan, 'm, goal x in the odom frame; NaN: no goal')
-        goal_y = d('goal_y', math.nan, 'm, goal y in the odom frame; NaN: no goal')
-        mount = d('laser_mount', [0.0, 0.0, 0.0],
-                  'laser pose in base_link: x m, y m, yaw rad. Must match the real mounting '
-                  '(sim: devices.lrf.mount); a wrong value shifts every obstacle', True)
-        self.use_stamped = d('use_stamped_vel', False,
-                             'true: publish geometry_msgs/TwistStamped on cmd_vel', True)
-        self.odom_timeout = d('odom_timeout', 0.5, 's without odom -> zero command')
-        self.scan_timeout = d('scan_timeout', 1.0, 's without a scan -> zero command')
-        memory_s = d('memory_s', 2.0, 's of scans remembered (the laser sees 240 deg only)')
-        self.base_frame = d('base_frame', 'base_link', 'frame of a TwistStamped cmd_vel', True)
-        dwa: dict[str, Any] = {}
-        defaults = DwaConfig()
-        for f in fields(DwaConfig):
-            dwa[f.name] = d(f'dwa.{f.name}', getattr(defaults, f.name), _DWA_DOC[f.name])
-        if not (isinstance(self.rate_hz, float) and 1.0 <= self.rate_hz <= 100.0):
-            raise ParamError(f'rate_hz: expected 1.0 .. 100.0 Hz, got {self.rate_hz!r}')
-        if len(mount) != 3 or not all(math.isfinite(v) for v in mount):
-            raise ParamError(f'laser_mount: expected [x, y, yaw] finite, got {list(mount)!r}')
-        self.mount = tuple(float(v) for v in mount)
-        for name, value in (('odom_timeout', self.odom_timeout),
-                            ('scan_timeout', self.scan_timeout), ('memory_s', memory_s)):
-            if not (math.isfinite(value) and value > 0.0):
-                raise ParamError(f'{name}: expected a number > 0, got {value!r}')
+        self.rate_hz = d('rate_hz')
+        goal_x, goal_y = d('goal_x'), d('goal_y')
+        self.mount = tuple(d('laser_mount'))
+        self.use_stamped = d('use_stamped_vel')
+        self.odom_timeout = d('odom_timeout')
+        self.scan_timeout = d('scan_timeout')
+        memory_s = d('memory_s')
+        self.base_frame = d('base_frame')
+        dwa = {name: d(f'dwa.{name}') for name in DWA}
         try:
             self.planner = DwaPlanner(DwaConfig(**dwa))
         except DwaError as exc:
@@ -160,14 +110,21 @@ class PlannerNode(Node):
             f'DWA planner at {self.rate_hz:g} Hz, max_v {self.planner.cfg.max_v:g} m/s, goal '
             f'{self.planner.goal}, laser mount {self.mount}')
 
-    def _declare(self, name: str, default: Any, doc: str, read_only: bool = False) -> Any:
-        value = self.declare_parameter(
-            name, default, ParameterDescriptor(description=doc, read_only=read_only)).value
-        if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+    def _declare(self, name: str) -> Any:
+        """Declare parameter ``name`` from its Field; return its value, judged by the Field."""
+        f = SPECS[name]
+        try:
+            value = self.declare_parameter(name, f.default, descriptor(f)).value
+        except (InvalidParameterTypeException, InvalidParameterValueException,
+                ParameterException) as exc:
+            raise ParamError(name, str(exc)) from None
+        if f.type == 'float' and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
-        if type(value) is not type(default) and not (
-                isinstance(default, list) and isinstance(value, (list, tuple))):
-            raise ParamError(f'{name}: expected {type(default).__name__}, got {value!r}')
+        if f.type == 'float[]' and not isinstance(value, str):
+            value = list(value)
+        reason = problem(name, value)
+        if reason is not None:
+            raise ParamError(name, reason)
         return value
 
     def _on_set_parameters(self, params: Sequence[Parameter]) -> SetParametersResult:

@@ -31,21 +31,26 @@ sees), ``sonar_unplugged`` / ``laser_unplugged`` (stale policy), ``bridge_killed
 ``driver_host_killed``. Every scenario is also judged on: no contact, minimum clearance > 0.
 Sensor unplugging is a world event (``world.events``, m4k_drivers.scene), executed by the
 simulator at the same ground-truth moment as the moving obstacles.
+
+Every key is declared once, as a schema Field in :data:`SCENARIO`, :data:`COMMAND`,
+:data:`KILL` and :data:`EXPECT` (type, default, unit, range, meaning): the parser validates
+with them, and the docs are generated from them (``m4k_bench.configdoc``). Only what involves
+several keys is checked by hand (``w`` or ``heading``, ``travelled`` or ``after``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-import math
 import os
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
 from m4k_rt import yamlload
-from m4k_rt.schema import ConfigError
+from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
 
-__all__ = ['Command', 'Fault', 'Scenario', 'ScenarioError', 'STOP_CAUSES', 'load', 'load_dir']
+__all__ = ['COMMAND', 'Command', 'EXPECT', 'Fault', 'KILL', 'SCENARIO', 'Scenario',
+           'ScenarioError', 'STOP_CAUSES', 'load', 'load_dir']
 
 STOP_CAUSES = ('sonar', 'laser', 'sonar_unplugged', 'laser_unplugged', 'bridge_killed',
                'driver_host_killed')
@@ -122,85 +127,116 @@ class Scenario:
         return ', '.join(p for p in parts if p) + '; no contact'
 
 
-def _num(v: Any, where: str, lo: float | None = None) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ScenarioError(f'{where}: expected a finite number, got {v!r}')
-    if lo is not None and v < lo:
-        raise ScenarioError(f'{where}: must be >= {lo}, got {v!r}')
-    return float(v)
+def _nonempty(what: str) -> Callable[[Any], str | None]:
+    def check(v: Any) -> str | None:
+        return None if v else f'expected {what}, got {v!r}'
+    return check
+
+
+def _no_world(v: Any) -> str | None:
+    if v and 'world' in v:
+        return "expected a mapping without world: (use the scenario's world:), got {!r}".format(v)
+    return None
+
+
+def _distance(v: Any) -> str | None:
+    if isinstance(v, str) and v != 'commanded':
+        return f'expected "commanded" or metres >= 0, got {v!r}'
+    return None
+
+
+# One declaration per key of a scenario file (validation and docs: m4k_bench.configdoc).
+SCENARIO: dict[str, Field] = {
+    'name': Field('str', None, 'Name in the report; null: the file name.', nullable=True),
+    'description': Field('str', '', 'One line for the report.'),
+    'world': Field('map', {}, 'Overlay merged over the world: section of config/ (the '
+                   'simulated room: walls, obstacles, events, faults, robot; docs/'
+                   'configuration.md).', nullable=True),
+    'commands': Field('list', REQUIRED, 'cmd_vel segments published at 20 Hz, then zero '
+                      '(commands[]).', expect='a list of {v, w, t}',
+                      check=_nonempty('a list of {v, w, t}')),
+    'faults': Field('list', [], 'Processes the runner kills -9 during the drive (faults[]); '
+                    'bringup restarts them.', nullable=True),
+    'expect': Field('map', REQUIRED, 'The outcome, written before the run (expect); every '
+                    'scenario is also judged on no contact and a clearance > 0.',
+                    check=_nonempty('a mapping with at least one expectation')),
+    'short': Field('float', 1.0, "The tests' version: command durations times this.",
+                   lo=0.05, hi=1.0),
+    'config': Field('map', {}, 'Any further overlay of config/ (e.g. control:), without world: '
+                    "(use the scenario's world:).", nullable=True, check=_no_world),
+    'e_stop': Field('bool', False, 'true: the runner publishes e_stop (std_msgs/Bool) true '
+                    'before driving.'),
+}
+# One entry of commands.
+COMMAND: dict[str, Field] = {
+    'v': Field('float', 0.0, 'Linear velocity.', unit='m/s'),
+    'w': Field('float', 0.0, 'Angular velocity (not with heading).', unit='rad/s'),
+    't': Field('float', REQUIRED, 'Duration of the segment.', unit='s', lo=0),
+    'heading': Field('str', None, 'hold: steer on odometry to keep the heading of the '
+                     "segment's start, as a navigation stack would (w = -1.0 * error).",
+                     choices=('hold',), nullable=True),
+}
+# One entry of faults: a process killed at a moment of the drive.
+KILL: dict[str, Field] = {
+    'kill': Field('str', REQUIRED, 'The process killed with SIGKILL.', choices=KILLABLE),
+    'at.travelled': Field('float', None, 'When the robot has truly covered this distance '
+                          '(give travelled or after).', unit='m', lo=0, nullable=True),
+    'at.after': Field('float', None, 'This long after the drive began.', unit='s', lo=0,
+                      nullable=True),
+}
+# The expect mapping.
+EXPECT: dict[str, Field] = {
+    'distance': Field('float|str', None, 'commanded: the true path covers the commanded '
+                      'distance; a number: that many metres (0: must not move).', unit='m',
+                      lo=0, nullable=True, expect='"commanded" or metres >= 0',
+                      check=_distance),
+    'stop': Field('str', None, 'The robot comes to rest, within the bound of this cause '
+                  '(m4k_bench.scenarios.bounds).', choices=STOP_CAUSES, nullable=True),
+    'max_speed': Field('float', None, 'Peak true body and wheel-rim speed below this.',
+                       unit='m/s', lo=0, nullable=True),
+    'motor_fault': Field('bool', False, 'A latched motor fault: zero outputs, at rest while '
+                         'still commanded, to the end of the commands.'),
+    'still_after_estop': Field('bool', False, 'After the e-stop contact (world.faults) closes '
+                               'again the robot stays at rest (no reset is ever sent).'),
+    'max_w_after_kill': Field('float', None, '|w| on ground truth from the kill on stays below '
+                              'this.', unit='rad/s', lo=0, nullable=True),
+}
 
 
 def parse(doc: Any, where: str) -> Scenario:
-    """Validate one scenario document."""
+    """Validate one scenario document against its tables (errors name the file and field)."""
     if not isinstance(doc, dict):
-        raise ScenarioError(f'{where}: expected a mapping, got {type(doc).__name__}')
-    known = {'name', 'description', 'world', 'commands', 'faults', 'expect', 'short', 'config',
-             'e_stop'}
-    if set(doc) - known:
-        raise ScenarioError(f'{where}: unknown field(s) {sorted(set(doc) - known)}; valid: '
-                            f'{sorted(known)}')
-    name = str(doc.get('name') or os.path.splitext(os.path.basename(where))[0])
-    world = doc.get('world') or {}
-    if not isinstance(world, dict):
-        raise ScenarioError(f'{where}.world: expected a mapping, got {world!r}')
-    cmds_raw = doc.get('commands')
-    if not isinstance(cmds_raw, list) or not cmds_raw:
-        raise ScenarioError(f'{where}.commands: expected a list of {{v, w, t}}, got {cmds_raw!r}')
+        raise ScenarioError(where, f'expected a mapping, got {type(doc).__name__}')
+    top = validate_tree(SCENARIO, doc, where, ScenarioError)
     cmds = []
-    for i, c in enumerate(cmds_raw):
-        if not isinstance(c, dict) or set(c) - {'v', 'w', 't', 'heading'} or 't' not in c \
-                or c.get('heading', 'hold') != 'hold' or ('heading' in c and 'w' in c):
-            raise ScenarioError(f'{where}.commands[{i}]: expected {{v, w, t}} or {{v, t, '
-                                f'heading: hold}}, got {c!r}')
-        cmds.append(Command(_num(c.get('v', 0.0), f'{where}.commands[{i}].v'),
-                            _num(c.get('w', 0.0), f'{where}.commands[{i}].w'),
-                            _num(c['t'], f'{where}.commands[{i}].t', 0.0),
-                            c.get('heading') == 'hold'))
+    for i, c in enumerate(top['commands']):
+        at = f'{where}.commands[{i}]'
+        v = validate_tree(COMMAND, c, at, ScenarioError)
+        if v['heading'] is not None and 'w' in c:
+            raise ScenarioError(at, f'expected {{v, w, t}} or {{v, t, heading: hold}} (not '
+                                f'both w and heading), got {c!r}')
+        cmds.append(Command(v['v'], v['w'], v['t'], v['heading'] == 'hold'))
     faults = []
-    for i, f in enumerate(doc.get('faults') or []):
-        if not isinstance(f, dict) or set(f) != {'kill', 'at'} or f['kill'] not in KILLABLE \
-                or not isinstance(f['at'], dict) or len(f['at']) != 1 \
-                or set(f['at']) - {'travelled', 'after'}:
-            raise ScenarioError(f'{where}.faults[{i}]: expected {{kill: {"|".join(KILLABLE)}, '
-                                f'at: {{travelled: m}} or {{after: s}}}}, got {f!r}')
-        at = f['at']
-        if 'after' in at:
-            faults.append(Fault(f['kill'], 0.0, _num(at['after'], f'{where}.faults[{i}]', 0.0)))
-        else:
-            faults.append(Fault(f['kill'], _num(at['travelled'], f'{where}.faults[{i}]', 0.0)))
-    exp = doc.get('expect')
-    exp_keys = {'distance', 'stop', 'max_speed', 'motor_fault', 'still_after_estop',
-                'max_w_after_kill'}
-    if not isinstance(exp, dict) or set(exp) - exp_keys or not exp:
-        raise ScenarioError(f'{where}.expect: expected a mapping with keys from '
-                            f'{sorted(exp_keys)}, got {exp!r}')
-    for key in ('motor_fault', 'still_after_estop'):
-        if key in exp and not isinstance(exp[key], bool):
-            raise ScenarioError(f'{where}.expect.{key}: expected true or false, got '
-                                f'{exp[key]!r}')
-    if not isinstance(doc.get('e_stop', False), bool):
-        raise ScenarioError(f'{where}.e_stop: expected true or false, got {doc["e_stop"]!r}')
-    dist = exp.get('distance')
-    distance_m = None
-    if dist not in (None, 'commanded'):
-        distance_m = _num(dist, f'{where}.expect.distance ("commanded" or metres)', 0.0)
-    stop = exp.get('stop')
-    if stop is not None and stop not in STOP_CAUSES:
-        raise ScenarioError(f'{where}.expect.stop: expected one of {STOP_CAUSES}, got {stop!r}')
-    short = _num(doc.get('short', 1.0), f'{where}.short', 0.05)
-    overlay = doc.get('config') or {}       # any further config/ overlay (e.g. control:)
-    if not isinstance(overlay, dict) or 'world' in overlay:
-        raise ScenarioError(f'{where}.config: expected a mapping without world: (use the '
-                            f"scenario's world:), got {overlay!r}")
-    return Scenario(name, str(doc.get('description', '')), world, tuple(cmds), tuple(faults),
-                    dist == 'commanded', distance_m, stop, min(short, 1.0),
-                    max_speed=None if exp.get('max_speed') is None else
-                    _num(exp['max_speed'], f'{where}.expect.max_speed', 0.0),
-                    motor_fault=bool(exp.get('motor_fault', False)),
-                    still_after_estop=bool(exp.get('still_after_estop', False)),
-                    max_w_after_kill=None if exp.get('max_w_after_kill') is None else
-                    _num(exp['max_w_after_kill'], f'{where}.expect.max_w_after_kill', 0.0),
-                    e_stop=bool(doc.get('e_stop', False)), path=where, overlay=overlay)
+    for i, f in enumerate(top['faults'] or []):
+        at = f'{where}.faults[{i}]'
+        v = validate_tree(KILL, f, at, ScenarioError)
+        if isinstance(f, dict) and 'at' not in f:
+            raise ScenarioError(f'{at}.at', 'missing ({travelled: m} or {after: s})')
+        travelled, after = v['at.travelled'], v['at.after']
+        if (travelled is None) == (after is None):
+            raise ScenarioError(f'{at}.at', f'expected {{travelled: m}} or {{after: s}} (one '
+                                f'of them), got {f["at"]!r}')
+        faults.append(Fault(v['kill'], travelled or 0.0, after))
+    exp = validate_tree(EXPECT, top['expect'], f'{where}.expect', ScenarioError)
+    dist = exp['distance']
+    name = top['name'] or os.path.splitext(os.path.basename(where))[0]
+    return Scenario(name, top['description'], top['world'] or {}, tuple(cmds), tuple(faults),
+                    dist == 'commanded', None if dist in (None, 'commanded') else float(dist),
+                    exp['stop'], top['short'], max_speed=exp['max_speed'],
+                    motor_fault=exp['motor_fault'],
+                    still_after_estop=exp['still_after_estop'],
+                    max_w_after_kill=exp['max_w_after_kill'], e_stop=top['e_stop'],
+                    path=where, overlay=top['config'] or {})
 
 
 def load(path: str) -> Scenario:
