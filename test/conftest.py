@@ -7,7 +7,7 @@ stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODUL
 
 import pytest
 
-from m4k_rt.testing import *  # noqa: F401,F403
+from m4k_testing import *  # noqa: F401,F403
 
 UNIT_MODULES = frozenset({
     'test_configuration_doc', 'test_layering', 'test_readme', 'test_real_robot_docs',

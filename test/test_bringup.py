@@ -15,7 +15,7 @@ import yaml
 
 from m4k_bridge import params as bridge_params
 from m4k_bringup import bringup
-from m4k_rt.testing import child_pids
+from m4k_testing import child_pids
 
 LAUNCH = os.path.join(ROOT, 'src', 'm4k_bringup', 'launch', 'm4k.launch.py')
 BASE_OVERLAY = {'runtime': {'mlockall': False, 'cpu_dma_latency': False,

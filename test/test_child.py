@@ -2,6 +2,7 @@
 
 import os
 import signal
+import subprocess
 import sys
 import time
 
@@ -138,3 +139,26 @@ def test_a_child_discards_its_output_to_devnull_and_can_be_pinned():
 def test_pipes_name_the_standard_streams_only():
     with pytest.raises(ValueError, match='pipes'):
         Child('x', ['true'], pipes=('stdout', 'fd3'))
+
+
+def test_a_child_writes_to_the_files_its_caller_holds_open_and_leaves_them_open(tmp_path):
+    out, err = open(tmp_path / 'out', 'w'), open(tmp_path / 'err', 'w')
+    with out, err:
+        c = Child('split', [sys.executable, '-c', 'import sys; print("o"); '
+                            'print("e", file=sys.stderr)'],
+                  streams={'stdout': out, 'stderr': err}).start()
+        assert c.wait(20.0) == 0 and c.stop(5.0) == 0
+        assert not out.closed and not err.closed
+    assert (tmp_path / 'out').read_text() == 'o\n' and (tmp_path / 'err').read_text() == 'e\n'
+    merged = Child('merged', [sys.executable, '-c', 'import sys; print("o", flush=True); '
+                              'print("e", file=sys.stderr)'],
+                   pipes=('stdout',), streams={'stderr': subprocess.STDOUT}).start()
+    assert merged.proc.stdout.read() == 'o\ne\n' and merged.stop(5.0) == 0
+
+
+@pytest.mark.parametrize('pipes,streams', [
+    ((), {'fd3': subprocess.DEVNULL}), (('stdout',), {'stdout': subprocess.DEVNULL}),
+    ((), {'stdout': subprocess.STDOUT}), ((), {'stderr': subprocess.PIPE})])
+def test_streams_name_the_standard_streams_not_piped_and_stdout_is_not_stderr(pipes, streams):
+    with pytest.raises(ValueError, match='streams'):
+        Child('x', ['true'], pipes=pipes, streams=streams)

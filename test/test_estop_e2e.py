@@ -25,7 +25,7 @@ import yaml
 
 from m4k_rt import protocol
 from m4k_rt.control.params import control_params
-from m4k_rt.testing import child_pids
+from m4k_testing import child_pids
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 

@@ -29,7 +29,7 @@ from websockets.asyncio.client import connect
 from websockets.exceptions import InvalidStatus
 from wsenv import ground_truth, ROOT
 
-from m4k_rt.testing import child_pids
+from m4k_testing import child_pids
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 

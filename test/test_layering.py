@@ -11,6 +11,13 @@
 * The pure protocol modules of ``m4k_drivers`` (SCIP 2.0, myAHRS+ registers, AS5045/MCP4911
   words, US-100 pulses, LED colour) load no transport (pyserial, python-periphery, smbus2,
   spidev) and no ROS: the same code runs against the real device and the simulator.
+* **The test machinery ships in no runtime package.** The shared fixtures live in
+  ``m4k_testing`` (src/m4k_testing), which sits on top of the layering beside the tests: it may
+  use any package (its process fixture starts processes as m4k_bringup's ``Child``), and no
+  module of a runtime package names it, pytest or hypothesis in an import statement (lazy ones
+  too) or loads them. No runtime package declares it except as a ``test_depend``, and only where
+  colcon can still order the packages (colcon orders on test dependencies too); every test
+  directory's conftest.py takes its fixtures from it.
 * The pure parts of the bridge are tested without a ROS context: ``m4k_bridge.health`` loads no
   ROS at all; ``m4k_bridge.diagnostics`` builds RtStatus and DiagnosticStatus, so it loads those
   interface packages (plain rosidl classes), but never rclpy.
@@ -30,7 +37,7 @@ import sys
 import xml.etree.ElementTree as ET
 
 import pytest
-from wsenv import PYTHON_PACKAGES, ROOT, stack_env
+from wsenv import PYTHON_PACKAGES, ROOT, stack_env, TEST_PACKAGES
 
 _PROTOCOL_MODULES = ('m4k_drivers.lrf.scip', 'm4k_drivers.imu.protocol',
                      'm4k_drivers.motors.protocol', 'm4k_drivers.sonar.protocol',
@@ -38,7 +45,9 @@ _PROTOCOL_MODULES = ('m4k_drivers.lrf.scip', 'm4k_drivers.imu.protocol',
 _TRANSPORTS = ('serial', 'periphery', 'smbus2', 'spidev')
 _ROS_RUNTIME = ('rclpy', 'rpyutils', 'launch', 'launch_ros')
 _ROS_FREE_PACKAGES = ('m4k_rt', 'm4k_drivers')
-_M4K = PYTHON_PACKAGES + ('m4k_msgs',)
+_M4K = PYTHON_PACKAGES + TEST_PACKAGES + ('m4k_msgs',)
+# What only tests may load: the tests' package and the test frameworks.
+_TEST_MACHINERY = TEST_PACKAGES + ('pytest', '_pytest', 'hypothesis')
 
 _PROBE = r"""
 import importlib, json, sys
@@ -101,10 +110,9 @@ def _pkg_modules(pkg: str) -> list[str]:
     return _modules(os.path.join(ROOT, 'src', pkg, pkg), pkg)
 
 
-def _declared_deps(pkg: str) -> set[str]:
+def _declared_deps(pkg: str, tags=('depend', 'exec_depend', 'build_depend')) -> set[str]:
     root = ET.parse(os.path.join(ROOT, 'src', pkg, 'package.xml')).getroot()
-    return {e.text.strip() for tag in ('depend', 'exec_depend', 'build_depend')
-            for e in root.findall(tag) if e.text}
+    return {e.text.strip() for tag in tags for e in root.findall(tag) if e.text}
 
 
 def test_module_discovery_sees_every_package_and_the_driver_host():
@@ -163,7 +171,7 @@ def _imported_names(path: str) -> set[str]:
     return names
 
 
-@pytest.mark.parametrize('pkg', PYTHON_PACKAGES)
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES + TEST_PACKAGES)
 def test_no_import_statement_names_an_undeclared_m4k_package(pkg):
     # The probe above sees what importing a module loads; a lazy import inside a function is
     # only seen here, by reading every import statement of the package's modules.
@@ -188,7 +196,8 @@ def test_the_import_reader_sees_a_function_local_import(tmp_path):
 
 
 def test_the_declared_dependencies_form_no_circle():
-    deps = {p: _declared_deps(p) & set(PYTHON_PACKAGES) for p in PYTHON_PACKAGES}
+    pkgs = PYTHON_PACKAGES + TEST_PACKAGES
+    deps = {p: _declared_deps(p) & set(pkgs) for p in pkgs}
     order: list[str] = []
     while deps:
         ready = sorted(p for p, d in deps.items() if d <= set(order))
@@ -198,6 +207,7 @@ def test_the_declared_dependencies_form_no_circle():
             del deps[p]
     assert order.index('m4k_rt') < order.index('m4k_drivers') < order.index('m4k_bringup')
     assert order.index('m4k_bridge') < order.index('m4k_bringup')
+    assert order.index('m4k_bringup') < order.index('m4k_testing')   # on top, beside the tests
 
 
 def test_the_ros_free_packages_declare_no_ros_runtime():
@@ -230,6 +240,85 @@ def test_the_bridge_bookkeeping_needs_no_ros_context(module, tmp_path):
     names = _loaded_by([module], tmp_path)[module]
     bad = sorted({n.split('.')[0] for n in names if _BRIDGE_PURE[module](n)})
     assert bad == [], f'{module} loads {bad}'
+
+
+# --- the test machinery: on top, beside the tests, never in a runtime package ---------------
+
+def _is_test_machinery(name: str) -> bool:
+    return name.split('.')[0] in _TEST_MACHINERY
+
+
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES)
+def test_no_runtime_module_loads_the_test_machinery(pkg, tmp_path):
+    loaded = _loaded_by(_pkg_modules(pkg), tmp_path)
+    offenders = {m: sorted({n.split('.')[0] for n in names if _is_test_machinery(n)})
+                 for m, names in loaded.items()}
+    offenders = {m: t for m, t in offenders.items() if t}
+    assert offenders == {}, f'{pkg} modules that load test machinery: {offenders}'
+
+
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES)
+def test_no_runtime_module_names_the_test_machinery_even_lazily(pkg):
+    bad = {}
+    for mod, path in _module_files({pkg: os.path.join(ROOT, 'src', pkg, pkg)}).items():
+        named = sorted({n.split('.')[0] for n in _imported_names(path)} & set(_TEST_MACHINERY))
+        if named:
+            bad[mod] = named
+    assert bad == {}, f'{pkg}: runtime modules importing test machinery: {bad}'
+
+
+def _run_closure(pkg: str, pkgs: tuple[str, ...]) -> set[str]:
+    """Return the packages ``pkg`` needs at run time, recursively (exec/build dependencies)."""
+    seen: set[str] = set()
+    todo = [pkg]
+    while todo:
+        for dep in _declared_deps(todo.pop()) & set(pkgs) - seen:
+            seen.add(dep)
+            todo.append(dep)
+    return seen
+
+
+def test_the_test_package_sits_on_top_and_no_runtime_package_needs_it():
+    pkgs = PYTHON_PACKAGES + TEST_PACKAGES
+    for test_pkg in TEST_PACKAGES:
+        # It needs what its process fixture runs on (Child, the one process wrapper) ...
+        assert 'm4k_bringup' in _declared_deps(test_pkg)
+        below = _run_closure(test_pkg, pkgs)
+        assert test_pkg not in below
+        for pkg in PYTHON_PACKAGES:
+            # ... and no runtime package needs it to run,
+            assert test_pkg not in _declared_deps(pkg), f'{pkg} depends on {test_pkg}'
+            # and a test_depend on it appears only where colcon can still order the
+            # packages: not in a package it itself runs on (that closes a circle).
+            if test_pkg in _declared_deps(pkg, ('test_depend',)):
+                assert pkg not in below, (
+                    f'{pkg} declares test_depend {test_pkg}, which runs on {pkg}: '
+                    'colcon orders on test dependencies too, so that is a circle')
+
+
+def test_the_circle_rule_for_test_depends_sees_a_circle():
+    # m4k_rt below m4k_bringup, which the test package runs on: its test_depend would circle.
+    assert 'm4k_rt' in _run_closure('m4k_testing', PYTHON_PACKAGES + TEST_PACKAGES)
+    assert 'm4k_bench' not in _run_closure('m4k_testing', PYTHON_PACKAGES + TEST_PACKAGES)
+
+
+def _test_dirs() -> list[str]:
+    dirs = [os.path.join(ROOT, 'test')]
+    for pkg in PYTHON_PACKAGES + TEST_PACKAGES:
+        d = os.path.join(ROOT, 'src', pkg, 'test')
+        if os.path.isdir(d):
+            dirs.append(d)
+    return dirs
+
+
+def test_every_test_directory_takes_its_fixtures_from_the_test_package():
+    # The leak check, the skip policy and the hypothesis profile hold in every suite.
+    dirs = _test_dirs()
+    assert os.path.join(ROOT, 'src', 'm4k_rt', 'test') in dirs and len(dirs) >= 6
+    missing = [os.path.relpath(d, ROOT) for d in dirs
+               if not os.path.isfile(os.path.join(d, 'conftest.py'))
+               or 'm4k_testing' not in _imported_names(os.path.join(d, 'conftest.py'))]
+    assert missing == [], f'test directories whose conftest.py does not use m4k_testing: {missing}'
 
 
 # --- no import circle, not even through a function-local (lazy) import ----------------------
@@ -322,7 +411,8 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_no_module_imports_one_that_imports_it_back():
-    graph = _import_graph({p: os.path.join(ROOT, 'src', p, p) for p in PYTHON_PACKAGES})
+    graph = _import_graph({p: os.path.join(ROOT, 'src', p, p)
+                           for p in PYTHON_PACKAGES + TEST_PACKAGES})
     assert 'm4k_rt.schema' in graph and 'm4k_bringup.configdoc' in graph
     assert 'm4k_rt.schema' in graph['m4k_rt.control.params']
     circles = _cycles(graph)

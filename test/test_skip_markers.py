@@ -1,6 +1,6 @@
 """Every test module skips for missing root through the ``needs_root`` marker, never a skipif.
 
-A plain ``skipif(os.geteuid() != 0)`` gives a reason the skip policy (m4k_rt.testing) does
+A plain ``skipif(os.geteuid() != 0)`` gives a reason the skip policy (m4k_testing) does
 not know, so a non-root ``make test`` fails on it; ``needs_root`` is the one accepted form.
 """
 

@@ -25,7 +25,7 @@ import yaml
 from m4k_msgs.msg import RtStatus
 from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.params import control_params
-from m4k_rt.testing import child_pids
+from m4k_testing import child_pids
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 START = [0.0, 0.9, 0.0]

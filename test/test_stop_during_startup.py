@@ -19,7 +19,7 @@ from wsenv import LineWatch, stack_env
 import yaml
 
 from m4k_rt.stopsignals import blocked_stop_signals
-from m4k_rt.testing import child_pids
+from m4k_testing import child_pids
 
 OVERLAY = {'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10}}
 TIMEOUT_S = 60.0  # generous: start-up of an rclpy process under load takes seconds

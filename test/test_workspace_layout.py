@@ -12,6 +12,7 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PYTHON_PACKAGES = ('m4k_rt', 'm4k_drivers', 'm4k_bridge', 'm4k_bringup', 'm4k_bench')
+TEST_PACKAGES = ('m4k_testing',)   # the tests' fixtures: built and installed, no scripts
 CONFIG_PACKAGES = ('m4k_bringup',)  # the one install of config/; the others find it there
 
 
@@ -33,7 +34,7 @@ def test_every_console_script_is_where_ros2_run_looks(pkg):
         assert os.access(path, os.X_OK), f'{path} is not executable'
 
 
-@pytest.mark.parametrize('pkg', PYTHON_PACKAGES)
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES + TEST_PACKAGES)
 def test_setup_cfg_installs_scripts_into_lib_pkg(pkg):
     cfg = configparser.ConfigParser()
     cfg.read(os.path.join(ROOT, 'src', pkg, 'setup.cfg'))
@@ -41,13 +42,22 @@ def test_setup_cfg_installs_scripts_into_lib_pkg(pkg):
     assert cfg['develop']['script_dir'] == f'$base/lib/{pkg}'
 
 
-@pytest.mark.parametrize('pkg', PYTHON_PACKAGES + ('m4k_msgs',))
+@pytest.mark.parametrize('pkg', PYTHON_PACKAGES + TEST_PACKAGES + ('m4k_msgs',))
 def test_package_xml_has_valid_maintainer_email(pkg):
     # An invalid email makes colcon treat the package as plain python (no ament index).
     root = ET.parse(os.path.join(ROOT, 'src', pkg, 'package.xml')).getroot()
     emails = [m.get('email') for m in root.findall('maintainer')]
     assert emails and all(re.fullmatch(r'[\w.+-]+@[\w-]+(\.[\w-]+)*\.[a-z]{2,}', e)
                           for e in emails), emails
+
+
+@pytest.mark.parametrize('pkg', TEST_PACKAGES)
+def test_the_test_package_is_built_and_the_tests_import_the_installed_one(pkg):
+    # colcon builds it like the others (the ament index has it) and the conftest.py files
+    # import it from install/, as colcon test does -- not from a source path.
+    module = __import__(pkg)
+    prefix = get_package_prefix(pkg)
+    assert os.path.realpath(module.__file__).startswith(os.path.realpath(prefix) + os.sep)
 
 
 @pytest.mark.parametrize('pkg', CONFIG_PACKAGES)

@@ -8,6 +8,8 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # The workspace's Python packages, lowest layer first.
 PYTHON_PACKAGES = ('m4k_rt', 'm4k_drivers', 'm4k_bridge', 'm4k_bringup', 'm4k_bench')
+# The tests' own package (src/m4k_testing): on top, beside the tests; no runtime module uses it.
+TEST_PACKAGES = ('m4k_testing',)
 
 
 def stack_env(runtime_dir: str) -> dict[str, str]:

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # `make fuzz`, second half: every property test of every suite (the hypothesis tests that
-# `make test` runs derandomized) under the randomized `fuzz` profile (m4k_rt.testing: 20x the
+# `make test` runs derandomized) under the randomized `fuzz` profile (m4k_testing: 20x the
 # examples, a fresh seed each run). The seed is printed first and last; replay a failure with
 #   make fuzz SEED=<n>      (or: M4K_HYPOTHESIS_PROFILE=fuzz pytest ... --hypothesis-seed=<n>)
 set -uo pipefail

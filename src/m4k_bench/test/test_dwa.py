@@ -18,7 +18,7 @@ from m4k_bench.planning.dwa import (
     State,
 )
 from m4k_bench.planning.scan import PointMemory, scan_to_points, ScanError, voxel_downsample
-from m4k_rt.testing import examples
+from m4k_testing import examples
 
 CFG = DwaConfig()
 TRIANGLE = [(1.5, -0.25), (1.5, 0.25), (1.9, 0.0)]

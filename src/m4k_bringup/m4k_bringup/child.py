@@ -1,7 +1,8 @@
 """One child process of the stack: the one process wrapper of m4k.
 
 Every tool that starts a process of the stack -- bringup's supervisor, the bench, the demo, the
-scenario runner, fuzz and soak -- starts it as a :class:`Child`:
+scenario runner, fuzz and soak, and the tests' ``procs`` fixture (m4k_testing) -- starts it as a
+:class:`Child`:
 
 * in a process group of its own: a new session (``start_new_session``), or, for bringup's
   ``supervised`` children, a new process group in bringup's session (a terminal Ctrl-C reaches
@@ -11,7 +12,10 @@ scenario runner, fuzz and soak -- starts it as a :class:`Child`:
   or written to the log file ``log_path`` (appended to unless ``log_append`` is false, headed by
   the command line unless ``log_header`` is false; ``os.devnull`` discards it), or inherited;
   the streams named in ``pipes`` (``stdin``, ``stdout``, ``stderr``) are text pipes the caller
-  reads or writes through ``proc`` instead (a tool that parses its child's output);
+  reads or writes through ``proc`` instead (a tool that parses its child's output); those named
+  in ``streams`` go to what the caller already holds open -- a file or descriptor,
+  ``subprocess.DEVNULL``, or ``subprocess.STDOUT`` for stderr -- and stay the caller's to close
+  (the tests' process fixture, whose tests keep stdout and stderr in separate files);
 * stopped by the one stop ladder, :func:`m4k_rt.proc.stop_process`: ``stop_signal`` to the
   process (or to its whole group with ``group=True``), wait ``stop_timeout`` s, then SIGKILL
   (``on_escalate(timeout)`` called first) and wait ``kill_timeout`` s, then SIGKILL whatever
@@ -31,7 +35,7 @@ import signal
 import subprocess
 import threading
 import time
-from typing import BinaryIO, Callable, Mapping, Sequence
+from typing import Any, BinaryIO, Callable, IO, Mapping, Sequence
 
 from m4k_rt.proc import stop_process
 from m4k_rt.stopsignals import blocked_stop_signals
@@ -39,6 +43,7 @@ from m4k_rt.stopsignals import blocked_stop_signals
 __all__ = ['Child', 'STOP_TIMEOUT_S']
 
 STOP_TIMEOUT_S = 8.0      # default wait after the stop signal, then SIGKILL
+_STREAMS = frozenset({'stdin', 'stdout', 'stderr'})
 
 
 class Child:
@@ -58,13 +63,22 @@ class Child:
                  on_escalate: Callable[[float], None] | None = None,
                  supervised: bool = False, ready: Callable[[], bool] | None = None,
                  must_end: bool = False, pipes: Sequence[str] = (),
+                 streams: Mapping[str, int | IO[Any]] | None = None,
                  cpu: int | None = None) -> None:
         """Describe the child; :meth:`start` starts it."""
         if log_path is not None and on_line is not None:
             raise ValueError('a child logs to a file or to on_line, not both')
-        if set(pipes) - {'stdin', 'stdout', 'stderr'} or (pipes and on_line is not None):
+        if set(pipes) - _STREAMS or (pipes and on_line is not None):
             raise ValueError('pipes are stdin, stdout and stderr, and not with on_line, got '
                              '{!r}'.format(pipes))
+        streams = dict(streams or {})
+        if (set(streams) - _STREAMS or set(streams) & set(pipes)
+                or (streams and on_line is not None)
+                or subprocess.PIPE in streams.values()
+                or subprocess.STDOUT in (streams.get('stdin'), streams.get('stdout'))):
+            raise ValueError('streams are stdin, stdout and stderr (STDOUT for stderr only), '
+                             'never PIPE (pipes says that), not with on_line, got {!r}'
+                             .format(streams))
         self.name = name
         self.argv = list(argv)
         self.env = dict(env) if env is not None else None
@@ -81,6 +95,7 @@ class Child:
         self.ready = ready
         self.must_end = must_end
         self.pipes = tuple(pipes)
+        self.streams = streams
         self.cpu = cpu             # pinned to this CPU once started (None: not pinned)
         self.proc: subprocess.Popen | None = None
         self.pid = 0
@@ -111,15 +126,17 @@ class Child:
         console = self.on_line is not None   # lines for the console: text, line-buffered
         text = console or bool(self.pipes)
         pipe = subprocess.PIPE
+        given = self.streams
         # Stop signals blocked until a supervised child has its handlers (it unblocks them
         # then): a SIGTERM from stop() while it still starts up stops it cleanly, never kills it.
         with blocked_stop_signals() if self.supervised else contextlib.nullcontext():
             self.proc = subprocess.Popen(
                 argv, env=self.env,
-                stdin=pipe if 'stdin' in self.pipes else subprocess.DEVNULL,
-                stdout=pipe if 'stdout' in self.pipes else out,
+                stdin=(pipe if 'stdin' in self.pipes
+                       else given.get('stdin', subprocess.DEVNULL)),
+                stdout=pipe if 'stdout' in self.pipes else given.get('stdout', out),
                 stderr=(pipe if 'stderr' in self.pipes else subprocess.STDOUT if console
-                        else out),
+                        else given.get('stderr', out)),
                 start_new_session=not self.supervised,
                 process_group=0 if self.supervised else None,
                 text=text, errors='replace' if text else None, bufsize=1 if console else -1)

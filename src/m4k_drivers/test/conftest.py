@@ -3,7 +3,7 @@
 from fakeclock import FakeClock
 import pytest
 
-from m4k_rt.testing import *  # noqa: F401,F403
+from m4k_testing import *  # noqa: F401,F403
 
 
 @pytest.fixture

@@ -23,7 +23,7 @@ from m4k_drivers.imu.handler import ImuHandler
 from m4k_drivers.imu.real import I2cDevice
 from m4k_rt import protocol as wire
 from m4k_rt.protocol import ImuStatus
-from m4k_rt.testing import examples
+from m4k_testing import examples
 
 STATUSES = {ImuStatus.OK, ImuStatus.NOT_READY, ImuStatus.BAD_QUATERNION}
 

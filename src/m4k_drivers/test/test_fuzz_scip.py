@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 import numpy as np
 
 from m4k_drivers.lrf import scip
-from m4k_rt.testing import examples
+from m4k_testing import examples
 
 GD_ECHO = 'GD0044072501'
 N_STEPS = 725 - 44 + 1

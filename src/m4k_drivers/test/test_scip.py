@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from m4k_drivers.lrf import scip
-from m4k_rt.testing import examples
+from m4k_testing import examples
 
 DATA = Path(__file__).parent / 'data'
 

@@ -1,3 +1,3 @@
 """Shared m4k fixtures: ROS isolation, private runtime dir, process cleanup, leak check."""
 
-from m4k_rt.testing import *  # noqa: F401,F403
+from m4k_testing import *  # noqa: F401,F403

@@ -10,7 +10,7 @@ import pytest
 
 from m4k_rt import protocol as p
 from m4k_rt.protocol import Header, Kind, ProtocolError
-from m4k_rt.testing import examples
+from m4k_testing import examples
 
 U8 = st.integers(0, 0xFF)
 U16 = st.integers(0, 0xFFFF)

@@ -6,7 +6,7 @@ import sys
 
 from hypothesis import settings
 
-from m4k_rt import testing
+import m4k_testing as testing
 
 SKIPS = [('t.py::a', 'Skipped: needs root: to chown'), ('t.py::b', 'Skipped: no tf2_msgs')]
 
@@ -40,7 +40,7 @@ def test_a_ros2cli_skip_is_accepted_only_where_ros2cli_does_not_import(monkeypat
 
 def _run_ci(tmp_path, module_text):
     """Run pytest under the runner's policy (M4K_CI=1) on one module; return the result."""
-    (tmp_path / 'conftest.py').write_text('from m4k_rt.testing import *  # noqa: F401,F403\n')
+    (tmp_path / 'conftest.py').write_text('from m4k_testing import *  # noqa: F401,F403\n')
     (tmp_path / 'test_mod.py').write_text(module_text)
     env = dict(os.environ, M4K_CI='1')
     return subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',

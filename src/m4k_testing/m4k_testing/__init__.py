@@ -1,11 +1,15 @@
-"""Shared pytest fixtures for every m4k test suite (packages and workspace).
+"""Shared pytest fixtures for every m4k test suite (packages and workspace): tests only.
 
-Each test directory's ``conftest.py`` does ``from m4k_rt.testing import *``. What it gives:
+Each test directory's ``conftest.py`` does ``from m4k_testing import *``. This package sits on
+top of the layering, beside the tests: it may import any m4k package (its process fixture starts
+processes through :class:`m4k_bringup.child.Child`, the one process wrapper), and no runtime
+module may import it (test/test_layering.py). What it gives:
 
 * ROS isolation for the whole run: a random ``ROS_DOMAIN_ID`` unless one is set, and
   localhost-only discovery, so test nodes never meet another machine's graph.
 * ``m4k_runtime_dir``: a fresh private XDDP runtime directory per test (``M4K_RUNTIME_DIR``).
-* ``procs``: starts subprocesses in their own process group and kills whatever is left.
+* ``procs``: starts subprocesses as :class:`~m4k_bringup.child.Child` (a session of their own)
+  and stops whatever is left through Child's stop ladder.
 * An autouse leak check that fails any test leaving behind a child process, a Python thread
   or a socket file descriptor -- the python-can habit of catching leaks where they happen.
 * The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
@@ -38,11 +42,11 @@ import sys
 import tempfile
 import threading
 import time
-from typing import Any, Iterator
+from typing import Any, IO, Iterator, Mapping
 
 import pytest
 
-from m4k_rt.proc import stop_process
+from m4k_bringup.child import Child
 
 __all__ = ['pytest_configure', 'pytest_unconfigure', 'pytest_runtest_setup',
            'pytest_runtest_logreport', 'pytest_collectreport', 'pytest_sessionfinish',
@@ -283,34 +287,68 @@ def m4k_runtime_dir(tmp_path_factory: pytest.TempPathFactory,
 
 
 class ProcessGroup:
-    """Start processes in their own session and make sure every one of them ends."""
+    """Start processes as :class:`~m4k_bringup.child.Child` and make sure every one ends.
+
+    :meth:`start` returns the child's ``subprocess.Popen`` (a test reads its pipes, waits for it,
+    signals it); :meth:`stop` and the fixture's teardown stop it through the child's stop ladder
+    (the signal to its whole process group, wait, SIGKILL, then SIGKILL whatever is left in the
+    group), failing the test if even SIGKILL did not end it.
+    """
 
     def __init__(self) -> None:
-        self._procs: list[subprocess.Popen] = []
+        self._children: dict[int, Child] = {}
 
-    def start(self, argv: list[str], **kwargs) -> subprocess.Popen:
-        """Start ``argv`` (``python`` means this interpreter) in a new session."""
+    def start(self, argv: list[str], env: Mapping[str, str] | None = None, *,
+              stdin: int | IO[Any] | None = None, stdout: int | IO[Any] | None = subprocess.PIPE,
+              stderr: int | IO[Any] | None = subprocess.PIPE,
+              text: bool = True) -> subprocess.Popen:
+        """Start ``argv`` (``python`` means this interpreter) in a session of its own.
+
+        ``stdin``, ``stdout`` and ``stderr`` as for ``subprocess.Popen``: ``PIPE`` gives a
+        text pipe (the default for the output streams), a file, descriptor, ``DEVNULL`` or
+        (stderr) ``STDOUT`` is connected as given and stays the caller's to close, None
+        inherits -- except stdin, which reads /dev/null unless given.
+        """
+        if not text:
+            raise ValueError('the pipes of a test process are text pipes')
         if argv and argv[0] == 'python':
             argv = [sys.executable, *argv[1:]]
-        kwargs.setdefault('stdout', subprocess.PIPE)
-        kwargs.setdefault('stderr', subprocess.PIPE)
-        kwargs.setdefault('text', True)
-        proc = subprocess.Popen(argv, start_new_session=True, **kwargs)
-        self._procs.append(proc)
-        return proc
+        given = {'stdin': stdin, 'stdout': stdout, 'stderr': stderr}
+        pipes = [name for name, s in given.items() if s == subprocess.PIPE]
+        streams = {name: s for name, s in given.items()
+                   if s is not None and s != subprocess.PIPE}
+        name = argv[2] if argv[1:2] == ['-m'] and len(argv) > 2 else os.path.basename(argv[0])
+        child = Child(name, argv, env, pipes=pipes,
+                      streams=streams, group=True, must_end=True).start()
+        assert child.proc is not None
+        self._children[child.pid] = child
+        return child.proc
 
     def stop(self, proc: subprocess.Popen, sig: int = signal.SIGTERM,
              timeout: float = 10.0) -> int:
-        """Signal the process's group, wait, escalate to SIGKILL; return the exit code."""
-        rc = stop_process(proc, sig, timeout)
-        assert rc is not None, f'{proc.args!r} survived SIGKILL'
-        return rc
+        """Signal the process's group, wait, escalate to SIGKILL; return the exit code.
+
+        Stopping a process this group has already stopped returns its exit code again (a
+        test's ``finally`` may stop what its body stopped).
+        """
+        child = self._children.pop(proc.pid, None)
+        if child is not None:
+            return self._stop(child, sig, timeout)
+        if proc.returncode is None:
+            raise ValueError(f'{proc.args!r} was not started by this process group')
+        return proc.returncode
 
     def stop_all(self) -> None:
-        """Stop every process started through this group."""
-        for proc in reversed(self._procs):
-            self.stop(proc)
-        self._procs.clear()
+        """Stop every process started through this group, the last started first."""
+        while self._children:
+            self._stop(self._children.pop(next(reversed(self._children))))
+
+    @staticmethod
+    def _stop(child: Child, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
+        child.stop_signal = sig
+        rc = child.stop(timeout)    # must_end: SIGKILL that did not end it fails the test
+        assert rc is not None
+        return rc
 
 
 @pytest.fixture
