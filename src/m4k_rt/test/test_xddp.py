@@ -17,13 +17,13 @@ import threading
 import time
 
 import pytest
+from xddp_support import open_while_polling, until, WAIT
 
 import m4k_rt
 from m4k_rt import protocol, xddp
 from m4k_rt.xddp import XddpBusyError, XddpError, XddpNotBoundError, XddpPortError
 
 PKG_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(m4k_rt.__file__)))
-WAIT = 10.0  # generous upper bound for anything that must happen; never asserted as timing
 
 
 @pytest.fixture(params=xddp.TRANSPORTS)
@@ -44,35 +44,8 @@ def rundir(monkeypatch, transport):
     shutil.rmtree(base, ignore_errors=True)
 
 
-def until(predicate, what, step=None):
-    deadline = time.monotonic() + WAIT
-    while not predicate():
-        if step:
-            step()
-        assert time.monotonic() < deadline, 'timed out waiting for ' + what
-        time.sleep(0.001)
 
 
-def open_while_polling(rt_socks, *args, **kwargs):
-    """Run nrt_xddp_open in a thread while this (RT) thread polls its sockets."""
-    result = {}
-
-    def target():
-        try:
-            result['ep'] = xddp.nrt_xddp_open(*args, **kwargs)
-        except Exception as exc:  # handed to the test thread
-            result['exc'] = exc
-
-    thread = threading.Thread(target=target)
-    thread.start()
-    try:
-        until(lambda: not thread.is_alive(), 'nrt_xddp_open',
-              step=lambda: [s.poll_peer() for s in rt_socks])
-    finally:
-        thread.join()
-    if 'exc' in result:
-        raise result['exc']
-    return result['ep']
 
 
 def rt_recv_wait(sock, buf):

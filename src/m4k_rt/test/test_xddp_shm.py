@@ -13,16 +13,13 @@ import shutil
 import socket
 import struct
 import tempfile
-import threading
-import time
 import zlib
 
 import pytest
+from xddp_support import open_while_polling, until, WAIT
 
 from m4k_rt import schema, xddp
 from m4k_rt.xddp import XddpPortError
-
-WAIT = 10.0  # generous upper bound for anything that must happen; never asserted as timing
 
 
 @pytest.fixture
@@ -34,33 +31,8 @@ def rundir(monkeypatch):
     shutil.rmtree(base, ignore_errors=True)
 
 
-def until(predicate, what, step=None):
-    deadline = time.monotonic() + WAIT
-    while not predicate():
-        if step:
-            step()
-        assert time.monotonic() < deadline, 'timed out waiting for ' + what
-        time.sleep(0.001)
 
 
-def open_while_polling(rt, *args, **kwargs):
-    result = {}
-
-    def target():
-        try:
-            result['ep'] = xddp.nrt_xddp_open(*args, **kwargs)
-        except Exception as exc:  # handed to the test thread
-            result['exc'] = exc
-
-    thread = threading.Thread(target=target)
-    thread.start()
-    try:
-        until(lambda: not thread.is_alive(), 'nrt_xddp_open', step=rt.poll_peer)
-    finally:
-        thread.join()
-    if 'exc' in result:
-        raise result['exc']
-    return result['ep']
 
 
 def raw_link(rt, path):
