@@ -54,6 +54,10 @@ def test_an_e_stop_dumps_the_seconds_before_it_with_the_trigger_in_metadata(
     user, _, _ = stack
     dumps = os.path.join(state_home(m4k_runtime_dir), 'm4k', 'flight_recorder')
     user.spin_for(3.0)                  # the stack runs a while: the ring fills
+    # Start-up is no event: the guard's fail-safe hold while its sensors have not reported yet
+    # raises its flag at rest, and that stopped nothing (it used to dump on every start).
+    started = os.listdir(dumps) if os.path.isdir(dumps) else []
+    assert not [d for d in started if 'guard_stop' in d], started
     cmd = user.publisher(Twist, 'cmd_vel')
     stop = user.publisher(Bool, 'e_stop')
     twist = Twist()

@@ -11,7 +11,9 @@ datagrams; this module decides and writes.
   :data:`ENTRY_OVERHEAD` bytes). The byte bound is an invariant, checked on every add: the
   oldest entries go first, an entry larger than the whole cap is refused and counted.
 * :class:`Triggers`: the rising edges that dump -- the e-stop latch engaging or the contact
-  opening (``e_stop``), the collision guard stopping forward motion (``guard_stop``), the wheel
+  opening (``e_stop``), the collision guard stopping forward motion (``guard_stop``; its flag
+  rising while the robot stands -- the fail-safe hold while a sensor has not reported yet at
+  start-up, or an obstacle stepping into the zone of a robot at rest -- stopped nothing), the wheel
   supervisor's latched fault (``motor_fault``), a task cycle ending after its deadline
   (``deadline_miss``), a device entering ERROR (``device_fault``).
 * :class:`RateLimit`: at most one dump per trigger kind per ``min_interval``.
@@ -111,6 +113,9 @@ class Trigger:
     mono_ns: int
 
 
+GUARD_MOVING_V = 0.02   # m/s: forward faster than this when the guard flag rises = a stop
+
+
 class Triggers:
     """Turn decoded RT datagrams into triggers on their rising edges (pure)."""
 
@@ -124,16 +129,21 @@ class Triggers:
         self.flags: int | None = None
         self._levels: dict[str, int] = {}
 
-    def on_odometry(self, flags: int) -> list[tuple[str, str]]:
+    def on_odometry(self, flags: int, v: float | None = None) -> list[tuple[str, str]]:
         """Return (kind, detail) of every watched flag that rose since the last ODOMETRY.
 
         The first ODOMETRY after start (or after the RT process came back) only sets the
-        reference: a latch already engaged then is a state, not an event.
+        reference: a latch already engaged then is a state, not an event. ``v`` is the
+        ODOMETRY's forward speed (m/s): the guard flag rising while the robot is not moving
+        forward (``v`` at most :data:`GUARD_MOVING_V`) stopped no motion -- every start-up
+        raises it while the guard's sensors have not reported yet -- and dumps nothing.
         """
         prev, self.flags = self.flags, int(flags)
         if prev is None:
             return []
         rose = self.flags & ~prev
+        if v is not None and not v > GUARD_MOVING_V:
+            rose &= ~protocol.OdomFlag.GUARD
         return [(kind, '{} (flags 0x{:x})'.format(text, self.flags))
                 for bit, kind, text in self._FLAGS if rose & bit]
 

@@ -167,7 +167,7 @@ class FlightRecorder:
             return
         if kind == protocol.Kind.ODOMETRY:
             prev = self.triggers.flags
-            found = self.triggers.on_odometry(payload.flags)
+            found = self.triggers.on_odometry(payload.flags, payload.v)
             now = time.monotonic_ns()
             if payload.flags != prev or now - self._flags_ns >= _FLAGS_KEEPALIVE_NS:
                 self._flags_ns = now

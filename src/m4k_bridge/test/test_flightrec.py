@@ -73,6 +73,21 @@ def test_flags_trigger_on_rising_edges_only():
     assert tr.on_odometry(F.SLOWDOWN | F.BRAKING | F.CLAMPED) == []
 
 
+def test_the_guard_flag_rising_at_rest_stopped_nothing_and_dumps_nothing():
+    # What every start-up does: the first ODOMETRY (motor not yet heard), then the guard's
+    # fail-safe hold while its sensors have not reported (at rest), then clear.
+    F = protocol.OdomFlag
+    tr = fr.Triggers()
+    assert tr.on_odometry(F.MOTOR_STALE, 0.0) == []
+    assert tr.on_odometry(F.GUARD, -0.002) == []            # standing: a state, not a stop
+    assert tr.on_odometry(0, 0.003) == []
+    assert tr.on_odometry(F.GUARD, 0.01) == []              # creeping below GUARD_MOVING_V
+    assert tr.on_odometry(0, 0.3) == []
+    assert [k for k, _ in tr.on_odometry(F.GUARD, 0.3)] == ['guard_stop']   # driving: a stop
+    # the other latches are events whatever the speed
+    assert [k for k, _ in tr.on_odometry(F.GUARD | F.E_STOP, 0.0)] == ['e_stop']
+
+
 def _stats(samples, period_ns=10_000_000):
     return protocol.TaskStats('actuator', 0, 90, -1, period_ns, 100, 0, 0, 0, 0,
                               tuple(protocol.TaskSample(*s) for s in samples))
