@@ -92,7 +92,9 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     """Return a rough wall-time estimate of the plan (start-up of each run included)."""
     per_cond = plan['condition_s'] + WARMUP_S + 5.0
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)
-    per_round += 0 if 'floor' in skip else 3 * (plan['floor_s'] + 2.0)   # + two channels
+    # the bare floor and the channel floors
+    per_round += 0 if 'floor' in skip else \
+        (1 + len(analysis.CHANNEL_FLOORS)) * (plan['floor_s'] + 2.0)
     per_round += 0 if 'breakdown' in skip else per_cond
     per_round += 0 if 'floor_paired' in skip else per_cond
     per_round += 0 if 'rtt' in skip else plan['rtt_n'] * 2 * 1e-4 + 2.0
@@ -278,7 +280,8 @@ class Bench:
         os.environ.update({k: self.env[k] for k in ('ROS_DOMAIN_ID',
                                                     'ROS_AUTOMATIC_DISCOVERY_RANGE')})
         per_round = len([c for c in ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt')
-                         if c not in self.skip]) + (0 if 'floor' in self.skip else 2)
+                         if c not in self.skip]) + (
+            0 if 'floor' in self.skip else len(analysis.CHANNEL_FLOORS))
         per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz) + (
             SCALING_TARGET_HZ in args.rates_hz)
         steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1) + (
@@ -523,7 +526,7 @@ class Bench:
             rnd['floor'] = self._floor(plan['floor_s'])
             # What the channel alone costs above the floor: its socket calls, or the same
             # datagrams through shared memory (floor.py --channel).
-            for ch in ('socket', 'shm'):
+            for ch in analysis.CHANNEL_FLOORS:
                 p.phase(pre + "Python floor + a task cycle's {} traffic".format(ch),
                         plan['floor_s'] + 2.0)
                 rnd['floor_' + ch] = self._floor(plan['floor_s'], channel=ch)

@@ -21,7 +21,8 @@ import numpy as np
 from m4k_rt import recorder, timing
 
 __all__ = [
-    'RATIOS', 'RATIO_KEYS', 'Ratio', 'STRICTER', 'Stricter', 'TARGETS', 'Target',
+    'CHANNEL_FLOORS', 'RATIOS', 'RATIO_KEYS', 'Ratio', 'STRICTER', 'Stricter', 'TARGETS',
+    'Target',
     'condition_summary', 'stricter_values',
     'evaluate_targets', 'hardened_rounds', 'interference', 'load_samples_csv', 'loop_cost',
     'median_round_table', 'ratio', 'round_ratios', 'scaling_summary', 'series_from_rows',
@@ -154,6 +155,10 @@ class Ratio(NamedTuple):
     num: tuple[str, ...]
     den: tuple[str, ...]
 
+
+# The channel floors run beside the bare floor in every round (floor.py --channel), stored
+# as the round's ``floor_<channel>``.
+CHANNEL_FLOORS = ('socket', 'shm')
 
 RATIOS: tuple[Ratio, ...] = (
     Ratio('release_p99_over_cyclictest_idle', 'actuator release p99 ÷ concurrent cyclictest '
@@ -384,7 +389,7 @@ def loop_cost(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     m4k = [_get(r, 'm4k_idle', 'cpu_per_cycle_us') for r in ok]
     floor = [_get(r, 'floor', 'cpu_per_cycle_us') for r in ok]
     channels = {ch: spread([_get(r, 'floor_' + ch, 'cpu_per_cycle_us') for r in ok])
-                for ch in ('socket', 'shm')}
+                for ch in CHANNEL_FLOORS}
     bodies: dict[str, list[Any]] = {}
     for r in ok:
         for name, v in (_get(r, 'm4k_idle', 'task_response_p50_us') or {}).items():
