@@ -312,15 +312,15 @@ class Bench:
     def _rundir(self, name: str) -> str:
         return os.path.join(self.tmp, name)
 
-    def _task_rates(self) -> dict[str, dict[str, float]]:
-        """Return the configured task set: name -> period (ns), priority, offset (ns)."""
+    def _task_rates(self) -> dict[str, dict[str, Any]]:
+        """Return the configured task set: name -> period (ns), priority, offset (ns), cpu."""
         try:
             cfg = rt_config_mod.load(self.args.rt_config)
         except Exception as exc:  # noqa: BLE001 -- reported; the floor is then skipped
             self._note('could not read the task set for the floor: {}'.format(exc))
             return {}
         return {t.name: {'period_ns': t.period_ns, 'priority': t.priority,
-                         'offset_ns': t.offset_ns}
+                         'offset_ns': t.offset_ns, 'cpu': t.cpu}
                 for t in cfg.tasks if t.enabled}
 
     def _overlay(self, actuator_period_ms: float | None) -> str | None:
@@ -457,7 +457,8 @@ class Bench:
         out = floor.run_floor_child([int(t['period_ns']) for t in ts],
                                     [int(t['priority']) for t in ts],
                                     [int(t['offset_ns']) for t in ts], seconds, self.env,
-                                    probe=probe, channel=channel)
+                                    probe=probe, channel=channel,
+                                    cpus=[t['cpu'] for t in ts])
         if isinstance(out, str):
             self._note(out)
             return None

@@ -307,6 +307,28 @@ def test_floor_channel_traffic_moves_a_task_cycles_datagrams():
         floor._channel_call('pipe')
 
 
+def test_floor_pins_its_loops_as_the_task_set_pins_its_tasks():
+    import os
+
+    from m4k_bench.benchlib import floor
+    assert floor.parse_cpus('', 3) == [None, None, None]
+    assert floor.parse_cpus('1,-,0', 3) == [1, None, 0]
+    assert floor.format_cpus([1, None, 0]) == '1,-,0'
+    for bad, match in (('1,2', 'entries'), ('1,x,2', "'x'"), ('1,-1,2', "'-1'")):
+        with pytest.raises(ValueError, match=match):
+            floor.parse_cpus(bad, 3)
+    # a real floor process: the pinned loop's thread runs on that CPU only (the kernel's
+    # view, read by the thread), the unpinned one is left alone
+    last = max(os.sched_getaffinity(0))
+    out = floor.run_floor_child([10_000_000, 20_000_000], [1, 1], [0, 0], 0.1,
+                                cpus=[last, None])
+    assert isinstance(out, dict), out
+    assert out['cpus'] == [last, None]
+    pinned, free = out['threads']
+    assert pinned['affinity'] == [last] and pinned['cpu'] == last
+    assert 'cpu' not in free and 'affinity' not in free
+
+
 def test_loop_cost_reports_what_the_channel_alone_costs():
     rounds_ = [{'round': k, 'floor': {'cpu_per_cycle_us': 40.0},
                 'floor_socket': {'cpu_per_cycle_us': 40.0 * s},

@@ -2,7 +2,8 @@
 
 Each thread does what every m4k task cycle must do and nothing more: wait on its absolute
 timerfd (wake), read the expiration count (read), read the clock (clock read). Run with the
-same periods, priorities and phases as the task set, in a process hardened like rt_core
+same periods, priorities, phases and CPU pinning (``--cpus``, the tasks' ``cpu:``) as the task
+set, in a process hardened like rt_core
 (SCHED_FIFO, mlockall, gc frozen and off, the same switch interval), its process CPU per cycle
 (thread CPU time from the first wake to the last, summed over the threads, over the cycles
 run) is the least any Python task loop can cost on this machine; the bench reports m4k's CPU per
@@ -110,12 +111,19 @@ def _channel_call(channel: str) -> tuple[Callable[[], int] | None, Callable[[], 
 
 
 def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
-          probe: bool = False, channel: str = 'none') -> None:
+          probe: bool = False, channel: str = 'none', pin: int | None = None) -> None:
     try:
         sched.set_thread_fifo(priority)
         out['fifo'] = True
     except sched.SchedError:
         out['fifo'] = False
+    if pin is not None:                       # pinned as the task set pins its task
+        try:
+            sched.set_thread_affinity(pin)
+            out['cpu'] = pin
+            out['affinity'] = sorted(os.sched_getaffinity(0))   # the kernel's view
+        except sched.SchedError as exc:
+            out['affinity_error'] = str(exc)
     cap = int((stop_ns - first_ns) // period_ns) + 2
     rel_a, start_a, exp_a = array('q', bytes(8 * cap)), array('q', bytes(8 * cap)), \
         array('q', bytes(8 * cap))
@@ -167,8 +175,13 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
 
 def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
               offsets_ns: Sequence[int], seconds: float, probe: bool = False,
-              channel: str = 'none') -> dict:
-    """Run one bare loop per period for ``seconds`` in this process; return the measurements."""
+              channel: str = 'none', cpus: Sequence[int | None] | None = None) -> dict:
+    """Run one bare loop per period for ``seconds`` in this process; return the measurements.
+
+    ``cpus``: the CPU each loop is pinned to (None: not pinned), as the task set's ``cpu``.
+    """
+    if cpus is None:
+        cpus = [None] * len(periods_ns)
     rep = sched.harden(priority=max(priorities), cpu_dma_latency=False)
     gc.collect()
     gc.freeze()
@@ -177,9 +190,10 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     base = timing.first_release(now + 200_000_000, max(periods_ns))
     stop = base + int(seconds * 1e9)
     outs: list[dict] = [{} for _ in periods_ns]
-    threads = [threading.Thread(target=_loop, args=(p, pr, base + o, stop, out, probe, channel),
-                                daemon=True)
-               for p, pr, o, out in zip(periods_ns, priorities, offsets_ns, outs, strict=True)]
+    threads = [threading.Thread(target=_loop,
+                                args=(p, pr, base + o, stop, out, probe, channel, c), daemon=True)
+               for p, pr, o, out, c in zip(periods_ns, priorities, offsets_ns, outs, cpus,
+                                           strict=True)]
     cpu0 = time.process_time()
     t0 = time.monotonic()
     for t in threads:
@@ -193,7 +207,7 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     return {'cpu_per_cycle_us': cpu_ns * 1e-3 / cycles if cycles else None,
             'probe_us': _weighted_probe(probes) if probes else None,
             'process_cpu_s': time.process_time() - cpu0, 'wall_s': wall, 'seconds': seconds,
-            'channel': channel, 'mem_locked': rep.mem_locked,
+            'channel': channel, 'mem_locked': rep.mem_locked, 'cpus': list(cpus),
             'fifo': all(o.get('fifo') for o in outs),
             'threads': [dict(o, period_ns=p) for o, p in zip(outs, periods_ns, strict=True)]}
 
@@ -211,7 +225,8 @@ def _weighted_probe(probes: Sequence[dict]) -> dict:
 def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
                     offsets_ns: Sequence[int], seconds: float,
                     env: dict[str, str] | None = None, probe: bool = False,
-                    channel: str = 'none') -> dict | str:
+                    channel: str = 'none',
+                    cpus: Sequence[int | None] | None = None) -> dict | str:
     """Run the floor in a child process (hardened like rt_core); return its JSON or why not."""
     import subprocess
 
@@ -221,7 +236,8 @@ def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
         '--periods-ms', ','.join('{:g}'.format(p / 1e6) for p in periods_ns),
         '--priorities', ','.join(str(p) for p in priorities),
         '--offsets-ms', ','.join('{:g}'.format(o / 1e6) for o in offsets_ns),
-        '--seconds', str(seconds), '--channel', channel, *(['--probe'] if probe else []))
+        '--seconds', str(seconds), '--channel', channel, *(['--probe'] if probe else []),
+        *(['--cpus', format_cpus(cpus)] if cpus and any(c is not None for c in cpus) else []))
     try:
         p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
                            env=env, check=False)
@@ -230,6 +246,30 @@ def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
     if p.returncode != 0 or not p.stdout.strip():
         return 'floor: exit {}: {}'.format(p.returncode, p.stderr.strip()[-300:])
     out: dict = json.loads(p.stdout.strip().splitlines()[-1])
+    return out
+
+
+def format_cpus(cpus: Sequence[int | None]) -> str:
+    """Return the ``--cpus`` text of a list of CPUs (None: '-', not pinned)."""
+    return ','.join('-' if c is None else str(c) for c in cpus)
+
+
+def parse_cpus(text: str, n: int) -> list[int | None]:
+    """Parse ``--cpus`` (``''``: none pinned) for ``n`` loops; ValueError names what is wrong."""
+    if not text:
+        return [None] * n
+    items = text.split(',')
+    if len(items) != n:
+        raise ValueError('--cpus has {} entries for {} loops'.format(len(items), n))
+    out: list[int | None] = []
+    for item in items:
+        item = item.strip()
+        if item == '-':
+            out.append(None)
+        elif item.isdigit():
+            out.append(int(item))
+        else:
+            raise ValueError("--cpus: {!r} is neither a CPU index >= 0 nor '-'".format(item))
     return out
 
 
@@ -245,14 +285,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--channel', choices=CHANNELS, default='none',
                     help="add a task cycle's channel traffic: its socket calls, or the same "
                          'datagrams through shared memory')
+    ap.add_argument('--cpus', default='',
+                    help="comma list of the CPU each loop is pinned to, '-' for none (the task "
+                         "set's cpu:); default: none pinned")
     args = ap.parse_args(argv)
     periods = [int(float(x) * 1e6) for x in args.periods_ms.split(',')]
     prios = [int(x) for x in args.priorities.split(',')]
     offs = [int(float(x) * 1e6) for x in args.offsets_ms.split(',')] if args.offsets_ms \
         else [0] * len(periods)
+    try:
+        cpus = parse_cpus(args.cpus, len(periods))
+    except ValueError as exc:
+        ap.error(str(exc))
     if not len(periods) == len(prios) == len(offs):
         ap.error('--periods-ms, --priorities and --offsets-ms differ in length')
-    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe, args.channel), sys.stdout)
+    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe, args.channel, cpus),
+              sys.stdout)
     sys.stdout.write('\n')
     sys.stdout.flush()
     os._exit(0)  # daemon timer threads: leave at once

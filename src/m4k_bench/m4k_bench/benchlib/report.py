@@ -183,11 +183,11 @@ def _loop_cost(summ: Mapping[str, Any]) -> list[str]:
     lines = ['## Cost of the RT loop', '',
              'CPU per task cycle = rt_core process CPU (utime + stime) over the measured window '
              '÷ the cycles its tasks ran in it (full stack, idle). The floor: bare Python '
-             'SCHED_FIFO timerfd threads at the same periods, priorities and phases (wake, '
-             'read, clock read), thread CPU ÷ cycles. The target compares the two measured in '
-             'one run (paired): the floor runs beside the stack (driver host, bridge, '
-             'rt_core) and the concurrent cyclictest, so both pay for the same co-load; the '
-             'floor run alone, in every round, is shown for comparison.', '']
+             'SCHED_FIFO timerfd threads at the same periods, priorities, phases and CPU '
+             'pinning (wake, read, clock read), thread CPU ÷ cycles. The target compares the '
+             'two measured in one run (paired): the floor runs beside the stack (driver host, '
+             'bridge, rt_core) and the concurrent cyclictest, so both pay for the same co-load; '
+             'the floor run alone, in every round, is shown for comparison.', '']
     rows = [['m4k full stack, idle, paired with the floor',
              fmt_spread(lc.get('paired_m4k_cpu_per_cycle_us'), 1)],
             ['Python floor beside the stack and cyclictest (paired)',
