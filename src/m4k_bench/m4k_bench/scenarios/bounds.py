@@ -37,7 +37,7 @@ cause                  t_detect                                            trigg
 =====================  ==================================================  ==================
 sonar_unplugged        sonar_timeout + 2 sonar periods + echo timeout       the unplug
                        + 1 actuator (and the robot must STAY at rest)
-laser_unplugged        laser_timeout + 1 lrf period + 1 actuator (stays)    the unplug
+laser_unplugged        laser_timeout + 2 lrf periods + 1 actuator (stays)   the unplug
 bridge_killed          cmd_vel_timeout + 2 actuator; then the speed ramp    the kill
                        (``v / linear.max_deceleration`` replaces
                        ``v / a_brake``: the timeout zeroes the target)
@@ -45,6 +45,11 @@ driver_host_killed     heartbeat_hold_s, then the wheels coast on friction  the 
                        (``v / world.robot.coast_decel_mps2`` replaces
                        ``v / a_brake``)
 =====================  ==================================================  ==================
+
+The "2 periods" of both unplug rows are the device task's pipeline (:func:`_pipeline`): a
+reading the handler received just after a cycle's REQUEST answers the next REQUEST and reaches
+the guard in the cycle after that, so the last reading before the unplug refreshes the sensor's
+receive stamp up to two periods after it (the same two periods as ``t_react`` above).
 
 Every scenario: the peak ground-truth deceleration must be physically possible, ``<= mu * g``
 of the world's robot (:func:`traction_limit`).
@@ -155,8 +160,18 @@ def _t_react(raw: Mapping[str, Any], sensor: str) -> float:
         return float(fixed)
     ta = _period(raw, 'actuator')
     if sensor == 'sonar':
-        return 2 * _period(raw, 'sonar') + ta + _lag(raw)
-    return 2 * _period(raw, 'lrf') + URG_SCAN_S + ta + _lag(raw)
+        return _pipeline(raw, 'sonar') + ta + _lag(raw)
+    return _pipeline(raw, 'lrf') + URG_SCAN_S + ta + _lag(raw)
+
+
+def _pipeline(raw: Mapping[str, Any], task: str) -> float:
+    """Return how long after its handler received a reading the device task hands it on (s).
+
+    Two periods at worst: each cycle drains the reply to the previous cycle's REQUEST, and the
+    handler answers a REQUEST with the newest reading it holds -- one received just after a
+    REQUEST waits for the next one, and its reply for the cycle after that.
+    """
+    return 2 * _period(raw, task)
 
 
 def _guard_decel(raw: Mapping[str, Any]) -> float | None:
@@ -208,9 +223,9 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     if cause in ('sonar', 'laser'):
         t_react = _t_react(raw, cause)
     elif cause == 'sonar_unplugged':
-        stop = g.sonar_timeout + 2 * _period(raw, 'sonar') + ECHO_TIMEOUT_S + ta + lag + brake
+        stop = g.sonar_timeout + _pipeline(raw, 'sonar') + ECHO_TIMEOUT_S + ta + lag + brake
     elif cause == 'laser_unplugged':
-        stop = g.laser_timeout + _period(raw, 'lrf') + ta + lag + brake
+        stop = g.laser_timeout + _pipeline(raw, 'lrf') + ta + lag + brake
     elif cause == 'bridge_killed':
         # the command timeout zeroes the *target*: the speed limiter ramps it down at
         # linear.max_deceleration (m4k_rt.control.base, step 2) -- not the guard's hard stop
