@@ -418,3 +418,52 @@ def test_a_reading_returned_late_does_not_make_the_next_honest_step_a_jump():
     assert not r.value.status & (EncoderStatus.LEFT_JUMP | EncoderStatus.RIGHT_JUMP), r
     assert h.unwrap[LEFT].rejected == 0
     h.shutdown()
+
+
+def test_a_slow_first_transfer_does_not_read_as_a_turn():
+    # An AS5045 latches its angle when its transfer starts. The driver host reads the left
+    # encoder, then the right; when the left transfer returns 8 ms late (the host preempted,
+    # or waiting for the GIL), the right wheel is latched 8 ms after the left. One reading has
+    # one stamp, so its two angles must describe that one moment: the world drives straight,
+    # and the readings must show no turn and both wheels where they were at the stamp.
+    h, world, clock = make_sim()
+    h.configure()
+    h.activate()
+    period = 10_000_000
+    readings = []
+    code = p.command_to_code(0.25 / 2.0)          # 0.25 m/s of 2 m/s full scale
+    for _ in range(150):                       # 1.5 s: the wheels at a steady speed
+        clock.t += period
+        h.write(WheelCommand(code, code, 1))
+        readings.append(h.read().value)
+    left = h.bus.encoders[LEFT]
+    transfer = left.transfer
+
+    def slow(data):
+        out = transfer(data)
+        clock.t += 8_000_000
+        return out
+
+    for k in range(3):
+        left.transfer = slow if k == 1 else transfer
+        clock.t += period - (8_000_000 if k == 2 else 0)
+        h.write(WheelCommand(code, code, 1))
+        readings.append(h.read().value)
+    h.shutdown()
+    count = 2 * math.pi / p.ENC_COUNTS
+    truth = world.state().wheel_speed
+    assert truth[LEFT] == pytest.approx(truth[RIGHT], rel=1e-6)   # the world drove straight
+    base = readings[-4]
+    # the wheel speeds over 160 ms of steady driving before: far above the quantization
+    old = readings[-20]
+    speed = [(base.left_angle - old.left_angle) / (base.t_ns - old.t_ns),
+             (base.right_angle - old.right_angle) / (base.t_ns - old.t_ns)]
+    for r in readings[-3:]:
+        # no turn: the wheels' angles keep their difference (a count of quantization)
+        turn = (r.right_angle - r.left_angle) - (base.right_angle - base.left_angle)
+        assert abs(turn) <= 1.01 * count, (r, turn / count)
+        # and each angle is the wheel's at the reading's stamp
+        for side, angle, a0 in ((LEFT, r.left_angle, base.left_angle),
+                                (RIGHT, r.right_angle, base.right_angle)):
+            expected = a0 + speed[side] * (r.t_ns - base.t_ns)
+            assert abs(angle - expected) <= 1.5 * count, (side, r, (angle - expected) / count)

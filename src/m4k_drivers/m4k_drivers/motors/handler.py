@@ -82,6 +82,7 @@ class MotorHandler(DeviceHandler):
         self.period_s = period_s
         self.watchdog_ns = int(period_s * watchdog_periods * 1e9)
         self.lead_bits = lead_bits
+        self.max_wheel_rad_s = max_wheel_rad_s
         max_rate = max_wheel_rad_s / (2 * math.pi) * p.ENC_COUNTS
         self.unwrap = (p.Unwrapper(max_rate), p.Unwrapper(max_rate))
         self.codes = (p.DAC_ZERO, p.DAC_ZERO)
@@ -96,12 +97,16 @@ class MotorHandler(DeviceHandler):
         # The heartbeat monostable's hold (None: no heartbeat, the enable is strapped on).
         self.enable_hold_ns = None if enable_hold_s is None else int(enable_hold_s * 1e9)
         self.estop_open = False              # the read-back's last verdict
+        # Each wheel's last valid (angle rad, latch ns): its speed carries the angle to the
+        # reading's stamp (on_read)
+        self._latched: list[tuple[float, int] | None] = [None, None]
         self.estop_readback = 'none'         # where the read-back is wired (diagnostics)
 
     # -- hooks ----------------------------------------------------------------------------
     def on_configure(self) -> None:
         """Open the four SPI endpoints, zero the DACs and check both encoders answer."""
         self.bus = self._opener()
+        self._latched = [None, None]
         back = self.bus.readback
         self.estop_readback = 'none' if back is None else back.where
         if back is None:
@@ -144,17 +149,19 @@ class MotorHandler(DeviceHandler):
         assert self.bus is not None
         self.poll_watchdog()
         status = 0
-        t_sum = 0
+        latch = [0, 0]
+        fresh = [False, False]
         for side, port in enumerate(self.bus.encoders):
             t0 = self.clock()
             data = port.transfer(bytes(p.ENC_READ_LEN))
             t = self.clock()
-            t_sum += t
+            latch[side] = t0
             try:
                 frame = p.decode_encoder(data, self.lead_bits)
                 raw = self._wheel(side, frame)
                 self.unwrap[side].update(raw, t, t0)
                 self.last_raw[side] = raw
+                fresh[side] = True
             except p.EncoderJumpError as exc:
                 self.record_fault(exc)
                 status |= _JUMP_BITS[side]
@@ -167,11 +174,37 @@ class MotorHandler(DeviceHandler):
             status |= EncoderStatus.SAFE
         if self.write_error:
             status |= EncoderStatus.WRITE_ERROR
-        # The sample time is when the wheels were read (the mean of the two transfers), not
-        # when the reading is sent: the RT odometry divides angle steps by stamp steps, and a
-        # send delayed by a busy interpreter would otherwise show up as a speed spike.
-        return EncoderReading(self.last_raw[0], self.last_raw[1], self.unwrap[0].angle,
-                              self.unwrap[1].angle, status, t_sum // len(self.bus.encoders))
+        # The sample time is when the wheels were read, not when the reading is sent: the RT
+        # odometry divides angle steps by stamp steps, and a send delayed by a busy interpreter
+        # would otherwise show up as a speed spike. An AS5045 latches its angle at the falling
+        # edge of CSn, i.e. when its transfer starts; the time after the transfer returned is
+        # late by however long this thread waited for the CPU (and the GIL) to come back. The
+        # two wheels are read one after the other, so their latches differ by the first
+        # transfer's whole duration; one stamp for both would read that gap as a speed
+        # difference of the wheel read first (a turn that never happened). Both angles are
+        # therefore carried to the mean latch time at their own wheel's speed.
+        stamp = (latch[0] + latch[1]) // 2
+        angles = [self.unwrap[0].angle, self.unwrap[1].angle]
+        for side in (0, 1):
+            if fresh[side]:
+                angles[side] += self._carry(side, angles[side], latch[side], stamp)
+        return EncoderReading(self.last_raw[0], self.last_raw[1], angles[0], angles[1],
+                              status, stamp)
+
+    def _carry(self, side: int, angle: float, latch_ns: int, stamp_ns: int) -> float:
+        """Return how far ``side`` turned from its latch to ``stamp_ns`` (rad).
+
+        At the wheel's speed over its previous valid reading (0 before there is one): the
+        gap is one SPI transfer, a few microseconds on the bus and at most milliseconds when
+        the host was preempted, so the speed of the last period is the speed over it.
+        """
+        prev = self._latched[side]
+        self._latched[side] = (angle, latch_ns)
+        if prev is None or latch_ns <= prev[1]:
+            return 0.0
+        rate = (angle - prev[0]) / (latch_ns - prev[1])       # rad/ns
+        cap = self.max_wheel_rad_s * 1e-9                    # a resync step is no speed
+        return max(-cap, min(cap, rate)) * (stamp_ns - latch_ns)
 
     def on_deactivate(self) -> None:
         """Write code 512 to both DACs."""
