@@ -387,6 +387,19 @@ def test_real_motor_bus_configures():
     h.shutdown()
 
 
+def _late_left(h, clock, late_ns):
+    """Return (the left encoder port, its transfer, that transfer returning ``late_ns`` late)."""
+    left = h.bus.encoders[LEFT]
+    transfer = left.transfer
+
+    def late(data):
+        out = transfer(data)
+        clock.t += late_ns
+        return out
+
+    return left, transfer, late
+
+
 def test_a_reading_returned_late_does_not_make_the_next_honest_step_a_jump():
     # The driver host is preempted right after a transfer (a busy machine): that reading's
     # clock is read 8 ms late. The wheel did not move faster for it, so the next reading one
@@ -399,14 +412,7 @@ def test_a_reading_returned_late_does_not_make_the_next_honest_step_a_jump():
         clock.t += period
         h.write(WheelCommand(1023, 1023, 1))
         h.read()
-    left = h.bus.encoders[LEFT]
-    transfer = left.transfer
-
-    def preempted_after(data):
-        out = transfer(data)
-        clock.t += 8_000_000
-        return out
-
+    left, transfer, preempted_after = _late_left(h, clock, 8_000_000)
     left.transfer = preempted_after
     clock.t += period
     h.write(WheelCommand(1023, 1023, 1))
@@ -436,14 +442,7 @@ def test_a_slow_first_transfer_does_not_read_as_a_turn():
         clock.t += period
         h.write(WheelCommand(code, code, 1))
         readings.append(h.read().value)
-    left = h.bus.encoders[LEFT]
-    transfer = left.transfer
-
-    def slow(data):
-        out = transfer(data)
-        clock.t += 8_000_000
-        return out
-
+    left, transfer, slow = _late_left(h, clock, 8_000_000)
     for k in range(3):
         left.transfer = slow if k == 1 else transfer
         clock.t += period - (8_000_000 if k == 2 else 0)
