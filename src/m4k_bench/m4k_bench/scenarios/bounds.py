@@ -199,9 +199,9 @@ def stop_line(raw: Mapping[str, Any], v: float) -> float:
     if fixed is not None:
         t = float(fixed)
     else:
-        period = _period(raw, 'lrf') if g.use_laser else _period(raw, 'sonar') \
+        pipeline = _pipeline(raw, 'lrf') if g.use_laser else _pipeline(raw, 'sonar') \
             if g.use_sonar else 0.0
-        t = 2 * period + _period(raw, 'actuator') + _lag(raw)
+        t = pipeline + _period(raw, 'actuator') + _lag(raw)
     return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 
 
