@@ -16,7 +16,7 @@ from typing import Callable, Iterator, Mapping
 
 from m4k_bench import fuzzstream
 from m4k_bringup.child import Child
-from m4k_rt import protocol, recorder, xddp
+from m4k_rt import channel, protocol, recorder
 
 __all__ = ['MONITOR_PORTS', 'Observer', 'Sender', 'send']
 
@@ -35,7 +35,7 @@ class Observer:
     def __init__(self, runtime_dir: str, wait_s: float = 30.0) -> None:
         """Open both ports (waiting up to ``wait_s`` for rt_core to bind them)."""
         self.rec = recorder.Recorder()
-        self.eps: dict[str, xddp.NrtXddpEndpoint] = {}
+        self.eps: dict[str, channel.NrtXddpEndpoint] = {}
         self.batches = 0
         self.lost: str | None = None
         self._poll = select.poll()
@@ -46,7 +46,7 @@ class Observer:
         self.written = 0
         try:
             for label in MONITOR_PORTS:
-                ep = xddp.nrt_xddp_open(label, wait=wait_s, runtime_dir=runtime_dir)
+                ep = channel.nrt_xddp_open(label, wait=wait_s, runtime_dir=runtime_dir)
                 self.eps[label] = ep
                 self._by_fd[ep.fileno()] = label
                 self._poll.register(ep.fileno(), select.POLLIN)
@@ -164,7 +164,7 @@ def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
     """
     n = 0
     end = None if seconds is None else time.monotonic() + seconds
-    with xddp.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
+    with channel.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
         for d in fuzzstream.datagrams(label, count, seed):
             if end is not None and time.monotonic() >= end:
                 break

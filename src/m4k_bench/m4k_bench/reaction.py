@@ -157,8 +157,8 @@ class _Commander:
     """VELOCITY_CMD at 20 Hz on the ``cmd`` port (the bridge's role), ODOMETRY drained."""
 
     def __init__(self, runtime_dir: str) -> None:
-        from m4k_rt import xddp
-        self.link = xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+        from m4k_rt import channel
+        self.link = channel.NrtLink('cmd', runtime_dir, retry_interval=0.05)
         self.v = 0.0
         self.flags = 0            # the last ODOMETRY flags (m4k_rt.protocol.OdomFlag)
         self.fault_resets = 0     # MOTOR_FAULT latches seen (and reset) on healthy wheels

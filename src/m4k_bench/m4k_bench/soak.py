@@ -43,7 +43,7 @@ from typing import Any, Sequence
 from m4k_bench import core_bench, soaktime
 from m4k_bench.benchlib import provenance, results, stack, system
 from m4k_bringup.child import Child
-from m4k_rt import config, recorder, rosargs, xddp
+from m4k_rt import channel, config, recorder, rosargs
 
 __all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
 
@@ -158,7 +158,7 @@ class StatReader:
 
     def __init__(self, runtime_dir: str) -> None:
         self.rec = recorder.Recorder()
-        self.link = xddp.NrtLink('stat', runtime_dir, retry_interval=0.2)
+        self.link = channel.NrtLink('stat', runtime_dir, retry_interval=0.2)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name='soak-stat', daemon=True)
 

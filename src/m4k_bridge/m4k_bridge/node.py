@@ -61,7 +61,7 @@ from m4k_bridge.safety import SafetyInterface
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_bridge.tf import RobotStatePublisher
 from m4k_msgs.msg import RtStatus
-from m4k_rt import config, description, protocol, xddp, yamlload
+from m4k_rt import channel, config, description, protocol, yamlload
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
@@ -116,10 +116,10 @@ class BridgeNode(Node):
         self._monitor = RtMonitor(p['stats_window'], p['rt_stale_timeout'])
         self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
         runtime_dir = p['runtime_dir'] or None
-        self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
+        self._runtime_dir = runtime_dir or channel.default_runtime_dir()
         group = p['runtime_group'] or None
         try:     # as the RT side checks it, before anything links in it
-            xddp.check_runtime_dir(self._runtime_dir, group)
+            channel.check_runtime_dir(self._runtime_dir, group)
         except OSError as exc:
             raise params.ParamError('runtime_dir', str(exc)) from None
         # Outages, counters and the link / cmd_vel / device statuses (m4k_bridge.health).

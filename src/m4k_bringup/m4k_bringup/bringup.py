@@ -492,7 +492,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace, stop: StopSignals) -> int:
-    from m4k_rt import xddp
+    from m4k_rt import channel
     overlay = os.path.abspath(args.config) if args.config else None
     try:
         cfg = config.load(overlay)
@@ -502,7 +502,7 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         _err('config error: {}'.format(exc))
         return CONFIG_ERROR
     try:
-        runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
+        runtime_dir = channel.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
     except OSError as exc:
         _err('cannot create the runtime directory: {}'.format(exc))
         return 1

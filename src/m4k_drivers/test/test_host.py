@@ -10,7 +10,7 @@ from m4k_drivers import registry
 from m4k_drivers.handler import State
 from m4k_drivers.host import DeviceService, main
 from m4k_rt import protocol
-from m4k_rt.xddp import rt_xddp_bind
+from m4k_rt.channel import rt_xddp_bind
 
 pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 

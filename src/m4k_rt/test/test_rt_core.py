@@ -10,7 +10,7 @@ import time
 import pytest
 import yaml
 
-from m4k_rt import protocol, recorder, xddp
+from m4k_rt import channel, protocol, recorder
 from m4k_rt.tasks import echo
 from m4k_rt.tools import rt_stat
 
@@ -70,7 +70,7 @@ def test_echo_stack_ships_task_stats_and_second_core_is_refused(procs, tmp_path,
     peer = procs.start(['python', '-m', 'm4k_rt.tasks.echo', 'cmd', 'motor', 'led', 'led_in'],
                        env=_env())
     rec = recorder.Recorder()
-    link = xddp.NrtLink('status', retry_interval=0.05)
+    link = channel.NrtLink('status', retry_interval=0.05)
     try:
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
@@ -98,7 +98,7 @@ def test_echo_stack_ships_task_stats_and_second_core_is_refused(procs, tmp_path,
 
 
 def test_echo_body_gets_replies_from_in_process_peer(m4k_runtime_dir):
-    sock = xddp.rt_xddp_bind(20, 'echo_t')
+    sock = channel.rt_xddp_bind(20, 'echo_t')
     body = echo.EchoBody([sock], 3)
 
     class Ctx:
@@ -180,10 +180,10 @@ def test_shipper_chunks_samples_to_fit_the_datagram(m4k_runtime_dir):
         t.ring.record(i * 10_000_000, i * 10_000_000 + 5, i * 10_000_000 + 9, 1)
     t.cycles = 300
     shared = SharedState(cfg, sched.Hardening(), tasks=[t])
-    sock = xddp.rt_xddp_bind(0, 'status', max_datagram=1024)
+    sock = channel.rt_xddp_bind(0, 'status', max_datagram=1024)
     try:
         opened = {}
-        th = threading.Thread(target=lambda: opened.update(ep=xddp.nrt_xddp_open('status',
+        th = threading.Thread(target=lambda: opened.update(ep=channel.nrt_xddp_open('status',
                                                                                    wait=5)))
         th.start()
         deadline = time.monotonic() + 5

@@ -32,7 +32,7 @@ from typing import Any, Callable, Sequence
 
 from m4k_bench.benchlib import liveclient, system
 from m4k_bringup.child import Child
-from m4k_rt import protocol, recorder, xddp
+from m4k_rt import channel, protocol, recorder
 
 __all__ = ['CMD_PERIOD_S', 'Child', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
            'ros_commander', 'start_child', 'start_sim_robot', 'start_stack', 'velocity_profile']
@@ -167,7 +167,7 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
     """
     out = M4kRun()
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
-    xddp.ensure_runtime_dir(runtime_dir)
+    channel.ensure_runtime_dir(runtime_dir)
     live_port = liveclient.free_port() if live and e2e else None
     try:
         kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks,
@@ -178,8 +178,8 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
         return out
     viewer = liveclient.LiveClient(live_port) if live_port is not None else None
     rt = kids['rt_core']
-    status = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
-    cmd = None if e2e else xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+    status = channel.NrtLink('status', runtime_dir, retry_interval=0.05)
+    cmd = None if e2e else channel.NrtLink('cmd', runtime_dir, retry_interval=0.05)
     stop_cmd = threading.Event()
     commander = ros_commander(stop_cmd) if e2e else None
     rec = out.recorder

@@ -74,8 +74,8 @@ class EchoPeer:
 
     def __init__(self, labels: Sequence[int | str], runtime_dir: str | None = None) -> None:
         """Prepare (not start) one re-linking endpoint per label."""
-        from m4k_rt import xddp  # NRT side only: keep the RT import graph free of it
-        self._links = [xddp.NrtLink(lb, runtime_dir, retry_interval=0.05) for lb in labels]
+        from m4k_rt import channel  # NRT side only: keep the RT import graph free of it
+        self._links = [channel.NrtLink(lb, runtime_dir, retry_interval=0.05) for lb in labels]
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=self._serve, args=(lk,), daemon=True,
                                           name='echo:{}'.format(lk.port_or_label))
