@@ -61,7 +61,8 @@ def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict
         except ImportError:
             raw = dconfig.load_file(dconfig.default_config_path())
         else:
-            return description.fill_sim_mounts(load_layered(overlay))
+            return dconfig.fill_actuator_period(description.fill_sim_mounts(
+                load_layered(overlay)))
     if overlay:
         raw = dconfig.merge(raw, dconfig.load_file(overlay))
     return description.fill_sim_mounts(raw)

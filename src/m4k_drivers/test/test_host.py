@@ -62,7 +62,7 @@ def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
     seen = ''
     while time.monotonic() < deadline and 'serving' not in seen:
         seen += proc.stderr.readline()
-    assert 'serving motor@2, led@5' in seen
+    assert 'serving motor@motor, led@led' in seen   # devices.yaml alone: by label
     assert procs.stop(proc) == 0
 
 
