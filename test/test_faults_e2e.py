@@ -33,8 +33,9 @@ import pytest
 from wsenv import ground_truth, ROOT, stack_env
 import yaml
 
+from m4k_bench import recorder
 from m4k_bench.soak import children
-from m4k_rt import channel, config, recorder
+from m4k_rt import channel, config
 from m4k_rt.control.params import control_params
 
 rclpy = pytest.importorskip('rclpy')

@@ -51,12 +51,12 @@ import tempfile
 import time
 from typing import Any, Mapping, Sequence
 
-from m4k_bench import fuzzlinks, fuzzstream
+from m4k_bench import fuzzlinks, fuzzstream, recorder
 from m4k_bench.benchlib import provenance, stack, stallprobe
 from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
 # rt_core registers the monitor body on import: config.load needs it to know that body.
-from m4k_rt import channel, config, recorder, rosargs, rt_core, sched, tasks
+from m4k_rt import channel, config, rosargs, rt_core, sched, tasks
 from m4k_rt.tasks.portio import PortReader
 
 __all__ = ['PortResult', 'cycle_verdict', 'judge_port', 'main', 'receive_sizes', 'run',

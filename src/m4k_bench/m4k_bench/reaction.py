@@ -43,7 +43,7 @@ import numpy as np
 import yaml
 
 from m4k_bench.benchlib import provenance, results
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 
 __all__ = ['main', 'run_reaction']
 
@@ -291,9 +291,10 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         for name, argv in (('driver_host', ['m4k_drivers.host', '--overlay', overlay]),
                            ('rt_core', ['m4k_rt.rt_core', '--config', overlay])):
             procs.append(Child(name, [sys.executable, '-m', *argv], env,
-                               log_path=os.path.join(out_dir, 'logs', name + '.log'),
-                               log_append=False, log_header=False, stop_timeout=10.0,
-                               must_end=True).start())
+                               output=Output(log_path=os.path.join(out_dir, 'logs',
+                                                                   name + '.log'),
+                                             log_append=False, log_header=False),
+                               stopping=Stopping(timeout=10.0, must_end=True)).start())
         cmd = _Commander(runtime_dir)
         plan = [(speeds[0], trials)] + [(v, speed_trials) for v in speeds[1:]]
         for v_cmd, n in plan:

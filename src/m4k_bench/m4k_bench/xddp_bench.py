@@ -26,7 +26,7 @@ import threading
 import time
 from typing import Callable
 
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Launch, Output, Stopping
 from m4k_rt import channel, rosargs
 
 _PAYLOAD = bytes(range(32))
@@ -54,7 +54,9 @@ def _spawn(*args: str, cpu: int | None = None) -> Child:
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(filter(None, [_PKG_ROOT, env.get('PYTHONPATH')]))
     return Child('echo peer', [sys.executable, '-m', 'm4k_bench.xddp_bench', *args], env,
-                 pipes=('stdout',), stop_signal=signal.SIGKILL, cpu=cpu).start()
+                 output=Output(pipes=('stdout',)),
+                 stopping=Stopping(sig=signal.SIGKILL),
+                 launch=Launch(cpu=cpu)).start()
 
 
 def _echo_xddp(port: int, runtime_dir: str) -> None:

@@ -13,7 +13,8 @@ import sys
 import time
 from typing import Sequence, TextIO
 
-from m4k_rt import channel, protocol, recorder, rosargs
+from m4k_bench import recorder
+from m4k_rt import channel, protocol, rosargs
 
 __all__ = ['format_stat', 'main', 'read_batch']
 
