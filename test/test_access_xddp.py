@@ -22,7 +22,7 @@ import time
 import pytest
 from wsenv import start_sim_robot
 
-from m4k_rt import protocol, xddp
+from m4k_rt import channel, protocol
 
 pytestmark = pytest.mark.needs_root('to impersonate another user')
 
@@ -93,13 +93,13 @@ def _probe(rd: str, label: str, port: int) -> dict:
             s.close()
 
     def m4k_open():
-        with xddp.nrt_xddp_open(label, runtime_dir=rd, wait=0.5) as ep:
+        with channel.nrt_xddp_open(label, runtime_dir=rd, wait=0.5) as ep:
             ep.write(protocol.encode(protocol.Kind.VELOCITY_CMD, 0, 0, 1.0, 0.0))
             ep.read(0.5)
     return {
         'listdir': _errno_of(lambda: os.listdir(rd)),
-        'connect_port': _errno_of(lambda: connect(xddp.port_path(port, rd))),
-        'connect_label': _errno_of(lambda: connect(xddp.port_path(label, rd))),
+        'connect_port': _errno_of(lambda: connect(channel.port_path(port, rd))),
+        'connect_label': _errno_of(lambda: connect(channel.port_path(label, rd))),
         'nrt_open': _errno_of(m4k_open),
         'create_file': _errno_of(lambda: open(os.path.join(rd, 'probe'), 'w').close()),
     }
@@ -129,7 +129,7 @@ def _world_writable(rd: str) -> list[str]:
 
 def test_runtime_dir_0700_socket_0600_nobody_cannot_list_connect_send_or_read(public_parent):
     rd = os.path.join(public_parent, 'm4k')
-    with xddp.rt_xddp_bind(1, 'cmd', runtime_dir=rd) as rt:
+    with channel.rt_xddp_bind(1, 'cmd', runtime_dir=rd) as rt:
         assert stat.S_IMODE(os.stat(rd).st_mode) == 0o700
         assert stat.S_IMODE(os.stat(rt.path).st_mode) == 0o600
         assert _world_writable(rd) == []
@@ -144,7 +144,7 @@ def test_runtime_dir_0700_socket_0600_nobody_cannot_list_connect_send_or_read(pu
             os.chmod(rd, 0o700)
         assert res['connect_port'] == errno.EACCES and res['connect_label'] == errno.EACCES
         # m4k's own NRT side refuses the widened directory before it tries the socket
-        # (xddp.check_runtime_dir: mode wider than 0700), so it never reaches the kernel's EACCES.
+        # (check_runtime_dir: mode wider than 0700), so it never reaches the kernel's EACCES.
         assert res['nrt_open'] == errno.EPERM
         rt.poll_peer()
         assert not rt.connected and rt.counters.received == 0
@@ -153,7 +153,7 @@ def test_runtime_dir_0700_socket_0600_nobody_cannot_list_connect_send_or_read(pu
 def test_configured_group_admits_its_members_only(public_parent):
     g = _other_group()
     rd = os.path.join(public_parent, 'm4k')
-    with xddp.rt_xddp_bind(1, 'cmd', runtime_dir=rd, group=g.gr_gid) as rt:
+    with channel.rt_xddp_bind(1, 'cmd', runtime_dir=rd, group=g.gr_gid) as rt:
         st = os.stat(rd)
         assert stat.S_IMODE(st.st_mode) == 0o770 and st.st_gid == g.gr_gid
         sst = os.stat(rt.path)
@@ -161,12 +161,12 @@ def test_configured_group_admits_its_members_only(public_parent):
         assert _world_writable(rd) == []
         outsider = as_user(lambda: _probe(rd, 'cmd', 1))
         # m4k's NRT side, not given the group, refuses a 0770 directory itself (EPERM from
-        # xddp.check_runtime_dir) before the kernel would (EACCES); everything else: the kernel.
+        # channel.check_runtime_dir) before the kernel would (EACCES); everything else: the kernel.
         assert outsider.pop('nrt_open') == errno.EPERM
         assert outsider == dict.fromkeys(outsider, errno.EACCES), outsider
 
         def member():
-            with xddp.nrt_xddp_open('cmd', runtime_dir=rd, wait=2.0, group=g.gr_gid) as ep:
+            with channel.nrt_xddp_open('cmd', runtime_dir=rd, wait=2.0, group=g.gr_gid) as ep:
                 ep.write(protocol.encode(protocol.Kind.VELOCITY_CMD, 5, 0, 0.5, 0.0))
                 data = ep.read(5.0)
             return protocol.decode(data)[0].kind
@@ -196,16 +196,16 @@ def test_runtime_dir_of_another_user_or_too_open_is_refused(public_parent):
     rd = os.path.join(public_parent, 'm4k')
     os.mkdir(rd, 0o700)
     os.chown(rd, NOBODY.pw_uid, NOBODY.pw_gid)
-    with pytest.raises(xddp.XddpError, match='owned by uid {}'.format(NOBODY.pw_uid)):
-        xddp.rt_xddp_bind(1, runtime_dir=rd)
+    with pytest.raises(channel.XddpError, match='owned by uid {}'.format(NOBODY.pw_uid)):
+        channel.rt_xddp_bind(1, runtime_dir=rd)
     os.chown(rd, 0, 0)
     os.chmod(rd, 0o777)
-    with pytest.raises(xddp.XddpError, match='mode 0777, wider than 0700'):
-        xddp.rt_xddp_bind(1, runtime_dir=rd)
+    with pytest.raises(channel.XddpError, match='mode 0777, wider than 0700'):
+        channel.rt_xddp_bind(1, runtime_dir=rd)
     os.rmdir(rd)
     os.symlink(public_parent, rd)
-    with pytest.raises(xddp.XddpError, match='symlinks are refused'):
-        xddp.rt_xddp_bind(1, runtime_dir=rd)
+    with pytest.raises(channel.XddpError, match='symlinks are refused'):
+        channel.rt_xddp_bind(1, runtime_dir=rd)
 
 
 def _socket_inodes(pid: int) -> set[str]:

@@ -21,7 +21,7 @@ from m4k_drivers.handler import State
 from m4k_drivers.host import DeviceService, load_raw_config
 from m4k_drivers.motors import protocol as mp
 from m4k_drivers.sim_robot import SimRobot
-from m4k_rt import protocol, xddp
+from m4k_rt import channel, protocol
 from m4k_rt.protocol import EncoderStatus
 
 K = protocol.Kind
@@ -35,10 +35,10 @@ class Rig:
         raw = load_raw_config()
         devices = {kind: dict(raw['devices'][kind], **overrides)}
         cfg = dconfig.validate({'devices': devices, 'world': raw.get('world') or {}})
-        self.robot = SimRobot(cfg, xddp.ensure_runtime_dir(runtime_dir)).start()
+        self.robot = SimRobot(cfg, channel.ensure_runtime_dir(runtime_dir)).start()
         self.ctx = registry.BuildContext(runtime_dir=runtime_dir)
         self.handler = registry.create(kind, cfg.devices[kind], self.ctx)
-        self.rt = xddp.rt_xddp_bind(PORTS[kind], kind, runtime_dir=runtime_dir)
+        self.rt = channel.rt_xddp_bind(PORTS[kind], kind, runtime_dir=runtime_dir)
         self.stop = threading.Event()
         self.runtime_dir = runtime_dir
         self.svc = DeviceService(kind, self.handler, cfg.devices[kind], kind, self.stop,
@@ -87,7 +87,7 @@ class Rig:
 
     def rebind(self):
         self.rt.close()
-        self.rt = xddp.rt_xddp_bind(self.rt.port, self.rt.label, runtime_dir=self.runtime_dir)
+        self.rt = channel.rt_xddp_bind(self.rt.port, self.rt.label, runtime_dir=self.runtime_dir)
 
     def close(self):
         self.stop.set()
@@ -153,7 +153,7 @@ def test_motor_watchdog_on_rt_hang_safe_on_rt_loss_and_resume_only_on_fresh_comm
     while not h.safe and time.monotonic() < end:
         time.sleep(0.01)
     assert h.safe and h.codes == (mp.DAC_ZERO, mp.DAC_ZERO)
-    r.rt = xddp.rt_xddp_bind(2, 'motor', runtime_dir=r.runtime_dir)
+    r.rt = channel.rt_xddp_bind(2, 'motor', runtime_dir=r.runtime_dir)
     t0 = time.monotonic()
     r.wait_linked()
     relink_s = time.monotonic() - t0

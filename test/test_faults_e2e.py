@@ -33,8 +33,9 @@ import pytest
 from wsenv import ground_truth, ROOT, stack_env
 import yaml
 
+from m4k_bench import recorder
 from m4k_bench.soak import children
-from m4k_rt import config, recorder, xddp
+from m4k_rt import channel, config
 from m4k_rt.control.params import control_params
 
 rclpy = pytest.importorskip('rclpy')
@@ -67,7 +68,7 @@ class Probe:
         self.node.create_subscription(Odometry, 'odom', self._on_odom, 10)
         self.node.create_subscription(DiagnosticArray, 'diagnostics', self._on_diag, 10)
         self.rec = recorder.Recorder()
-        self.stat = xddp.NrtLink('stat', runtime_dir, retry_interval=0.1)
+        self.stat = channel.NrtLink('stat', runtime_dir, retry_interval=0.1)
         self.cycles_seen = []
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._read_stat, daemon=True)

@@ -32,7 +32,7 @@ import yaml
 from m4k_drivers.config import validate
 from m4k_drivers.host import load_raw_config
 from m4k_rt import protocol as p
-from m4k_rt.xddp import nrt_xddp_open
+from m4k_rt.channel import nrt_xddp_open
 
 SPEED = 0.25
 STOPPED = 0.01

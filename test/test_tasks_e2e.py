@@ -16,8 +16,8 @@ import yaml
 
 from m4k_drivers.motors import protocol as motor_protocol
 from m4k_rt import protocol as p
+from m4k_rt.channel import nrt_xddp_open
 from m4k_rt.control import dac
-from m4k_rt.xddp import nrt_xddp_open
 
 OBSTACLE_X = 1.5          # flat face of the triangle (config/devices.yaml world.obstacles)
 BODY_FRONT = 0.225        # half the 45 cm body: the sonar's mount

@@ -40,6 +40,8 @@ setup(
             'scenarios = m4k_bench.scenarios:main',
             'reaction = m4k_bench.reaction:main',
             'bench_combine = m4k_bench.benchlib.combine:main',
+            'rt_stat = m4k_bench.rt_stat:main',
+            'echo_peer = m4k_bench.echo_peer:main',
         ],
     },
 )

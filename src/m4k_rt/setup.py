@@ -23,8 +23,6 @@ setup(
     entry_points={
         'console_scripts': [
             'rt_core = m4k_rt.rt_core:main',
-            'rt_stat = m4k_rt.tools.rt_stat:main',
-            'echo_peer = m4k_rt.tasks.echo:main',
         ],
     },
 )

@@ -28,10 +28,11 @@ from typing import Any, cast, Sequence
 
 import numpy as np
 
-from m4k_bringup.child import Child
-from m4k_rt import config, cycleprof, recorder, rosargs, timing, xddp
+from m4k_bench import recorder
+from m4k_bench.echo_peer import EchoPeer
+from m4k_bringup.child import Child, Output, Stopping
+from m4k_rt import channel, config, cycleprof, rosargs, timing
 from m4k_rt.task import RtTask
-from m4k_rt.tasks.echo import EchoPeer
 from m4k_rt.timerfd import TimerFd
 
 __all__ = ['machinery_overhead', 'main', 'parse_cyclictest_hist', 'run', 'run_core',
@@ -59,9 +60,10 @@ def run_core(duration_s: float, runtime_dir: str, task_names: list[str] | None,
         env[cycleprof.ENV] = prof_path
     rec = recorder.Recorder(warmup_cycles=WARMUP_CYCLES)
     with EchoPeer(labels, runtime_dir):
-        link = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
-        child = Child('rt_core', argv, env, pipes=('stderr',), log_path=os.devnull,
-                      log_header=False, stop_timeout=10.0).start()
+        link = channel.NrtLink('status', runtime_dir, retry_interval=0.05)
+        child = Child('rt_core', argv, env,
+                      output=Output(pipes=('stderr',), log_path=os.devnull, log_header=False),
+                      stopping=Stopping(timeout=10.0)).start()
         proc = child.proc
         assert proc is not None and proc.stderr is not None  # stderr piped
         try:

@@ -57,6 +57,7 @@ from m4k_bench.planning.evaluate import (
     trajectory_clearance,
     WorldGeometry,
 )
+from m4k_bringup.bringup import bringup_argv
 from m4k_rt import config, description, rosargs
 
 __all__ = ['judge', 'main', 'pose_rate']
@@ -106,14 +107,6 @@ def _stop(child: Child, timeout: float) -> int | None:
 
 def _tail(child: Child, n: int = 15) -> str:
     return '\n'.join(child.tail(n))
-
-
-def _bringup_argv(overlay: str | None, python_m: bool) -> list[str]:
-    exe = None if python_m else shutil.which('bringup')
-    argv = [exe] if exe else [sys.executable, '-m', 'm4k_bringup.bringup']
-    if python_m:
-        argv.append('--python-m')
-    return argv + (['--config', overlay] if overlay else [])
 
 
 def _planner_argv(goal: Sequence[float], mount: Sequence[float], max_v: float,
@@ -562,7 +555,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rec = Recorder()
     bag = _child('record', [sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
                             os.path.join(out_dir, 'bag')], out_dir, env)
-    stack = _child('bringup', _bringup_argv(args.config, args.python_m), out_dir, env)
+    stack = _child('bringup', bringup_argv(args.config, python_m=args.python_m), out_dir, env)
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         timed_out, rc = _drive(rec, stack, env, args, mount, out_dir)

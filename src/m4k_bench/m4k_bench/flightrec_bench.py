@@ -34,7 +34,7 @@ from typing import Any, Sequence
 import yaml
 
 from m4k_bench.benchlib import provenance, results
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import rosargs
 
 __all__ = ['main', 'run_once']
@@ -85,8 +85,9 @@ def run_once(enabled: bool, window_s: float, warmup_s: float, env: dict[str, str
     log_path = os.path.join(tmp, 'bringup.log')
     # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
     proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
-                             '--no-status', '--config', overlay], env, log_path=log_path,
-                 stop_timeout=40.0, must_end=True).start()
+                             '--no-status', '--config', overlay], env,
+                 output=Output(log_path=log_path),
+                 stopping=Stopping(timeout=40.0, must_end=True)).start()
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node('flightrec_bench', context=ctx)

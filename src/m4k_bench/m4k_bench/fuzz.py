@@ -51,12 +51,12 @@ import tempfile
 import time
 from typing import Any, Mapping, Sequence
 
-from m4k_bench import fuzzlinks, fuzzstream
+from m4k_bench import fuzzlinks, fuzzstream, recorder
 from m4k_bench.benchlib import provenance, stack, stallprobe
 from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
 # rt_core registers the monitor body on import: config.load needs it to know that body.
-from m4k_rt import config, recorder, rosargs, rt_core, sched, tasks, xddp
+from m4k_rt import channel, config, rosargs, rt_core, sched, tasks
 from m4k_rt.tasks.portio import PortReader
 
 __all__ = ['PortResult', 'cycle_verdict', 'judge_port', 'main', 'receive_sizes', 'run',
@@ -140,7 +140,7 @@ def receive_sizes(cfg: config.RtConfig) -> dict[str, int]:
         for t in cfg.tasks:
             ports = {}
             for label in t.ports:
-                s = xddp.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
+                s = channel.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
                                       max_datagram=rt.max_datagram, runtime_dir=scratch,
                                       max_ports=rt.max_ports, group=rt.group,
                                       transport=rt.transport)

@@ -1,7 +1,7 @@
 """The fuzzer's links to rt_core: its ``status``/``stat`` observer and the per-port senders.
 
 :class:`Observer` is the NRT side of the two monitor ports for the whole run: it reads every
-monitor batch into a :class:`m4k_rt.recorder.Recorder` and writes the fuzz stream of those two
+monitor batch into a :class:`m4k_bench.recorder.Recorder` and writes the fuzz stream of those two
 ports itself, between reads. :class:`Sender` runs ``fuzz send LABEL COUNT SEED SECONDS`` (the
 NRT side of any other port, :func:`send`) as a process of its own.
 """
@@ -14,9 +14,9 @@ import sys
 import time
 from typing import Callable, Iterator, Mapping
 
-from m4k_bench import fuzzstream
-from m4k_bringup.child import Child
-from m4k_rt import protocol, recorder, xddp
+from m4k_bench import fuzzstream, recorder
+from m4k_bringup.child import Child, Output, Stopping
+from m4k_rt import channel, protocol
 
 __all__ = ['MONITOR_PORTS', 'Observer', 'Sender', 'send']
 
@@ -26,7 +26,7 @@ MONITOR_PORTS = ('status', 'stat')
 class Observer:
     """The fuzzer's NRT side of ``status`` and ``stat``: every monitor batch, and their streams.
 
-    :meth:`pump` reads whatever the RT side sent (into a :class:`m4k_rt.recorder.Recorder`:
+    :meth:`pump` reads whatever the RT side sent (into a :class:`m4k_bench.recorder.Recorder`:
     TASK_STATS samples, TASK_HEALTH, RT_STATUS, PORT_STATS) and, while :meth:`stream` is
     active, writes the fuzz stream of one of these two ports whenever its socket has room.
     ``batches`` counts monitor batches (RT_STATUS on ``status`` closes one).
@@ -35,7 +35,7 @@ class Observer:
     def __init__(self, runtime_dir: str, wait_s: float = 30.0) -> None:
         """Open both ports (waiting up to ``wait_s`` for rt_core to bind them)."""
         self.rec = recorder.Recorder()
-        self.eps: dict[str, xddp.NrtXddpEndpoint] = {}
+        self.eps: dict[str, channel.NrtXddpEndpoint] = {}
         self.batches = 0
         self.lost: str | None = None
         self._poll = select.poll()
@@ -46,7 +46,7 @@ class Observer:
         self.written = 0
         try:
             for label in MONITOR_PORTS:
-                ep = xddp.nrt_xddp_open(label, wait=wait_s, runtime_dir=runtime_dir)
+                ep = channel.nrt_xddp_open(label, wait=wait_s, runtime_dir=runtime_dir)
                 self.eps[label] = ep
                 self._by_fd[ep.fileno()] = label
                 self._poll.register(ep.fileno(), select.POLLIN)
@@ -164,7 +164,7 @@ def send(label: str, count: int, seed: int, runtime_dir: str | None = None,
     """
     n = 0
     end = None if seconds is None else time.monotonic() + seconds
-    with xddp.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
+    with channel.nrt_xddp_open(label, wait=10.0, runtime_dir=runtime_dir) as ep:
         for d in fuzzstream.datagrams(label, count, seed):
             if end is not None and time.monotonic() >= end:
                 break
@@ -187,7 +187,9 @@ class Sender:
             'fuzz send ' + label,
             [sys.executable, '-m', 'm4k_bench.fuzz', 'send', label, str(count), str(seed),
              str(seconds)],
-            env, pipes=('stdin', 'stdout', 'stderr'), stop_signal=signal.SIGKILL).start()
+            env,
+            output=Output(pipes=('stdin', 'stdout', 'stderr')),
+            stopping=Stopping(sig=signal.SIGKILL)).start()
         proc = self.child.proc
         assert proc is not None
         self.proc = proc

@@ -31,7 +31,7 @@ from typing import Any, Sequence
 
 from m4k_bench.benchlib import provenance
 from m4k_bridge.interfaces import interface_class
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import rosargs
 
 SUB = 'foxglove.websocket.v1'
@@ -213,8 +213,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     log_path = os.path.join(tmp, 'bringup.log')
     # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
     proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--no-status',
-                             '--foxglove', '--foxglove-port', '0'], env, log_path=log_path,
-                 stop_timeout=40.0, must_end=True).start()
+                             '--foxglove', '--foxglove-port', '0'], env,
+                 output=Output(log_path=log_path),
+                 stopping=Stopping(timeout=40.0, must_end=True)).start()
     try:
         port = None
         deadline = time.monotonic() + 60

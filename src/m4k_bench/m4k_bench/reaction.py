@@ -43,7 +43,7 @@ import numpy as np
 import yaml
 
 from m4k_bench.benchlib import provenance, results
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 
 __all__ = ['main', 'run_reaction']
 
@@ -157,8 +157,8 @@ class _Commander:
     """VELOCITY_CMD at 20 Hz on the ``cmd`` port (the bridge's role), ODOMETRY drained."""
 
     def __init__(self, runtime_dir: str) -> None:
-        from m4k_rt import xddp
-        self.link = xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+        from m4k_rt import channel
+        self.link = channel.NrtLink('cmd', runtime_dir, retry_interval=0.05)
         self.v = 0.0
         self.flags = 0            # the last ODOMETRY flags (m4k_rt.protocol.OdomFlag)
         self.fault_resets = 0     # MOTOR_FAULT latches seen (and reset) on healthy wheels
@@ -291,9 +291,10 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         for name, argv in (('driver_host', ['m4k_drivers.host', '--overlay', overlay]),
                            ('rt_core', ['m4k_rt.rt_core', '--config', overlay])):
             procs.append(Child(name, [sys.executable, '-m', *argv], env,
-                               log_path=os.path.join(out_dir, 'logs', name + '.log'),
-                               log_append=False, log_header=False, stop_timeout=10.0,
-                               must_end=True).start())
+                               output=Output(log_path=os.path.join(out_dir, 'logs',
+                                                                   name + '.log'),
+                                             log_append=False, log_header=False),
+                               stopping=Stopping(timeout=10.0, must_end=True)).start())
         cmd = _Commander(runtime_dir)
         plan = [(speeds[0], trials)] + [(v, speed_trials) for v in speeds[1:]]
         for v_cmd, n in plan:

@@ -40,10 +40,10 @@ import threading
 import time
 from typing import Any, Sequence
 
-from m4k_bench import core_bench, soaktime
+from m4k_bench import core_bench, recorder, soaktime
 from m4k_bench.benchlib import provenance, results, stack, system
-from m4k_bringup.child import Child
-from m4k_rt import config, recorder, rosargs, xddp
+from m4k_bringup.child import Child, Output, Stopping
+from m4k_rt import channel, config, rosargs
 
 __all__ = ['children', 'late_verdict', 'leak_verdict', 'main', 'rss_kib']
 
@@ -158,7 +158,7 @@ class StatReader:
 
     def __init__(self, runtime_dir: str) -> None:
         self.rec = recorder.Recorder()
-        self.link = xddp.NrtLink('stat', runtime_dir, retry_interval=0.2)
+        self.link = channel.NrtLink('stat', runtime_dir, retry_interval=0.2)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name='soak-stat', daemon=True)
 
@@ -203,8 +203,9 @@ def _cyclictest(duration_s: float, priority: int, interval_us: int, hist_path: s
                                 str(loops), '-q', '-h', str(interval_us),
                                 '--histfile={}'.format(hist_path), '-v',
                                 '--spike={}'.format(interval_us - 1), '--spike-nodes=10000'],
-                 log_path=verbose_path, log_append=False, log_header=False,
-                 pipes=('stderr',), stop_signal=signal.SIGINT, stop_timeout=30.0).start()
+                 output=Output(log_path=verbose_path, log_append=False, log_header=False,
+                               pipes=('stderr',)),
+                 stopping=Stopping(sig=signal.SIGINT, timeout=30.0)).start()
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -257,8 +258,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                                'warmup_s': warmup, 'stress': not args.no_stress,
                                'machine': system.machine_info(),
                                'provenance': provenance.provenance()}
-    bu = Child('bringup', argv_bu, env, log_path=log_path, log_append=False, log_header=False,
-               stop_signal=signal.SIGINT, group=False, stop_timeout=60.0).start()
+    bu = Child('bringup', argv_bu, env,
+               output=Output(log_path=log_path, log_append=False, log_header=False),
+               stopping=Stopping(sig=signal.SIGINT, group=False, timeout=60.0)).start()
     stat = StatReader(runtime_dir)
     stop_cmd = threading.Event()
     stress: Child | None = None

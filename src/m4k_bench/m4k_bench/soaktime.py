@@ -236,7 +236,7 @@ def analyze(refs: Mapping[str, dict[str, Any]], counters: CounterTimeline,
     """Return the timeline section of the soak's summary.
 
     ``refs``: name -> :func:`reference` result plus its ``priority``; ``series``: task ->
-    :class:`m4k_rt.recorder.TaskSeries` (the samples the ``stat`` port carried).
+    :class:`m4k_bench.recorder.TaskSeries` (the samples the ``stat`` port carried).
     """
     late = {r: v['late_times_s'] for r, v in refs.items()}
     by_counters = attribute(counters.events(), late, t_first, COUNTER_WINDOW_S)

@@ -26,8 +26,8 @@ import threading
 import time
 from typing import Callable
 
-from m4k_bringup.child import Child
-from m4k_rt import rosargs, xddp
+from m4k_bringup.child import Child, Launch, Output, Stopping
+from m4k_rt import channel, rosargs
 
 _PAYLOAD = bytes(range(32))
 _WARMUP = 50
@@ -54,11 +54,13 @@ def _spawn(*args: str, cpu: int | None = None) -> Child:
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(filter(None, [_PKG_ROOT, env.get('PYTHONPATH')]))
     return Child('echo peer', [sys.executable, '-m', 'm4k_bench.xddp_bench', *args], env,
-                 pipes=('stdout',), stop_signal=signal.SIGKILL, cpu=cpu).start()
+                 output=Output(pipes=('stdout',)),
+                 stopping=Stopping(sig=signal.SIGKILL),
+                 launch=Launch(cpu=cpu)).start()
 
 
 def _echo_xddp(port: int, runtime_dir: str) -> None:
-    ep = xddp.nrt_xddp_open(port, wait=30.0, runtime_dir=runtime_dir)
+    ep = channel.nrt_xddp_open(port, wait=30.0, runtime_dir=runtime_dir)
     print('ready', flush=True)
     try:
         while True:
@@ -113,7 +115,7 @@ def _in_rt_thread(body: Callable[[], list[int]], priority: int,
 
 def _xddp_rtt(n: int, runtime_dir: str, port: int, priority: int,
               cpu: int | None, transport: str = 'socket') -> tuple[list[int], bool]:
-    rt = xddp.rt_xddp_bind(port, runtime_dir=runtime_dir, transport=transport)
+    rt = channel.rt_xddp_bind(port, runtime_dir=runtime_dir, transport=transport)
     peer = _spawn('--echo-xddp', str(port), '--runtime-dir', runtime_dir, cpu=cpu)
     try:
         deadline = time.monotonic() + 30.0
@@ -215,7 +217,7 @@ def run_rtt(n: int, runtime_dir: str | None, *, port: int = 31, priority: int = 
     """
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError('n must be a positive int, got {!r}'.format(n))
-    runtime_dir = xddp.ensure_runtime_dir(runtime_dir)
+    runtime_dir = channel.ensure_runtime_dir(runtime_dir)
     if cpu == -1:
         cpu = max(os.sched_getaffinity(0))
     xddp_samples, fifo = _xddp_rtt(n, runtime_dir, port, priority, cpu, transport)
@@ -237,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--cpu', type=int, default=-1,
                         help='CPU for the measuring thread and the echo peer (-1: the last '
                         'one; -2: no pinning)')
-    parser.add_argument('--transport', choices=xddp.TRANSPORTS, default='socket',
+    parser.add_argument('--transport', choices=channel.TRANSPORTS, default='socket',
                         help='XDDP transport of the measured port (default %(default)s)')
     parser.add_argument('--echo-xddp', type=int, metavar='PORT', help=argparse.SUPPRESS)
     parser.add_argument('--echo-raw', metavar='PATH', help=argparse.SUPPRESS)

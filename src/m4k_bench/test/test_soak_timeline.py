@@ -122,7 +122,7 @@ def test_sample_events_count_skipped_releases_and_misses_inside_the_window():
 
 
 def test_analyze_puts_samples_counters_and_references_in_one_report(tmp_path):
-    from m4k_rt.recorder import TaskSeries
+    from m4k_bench.recorder import TaskSeries
     ms = 1_000_000
     imu = TaskSeries('imu', period_ns=10 * ms)
     # one cycle at 1000.0 s, then a wake-up 26.4 ms after the release at 30 ms: 3 expirations

@@ -39,7 +39,7 @@ MS = 1_000_000
 
 
 def _series():
-    from m4k_rt.recorder import TaskSeries
+    from m4k_bench.recorder import TaskSeries
     t = TaskSeries('actuator', period_ns=10 * MS)
     # (release, start, end, expirations) in ms. The release at 40 ms is missed: the wake-up at
     # 50.5 ms serves 40 and 50 (10.5 ms late from 40); the cycle at 60 ms ends at 70.5 (a

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
+from m4k_bridge.params import PARAM_TYPES
 from m4k_rt.schema import Field
 
 __all__ = ['TYPES', 'descriptor']
 
-TYPES = {'bool': ParameterType.PARAMETER_BOOL, 'int': ParameterType.PARAMETER_INTEGER,
-          'float': ParameterType.PARAMETER_DOUBLE, 'str': ParameterType.PARAMETER_STRING,
-          'float[]': ParameterType.PARAMETER_DOUBLE_ARRAY,
-          'str[]': ParameterType.PARAMETER_STRING_ARRAY}
+# Schema type -> ROS ParameterType, derived from the bridge's one table of parameter types.
+TYPES = {t.schema: getattr(ParameterType, t.descriptor) for t in PARAM_TYPES}
 
 
 def descriptor(f: Field) -> ParameterDescriptor:

@@ -61,7 +61,7 @@ from m4k_bridge.safety import SafetyInterface
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_bridge.tf import RobotStatePublisher
 from m4k_msgs.msg import RtStatus
-from m4k_rt import config, description, protocol, xddp, yamlload
+from m4k_rt import channel, config, description, protocol, yamlload
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
@@ -116,10 +116,10 @@ class BridgeNode(Node):
         self._monitor = RtMonitor(p['stats_window'], p['rt_stale_timeout'])
         self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
         runtime_dir = p['runtime_dir'] or None
-        self._runtime_dir = runtime_dir or xddp.default_runtime_dir()
+        self._runtime_dir = runtime_dir or channel.default_runtime_dir()
         group = p['runtime_group'] or None
         try:     # as the RT side checks it, before anything links in it
-            xddp.check_runtime_dir(self._runtime_dir, group)
+            channel.check_runtime_dir(self._runtime_dir, group)
         except OSError as exc:
             raise params.ParamError('runtime_dir', str(exc)) from None
         # Outages, counters and the link / cmd_vel / device statuses (m4k_bridge.health).
@@ -152,6 +152,7 @@ class BridgeNode(Node):
         # It has no subscription to the bridge's inputs: their callbacks hand it what arrives.
         self._flight = FlightRecorder(self, p, self._cmd_vel_type)
         self._safety.record = self._flight.keep_e_stop
+        self._handlers = self._datagram_handlers()
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
         # The cmd port's first datagram on every link is the e-stop, when one is requested.
         safety = self._safety
@@ -390,62 +391,95 @@ class BridgeNode(Node):
             return
         self.health.on_seq(role, header.seq)
         stamp = convert.ros_stamp_ns(header.stamp_ns, now_mono, now_ros)
-        p = self.p
-        k = header.kind
-        if k == protocol.Kind.ODOMETRY:
-            self.health.on_odometry(payload, rx_ns)
-            self._odom_pub.publish(convert.odometry_msg(
-                payload, stamp, p.frame(p['odom_frame']), p.frame(p.odom_child),
-                p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
-            self._robot_state.on_odometry(payload, stamp)
-            self._safety.on_latch(bool(payload.flags & protocol.ODOM_E_STOP), rx_ns)
-            self._safety.on_flags(payload.flags)
-            self._faults.on_flags(payload.flags, rx_ns)
-        elif k == protocol.Kind.SAFETY_STATUS:
-            line = self._safety_report.feed(payload, rx_ns)
-            if line is not None:
-                if payload.flags & protocol.SAFETY_TEST_WEAKENED:
-                    self.get_logger().error(line)
-                else:
-                    self.get_logger().info(line)
-        elif k == protocol.Kind.FAULT_RESET:
-            if not self._faults.on_reset_ack(payload):
-                self.health.count('unexpected_' + role)
-        elif k == protocol.Kind.APPLIED_VELOCITY:
-            out = TwistStamped(header=Header(stamp=convert.time_msg(stamp),
-                                             frame_id=p.frame(p.odom_child)))
-            out.twist.linear.x, out.twist.angular.z = payload.linear_x, payload.angular_z
-            self._applied_pub.publish(out)
-        elif k == protocol.Kind.SET_POSE:
-            if not self._safety.on_set_pose_ack(payload):
-                self.health.count('unexpected_' + role)
-        elif k == protocol.Kind.IMU:
-            msg = convert.imu_msg(payload, stamp, p.frame(p['imu_frame']),
-                                  p['imu_orientation_covariance_diagonal'],
-                                  p['imu_angular_velocity_covariance_diagonal'],
-                                  p['imu_linear_acceleration_covariance_diagonal'])
-            if msg is None:
-                self.health.count('imu_not_ready')
-            else:
-                self._imu_pub.publish(msg)
-        elif k == protocol.Kind.LASER_SCAN:
-            self._scan_pub.publish(convert.scan_msg(payload, stamp, p.frame(p['laser_frame'])))
-        elif k == protocol.Kind.SONAR:
-            self.health.on_sonar(payload.status)
-            sonar = convert.sonar_msg(
-                payload, stamp, p.frame(p['sonar_frame']), p['sonar_field_of_view'],
-                p['sonar_min_range'], p['sonar_max_range'], p['sonar_no_echo'])
-            if sonar is None:      # never NaN on sonar: a fault is dropped and counted
-                self.health.count('sonar_dropped')
-            else:
-                self._sonar_pub.publish(sonar)
-        elif k == protocol.Kind.LED:
-            self.health.on_led_shown(payload)
-        elif k == protocol.Kind.ODOM_RESET:
-            if not self._safety.on_reset_ack(payload.request_id):
-                self.health.count('unexpected_' + role)
-        elif not self._monitor.feed(k, payload, rx_ns, header.stamp_ns):
+        handler = self._handlers.get(header.kind)
+        if handler is not None:
+            taken = handler(payload, stamp, rx_ns)
+        else:    # the monitor's own kinds (TASK_STATS, RT_STATUS, PORT_STATS, ...)
+            taken = self._monitor.feed(header.kind, payload, rx_ns, header.stamp_ns)
+        if not taken:
             self.health.count('unexpected_' + role)
+
+    # --- one handler per datagram kind: it returns False for a datagram nobody expected ----
+
+    def _datagram_handlers(self) -> dict[int, Callable[[Any, int, int], bool]]:
+        """Return the handler of each datagram kind the RT side sends the bridge."""
+        K = protocol.Kind
+        return {K.ODOMETRY: self._on_odometry, K.SAFETY_STATUS: self._on_safety_status,
+                K.FAULT_RESET: self._on_fault_reset, K.APPLIED_VELOCITY: self._on_applied,
+                K.SET_POSE: self._on_set_pose_ack, K.IMU: self._on_imu,
+                K.LASER_SCAN: self._on_scan, K.SONAR: self._on_sonar,
+                K.LED: self._on_led_shown, K.ODOM_RESET: self._on_odom_reset_ack}
+
+    def _on_odometry(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        p = self.p
+        self.health.on_odometry(payload, rx_ns)
+        self._odom_pub.publish(convert.odometry_msg(
+            payload, stamp, p.frame(p['odom_frame']), p.frame(p.odom_child),
+            p['odom_pose_covariance_diagonal'], p['odom_twist_covariance_diagonal']))
+        self._robot_state.on_odometry(payload, stamp)
+        self._safety.on_latch(bool(payload.flags & protocol.ODOM_E_STOP), rx_ns)
+        self._safety.on_flags(payload.flags)
+        self._faults.on_flags(payload.flags, rx_ns)
+        return True
+
+    def _on_safety_status(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        line = self._safety_report.feed(payload, rx_ns)
+        if line is not None:
+            if payload.flags & protocol.SAFETY_TEST_WEAKENED:
+                self.get_logger().error(line)
+            else:
+                self.get_logger().info(line)
+        return True
+
+    def _on_fault_reset(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        return bool(self._faults.on_reset_ack(payload))
+
+    def _on_applied(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        p = self.p
+        out = TwistStamped(header=Header(stamp=convert.time_msg(stamp),
+                                         frame_id=p.frame(p.odom_child)))
+        out.twist.linear.x, out.twist.angular.z = payload.linear_x, payload.angular_z
+        self._applied_pub.publish(out)
+        return True
+
+    def _on_set_pose_ack(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        return bool(self._safety.on_set_pose_ack(payload))
+
+    def _on_imu(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        p = self.p
+        msg = convert.imu_msg(payload, stamp, p.frame(p['imu_frame']),
+                              p['imu_orientation_covariance_diagonal'],
+                              p['imu_angular_velocity_covariance_diagonal'],
+                              p['imu_linear_acceleration_covariance_diagonal'])
+        if msg is None:
+            self.health.count('imu_not_ready')
+        else:
+            self._imu_pub.publish(msg)
+        return True
+
+    def _on_scan(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        p = self.p
+        self._scan_pub.publish(convert.scan_msg(payload, stamp, p.frame(p['laser_frame'])))
+        return True
+
+    def _on_sonar(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        p = self.p
+        self.health.on_sonar(payload.status)
+        sonar = convert.sonar_msg(
+            payload, stamp, p.frame(p['sonar_frame']), p['sonar_field_of_view'],
+            p['sonar_min_range'], p['sonar_max_range'], p['sonar_no_echo'])
+        if sonar is None:      # never NaN on sonar: a fault is dropped and counted
+            self.health.count('sonar_dropped')
+        else:
+            self._sonar_pub.publish(sonar)
+        return True
+
+    def _on_led_shown(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        self.health.on_led_shown(payload)
+        return True
+
+    def _on_odom_reset_ack(self, payload: Any, stamp: int, rx_ns: int) -> bool:
+        return bool(self._safety.on_reset_ack(payload.request_id))
 
     # --- robot state: description, joint_states, tf (m4k_bridge.tf) -----------------------
 

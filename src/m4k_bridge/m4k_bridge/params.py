@@ -76,27 +76,49 @@ DERIVED: dict[str, str] = {
     'runtime_group': 'runtime.group',
 }
 
-_UNITS = {
-    'cmd_vel_timeout': 's', 'max_linear_velocity': 'm/s', 'max_angular_velocity': 'rad/s',
-    'odom_pose_covariance_diagonal': 'm^2, rad^2', 'odom_twist_covariance_diagonal':
-    'm^2/s^2, rad^2/s^2', 'imu_orientation_covariance_diagonal': 'rad^2',
-    'imu_angular_velocity_covariance_diagonal': 'rad^2/s^2',
-    'imu_linear_acceleration_covariance_diagonal': 'm^2/s^4', 'sonar_field_of_view': 'rad',
-    'sonar_min_range': 'm', 'sonar_max_range': 'm', 'stats_window': 's',
-    'rt_status_period': 's', 'diagnostics_period': 's', 'rt_stale_timeout': 's',
-    'relink_interval': 's', 'reset_odometry_timeout': 's', 'e_stop_timeout': 's',
-    'flight_recorder.seconds': 's', 'flight_recorder.post_seconds': 's',
-    'flight_recorder.max_bytes': 'bytes', 'flight_recorder.min_interval': 's',
-}
-_ROS_TYPES = {bool: 'bool', int: 'int', float: 'float', str: 'str', list: 'float[]'}
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamType:
+    """One parameter type, as each side names it."""
+
+    schema: str                   # the schema Field's type
+    python: tuple[type, ...]      # the Python values of that type (bool before int: a subclass)
+    ros: str                      # rclpy's name, as its messages spell it
+    descriptor: str               # the rcl_interfaces ParameterType constant
+
+
+# The one table of parameter types: ParamSpec, the rclpy type check (validate) and the ROS
+# descriptors (m4k_bridge.descriptors) all read it. A list is a double[] unless its Field
+# says str[] (the live view's lists).
+PARAM_TYPES: tuple[ParamType, ...] = (
+    ParamType('bool', (bool,), 'bool', 'PARAMETER_BOOL'),
+    ParamType('int', (int,), 'int', 'PARAMETER_INTEGER'),
+    ParamType('float', (float,), 'double', 'PARAMETER_DOUBLE'),
+    ParamType('str', (str,), 'string', 'PARAMETER_STRING'),
+    ParamType('float[]', (list, tuple, array.array), 'double[]', 'PARAMETER_DOUBLE_ARRAY'),
+    ParamType('str[]', (list, tuple), 'string[]', 'PARAMETER_STRING_ARRAY'),
+)
+
+
+def param_type(value: Any) -> ParamType | None:
+    """Return the type of a parameter value (the first row it is an instance of), or None."""
+    for t in PARAM_TYPES:
+        if isinstance(value, t.python):
+            return t
+    return None
 
 
 def ParamSpec(name: str, default: Any, description: str, lo: float | None = None,  # noqa: N802
               hi: float | None = None, read_only: bool = False, length: int | None = None,
-              check: Callable[[Any], str | None] | None = None) -> Field:
+              check: Callable[[Any], str | None] | None = None, unit: str = '') -> Field:
     """Return the schema Field of one bridge parameter (type from its default, unit, source)."""
-    return Field(_ROS_TYPES[type(default)], default, description, unit=_UNITS.get(name, ''),
-                 lo=lo, hi=hi, read_only=read_only, length=length, check=check,
+    t = param_type(default)
+    if t is None:
+        raise TypeError('parameter {!r}: no ROS parameter type for its default {!r}'.format(
+            name, default))
+    return Field(t.schema, default, description, unit=unit, lo=lo, hi=hi,
+                 read_only=read_only, length=length, check=check,
                  derived_from=DERIVED.get(name, ''), name=name)
 
 
@@ -200,14 +222,14 @@ SPECS: tuple[Field, ...] = (
               'after which the input is reported idle in diagnostics. Derived: '
               'control.cmd_vel_timeout, on which the RT actuator brakes (the bridge never '
               'repeats or synthesizes commands); a different value makes diagnostics call the '
-              'input idle before or after the robot brakes.', lo=0.0, hi=60.0),
+              'input idle before or after the robot brakes.', lo=0.0, hi=60.0, unit='s'),
     ParamSpec('max_linear_velocity', _CONTROL.linear.max_velocity, 'Linear speed limit [m/s]; '
               'cmd_vel beyond it is clamped and counted. Derived: control.linear.max_velocity '
               '(the RT limiter applies it again); lower it at run time to slow a session down.',
-              lo=0.0, hi=10.0),
+              lo=0.0, hi=10.0, unit='m/s'),
     ParamSpec('max_angular_velocity', _CONTROL.angular.max_velocity, 'Angular speed limit '
               '[rad/s]; cmd_vel beyond it is clamped and counted. Derived: '
-              'control.angular.max_velocity.', lo=0.0, hi=20.0),
+              'control.angular.max_velocity.', lo=0.0, hi=20.0, unit='rad/s'),
     ParamSpec('odom_frame', 'odom', 'Frame id of odometry (REP-105 odom).', check=_frame),
     ParamSpec('base_frame', 'base_link', 'The body link (REP-105 base_link, on the wheel axle) '
               'the sensors, wheels and casters hang from in the generated robot description; '
@@ -237,27 +259,27 @@ SPECS: tuple[Field, ...] = (
     ParamSpec('odom_pose_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
               'Diagonal of the odometry pose covariance (x, y, z [m^2], roll, pitch, yaw '
               '[rad^2]); huge values mark the unobserved planar-robot axes. ' + _COV,
-              lo=0.0, hi=1.0e9, length=6),
+              lo=0.0, hi=1.0e9, length=6, unit='m^2, rad^2'),
     ParamSpec('odom_twist_covariance_diagonal', [0.001, 0.001, 1.0e+6, 1.0e+6, 1.0e+6, 0.01],
               'Diagonal of the odometry twist covariance (vx, vy, vz [m^2/s^2], wx, wy, wz '
               '[rad^2/s^2]). vy is a measurement, not an unknown: a differential drive cannot '
               'move sideways, so the published vy = 0 carries about the variance of vx (wheel '
               'slip), and an EKF fusing it (the robot_localization recipe) keeps its lateral '
               'velocity at zero; 1e6 would make that fusion a no-op. ' + _COV,
-              lo=0.0, hi=1.0e9, length=6),
+              lo=0.0, hi=1.0e9, length=6, unit='m^2/s^2, rad^2/s^2'),
     ParamSpec('imu_orientation_covariance_diagonal', [0.0003, 0.0003, 0.003],
               'Diagonal of the imu orientation covariance [rad^2] (roll, pitch, yaw). ' + _COV,
-              lo=0.0, hi=1.0e9, length=3),
+              lo=0.0, hi=1.0e9, length=3, unit='rad^2'),
     ParamSpec('imu_angular_velocity_covariance_diagonal', [0.0001, 0.0001, 0.0001],
               'Diagonal of the imu angular velocity covariance [rad^2/s^2]. ' + _COV,
-              lo=0.0, hi=1.0e9, length=3),
+              lo=0.0, hi=1.0e9, length=3, unit='rad^2/s^2'),
     ParamSpec('imu_linear_acceleration_covariance_diagonal', [0.01, 0.01, 0.01],
               'Diagonal of the imu linear acceleration covariance [m^2/s^4]. ' + _COV,
-              lo=0.0, hi=1.0e9, length=3),
+              lo=0.0, hi=1.0e9, length=3, unit='m^2/s^4'),
     ParamSpec('sonar_field_of_view', 0.2618, 'Sonar cone opening [rad] (US-100: about 15 deg).',
-              lo=0.01, hi=math.pi),
+              lo=0.01, hi=math.pi, unit='rad'),
     ParamSpec('sonar_min_range', 0.02, 'Sonar minimum range [m] (US-100: 2 cm).',
-              lo=0.0, hi=10.0),
+              lo=0.0, hi=10.0, unit='m'),
     ParamSpec('sonar_no_echo', 'positive_infinity', "What sonar range says 'nothing within "
               "range': 'positive_infinity' "
               "(REP-117 +inf; Nav2's range layer ignores such a reading) or 'max_range' "
@@ -265,13 +287,13 @@ SPECS: tuple[Field, ...] = (
               'true). Faulty readings (timeout, bad echo) are never published: dropped and '
               'counted (sonar diagnostic).', check=_no_echo),
     ParamSpec('sonar_max_range', 4.5, 'Sonar maximum range [m] (US-100: 4.5 m); must exceed '
-              'sonar_min_range.', lo=0.01, hi=20.0),
+              'sonar_min_range.', lo=0.01, hi=20.0, unit='m'),
     ParamSpec('stats_window', 10.0, 'Sliding window of RT timing samples behind rt_status '
-              '[s].', lo=1.0, hi=600.0),
+              '[s].', lo=1.0, hi=600.0, unit='s'),
     ParamSpec('rt_status_period', 1.0, 'Publication period of rt_status [s].',
-              lo=0.05, hi=60.0),
+              lo=0.05, hi=60.0, unit='s'),
     ParamSpec('diagnostics_period', 1.0, 'Publication period of diagnostics [s] (REP-107: 1 Hz).',
-              lo=0.05, hi=60.0),
+              lo=0.05, hi=60.0, unit='s'),
     ParamSpec('flight_recorder.enabled', True, 'Keep the last seconds of commands, odometry, '
               'guard/supervisor flags, faults and RT timing in memory and write them as a bag '
               'on an e-stop, guard stop, motor fault, deadline miss or device fault '
@@ -279,35 +301,35 @@ SPECS: tuple[Field, ...] = (
               'of the next incident.', read_only=True),
     ParamSpec('flight_recorder.seconds', 10.0, 'Seconds before a trigger that a flight '
               'recorder dump holds (the ring keeps these plus post_seconds), unless max_bytes '
-              'cuts them shorter.', lo=1.0, hi=120.0, read_only=True),
+              'cuts them shorter.', lo=1.0, hi=120.0, read_only=True, unit='s'),
     ParamSpec('flight_recorder.post_seconds', 2.0, 'Seconds after a trigger the dump waits '
               'for, so the stop itself is in it. 0: the dump ends at the trigger.',
-              lo=0.0, hi=30.0, read_only=True),
+              lo=0.0, hi=30.0, read_only=True, unit='s'),
     ParamSpec('flight_recorder.max_bytes', 8 * 1024 * 1024, "Memory cap of the flight "
               "recorder's ring (payload + 160 bytes per message); past it the oldest messages "
               'go first and the dump covers less than seconds (its metadata counts the '
               'evictions). At the default topics (about 30 KiB/s) 8 MiB is minutes.',
-              lo=65536, hi=1 << 30, read_only=True),
+              lo=65536, hi=1 << 30, read_only=True, unit='bytes'),
     ParamSpec('flight_recorder.min_interval', 30.0, 'At most one dump per trigger kind in this '
               'many seconds; a trigger in between is only noted in the ring '
               '(flight_recorder/trigger, dumped: no) and so in the next dump. Lower: more '
               'bags from a fault that repeats.',
-              lo=1.0, hi=86400.0),
+              lo=1.0, hi=86400.0, unit='s'),
     ParamSpec('flight_recorder.directory', '', 'Directory the dumps go to, one bag directory '
               "flight_<UTC time>_<trigger> each; '' = $XDG_STATE_HOME/m4k/flight_recorder "
               '(~/.local/state/m4k/flight_recorder). Nothing prunes it.', read_only=True,
               check=_abs_dir),
     ParamSpec('rt_stale_timeout', 3.0, 'Seconds without any datagram from the RT process '
               'after which it is reported lost (diagnostics STALE, one log line).',
-              lo=0.1, hi=600.0),
+              lo=0.1, hi=600.0, unit='s'),
     ParamSpec('relink_interval', 0.5, 'Seconds between attempts to re-open a port whose RT '
-              'side is gone.', lo=0.01, hi=60.0, read_only=True),
+              'side is gone.', lo=0.01, hi=60.0, read_only=True, unit='s'),
     ParamSpec('reset_odometry_timeout', 1.0, 'Seconds ~/reset_odometry and ~/set_pose wait '
               "for the RT actuator's acknowledgement before they answer success=false.",
-              lo=0.05, hi=60.0),
+              lo=0.05, hi=60.0, unit='s'),
     ParamSpec('e_stop_timeout', 1.0, 'Seconds ~/e_stop waits for the RT latch (ODOMETRY '
               'flags) to show the requested state before it answers success=false.',
-              lo=0.05, hi=60.0),
+              lo=0.05, hi=60.0, unit='s'),
 )
 
 _BY_NAME = {s.name: s for s in SPECS}
@@ -369,17 +391,8 @@ def check_not_derived(names: Any) -> None:
 
 
 def _kind(v: Any) -> str:
-    if isinstance(v, bool):
-        return 'bool'
-    if isinstance(v, int):
-        return 'int'
-    if isinstance(v, float):
-        return 'double'
-    if isinstance(v, str):
-        return 'string'
-    if isinstance(v, (list, tuple, array.array)):
-        return 'double[]'
-    return type(v).__name__
+    t = param_type(v)
+    return type(v).__name__ if t is None else t.ros
 
 
 def validate(name: str, value: Any) -> str | None:

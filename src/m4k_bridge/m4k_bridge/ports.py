@@ -3,7 +3,7 @@
 Why threads and not an executor timer: opening a port waits for the RT side's handshake, which
 the RT task answers when it next polls -- up to one period (1 s for the monitor's ``status``
 port). Done in a timer, that wait would stall every ROS callback, cmd_vel included. So each
-port gets a :class:`PortPump` thread that owns its :class:`m4k_rt.xddp.NrtLink` exclusively
+port gets a :class:`PortPump` thread that owns its :class:`m4k_rt.channel.NrtLink` exclusively
 (NrtLink is not thread-safe): it links and re-links, waits in ``select`` on the link and an
 eventfd, drains received datagrams into a callback, and writes what the executor queued with
 :meth:`PortPump.send`. The executor thread never touches a socket and never blocks on one.
@@ -21,7 +21,7 @@ import threading
 import time
 from typing import Callable, Optional
 
-from m4k_rt import xddp
+from m4k_rt import channel
 
 __all__ = ['PortPump']
 
@@ -47,7 +47,7 @@ class PortPump:
         self.preambles_sent = 0
         self.port = port
         self._deliver = deliver
-        self._link = xddp.NrtLink(port, runtime_dir, retry_interval=retry_interval,
+        self._link = channel.NrtLink(port, runtime_dir, retry_interval=retry_interval,
                                   handshake_timeout=2.0, group=group)
         self._retry = retry_interval
         self._outbox: collections.deque[bytes] = collections.deque()

@@ -20,7 +20,7 @@ import yaml
 from m4k_bridge import params
 from m4k_bridge.node import BridgeNode, late_command_s, param_files
 from m4k_msgs.msg import RtStatus
-from m4k_rt import protocol, xddp
+from m4k_rt import channel, protocol
 
 PORTS = {'status': 0, 'cmd': 1, 'imu_out': 4, 'led_in': 6, 'sonar_out': 8, 'lrf_out': 10}
 pytestmark = [pytest.mark.allow_leaks('fds'),  # FastDDS keeps its sockets for the process
@@ -37,7 +37,7 @@ class FakeRt:
         self.bind()
 
     def bind(self):
-        self.socks = {label: xddp.rt_xddp_bind(n, label, runtime_dir=self.runtime_dir)
+        self.socks = {label: channel.rt_xddp_bind(n, label, runtime_dir=self.runtime_dir)
                       for label, n in PORTS.items()}
 
     def poll(self):

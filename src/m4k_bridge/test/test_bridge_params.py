@@ -143,3 +143,24 @@ def test_check_section_flattens_nested_names():
 
 def test_parse_port_accepts_numbers_and_labels():
     assert params.parse_port('7') == 7 and params.parse_port('sonar') == 'sonar'
+
+
+def test_one_type_table_gives_every_parameter_its_schema_and_ros_type():
+    known = {t.schema for t in params.PARAM_TYPES}
+    for s in params.SPECS:
+        assert s.type in known or s.type == 'any', s.name
+    assert params.param_type(True).ros == 'bool'              # bool before int: a subclass
+    assert params.param_type(3).ros == 'int' and params.param_type(3.0).ros == 'double'
+    assert params.param_type([1.0]).schema == 'float[]' and params.param_type(None) is None
+    assert params.validate('cmd_vel_timeout', 1) == (
+        'expected a double, got the integer 1 (write 1.0)')
+    with pytest.raises(TypeError, match="parameter 'x'"):
+        params.ParamSpec('x', object(), 'no ROS type')
+
+
+def test_units_are_declared_on_the_parameters_themselves():
+    by_name = {s.name: s for s in params.SPECS}
+    assert by_name['cmd_vel_timeout'].unit == 's'
+    assert by_name['max_angular_velocity'].unit == 'rad/s'
+    assert by_name['flight_recorder.max_bytes'].unit == 'bytes'
+    assert by_name['frame_prefix'].unit == ''

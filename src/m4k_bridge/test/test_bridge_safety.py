@@ -161,7 +161,7 @@ def test_port_pump_writes_the_preamble_first_on_every_link(tmp_path):
     import time
 
     from m4k_bridge.ports import PortPump
-    from m4k_rt.xddp import rt_xddp_bind
+    from m4k_rt.channel import rt_xddp_bind
 
     d = str(tmp_path)
     pre = p.encode(p.Kind.E_STOP, 0, 0, 1)

@@ -73,7 +73,7 @@ def _nodes(context, *args, **kwargs):
     """Build the actions once the launch arguments are known (bringup's plan, as ROS nodes)."""
     from m4k_bridge import params as bridge_params
     from m4k_bringup import bringup, robots
-    from m4k_rt import config, xddp
+    from m4k_rt import channel, config
 
     arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     overlay = os.path.abspath(arg('config')) if arg('config') else None
@@ -97,7 +97,7 @@ def _nodes(context, *args, **kwargs):
                            'sim); give config:= an overlay with their real backends')
     if sim is True and not simulated:
         raise RuntimeError('sim:=true but no device has backend: sim in the configuration')
-    runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
+    runtime_dir = channel.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
     bridge_doc = bringup.bridge_overlay(doc, runtime_dir)
     bridge_values = bridge_params.flatten_section(bridge_doc)
     bridge_values.update(robot_values)

@@ -46,14 +46,15 @@ import yaml
 
 from m4k_bridge import params as bridge_params
 from m4k_bringup import robots
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Launch, Output, Stopping
 from m4k_drivers import simbus
 from m4k_rt import config, rosargs
 from m4k_rt.control.params import control_params
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import run_stoppable, StopSignals
 
-__all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'child_specs', 'format_status',
+__all__ = ['Child', 'ChildSpec', 'Supervisor', 'bridge_overlay', 'bringup_argv', 'child_specs',
+           'format_status',
            'foxglove_spec', 'lock_owner', 'main', 'resolve_command', 'restart_delay', 'sim_ready',
            'sim_robot_spec', 'supervised_child', 'uses_sim']
 
@@ -205,11 +206,13 @@ def supervised_child(spec: ChildSpec, argv: list[str], env: Mapping[str, str],
     would not), SIGKILL after ``STOP_TIMEOUT_S``.
     """
     name = spec.name
-    return Child(name, argv, env, supervised=True, ready=spec.ready,
-                 on_line=lambda line: console.line('[{}] {}'.format(name, line)),
-                 stop_signal=signal.SIGTERM, group=False, stop_timeout=STOP_TIMEOUT_S,
-                 on_escalate=lambda t: console.line(
-                     'bringup: {} did not stop within {:.0f} s: SIGKILL'.format(name, t)))
+    return Child(name, argv, env,
+                 output=Output(on_line=lambda line: console.line('[{}] {}'.format(name, line))),
+                 stopping=Stopping(sig=signal.SIGTERM, group=False, timeout=STOP_TIMEOUT_S,
+                                   on_escalate=lambda t: console.line(
+                                       'bringup: {} did not stop within {:.0f} s: SIGKILL'
+                                       .format(name, t))),
+                 launch=Launch(supervised=True, ready=spec.ready))
 
 
 class Supervisor:
@@ -237,9 +240,9 @@ class Supervisor:
             if stopping():
                 return
             c.start()
-            if c.ready is not None:
+            if c.launch.ready is not None:
                 deadline = self.clock() + READY_TIMEOUT_S
-                while (not c.ready() and c.alive() and not stopping()
+                while (not c.launch.ready() and c.alive() and not stopping()
                        and self.clock() < deadline):
                     time.sleep(0.05)
 
@@ -486,13 +489,27 @@ def _err(msg: str) -> None:
     sys.stderr.flush()
 
 
+def bringup_argv(config: str | None = None, *, python_m: bool = True) -> list[str]:
+    """Return the command that starts the stack, for tools that start it as a child.
+
+    ``python_m``: no installed console script is needed, neither for bringup (``python -m``)
+    nor for the children it starts (``--python-m``); else the installed ``bringup`` when
+    there is one. ``config``: an overlay (``--config``).
+    """
+    exe = None if python_m else shutil.which('bringup')
+    argv = [exe] if exe else [sys.executable, '-m', 'm4k_bringup.bringup']
+    if python_m:
+        argv.append('--python-m')
+    return argv + (['--config', config] if config else [])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the stack until Ctrl-C / SIGTERM; return the exit code."""
     return run_stoppable('bringup', lambda stop: _main(_parse_args(argv), stop))
 
 
 def _main(args: argparse.Namespace, stop: StopSignals) -> int:
-    from m4k_rt import xddp
+    from m4k_rt import channel
     overlay = os.path.abspath(args.config) if args.config else None
     try:
         cfg = config.load(overlay)
@@ -502,7 +519,7 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         _err('config error: {}'.format(exc))
         return CONFIG_ERROR
     try:
-        runtime_dir = xddp.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
+        runtime_dir = channel.ensure_runtime_dir(cfg.runtime.runtime_dir, cfg.runtime.group)
     except OSError as exc:
         _err('cannot create the runtime directory: {}'.format(exc))
         return 1

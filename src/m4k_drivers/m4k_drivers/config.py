@@ -6,7 +6,7 @@ Two sections::
       imu:
         backend: real   # a backend registered for the kind (see m4k_drivers.registry)
         enabled: true   # optional, default true
-        xddp_port: 3    # optional, default from DEFAULT_PORTS
+        xddp_port: 3    # optional, default: the port labelled imu (the kind)
         bus: 1          # backend fields, schema declared with the backend's registration
                         # (registry.Param, validated as an m4k_rt.schema Field)
     world:              # the simulated world (m4k_drivers.world.WorldConfig.from_dict)
@@ -33,12 +33,10 @@ from m4k_rt.config import deep_merge as merge
 from m4k_rt.config import find_config_dir
 from m4k_rt.schema import Field, REQUIRED, Section
 
-__all__ = ['COMMON', 'DEFAULT_PORTS', 'KERNEL_STANDIN', 'ConfigError', 'DriverConfig',
+__all__ = ['COMMON', 'KERNEL_STANDIN', 'ConfigError', 'DriverConfig',
            'default_config_path', 'kernel_standin', 'load', 'load_file', 'merge',
-           'schema_sections', 'validate']
+           'fill_actuator_period', 'schema_sections', 'validate']
 
-# XDDP ports of the driver-host peers (docs/internals.md, "Ports").
-DEFAULT_PORTS = {'motor': 2, 'imu': 3, 'led': 5, 'sonar': 7, 'lrf': 9}
 
 
 class ConfigError(DriverError, schema.ConfigError):
@@ -98,9 +96,10 @@ COMMON: dict[str, Field] = {
                      'one is refused, listing the valid ones.'),
     'enabled': Field('bool', True, 'false: the driver host does not open the device; the RT '
                      'side reports it silent.', expect='bool'),
-    'xddp_port': Field('int|str', '<ports.kind>', 'XDDP port (number or label) of the RT peer; '
-                       'default: ports.<kind> of m4k.yaml, else DEFAULT_PORTS. A wrong one never '
-                       'links.',
+    'xddp_port': Field('int|str', '<kind>', 'XDDP port (number or label) of the RT peer; '
+                       'default: the label of the device kind (the RT side labels every port '
+                       'with its key in ports:, config/m4k.yaml, where the numbers are declared). '
+                       'A wrong one never links.',
                        lo=0, expect='a port number or label', check=_port_or_label),
 }
 
@@ -189,7 +188,7 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
         'enabled': COMMON['enabled'].validate(f'{where}.enabled', section.get('enabled', True),
                                               _error),
         'xddp_port': COMMON['xddp_port'].validate(
-            f'{where}.xddp_port', section.get('xddp_port', DEFAULT_PORTS.get(kind)), _error)}
+            f'{where}.xddp_port', section.get('xddp_port', kind), _error)}
     unknown = sorted(set(section) - set(registry.COMMON_KEYS) - set(spec.params))
     if unknown:
         valid = sorted(set(registry.COMMON_KEYS) | set(spec.params))
@@ -204,6 +203,22 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
         else:
             out[name] = copy.deepcopy(param.default)
     return out
+
+
+def fill_actuator_period(raw: dict[str, Any]) -> dict[str, Any]:
+    """Return ``raw`` with the motor service's period taken from the actuator task.
+
+    The period is declared once, as ``tasks.actuator.period_ms`` (config/m4k.yaml); the motor
+    service runs at it (its watchdog counts in those periods) unless ``devices.motor.period_s``
+    says otherwise.
+    """
+    period_ms = ((raw.get('tasks') or {}).get('actuator') or {}).get('period_ms')
+    motor = (raw.get('devices') or {}).get('motor')
+    if (not isinstance(motor, dict) or 'period_s' in motor or isinstance(period_ms, bool)
+            or not isinstance(period_ms, (int, float))):
+        return raw
+    devices = {**raw['devices'], 'motor': {**motor, 'period_s': period_ms * 1e-3}}
+    return {**raw, 'devices': devices}
 
 
 def validate(doc: dict[str, Any], control: dict[str, Any] | None = None,

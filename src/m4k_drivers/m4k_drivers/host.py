@@ -2,7 +2,7 @@
 
 One thread per device: it brings the handler up (configure + activate, retried with
 exponential backoff while the device is missing), links its XDDP port with
-:class:`m4k_rt.xddp.NrtLink` and serves it (docs/internals.md, "Ports").  How a device is
+:class:`m4k_rt.channel.NrtLink` and serves it (docs/internals.md, "Ports").  How a device is
 served -- which datagram kinds it takes, the reply it sends, its stream rate, its watchdog and
 link-loss behaviour, its ``--print`` line -- is the :class:`m4k_drivers.registry.ServiceSpec`
 its own package registers next to its backends (e.g. :mod:`m4k_drivers.motors.service`); this
@@ -34,9 +34,9 @@ from m4k_drivers import config as dconfig
 from m4k_drivers import registry, safety
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, protocol, rosargs
+from m4k_rt.channel import check_runtime_dir, NrtLink
 from m4k_rt.sched import SchedError, set_thread_fifo
 from m4k_rt.stopsignals import run_stoppable, StopSignals
-from m4k_rt.xddp import check_runtime_dir, NrtLink
 
 __all__ = ['DEVICE_MODULES_ENV', 'DeviceService', 'format_reading', 'load_raw_config', 'main']
 
@@ -61,7 +61,8 @@ def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict
         except ImportError:
             raw = dconfig.load_file(dconfig.default_config_path())
         else:
-            return description.fill_sim_mounts(load_layered(overlay))
+            return dconfig.fill_actuator_period(description.fill_sim_mounts(
+                load_layered(overlay)))
     if overlay:
         raw = dconfig.merge(raw, dconfig.load_file(overlay))
     return description.fill_sim_mounts(raw)

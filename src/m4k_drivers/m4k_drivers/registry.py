@@ -132,7 +132,7 @@ class BuildContext:
         """Return the runtime directory holding the simulator's sim-bus socket and pty link."""
         if self.runtime_dir:
             return self.runtime_dir
-        from m4k_rt.xddp import default_runtime_dir
+        from m4k_rt.channel import default_runtime_dir
         return default_runtime_dir()
 
     @property

@@ -413,7 +413,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(args: argparse.Namespace, signals: Any) -> int:
     rosargs.configure_logging(args.ros_args, args.verbose)
     from m4k_drivers.host import load_raw_config
-    from m4k_rt import xddp
+    from m4k_rt import channel
     from m4k_rt.rt_core import InstanceLock, LockError
     try:
         raw = load_raw_config(args.config, args.overlay)
@@ -425,7 +425,7 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
                                control=raw.get('control') or {},
                                body=(raw.get('robot') or {}).get('body'))
         standin = dconfig.kernel_standin(raw)
-        runtime_dir = xddp.ensure_runtime_dir(
+        runtime_dir = channel.ensure_runtime_dir(
             args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir'))
     except (dconfig.ConfigError, ValueError) as exc:
         print(f'sim_robot: {exc}', file=sys.stderr)
@@ -467,8 +467,8 @@ def truth_main(argv: list[str] | None = None) -> int:
                                  'running sim_robot (one JSON object) and exit.')
     ap.add_argument('--runtime-dir', help='runtime directory of the stack')
     args = rosargs.parse_args(ap, argv)
-    from m4k_rt import xddp
-    runtime_dir = args.runtime_dir or xddp.default_runtime_dir()
+    from m4k_rt import channel
+    runtime_dir = args.runtime_dir or channel.default_runtime_dir()
     try:
         doc = read_truth(runtime_dir)
     except (OSError, ValueError) as exc:

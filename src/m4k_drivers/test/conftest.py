@@ -17,7 +17,7 @@ def sim_robot(m4k_runtime_dir):
 
     from m4k_drivers import config as dconfig
     from m4k_drivers.sim_robot import SimRobot
-    from m4k_rt.xddp import ensure_runtime_dir
+    from m4k_rt.channel import ensure_runtime_dir
     rd = ensure_runtime_dir(m4k_runtime_dir)
     robot = SimRobot(dconfig.load(), rd, report_path=f'{rd}/world.json').start()
     stop = threading.Event()

@@ -15,8 +15,8 @@ from m4k_drivers.abi.wire import standin_for
 from m4k_drivers.motors.handler import WheelCommand
 from m4k_drivers.sim_robot import SimRobot
 from m4k_drivers.sonar import protocol as sp
+from m4k_rt.channel import ensure_runtime_dir
 from m4k_rt.protocol import EncoderStatus
-from m4k_rt.xddp import ensure_runtime_dir
 
 DEVICES = {
     'motor': {'backend': 'real', 'left_dac': '/dev/spidev0.0', 'right_dac': '/dev/spidev0.1',

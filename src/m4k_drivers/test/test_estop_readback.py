@@ -13,8 +13,8 @@ from m4k_drivers import registry
 from m4k_drivers.motors import WheelCommand
 from m4k_drivers.motors.real import ReadbackLine
 from m4k_drivers.sim_robot import SimRobot
+from m4k_rt.channel import ensure_runtime_dir
 from m4k_rt.protocol import EncoderStatus
-from m4k_rt.xddp import ensure_runtime_dir
 
 MS = 1_000_000
 OPEN = EncoderStatus.ESTOP_OPEN

@@ -10,7 +10,7 @@ from m4k_drivers import registry
 from m4k_drivers.handler import State
 from m4k_drivers.host import DeviceService, main
 from m4k_rt import protocol
-from m4k_rt.xddp import rt_xddp_bind
+from m4k_rt.channel import rt_xddp_bind
 
 pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 
@@ -62,7 +62,7 @@ def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
     seen = ''
     while time.monotonic() < deadline and 'serving' not in seen:
         seen += proc.stderr.readline()
-    assert 'serving motor@2, led@5' in seen
+    assert 'serving motor@motor, led@led' in seen   # devices.yaml alone: by label
     assert procs.stop(proc) == 0
 
 

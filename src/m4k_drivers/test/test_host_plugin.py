@@ -18,7 +18,7 @@ from rt_side import recv_kind, wait_linked
 
 from m4k_drivers import host, registry
 from m4k_rt import protocol
-from m4k_rt.xddp import rt_xddp_bind
+from m4k_rt.channel import rt_xddp_bind
 
 pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 

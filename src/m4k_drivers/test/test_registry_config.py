@@ -86,7 +86,7 @@ def test_config_defaults_applied_and_int_promoted_to_float():
     cfg = dconfig.validate({'devices': {'motor': {'backend': 'sim', 'period_s': 1}}})
     m = cfg.devices['motor']
     assert m['period_s'] == 1.0 and isinstance(m['period_s'], float)
-    assert m['watchdog_periods'] == 10 and m['xddp_port'] == 2 and m['enabled'] is True
+    assert m['watchdog_periods'] == 10 and m['xddp_port'] == 'motor' and m['enabled'] is True
 
 
 def test_repo_devices_yaml_is_valid():
@@ -134,3 +134,23 @@ def test_retry_does_not_retry_missing_device():
     with pytest.raises(DeviceNotFoundError):
         retry(missing, RetryPolicy(attempts=5), sleep=lambda s: None)
     assert calls == [1]
+
+
+def test_the_motor_service_runs_at_the_actuator_tasks_period_unless_told_otherwise():
+    raw = {'tasks': {'actuator': {'period_ms': 20}},
+           'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'}}}
+    filled = dconfig.fill_actuator_period(raw)
+    assert filled['devices']['motor']['period_s'] == pytest.approx(0.02)
+    assert 'period_s' not in raw['devices']['motor']               # the input is left alone
+    assert dconfig.validate({'devices': filled['devices']}).devices['motor']['period_s'] == \
+        pytest.approx(0.02)
+    own = {**raw, 'devices': {'motor': {'backend': 'sim', 'period_s': 0.005}}}
+    assert dconfig.fill_actuator_period(own)['devices']['motor']['period_s'] == 0.005
+    assert dconfig.fill_actuator_period({'devices': {'motor': {}}}) == {'devices': {'motor': {}}}
+
+
+def test_a_device_links_to_the_port_labelled_with_its_kind_by_default():
+    cfg = dconfig.validate({'devices': {k: {'backend': 'sim'} for k in
+                                        ('motor', 'imu', 'sonar', 'lrf', 'led')}})
+    assert {k: d['xddp_port'] for k, d in cfg.devices.items()} == {
+        k: k for k in ('motor', 'imu', 'sonar', 'lrf', 'led')}

@@ -119,7 +119,7 @@ def test_bad_scene_entries_name_the_field(section, message):
 def test_unplug_events_make_the_devices_do_what_unplugged_hardware_does(m4k_runtime_dir,
                                                                          fake_clock):
     from m4k_drivers.sim_robot import SimRobot
-    from m4k_rt.xddp import ensure_runtime_dir
+    from m4k_rt.channel import ensure_runtime_dir
     clock = fake_clock
     doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'},
                        'sonar': {'backend': 'sim', 'mount': [0.225, 0.0, 0.0]}},

@@ -287,7 +287,7 @@ def test_real_backend_with_missing_port_fails_configure_naming_it(tmp_path):
 def test_registry_sim_backend_reads_the_sim_robot_world(m4k_runtime_dir):
     from m4k_drivers import config as dconfig
     from m4k_drivers.sim_robot import SimRobot
-    from m4k_rt.xddp import ensure_runtime_dir
+    from m4k_rt.channel import ensure_runtime_dir
     section = {'backend': 'sim', 'noise_mm': 0.0, 'scan_period': 0.02, 'mode': 'poll'}
     rd = ensure_runtime_dir(m4k_runtime_dir)
     robot = SimRobot(dconfig.validate({'devices': {'lrf': section}}), rd).start()

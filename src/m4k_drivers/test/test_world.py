@@ -99,7 +99,7 @@ def test_drive_straight_one_metre_sensors_agree(m4k_runtime_dir, fake_clock):
     pulse is timed by a busy wait on the real clock, so it runs on the same world in-process.
     """
     from m4k_drivers.sim_robot import SimRobot
-    from m4k_rt.xddp import ensure_runtime_dir
+    from m4k_rt.channel import ensure_runtime_dir
     clock = fake_clock
     doc = {'devices': {'motor': {'backend': 'sim'}, 'imu': {'backend': 'sim'}},
            'world': {'walls': {'rectangle': [-0.8, -1.5, 4.2, 1.5]}, 'obstacles': [],
@@ -200,7 +200,7 @@ def test_world_report_failure_is_logged_once_and_recovery_once(m4k_runtime_dir, 
     import logging
 
     from m4k_drivers.sim_robot import SimRobot
-    from m4k_rt.xddp import ensure_runtime_dir
+    from m4k_rt.channel import ensure_runtime_dir
     cfg = dconfig.validate({'devices': {'imu': {'backend': 'sim'}}})
     rd = ensure_runtime_dir(m4k_runtime_dir)
     where = tmp_path / 'gone'

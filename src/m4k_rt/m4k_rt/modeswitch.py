@@ -45,10 +45,12 @@ _installed = False
 _install_lock = threading.Lock()
 _THIS_FILE = __file__
 _STDLIB = sysconfig.get_paths()['stdlib'] + os.sep
-# Sanctioned in-loop callers: the XDDP layer accepts a (re)connecting NRT peer without
-# blocking from inside the loop, which creates a socket object by design (like a Xenomai
-# XDDP port, whose peer may come and go while the RT task runs).
-_ALLOWED_FILES = {os.path.join(os.path.dirname(os.path.abspath(__file__)), 'xddp.py')}
+# Sanctioned in-loop callers: the channel's RT side (its ports and, over shm, the link's
+# rings) accepts a (re)connecting NRT peer without blocking from inside the loop, which
+# creates a socket object by design (like a Xenomai XDDP port, whose peer may come and go
+# while the RT task runs).
+_CHANNEL_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'channel')
+_ALLOWED_FILES = {os.path.join(_CHANNEL_DIR, f) for f in ('port.py', 'shm.py', 'shmring.py')}
 
 
 class Site(NamedTuple):

@@ -438,7 +438,7 @@ class DeviceStatus(NamedTuple):
 
 
 class PortStats(NamedTuple):
-    """Counters of one XDDP port as seen by the RT side (``xddp.XddpCounters``)."""
+    """Counters of one XDDP port as seen by the RT side (``m4k_rt.channel.XddpCounters``)."""
 
     label: str
     port: int

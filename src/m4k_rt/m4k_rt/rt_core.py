@@ -148,9 +148,9 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
         return 2
     rt = cfg.runtime
     cycleprof.enable(bool(args.cycle_profile))  # before any task, reader or writer is built
-    from m4k_rt import xddp  # bound here so a config error exits before any socket work
+    from m4k_rt import channel  # bound here so a config error exits before any socket work
     try:
-        runtime_dir = xddp.ensure_runtime_dir(rt.runtime_dir, rt.group)
+        runtime_dir = channel.ensure_runtime_dir(rt.runtime_dir, rt.group)
     except OSError as exc:
         _err('cannot create runtime dir: {}'.format(exc))
         return 1
@@ -170,7 +170,7 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
 
 def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.TaskConfig],
          runtime_dir: str, socks: list[Any], stop: StopSignals) -> int:
-    from m4k_rt import xddp
+    from m4k_rt import channel
     rt = cfg.runtime
     if stop.stopping:
         return 0
@@ -189,7 +189,7 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
             ports = {}
             for label in t.ports:
                 try:
-                    s = xddp.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
+                    s = channel.rt_xddp_bind(cfg.ports[label], label, poolsz=rt.poolsz,
                                           max_datagram=rt.max_datagram, runtime_dir=runtime_dir,
                                           max_ports=rt.max_ports, group=rt.group,
                                           transport=rt.transport)

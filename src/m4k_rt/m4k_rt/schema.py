@@ -32,6 +32,11 @@ import dataclasses
 import math
 from typing import Any, Callable, Iterable, Mapping, NoReturn, Sequence
 
+# The channel declares its own limits and transports; the schema states them, never again.
+from m4k_rt.channel.contract import DEFAULT_MAX_DATAGRAM, DEFAULT_MAX_PORTS, DEFAULT_POOLSZ
+from m4k_rt.channel.shm import SHM_LIVENESS_NS
+from m4k_rt.channel.transports import DEFAULT_TRANSPORT, TRANSPORTS
+
 __all__ = [
     'ConfigError', 'Field', 'PORT', 'REQUIRED', 'ROBOT', 'RUNTIME', 'Section', 'TASK',
     'build', 'check_keys', 'derived', 'markdown', 'section', 'setting', 'table',
@@ -417,22 +422,23 @@ RUNTIME: dict[str, Field] = {
         'float', 100.0, "The task set's first common release this long after start-up.",
         unit='ms', lo=0, hi=10000, expect='ms in 0..10000'),
     'poolsz': Field(
-        'int', 65536, 'Socket buffer per port (XDDP_POOLSZ analogue); with transport shm the '
-        'ring each way. Too small: datagrams are dropped (counted) when a peer is slow.',
+        'int', DEFAULT_POOLSZ, 'Socket buffer per port (XDDP_POOLSZ analogue); with transport '
+        'shm the ring each way. Too small: datagrams are dropped (counted) when a peer is slow.',
         unit='bytes', lo=4096, hi=1 << 26, expect='bytes in 4096..67108864'),
     'max_datagram': Field(
-        'int', 4096, 'Larger datagrams are dropped and counted, never sent. Too small: laser '
-        'scans (about 1.4 kB) never arrive.', unit='bytes', lo=64, hi=65536,
+        'int', DEFAULT_MAX_DATAGRAM, 'Larger datagrams are dropped and counted, never sent. '
+        'Too small: laser scans (about 1.4 kB) never arrive.', unit='bytes', lo=64, hi=65536,
         expect='bytes in 64..65536'),
     'max_ports': Field(
-        'int', 32, 'Port numbers are 0 .. max_ports - 1.', lo=1, hi=1024,
+        'int', DEFAULT_MAX_PORTS, 'Port numbers are 0 .. max_ports - 1.', lo=1, hi=1024,
         expect='an int in 1..1024'),
     'transport': Field(
-        'str', 'socket', 'How linked ports carry datagrams. socket: a send/recv on the Unix '
-        'socket per datagram. shm: two rings (poolsz bytes each way) in shared memory passed '
+        'str', DEFAULT_TRANSPORT, 'How linked ports carry datagrams. socket: a send/recv on the '
+        'Unix socket per datagram. shm: two rings (poolsz bytes each way) in shared memory passed '
         'at link time; the RT side makes no system call per received datagram and one '
-        'eventfd write per sent one, and notices a lost peer within 100 ms (message mode '
-        'only). Peers follow what the RT side offers.', choices=('socket', 'shm')),
+        'eventfd write per sent one, and notices a lost peer within {:g} ms (message mode '
+        'only). Peers follow what the RT side offers.'.format(SHM_LIVENESS_NS * 1e-6),
+        choices=TRANSPORTS),
 }
 
 TASK: dict[str, Field] = {

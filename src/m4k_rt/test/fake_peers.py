@@ -11,8 +11,8 @@ import threading
 from types import SimpleNamespace
 
 from m4k_rt import protocol as p
+from m4k_rt.channel import nrt_xddp_open, rt_xddp_bind
 from m4k_rt.control.dac import code_to_command
-from m4k_rt.xddp import nrt_xddp_open, rt_xddp_bind
 
 MS = 1_000_000
 

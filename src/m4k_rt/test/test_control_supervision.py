@@ -341,3 +341,16 @@ def test_a_flipped_encoder_still_latches_when_samples_are_bunched():
         if sup.step(0.01, 2.0, 2.0, -1.0, 1.0, False, False):
             break
     assert sup.latched and sup.cause & FaultCause.LEFT_WRONG_WAY
+
+
+def test_the_supervisor_takes_its_settings_from_supervision_params():
+    from m4k_rt.control.params import SupervisionParams
+    from m4k_rt.control.supervision import WheelSupervisor
+    d = SupervisionParams()
+    sup = WheelSupervisor()
+    assert (sup.enabled, sup.threshold, sup.min_speed, sup.wrong_way_time, sup.frozen_time,
+            sup.stall_time, sup.stall_ratio, sup.swap_time) == (
+        d.enabled, d.speed_threshold, d.min_speed, d.wrong_way_time, d.frozen_time,
+        d.stall_time, d.stall_ratio, d.swap_time)
+    own = WheelSupervisor(SupervisionParams(enabled=False, speed_threshold=1.5, swap_time=0.2))
+    assert not own.enabled and own.threshold == 1.5 and own.swap_time == 0.2

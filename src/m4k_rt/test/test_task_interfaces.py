@@ -1,12 +1,12 @@
 """The RT classes satisfy the Protocols task bodies are typed against (m4k_rt.tasks.interfaces)."""
 
-from m4k_rt import xddp
+from m4k_rt import channel
 from m4k_rt.task import RtTask
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
 
 
 def test_an_rt_xddp_socket_is_an_rt_port(m4k_runtime_dir):
-    sock = xddp.RtXddpSocket(3, runtime_dir=m4k_runtime_dir)
+    sock = channel.RtXddpSocket(3, runtime_dir=m4k_runtime_dir)
     try:
         assert isinstance(sock, RtPort)
     finally:

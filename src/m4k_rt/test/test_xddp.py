@@ -1,4 +1,4 @@
-"""Tests for m4k_rt.xddp: XDDP emulation over Unix sockets (RT side + NRT side).
+"""Tests for m4k_rt.channel: XDDP emulation over Unix sockets (RT side + NRT side).
 
 Every test runs over both transports (``socket`` and ``shm``, the ``transport`` fixture sets
 the default the RT side binds with): the same contract. Stream mode is socket-only.
@@ -20,15 +20,15 @@ import pytest
 from xddp_support import open_while_polling, until, WAIT
 
 import m4k_rt
-from m4k_rt import protocol, xddp
-from m4k_rt.xddp import XddpBusyError, XddpError, XddpNotBoundError, XddpPortError
+from m4k_rt import channel, protocol
+from m4k_rt.channel import transports, XddpBusyError, XddpError, XddpNotBoundError, XddpPortError
 
 PKG_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(m4k_rt.__file__)))
 
 
-@pytest.fixture(params=xddp.TRANSPORTS)
+@pytest.fixture(params=channel.TRANSPORTS)
 def transport(request, monkeypatch):
-    monkeypatch.setattr(xddp, 'DEFAULT_TRANSPORT', request.param)
+    monkeypatch.setattr(transports, 'DEFAULT_TRANSPORT', request.param)
     return request.param
 
 
@@ -59,7 +59,7 @@ class EchoRt(threading.Thread):
 
     def __init__(self, port, label=None, **kwargs):
         super().__init__()
-        self.sock = xddp.rt_xddp_bind(port, label, **kwargs)
+        self.sock = channel.rt_xddp_bind(port, label, **kwargs)
         self._quit = threading.Event()
         self.start()
 
@@ -99,8 +99,8 @@ def reap(proc):
 
 ECHO_PEER = """
     import sys
-    from m4k_rt import xddp
-    ep = xddp.nrt_xddp_open({port!r}, wait=30.0)
+    from m4k_rt import channel
+    ep = channel.nrt_xddp_open({port!r}, wait=30.0)
     print('linked', flush=True)
     while True:
         ep.write(ep.read())
@@ -111,7 +111,7 @@ ECHO_PEER = """
 
 @pytest.mark.parametrize('label', [None, 'cmd'])
 def test_message_mode_carries_datagrams_both_ways_with_boundaries(rundir, label, transport):
-    rt = xddp.rt_xddp_bind(1, label)
+    rt = channel.rt_xddp_bind(1, label)
     try:
         ep = open_while_polling([rt], label or 1)
         with ep:
@@ -134,7 +134,7 @@ def test_message_mode_carries_datagrams_both_ways_with_boundaries(rundir, label,
 
 
 def test_stream_mode_carries_bytes_both_ways(rundir):
-    rt = xddp.rt_xddp_bind(2, mode='stream', transport='socket')
+    rt = channel.rt_xddp_bind(2, mode='stream', transport='socket')
     try:
         with open_while_polling([rt], 2) as ep:
             assert ep.mode == 'stream'
@@ -156,10 +156,10 @@ def test_stream_mode_carries_bytes_both_ways(rundir):
 
 
 def test_explicit_mode_mismatch_is_a_port_error(rundir):
-    rt = xddp.rt_xddp_bind(2, mode='stream', transport='socket')
+    rt = channel.rt_xddp_bind(2, mode='stream', transport='socket')
     try:
         with pytest.raises(XddpPortError, match='message mode'):
-            xddp.nrt_xddp_open(2, mode='message')
+            channel.nrt_xddp_open(2, mode='message')
     finally:
         rt.close()
 
@@ -167,26 +167,26 @@ def test_explicit_mode_mismatch_is_a_port_error(rundir):
 def test_paper_style_aliases_and_echo_thread(rundir):
     echo = EchoRt(5, 'led')
     try:
-        ep = xddp.nrt_xddp_open('led', wait=WAIT)
+        ep = channel.nrt_xddp_open('led', wait=WAIT)
         led = protocol.encode(protocol.Kind.LED, 1, 2, 255, 0, 0, 100, 1)
-        xddp.nrt_xddp_write(ep, led)
-        assert xddp.nrt_xddp_read(ep, WAIT) == led
-        xddp.nrt_xddp_close(ep)
+        channel.nrt_xddp_write(ep, led)
+        assert channel.nrt_xddp_read(ep, WAIT) == led
+        channel.nrt_xddp_close(ep)
         assert ep.closed
         with pytest.raises(XddpError, match='closed'):
             ep.read(0)
     finally:
         echo.stop()
-    rt = xddp.rt_xddp_bind(5)
-    assert xddp.rt_xddp_send(rt, b'x') is False
-    assert xddp.rt_xddp_recv(rt, bytearray(8)) == 0
-    xddp.rt_xddp_close(rt)
+    rt = channel.rt_xddp_bind(5)
+    assert channel.rt_xddp_send(rt, b'x') is False
+    assert channel.rt_xddp_recv(rt, bytearray(8)) == 0
+    channel.rt_xddp_close(rt)
     assert not os.path.exists(rt.path)
 
 
 def test_fileno_selects_on_the_peer_once_linked(rundir):
     import selectors
-    rt = xddp.rt_xddp_bind(3)
+    rt = channel.rt_xddp_bind(3)
     try:
         listener_fd = rt.fileno()
         with open_while_polling([rt], 3) as ep, selectors.DefaultSelector() as sel:
@@ -214,7 +214,7 @@ def test_fileno_selects_on_the_peer_once_linked(rundir):
 # ---- peers: busy, not bound, restarts ----
 
 def test_second_opener_gets_busy_error_and_first_keeps_working(rundir):
-    rt = xddp.rt_xddp_bind(1, 'cmd')
+    rt = channel.rt_xddp_bind(1, 'cmd')
     try:
         with open_while_polling([rt], 1) as first:
             with pytest.raises(XddpBusyError) as info:
@@ -230,28 +230,28 @@ def test_second_opener_gets_busy_error_and_first_keeps_working(rundir):
 
 
 def test_open_fails_fast_when_nothing_is_bound(rundir):
-    xddp.ensure_runtime_dir()
+    channel.ensure_runtime_dir()
     with pytest.raises(XddpNotBoundError) as info:
-        xddp.nrt_xddp_open(4)
+        channel.nrt_xddp_open(4)
     assert info.value.path == os.path.join(rundir, 'xddp4')
     with pytest.raises(XddpNotBoundError):
-        xddp.nrt_xddp_open('nolabel', wait=0.05)
+        channel.nrt_xddp_open('nolabel', wait=0.05)
 
 
 def test_open_with_wait_succeeds_when_bound_later(rundir):
-    xddp.ensure_runtime_dir()
+    channel.ensure_runtime_dir()
     result = {}
 
     def opener():
         try:
-            result['ep'] = xddp.nrt_xddp_open(6, wait=WAIT)
+            result['ep'] = channel.nrt_xddp_open(6, wait=WAIT)
         except Exception as exc:
             result['exc'] = exc
 
     thread = threading.Thread(target=opener)
     thread.start()
     time.sleep(0.1)  # let the opener find nothing bound first
-    rt = xddp.rt_xddp_bind(6)
+    rt = channel.rt_xddp_bind(6)
     try:
         until(lambda: not thread.is_alive(), 'waiting opener', step=rt.poll_peer)
         thread.join()
@@ -266,7 +266,7 @@ def test_open_with_wait_succeeds_when_bound_later(rundir):
 
 
 def test_rt_close_makes_nrt_read_and_write_raise_broken_pipe(rundir):
-    rt = xddp.rt_xddp_bind(7)
+    rt = channel.rt_xddp_bind(7)
     ep = open_while_polling([rt], 7)
     try:
         rt.send(b'last words')
@@ -281,7 +281,7 @@ def test_rt_close_makes_nrt_read_and_write_raise_broken_pipe(rundir):
 
 
 def test_killed_nrt_peer_is_dropped_and_a_restarted_one_relinks(rundir):
-    rt = xddp.rt_xddp_bind(2, 'motor')
+    rt = channel.rt_xddp_bind(2, 'motor')
     buf = bytearray(4096)
     procs = []
     try:
@@ -309,8 +309,8 @@ def test_killed_nrt_peer_is_dropped_and_a_restarted_one_relinks(rundir):
 def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rundir, transport):
     proc = spawn("""
         import time
-        from m4k_rt import xddp
-        rt = xddp.rt_xddp_bind(8, 'sonar', transport={!r})
+        from m4k_rt import channel
+        rt = channel.rt_xddp_bind(8, 'sonar', transport={!r})
         print('bound', flush=True)
         while True:
             rt.poll_peer()
@@ -318,7 +318,7 @@ def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rund
     """.format(transport))
     try:
         assert proc.stdout.readline().strip() == 'bound'
-        ep = xddp.nrt_xddp_open('sonar', wait=WAIT)
+        ep = channel.nrt_xddp_open('sonar', wait=WAIT)
         proc.send_signal(signal.SIGKILL)
         proc.wait(WAIT)
         assert ep.transport == transport
@@ -329,8 +329,8 @@ def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rund
     path = os.path.join(rundir, 'xddp8')
     assert stat.S_ISSOCK(os.lstat(path).st_mode)  # left behind by the dead process
     with pytest.raises(XddpNotBoundError):
-        xddp.nrt_xddp_open(8)
-    with xddp.rt_xddp_bind(8, 'sonar') as rt:
+        channel.nrt_xddp_open(8)
+    with channel.rt_xddp_bind(8, 'sonar') as rt:
         with open_while_polling([rt], 'sonar') as ep:
             rt.send(b'new')
             assert ep.read(WAIT) == b'new'
@@ -339,8 +339,8 @@ def test_killed_rt_process_breaks_the_pipe_and_its_stale_socket_is_replaced(rund
 def test_bind_refuses_a_port_held_by_a_live_process_without_disturbing_it(rundir, transport):
     proc = spawn("""
         import sys
-        from m4k_rt import xddp
-        rt = xddp.rt_xddp_bind(9, 'lrf', transport={!r})
+        from m4k_rt import channel
+        rt = channel.rt_xddp_bind(9, 'lrf', transport={!r})
         print('bound', flush=True)
         sys.stdin.readline()
         print(rt.poll_peer(), rt.counters.busy_rejects, rt.counters.peer_lost, flush=True)
@@ -349,10 +349,10 @@ def test_bind_refuses_a_port_held_by_a_live_process_without_disturbing_it(rundir
     try:
         assert proc.stdout.readline().strip() == 'bound'
         with pytest.raises(XddpBusyError) as info:
-            xddp.rt_xddp_bind(9)
+            channel.rt_xddp_bind(9)
         assert 'xddp9' in str(info.value) and info.value.path.endswith('xddp9')
         with pytest.raises(XddpBusyError, match="label 'lrf'"):
-            xddp.rt_xddp_bind(10, 'lrf')
+            channel.rt_xddp_bind(10, 'lrf')
         assert not os.path.exists(os.path.join(rundir, 'xddp10'))
         out, _ = proc.communicate('go\n', timeout=WAIT)
         assert out.split() == ['False', '0', '0']  # the probes never reached its listener
@@ -362,12 +362,12 @@ def test_bind_refuses_a_port_held_by_a_live_process_without_disturbing_it(rundir
 
 
 def test_bind_refuses_to_replace_a_non_socket_file(rundir):
-    xddp.ensure_runtime_dir()
+    channel.ensure_runtime_dir()
     path = os.path.join(rundir, 'xddp3')
     with open(path, 'w') as f:
         f.write('not a socket')
     with pytest.raises(XddpError, match='not a socket') as info:
-        xddp.rt_xddp_bind(3)
+        channel.rt_xddp_bind(3)
     assert info.value.path == path
     assert os.path.exists(path)
 
@@ -375,7 +375,7 @@ def test_bind_refuses_to_replace_a_non_socket_file(rundir):
 # ---- drops: oversize, full, no peer ----
 
 def test_oversize_and_empty_sends_are_dropped_and_counted(rundir):
-    rt = xddp.rt_xddp_bind(4, max_datagram=1024)
+    rt = channel.rt_xddp_bind(4, max_datagram=1024)
     try:
         with open_while_polling([rt], 4) as ep:
             assert not rt.send(b'x' * 1025)
@@ -393,7 +393,7 @@ def test_oversize_and_empty_sends_are_dropped_and_counted(rundir):
 
 @pytest.mark.parametrize('mode', ['message', 'stream'])
 def test_full_queue_drops_without_blocking_and_every_accepted_datagram_arrives(rundir, mode):
-    rt = xddp.rt_xddp_bind(5, mode=mode, poolsz=16384, max_datagram=1000,
+    rt = channel.rt_xddp_bind(5, mode=mode, poolsz=16384, max_datagram=1000,
                            transport='socket' if mode == 'stream' else None)
     try:
         with open_while_polling([rt], 5) as ep:
@@ -415,7 +415,7 @@ def test_full_queue_drops_without_blocking_and_every_accepted_datagram_arrives(r
 
 
 def test_send_without_peer_is_dropped_and_counted(rundir):
-    with xddp.rt_xddp_bind(6) as rt:
+    with channel.rt_xddp_bind(6) as rt:
         assert not rt.connected
         assert [rt.send(b'a') for _ in range(3)] == [False] * 3
         assert rt.recv() is None
@@ -429,7 +429,7 @@ def test_send_without_peer_is_dropped_and_counted(rundir):
 
 
 def test_closed_rt_socket_stays_harmless(rundir):
-    rt = xddp.rt_xddp_bind(2)
+    rt = channel.rt_xddp_bind(2)
     ep = open_while_polling([rt], 2)
     rt.close()
     ep.close()
@@ -439,7 +439,7 @@ def test_closed_rt_socket_stays_harmless(rundir):
 
 
 def test_receiver_counts_malformed_datagrams(rundir):
-    with xddp.rt_xddp_bind(1) as rt, open_while_polling([rt], 1) as ep:
+    with channel.rt_xddp_bind(1) as rt, open_while_polling([rt], 1) as ep:
         ep.write(b'garbage!' * 3)
         ep.write(protocol.encode(protocol.Kind.VELOCITY_CMD, 1, 1, 0.1, 0.2))
         decoded = []
@@ -463,13 +463,13 @@ def _drain(rt, decoded):
 @pytest.mark.parametrize('port', [-1, 32, 1.0, True, '3', None])
 def test_bad_port_is_a_port_error(rundir, port):
     with pytest.raises(XddpPortError, match='port'):
-        xddp.rt_xddp_bind(port)
+        channel.rt_xddp_bind(port)
 
 
 @pytest.mark.parametrize('label', ['', '../evil', 'a/b', '.hidden', 'x' * 33, 'sp ace'])
 def test_bad_labels_are_refused(rundir, label):
     with pytest.raises(XddpPortError, match='label'):
-        xddp.nrt_xddp_open(label)
+        channel.nrt_xddp_open(label)
 
 
 @pytest.mark.parametrize('kwargs', [
@@ -477,22 +477,22 @@ def test_bad_labels_are_refused(rundir, label):
     {'poolsz': 8192, 'max_datagram': 8192}])
 def test_bad_bind_options_are_port_errors(rundir, kwargs):
     with pytest.raises(XddpPortError):
-        xddp.rt_xddp_bind(1, **kwargs)
+        channel.rt_xddp_bind(1, **kwargs)
 
 
 def test_port_limit_is_configurable(rundir):
     with pytest.raises(XddpPortError):
-        xddp.rt_xddp_bind(40)
-    with xddp.rt_xddp_bind(40, max_ports=64) as rt:
+        channel.rt_xddp_bind(40)
+    with channel.rt_xddp_bind(40, max_ports=64) as rt:
         assert rt.path.endswith('xddp40')
         with pytest.raises(XddpPortError):
-            xddp.nrt_xddp_open(40)
+            channel.nrt_xddp_open(40)
         with open_while_polling([rt], 40, max_ports=64):
             assert rt.connected
 
 
 def test_labels_are_symlinks_removed_on_close(rundir):
-    rt = xddp.rt_xddp_bind(4, 'imu_out')
+    rt = channel.rt_xddp_bind(4, 'imu_out')
     link = os.path.join(rundir, 'label.imu_out')
     try:
         assert os.readlink(link) == 'xddp4'
@@ -505,11 +505,11 @@ def test_labels_are_symlinks_removed_on_close(rundir):
 
 
 def test_relabelling_a_dead_port_moves_the_label(rundir):
-    with xddp.rt_xddp_bind(3, 'imu'):
+    with channel.rt_xddp_bind(3, 'imu'):
         pass
-    xddp.ensure_runtime_dir()
+    channel.ensure_runtime_dir()
     os.symlink('xddp9', os.path.join(rundir, 'label.imu'))  # dangling, from a dead config
-    with xddp.rt_xddp_bind(3, 'imu'):
+    with channel.rt_xddp_bind(3, 'imu'):
         assert os.readlink(os.path.join(rundir, 'label.imu')) == 'xddp3'
 
 
@@ -517,24 +517,24 @@ def test_relabelling_a_dead_port_moves_the_label(rundir):
 
 def test_default_runtime_dir_follows_the_documented_order(monkeypatch):
     monkeypatch.setenv('M4K_RUNTIME_DIR', '/x/m4k')
-    assert xddp.default_runtime_dir() == '/x/m4k'
+    assert channel.default_runtime_dir() == '/x/m4k'
     monkeypatch.delenv('M4K_RUNTIME_DIR')
     monkeypatch.setenv('XDG_RUNTIME_DIR', '/run/user/7')
-    assert xddp.default_runtime_dir() == '/run/user/7/m4k'
+    assert channel.default_runtime_dir() == '/run/user/7/m4k'
     monkeypatch.delenv('XDG_RUNTIME_DIR')
     expected = '/run/m4k' if os.geteuid() == 0 else '/tmp/m4k-{}'.format(os.getuid())
-    assert xddp.default_runtime_dir() == expected
+    assert channel.default_runtime_dir() == expected
 
 
 def test_runtime_dir_and_sockets_are_private(rundir):
-    with xddp.rt_xddp_bind(1):
+    with channel.rt_xddp_bind(1):
         assert stat.S_IMODE(os.stat(rundir).st_mode) == 0o700
         assert stat.S_IMODE(os.stat(os.path.join(rundir, 'xddp1')).st_mode) == 0o600
 
 
 def test_runtime_dir_with_group_is_group_accessible(rundir):
     gid = os.getgid() if os.geteuid() != 0 else 65534
-    with xddp.rt_xddp_bind(1, group=gid) as rt:
+    with channel.rt_xddp_bind(1, group=gid) as rt:
         st_dir = os.stat(rundir)
         st_sock = os.stat(rt.path)
         assert stat.S_IMODE(st_dir.st_mode) == 0o770 and st_dir.st_gid == gid
@@ -545,7 +545,7 @@ def test_runtime_dir_narrower_than_configured_is_widened(rundir):
     os.mkdir(rundir, 0o700)
     gid = os.getgid()
     os.chown(rundir, -1, gid)
-    xddp.ensure_runtime_dir(rundir, group=gid)
+    channel.ensure_runtime_dir(rundir, group=gid)
     assert stat.S_IMODE(os.stat(rundir).st_mode) == 0o770
 
 
@@ -554,7 +554,7 @@ def test_runtime_dir_wider_than_configured_is_refused(rundir, mode):
     os.mkdir(rundir)
     os.chmod(rundir, mode)
     with pytest.raises(XddpError, match='wider than 0700') as info:
-        xddp.rt_xddp_bind(1)
+        channel.rt_xddp_bind(1)
     assert info.value.path == rundir and info.value.errno == errno.EPERM
     assert os.listdir(rundir) == []
 
@@ -564,35 +564,35 @@ def test_runtime_dir_that_is_a_symlink_is_refused(rundir):
     os.mkdir(real, 0o700)
     os.symlink(real, rundir)
     with pytest.raises(XddpError, match='not a directory'):
-        xddp.ensure_runtime_dir()
+        channel.ensure_runtime_dir()
 
 
 def test_unknown_group_is_refused(rundir):
     with pytest.raises(XddpError, match='unknown group'):
-        xddp.ensure_runtime_dir(group='no-such-group-m4k')
+        channel.ensure_runtime_dir(group='no-such-group-m4k')
 
 
 # ---- the NRT side checks the runtime directory too, before it links ----
 
 def test_nrt_side_accepts_what_the_rt_side_made_and_a_missing_directory(rundir):
-    assert xddp.check_runtime_dir() == rundir            # absent: nothing bound yet
-    with xddp.rt_xddp_bind(1, 'imu') as rt:
-        assert xddp.check_runtime_dir() == rundir
+    assert channel.check_runtime_dir() == rundir            # absent: nothing bound yet
+    with channel.rt_xddp_bind(1, 'imu') as rt:
+        assert channel.check_runtime_dir() == rundir
         with open_while_polling([rt], 'imu', wait=5.0) as ep:
             assert ep.path.endswith('label.imu')
 
 
 def test_nrt_side_accepts_a_group_directory_with_its_group(rundir):
     gid = os.getgid() if os.geteuid() != 0 else 65534
-    with xddp.rt_xddp_bind(1, group=gid) as rt:
-        assert xddp.check_runtime_dir(group=gid) == rundir
+    with channel.rt_xddp_bind(1, group=gid) as rt:
+        assert channel.check_runtime_dir(group=gid) == rundir
         with open_while_polling([rt], 1, wait=5.0, group=gid):
             pass
         with pytest.raises(XddpError, match='wider than 0700'):   # a peer not told the group
-            xddp.nrt_xddp_open(1, wait=0.0)
+            channel.nrt_xddp_open(1, wait=0.0)
         other = 65533 if gid != 65533 else 65532
         with pytest.raises(XddpError, match='has group {}, expected {}'.format(gid, other)):
-            xddp.check_runtime_dir(group=other)
+            channel.check_runtime_dir(group=other)
 
 
 @pytest.mark.parametrize('mode', [0o755, 0o777, 0o707])
@@ -600,9 +600,9 @@ def test_nrt_side_refuses_a_directory_others_may_write_or_read(rundir, mode):
     os.mkdir(rundir)
     os.chmod(rundir, mode)
     with pytest.raises(XddpError, match='wider than 0700') as info:
-        xddp.nrt_xddp_open(1, wait=0.0)
+        channel.nrt_xddp_open(1, wait=0.0)
     assert info.value.errno == errno.EPERM
-    link = xddp.NrtLink(1, retry_interval=0.01)
+    link = channel.NrtLink(1, retry_interval=0.01)
     assert link.write(b'x') is False and 'wider than' in str(link.last_error)
     assert stat.S_IMODE(os.stat(rundir).st_mode) == mode     # checked, never changed
 
@@ -612,7 +612,7 @@ def test_nrt_side_refuses_a_symlinked_runtime_directory(rundir):
     os.mkdir(real, 0o700)
     os.symlink(real, rundir)
     with pytest.raises(XddpError, match='symlinks are refused'):
-        xddp.nrt_xddp_open(1, wait=0.0)
+        channel.nrt_xddp_open(1, wait=0.0)
 
 
 @pytest.mark.needs_root('to chown the directory to another user')
@@ -620,7 +620,7 @@ def test_nrt_side_refuses_a_runtime_directory_of_another_user(rundir):
     os.mkdir(rundir, 0o700)
     os.chown(rundir, 54321, -1)
     with pytest.raises(XddpError, match='owned by uid 54321'):
-        xddp.nrt_xddp_open(1, wait=0.0)
+        channel.nrt_xddp_open(1, wait=0.0)
 
 
 needs_root = pytest.mark.needs_root('to chown and to run a child as nobody')
@@ -650,12 +650,12 @@ def test_runtime_dir_owned_by_another_user_is_refused(rundir):
     os.mkdir(rundir, 0o700)
     os.chown(rundir, 65534, -1)
     with pytest.raises(XddpError, match='owned by uid 65534'):
-        xddp.rt_xddp_bind(1)
+        channel.rt_xddp_bind(1)
 
 
 @needs_root
 def test_another_user_cannot_connect(rundir):
-    with xddp.rt_xddp_bind(1, 'cmd') as rt:
+    with channel.rt_xddp_bind(1, 'cmd') as rt:
         assert connect_as_nobody(rt.path) == 'EACCES'
         assert connect_as_nobody(rt.label_path) == 'EACCES'
         os.chmod(rundir, 0o711)  # even with a traversable directory the 0600 socket holds
@@ -665,15 +665,15 @@ def test_another_user_cannot_connect(rundir):
 
 @needs_root
 def test_configured_group_member_can_connect(rundir):
-    with xddp.rt_xddp_bind(1, group='nogroup') as rt:
+    with channel.rt_xddp_bind(1, group='nogroup') as rt:
         assert connect_as_nobody(rt.path) == 'connected'  # the harness itself can connect
 
 
 # ---- NrtLink ----
 
 def test_nrt_link_is_quiet_while_unbound_and_relinks_after_rt_restart(rundir):
-    xddp.ensure_runtime_dir()
-    link = xddp.NrtLink('cmd', retry_interval=0.02)
+    channel.ensure_runtime_dir()
+    link = channel.NrtLink('cmd', retry_interval=0.02)
     echo = None
     try:
         assert link.read(0.05) is None
@@ -700,4 +700,4 @@ def test_nrt_link_is_quiet_while_unbound_and_relinks_after_rt_restart(rundir):
 
 def test_nrt_link_validates_port_up_front(rundir):
     with pytest.raises(XddpPortError):
-        xddp.NrtLink(99)
+        channel.NrtLink(99)

@@ -1,4 +1,4 @@
-"""The shm transport of m4k_rt.xddp: what test_xddp.py (run over both transports) cannot see.
+"""The shm transport of m4k_rt.channel: what test_xddp.py (run on both transports) cannot see.
 
 The region and its fds as a raw peer receives them, the negotiation, torn and corrupt slots,
 a peer writing its socket instead of its ring, garbage rings, fresh rings per link.
@@ -18,8 +18,8 @@ import zlib
 import pytest
 from xddp_support import open_while_polling, until, WAIT
 
-from m4k_rt import schema, xddp
-from m4k_rt.xddp import XddpPortError
+from m4k_rt import channel, schema
+from m4k_rt.channel import shmring, XddpPortError
 
 
 @pytest.fixture
@@ -59,14 +59,14 @@ def publish(ring, seq, payload, crc=None, seq_field=None):
 
 
 def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
-    with xddp.rt_xddp_bind(3, 'imu', transport='shm', poolsz=8192, max_datagram=1000) as rt:
+    with channel.rt_xddp_bind(3, 'imu', transport='shm', poolsz=8192, max_datagram=1000) as rt:
         sock, msg, fds = raw_link(rt, rt.path)
         try:
-            assert msg[:1] == xddp.HANDSHAKE_SHM and len(fds) == 3
+            assert msg[:1] == channel.HANDSHAKE_SHM and len(fds) == 3
             magic, version, _, nslots, slot, size = struct.unpack_from('<4sHHIII', msg, 1)
             assert (magic, version, slot) == (b'M4KS', 1, 128)
             # poolsz bytes of 128-byte slots per direction, plus one u32 ack per slot
-            assert (nslots, slot * nslots + 4 * nslots) == xddp.shm_geometry(8192, 1000) \
+            assert (nslots, slot * nslots + 4 * nslots) == shmring.shm_geometry(8192, 1000) \
                 == (64, 8448)
             mfd, efd, efd_rt = fds
             st = os.fstat(mfd)
@@ -88,7 +88,7 @@ def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
             # A datagram the RT side sends is in ring 0 and wakes the eventfd.
             assert rt.send(b'hello')
             assert os.eventfd_read(efd) == 1
-            ring = xddp._ShmRing(memoryview(mmap.mmap(mfd, size)), 0, nslots)
+            ring = shmring.ShmRing(memoryview(mmap.mmap(mfd, size)), 0, nslots)
             buf = bytearray(64)
             assert ring.get_into(buf) == 5 and buf[:5] == b'hello'
             ring.mv.release()
@@ -99,26 +99,26 @@ def test_the_region_and_the_wake_fd_reach_the_peer_sealed_and_private(rundir):
 
 
 def test_a_raw_peer_is_told_shm_and_a_peer_asking_the_other_transport_is_refused(rundir):
-    with xddp.rt_xddp_bind(1, 'cmd', transport='shm') as rt:
+    with channel.rt_xddp_bind(1, 'cmd', transport='shm') as rt:
         with pytest.raises(XddpPortError, match='served over the shm transport'):
             open_while_polling(rt, 'cmd', transport='socket')
         until(lambda: rt.recv_into(bytearray(8)) == 0 and not rt.connected, 'refused peer')
         with open_while_polling(rt, 'cmd', transport='shm') as ep:
             assert ep.transport == 'shm'
-    with xddp.rt_xddp_bind(1, 'cmd', transport='socket') as rt:
+    with channel.rt_xddp_bind(1, 'cmd', transport='socket') as rt:
         with pytest.raises(XddpPortError, match='served over the socket transport'):
             open_while_polling(rt, 'cmd', transport='shm')
         with pytest.raises(XddpPortError, match='transport'):
-            xddp.nrt_xddp_open('cmd', transport='udp')
+            channel.nrt_xddp_open('cmd', transport='udp')
 
 
 def test_shm_is_message_mode_only_and_transport_is_validated(rundir):
     with pytest.raises(XddpPortError, match='message mode'):
-        xddp.rt_xddp_bind(2, mode='stream', transport='shm')
+        channel.rt_xddp_bind(2, mode='stream', transport='shm')
     with pytest.raises(XddpPortError, match='transport'):
-        xddp.rt_xddp_bind(2, transport='pipe')
+        channel.rt_xddp_bind(2, transport='pipe')
     field = schema.RUNTIME['transport']
-    assert field.default == 'socket' and set(field.choices) == set(xddp.TRANSPORTS)
+    assert field.default == 'socket' and set(field.choices) == set(channel.TRANSPORTS)
     assert field.validate('runtime.transport', 'shm') == 'shm'
     with pytest.raises(Exception, match='runtime.transport'):
         field.validate('runtime.transport', 'pipe')
@@ -126,7 +126,7 @@ def test_shm_is_message_mode_only_and_transport_is_validated(rundir):
 
 def test_unpublished_torn_and_stale_slots_are_never_delivered(rundir, monkeypatch):
     buf = bytearray(256)
-    with xddp.rt_xddp_bind(4, transport='shm', poolsz=4096, max_datagram=100) as rt, \
+    with channel.rt_xddp_bind(4, transport='shm', poolsz=4096, max_datagram=100) as rt, \
             open_while_polling(rt, 4) as ep:
         ring = ep._region.to_rt
         c = rt.counters
@@ -152,7 +152,7 @@ def test_unpublished_torn_and_stale_slots_are_never_delivered(rundir, monkeypatc
         assert rt.recv_into(buf) == 0 and c.torn == 2
         # A slot that stays bad is corrupt, not late: skipped after the give-up time and
         # counted malformed; the next datagram is delivered.
-        monkeypatch.setattr(xddp, 'SHM_TORN_GIVEUP_NS', 0)
+        monkeypatch.setattr(shmring, 'SHM_TORN_GIVEUP_NS', 0)
         ring.wseq = stale + 1
         ep.write(b'after')
         assert rt.recv_into(buf) == 5 and buf[:5] == b'after'
@@ -161,7 +161,7 @@ def test_unpublished_torn_and_stale_slots_are_never_delivered(rundir, monkeypatc
 
 def test_ring_full_and_oversize_are_counted_and_the_ring_recovers(rundir):
     buf = bytearray(128)
-    with xddp.rt_xddp_bind(5, transport='shm', poolsz=4096, max_datagram=100) as rt, \
+    with channel.rt_xddp_bind(5, transport='shm', poolsz=4096, max_datagram=100) as rt, \
             open_while_polling(rt, 5) as ep:
         nslots = ep._region.to_nrt.nslots
         results = [rt.send(bytes([i]) * 10) for i in range(nslots + 5)]
@@ -188,10 +188,10 @@ def test_ring_full_and_oversize_are_counted_and_the_ring_recovers(rundir):
 
 
 def test_garbage_in_the_rings_never_breaks_the_rt_side(rundir, monkeypatch):
-    monkeypatch.setattr(xddp, 'SHM_TORN_GIVEUP_NS', 0)
+    monkeypatch.setattr(shmring, 'SHM_TORN_GIVEUP_NS', 0)
     buf = bytearray(4096)
     rng = random.Random(33)
-    with xddp.rt_xddp_bind(6, transport='shm', poolsz=8192) as rt, \
+    with channel.rt_xddp_bind(6, transport='shm', poolsz=8192) as rt, \
             open_while_polling(rt, 6) as ep:
         region = ep._region
         for _ in range(200):
@@ -207,7 +207,7 @@ def test_garbage_in_the_rings_never_breaks_the_rt_side(rundir, monkeypatch):
 
 
 def test_bytes_written_on_the_socket_of_an_shm_link_are_counted_malformed(rundir):
-    with xddp.rt_xddp_bind(7, transport='shm') as rt, open_while_polling(rt, 7) as ep:
+    with channel.rt_xddp_bind(7, transport='shm') as rt, open_while_polling(rt, 7) as ep:
         ep._sock.send(b'not through the ring')
         until(lambda: rt.recv_into(bytearray(64)) == 0 and rt.counters.malformed == 1,
               'socket look')
@@ -217,7 +217,7 @@ def test_bytes_written_on_the_socket_of_an_shm_link_are_counted_malformed(rundir
 
 
 def test_a_new_peer_gets_fresh_rings_never_the_old_peers_data(rundir):
-    with xddp.rt_xddp_bind(8, transport='shm') as rt:
+    with channel.rt_xddp_bind(8, transport='shm') as rt:
         first = open_while_polling(rt, 8)
         assert rt.send(b'for the first peer only')
         first.close()
@@ -232,7 +232,7 @@ def test_a_new_peer_gets_fresh_rings_never_the_old_peers_data(rundir):
 
 
 def test_the_nrt_fileno_wakes_on_data_and_on_rt_death(rundir):
-    rt = xddp.rt_xddp_bind(9, transport='shm')
+    rt = channel.rt_xddp_bind(9, transport='shm')
     ep = open_while_polling(rt, 9)
     try:
         with selectors.DefaultSelector() as sel:
@@ -256,9 +256,9 @@ def test_the_nrt_fileno_wakes_on_data_and_on_rt_death(rundir):
 def test_random_sizes_wrap_in_order_with_boundaries_and_exact_full_drops(seed):
     # Producer and consumer as two ring objects over one buffer, as the two processes have.
     rng = random.Random(seed)
-    nslots, size = xddp.shm_geometry(4096, 1000)
+    nslots, size = shmring.shm_geometry(4096, 1000)
     mem = memoryview(bytearray(size))
-    prod, cons = xddp._ShmRing(mem, 0, nslots), xddp._ShmRing(mem, 0, nslots)
+    prod, cons = shmring.ShmRing(mem, 0, nslots), shmring.ShmRing(mem, 0, nslots)
     prod.init_acks()
     sent, got, full = [], [], 0
     buf = bytearray(1000)
@@ -284,7 +284,7 @@ def test_random_sizes_wrap_in_order_with_boundaries_and_exact_full_drops(seed):
 def test_a_burst_of_small_datagrams_fits_as_in_a_socket_buffer(rundir):
     # The monitor ships ~25 small datagrams per batch: poolsz holds them all, as the socket
     # buffer does.
-    with xddp.rt_xddp_bind(10, transport='shm') as rt, open_while_polling(rt, 10) as ep:
+    with channel.rt_xddp_bind(10, transport='shm') as rt, open_while_polling(rt, 10) as ep:
         assert all(rt.send(bytes([i]) * 60) for i in range(200))
         assert [ep.read(0) for _ in range(200)] == [bytes([i]) * 60 for i in range(200)]
         assert rt.counters.dropped_full == 0

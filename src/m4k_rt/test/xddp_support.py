@@ -3,7 +3,7 @@
 import threading
 import time
 
-from m4k_rt import xddp
+from m4k_rt import channel
 
 WAIT = 10.0  # generous upper bound for anything that must happen; never asserted as timing
 
@@ -25,7 +25,7 @@ def open_while_polling(rt_socks, *args, **kwargs):
 
     def target():
         try:
-            result['ep'] = xddp.nrt_xddp_open(*args, **kwargs)
+            result['ep'] = channel.nrt_xddp_open(*args, **kwargs)
         except Exception as exc:  # handed to the test thread
             result['exc'] = exc
 

@@ -33,6 +33,7 @@ module may import it (test/test_layering.py). What it gives:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import random
 import shutil
@@ -46,7 +47,7 @@ from typing import Any, IO, Iterator, Mapping
 
 import pytest
 
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 
 __all__ = ['pytest_configure', 'pytest_unconfigure', 'pytest_runtest_setup',
            'pytest_runtest_logreport', 'pytest_collectreport', 'pytest_sessionfinish',
@@ -318,8 +319,9 @@ class ProcessGroup:
         streams = {name: s for name, s in given.items()
                    if s is not None and s != subprocess.PIPE}
         name = argv[2] if argv[1:2] == ['-m'] and len(argv) > 2 else os.path.basename(argv[0])
-        child = Child(name, argv, env, pipes=pipes,
-                      streams=streams, group=True, must_end=True).start()
+        child = Child(name, argv, env,
+                      output=Output(pipes=pipes, streams=streams),
+                      stopping=Stopping(group=True, must_end=True)).start()
         assert child.proc is not None
         self._children[child.pid] = child
         return child.proc
@@ -345,7 +347,7 @@ class ProcessGroup:
 
     @staticmethod
     def _stop(child: Child, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
-        child.stop_signal = sig
+        child.stopping = dataclasses.replace(child.stopping, sig=sig)
         rc = child.stop(timeout)    # must_end: SIGKILL that did not end it fails the test
         assert rc is not None
         return rc

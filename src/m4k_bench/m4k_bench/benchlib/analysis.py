@@ -1,6 +1,6 @@
 """Pure analysis for the bench: samples -> condition statistics, ratios and targets.
 
-Per-task statistics come from :func:`m4k_rt.recorder.summarize` (the same code that makes
+Per-task statistics come from :func:`m4k_bench.recorder.summarize` (the same code that makes
 Table 1), so the RT actuator task and the plain-ROS baseline are measured identically:
 period, jitter = |period - nominal|, release latency = t_start - t_rel, response time.
 
@@ -18,7 +18,8 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from m4k_rt import recorder, timing
+from m4k_bench import recorder
+from m4k_rt import timing
 
 __all__ = [
     'CHANNEL_FLOORS', 'RATIOS', 'RATIO_KEYS', 'Ratio', 'STRICTER', 'Stricter', 'TARGETS',

@@ -27,7 +27,7 @@ import time
 from types import FrameType
 from typing import Any, Callable, Sequence
 
-from m4k_rt import protocol, xddp
+from m4k_rt import channel, protocol
 from m4k_rt.control.params import control_params
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.actuator import ActuatorBody
@@ -43,11 +43,11 @@ BODIES = ('actuator', 'imu', 'sonar', 'led')
 _PERIOD_NS = 10_000_000
 
 
-def _link(port: int, rundir: str) -> tuple[xddp.RtXddpSocket, xddp.NrtXddpEndpoint]:
-    rt = xddp.rt_xddp_bind(port, runtime_dir=rundir)
-    got: list[xddp.NrtXddpEndpoint] = []
+def _link(port: int, rundir: str) -> tuple[channel.RtXddpSocket, channel.NrtXddpEndpoint]:
+    rt = channel.rt_xddp_bind(port, runtime_dir=rundir)
+    got: list[channel.NrtXddpEndpoint] = []
     opener = threading.Thread(target=lambda: got.append(
-        xddp.nrt_xddp_open(port, wait=10.0, runtime_dir=rundir)), daemon=True)
+        channel.nrt_xddp_open(port, wait=10.0, runtime_dir=rundir)), daemon=True)
     opener.start()
     end = time.monotonic() + 10.0
     while opener.is_alive() and time.monotonic() < end:
@@ -60,7 +60,7 @@ def _link(port: int, rundir: str) -> tuple[xddp.RtXddpSocket, xddp.NrtXddpEndpoi
     return rt, got[0]
 
 
-def _drain(ep: xddp.NrtXddpEndpoint) -> None:
+def _drain(ep: channel.NrtXddpEndpoint) -> None:
     try:
         while True:
             ep.read(0.0)
@@ -68,8 +68,8 @@ def _drain(ep: xddp.NrtXddpEndpoint) -> None:
         pass
 
 
-def _rig(name: str, a: xddp.RtXddpSocket, ea: xddp.NrtXddpEndpoint, b: xddp.RtXddpSocket,
-         eb: xddp.NrtXddpEndpoint,
+def _rig(name: str, a: channel.RtXddpSocket, ea: channel.NrtXddpEndpoint, b: channel.RtXddpSocket,
+         eb: channel.NrtXddpEndpoint,
          state: RobotState) -> tuple[Callable[..., object], Callable[[int], None]]:
     """Return the body and its per-cycle feed (what its peers send before cycle ``k``)."""
     if name == 'actuator':
@@ -123,9 +123,9 @@ def count_ops(names: Sequence[str] = BODIES, cycles: int = 200,
     """Return, per body: opcodes and calls per call, cycles counted, opcodes per function."""
     base = tempfile.mkdtemp(prefix='m4k-bodyops-')
     rundir = os.path.join(base, 'rt')
-    xddp.ensure_runtime_dir(rundir)
-    socks: list[xddp.RtXddpSocket] = []
-    peers: list[xddp.NrtXddpEndpoint] = []
+    channel.ensure_runtime_dir(rundir)
+    socks: list[channel.RtXddpSocket] = []
+    peers: list[channel.NrtXddpEndpoint] = []
     out: dict[str, dict[str, Any]] = {}
     try:
         port = 1

@@ -32,7 +32,7 @@ import time
 from typing import Any, Callable
 
 from m4k_bench.benchlib.analysis import stats_dict
-from m4k_rt import protocol, xddp
+from m4k_rt import channel, protocol
 from m4k_rt.timing import describe
 
 __all__ = ['MotorProbe', 'run_cmd_latency']
@@ -47,7 +47,7 @@ class MotorProbe:
 
     def __init__(self, runtime_dir: str) -> None:
         """Prepare the link and the reply buffer; ``start()`` runs the thread."""
-        self.link = xddp.NrtLink('motor', runtime_dir, retry_interval=0.05)
+        self.link = channel.NrtLink('motor', runtime_dir, retry_interval=0.05)
         self.stop_event = threading.Event()
         self.lock = threading.Lock()
         self.events: list[tuple[int, int, int, int]] = []   # rx_ns, stamp_ns, left, right
@@ -129,7 +129,7 @@ def run_cmd_latency(trials: int, runtime_dir: str, log_dir: str, *,
     from m4k_bench.benchlib.stack import entry_argv, start_child
 
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
-    xddp.ensure_runtime_dir(runtime_dir)
+    channel.ensure_runtime_dir(runtime_dir)
     rt = start_child('cmdlat.rt_core', entry_argv('m4k_rt.rt_core', '--tasks', 'actuator'),
                      log_dir, env)
     bridge = start_child('cmdlat.bridge', entry_argv('m4k_bridge.node'), log_dir, env)

@@ -24,7 +24,7 @@ import threading
 import time
 from typing import Callable
 
-from m4k_rt import modeswitch, protocol, task, timing, xddp
+from m4k_rt import channel, modeswitch, protocol, task, timing
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.timerfd import monotonic_ns
 
@@ -57,13 +57,13 @@ def measure_parts(n: int = 2000) -> dict[str, float]:
     """Time every part of a cycle; return µs per call (per cycle for rusage)."""
     base = tempfile.mkdtemp(prefix='m4kp')
     rundir = os.path.join(base, 'rt')
-    xddp.ensure_runtime_dir(rundir)
-    rt = xddp.rt_xddp_bind(30, 'parts', runtime_dir=rundir)
+    channel.ensure_runtime_dir(rundir)
+    rt = channel.rt_xddp_bind(30, 'parts', runtime_dir=rundir)
     ep = None
     try:
-        opened: list[xddp.NrtXddpEndpoint] = []
+        opened: list[channel.NrtXddpEndpoint] = []
         opener = threading.Thread(target=lambda: opened.append(
-            xddp.nrt_xddp_open(30, wait=10.0, runtime_dir=rundir)), daemon=True)
+            channel.nrt_xddp_open(30, wait=10.0, runtime_dir=rundir)), daemon=True)
         opener.start()
         end = time.monotonic() + 10.0
         while opener.is_alive() and time.monotonic() < end:

@@ -1,7 +1,7 @@
 """Render ``report.md`` and ``readme_snippet.md`` from the bench summary (pure).
 
 Table 1, the utilization test and the response-time analysis of the median round come from
-:func:`m4k_rt.recorder.format_table1`; everything else (targets with their spread over the
+:func:`m4k_bench.recorder.format_table1`; everything else (targets with their spread over the
 rounds, per-round figures, hardening, stalls, loop cost, scaling, XDDP round trip, cmd_vel
 latency, machine) is formatted here. Nothing is explained that was not measured: a missed
 target shows its figures.
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+from m4k_bench import recorder
 from m4k_bench.benchlib import analysis
 from m4k_bench.benchlib.analysis import RATIOS
 from m4k_bench.benchlib.results import md_table
-from m4k_rt import recorder
 
 __all__ = ['CONDITION_LABELS', 'fmt_spread', 'md_table', 'method_lines', 'readme_snippet',
            'render']

@@ -12,7 +12,7 @@ the one process wrapper, started by :func:`start_child`.
 :func:`start_stack` is the one place that starts the robot stack for a measurement.
 
 While the RT stack runs, the bench records every TASK_STATS batch of the ``status`` port with
-:class:`m4k_rt.recorder.Recorder`. Commands take the architecture's path end to end
+:class:`m4k_bench.recorder.Recorder`. Commands take the architecture's path end to end
 (``e2e=True``, the default): the velocity profile (:func:`velocity_profile`, 20 Hz as the
 paper's navigation stack) is published as Twist on ``cmd_vel`` over DDS, the bridge forwards it
 over XDDP to the actuator -- the same DDS publisher the plain-ROS baseline gets
@@ -30,9 +30,10 @@ import threading
 import time
 from typing import Any, Callable, Sequence
 
+from m4k_bench import recorder
 from m4k_bench.benchlib import liveclient, system
-from m4k_bringup.child import Child
-from m4k_rt import protocol, recorder, xddp
+from m4k_bringup.child import Child, Output, Stopping
+from m4k_rt import channel, protocol
 
 __all__ = ['CMD_PERIOD_S', 'Child', 'M4kRun', 'entry_argv', 'module_available', 'run_m4k',
            'ros_commander', 'start_child', 'start_sim_robot', 'start_stack', 'velocity_profile']
@@ -77,9 +78,10 @@ def start_child(name: str, argv: Sequence[str], log_dir: str,
     (8 s unless given); a process that survives SIGKILL is an AssertionError.
     """
     os.makedirs(log_dir, exist_ok=True)
-    return Child(name, argv, env, log_path=os.path.join(log_dir, log_name or name + '.log'),
-                 stop_signal=stop_signal, group=group, stop_timeout=8.0,
-                 must_end=True).start()
+    return Child(name, argv, env,
+                 output=Output(log_path=os.path.join(log_dir, log_name or name + '.log')),
+                 stopping=Stopping(sig=stop_signal, group=group, timeout=8.0,
+                                   must_end=True)).start()
 
 
 def start_sim_robot(runtime_dir: str, log_dir: str, name: str,
@@ -167,7 +169,7 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
     """
     out = M4kRun()
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
-    xddp.ensure_runtime_dir(runtime_dir)
+    channel.ensure_runtime_dir(runtime_dir)
     live_port = liveclient.free_port() if live and e2e else None
     try:
         kids = start_stack(name, runtime_dir, log_dir, env, tasks=tasks,
@@ -178,8 +180,8 @@ def run_m4k(duration_s: float, runtime_dir: str, log_dir: str, name: str, *,
         return out
     viewer = liveclient.LiveClient(live_port) if live_port is not None else None
     rt = kids['rt_core']
-    status = xddp.NrtLink('status', runtime_dir, retry_interval=0.05)
-    cmd = None if e2e else xddp.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+    status = channel.NrtLink('status', runtime_dir, retry_interval=0.05)
+    cmd = None if e2e else channel.NrtLink('cmd', runtime_dir, retry_interval=0.05)
     stop_cmd = threading.Event()
     commander = ros_commander(stop_cmd) if e2e else None
     rec = out.recorder

@@ -26,7 +26,7 @@ import sys
 import threading
 from typing import Any, Sequence
 
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import sched
 from m4k_rt.timerfd import monotonic_ns, TimerFd
 
@@ -112,8 +112,8 @@ class StallProbes:
                       [sys.executable, '-m', 'm4k_bench.benchlib.stallprobe', '--cpu', str(cpu),
                        '--period-ns', str(period_ns), '--threshold-ns', str(threshold_ns),
                        '--priority', str(priority)],
-                      pipes=('stdout',), log_path=os.devnull, log_header=False,
-                      stop_timeout=5.0).start()
+                      output=Output(pipes=('stdout',), log_path=os.devnull, log_header=False),
+                      stopping=Stopping(timeout=5.0)).start()
             self._procs.append(c)
             th = threading.Thread(target=self._read, args=(cpu, c.proc), daemon=True,
                                   name='stallprobe-{}'.format(cpu))

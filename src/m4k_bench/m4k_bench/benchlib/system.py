@@ -19,7 +19,7 @@ import sys
 import time
 from typing import Any, Callable, Iterator
 
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 
 __all__ = ['DmaLatency', 'STRESS_ARGS', 'TOOL_PACKAGES', 'busy_note', 'ensure_tools',
            'machine_info', 'proc_cpu_seconds', 'start_stress', 'stress']
@@ -68,7 +68,8 @@ def start_stress(binary: str, timeout_s: float, args: tuple[str, ...] = STRESS_A
     ``settle_s`` to load the machine; a stress-ng that exits at once is a RuntimeError.
     """
     child = Child('stress-ng', [binary, *args, '--timeout', '{}s'.format(int(timeout_s) + 1)],
-                  log_path=os.devnull, log_header=False, group=True, stop_timeout=5.0).start()
+                  output=Output(log_path=os.devnull, log_header=False),
+                  stopping=Stopping(group=True, timeout=5.0)).start()
     time.sleep(settle_s)
     if not child.alive():
         rc = child.stop()

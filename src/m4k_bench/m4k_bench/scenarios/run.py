@@ -37,7 +37,7 @@ from m4k_bench.scenarios.bounds import (
 )
 from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.spec import Scenario
-from m4k_bringup.child import Child
+from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import config
 
 __all__ = ['Result', 'run_scenario']
@@ -87,8 +87,9 @@ def _bringup(argv: list[str], env: dict[str, str], log_path: str) -> Child:
 
     Stopped as Ctrl-C would: SIGINT to its whole session, 20 s, then SIGKILL (5 s).
     """
-    return Child('bringup', argv, env, log_path=log_path, log_append=False, log_header=False,
-                 stop_signal=signal.SIGINT, group=True, stop_timeout=20.0, kill_timeout=5.0)
+    return Child('bringup', argv, env,
+                 output=Output(log_path=log_path, log_append=False, log_header=False),
+                 stopping=Stopping(sig=signal.SIGINT, group=True, timeout=20.0, kill_timeout=5.0))
 
 
 IMU_FRESH_S = 0.2    # an IMU heading older than this is not steered on (imu_unplugged)

@@ -17,7 +17,8 @@ from m4k_drivers.registry import BuildContext, Param, register, register_service
 __all__ = ['EncoderReading', 'MotorHandler', 'RealMotorHandler', 'WheelCommand']
 
 _HANDLER = {
-    'period_s': Param(float, 0.01, 'actuator period, s'),
+    'period_s': Param(float, 0.01, 'service period, s; the driver host gives it the actuator '
+                      "task's (tasks.actuator.period_ms) from the layered configuration"),
     'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
     'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
     'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read (0..6)',

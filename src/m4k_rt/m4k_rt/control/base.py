@@ -143,11 +143,7 @@ class BaseController:
         self._alpha = params.speed_filter_alpha
         self.estop = EStopLatch(params.e_stop_linear_deceleration,
                                 params.e_stop_angular_deceleration)
-        sv = params.supervision
-        self.supervisor = WheelSupervisor(
-            enabled=sv.enabled, speed_threshold=sv.speed_threshold, min_speed=sv.min_speed,
-            wrong_way_time=sv.wrong_way_time, frozen_time=sv.frozen_time,
-            stall_time=sv.stall_time, stall_ratio=sv.stall_ratio, swap_time=sv.swap_time)
+        self.supervisor = WheelSupervisor(params.supervision)
         self.estop_open = False     # the contact reads open (contact_samples in a row)
         self._open_samples = 0
         self._open_needed = params.e_stop.contact_samples

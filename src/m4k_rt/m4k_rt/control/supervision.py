@@ -36,6 +36,7 @@ times restart.
 
 from __future__ import annotations
 
+from m4k_rt.control.params import SupervisionParams
 from m4k_rt.protocol import FaultCause
 
 __all__ = ['WheelSupervisor']
@@ -56,18 +57,17 @@ class WheelSupervisor:
                  'stall_time', 'stall_ratio', 'swap_time', 'cause', 'faults', 'last_cause',
                  '_t', '_left_angle', '_right_angle', '_left_moved', '_right_moved', '_fresh')
 
-    def __init__(self, *, enabled: bool = True, speed_threshold: float = 0.5,
-                 min_speed: float = 0.3, wrong_way_time: float = 0.1,
-                 frozen_time: float = 0.15, stall_time: float = 0.2, stall_ratio: float = 0.2,
-                 swap_time: float = 0.1) -> None:
-        self.enabled = bool(enabled)
-        self.threshold = float(speed_threshold)
-        self.min_speed = float(min_speed)
-        self.wrong_way_time = float(wrong_way_time)
-        self.frozen_time = float(frozen_time)
-        self.stall_time = float(stall_time)
-        self.stall_ratio = float(stall_ratio)
-        self.swap_time = float(swap_time)
+    def __init__(self, params: SupervisionParams | None = None) -> None:
+        # The settings and their defaults are declared once, on SupervisionParams.
+        p = SupervisionParams() if params is None else params
+        self.enabled = bool(p.enabled)
+        self.threshold = float(p.speed_threshold)
+        self.min_speed = float(p.min_speed)
+        self.wrong_way_time = float(p.wrong_way_time)
+        self.frozen_time = float(p.frozen_time)
+        self.stall_time = float(p.stall_time)
+        self.stall_ratio = float(p.stall_ratio)
+        self.swap_time = float(p.swap_time)
         self.cause = 0            # FaultCause bits of the latched fault; 0: none latched
         self.last_cause = 0       # the cause of the last fault (kept after a reset)
         self.faults = 0

@@ -38,7 +38,7 @@ import sys
 import time
 from typing import Any, Callable, Mapping
 
-from m4k_rt.config import TaskConfig
+from m4k_rt.config import load_layered, TaskConfig
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.guard import (
     CollisionGuard,
@@ -60,8 +60,6 @@ __all__ = ['ActuatorBody', 'control_section', 'GuardPlan', 'guard_plan', 'make_a
 # Read once when the actuator is built; refused unless TEST_HOOKS_ENV is '1'.
 TEST_HOOKS_ENV = 'M4K_TEST_HOOKS'
 WEAKEN_ENV = 'M4K_TEST_GUARD_WEAKEN_M'
-# Task periods assumed when the configuration has no such task (a bare test rig), s.
-_DEFAULT_PERIODS = {'lrf': 0.2, 'sonar': 0.03}
 
 _VELOCITY_CMD = Kind.VELOCITY_CMD
 _ENCODERS = Kind.ENCODERS
@@ -127,7 +125,9 @@ def _task_period(shared: Any, body: str) -> float:
     for t in getattr(cfg, 'tasks', None) or ():
         if getattr(t, 'body', None) == body or getattr(t, 'name', None) == body:
             return float(t.period_ns) * 1e-9
-    return _DEFAULT_PERIODS[body]
+    # Not a task of this configuration (a bare rig, or the task disabled): the period the
+    # shipped configuration declares for it (config/m4k.yaml tasks:), never a second number.
+    return float(load_layered()['tasks'][body]['period_ms']) * 1e-3
 
 
 def test_weaken(environ: Mapping[str, str] = os.environ) -> float:
@@ -180,7 +180,7 @@ def make_guard(params: ControlParams, plan: GuardPlan | None = None) -> Collisio
     """Build the collision guard from the control parameters (and the start-up plan)."""
     g = params.guard
     if plan is None:
-        plan = guard_plan(params, 0.01)
+        plan = guard_plan(params, _task_period(None, 'actuator'))
     return CollisionGuard(enabled=g.enabled, stop_distance=g.stop_distance,
                           release_margin=g.release_margin, slow_down=g.slow_down,
                           slow_deceleration=(params.linear.max_acceleration

@@ -15,7 +15,7 @@ __all__ = ['Body', 'BodyFactory', 'CycleContext', 'RtPort']
 
 @runtime_checkable
 class RtPort(Protocol):
-    """The RT side of one XDDP port, as a body uses it (:class:`m4k_rt.xddp.RtXddpSocket`)."""
+    """The RT side of one XDDP port, as a body uses it (:class:`m4k_rt.channel.RtXddpSocket`)."""
 
     def send(self, data: bytes | bytearray | memoryview, /) -> bool:
         """Send one datagram without blocking; False when dropped (the socket counts why)."""

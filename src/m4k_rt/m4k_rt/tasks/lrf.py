@@ -29,8 +29,6 @@ __all__ = ['LrfBody', 'make_lrf', 'SCAN_REQUEST']
 
 SCAN_REQUEST = 1   # REQUEST.arg asking the lrf handler for one scan
 _SCAN = Kind.LASER_SCAN
-_DEVICE_STATUS = Kind.DEVICE_STATUS
-_REQUEST = Kind.REQUEST
 
 
 class LrfBody(DeviceTaskBody):
@@ -52,26 +50,17 @@ class LrfBody(DeviceTaskBody):
 
     def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one LRF cycle."""
-        now = ctx.t_start if ctx is not None else self._clock()
+        self._poll_device(ctx, _SCAN, 'lrf', SCAN_REQUEST)
+
+    def _on_reading(self, msg: Any, now: int) -> None:
+        """Forward one scan and give the guard its front corridor's nearest point."""
         state = self.state
-        reader = self._dev_in
-        reader.start_cycle()
-        while (got := reader.next()) is not None:
-            hdr, msg = got
-            if hdr.kind == _SCAN:
-                self._out.forward(reader.raw())
-                state.laser_front_min = self.sector.minimum(
-                    msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
-                    msg.ranges)
-                state.laser_rx_ns = now
-                self.scans += 1
-            elif hdr.kind == _DEVICE_STATUS:
-                state.record_device_status('lrf', msg, now)
-            else:
-                self.unexpected += 1
-        self.unexpected += self._out_in.discard()   # the bridge only reads this port
-        self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, SCAN_REQUEST)
-        self.cycles += 1
+        self._out.forward(self._dev_in.raw())
+        state.laser_front_min = self.sector.minimum(
+            msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
+            msg.ranges)
+        state.laser_rx_ns = now
+        self.scans += 1
 
 
 def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfBody:

@@ -17,6 +17,7 @@ from m4k_rt.protocol import (
     decode_from,
     encode_into,
     FIXED_PACKERS,
+    Kind,
     MAGIC,
     MAX_DATAGRAM,
     PACK_ERRORS,
@@ -24,9 +25,12 @@ from m4k_rt.protocol import (
     SEQ_MASK,
     VERSION,
 )
-from m4k_rt.tasks.interfaces import RtPort
+from m4k_rt.tasks.interfaces import CycleContext, RtPort
 
 __all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
+
+_DEVICE_STATUS = Kind.DEVICE_STATUS
+_REQUEST = Kind.REQUEST
 
 # Upper bound of datagrams one body reads from one port per cycle: a flooding peer costs a
 # bounded amount of CPU; the rest waits for the next cycle (or overflows the socket buffer).
@@ -209,3 +213,32 @@ class DeviceTaskBody:
         self._clock = clock
         self.cycles = 0
         self.unexpected = 0
+
+    def _poll_device(self, ctx: CycleContext | None, reading: int, device: str,
+                     request_arg: int) -> None:
+        """Run one request/reply cycle: take the replies to the last request, then ask again.
+
+        The sonar and the laser are polled alike (the reply to one cycle's REQUEST arrives
+        within it or early in the next, so the body never waits): each datagram of kind
+        ``reading`` goes to :meth:`_on_reading`, DEVICE_STATUS is recorded for ``device``,
+        anything else is counted unexpected; what the bridge sent on the output port is
+        drained and counted (it only reads that port).
+        """
+        now = ctx.t_start if ctx is not None else self._clock()
+        reader = self._dev_in
+        reader.start_cycle()
+        while (got := reader.next()) is not None:
+            hdr, msg = got
+            if hdr.kind == reading:
+                self._on_reading(msg, now)
+            elif hdr.kind == _DEVICE_STATUS:
+                self.state.record_device_status(device, msg, now)
+            else:
+                self.unexpected += 1
+        self.unexpected += self._out_in.discard()   # the bridge only reads this port
+        self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, request_arg)
+        self.cycles += 1
+
+    def _on_reading(self, msg: Any, now: int) -> None:
+        """Handle one reading of a polled device (bodies that use :meth:`_poll_device`)."""
+        raise NotImplementedError

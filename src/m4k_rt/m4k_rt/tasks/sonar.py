@@ -35,8 +35,6 @@ __all__ = ['SonarBody', 'make_sonar', 'TRIGGER']
 
 TRIGGER = 1   # REQUEST.arg asking the sonar handler for one measurement
 _SONAR = Kind.SONAR
-_DEVICE_STATUS = Kind.DEVICE_STATUS
-_REQUEST = Kind.REQUEST
 _INF = math.inf
 
 
@@ -59,34 +57,25 @@ class SonarBody(DeviceTaskBody):
 
     def __call__(self, ctx: CycleContext | None = None) -> None:
         """Run one sonar cycle."""
-        now = ctx.t_start if ctx is not None else self._clock()
+        self._poll_device(ctx, _SONAR, 'sonar', TRIGGER)
+
+    def _on_reading(self, msg: Any, now: int) -> None:
+        """Give the guard one range (or "nothing within range"), then forward it."""
         state = self.state
-        reader = self._dev_in
-        reader.start_cycle()
-        while (got := reader.next()) is not None:
-            hdr, msg = got
-            if hdr.kind == _SONAR:
-                status = msg.status
-                state.sonar_status = status
-                if status == SONAR_OK:
-                    d = msg.range_m - self.front
-                    state.sonar_range = d if d > 0.0 else 0.0
-                    state.sonar_rx_ns = now
-                    self.readings += 1
-                elif status == SONAR_NO_ECHO:
-                    state.sonar_range = _INF
-                    state.sonar_rx_ns = now
-                    self.readings += 1
-                else:
-                    self.failed += 1
-                self._out.forward(reader.raw())
-            elif hdr.kind == _DEVICE_STATUS:
-                state.record_device_status('sonar', msg, now)
-            else:
-                self.unexpected += 1
-        self.unexpected += self._out_in.discard()   # the bridge only reads this port
-        self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, TRIGGER)
-        self.cycles += 1
+        status = msg.status
+        state.sonar_status = status
+        if status == SONAR_OK:
+            d = msg.range_m - self.front
+            state.sonar_range = d if d > 0.0 else 0.0
+            state.sonar_rx_ns = now
+            self.readings += 1
+        elif status == SONAR_NO_ECHO:
+            state.sonar_range = _INF
+            state.sonar_rx_ns = now
+            self.readings += 1
+        else:
+            self.failed += 1
+        self._out.forward(self._dev_in.raw())
 
 
 def make_sonar(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> SonarBody:

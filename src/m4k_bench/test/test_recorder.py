@@ -5,7 +5,8 @@ import json
 
 import pytest
 
-from m4k_rt import protocol, recorder
+from m4k_bench import recorder
+from m4k_rt import protocol
 
 MS = 1_000_000
 

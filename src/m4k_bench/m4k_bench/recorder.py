@@ -289,9 +289,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--duration', type=float, default=10.0, help='seconds to record')
     ap.add_argument('--out', default='results/timing', help='output directory')
     args = rosargs.parse_args(ap, argv)
-    from m4k_rt import xddp
+    from m4k_rt import channel
     port: int | str = int(args.port) if args.port.isdigit() else args.port
-    link = xddp.NrtLink(port)
+    link = channel.NrtLink(port)
     rec = Recorder()
     try:
         record_link(link, args.duration, rec)

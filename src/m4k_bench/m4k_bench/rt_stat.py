@@ -13,12 +13,13 @@ import sys
 import time
 from typing import Sequence, TextIO
 
-from m4k_rt import protocol, recorder, rosargs, xddp
+from m4k_bench import recorder
+from m4k_rt import channel, protocol, rosargs
 
 __all__ = ['format_stat', 'main', 'read_batch']
 
 
-def read_batch(ep: xddp.NrtXddpEndpoint, rec: recorder.Recorder, timeout: float) -> bool:
+def read_batch(ep: channel.NrtXddpEndpoint, rec: recorder.Recorder, timeout: float) -> bool:
     """Feed datagrams into ``rec`` until an RT_STATUS closes a batch; False on timeout."""
     end = time.monotonic() + timeout
     while True:
@@ -80,8 +81,8 @@ def main(argv: Sequence[str] | None = None, out: TextIO | None = None) -> int:
     out = out or sys.stdout
     port: int | str = int(args.port) if args.port.isdigit() else args.port
     try:
-        ep = xddp.nrt_xddp_open(port, wait=args.wait, runtime_dir=args.runtime_dir)
-    except xddp.XddpError as exc:
+        ep = channel.nrt_xddp_open(port, wait=args.wait, runtime_dir=args.runtime_dir)
+    except channel.XddpError as exc:
         sys.stderr.write('rt_stat: no RT core: {}\n'.format(exc))
         return 1
     rec = recorder.Recorder()
