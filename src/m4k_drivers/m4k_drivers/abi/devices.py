@@ -364,7 +364,7 @@ class Ws2812Strip:
         return None
 
     def transfer(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
-        """Decode one SPI message's MOSI waveform; latch on each reset."""
+        """Decode one SPI message sent by an ideal controller (no gaps) at ``speed_hz``."""
         bit_ns = 1e9 / speed_hz
         runs: list[tuple[int, float]] = []         # (level, duration ns)
         for byte in tx:
@@ -374,6 +374,12 @@ class Ws2812Strip:
                     runs[-1] = (level, runs[-1][1] + bit_ns)
                 else:
                     runs.append((level, bit_ns))
+        self.line(runs)
+        return bytes(len(tx))
+
+    def line(self, waveform: list[tuple[int, float]]) -> None:
+        """Decode DIN as (level, ns) runs -- what a controller really drove; latch on resets."""
+        runs = list(waveform)
         runs.append((0, float('inf')))             # the line idles low after the message
         bits: list[int] = []
         bad = 0
@@ -401,7 +407,6 @@ class Ws2812Strip:
                 i += 1                              # the reset run is handled next round
             else:
                 i += 2
-        return bytes(len(tx))
 
     def _latch(self, bits: list[int], bad: int) -> None:
         if not bits and not bad:
