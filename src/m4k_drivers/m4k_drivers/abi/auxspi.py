@@ -24,9 +24,11 @@ clock.  Nothing here imports the driver code it serves.
 from __future__ import annotations
 
 import math
+import threading
+import time
 from typing import Any
 
-__all__ = ['AuxSpiController', 'aux_sclk_hz', 'mosi_runs']
+__all__ = ['AuxSpiBus', 'AuxSpiController', 'aux_sclk_hz', 'bus_time_s', 'mosi_runs']
 
 SPEED_MAX = 0xFFF
 CHUNK_BYTES = 3
@@ -70,20 +72,58 @@ def chunk_ends_high(tx: bytes, chunk_bytes: int = CHUNK_BYTES) -> int:
                for i in range(0, len(tx), chunk_bytes))
 
 
+def bus_time_s(nbytes: int, sclk_hz: float) -> float:
+    """Return how long ``nbytes`` hold the bus: 8 clocks per byte plus 2 idle per chunk."""
+    chunks = math.ceil(nbytes / CHUNK_BYTES)
+    return (8 * nbytes + IDLE_CLOCKS * chunks) / sclk_hz
+
+
+class AuxSpiBus:
+    """The one controller behind several chip selects: one message at a time.
+
+    The SPI core queues the messages of all of a controller's devices and runs them one after
+    the other (``spi_sync`` on one ``spi_controller``).  With ``pace`` a message also holds the
+    bus for its modelled wire time (a real sleep), so a reader on another chip select waits as
+    it would on the Pi; ``busy_s`` sums the wire time.
+    """
+
+    def __init__(self, core_hz: float, *, pace: bool = False) -> None:
+        self.core_hz = core_hz
+        self.pace = pace
+        self.lock = threading.Lock()
+        self.busy_s = 0.0
+
+
 class AuxSpiController:
     """One aux SPI chip select: the real clock and the chunked MOSI waveform for its device."""
 
     MODE_BITS = 0x2 | 0x4 | 0x40          # SPI_CPOL | SPI_CS_HIGH | SPI_NO_CS (spi.h)
 
-    def __init__(self, device: Any, core_hz: float) -> None:
+    def __init__(self, device: Any, core_hz: float, bus: AuxSpiBus | None = None) -> None:
         self.device = device
         self.core_hz = core_hz
+        self.bus = bus if bus is not None else AuxSpiBus(core_hz)
         self.last_sclk_hz = 0.0
         self.chunks = 0
         self.chunks_ending_high = 0
+        self.waits: list[float] = []          # s each transfer waited for the bus
 
     def transfer(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
         """Clock ``tx`` out at the real SCLK; return what the device put on MISO."""
+        queued = time.monotonic()
+        with self.bus.lock:
+            t0 = time.monotonic()
+            self.waits.append(t0 - queued)     # behind another chip select's message
+            rx = self._clock(tx, mode, speed_hz, bits_per_word)
+            wire = bus_time_s(len(tx), self.last_sclk_hz)
+            self.bus.busy_s += wire
+            if self.bus.pace:
+                left = wire - (time.monotonic() - t0)
+                if left > 0:
+                    time.sleep(left)
+        return rx
+
+    def _clock(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
         sclk = aux_sclk_hz(self.core_hz, speed_hz)
         self.last_sclk_hz = sclk
         self.chunks += math.ceil(len(tx) / CHUNK_BYTES)
