@@ -26,6 +26,8 @@ itself).
   after the burst and stays high for the round trip; with nothing in range it stays high
   for the part's no-echo width (``no_echo_s``, measured on the part: the HC-SR04's 38 ms is
   not the US-100's).
+* :class:`RelayReadback` -- the e-stop read-back: the monostable's output through a
+  safety-relay contact (either polarity), as wired in docs/real-robot.md section 5.
 * :class:`Monostable` -- a retriggerable monostable on the heartbeat line (SN74AHC123A:
   output high from a rising B edge until t_w after the last one; output low at power-up).
 """
@@ -37,7 +39,8 @@ import math
 import struct
 from typing import Callable
 
-__all__ = ['As5045', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus', 'Us100']
+__all__ = ['As5045', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus', 'RelayReadback',
+           'Us100']
 
 EmitEdge = Callable[[int, int], None]     # (1 rising | 2 falling, t_ns)
 
@@ -267,6 +270,29 @@ class LdacPin(_OutputPin):
     def _apply(self, level: bool, t_ns: int) -> None:
         for dac in self.dacs:
             dac.ldac(not level)
+
+
+class RelayReadback(Line):
+    """The e-stop read-back input: 1Q of the monostable through a safety-relay contact.
+
+    ``active_low`` False: 1Q (3.3 V logic) -> the relay's N/O safety contact -> the GPIO, with
+    a 10 kOhm pull-down: high only while 1Q holds the enable *and* the relay is energised.
+    True: the same path drives an inverting stage (optocoupler or NPN to GND, pull-up to
+    3.3 V): low then.  ``stuck`` forces what reaches the stage (True: a bridged contact and a
+    1Q stuck high, the enable held by nothing the host commands).
+    """
+
+    def __init__(self, monostable: Monostable, *, active_low: bool = False) -> None:
+        self.monostable = monostable
+        self.active_low = active_low
+        self.relay_closed = True          # e-stop released and the relay reset
+        self.stuck: bool | None = None
+
+    def level(self, t_ns: int) -> bool:
+        """Return the pin level at ``t_ns``."""
+        passed = self.stuck if self.stuck is not None else (
+            self.relay_closed and self.monostable.enabled(t_ns))
+        return passed != self.active_low
 
 
 class Us100:
