@@ -40,7 +40,7 @@ import struct
 from typing import Callable
 
 __all__ = ['As5045', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus', 'RelayReadback',
-           'Us100']
+           'SpiLoopback', 'Us100']
 
 EmitEdge = Callable[[int, int], None]     # (1 rising | 2 falling, t_ns)
 
@@ -154,6 +154,19 @@ class As5045:
         for b in bits[:n]:
             word = word << 1 | b
         return word.to_bytes(len(tx), 'big')
+
+
+class SpiLoopback:
+    """A jumper from MOSI to MISO: the master reads what it sends (``open``: no jumper)."""
+
+    def __init__(self) -> None:
+        self.open = False
+        self.transfers = 0
+
+    def transfer(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
+        """Return MOSI as MISO, or the idle-low line when the jumper is off."""
+        self.transfers += 1
+        return bytes(len(tx)) if self.open else bytes(tx)
 
 
 # -- I2C ----------------------------------------------------------------------------------------
