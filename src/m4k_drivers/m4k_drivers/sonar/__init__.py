@@ -35,7 +35,7 @@ _COMMON = {
     'no_echo_s': Param(float, 0.038, 'echo width the sensor holds with nothing in range, s. '
                        "The default is the HC-SR04's documented 38 ms; no US-100 document "
                        'gives its width, so it is measured on the part (bringup_check sonar '
-                       'step, or sonar_echo_width). sim: the simulated part\'s width; '
+                       "step, or sonar_echo_width). sim: the simulated part's width; "
                        'control.guard.sonar_timeout must exceed it',
                        lambda v: None if 0.02 <= v <= 0.2 else 'must be 0.02..0.2 s'),
 }
