@@ -39,8 +39,8 @@ import math
 import struct
 from typing import Callable
 
-__all__ = ['As5045', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus', 'RelayReadback',
-           'SpiLoopback', 'Us100']
+__all__ = ['As5045', 'DataReadyPin', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus',
+           'RelayReadback', 'SpiLoopback', 'Us100']
 
 EmitEdge = Callable[[int, int], None]     # (1 rising | 2 falling, t_ns)
 
@@ -229,6 +229,28 @@ class MyAhrsPlus:
                 if buf:                        # pointer, then data: the registers are
                     self.pointer = (buf[0] + len(buf) - 1) % len(self.regs)   # read-only
         return out
+
+
+class DataReadyPin(Line):
+    """The myAHRS+ J3-1 DATA READY output: a pulse (rising, then falling) when a test says."""
+
+    def __init__(self) -> None:
+        self.emit: EmitEdge | None = None
+        self.high = False
+
+    def attach(self, emit: EmitEdge | None) -> None:
+        """Start (or stop) reporting edges."""
+        self.emit = emit
+
+    def pulse(self, t_ns: int, width_ns: int = 50_000) -> None:
+        """Announce a sample at ``t_ns``: rising edge then, falling ``width_ns`` later."""
+        if self.emit is not None:
+            self.emit(1, t_ns)
+            self.emit(2, t_ns + width_ns)
+
+    def level(self, t_ns: int) -> bool:
+        """Return the idle level (low)."""
+        return False
 
 
 # -- GPIO ---------------------------------------------------------------------------------------
