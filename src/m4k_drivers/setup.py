@@ -27,6 +27,7 @@ setup(
             'sim_truth = m4k_drivers.sim_robot:truth_main',
             'calibrate = m4k_drivers.calibrate.cli:main',
             'sonar_echo_width = m4k_drivers.sonar.echowidth:main',
+            'bringup_check = m4k_drivers.bringup.cli:main',
         ],
     },
 )

@@ -161,7 +161,7 @@ class SimRobot:
         if s['estop_readback_line'] is not None:
             from m4k_drivers.motors.sim import EstopReadback
             self.gpio[(s['estop_readback_chip'], s['estop_readback_line'])] = \
-                EstopReadback(self.world)
+                EstopReadback(self.world, s['estop_readback_active'] == 'low')
 
     def _build_imu(self, s: dict[str, Any]) -> None:
         from m4k_drivers.imu.sim import FakeMyAhrsBus

@@ -24,10 +24,10 @@ OPEN = EncoderStatus.ESTOP_OPEN
 def rig(m4k_runtime_dir):
     made = []
 
-    def build(readback_line=26, faults=None, heartbeat=True):
+    def build(readback_line=26, faults=None, heartbeat=True, active='high'):
         clock = FakeClock()
         motor = {'backend': 'sim', 'estop_readback_line': readback_line,
-                 'heartbeat': heartbeat}
+                 'heartbeat': heartbeat, 'estop_readback_active': active}
         world = {'walls': {'rectangle': [-9, -9, 9, 9]}, 'obstacles': []}
         if faults:
             world['faults'] = faults
@@ -112,3 +112,13 @@ def test_readback_on_the_heartbeat_line_is_refused_naming_the_field():
 def test_bad_readback_line_is_a_config_error():
     with pytest.raises(dconfig.ConfigError, match=r'devices\.motor\.estop_readback_line'):
         dconfig.validate({'devices': {'motor': {'backend': 'sim', 'estop_readback_line': -1}}})
+
+
+@pytest.mark.parametrize('active', ['high', 'low'])
+def test_either_read_back_polarity_gives_the_same_estop_state_over_the_sim_bus(rig, active):
+    h, robot, clock = rig(active=active)
+    assert all(not s & OPEN for s in _cycle(h, clock, 3))
+    robot.world.set_estop_open(True)
+    assert all(s & OPEN for s in _cycle(h, clock, 3))
+    robot.world.set_estop_open(False)
+    assert all(not s & OPEN for s in _cycle(h, clock, 3))

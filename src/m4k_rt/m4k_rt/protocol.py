@@ -83,6 +83,10 @@ class EncoderStatus(IntFlag):
     # The amplifier enable line read back after the e-stop contact (a GPIO input) reads low
     # while the driver drives the enable: the contact is open (e-stop pressed or wiring cut).
     ESTOP_OPEN = 0x40
+    # The read-back contradicts the enable the driver commands: the enable is asserted while
+    # the heartbeat has stopped (monostable or contact stuck). Latched in the driver until the
+    # handler is reconfigured; every reading then also carries ESTOP_OPEN (fail-safe stop).
+    READBACK_FAULT = 0x80
     # The bits that make the angles untrustworthy (frame or jump error, either wheel); SAFE
     # and WRITE_ERROR leave the angles valid.
     INVALID = LEFT_FRAME | RIGHT_FRAME | LEFT_JUMP | RIGHT_JUMP

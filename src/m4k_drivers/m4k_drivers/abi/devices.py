@@ -26,6 +26,8 @@ itself).
   after the burst and stays high for the round trip; with nothing in range it stays high
   for the part's no-echo width (``no_echo_s``, measured on the part: the HC-SR04's 38 ms is
   not the US-100's).
+* :class:`RelayReadback` -- the e-stop read-back: the monostable's output through a
+  safety-relay contact (either polarity), as wired in docs/real-robot.md section 5.
 * :class:`Monostable` -- a retriggerable monostable on the heartbeat line (SN74AHC123A:
   output high from a rising B edge until t_w after the last one; output low at power-up).
 """
@@ -37,7 +39,8 @@ import math
 import struct
 from typing import Callable
 
-__all__ = ['As5045', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus', 'Us100']
+__all__ = ['As5045', 'DataReadyPin', 'ImuState', 'Line', 'Mcp4911', 'Monostable', 'MyAhrsPlus',
+           'RelayReadback', 'SpiLoopback', 'Us100']
 
 EmitEdge = Callable[[int, int], None]     # (1 rising | 2 falling, t_ns)
 
@@ -153,6 +156,19 @@ class As5045:
         return word.to_bytes(len(tx), 'big')
 
 
+class SpiLoopback:
+    """A jumper from MOSI to MISO: the master reads what it sends (``open``: no jumper)."""
+
+    def __init__(self) -> None:
+        self.open = False
+        self.transfers = 0
+
+    def transfer(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
+        """Return MOSI as MISO, or the idle-low line when the jumper is off."""
+        self.transfers += 1
+        return bytes(len(tx)) if self.open else bytes(tx)
+
+
 # -- I2C ----------------------------------------------------------------------------------------
 @dataclass
 class ImuState:
@@ -215,6 +231,28 @@ class MyAhrsPlus:
         return out
 
 
+class DataReadyPin(Line):
+    """The myAHRS+ J3-1 DATA READY output: a pulse (rising, then falling) when a test says."""
+
+    def __init__(self) -> None:
+        self.emit: EmitEdge | None = None
+        self.high = False
+
+    def attach(self, emit: EmitEdge | None) -> None:
+        """Start (or stop) reporting edges."""
+        self.emit = emit
+
+    def pulse(self, t_ns: int, width_ns: int = 50_000) -> None:
+        """Announce a sample at ``t_ns``: rising edge then, falling ``width_ns`` later."""
+        if self.emit is not None:
+            self.emit(1, t_ns)
+            self.emit(2, t_ns + width_ns)
+
+    def level(self, t_ns: int) -> bool:
+        """Return the idle level (low)."""
+        return False
+
+
 # -- GPIO ---------------------------------------------------------------------------------------
 class Monostable(Line):
     """Retriggerable monostable on the enable heartbeat (output low at power-up)."""
@@ -267,6 +305,29 @@ class LdacPin(_OutputPin):
     def _apply(self, level: bool, t_ns: int) -> None:
         for dac in self.dacs:
             dac.ldac(not level)
+
+
+class RelayReadback(Line):
+    """The e-stop read-back input: 1Q of the monostable through a safety-relay contact.
+
+    ``active_low`` False: 1Q (3.3 V logic) -> the relay's N/O safety contact -> the GPIO, with
+    a 10 kOhm pull-down: high only while 1Q holds the enable *and* the relay is energised.
+    True: the same path drives an inverting stage (optocoupler or NPN to GND, pull-up to
+    3.3 V): low then.  ``stuck`` forces what reaches the stage (True: a bridged contact and a
+    1Q stuck high, the enable held by nothing the host commands).
+    """
+
+    def __init__(self, monostable: Monostable, *, active_low: bool = False) -> None:
+        self.monostable = monostable
+        self.active_low = active_low
+        self.relay_closed = True          # e-stop released and the relay reset
+        self.stuck: bool | None = None
+
+    def level(self, t_ns: int) -> bool:
+        """Return the pin level at ``t_ns``."""
+        passed = self.stuck if self.stuck is not None else (
+            self.relay_closed and self.monostable.enabled(t_ns))
+        return passed != self.active_low
 
 
 class Us100:
@@ -364,7 +425,7 @@ class Ws2812Strip:
         return None
 
     def transfer(self, tx: bytes, mode: int, speed_hz: int, bits_per_word: int) -> bytes:
-        """Decode one SPI message's MOSI waveform; latch on each reset."""
+        """Decode one SPI message sent by an ideal controller (no gaps) at ``speed_hz``."""
         bit_ns = 1e9 / speed_hz
         runs: list[tuple[int, float]] = []         # (level, duration ns)
         for byte in tx:
@@ -374,6 +435,12 @@ class Ws2812Strip:
                     runs[-1] = (level, runs[-1][1] + bit_ns)
                 else:
                     runs.append((level, bit_ns))
+        self.line(runs)
+        return bytes(len(tx))
+
+    def line(self, waveform: list[tuple[int, float]]) -> None:
+        """Decode DIN as (level, ns) runs -- what a controller really drove; latch on resets."""
+        runs = list(waveform)
         runs.append((0, float('inf')))             # the line idles low after the message
         bits: list[int] = []
         bad = 0
@@ -401,7 +468,6 @@ class Ws2812Strip:
                 i += 1                              # the reset run is handled next round
             else:
                 i += 2
-        return bytes(len(tx))
 
     def _latch(self, bits: list[int], bad: int) -> None:
         if not bits and not bad:

@@ -292,6 +292,11 @@ class KernelStandIn:
                 # CS_HIGH, NO_CS; LSB_FIRST is refused with EINVAL).
                 if value & ~(u.SPI_MODE_X_MASK | u.SPI_CS_HIGH | u.SPI_NO_CS):
                     raise _err(errno.EINVAL, f'{f.path}: unsupported SPI mode bits 0x{value:x}')
+                # A controller model may do less (the aux SPI has no CPHA: spi_setup EINVAL).
+                allowed = getattr(node.device, 'MODE_BITS', None)
+                if allowed is not None and value & u.SPI_MODE_X_MASK & ~allowed:
+                    raise _err(errno.EINVAL, f'{f.path}: SPI mode {value & 3} is not supported '
+                                             'by this controller')
                 f.spi_mode = node.mode = value
             elif what == 'bits':
                 if value not in (0, 8):       # bcm2835 does 8-bit words only (0 means 8)

@@ -24,10 +24,29 @@ _COMMON = {
 
 @register('imu', 'real', params=_COMMON | {
     'bus': Param((int, str), doc='I2C bus number (/dev/i2c-N) or device path'),
+    'drdy_chip': Param(str, '/dev/gpiochip0', 'gpiochip of the DATA READY line (J3-1)'),
+    'drdy_line': Param((int, type(None)), None, 'line offset wired to the myAHRS+ J3-1 DATA '
+                       'READY output (measure its high level first: a Pi pin takes 3.3 V at '
+                       'most); each sample is then stamped at its edge. null = not wired: '
+                       'STATUS is polled and the sample timed on arrival',
+                       lambda v: None if v is None or v >= 0 else 'must be >= 0 or null'),
+    'drdy_edge': Param(str, 'rising', "the edge that announces a sample: 'rising' or 'falling' "
+                       '(WithRobot does not document it: check it with the bring-up; wrong = '
+                       'every read falls back to polling, counted)',
+                       lambda v: None if v in ('rising', 'falling')
+                       else "must be 'rising' or 'falling'"),
+    'drdy_timeout_s': Param(float, 0.02, 'longest wait for a data-ready edge per read, s '
+                            '(then STATUS is polled); two samples at 100 Hz',
+                            lambda v: None if 0.0 < v <= 0.5 else 'must be in (0, 0.5]'),
 })
 def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> ImuHandler:
+    from m4k_drivers.imu.drdy import open_drdy
     from m4k_drivers.imu.real import open_real_i2c
-    return ImuHandler(lambda: open_real_i2c(params['bus'], params['address']), name=name)
+    line = params['drdy_line']
+    drdy = None if line is None else (
+        lambda: open_drdy(params['drdy_chip'], line, params['drdy_edge']))
+    return ImuHandler(lambda: open_real_i2c(params['bus'], params['address']), name=name,
+                      drdy=drdy, drdy_timeout_s=params['drdy_timeout_s'])
 
 
 @register('imu', 'sim', params=_COMMON | {

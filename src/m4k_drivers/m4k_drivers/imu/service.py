@@ -25,7 +25,8 @@ def serve(handler: ImuHandler, msg: Any, tx: Replier) -> None:
     r = handler.read()
     if r.status == Status.OK:
         s = r.value
-        tx.send(Kind.IMU, *s.orientation, *s.angular_velocity, *s.linear_acceleration, s.status)
+        tx.send(Kind.IMU, *s.orientation, *s.angular_velocity, *s.linear_acceleration, s.status,
+                stamp_ns=handler.sample_ns)       # the data-ready edge when known
 
 
 def format_reading(value: ImuSample) -> str:

@@ -97,9 +97,16 @@ def _check_color_order(value: object) -> str | None:
                     '(docs/real-robot.md)'),
     'pixels': Param(int, 1, 'pixels on the strip (all show the LED colour); the frame must '
                     "fit spidev's 4096-byte bufsiz", lambda v: None if v >= 1 else 'must be >= 1'),
-    'bits_per_led_bit': Param(int, 3, 'SPI bits per LED bit: 3 (SPI at 2.4 MHz) or 4 '
-                              '(3.2 MHz); either meets the WS2812B T0H/T1H windows',
-                              lambda v: None if v in (3, 4) else 'must be 3 or 4'),
+    'spi_hz': Param(int, 7_000_000, 'SPI clock asked of the controller, Hz; the aux SPI '
+                    'runs core_clock_hz / (2 ceil(core_clock_hz / (2 spi_hz))): 6.944 MHz at a '
+                    '250 or 500 MHz core. The frame is planned for that real clock; a clock '
+                    'with no encoding inside the WS2812B windows is refused',
+                    lambda v: None if 100_000 <= v <= 50_000_000 else 'must be 1e5..5e7'),
+    'core_clock_hz': Param(int, 250_000_000, "the Pi's fixed core clock, Hz (config.txt: Pi 3 "
+                           'core_freq=250 -> 250e6; Pi 4 core_freq_min=500 -> 500e6; '
+                           'docs/real-robot.md); wrong = every bit off by the ratio',
+                           lambda v: None if 50_000_000 <= v <= 1_000_000_000
+                           else 'must be 5e7..1e9'),
     'color_order': Param(str, 'GRB', 'byte order the strip expects: GRB for WS2812/WS2812B '
                          '(NS-LED-02), often RGB for WS2811 strips; wrong = swapped colours',
                          _check_color_order),
@@ -110,7 +117,8 @@ def _check_color_order(value: object) -> str | None:
 def _build_pixel_spi(name: str, params: dict[str, Any], ctx: BuildContext) -> LedHandler:
     from m4k_drivers.led.real import PixelSpiOutput
     return LedHandler(lambda: PixelSpiOutput(params['device'], params['pixels'],
-                                             bits=params['bits_per_led_bit'],
+                                             spi_hz=params['spi_hz'],
+                                             core_clock_hz=params['core_clock_hz'],
                                              order=params['color_order'],
                                              reset_us=params['reset_us']), name=name)
 

@@ -247,45 +247,54 @@ class PwmOutput:
 class PixelSpiOutput:
     """A WS2811/WS2812 pixel strip (NS-LED-02) on spidev MOSI (:mod:`m4k_drivers.led.pixel`).
 
-    Every pixel shows the one colour of the LED datagram.  The frame is sent whole in one
-    SPI message (the bit timing must not break); SPI mode 0, 8-bit words, the clock of the
-    chosen encoding.
+    Every pixel shows the one colour of the LED datagram.  The frame is planned for the clock
+    the aux controller really runs (``core_clock_hz`` divided for ``spi_hz``) and sent whole
+    in one SPI message; SPI mode 0, 8-bit words.  A colour equal to the one shown is not sent
+    again: WS2812-family pixels latch what they got and hold it (the datasheet's data refresh
+    cycle needs no repeat), and every frame is bus time the encoders on the same controller
+    wait behind.
     """
 
-    def __init__(self, path: str, pixels: int, *, bits: int = 3, order: str = 'GRB',
-                 reset_us: float = 300.0) -> None:
+    def __init__(self, path: str, pixels: int, *, spi_hz: int, core_clock_hz: int,
+                 order: str = 'GRB', reset_us: float = 300.0) -> None:
         from m4k_drivers.led import pixel as px
         if not isinstance(pixels, int) or isinstance(pixels, bool) or pixels < 1:
             raise ValueError(f'pixel strip needs pixels >= 1, got {pixels!r}')
-        size = px.frame_bytes(pixels, reset_us, bits)
+        self.sclk_hz = px.aux_clock_hz(core_clock_hz, spi_hz)
+        self.plan = px.plan(1e9 / self.sclk_hz)
+        size = px.frame_bytes(pixels, reset_us, self.plan)
         if size > px.SPIDEV_BUFSIZ:
             raise ValueError(f'{pixels} pixels need {size} SPI bytes per frame, more than '
                              f"spidev's bufsiz {px.SPIDEV_BUFSIZ} (spidev.bufsiz=N on the "
                              'kernel command line, or fewer pixels)')
-        self.path, self.pixels, self.bits = path, pixels, bits
+        self.path, self.pixels = path, pixels
         self.order, self.reset_us = order, reset_us
-        self.hz = px.PATTERNS[bits][0]
+        self.hz = spi_hz
         from periphery import SPI
         try:
             self.spi = SPI(path, 0, self.hz, bit_order='msb', bits_per_word=8)
         except OSError as exc:
             raise wrap_os_error(exc, path) from exc
         self.frames = 0
+        self.shown: tuple[int, int, int] | None = None
 
     def _send(self, rgb: tuple[int, int, int]) -> None:
         from m4k_drivers.led import pixel as px
-        frame = px.encode_frame([rgb] * self.pixels, bits=self.bits, order=self.order,
+        frame = px.encode_frame([rgb] * self.pixels, self.plan, order=self.order,
                                 reset_us=self.reset_us)
+        self.shown = None                  # unknown until the transfer returned
         try:
             self.spi.transfer(frame)
         except OSError as exc:
             raise wrap_os_error(exc, self.path, 'transfer') from exc
         self.frames += 1
+        self.shown = rgb
 
     def show(self, color: p.LedColor) -> None:
         """Show ``color`` (brightness applied) on every pixel."""
         r, g, b = (round(level * 255) for level in p.channel_levels(color))
-        self._send((r, g, b))
+        if (r, g, b) != self.shown:
+            self._send((r, g, b))
 
     def close(self) -> None:
         """Switch every pixel off, then close the node (never raises: cleanup)."""

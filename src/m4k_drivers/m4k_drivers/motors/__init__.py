@@ -32,6 +32,10 @@ _HANDLER = {
     'enc_zero': Param(list, [0, 0], '[left, right] AS5045 reading taken as wheel angle 0',
                       p.check_zero_pair),
 }
+def _check_active(value: object) -> str | None:
+    return None if value in ('high', 'low') else "must be 'high' or 'low'"
+
+
 def _check_line(value: object) -> str | None:
     return None if value is None or (isinstance(value, int) and value >= 0) else \
         'must be a line offset >= 0 or null'
@@ -48,10 +52,21 @@ _HEARTBEAT = {
     'estop_readback_chip': Param(str, '/dev/gpiochip0', 'gpiochip of the e-stop read-back '
                                  'input'),
     'estop_readback_line': Param((int, type(None)), None, 'line offset of the input that reads '
-                                 'the amplifier enable after the e-stop contact (low while the '
-                                 'handler drives the enable: contact open -> ENCODERS status '
-                                 'ESTOP_OPEN); null = not wired, the software cannot see the '
-                                 'contact (logged at configure)', _check_line),
+                                 "the monostable's output 1Q through a dedicated safety-relay "
+                                 'contact at 3.3 V (docs/real-robot.md, section 5): not asserted '
+                                 'while the handler drives the enable -> relay open, ENCODERS '
+                                 'status ESTOP_OPEN; asserted with the heartbeat silent -> '
+                                 'latched READBACK_FAULT; null = not wired, the software cannot '
+                                 'see the '
+                                 'relay (logged at configure)', _check_line),
+    'estop_readback_active': Param(str, 'high', "the read-back's level while the enable passes "
+                                   "the contact: 'high' (1Q through the contact, 10 kOhm "
+                                   "pull-down) or 'low' (an inverting stage: an optocoupler or "
+                                   'NPN pulling the line to GND against a pull-up); requested '
+                                   "with the kernel's ACTIVE_LOW flag when low. Independent of "
+                                   "amp_enable: the tap is on the 3.3 V side, before the "
+                                   'driver stage. Wrong = every reading an e-stop, then a latched '
+                                   'read-back fault', _check_active),
     'sched_priority': Param(int, 50, 'SCHED_FIFO priority of the motor service thread (0: '
                             'SCHED_OTHER); below every RT task, above ordinary load, so the '
                             'heartbeat keeps its period on a busy machine'),
@@ -138,7 +153,8 @@ def _build_real(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHa
         return open_real_enable(params['heartbeat_chip'], params['heartbeat_line'])
 
     def readback() -> Any:
-        return open_real_readback(params['estop_readback_chip'], params['estop_readback_line'])
+        return open_real_readback(params['estop_readback_chip'], params['estop_readback_line'],
+                                  active_low=params['estop_readback_active'] == 'low')
     handler = RealMotorHandler(opener, name=name, **kw)
     handler.amplifier = {k: params[k] for k in AMP_PARAMS}
     return handler
@@ -155,7 +171,9 @@ def _build_sim(name: str, params: dict[str, Any], ctx: BuildContext) -> MotorHan
     line = (params['heartbeat_chip'], params['heartbeat_line']) if params['heartbeat'] else None
     back = (None if params['estop_readback_line'] is None
             else (params['estop_readback_chip'], params['estop_readback_line']))
-    return MotorHandler(lambda: open_simbus_bus(runtime_dir, line, back), name=name, **kw)
+    low = params['estop_readback_active'] == 'low'
+    return MotorHandler(lambda: open_simbus_bus(runtime_dir, line, back, readback_low=low),
+                        name=name, **kw)
 
 
 # How the driver host answers the RT side for this kind (m4k_drivers.motors.service).

@@ -8,12 +8,19 @@ Every fresh command also toggles the amplifier-enable heartbeat line when the bu
 enable is a retriggerable monostable, so when this process dies or stalls the motors lose
 their drive within the monostable's hold time even though the DACs keep their last word.
 
-The e-stop read-back (``devices.motor.estop_readback_line``) is an input on the enable line
-after the e-stop contact. While this handler drives the enable -- its heartbeat live (the last
-command younger than the monostable's hold) or the enable strapped on -- and the read-back is
-low, the contact is open: every ENCODERS datagram then carries ``EncoderStatus.ESTOP_OPEN``
-(also when the read-back cannot be read: fail-safe). Without a read-back line the bit is never
-set, and configure logs that the software cannot see the contact.
+The e-stop read-back (``devices.motor.estop_readback_line``) is an input on the monostable's
+output after a dedicated safety-relay contact, at 3.3 V (docs/real-robot.md, section 5): it is
+*asserted* (the line request's polarity: ``estop_readback_active``) while the enable reaches
+the amplifier's driver stage. While this handler drives the enable -- its heartbeat live (the
+last command younger than the monostable's hold) or the enable strapped on -- and the
+read-back is not asserted, the relay is open: every ENCODERS datagram then carries
+``EncoderStatus.ESTOP_OPEN`` (also when the read-back cannot be read: fail-safe). The reverse
+contradicts the command: asserted while the heartbeat has been silent for two hold times (or
+never ran), ``READBACK_FAULT_SAMPLES`` readings in a row, means the enable is held by
+something other than this handler (a stuck monostable, a bridged contact, a wrong polarity):
+a latched fault, ``READBACK_FAULT | ESTOP_OPEN`` in every reading until the handler is
+configured again. Without a read-back line neither bit is set, and configure logs that the
+software cannot see the contact.
 """
 
 from __future__ import annotations
@@ -27,7 +34,8 @@ from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.real import MotorBus
 from m4k_rt.protocol import EncoderStatus
 
-__all__ = ['EncoderReading', 'MotorHandler', 'WheelCommand']
+__all__ = ['READBACK_FAULT_SAMPLES', 'EncoderReading', 'EstopReadbackFault', 'MotorHandler',
+           'WheelCommand']
 
 
 class WheelCommand(NamedTuple):
@@ -50,6 +58,12 @@ class EncoderReading(NamedTuple):
 
 
 _FRAME_BITS = (EncoderStatus.LEFT_FRAME, EncoderStatus.RIGHT_FRAME)
+READBACK_FAULT_SAMPLES = 3           # readings in a row before a contradiction latches
+
+
+class EstopReadbackFault(DriverError):
+    """The read-back shows the enable asserted while this handler does not command it."""
+
 _JUMP_BITS = (EncoderStatus.LEFT_JUMP, EncoderStatus.RIGHT_JUMP)
 
 
@@ -101,6 +115,8 @@ class MotorHandler(DeviceHandler):
         # reading's stamp (on_read)
         self._latched: list[tuple[float, int] | None] = [None, None]
         self.estop_readback = 'none'         # where the read-back is wired (diagnostics)
+        self.readback_fault: str | None = None   # the latched contradiction, if any
+        self._contradictions = 0
 
     # -- hooks ----------------------------------------------------------------------------
     def on_configure(self) -> None:
@@ -114,6 +130,8 @@ class MotorHandler(DeviceHandler):
                              'null): an open e-stop contact is not seen by the software, '
                              'ENCODERS never carries ESTOP_OPEN', self.name)
         self.estop_open = False
+        self.readback_fault = None
+        self._contradictions = 0
         self._write_codes(p.DAC_ZERO, p.DAC_ZERO)
         for side, port in enumerate(self.bus.encoders):
             try:
@@ -170,6 +188,8 @@ class MotorHandler(DeviceHandler):
                 status |= _FRAME_BITS[side]
         if self._estop_read():
             status |= EncoderStatus.ESTOP_OPEN
+        if self.readback_fault is not None:
+            status |= EncoderStatus.READBACK_FAULT
         if self.safe:
             status |= EncoderStatus.SAFE
         if self.write_error:
@@ -257,17 +277,39 @@ class MotorHandler(DeviceHandler):
         return now - self.last_cmd_ns < self.enable_hold_ns
 
     def _estop_read(self) -> bool:
-        """Read the e-stop read-back; True (contact open) when driven and it reads low."""
+        """Read the e-stop read-back; True (stop) when driven and not asserted, or latched."""
         back = None if self.bus is None else self.bus.readback
-        if back is None or not self.driving_enable():
+        if back is None:
             self.estop_open = False
             return False
+        driving = self.driving_enable()
         try:
-            self.estop_open = not back.read()
+            asserted = back.read()
         except DriverError as exc:
             self.record_fault(exc)
-            self.estop_open = True          # unknown contact: report it open (fail-safe)
+            self.estop_open = driving or self.readback_fault is not None   # unknown: fail-safe
+            return self.estop_open
+        if not driving and asserted and self._silent_long():
+            self._contradictions += 1
+            if self._contradictions >= READBACK_FAULT_SAMPLES and self.readback_fault is None:
+                self.readback_fault = (
+                    f'{self.name}: e-stop read-back {back.where} shows the enable asserted '
+                    f'with the heartbeat silent for {READBACK_FAULT_SAMPLES} readings: the '
+                    'monostable or the relay contact holds it (stuck, bridged, or the wrong '
+                    'estop_readback_active); latched until reconfigured')
+                self.record_fault(EstopReadbackFault(self.readback_fault))
+                self.log.error('%s', self.readback_fault)
+        else:
+            self._contradictions = 0
+        self.estop_open = (driving and not asserted) or self.readback_fault is not None
         return self.estop_open
+
+    def _silent_long(self) -> bool:
+        """Return True when no command came for two monostable holds (or none ever came)."""
+        if self.last_cmd_ns is None:
+            return True
+        hold = self.enable_hold_ns or 0
+        return self.clock() - self.last_cmd_ns >= 2 * hold
 
     def make_safe(self) -> None:
         """Write the zero code to both DACs (outputs active, so the amplifier sees 0 V)."""

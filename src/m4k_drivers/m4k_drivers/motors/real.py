@@ -95,15 +95,18 @@ class InputLike(Protocol):
 
 
 class ReadbackLine:
-    """The e-stop read-back: an input on the amplifier enable *after* the e-stop contact.
+    """The e-stop read-back: the monostable's output after a dedicated safety-relay contact.
 
-    High while the enable reaches the amplifiers; low while the contact is open (pressed) --
-    or while nobody drives the enable (no heartbeat), which the handler tells apart.
+    :meth:`read` returns True (*asserted*) while the enable passes the contact; False while the
+    relay is open -- or while nobody drives the enable (no heartbeat), which the handler tells
+    apart.  ``invert`` turns a raw level into that sense where the line itself cannot (the
+    sim-bus line; on the kernel the request carries ACTIVE_LOW instead).
     """
 
-    def __init__(self, line: InputLike, where: str) -> None:
+    def __init__(self, line: InputLike, where: str, *, invert: bool = False) -> None:
         self.line = line
         self.where = where
+        self.invert = invert
         self.reads = 0
 
     def read(self) -> bool:
@@ -113,7 +116,7 @@ class ReadbackLine:
         except OSError as exc:
             raise wrap_os_error(exc, self.where, 'e-stop read-back') from exc
         self.reads += 1
-        return level
+        return level != self.invert
 
     def close(self) -> None:
         """Release the line, ignoring errors."""
@@ -201,12 +204,12 @@ def open_real_enable(chip: str, line: int) -> EnableLine:
         raise wrap_os_error(exc, where) from exc
 
 
-def open_real_readback(chip: str, line: int) -> ReadbackLine:
-    """Request the e-stop read-back line as an input (the same GPIO class as the enable)."""
+def open_real_readback(chip: str, line: int, *, active_low: bool = False) -> ReadbackLine:
+    """Request the e-stop read-back input; ``active_low``: GPIO_V2_LINE_FLAG_ACTIVE_LOW."""
     from periphery import GPIO
-    where = f'{chip} line {line} (e-stop read-back)'
+    where = f'{chip} line {line} (e-stop read-back, active {"low" if active_low else "high"})'
     try:
-        return ReadbackLine(GPIO(chip, line, 'in'), where)
+        return ReadbackLine(GPIO(chip, line, 'in', inverted=active_low), where)
     except OSError as exc:
         raise wrap_os_error(exc, where) from exc
 

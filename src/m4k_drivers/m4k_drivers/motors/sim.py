@@ -161,8 +161,9 @@ class EstopReadback:
     the contact is open or the heartbeat has run out.
     """
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: World, active_low: bool = False) -> None:
         self.world = world
+        self.active_low = active_low         # the inverting stage of docs/real-robot.md
         self.reads = 0
 
     def write(self, value: bool, t_ns: int | None = None) -> None:
@@ -170,10 +171,10 @@ class EstopReadback:
         raise OSError(1, 'e-stop read-back was requested as an input')
 
     def read(self) -> bool:
-        """Return the enable's level after the contact, now."""
+        """Return the wire level: the enable after the contact, through the wired polarity."""
         self.world.now()
         self.reads += 1
-        return self.world.drive_enabled()
+        return self.world.drive_enabled() != self.active_low
 
     def close(self) -> None:
         """Nothing to release."""
@@ -184,7 +185,8 @@ class EstopReadback:
 
 
 def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None,
-                    readback_line: tuple[str, int] | None = None) -> MotorBus:
+                    readback_line: tuple[str, int] | None = None, *,
+                    readback_low: bool = False) -> MotorBus:
     """Open the four SPI nodes, the heartbeat and read-back lines of sim_robot on its sim-bus."""
     from m4k_drivers.simbus import GpioClient, SpiClient
     opened: list[SpiPort] = []
@@ -205,7 +207,8 @@ def open_simbus_bus(runtime_dir: str, enable_line: tuple[str, int] | None = None
         if readback_line is not None:
             where = f'sim-bus:{readback_line[0]} line {readback_line[1]} (e-stop read-back)'
             try:
-                back = ReadbackLine(GpioClient(runtime_dir, *readback_line, 'in'), where)
+                back = ReadbackLine(GpioClient(runtime_dir, *readback_line, 'in'), where,
+                                    invert=readback_low)
             except OSError as exc:
                 if line is not None:
                     line.close()

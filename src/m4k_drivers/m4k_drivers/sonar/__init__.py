@@ -32,9 +32,10 @@ _COMMON = {
     'timeout_s': Param(float, 0.06, 'longest wait for the echo, s; must exceed no_echo_s by '
                        f'{NO_ECHO_MARGIN_S * 1000:.0f} ms (refused otherwise), else open space '
                        'reads as a timeout (stale: the guard stops)'),
-    'no_echo_s': Param(float, 0.038, 'echo width the sensor holds with nothing in range, s: '
-                       "measure the part with sonar_echo_width (the HC-SR04's 38 ms is not "
-                       "every US-100's); sim: the simulated part's width; "
+    'no_echo_s': Param(float, 0.038, 'echo width the sensor holds with nothing in range, s. '
+                       "The default is the HC-SR04's documented 38 ms; no US-100 document "
+                       'gives its width, so it is measured on the part (bringup_check sonar '
+                       "step, or sonar_echo_width). sim: the simulated part's width; "
                        'control.guard.sonar_timeout must exceed it',
                        lambda v: None if 0.02 <= v <= 0.2 else 'must be 0.02..0.2 s'),
 }

@@ -7,9 +7,10 @@ of an open door, at the sky) and run::
 
 It opens the configured ``gpio`` sonar (the real backend: TRIG and ECHO on the gpiochip),
 pings with a generous wait (``--wait``, 0.5 s), and reports each echo width and their
-spread.  The no-echo width is a property of the part (the HC-SR04's is ~38 ms; US-100
-modules differ): put the printed ``no_echo_s`` and ``timeout_s`` into ``devices.sonar``
-(docs/real-robot.md, section 7).  Exit 0 when every ping gave a whole pulse, 1 otherwise.
+spread.  The no-echo width is a property of the part (the HC-SR04's is documented as 38 ms;
+no US-100 document found gives the US-100's, hence this measurement): put the printed
+``no_echo_s`` and ``timeout_s`` into ``devices.sonar`` (docs/real-robot.md, section 7).
+Exit 0 when every ping gave a whole pulse, 1 otherwise.
 """
 
 from __future__ import annotations

@@ -154,10 +154,10 @@ class EdgeSonar:
                 pass
 
 
-def request_monotonic_edges(gpio: Any) -> bool:
+def request_monotonic_edges(gpio: Any, *, rising: bool = True, falling: bool = True) -> bool:
     """Re-request the edge clock of a periphery cdev v2 input line as CLOCK_MONOTONIC.
 
-    GPIO_V2_LINE_SET_CONFIG_IOCTL with INPUT | EDGE_RISING | EDGE_FALLING and no
+    GPIO_V2_LINE_SET_CONFIG_IOCTL with INPUT | the chosen EDGE_RISING / EDGE_FALLING and no
     EVENT_CLOCK_REALTIME flag (Linux uapi ``gpio.h``: the default event clock is
     CLOCK_MONOTONIC).  Returns False when that is not possible (cdev v1, sysfs GPIO, an old
     kernel): :meth:`EdgeSonar.measure` then guards against clock steps instead.
@@ -168,8 +168,9 @@ def request_monotonic_edges(gpio: Any) -> bool:
         cls = c2.Cdev2GPIO
         fd = gpio._line_fd
         config = c2._CGpioV2LineConfig()
-        config.flags = (cls._GPIO_V2_LINE_FLAG_INPUT | cls._GPIO_V2_LINE_FLAG_EDGE_RISING
-                        | cls._GPIO_V2_LINE_FLAG_EDGE_FALLING)
+        config.flags = (cls._GPIO_V2_LINE_FLAG_INPUT
+                        | (cls._GPIO_V2_LINE_FLAG_EDGE_RISING if rising else 0)
+                        | (cls._GPIO_V2_LINE_FLAG_EDGE_FALLING if falling else 0))
         config.num_attrs = 0
         fcntl.ioctl(fd, cls._GPIO_V2_LINE_SET_CONFIG_IOCTL, config)
     except (AttributeError, ImportError, OSError, TypeError):

@@ -4,8 +4,8 @@ On the falling edge of a trigger pulse that was high >= 10 us, the sensor "fires
 the nearest surface in a 15 deg cone (the US-100 beam) cast in the world from the sensor's
 mount, plus Gaussian noise; the echo rises after the 8-cycle 40 kHz burst (0.2 ms) and falls
 2 * range / c later.  Nothing within 4.5 m gives the long no-echo pulse (``no_echo_s``,
-default 38 ms).  The same :class:`~m4k_drivers.sonar.real.EdgeSonar` code then turns those
-edges into a range.
+default 38 ms, the HC-SR04's figure: a real US-100's is measured).  The same
+:class:`~m4k_drivers.sonar.real.EdgeSonar` code then turns those edges into a range.
 """
 
 from __future__ import annotations
