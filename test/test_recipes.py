@@ -24,8 +24,9 @@ import upstream_keys
 from wsenv import ROOT
 import yaml
 
-from m4k_bridge import graphcheck, params, safety
+from m4k_bridge import fleetcheck, graphcheck, params, safety
 from m4k_bringup import fleet, recipes
+from m4k_bringup import robots as robots_mod
 from m4k_rt import config, description
 from m4k_rt.control.guard import front_offset as guard_front_offset
 from m4k_rt.control.params import control_params
@@ -544,3 +545,97 @@ def test_rcl_hands_every_key_to_the_node_of_its_section(robot, tmp_path):
             want = _flatten(expected)
             got = {k: seen[fqn].get(k) for k in want}
             assert got == want, fqn
+
+
+# --- the maintainers' graph check: the documented commands, one robot and three -----------
+
+def _fleet_problems(tmp_path, robots=('r1', 'r2', 'r3'), plant=None, **opts):
+    """Return every problem doctor would name on the graph the documented commands make:
+    names/types/QoS/writers (graphcheck) and, from the nodes' parameters as rcl hands them,
+    duplicate TF edges, foreign-tree publishers and collision-monitor sonar sources.
+    ``plant(robot, dir, specs, bridge_files) -> (specs, bridge_files)`` breaks one robot."""
+    eps, params_by_node = [], {}
+    for robot in robots:
+        d = _write(robot, tmp_path / robot)
+        files = fleet.recipe_paths(d, False)
+        bridge_files = [files['nav2']] + ([files['ekf']] if opts.get('ekf') else [])
+        specs = fleet.nodes(robot, d, **opts)
+        if plant:
+            specs, bridge_files = plant(robot, d, specs, bridge_files)
+        eps += consumers.bridge_endpoints(robot, bridge_files)
+        found, seen = consumers.resolve(consumers.consumers_of(specs))
+        eps += found
+        params_by_node.update(seen)
+        ns, values = robots_mod.robot_settings(robot)
+        params_by_node[ns + '/m4k_bridge'] = {
+            **{f.name: f.default for f in params.SPECS},
+            **robots_mod.effective_bridge_values(values, bridge_files)}
+    return (graphcheck.check(_fed_externally(eps, ('e_stop',)))
+            + fleetcheck.wrong_tree_publishers(eps)
+            + fleetcheck.duplicate_edges(eps, params_by_node)
+            + fleetcheck.sonar_source_problems(eps, params_by_node, params_by_node))
+
+
+def test_the_documented_fleet_has_no_problem(tmp_path):
+    assert _fleet_problems(tmp_path, ekf=True, mux=True) == []
+
+
+def _only(robot):
+    def wrap(plant):
+        def inner(r, d, specs, files):
+            return plant(d, specs, files) if r == robot else (specs, files)
+        return inner
+    return wrap
+
+
+@_only('r2')
+def _bridge_without_the_ekf_section(d, specs, files):
+    return specs, files[:1]            # the EKF recipe not given to the bridge
+
+
+@_only('r1')
+def _upstream_docking(d, specs, files):
+    return [dataclasses.replace(s, remaps=fleet.TF_REMAPS) if s.name == 'docking_server'
+            else s for s in specs], files
+
+
+@_only('r3')
+def _sonar_in_the_monitor(d, specs, files):
+    path = fleet.recipe_paths(d, True)['nav2']      # the file Nav2 reads with twist_mux
+    with open(path, encoding='utf-8') as f:
+        doc = yaml.safe_load(f)
+    cm = doc['r3']['collision_monitor']['ros__parameters']
+    cm['observation_sources'] = ['scan', 'sonar']
+    cm['sonar'] = {'type': 'range', 'topic': '/r3/sonar', 'obstacles_angle': 0.1}
+    with open(path, 'w', encoding='utf-8') as f:
+        yaml.safe_dump(doc, f)
+    return specs, files
+
+
+@_only('r3')
+def _sonar_in_the_monitor_and_a_bare_bridge(d, specs, files):
+    # and the base started without bridge_params: "no echo" is the default +inf
+    return _sonar_in_the_monitor('r3', d, specs, files)[0], []
+
+
+@_only('r2')
+def _ekf_without_tf_remaps(d, specs, files):
+    return [dataclasses.replace(s, remaps=()) if s.name == 'ekf_filter_node' else s
+            for s in specs], files
+
+
+@pytest.mark.parametrize(('plant', 'expected'), [
+    (_bridge_without_the_ekf_section, 'odom -> base_footprint on /r2/tf is broadcast by 2 '
+                                      'nodes (/r2/ekf_filter_node, /r2/m4k_bridge)'),
+    # docking past twist_mux and its e-stop lock
+    (_upstream_docking, '/r1/cmd_vel has 2 writers (/r1/docking_server, /r1/twist_mux)'),
+    # the documented base has sonar_no_echo: max_range, so only the points are short
+    (_sonar_in_the_monitor, '/r3/collision_monitor: Range source sonar makes 4 points'),
+    (_sonar_in_the_monitor_and_a_bare_bridge,
+     '/r3/collision_monitor takes the sonar as Range source sonar but the bridge publishes '
+     '"no echo" as +inf'),
+    (_ekf_without_tf_remaps, "/r2/ekf_filter_node publishes /tf but its robot's tree is /r2/tf"),
+])
+def test_each_planted_mistake_in_the_documented_fleet_is_named(tmp_path, plant, expected):
+    lines = _fleet_problems(tmp_path, plant=plant, ekf=True, mux=True)
+    assert any(line.startswith(expected) for line in lines), lines
