@@ -258,8 +258,11 @@ def test_use_sim_time_mismatch_is_named(graph):
     graph.node('slam_toolbox', parameter_overrides=[Parameter('use_sim_time', value=True)])
     rc, lines, _ = graph.run_doctor()
     assert rc == 1
-    line = _one(lines, 'use_sim_time')
+    line = _one(lines, 'use_sim_time', 'one clock')
     assert line.startswith('use_sim_time is true on /slam_toolbox but false on /m4k_bridge')
+    # and nothing publishes /clock for it
+    assert _one(lines, 'nothing publishes /clock').startswith(
+        'use_sim_time is true on /slam_toolbox')
 
 
 def test_twist_mux_without_use_stamped_is_named(graph):

@@ -199,10 +199,10 @@ def test_namespaced_launch_without_robot_state_publisher(monkeypatch, m4k_runtim
     assert _bridge_params(bridge).get('publish_robot_state', True) is True
 
 
-def test_robot_argument_namespaces_tf_and_prefix_for_bridge_and_robot_state_publisher(
+def test_robot_argument_namespaces_tf_for_bridge_and_robot_state_publisher(
         monkeypatch, m4k_runtime_dir):
     # robot:=r1: namespace /r1, tf on /r1/tf for the bridge (tf_namespaced) and for
-    # robot_state_publisher (its /tf:=tf remaps), one prefix r1/ for both
+    # robot_state_publisher (its /tf:=tf remaps), frames unprefixed for both
     try:
         nodes = _evaluate(monkeypatch, m4k_runtime_dir, robot='r1',
                           robot_state_publisher='true')
@@ -214,7 +214,7 @@ def test_robot_argument_namespaces_tf_and_prefix_for_bridge_and_robot_state_publ
     rsp = nodes[exes.index('robot_state_publisher')]
     assert rsp.expanded_node_namespace == '/r1' == bridge.expanded_node_namespace
     values = _bridge_params(bridge)
-    assert values['tf_namespaced'] is True and values['frame_prefix'] == 'r1/'
+    assert values['tf_namespaced'] is True and not values.get('frame_prefix')
     assert set(rsp.expanded_remapping_rules) == {('/tf', 'tf'), ('/tf_static', 'tf_static')}
 
 

@@ -13,6 +13,7 @@
 """
 
 import copy
+import dataclasses
 import math
 import os
 import types
@@ -23,9 +24,11 @@ import upstream_keys
 from wsenv import ROOT
 import yaml
 
-from m4k_bridge import graphcheck, params, safety
-from m4k_bringup import recipes
+from m4k_bridge import fleetcheck, graphcheck, params, safety
+from m4k_bringup import fleet, recipes
+from m4k_bringup import robots as robots_mod
 from m4k_rt import config, description
+from m4k_rt.control.guard import front_offset as guard_front_offset
 from m4k_rt.control.params import control_params
 from m4k_rt.tasks.actuator import guard_plan
 
@@ -188,7 +191,7 @@ def test_nav2_controller_and_smoother_limits_are_control_yaml_s(rel):
 
 
 @pytest.mark.parametrize('rel', (NAV2, NAV2_MUX))
-def test_nav2_speeds_are_the_collision_guards_caps(rel):
+def test_nav2_speeds_are_within_the_collision_guards_caps(rel):
     # what rt_core states at start-up: the guard's top forward speed and its reverse creep
     layered = config.load_layered(config_dir=CONFIG)
     cfg = config.parse(layered)
@@ -197,9 +200,47 @@ def test_nav2_speeds_are_the_collision_guards_caps(rel):
                       layered['robot'])
     n = _nodes(_load(rel))
     vs, mppi = n['velocity_smoother'], n['controller_server']['FollowPath']
-    assert (mppi['vx_max'], mppi['vx_min']) == (plan.top_speed, -plan.reverse_creep)
-    assert vs['max_velocity'][0] == plan.top_speed and vs['min_velocity'][0] == \
+    assert 0.0 < mppi['vx_max'] <= plan.top_speed and mppi['vx_min'] == -plan.reverse_creep
+    assert vs['max_velocity'][0] == mppi['vx_max'] and vs['min_velocity'][0] == \
         -plan.reverse_creep
+
+
+def _nav_latency(n, plan):
+    # scan -> guard-side pipeline and actuation (t_react) + one period of each Nav2 loop
+    return (plan.reaction_time + 1.0 / n['local_costmap/local_costmap']['update_frequency']
+            + 1.0 / n['controller_server']['controller_frequency']
+            + 1.0 / n['velocity_smoother']['smoothing_frequency'])
+
+
+@pytest.mark.parametrize('rel', (NAV2, NAV2_MUX))
+def test_nav2_can_stop_from_its_top_speed_inside_what_it_marks_plans_and_watches(rel):
+    # d_nav(v) = v t_nav + v^2 / (2 a) + margin at control.yaml's deceleration: the marking
+    # range holds it (ahead of the front face), the MPPI horizon lasts the stop, and the
+    # collision monitor's approach starts slowing early enough to stop at that deceleration
+    layered = config.load_layered(config_dir=CONFIG)
+    cfg = config.parse(layered)
+    params_ = control_params(layered['control'])
+    plan = guard_plan(params_, cfg.task('actuator').period_ns * 1e-9,
+                      types.SimpleNamespace(config=cfg), layered['robot'])
+    n = _nodes(_load(rel))
+    mppi = n['controller_server']['FollowPath']
+    v, a = mppi['vx_max'], -mppi['ax_min']
+    t_nav = _nav_latency(n, plan)
+    d_nav = v * t_nav + v * v / (2 * a) + params_.guard.stop_distance
+    ahead = guard_front_offset(layered['robot'], 'laser')
+    for costmap in ('local_costmap/local_costmap', 'global_costmap/global_costmap'):
+        scan = n[costmap]['obstacle_layer']['scan']
+        assert d_nav + ahead <= scan['obstacle_max_range'] <= scan['raytrace_max_range']
+    assert mppi['time_steps'] * mppi['model_dt'] >= t_nav + v / a
+    assert mppi['model_dt'] == pytest.approx(1.0 / n['controller_server']['controller_frequency'])
+    cm = n['collision_monitor']
+    t_mon = plan.reaction_time + 1.0 / n['velocity_smoother']['smoothing_frequency']
+    tbc = cm['FootprintApproach']['time_before_collision']
+    assert tbc >= t_mon + v / (2 * a)
+    assert v * tbc <= n['local_costmap/local_costmap']['obstacle_layer']['scan'][
+        'obstacle_max_range']       # the monitor's scan source sees where it starts slowing
+    # the old file's 2 m/s with 5.0 m marking could not: 5.4 m to stop at 0.37 m/s^2
+    assert 2.0 * t_nav + 2.0 ** 2 / (2 * a) > 5.0
 
 
 def test_a_changed_guard_or_top_speed_moves_the_nav2_speeds():
@@ -333,22 +374,28 @@ def test_a_changed_control_yaml_makes_the_nav2_recipes_stale(tmp_path, capsys):
 
 # --- resolved as the consumers resolve them -------------------------------------------------
 
-_OTHER = {'twist_mux/twist_mux.yaml': 'twist_mux',
-          'slam_toolbox/mapper_params_online_async.yaml': 'slam_toolbox',
-          'robot_localization/ekf.yaml': 'ekf'}
+def _write(robot, out):
+    """Write the robot's recipes as `recipes --robot NAME --out DIR` does; return DIR."""
+    for rel, text in recipes.generate(config.load_layered(config_dir=CONFIG), robot,
+                                      str(out) if robot else '').items():
+        path = out / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return str(out)
 
 
-def _graph(files, robot=''):
-    # the endpoints of the bridge and of the consumers of the generated files, and the
-    # parameters rcl handed each consumer node
-    texts = recipes.generate(config.load_layered(config_dir=CONFIG), robot)
-    eps = consumers.bridge_endpoints(robot)
-    seen = {}
-    for rel in files:
-        doc = yaml.safe_load(texts[rel])
-        cons = consumers.nav2_consumers(doc) if rel.startswith('nav2/') else \
-            consumers.other_consumers(_OTHER[rel], doc)
-        found, overrides = consumers.resolve(cons, doc, robot)
+def _graph(tmp_path, robots=('',), **opts):
+    """Return (endpoints, parameters by node) of the documented commands for these robots:
+    the bridge as `m4k.launch.py robot:=R bridge_params:=...` and every node
+    `m4k_nav2.launch.py robot:=R recipes:=DIR ...` starts (m4k_bringup.fleet)."""
+    eps, seen = [], {}
+    for robot in robots:
+        d = _write(robot, tmp_path / (robot or 'root'))
+        files = fleet.recipe_paths(d, False)
+        eps += consumers.bridge_endpoints(
+            robot, [files['nav2']] + ([files['ekf']] if opts.get('ekf') else []))
+        found, overrides = consumers.resolve(consumers.consumers_of(fleet.nodes(robot, d,
+                                                                                **opts)))
         eps += found
         seen.update(overrides)
     return eps, seen
@@ -362,19 +409,17 @@ def _fed_externally(eps, topics):
 
 
 GRAPHS = {
-    'nav2 alone': ([NAV2], ('e_stop',)),
-    'nav2 through twist_mux': ([NAV2_MUX, 'twist_mux/twist_mux.yaml'], ('e_stop',)),
-    'slam_toolbox': (['slam_toolbox/mapper_params_online_async.yaml'], ('e_stop', 'cmd_vel')),
-    'ekf': (['robot_localization/ekf.yaml'], ('e_stop', 'cmd_vel')),
+    'nav2 and slam_toolbox': {},
+    'nav2 through twist_mux, with the EKF': {'mux': True, 'ekf': True},
+    'nav2 and AMCL on a map': {'slam': False, 'map_file': '/maps/m4k.yaml'},
 }
 
 
 @pytest.mark.parametrize('robot', ['', 'r1'])
 @pytest.mark.parametrize('graph', sorted(GRAPHS))
-def test_every_consumer_name_resolves_to_a_matching_m4k_topic(graph, robot):
-    files, idle = GRAPHS[graph]
-    eps, _ = _graph(files, robot)
-    assert graphcheck.check(_fed_externally(eps, idle)) == []
+def test_every_consumer_name_resolves_to_a_matching_m4k_topic(graph, robot, tmp_path):
+    eps, _ = _graph(tmp_path, (robot,), **GRAPHS[graph])
+    assert graphcheck.check(_fed_externally(eps, ('e_stop',))) == []
     # every sensor input is the bridge's own topic, in the robot's namespace
     bridge = {e.topic: e for e in eps if e.m4k}
     sensors = (consumers.LASER, consumers.RANGE, consumers.IMU, consumers.ODOM)
@@ -383,38 +428,89 @@ def test_every_consumer_name_resolves_to_a_matching_m4k_topic(graph, robot):
     for e in subs:
         assert e.topic in bridge and bridge[e.topic].kind == 'pub', e
         assert e.topic.count('/') == (2 if robot else 1), e
+    # every tf listener reads its own robot's tree, which the bridge publishes
+    tf_subs = [e for e in eps if e.type == consumers.TF and e.kind == 'sub']
+    assert tf_subs and all(e.topic in bridge for e in tf_subs)
+    assert {e.topic for e in tf_subs} == ({'/r1/tf', '/r1/tf_static'} if robot
+                                          else {'/tf', '/tf_static'})
 
 
-def test_the_final_nav2_output_drives_the_bridge_after_the_smoother_and_collision_monitor():
+def test_three_robots_as_documented_form_three_separate_graphs(tmp_path):
+    robots = ('r1', 'r2', 'r3')
+    eps, _ = _graph(tmp_path, robots, mux=True, ekf=True)
+    assert graphcheck.check(_fed_externally(eps, ('e_stop',))) == []
+    for e in eps:   # nothing crosses robots: every name is in its node's namespace
+        ns = e.node.split('/')[1]
+        assert ns in robots and e.topic.startswith('/' + ns + '/'), e
+    # one odom -> base_footprint broadcaster per tree: the EKF's, the bridge's is off
+    tf_pubs = sorted((e.topic, e.node) for e in eps if e.type == consumers.TF
+                     and e.kind == 'pub' and e.topic.endswith('/tf') and not e.m4k)
+    assert tf_pubs == [('/{}/tf'.format(r), n) for r in robots
+                       for n in sorted(('/{}/ekf_filter_node'.format(r),
+                                        '/{}/slam_toolbox'.format(r)))]
+
+
+def test_upstream_docking_cmd_vel_is_a_second_writer_on_the_bridge_s_cmd_vel(tmp_path):
+    # navigation_launch.py (Jazzy) gives docking_server only the tf remaps: its TwistPublisher
+    # ("cmd_vel") writes the bridge's cmd_vel beside Nav2's collision monitor
+    d = _write('r1', tmp_path)
+    specs = [dataclasses.replace(s, remaps=fleet.TF_REMAPS) if s.name == 'docking_server'
+             else s for s in fleet.nodes('r1', d)]
+    found, _ = consumers.resolve(consumers.consumers_of(specs))
+    eps = consumers.bridge_endpoints('r1', [fleet.recipe_paths(d, False)['nav2']]) + found
+    lines = graphcheck.check(_fed_externally(eps, ('e_stop',)))
+    assert len(lines) == 1 and lines[0].startswith('/r1/cmd_vel has 2 writers'), lines
+    assert '/r1/docking_server' in lines[0] and '/r1/collision_monitor' in lines[0]
+
+
+def test_a_tf_remap_left_out_leaves_the_node_without_its_robot_s_tree(tmp_path):
+    # slam_toolbox started as online_async_launch.py does (no remaps) in /r1
+    d = _write('r1', tmp_path)
+    specs = [dataclasses.replace(s, remaps=()) if s.name == 'slam_toolbox' else s
+             for s in fleet.nodes('r1', d)]
+    found, _ = consumers.resolve(consumers.consumers_of(specs))
+    eps = consumers.bridge_endpoints('r1', [fleet.recipe_paths(d, False)['nav2']]) + found
+    lines = graphcheck.check(_fed_externally(eps, ('e_stop',)))
+    assert any(line.startswith('/r1/slam_toolbox subscribes /tf_static') for line in lines), \
+        lines
+
+
+def test_the_final_nav2_output_drives_the_bridge_after_the_smoother_and_collision_monitor(
+        tmp_path):
     # the cmd_vel chain as rcl resolves it: controller -> smoother -> collision monitor ->
-    # bridge; with twist_mux, collision monitor -> twist_mux -> bridge (never cmd_vel_nav)
-    for name in ('nav2 alone', 'nav2 through twist_mux'):
-        files = GRAPHS[name][0]
-        eps, _ = _graph(files)
+    # bridge; with twist_mux, collision monitor -> twist_mux -> bridge (never cmd_vel_nav);
+    # docking and the behaviors into the smoother too
+    for mux in (False, True):
+        eps, _ = _graph(tmp_path / str(mux), mux=mux)
         by = {(e.node, e.kind): e.topic for e in eps if e.type == consumers.TWIST}
         assert by[('/controller_server', 'pub')] == '/cmd_vel_nav' \
-            == by[('/velocity_smoother', 'sub')]
+            == by[('/velocity_smoother', 'sub')] == by[('/docking_server', 'pub')] \
+            == by[('/behavior_server', 'pub')]
         assert by[('/velocity_smoother', 'pub')] == '/cmd_vel_smoothed' \
             == by[('/collision_monitor', 'sub')]
         into_bridge = [e for e in eps if e.m4k and e.kind == 'sub' and e.type == consumers.TWIST]
         feeders = [e.node for e in eps if e.kind == 'pub' and e.topic == into_bridge[0].topic]
-        mux = 'twist_mux/twist_mux.yaml' in files
         assert feeders == (['/twist_mux'] if mux else ['/collision_monitor'])
         if mux:
             mux_in = {e.topic for e in eps if e.node == '/twist_mux' and e.kind == 'sub'}
             assert '/cmd_vel_nav' not in mux_in and by[('/collision_monitor', 'pub')] in mux_in
 
 
-def test_relative_costmap_topics_are_caught_where_jazzy_resolves_them():
+def test_relative_costmap_topics_are_caught_where_jazzy_resolves_them(tmp_path):
     # navigation2 #5745: Jazzy hands a layer's topic straight to the costmap node's
     # subscription, so the old recipe's relative `scan` reads /local_costmap/scan.
-    doc = yaml.safe_load(recipes.generate(config.load_layered(config_dir=CONFIG))[NAV2])
+    d = _write('', tmp_path)
+    path = tmp_path / NAV2
+    doc = yaml.safe_load(path.read_text())
     layer = doc['local_costmap']['local_costmap']['ros__parameters']
     layer['obstacle_layer']['scan']['topic'] = 'scan'
     layer['range_layer']['topics'] = ['sonar']
-    found, _ = consumers.resolve(consumers.nav2_consumers(doc), doc)
-    lines = graphcheck.check(_fed_externally(consumers.bridge_endpoints() + found,
-                                             ('e_stop',)))
+    path.write_text(yaml.safe_dump(doc))
+    specs = [s for s in fleet.nodes('', d) if s.name == 'controller_server']
+    found, _ = consumers.resolve(consumers.consumers_of(specs))
+    eps = [e for e in consumers.bridge_endpoints() + found if e.type != consumers.TWIST]
+    lines = [line for line in graphcheck.check(_fed_externally(eps, ('e_stop',)))
+             if 'local_costmap subscribes' in line]
     assert len(lines) == 2, lines
     assert lines[0].startswith('/local_costmap/local_costmap subscribes /local_costmap/scan')
     assert 'm4k publishes /scan' in lines[0]
@@ -432,19 +528,114 @@ def _flatten(tree, prefix=''):
 
 
 @pytest.mark.parametrize('robot', ['', 'r1'])
-@pytest.mark.parametrize('rel', [NAV2, 'slam_toolbox/mapper_params_online_async.yaml',
-                                 'twist_mux/twist_mux.yaml', 'robot_localization/ekf.yaml'])
-def test_rcl_hands_every_key_to_the_node_of_its_section(rel, robot):
-    # rcl_yaml_param_parser, through a node of each section's fully qualified name (with the
-    # robot's namespace, as navigation_launch.py's RewrittenYaml nests the file under it):
-    # every key arrives with the YAML value; a file rcl refused would raise in rclpy.init
-    _, seen = _graph([rel], robot)
+def test_rcl_hands_every_key_to_the_node_of_its_section(robot, tmp_path):
+    # rcl_yaml_param_parser, through a node of each section's fully qualified name as the
+    # launch file starts it (the robot's sections nested under its namespace): every key
+    # arrives with the YAML value; a file rcl refused would raise in rclpy.init
+    _, seen = _graph(tmp_path, (robot,), ekf=True, mux=True)
     texts = recipes.generate(config.load_layered(config_dir=CONFIG), robot)
-    for node, expected in _nodes(yaml.safe_load(texts[rel])).items():
-        if node == 'm4k_bridge':
-            continue
-        fqn = '/'.join(['', robot, node] if robot else ['', node])
-        assert fqn in seen, (fqn, sorted(seen))
-        want = _flatten(expected)
-        got = {k: seen[fqn].get(k) for k in want}
-        assert got == want, fqn
+    for rel in (NAV2_MUX, 'slam_toolbox/mapper_params_online_async.yaml',
+                'twist_mux/twist_mux.yaml', 'robot_localization/ekf.yaml'):
+        doc = yaml.safe_load(texts[rel])
+        for node, expected in _nodes(doc.get(robot, doc) if robot else doc).items():
+            if node in ('m4k_bridge', 'amcl'):     # amcl: only with map:=
+                continue
+            fqn = '/'.join(['', robot, node] if robot else ['', node])
+            assert fqn in seen, (fqn, sorted(seen))
+            want = _flatten(expected)
+            got = {k: seen[fqn].get(k) for k in want}
+            assert got == want, fqn
+
+
+# --- the maintainers' graph check: the documented commands, one robot and three -----------
+
+def _fleet_problems(tmp_path, robots=('r1', 'r2', 'r3'), plant=None, **opts):
+    """Return every problem doctor would name on the graph the documented commands make:
+    names/types/QoS/writers (graphcheck) and, from the nodes' parameters as rcl hands them,
+    duplicate TF edges, foreign-tree publishers and collision-monitor sonar sources.
+    ``plant(robot, dir, specs, bridge_files) -> (specs, bridge_files)`` breaks one robot."""
+    eps, params_by_node = [], {}
+    for robot in robots:
+        d = _write(robot, tmp_path / robot)
+        files = fleet.recipe_paths(d, False)
+        bridge_files = [files['nav2']] + ([files['ekf']] if opts.get('ekf') else [])
+        specs = fleet.nodes(robot, d, **opts)
+        if plant:
+            specs, bridge_files = plant(robot, d, specs, bridge_files)
+        eps += consumers.bridge_endpoints(robot, bridge_files)
+        found, seen = consumers.resolve(consumers.consumers_of(specs))
+        eps += found
+        params_by_node.update(seen)
+        ns, values = robots_mod.robot_settings(robot)
+        params_by_node[ns + '/m4k_bridge'] = {
+            **{f.name: f.default for f in params.SPECS},
+            **robots_mod.effective_bridge_values(values, bridge_files)}
+    return (graphcheck.check(_fed_externally(eps, ('e_stop',)))
+            + fleetcheck.wrong_tree_publishers(eps)
+            + fleetcheck.duplicate_edges(eps, params_by_node)
+            + fleetcheck.sonar_source_problems(eps, params_by_node, params_by_node))
+
+
+def test_the_documented_fleet_has_no_problem(tmp_path):
+    assert _fleet_problems(tmp_path, ekf=True, mux=True) == []
+
+
+def _only(robot):
+    def wrap(plant):
+        def inner(r, d, specs, files):
+            return plant(d, specs, files) if r == robot else (specs, files)
+        return inner
+    return wrap
+
+
+@_only('r2')
+def _bridge_without_the_ekf_section(d, specs, files):
+    return specs, files[:1]            # the EKF recipe not given to the bridge
+
+
+@_only('r1')
+def _upstream_docking(d, specs, files):
+    return [dataclasses.replace(s, remaps=fleet.TF_REMAPS) if s.name == 'docking_server'
+            else s for s in specs], files
+
+
+@_only('r3')
+def _sonar_in_the_monitor(d, specs, files):
+    path = fleet.recipe_paths(d, True)['nav2']      # the file Nav2 reads with twist_mux
+    with open(path, encoding='utf-8') as f:
+        doc = yaml.safe_load(f)
+    cm = doc['r3']['collision_monitor']['ros__parameters']
+    cm['observation_sources'] = ['scan', 'sonar']
+    cm['sonar'] = {'type': 'range', 'topic': '/r3/sonar', 'obstacles_angle': 0.1}
+    with open(path, 'w', encoding='utf-8') as f:
+        yaml.safe_dump(doc, f)
+    return specs, files
+
+
+@_only('r3')
+def _sonar_in_the_monitor_and_a_bare_bridge(d, specs, files):
+    # and the base started without bridge_params: "no echo" is the default +inf
+    return _sonar_in_the_monitor('r3', d, specs, files)[0], []
+
+
+@_only('r2')
+def _ekf_without_tf_remaps(d, specs, files):
+    return [dataclasses.replace(s, remaps=()) if s.name == 'ekf_filter_node' else s
+            for s in specs], files
+
+
+@pytest.mark.parametrize(('plant', 'expected'), [
+    (_bridge_without_the_ekf_section, 'odom -> base_footprint on /r2/tf is broadcast by 2 '
+                                      'nodes (/r2/ekf_filter_node, /r2/m4k_bridge)'),
+    # docking past twist_mux and its e-stop lock
+    (_upstream_docking, '/r1/cmd_vel has 2 writers (/r1/docking_server, /r1/twist_mux)'),
+    # the documented base has sonar_no_echo: max_range, so only the points are short
+    (_sonar_in_the_monitor, '/r3/collision_monitor: Range source sonar makes 4 points'),
+    (_sonar_in_the_monitor_and_a_bare_bridge,
+     '/r3/collision_monitor takes the sonar as Range source sonar but the bridge publishes '
+     '"no echo" as +inf'),
+    (_ekf_without_tf_remaps, "/r2/ekf_filter_node publishes /tf but its robot's tree is /r2/tf"),
+])
+def test_each_planted_mistake_in_the_documented_fleet_is_named(tmp_path, plant, expected):
+    lines = _fleet_problems(tmp_path, plant=plant, ekf=True, mux=True)
+    assert any(line.startswith(expected) for line in lines), lines

@@ -21,11 +21,9 @@ NAV2 = os.path.join(CONFIG, 'nav2', 'nav2_params.yaml')
 EKF = os.path.join(CONFIG, 'robot_localization', 'ekf.yaml')
 
 
-def test_robot_name_sets_namespace_namespaced_tf_and_frame_prefix():
-    assert robots.robot_settings('r1') == ('/r1', {'tf_namespaced': True,
-                                                   'frame_prefix': 'r1/'})
-    for value in robots.robot_settings('r1')[1].values():
-        assert value is True or params.validate('frame_prefix', value) is None
+def test_robot_name_sets_namespace_and_namespaced_tf_with_unprefixed_frames():
+    # Nav2's multi-robot layout: the robot's tree on /r1/tf, frames as in a single robot
+    assert robots.robot_settings('r1') == ('/r1', {'tf_namespaced': True})
 
 
 @pytest.mark.parametrize('name', ['', '1r', 'r-1', 'r1/', '/r1', 'r 1'])
@@ -78,8 +76,7 @@ def test_robot_state_publisher_follows_the_bridges_tf_mode_and_prefix(tmp_path):
         {'robot_description': urdf}, [])
     _, values = robots.robot_settings('r2')
     assert robots.robot_state_publisher_setup({'robot_description': urdf, **values}) == (
-        {'robot_description': urdf, 'frame_prefix': 'r2/'},
-        [('/tf', 'tf'), ('/tf_static', 'tf_static')])
+        {'robot_description': urdf}, [('/tf', 'tf'), ('/tf_static', 'tf_static')])
     # set through a bridge_params file instead of robot:= -- the issue's lost frame_prefix
     f = tmp_path / 'p.yaml'
     f.write_text("m4k_bridge:\n  ros__parameters:\n    frame_prefix: 'r3/'\n"

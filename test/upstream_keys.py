@@ -104,7 +104,13 @@ DOCKING_CONTROLLER = {'k_phi': FLOAT, 'k_delta': FLOAT, 'v_linear_min': FLOAT,
                       'v_linear_max': FLOAT, 'use_collision_detection': BOOL,
                       'costmap_topic': STR, 'footprint_topic': STR,
                       'transform_tolerance': FLOAT}
-DOCK_PLUGINS = {'opennav_docking::SimpleChargingDock': {}}
+# simple_charging_dock.cpp: use_battery_status (default true subscribes battery_state)
+DOCK_PLUGINS = {'opennav_docking::SimpleChargingDock': {'use_battery_status': BOOL}}
+# nav2_route/src/route_server.cpp (route_frame, base_frame, global_frame, max_planning_time,
+# costmap_topic), graph_loader.cpp (graph_filepath, graph_file_loader)
+ROUTE_SERVER = {'route_frame': STR, 'base_frame': STR, 'global_frame': STR,
+                'max_planning_time': FLOAT, 'costmap_topic': STR, 'graph_filepath': STR,
+                'graph_file_loader': STR}
 # nav2_costmap_2d/src/costmap_2d_ros.cpp (constructor's declare_parameter list)
 COSTMAP = {'global_frame': STR, 'robot_base_frame': STR, 'footprint': STR, 'plugins': STRS,
            'robot_radius': FLOAT, 'rolling_window': BOOL, 'width': INT, 'height': INT,
@@ -188,7 +194,8 @@ ANALYZER_TYPES = ('diagnostic_aggregator/GenericAnalyzer',
                   'diagnostic_aggregator/IgnoreAnalyzer',
                   'diagnostic_aggregator/AnalyzerGroup')
 
-FLAT = {'amcl': AMCL, 'velocity_smoother': VELOCITY_SMOOTHER, 'slam_toolbox': SLAM_TOOLBOX}
+FLAT = {'amcl': AMCL, 'velocity_smoother': VELOCITY_SMOOTHER, 'slam_toolbox': SLAM_TOOLBOX,
+        'route_server': ROUTE_SERVER}
 # plugin servers: node -> (its own keys, {plugin list key or single-plugin key: plugin types})
 PLUGIN_SERVERS = {
     'bt_navigator': (BT_NAVIGATOR, {'navigators': BT_NAVIGATORS}),

@@ -1,4 +1,4 @@
-"""Inspect the live ROS graph around the m4k base and name what a Nav2 user would hit.
+"""Inspect the live ROS graph around the m4k base (one robot or a fleet) and name what is wrong.
 
     ros2 run m4k_bridge doctor [--duration 3.0] [--config-dir DIR]
 
@@ -7,14 +7,22 @@ One line per problem, each with its fix; exit status 1 when there is any problem
 
 * names, types and QoS of every topic (:mod:`m4k_bridge.graphcheck`): a subscription with no
   publisher whose name is an m4k topic up to the namespace (a costmap layer on
-  ``/local_costmap/scan``), a ``cmd_vel`` publisher of the other type (Twist against
-  TwistStamped), a publisher that cannot serve a subscription (reliability, durability);
-* the TF tree over ``--duration`` seconds: split into several trees, a frame with two parents
-  or two static publishers, transforms on a namespaced ``tf`` topic, dynamic transforms whose
-  stamps lag the clock;
+  ``/local_costmap/scan``), a ``cmd_vel`` publisher of the other type, two types on one topic,
+  a publisher that cannot serve a subscription (reliability, durability), more than one
+  writer on an m4k input (``cmd_vel``, ``e_stop``: an unremapped docking server);
+* each robot's TF tree on its own topics (``/tf``, or ``/r1/tf`` for robot ``r1``, Nav2's
+  multi-robot layout; :mod:`m4k_bridge.fleetcheck`): split, a frame with two parents or two
+  static publishers, stale stamps, one edge claimed by two nodes (read from their
+  ``publish_tf``-style parameters), a node publishing into another robot's tree, frame
+  parameters naming frames the node's tree does not have;
 * the rates of the base's topics against the configured task periods (far: a factor of 3);
-* ``use_sim_time`` differing between nodes, and a twist_mux without ``use_stamped`` (both read
-  through the nodes' parameter services).
+* parameters read through the nodes' services: ``use_sim_time`` differing, or true with no
+  ``/clock``; a twist_mux without ``use_stamped``; a collision monitor's Range source on the
+  m4k sonar that stops the robot on "no echo" or can never trigger;
+* lifecycle nodes that are not active.
+
+Each check is one entry of :attr:`Doctor.checks` (a method returning lines), so a new check
+is one more method there.
 """
 
 from __future__ import annotations
@@ -29,14 +37,14 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from m4k_bridge import params
+from m4k_bridge import fleetcheck, params
+from m4k_bridge.fleetcheck import TF_TYPE, TfSample
 from m4k_bridge.graphcheck import check, Endpoint
 from m4k_bridge.interfaces import interface_class
 
 __all__ = ['Doctor', 'main']
 
 NODE_NAME = '_m4k_doctor'          # hidden: not part of the graph it inspects
-TF_TYPE = 'tf2_msgs/msg/TFMessage'
 RATE_FACTOR = 3.0                  # a rate beyond configured / 3 .. configured * 3 is "far"
 STALE_TF_S = 1.0                   # a dynamic transform this far behind the clock is stale
 _SKIP_TOPICS = ('/rosout', '/parameter_events')
@@ -70,7 +78,9 @@ class Doctor:
         """Use node (already in the graph's context) and the configured rates."""
         self.node = node
         self.rates = rates
-        self.tf: list[tuple[str, bool, Any]] = []     # (topic, static, TFMessage)
+        self.tf: list[TfSample] = []
+        self.params: dict[str, dict[str, Any]] = {}   # node -> parameters it answered
+        self.sources: dict[str, dict[str, Any]] = {}  # collision monitor -> source params
         self.counts: dict[str, int] = {}
         self.subs: list[Any] = []
 
@@ -118,7 +128,10 @@ class Doctor:
 
     def _tf_callback(self, topic: str, static: bool) -> Callable[[Any], None]:
         def on_tf(msg: Any) -> None:
-            self.tf.append((topic, static, msg))
+            for tr in msg.transforms:
+                self.tf.append(TfSample(
+                    topic, static, tr.header.frame_id.lstrip('/'), tr.child_frame_id.lstrip('/'),
+                    tr.header.stamp.sec + tr.header.stamp.nanosec * 1e-9))
         return on_tf
 
     def _count_callback(self, topic: str) -> Callable[[Any], None]:
@@ -138,55 +151,12 @@ class Doctor:
 
     # --- judgements -----------------------------------------------------------------------
     def tf_problems(self, eps: Sequence[Endpoint]) -> list[str]:
-        """Return the TF tree's problems seen while listening."""
-        out = []
-        for t in sorted({e.topic for e in eps if e.type == TF_TYPE and e.kind == 'pub'}):
-            if t not in ('/tf', '/tf_static'):
-                nodes = sorted({e.node for e in eps if e.topic == t and e.kind == 'pub'})
-                out.append('transforms on {} (from {}), not /tf or /tf_static: tf listeners '
-                           'that read /tf see a split tree; use one mode for the whole robot '
-                           "(the bridge's tf_namespaced, robot_state_publisher's /tf remap, "
-                           "Nav2's namespaced launch)".format(t, ', '.join(nodes)))
-        parents: dict[str, set[str]] = {}
-        static_samples: dict[str, int] = {}
-        latest: dict[str, float] = {}
-        for topic, static, msg in self.tf:
-            if topic not in ('/tf', '/tf_static'):
-                continue
-            for tr in msg.transforms:
-                child, parent = tr.child_frame_id.lstrip('/'), tr.header.frame_id.lstrip('/')
-                parents.setdefault(child, set()).add(parent)
-                if static:
-                    static_samples[child] = static_samples.get(child, 0) + 1
-                else:
-                    stamp = tr.header.stamp.sec + tr.header.stamp.nanosec * 1e-9
-                    latest[child] = max(latest.get(child, 0.0), stamp)
-        for child, ps in sorted(parents.items()):
-            if len(ps) > 1:
-                out.append('frame {} has {} parents ({}): two publishers disagree; keep one '
-                           "(the bridge's publish_tf / publish_robot_state, the EKF's "
-                           'publish_tf, robot_state_publisher)'.format(
-                               child, len(ps), ', '.join(sorted(ps))))
-        static_pubs = sorted({e.node for e in eps if e.topic == '/tf_static' and e.kind == 'pub'})
-        if len(static_pubs) > 1:
-            for child, n in sorted(static_samples.items()):
-                if n > 1:
-                    out.append('frame {} is published on /tf_static by more than one of {}: '
-                               "turn one off (robot_state_publisher:=true turns the bridge's "
-                               'publish_robot_state off)'.format(child, ', '.join(static_pubs)))
-        frames = set(parents) | {p for ps in parents.values() for p in ps}
-        roots = sorted(f for f in frames if f not in parents)
-        if len(roots) > 1:
-            out.append('the TF tree is split into {} trees with roots {}: a transform between '
-                       'them is missing or published elsewhere (frame_prefix, a namespaced tf '
-                       'topic, a node not running)'.format(len(roots), ', '.join(roots)))
+        """Return each robot's TF tree problems seen while listening."""
         now = self.node.get_clock().now().nanoseconds * 1e-9
-        for child, stamp in sorted(latest.items()):
-            if now - stamp > STALE_TF_S:
-                out.append('transform to {} is stamped {:.1f} s behind this clock: its '
-                           'publisher is stalled or on another clock (use_sim_time, NTP)'
-                           .format(child, now - stamp))
-        return out
+        return (fleetcheck.wrong_tree_publishers(eps)
+                + fleetcheck.tree_problems(self.tf, eps, now, STALE_TF_S)
+                + fleetcheck.duplicate_edges(eps, self.params)
+                + fleetcheck.frame_parameter_problems(eps, self.params, self.tf))
 
     def rate_problems(self, eps: Sequence[Endpoint]) -> list[str]:
         """Return the base's topics whose rate is far from the configured one."""
@@ -200,50 +170,96 @@ class Doctor:
                            'the robot'.format(topic, got, want))
         return out
 
-    def parameter_problems(self, timeout: float = 2.0) -> list[str]:
-        """Return use_sim_time disagreements and a twist_mux without use_stamped."""
-        from rcl_interfaces.msg import ParameterType
-        from rcl_interfaces.srv import GetParameters
-        me = self.node.get_fully_qualified_name()
+    def _call(self, srv: Any, suffix: str, requests: dict[str, Any],
+              timeout: float) -> dict[str, Any]:
+        """Call service fqn + suffix on each node at once; return fqn -> response."""
         pending = {}
-        for name, ns in self.node.get_node_names_and_namespaces():
-            fqn = _fqn(ns, name)
-            if fqn == me:
-                continue
-            cli = self.node.create_client(GetParameters, fqn + '/get_parameters')
+        for fqn, req in requests.items():
+            cli = self.node.create_client(srv, fqn + suffix)
             if not cli.wait_for_service(timeout_sec=timeout):
                 self.node.destroy_client(cli)
                 continue
-            wanted = ['use_sim_time'] + (['use_stamped'] if 'twist_mux' in name else [])
-            pending[fqn] = (cli, wanted, cli.call_async(GetParameters.Request(names=wanted)))
+            pending[fqn] = (cli, cli.call_async(req))
         end = time.monotonic() + timeout
-        while time.monotonic() < end and not all(f.done() for _, _, f in pending.values()):
+        while time.monotonic() < end and not all(f.done() for _, f in pending.values()):
             rclpy.spin_once(self.node, timeout_sec=0.05)
-        sim: dict[str, bool] = {}
-        out = []
-        for fqn, (cli, wanted, fut) in sorted(pending.items()):
+        out = {}
+        for fqn, (cli, fut) in pending.items():
             if fut.done() and fut.result() is not None:
-                values = dict(zip(wanted, fut.result().values, strict=False))
-                v = values.get('use_sim_time')
-                if v is not None and v.type == ParameterType.PARAMETER_BOOL:
-                    sim[fqn] = v.bool_value
-                s = values.get('use_stamped')
-                if 'use_stamped' in wanted and (s is None
-                                                or s.type != ParameterType.PARAMETER_BOOL):
-                    out.append('{} has no use_stamped parameter: twist_mux >= 4.4.0 aborts '
-                               'without it and older ones mux Twist only; set use_stamped: '
-                               'false (Twist, as Nav2 Jazzy and the bridge by default) or true '
-                               '(TwistStamped) in its parameter file'.format(fqn))
+                out[fqn] = fut.result()
             self.node.destroy_client(cli)
-        if len(set(sim.values())) > 1:
-            on = sorted(k for k, v in sim.items() if v)
-            off = sorted(k for k, v in sim.items() if not v)
-            few, many, state = (on, off, 'true') if len(on) <= len(off) else (off, on, 'false')
-            out.append('use_sim_time is {} on {} but {} on {}: one clock for all nodes (set it '
-                       'the same everywhere; with a simulator, true; with the robot, false)'
-                       .format(state, ', '.join(few), 'false' if state == 'true' else 'true',
-                               ', '.join(many)))
         return out
+
+    def _ask(self, wanted: dict[str, list[str]], timeout: float) -> dict[str, dict[str, Any]]:
+        """Return node -> {parameter: value} for the wanted parameters each node declares.
+
+        Listed first: rclpy answers get_parameters with nothing at all when one name is not
+        declared (rclcpp with NOT_SET for that one).
+        """
+        from rcl_interfaces.msg import ParameterType
+        from rcl_interfaces.srv import GetParameters, ListParameters
+        listed = self._call(ListParameters, '/list_parameters',
+                            {f: ListParameters.Request() for f in wanted}, timeout)
+        names = {f: [n for n in wanted[f] if n in set(r.result.names)]
+                 for f, r in listed.items()}
+        answers = self._call(GetParameters, '/get_parameters',
+                             {f: GetParameters.Request(names=n) for f, n in names.items() if n},
+                             timeout)
+        fields = {ParameterType.PARAMETER_BOOL: 'bool_value',
+                  ParameterType.PARAMETER_INTEGER: 'integer_value',
+                  ParameterType.PARAMETER_DOUBLE: 'double_value',
+                  ParameterType.PARAMETER_STRING: 'string_value',
+                  ParameterType.PARAMETER_STRING_ARRAY: 'string_array_value'}
+        out: dict[str, dict[str, Any]] = {fqn: {} for fqn in names}
+        for fqn, res in answers.items():
+            for name, v in zip(names[fqn], res.values, strict=False):
+                if v.type in fields:
+                    value = getattr(v, fields[v.type])
+                    out[fqn][name] = list(value) if \
+                        v.type == ParameterType.PARAMETER_STRING_ARRAY else value
+        return out
+
+    def collect_parameters(self, timeout: float = 2.0) -> None:
+        """Read every node's known parameters, then each collision monitor's sources."""
+        me = self.node.get_fully_qualified_name()
+        nodes = [_fqn(ns, name) for name, ns in self.node.get_node_names_and_namespaces()]
+        self.params = self._ask({n: list(fleetcheck.PARAMS) for n in nodes if n != me},
+                                timeout)
+        more = {}
+        for fqn, p in self.params.items():
+            if isinstance(p.get('observation_sources'), list):
+                more[fqn] = [s + k for s in p['observation_sources'] for k in (
+                    '.type', '.topic', '.obstacles_angle', '.source_timeout')] + [
+                    poly + '.min_points' for poly in p.get('polygons') or []]
+        self.sources = self._ask(more, timeout) if more else {}
+
+    def parameter_problems(self, eps: Sequence[Endpoint]) -> list[str]:
+        """Return clock problems, a twist_mux without use_stamped, a sonar source that fails."""
+        out = []
+        for fqn, p in sorted(self.params.items()):
+            if 'twist_mux' in fqn.rsplit('/', 1)[-1] and not isinstance(p.get('use_stamped'),
+                                                                         bool):
+                out.append('{} has no use_stamped parameter: twist_mux >= 4.4.0 aborts '
+                           'without it and older ones mux Twist only; set use_stamped: '
+                           'false (Twist, as Nav2 Jazzy and the bridge by default) or true '
+                           '(TwistStamped) in its parameter file'.format(fqn))
+        return (out + fleetcheck.sim_time_problems(eps, self.params)
+                + fleetcheck.sonar_source_problems(eps, self.params, self.sources))
+
+    def lifecycle_problems(self, timeout: float = 2.0) -> list[str]:
+        """Return lifecycle nodes (those serving get_state) that are not active."""
+        from lifecycle_msgs.srv import GetState
+        nodes = []
+        for name, ns in self.node.get_node_names_and_namespaces():
+            fqn = _fqn(ns, name)
+            services = dict(self.node.get_service_names_and_types_by_node(name, ns))
+            if fqn + '/get_state' in services:
+                nodes.append(fqn)
+        got = self._call(GetState, '/get_state', {f: GetState.Request() for f in nodes},
+                         timeout)
+        states = {f: got[f].current_state.label if f in got else 'not answering'
+                  for f in nodes}
+        return fleetcheck.lifecycle_problems(states)
 
     def problems(self, duration: float) -> list[str]:
         """Return every problem of the live graph (one line each, with its fix)."""
@@ -253,11 +269,16 @@ class Doctor:
             out.append('no m4k_bridge node in this graph (ROS_DOMAIN_ID, '
                        'ROS_AUTOMATIC_DISCOVERY_RANGE, the network): start the base or run '
                        'doctor where it can see it')
+        self.collect_parameters()
         self.listen(eps, duration)
-        out += self.tf_problems(eps)
-        out += self.rate_problems(eps)
-        out += self.parameter_problems()
+        for judge in self.checks():
+            out += judge(eps)
         return out
+
+    def checks(self) -> list[Callable[[Sequence[Endpoint]], list[str]]]:
+        """Return the checks run after listening, each endpoints -> lines."""
+        return [self.tf_problems, self.rate_problems, self.parameter_problems,
+                lambda _eps: self.lifecycle_problems()]
 
 
 def discover(node: Node, limit: float, settle: float = 2.0) -> None:

@@ -14,9 +14,11 @@ transient-local subscription; every other pairing matches.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Iterable, Sequence
 
-__all__ = ['Endpoint', 'check', 'qos_mismatch', 'base_name']
+__all__ = ['Endpoint', 'check', 'qos_mismatch', 'base_name', 'range_points',
+           'range_source_problems']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,7 +61,9 @@ def check(endpoints: Iterable[Endpoint], unfed: str = 'all') -> list[str]:
     * a publisher and a subscription of one name with different types;
     * a publisher that cannot serve a subscription of its name (QoS);
     * an m4k subscription (cmd_vel, e_stop, led) fed by a publisher of another type;
-    * a publisher nobody reads whose name matches an m4k subscription up to the namespace.
+    * a publisher nobody reads whose name matches an m4k subscription up to the namespace;
+    * more than one writer on an m4k input (cmd_vel, e_stop);
+    * two types on one topic, even with nobody subscribing to one of them.
 
     ``unfed``: 'all' reports every subscription without a publisher (a described graph, where
     each input must be fed unless marked external); 'm4k' only those whose name matches an m4k
@@ -124,6 +128,22 @@ def check(endpoints: Iterable[Endpoint], unfed: str = 'all') -> list[str]:
                         'reliable' if 'best effort' in why else 'transient local'))
     subs = {e.topic for e in eps if e.kind == 'sub'}
     m4k_subs = {e.topic: e for e in eps if e.m4k and e.kind == 'sub'}
+    for topic in sorted(m4k_subs):
+        writers = sorted({p.node for p in pubs.get(topic, [])})
+        if len(writers) > 1:
+            add('{} has {} writers ({}), an m4k input takes one: the last message wins, so one '
+                'writer undoes another (a stop, a lock); put twist_mux in front for cmd_vel, '
+                "or remap the extra writer into Nav2's chain (docking_server: "
+                '-r cmd_vel:=cmd_vel_nav, as m4k_nav2.launch.py does)'.format(
+                    topic, len(writers), ', '.join(writers)))
+    types: dict[str, set[str]] = {}
+    for e in eps:
+        types.setdefault(e.topic, set()).add(e.type)
+    for topic, ts in sorted(types.items()):
+        if len(ts) > 1 and not any(topic in line for line in out):
+            add('{} carries {} types ({}): a subscriber of one never hears the other; one '
+                'type per topic (rename or convert one side)'.format(
+                    topic, len(ts), ', '.join(sorted(_short(t) for t in ts))))
     for pub in (e for e in eps if e.kind == 'pub' and not e.m4k and e.topic not in subs):
         meant = sorted(t for t in m4k_subs if base_name(t) == base_name(pub.topic))
         if meant:
@@ -137,3 +157,49 @@ def subscriptions_meaning(endpoints: Sequence[Endpoint], m4k_topic: str) -> list
     """Return the subscriptions that name m4k_topic up to the namespace but not exactly."""
     return [e for e in endpoints if e.kind == 'sub' and e.topic != m4k_topic
             and base_name(e.topic) == base_name(m4k_topic)]
+
+
+def range_points(field_of_view: float, obstacles_angle: float) -> int:
+    """Return how many points Nav2's collision monitor makes of one Range reading.
+
+    Jazzy's ``nav2_collision_monitor/src/range.cpp``: one point per ``obstacles_angle`` step
+    from -fov/2 while below +fov/2, then one more at +fov/2.
+    """
+    if obstacles_angle <= 0.0 or not math.isfinite(obstacles_angle):
+        raise ValueError('obstacles_angle must be a positive number, got {!r}'.format(
+            obstacles_angle))
+    n, angle = 0, -field_of_view / 2.0
+    while angle < field_of_view / 2.0:
+        n += 1
+        angle += obstacles_angle
+    return n + 1
+
+
+def range_source_problems(node: str, source: str, *, no_echo: str, field_of_view: float,
+                          obstacles_angle: float, min_points: int,
+                          source_timeout: float) -> list[str]:
+    """Return why a collision-monitor Range source on the m4k sonar cannot work.
+
+    * "no echo" published as +inf (the bridge's ``sonar_no_echo: positive_infinity``) is
+      ``range > max_range`` for Jazzy's Range source, which then reports the source invalid;
+      with a ``source_timeout`` other than 0 the monitor turns an invalid source into a STOP,
+      so Nav2's output is zeroed whenever the sonar sees nothing;
+    * fewer points per reading than the polygon's ``min_points``: the sonar can only stop the
+      robot through invalidity, never trigger the polygon by what it sees.
+    """
+    out = []
+    if no_echo != 'max_range' and source_timeout != 0.0:
+        out.append('{} takes the sonar as Range source {} but the bridge publishes "no echo" '
+                   "as +inf, which Jazzy's Range source reads as invalid, and with "
+                   'source_timeout {:g} an invalid source is a STOP: Nav2 stops whenever the '
+                   "sonar sees nothing; remove {} from the monitor's observation_sources (the "
+                   "RT guard and the costmap's range layer use the sonar), or set the bridge's "
+                   'sonar_no_echo: max_range'.format(node, source, source_timeout, source))
+    pts = range_points(field_of_view, obstacles_angle)
+    if pts < min_points:
+        out.append('{}: Range source {} makes {} points per reading (field of view {:g} rad, '
+                   'obstacles_angle {:g}), below the polygon min_points {}: the sonar can never '
+                   'trigger the monitor; set {}.obstacles_angle <= {:.4f} or remove the source'
+                   .format(node, source, pts, field_of_view, obstacles_angle, min_points,
+                           source, field_of_view / max(min_points - 1, 1)))
+    return out

@@ -14,7 +14,7 @@ labels, robot description -- and the overlay's ``m4k_bridge:`` section, then eac
 ``bridge_params`` file in order, comma-separated: e.g. the Nav2 and the EKF recipes together).
 
 ``robot:=r1`` (one robot of several; ``m4k_bringup.robots``): namespace ``/r1``, the bridge's
-``tf_namespaced: true`` and ``frame_prefix: r1/``; robot_state_publisher follows the bridge's
+``tf_namespaced: true``, frames unprefixed; robot_state_publisher follows the bridge's
 tf mode and prefix however they were set (``robot``, ``config``, ``bridge_params``), with the
 ``/tf:=tf`` remaps a namespaced tf needs.
 
@@ -178,7 +178,7 @@ def generate_launch_description():
                               'comma-separated, after the configuration (later files win)'),
         DeclareLaunchArgument('robot', default_value='',
                               description='one robot of several: namespace /ROBOT, tf on '
-                              '/ROBOT/tf, frames prefixed ROBOT/ (recipes --robot ROBOT)'),
+                              '/ROBOT/tf, frames unprefixed (recipes --robot ROBOT)'),
         DeclareLaunchArgument('namespace', default_value='',
                               description='ROS namespace of the bridge topics'),
         DeclareLaunchArgument('sim', default_value='auto',

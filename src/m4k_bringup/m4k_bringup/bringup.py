@@ -464,7 +464,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                     'bridge (as ros2 launch ... namespace:=NS); /tf, /tf_static and '
                     '/diagnostics stay absolute')
     ap.add_argument('--robot', default='', metavar='NAME', help='one robot of several: '
-                    'namespace /NAME, tf on /NAME/tf (tf_namespaced), frames prefixed NAME/ '
+                    'namespace /NAME, tf on /NAME/tf (tf_namespaced), frames unprefixed '
                     '(generate matching recipes with `recipes --robot NAME`)')
     ap.add_argument('--bridge-params', action='append', default=[], metavar='FILE',
                     help='another ROS parameter file for the bridge, after the configuration '

@@ -11,8 +11,10 @@ Names are written the way the consumer resolves them correctly (docs/nav2.md, "N
 every topic a Nav2 node reads from a parameter is absolute, because Jazzy's costmap layers
 pass the parameter straight to the subscription of a node living in ``/local_costmap`` or
 ``/global_costmap`` (navigation2 #5745: ``scan`` there is ``/local_costmap/scan``). With a
-robot name (``--robot r1``) the topics get the robot's namespace (``/r1/scan``) and the frames
-its prefix (``r1/odom``), as ``bringup --robot r1`` and ``robot:=r1`` run the base.
+robot name (``--robot r1``) the topics get the robot's namespace (``/r1/scan``), every section
+but the bridge's is nested under ``r1`` (rcl matches ``/r1/<node>``), frames stay unprefixed
+(each robot's tree is on its own ``/r1/tf``), and the headers give the exact commands
+(``m4k_bringup.fleet``: ``m4k_nav2.launch.py robot:=r1 recipes:=DIR``).
 
 The Nav2 file is complete: ``navigation_launch.py`` takes ONE ``params_file``, so it carries a
 section for every node that launch file (and ``localization_launch.py``'s AMCL) starts, with the
@@ -33,8 +35,11 @@ from typing import Any, Mapping, Sequence
 import yaml
 
 from m4k_bridge import params as bridge_params
+from m4k_bringup import fleet
 from m4k_drivers.lrf.sim import URG04LX_PP
 from m4k_rt import config as rt_config
+from m4k_rt.control import guard
+from m4k_rt.control.guard import front_offset
 from m4k_rt.control.params import control_params
 from m4k_rt.tasks.actuator import guard_plan
 
@@ -50,19 +55,25 @@ FILES = ('nav2/nav2_params.yaml', 'nav2/nav2_params_twist_mux.yaml', 'twist_mux/
 # monitor publishes here and twist_mux reads it (never cmd_vel_nav, the controller's raw output
 # before the smoother and the collision monitor).
 NAV2_MUX_INPUT = 'cmd_vel_nav2'
+# the installed config/ as the shipped headers name it
+SHIPPED_DIR = '$(ros2 pkg prefix m4k_bringup)/share/m4k_bringup/config'
 
 
 class Names:
-    """Topic names and frame ids of one robot (``robot`` '' = the single, unprefixed robot)."""
+    """Topic names and frame ids of one robot (``robot`` '' = the single robot in the root).
+
+    Nav2's multi-robot layout: topics in the robot's namespace (``/r1/scan``), each robot's
+    tree on its own ``/r1/tf`` and ``/r1/tf_static``, frames unprefixed (``odom``), so stock
+    namespaced RViz, map_server and route_server find the frames they default to.
+    """
 
     def __init__(self, robot: str = '') -> None:
-        """Derive the namespace '/r1' and the frame prefix 'r1/' from the robot name."""
+        """Derive the namespace '/r1' from the robot name."""
         if robot and not robot.replace('_', 'a').isalnum() or robot[:1].isdigit():
             raise ValueError('robot name must be a ROS name token ([a-zA-Z_][a-zA-Z0-9_]*), '
                              'got {!r}'.format(robot))
         self.robot = robot
         self.ns = '/' + robot if robot else ''
-        self.prefix = robot + '/' if robot else ''
 
     def topic(self, relative: str) -> str:
         """Return the absolute name of one of the robot's relative topics."""
@@ -73,35 +84,67 @@ class Names:
         name = str(bridge_params.spec('topics.' + key).default)
         return name if name.startswith('/') else self.topic(name)
 
-    def frame(self, key: str) -> str:
-        """Return the bridge's frame ``<key>`` (e.g. 'odom_frame') with the robot's prefix."""
-        return self.prefix + str(bridge_params.spec(key).default)
+    @staticmethod
+    def frame(key: str) -> str:
+        """Return the bridge's frame ``<key>`` (e.g. 'odom_frame'): the same in every tree."""
+        return str(bridge_params.spec(key).default)
+
+
+# Nav2's loop rates: each adds its period to the time between a scan and a brake command.
+LOCAL_COSTMAP_HZ = 5.0        # local costmap update_frequency
+CONTROLLER_HZ = 10.0          # controller_frequency (>= 2 Hz: the RT cmd_vel timeout)
+SMOOTHER_HZ = 20.0            # velocity smoother
+# The laser's marking range: the URG-04LX's 5.6 m less its last 0.6 m, where the part's
+# accuracy degrades (datasheet: +-3 % beyond 1 m) and low-reflectance returns drop out.
+LASER_MARKING_MAX = 5.0
+STOCK_MARKING_M = 2.5         # Nav2's stock obstacle_max_range: never mark less
+MIN_HORIZON_S = 2.8           # Nav2's stock MPPI horizon (56 x 0.05 s): never plan shorter
 
 
 def _limits(layered: Mapping[str, Any]) -> dict[str, float]:
-    """Return the velocity and acceleration limits Nav2 plans with.
+    """Return the velocity and acceleration limits Nav2 plans with, and what they rest on.
 
-    The speeds are the RT collision guard's caps, as rt_core states them at start-up: forward
-    its top speed (control.linear.max_velocity, or less when the sensors cannot see far enough
-    to stop from it), backwards its reverse creep (no rear sensor); with the guard off,
-    control.linear.max_velocity both ways. A planner faster than these would only be clamped
-    by the base. Accelerations and the turn rate are control.yaml's.
+    Forward: the RT collision guard's top speed (control.linear.max_velocity, or less when
+    the laser cannot see far enough for the guard to stop from it), and no more than Nav2
+    itself can stop from, braking at control.yaml's (comfortable) deceleration, inside its
+    marking range: d_nav(v) = v t_nav + v^2 / (2 a_decel) + margin, with t_nav the guard's
+    t_react (sensor and actuation) plus one period of the local costmap, the controller and
+    the smoother. Backwards the guard's reverse creep (no rear sensor); with the guard off,
+    control.linear.max_velocity both ways. Accelerations and the turn rate are control.yaml's.
+    From the speed follow the marking range (what stopping from it needs), the MPPI horizon
+    (the time to stop, so the controller sees the end of its own stop) and the collision
+    monitor's time before collision (its approach keeps that much time to any obstacle:
+    t_mon + v / (2 a) covers the stop at a_decel with the monitor's latency t_mon).
     """
     control = layered['control']
     lin, ang = control['linear'], control['angular']
     cfg = rt_config.parse(layered)
     shared = types.SimpleNamespace(config=cfg)
-    plan = guard_plan(control_params(control), cfg.task('actuator').period_ns * 1e-9, shared,
-                      layered.get('robot'))
+    robot = layered.get('robot')
+    params = control_params(control)
+    plan = guard_plan(params, cfg.task('actuator').period_ns * 1e-9, shared, robot)
     top = float(lin['max_velocity'])
+    dx = float(lin['max_deceleration'] or lin['max_acceleration'])
+    margin = params.guard.stop_distance
+    t_nav = plan.reaction_time + 1.0 / LOCAL_COSTMAP_HZ + 1.0 / CONTROLLER_HZ + 1.0 / SMOOTHER_HZ
+    ahead = front_offset(robot, 'laser')
+    nav_top = guard.speed_for_distance(LASER_MARKING_MAX - ahead, t_nav, dx, margin)
+    vx = math.floor(100.0 * min(top, plan.top_speed, nav_top)) / 100.0   # down: never faster
+    marking = min(LASER_MARKING_MAX, max(STOCK_MARKING_M, math.ceil(
+        10.0 * (guard.stop_distance(vx, t_nav, dx, margin) + ahead)) / 10.0))
+    t_mon = plan.reaction_time + 1.0 / SMOOTHER_HZ
     return {
-        'vx': min(top, plan.top_speed),
+        'vx': vx,
         'vx_rev': min(top, plan.reverse_creep),
         'wz': float(ang['max_velocity']),
         'ax': float(lin['max_acceleration']),
-        'dx': float(lin['max_deceleration'] or lin['max_acceleration']),
+        'dx': dx,
         'az': float(ang['max_acceleration']),
         'dz': float(ang['max_deceleration'] or ang['max_acceleration']),
+        't_nav': t_nav, 'nav_top': nav_top, 'guard_top': plan.top_speed,
+        'marking': marking,
+        'horizon': max(MIN_HORIZON_S, t_nav + vx / dx),
+        'time_before_collision': math.ceil(10.0 * (t_mon + vx / (2.0 * dx))) / 10.0,
     }
 
 
@@ -113,6 +156,7 @@ def _footprint(layered: Mapping[str, Any]) -> str:
 
 
 INFLATION_RADIUS_M = 0.45
+MAP_FRAME = 'map'        # slam_toolbox's and AMCL's global frame, unprefixed
 
 
 def local_window_m(lim: Mapping[str, float], length_m: float, laser_max_m: float) -> int:
@@ -128,7 +172,7 @@ def local_window_m(lim: Mapping[str, float], length_m: float, laser_max_m: float
     return int(min(max(3, 2 * math.ceil(reach)), 2 * math.ceil(laser_max_m)))
 
 
-def _scan_source(n: Names, max_range: float) -> dict[str, Any]:
+def _scan_source(n: Names, max_range: float, marking: float) -> dict[str, Any]:
     return {
         'topic': n.bridge_topic('scan'),
         'data_type': 'LaserScan',
@@ -136,7 +180,7 @@ def _scan_source(n: Names, max_range: float) -> dict[str, Any]:
         'clearing': True,
         'inf_is_valid': True,               # URG "nothing within range" is +inf (REP-117)
         'raytrace_max_range': max_range,
-        'obstacle_max_range': round(max_range - 0.6, 3),
+        'obstacle_max_range': marking,      # _limits: what stopping from the top speed needs
         # Jazzy's per-source default is 0.0 and the buffer drops every point above it
         'max_obstacle_height': 2.0,
     }
@@ -149,20 +193,21 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
     laser_max = LASER_MAX_RANGE
     odom, base, footprint = n.frame('odom_frame'), n.frame('base_frame'), \
         n.frame('footprint_frame')
-    map_frame = n.prefix + 'map'
+    map_frame = MAP_FRAME
 
     def ros(p: dict[str, Any]) -> dict[str, Any]:
         return {'ros__parameters': p}
 
+    scan = _scan_source(n, laser_max, lim['marking'])
     window = local_window_m(lim, float(layered['robot']['body']['length']), laser_max)
     local = {
-        'update_frequency': 5.0, 'publish_frequency': 2.0,
+        'update_frequency': LOCAL_COSTMAP_HZ, 'publish_frequency': 2.0,
         'global_frame': odom, 'robot_base_frame': base,
         'rolling_window': True, 'width': window, 'height': window, 'resolution': 0.05,
         'footprint': foot,
         'plugins': ['obstacle_layer', 'range_layer', 'inflation_layer'],
         'obstacle_layer': {'plugin': 'nav2_costmap_2d::ObstacleLayer', 'enabled': True,
-                           'observation_sources': 'scan', 'scan': _scan_source(n, laser_max)},
+                           'observation_sources': 'scan', 'scan': dict(scan)},
         'range_layer': {'plugin': 'nav2_costmap_2d::RangeSensorLayer', 'enabled': True,
                         'topics': [n.bridge_topic('sonar')],
                         'clear_on_max_reading': True},   # with sonar_no_echo: max_range
@@ -178,14 +223,16 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
         'static_layer': {'plugin': 'nav2_costmap_2d::StaticLayer',
                          'map_subscribe_transient_local': True},
         'obstacle_layer': {'plugin': 'nav2_costmap_2d::ObstacleLayer', 'enabled': True,
-                           'observation_sources': 'scan', 'scan': _scan_source(n, laser_max)},
+                           'observation_sources': 'scan', 'scan': dict(scan)},
         'inflation_layer': {'plugin': 'nav2_costmap_2d::InflationLayer',
                             'inflation_radius': 0.45, 'cost_scaling_factor': 3.0},
     }
     mppi = {
         'plugin': 'nav2_mppi_controller::MPPIController',
         'motion_model': 'DiffDrive',
-        'time_steps': 56, 'model_dt': 0.05, 'batch_size': 2000,
+        # the horizon covers the stop from vx_max (_limits); model_dt = the control period
+        'time_steps': math.ceil(round(lim['horizon'] * CONTROLLER_HZ, 6)),
+        'model_dt': 1.0 / CONTROLLER_HZ, 'batch_size': 2000,
         'vx_max': lim['vx'], 'vx_min': -lim['vx_rev'], 'vy_max': 0.0, 'wz_max': lim['wz'],
         'ax_max': lim['ax'], 'ax_min': -lim['dx'], 'az_max': lim['az'],
         'critics': ['ConstraintCritic', 'CostCritic', 'GoalCritic', 'GoalAngleCritic',
@@ -210,7 +257,7 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
                 'plugin': 'nav2_bt_navigator::NavigateThroughPosesNavigator'}}),
         'controller_server': ros({
             # >= 2 Hz: the RT actuator brakes after control.cmd_vel_timeout without cmd_vel
-            'controller_frequency': 20.0,
+            'controller_frequency': CONTROLLER_HZ,
             'odom_topic': n.bridge_topic('odom'),
             'progress_checker_plugins': ['progress_checker'],
             'goal_checker_plugins': ['general_goal_checker'],
@@ -245,7 +292,7 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
             'waypoint_task_executor_plugin': 'wait_at_waypoint',
             'wait_at_waypoint': {'plugin': 'nav2_waypoint_follower::WaitAtWaypoint'}}),
         'velocity_smoother': ros({
-            'smoothing_frequency': 20.0,
+            'smoothing_frequency': SMOOTHER_HZ,
             'feedback': 'OPEN_LOOP',
             'odom_topic': n.bridge_topic('odom'),
             # [x, y, theta]: within control.yaml, so the RT limiter never clamps what Nav2 plans
@@ -261,16 +308,30 @@ def nav2(layered: Mapping[str, Any], n: Names, *, mux: bool = False) -> dict[str
             'FootprintApproach': {
                 'type': 'polygon', 'action_type': 'approach',
                 'footprint_topic': n.topic('local_costmap/published_footprint'),
-                'time_before_collision': 1.2, 'simulation_time_step': 0.1,
+                'time_before_collision': lim['time_before_collision'],
+                'simulation_time_step': 0.1,
                 'min_points': 6, 'enabled': True},
-            'observation_sources': ['scan', 'sonar'],
-            'scan': {'type': 'scan', 'topic': n.bridge_topic('scan'), 'enabled': True},
-            'sonar': {'type': 'range', 'topic': n.bridge_topic('sonar'), 'enabled': True,
-                      'obstacles_angle': 0.1}}),
+            # The laser only. Jazzy's Range source reads the bridge's default "no echo" (+inf)
+            # as invalid, and an invalid source is a STOP while source_timeout is set; one
+            # reading makes too few points for min_points anyway (graphcheck.range_points).
+            # The sonar stops the robot in the RT guard and marks the costmap's range layer.
+            'observation_sources': ['scan'],
+            'scan': {'type': 'scan', 'topic': n.bridge_topic('scan'), 'enabled': True}}),
+        # navigation_launch.py (Jazzy) starts it: graph_filepath '' loads no graph at
+        # configure; give one with the set_route_graph service (or an overlay's
+        # graph_filepath). Its costmap scorer reads the global costmap, absolute like the rest.
+        'route_server': ros({
+            'route_frame': MAP_FRAME, 'global_frame': MAP_FRAME, 'base_frame': base,
+            'graph_filepath': '',
+            'costmap_topic': n.topic('global_costmap/costmap_raw')}),
         'docking_server': ros({
             'base_frame': base, 'fixed_frame': odom,
             'dock_plugins': ['simple_charging_dock'],
-            'simple_charging_dock': {'plugin': 'opennav_docking::SimpleChargingDock'},
+            # use_battery_status (default true) subscribes battery_state, which the M4K has
+            # no gauge for and nothing publishes: "charging" is then never true. false:
+            # docked means charging (the dock's contacts), as Nav2's stock file ships it.
+            'simple_charging_dock': {'plugin': 'opennav_docking::SimpleChargingDock',
+                                     'use_battery_status': False},
             'controller': {
                 'costmap_topic': n.topic('local_costmap/costmap_raw'),
                 'footprint_topic': n.topic('local_costmap/published_footprint')}}),
@@ -301,7 +362,7 @@ def slam_toolbox(n: Names) -> dict[str, Any]:
     """Return slam_toolbox's online-async parameters for the URG-04LX."""
     return {'slam_toolbox': {'ros__parameters': {
         'mode': 'mapping',
-        'odom_frame': n.frame('odom_frame'), 'map_frame': n.prefix + 'map',
+        'odom_frame': n.frame('odom_frame'), 'map_frame': MAP_FRAME,
         'base_frame': n.frame('footprint_frame'),
         'scan_topic': n.bridge_topic('scan'),
         'max_laser_range': LASER_MAX_RANGE,
@@ -323,7 +384,7 @@ def ekf(n: Names) -> dict[str, Any]:
         'm4k_bridge': {'ros__parameters': {'publish_tf': False}},
         'ekf_filter_node': {'ros__parameters': {
             'frequency': 30.0, 'two_d_mode': True, 'publish_tf': True,
-            'map_frame': n.prefix + 'map', 'odom_frame': n.frame('odom_frame'),
+            'map_frame': MAP_FRAME, 'odom_frame': n.frame('odom_frame'),
             'base_link_frame': n.frame('footprint_frame'), 'world_frame': n.frame('odom_frame'),
             'odom0': n.bridge_topic('odom'),
             # x y z, roll pitch yaw, vx vy vz, vroll vpitch vyaw, ax ay az
@@ -384,27 +445,33 @@ def rviz(n: Names) -> dict[str, Any]:
     }
 
 
-_HEADERS = {
-    'nav2/nav2_params.yaml':
-        'Nav2 (Jazzy), complete: ros2 launch nav2_bringup navigation_launch.py '
-        'params_file:=<this>\n(also bringup_launch.py; and bridge_params:= for its m4k_bridge '
-        "section). The collision\nmonitor drives the bridge's cmd_vel directly.",
-    'nav2/nav2_params_twist_mux.yaml':
-        'Nav2 (Jazzy), complete, with twist_mux in front of the bridge: as nav2_params.yaml, '
-        "but the\ncollision monitor publishes Nav2's final output on {} (twist_mux's "
-        '"navigation" input).'.format(NAV2_MUX_INPUT),
-    'twist_mux/twist_mux.yaml':
-        'twist_mux (Jazzy, >= 4.4.0): ros2 run twist_mux twist_mux --ros-args --params-file '
-        '<this>\n-r cmd_vel_out:=cmd_vel. Run Nav2 with nav2/nav2_params_twist_mux.yaml.',
-    'slam_toolbox/mapper_params_online_async.yaml':
-        'slam_toolbox (Jazzy, online async): slam_params_file:=<this> to online_async_launch.py.',
-    'robot_localization/ekf.yaml':
-        'robot_localization EKF (Jazzy): params for ekf_node, and bridge_params:= for its '
-        'm4k_bridge\nsection (the EKF publishes odom -> base_footprint, the bridge does not).',
-    'rviz/m4k.rviz':
-        'RViz 2 (Jazzy): rviz2 -d <this>. Sensors best effort (m4k publishes them with the '
-        'sensor-data\nQoS), robot_description transient local.',
-}
+def _headers(robot: str, recipes_dir: str) -> dict[str, str]:
+    """Return each recipe's header: what it is for and the exact commands that use it."""
+    nav = fleet.command(robot, recipes_dir)
+    base = fleet.bridge_command(robot, recipes_dir)
+    tf = (' --ros-args -r /tf:=/{0}/tf -r /tf_static:=/{0}/tf_static'.format(robot)
+          if robot else '')
+    return {
+        'nav2/nav2_params.yaml':
+            'Nav2 (Jazzy), complete, with SLAM or AMCL: ' + nav + '\nand the base: ' + base +
+            "\n(its m4k_bridge section). The collision monitor drives the bridge's cmd_vel.",
+        'nav2/nav2_params_twist_mux.yaml':
+            'Nav2 (Jazzy) with twist_mux in front of the bridge: ' + nav + ' twist_mux:=true'
+            "\nThe collision monitor publishes Nav2's final output on {} (twist_mux's "
+            '"navigation" input).'.format(NAV2_MUX_INPUT),
+        'twist_mux/twist_mux.yaml':
+            'twist_mux (Jazzy, >= 4.4.0), remapped cmd_vel_out:=cmd_vel: ' + nav +
+            ' twist_mux:=true',
+        'slam_toolbox/mapper_params_online_async.yaml':
+            'slam_toolbox (Jazzy, online async, lifecycle-managed): ' + nav,
+        'robot_localization/ekf.yaml':
+            'robot_localization EKF (Jazzy): ' + nav + ' ekf:=true\nand the base: ' +
+            fleet.bridge_command(robot, recipes_dir, ekf=True) +
+            '\n(the EKF publishes odom -> base_footprint, the bridge does not).',
+        'rviz/m4k.rviz':
+            'RViz 2 (Jazzy): rviz2 -d ' + os.path.join(recipes_dir, 'rviz/m4k.rviz') + tf +
+            '\nSensors best effort (sensor-data QoS), robot_description transient local.',
+    }
 
 
 class _Dumper(yaml.SafeDumper):
@@ -419,21 +486,37 @@ def _list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
 _Dumper.add_representer(list, _list)
 
 
-def render(rel: str, doc: Mapping[str, Any], robot: str = '') -> str:
-    """Return the text of one recipe: a generated-file header, then the YAML."""
+def render(rel: str, doc: Mapping[str, Any], robot: str = '', header: str = '') -> str:
+    """Return the text of one recipe: a generated-file header, then the YAML.
+
+    For a robot, every section but the bridge's goes under the robot's namespace key: rcl
+    hands a section to the node whose fully qualified name it spells (``/r1/controller_server``),
+    and a bare ``controller_server`` is ``/controller_server``. The bridge's section stays bare:
+    m4k.launch.py's ``bridge_params`` rewrites it for the bridge's namespace.
+    """
     head = ['# GENERATED by `ros2 run m4k_bringup recipes` from config/ (robot.yaml, '
             'control.yaml) and', "# the bridge's defaults: edit those and regenerate, not "
             'this file (docs/nav2.md).']
     if robot:
-        head.append('# Robot {!r}: namespace /{}, frame prefix {}/.'.format(robot, robot, robot))
-    head += ['# ' + line for line in _HEADERS[rel].split('\n')]
+        head.append('# Robot {!r}: namespace /{}, its tree on /{}/tf, frames unprefixed.'
+                    .format(robot, robot, robot))
+    head += ['# ' + line for line in header.split('\n') if line]
+    if robot and not rel.endswith('.rviz'):
+        inner = {k: v for k, v in doc.items() if k != bridge_params.NODE_NAME}
+        doc = {**({bridge_params.NODE_NAME: doc[bridge_params.NODE_NAME]}
+                  if bridge_params.NODE_NAME in doc else {}), robot: inner}
     body = yaml.dump(dict(doc), Dumper=_Dumper, sort_keys=False, default_flow_style=False,
                      width=99)
     return '\n'.join(head) + '\n' + body
 
 
-def generate(layered: Mapping[str, Any] | None = None, robot: str = '') -> dict[str, str]:
-    """Return every recipe (path under config/ -> text) for the configuration and robot."""
+def generate(layered: Mapping[str, Any] | None = None, robot: str = '',
+             recipes_dir: str = '') -> dict[str, str]:
+    """Return every recipe (path under config/ -> text) for the configuration and robot.
+
+    ``recipes_dir``: where the files will live, for the commands in their headers (default:
+    the shipped config/ for the root robot, ``DIR`` for a named one).
+    """
     layered = layered if layered is not None else rt_config.load_layered()
     n = Names(robot)
     docs = {
@@ -444,7 +527,8 @@ def generate(layered: Mapping[str, Any] | None = None, robot: str = '') -> dict[
         'robot_localization/ekf.yaml': ekf(n),
         'rviz/m4k.rviz': rviz(n),
     }
-    return {rel: render(rel, docs[rel], robot) for rel in FILES}
+    heads = _headers(robot, recipes_dir or ('DIR' if robot else SHIPPED_DIR))
+    return {rel: render(rel, docs[rel], robot, heads[rel]) for rel in FILES}
 
 
 def stale(config_dir: str, texts: Mapping[str, str]) -> list[str]:
@@ -477,7 +561,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = ap.parse_args(argv)
     config_dir = a.config_dir or rt_config.find_config_dir()
     try:
-        texts = generate(rt_config.load_layered(config_dir=config_dir), a.robot)
+        texts = generate(rt_config.load_layered(config_dir=config_dir), a.robot,
+                         os.path.abspath(a.out) if a.out and a.robot else '')
     except (ValueError, KeyError) as exc:
         print('recipes: {}'.format(exc), file=sys.stderr)
         return 2

@@ -3,8 +3,9 @@
 ``bringup --robot r1`` and ``ros2 launch m4k_bringup m4k.launch.py robot:=r1`` both take
 :func:`robot_settings`: the namespace ``/r1``, the bridge's ``tf_namespaced: true`` (its
 transforms on ``/r1/tf`` and ``/r1/tf_static``, which Nav2's namespaced launch files read
-through their ``/tf:=tf`` remap) and ``frame_prefix: 'r1/'`` (frames ``r1/odom``,
-``r1/base_footprint``: unique when a laptop merges the trees). robot_state_publisher gets the
+through their ``/tf:=tf`` remap), frames unprefixed: Nav2's multi-robot layout, where each
+robot's tree is its own topic, so stock namespaced RViz, map_server and route_server find the
+frames they default to (docs/nav2.md). robot_state_publisher gets the
 same tf mode and prefix from :func:`robot_state_publisher_setup` -- whichever way they were set
 (``robot:=``, ``config:=``'s bridge section or a ``bridge_params`` file) -- so it never publishes
 the fixed joints into another tree than the bridge's. The recipes for that robot come from
@@ -39,7 +40,7 @@ def robot_settings(robot: str) -> tuple[str, dict[str, Any]]:
     if not _NAME.match(robot or ''):
         raise ValueError('robot name must be a ROS name token ([A-Za-z_][A-Za-z0-9_]*), got '
                          '{!r}'.format(robot))
-    return '/' + robot, {'tf_namespaced': True, 'frame_prefix': robot + '/'}
+    return '/' + robot, {'tf_namespaced': True}
 
 
 def param_files(value: str | Sequence[str]) -> list[str]:
