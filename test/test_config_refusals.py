@@ -113,3 +113,77 @@ def test_the_live_view_refuses_a_parameter_file_with_a_misspelt_key(procs, tmp_p
     _, err = p.communicate(timeout=60)
     assert p.returncode == 2, err
     assert "unknown parameter 'token_fle'" in err, err
+
+
+# --- every configuration file through the one loader (m4k_rt.yamlload) -----------------------
+
+NOT_UTF8 = b'control:\n  cmd_vel_timeout: 0.5\n  # caf\xe9 in Latin-1\n'
+DEEP = 'a: ' + '[' * 200 + ']' * 200 + '\n'
+BRIDGE = 'm4k_bridge:\n  ros__parameters:\n'
+FOX = 'm4k_foxglove:\n  ros__parameters:\n'
+
+
+def _write(path, body):
+    (path.write_bytes if isinstance(body, bytes) else path.write_text)(body)
+    return str(path)
+
+
+def _prefixed(prefix, body):
+    if isinstance(body, bytes):
+        return prefix.encode() + b'    x: 1\n' + body
+    return prefix + '    ' + body
+
+
+# Every path a configuration file takes at start-up: (argv before the file, the section the
+# bad body goes under).
+PATHS = {
+    'bringup --config': (['python', '-m', 'm4k_bringup.bringup', '--no-status', '--config'],
+                         ''),
+    'rt_core --config': (['python', '-m', 'm4k_rt.rt_core', '--config'], ''),
+    'driver_host --overlay': (['python', '-m', 'm4k_drivers.host', '--overlay'], ''),
+    'bridge --params-file': (['python', '-m', 'm4k_bridge.node', '--ros-args',
+                              '--params-file'], BRIDGE),
+    'bringup --namespace --bridge-params': (
+        ['python', '-m', 'm4k_bringup.bringup', '--no-status', '--namespace', 'r1',
+         '--bridge-params'], BRIDGE),
+    'bringup --robot --bridge-params': (
+        ['python', '-m', 'm4k_bringup.bringup', '--no-status', '--robot', 'r1',
+         '--bridge-params'], BRIDGE),
+    'foxglove --params-file': (['python', '-m', 'm4k_bridge.foxglove.node', '--ros-args',
+                                '--params-file'], FOX),
+    'bringup --foxglove-params': (['python', '-m', 'm4k_bringup.bringup', '--no-status',
+                                   '--foxglove', '--foxglove-params'], FOX),
+}
+
+
+@pytest.mark.parametrize('kind', ['not_utf8', 'deep'])
+@pytest.mark.parametrize('path', sorted(PATHS))
+def test_a_file_not_utf8_or_nested_too_deep_exits_2_on_every_path(procs, tmp_path,
+                                                                   m4k_runtime_dir, path,
+                                                                   kind):
+    argv, section = PATHS[path]
+    body = NOT_UTF8 if kind == 'not_utf8' else DEEP
+    if section:
+        body = _prefixed(section, body)
+    bad = _write(tmp_path / 'bad.yaml', body)
+    p = procs.start(argv + [bad], env=stack_env(m4k_runtime_dir))
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 2, err
+    assert 'Traceback' not in err, err
+    why = 'not UTF-8 text: byte 0xe9' if kind == 'not_utf8' else 'nested deeper than 64'
+    assert why in err, err
+
+
+@pytest.mark.parametrize('flag', [['--robot', 'r1'], ['--namespace', 'r1']])
+def test_a_duplicate_key_in_a_namespaced_bridge_parameter_file_exits_2(procs, tmp_path,
+                                                                        m4k_runtime_dir, flag):
+    # The namespacing step rewrites this file for /r1/m4k_bridge; it used to re-read it with
+    # plain PyYAML first, which kept 0.9 without a word.
+    bad = _write(tmp_path / 'params.yaml', BRIDGE + '    max_linear_velocity: 0.2\n'
+                 '    max_linear_velocity: 0.9\n')
+    p = procs.start(['python', '-m', 'm4k_bringup.bringup', '--no-status', *flag,
+                     '--bridge-params', bad], env=stack_env(m4k_runtime_dir))
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 2, err
+    assert "duplicate key 'max_linear_velocity' at line 4 (first given at line 3)" in err, err
+    assert bad in err

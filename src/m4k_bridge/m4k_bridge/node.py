@@ -684,11 +684,18 @@ def main(args: Sequence[str] | None = None) -> int:
     """Run the bridge node; exit code 2 on a bad parameter, naming it."""
     stop = StopSignals().install()  # first: a stop during start-up ends it cleanly, too
     argv = list(sys.argv if args is None else args)
+    try:
+        # Before rclpy.init: rcl parses the files itself and would end a file it cannot
+        # read (not UTF-8, nested too deep) in a traceback, exit 1.
+        _check_param_files(argv)
+    except params.ParamError as exc:
+        sys.stderr.write('{}: {}\n'.format(params.NODE_NAME, exc))
+        stop.restore()
+        return 2
     rclpy.init(args=argv)  # rclpy's handlers chain to ours: both see a stop signal
     node = None
     try:
         try:
-            _check_param_files(argv)
             if not stop.stopping:
                 node = stop_aware_start(BridgeNode, stop)
         except params.ParamError as exc:

@@ -36,7 +36,11 @@ def _node(*params: str) -> FoxgloveNode:
     for p in params:
         args += ['-p', p]
     rclpy.init(args=args)
-    return FoxgloveNode()
+    node = FoxgloveNode()
+    # These tests call the handler directly, as the server would for a drive client.
+    node.server.client_right = lambda client: 'drive'  # type: ignore[method-assign]
+    node.server.client_name = lambda client: 'client {}'.format(client)  # type: ignore
+    return node
 
 
 def _close(node: FoxgloveNode, *others: Any) -> None:

@@ -25,6 +25,8 @@ pytestmark = [pytest.mark.allow_leaks('fds'),  # FastDDS keeps its sockets for t
 def test_the_zero_twist_is_delivered_in_order_and_the_publisher_retired_after_the_ack() -> None:
     rclpy.init(args=['x', '--ros-args', '-p', 'port:=0', '-p', 'graph_period:=0.2'])
     node = FoxgloveNode()
+    node.server.client_right = lambda client: 'drive'   # as the server would for client 7
+    node.server.client_name = lambda client: 'client {}'.format(client)
     reader = rclpy.create_node('retire_reader')
     got: list[float] = []
     reader.create_subscription(Twist, 'cmd_vel', lambda m: got.append(m.linear.x),

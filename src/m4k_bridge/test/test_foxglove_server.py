@@ -51,6 +51,9 @@ class Handler:
     def on_service_call(self, client, service_id, call_id, encoding, payload):
         pass
 
+    def on_client_gone(self, client):
+        pass
+
 
 @pytest.fixture
 def server():
@@ -320,7 +323,8 @@ def test_the_websockets_client_sees_the_refusal_as_http_403(server):
 
 def test_with_a_token_only_a_client_that_gives_it_is_served():
     token = 'a' * 12 + 'Z-9_'
-    srv = Server(Handler(), '127.0.0.1', 0, token=token)
+    from m4k_bridge.foxglove.access import Credentials
+    srv = Server(Handler(), '127.0.0.1', 0, credentials=Credentials('drive', admit=token))
     srv.start()
     try:
         assert _handshake(srv.port, None, '/')[0].startswith('HTTP/1.1 401')

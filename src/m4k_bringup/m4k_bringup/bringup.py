@@ -539,6 +539,14 @@ def _main(args: argparse.Namespace, stop: StopSignals) -> int:
     except ValueError as exc:
         _err('usage: {}'.format(exc))
         return CONFIG_ERROR
+    try:
+        # Through the one loader now, before any child: under --namespace these files are
+        # rewritten later, and a duplicate key must not be resolved silently on the way.
+        for path in args.bridge_params:
+            robots.load_param_file(path)
+    except ValueError as exc:
+        _err('config error: m4k_bridge: {}'.format(exc))
+        return CONFIG_ERROR
     if args.foxglove_params:        # before any child: the live view would only exit 2
         from m4k_bridge.foxglove import params as foxglove_params
         from m4k_rt import yamlload

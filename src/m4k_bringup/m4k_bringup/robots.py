@@ -21,9 +21,10 @@ from typing import Any, Mapping, Sequence
 import yaml
 
 from m4k_bridge import params as bridge_params
+from m4k_rt import yamlload
 
-__all__ = ['TF_REMAPS', 'effective_bridge_values', 'for_namespace', 'namespaced_files',
-           'param_files', 'robot_settings', 'robot_state_publisher_setup']
+__all__ = ['TF_REMAPS', 'effective_bridge_values', 'for_namespace', 'load_param_file',
+           'namespaced_files', 'param_files', 'robot_settings', 'robot_state_publisher_setup']
 
 _NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 # Namespaced tf: /tf and /tf_static become the namespace's tf and tf_static (as Nav2's
@@ -61,12 +62,30 @@ def param_files(value: str | Sequence[str]) -> list[str]:
     return out
 
 
+def load_param_file(path: str) -> Any:
+    """Return the document of a bridge parameter file through the one loader.
+
+    ValueError naming the file for what :mod:`m4k_rt.yamlload` refuses (a duplicate key --
+    which plain PyYAML would have resolved to the last value before the bridge's own check
+    ever saw the file --, bytes that are not UTF-8, too deep nesting, bad YAML) and for a
+    file that cannot be read.
+    """
+    try:
+        with open(path, encoding='utf-8') as f:
+            return yamlload.load(f)
+    except OSError as exc:
+        raise ValueError('bridge parameter file {!r}: cannot read: {}'.format(
+            path, exc.strerror)) from None
+    except yaml.YAMLError as exc:
+        raise ValueError('bridge parameter file {!r}: {}'.format(
+            path, str(exc).replace('\n', ' '))) from None
+
+
 def effective_bridge_values(values: Mapping[str, Any], files: Sequence[str]) -> dict[str, Any]:
     """Return ``values`` as the bridge ends up with them after ``files`` (later files win)."""
     out = dict(values)
     for path in files:
-        with open(path, encoding='utf-8') as f:
-            out.update(bridge_params.flatten_section(yaml.safe_load(f)))
+        out.update(bridge_params.flatten_section(load_param_file(path)))
     return out
 
 
@@ -90,8 +109,10 @@ def namespaced_files(files: Sequence[str], namespace: str, tmpdir: str) -> list[
         return list(files)
     out = []
     for i, path in enumerate(files):
-        with open(path, encoding='utf-8') as f:
-            doc = yaml.safe_load(f) or {}
+        doc = load_param_file(path) or {}
+        if not isinstance(doc, Mapping):
+            raise ValueError('bridge parameter file {!r}: top level must be a mapping'.format(
+                path))
         if bridge_params.NODE_NAME not in doc:
             out.append(path)
             continue

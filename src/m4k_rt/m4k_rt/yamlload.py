@@ -5,6 +5,13 @@ followed further down by ``stop_distance: 0.1`` as 0.1 without a word: a value e
 place and silently overridden in another. Every configuration file m4k reads goes through
 :func:`load`, which raises :class:`DuplicateKeyError` naming the key and both lines. Merge
 keys (``<<: *base``) still override as YAML means them to.
+
+Two more ways a file used to escape as a traceback (exit 1) rather than a configuration error:
+bytes that are not UTF-8 (a text stream's decoder raises UnicodeDecodeError inside PyYAML's
+reader) and nesting deep enough for PyYAML's recursive composer to hit Python's recursion
+limit. Both are :class:`yaml.YAMLError` subclasses here (:class:`EncodingError`,
+:class:`NestingError`), so every caller that maps a YAML error to exit 2 maps these too.
+Nesting is bounded at :data:`MAX_DEPTH` levels, far beyond any configuration m4k reads.
 """
 
 from __future__ import annotations
@@ -15,9 +22,19 @@ import yaml
 from yaml.constructor import ConstructorError
 from yaml.nodes import MappingNode, Node
 
-__all__ = ['DuplicateKeyError', 'UniqueKeyLoader', 'load']
+__all__ = ['DuplicateKeyError', 'EncodingError', 'MAX_DEPTH', 'NestingError',
+           'UniqueKeyLoader', 'load']
 
 _MERGE = 'tag:yaml.org,2002:merge'
+MAX_DEPTH = 64
+
+
+class EncodingError(yaml.YAMLError):
+    """The file is not UTF-8 text (the position and byte are named)."""
+
+
+class NestingError(yaml.YAMLError):
+    """Mappings and sequences nested deeper than :data:`MAX_DEPTH` (or than Python allows)."""
 
 
 class DuplicateKeyError(ConstructorError):
@@ -38,6 +55,20 @@ class DuplicateKeyError(ConstructorError):
 class UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's SafeLoader that raises :class:`DuplicateKeyError` for a repeated key."""
 
+    _depth = 0
+
+    def compose_node(self, parent: Node | None, index: Any) -> Node | None:
+        """Compose as SafeLoader does, refusing nesting past :data:`MAX_DEPTH` levels."""
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                mark = self.peek_event().start_mark
+                raise NestingError('nested deeper than {} levels at line {}, column {}'.format(
+                    MAX_DEPTH, mark.line + 1, mark.column + 1))
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
     def construct_mapping(self, node: MappingNode, deep: bool = False) -> dict[Any, Any]:
         """Check the mapping's own keys for duplicates, then construct it as SafeLoader does."""
         if isinstance(node, MappingNode):
@@ -57,5 +88,16 @@ class UniqueKeyLoader(yaml.SafeLoader):
 
 
 def load(stream: str | bytes | IO[str] | IO[bytes]) -> Any:
-    """Return the document in ``stream`` (safe types only); DuplicateKeyError on a repeated key."""
-    return yaml.load(stream, Loader=UniqueKeyLoader)  # noqa: S506 -- a SafeLoader subclass
+    """Return the document in ``stream`` (safe types only).
+
+    DuplicateKeyError on a repeated key, EncodingError on bytes that are not UTF-8,
+    NestingError past MAX_DEPTH: all yaml.YAMLError, like PyYAML's own syntax errors.
+    """
+    try:
+        return yaml.load(stream, Loader=UniqueKeyLoader)  # noqa: S506 -- a SafeLoader subclass
+    except UnicodeDecodeError as exc:
+        raise EncodingError('not UTF-8 text: byte 0x{:02x} ({})'.format(
+            exc.object[exc.start], exc.reason)) from None
+    except RecursionError:
+        raise NestingError('nested too deeply for the parser (more than {} levels)'.format(
+            MAX_DEPTH)) from None

@@ -39,3 +39,27 @@ def test_the_layered_configuration_refuses_an_overlay_with_a_duplicate(tmp_path)
         config.load_layered(str(over))
     assert "duplicate key 'cmd_vel_timeout' at line 3 (first given at line 2)" in str(exc.value)
     assert str(over) in str(exc.value)
+
+
+def test_bytes_that_are_not_utf8_are_a_yaml_error_naming_the_byte(tmp_path):
+    import yaml
+    f = tmp_path / 'x.yaml'
+    f.write_bytes(b'a: 1\nb: caf\xe9\n')
+    with open(f, encoding='utf-8') as fh, pytest.raises(yamlload.EncodingError,
+                                                        match='byte 0xe9'):
+        yamlload.load(fh)
+    assert issubclass(yamlload.EncodingError, yaml.YAMLError)
+    with pytest.raises(yaml.YAMLError):                 # the bytes form: PyYAML's own error
+        yamlload.load(f.read_bytes())
+
+
+@pytest.mark.parametrize('depth', [65, 200, 5000])
+def test_nesting_past_the_bound_is_a_yaml_error_and_within_it_loads(depth):
+    with pytest.raises(yamlload.NestingError, match='nested deeper than 64'):
+        yamlload.load('[' * depth + ']' * depth)
+    with pytest.raises(yamlload.NestingError):
+        yamlload.load('{a: ' * depth + '1' + '}' * depth)
+    doc = yamlload.load('[' * 63 + ']' * 63)
+    for _ in range(62):
+        doc = doc[0]
+    assert doc == []

@@ -14,9 +14,16 @@ file: Chromium, hence the Electron desktop apps of Foxglove and Lichtblick, send
 ``null`` (opaque origins: Firefox's file pages, but also sandboxed frames of any web site --
 never a default). Scheme and host compare case-insensitively.
 
-The token is for a LAN where the port is reachable by more than the operators: the client
-puts it in the URL's query, ``ws://robot:8765/?token=SECRET``, which every client can do
-(a browser's WebSocket cannot add headers). It is compared in constant time and never logged.
+The tokens are for a LAN where the port is reachable by more than the operators, and they
+are how a client gets more than the base right (:mod:`.rights`): the admission token
+(``token_file``) gives the base right, ``drive_token_file`` drive, ``safety_token_file``
+safety. A client presents one token, in whichever place it can set
+(:func:`presented_tokens`): the URL's query ``ws://robot:8765/?token=SECRET`` (every client
+can; it is the only place the Foxglove and Lichtblick apps can put it), an
+``Authorization: Bearer SECRET`` header (native clients), or an extra offered subprotocol
+``m4k-token.SECRET`` (a browser page can set subprotocols but no header; the server never
+selects it, it answers ``foxglove.websocket.v1``). Tokens are compared in constant time and
+never logged.
 """
 
 from __future__ import annotations
@@ -24,12 +31,15 @@ from __future__ import annotations
 import hmac
 import os
 import re
+import ssl
 import stat
 from typing import Sequence
 from urllib.parse import parse_qs, urlsplit
 
-__all__ = ['AccessError', 'DEFAULT_ORIGINS', 'OriginPolicy', 'read_token_file',
-           'token_matches']
+__all__ = ['AccessError', 'Credentials', 'DEFAULT_ORIGINS', 'OriginPolicy',
+           'SUBPROTOCOL_TOKEN', 'presented_tokens', 'read_token_file', 'tls_context']
+
+SUBPROTOCOL_TOKEN = 'm4k-token.'
 
 # Foxglove's web app; the desktop apps (Electron: Chromium pages from file://); pages served
 # from this machine (a self-hosted Lichtblick ``web:serve`` is http://localhost:8080).
@@ -86,10 +96,62 @@ class OriginPolicy:
         return m is not None and m.group('base') in self.any_port
 
 
-def token_matches(path: str, token: str) -> bool:
-    """Return True when the request target's query carries ``token=<token>`` (constant time)."""
-    given = parse_qs(urlsplit(path).query).get('token', [])
-    return len(given) == 1 and hmac.compare_digest(given[0].encode(), token.encode())
+def presented_tokens(path: str, authorization: list[str], subprotocols: list[str]
+                     ) -> list[str]:
+    """Return every token a handshake carries: query ``token``, Bearer header, subprotocol."""
+    found = list(parse_qs(urlsplit(path).query).get('token', []))
+    for value in authorization:
+        scheme, _, cred = value.strip().partition(' ')
+        if scheme.lower() == 'bearer' and cred.strip():
+            found.append(cred.strip())
+    for header in subprotocols:
+        for offered in header.split(','):
+            offered = offered.strip()
+            if offered.startswith(SUBPROTOCOL_TOKEN):
+                found.append(offered[len(SUBPROTOCOL_TOKEN):])
+    return found
+
+
+class Credentials:
+    """Map the token a handshake presents to a right (None: refuse with 401).
+
+    ``base`` is the right of an admitted client without a right token; ``admit`` the
+    admission token (None: no token needed to be admitted), ``drive`` and ``safety`` the
+    tokens that give those rights. Each token presented must match one of them: a wrong one
+    is refused rather than served with less (the operator learns the token is wrong).
+    """
+
+    def __init__(self, base: str, admit: str | None = None, drive: str | None = None,
+                 safety: str | None = None) -> None:
+        """Refuse two rights sharing one token (AccessError)."""
+        given = [t for t in (admit, drive, safety) if t is not None]
+        if len(set(given)) != len(given):
+            raise AccessError('token_file, drive_token_file and safety_token_file must hold '
+                              'different tokens')
+        self.base, self.admit = base, admit
+        self.by_right = [(r, t) for r, t in (('safety', safety), ('drive', drive)) if t]
+
+    @property
+    def needs_token(self) -> bool:
+        """Return True when no client is admitted without a token."""
+        return self.admit is not None
+
+    def right(self, tokens: list[str]) -> str | None:
+        """Return the right ``tokens`` (what :func:`presented_tokens` found) give, or None."""
+        if len(tokens) > 1:
+            return None                  # more than one token: ambiguous, refused
+        if not tokens:
+            return None if self.admit is not None else self.base
+        given = tokens[0].encode()
+        right = None
+        # Every comparison runs whatever matched first (constant time over the candidates).
+        for name, token in self.by_right:
+            if hmac.compare_digest(given, token.encode()) and right is None:
+                right = name
+        if self.admit is not None and hmac.compare_digest(given, self.admit.encode()) \
+                and right is None:
+            right = self.base
+        return right
 
 
 def read_token_file(path: str) -> str:
@@ -119,3 +181,29 @@ def read_token_file(path: str) -> str:
                           'A-Z a-z 0-9 . _ ~ - (it travels in a URL), e.g. '
                           '`openssl rand -hex 24`'.format(path, _MIN_TOKEN))
     return token
+
+
+def tls_context(cert: str, key: str) -> ssl.SSLContext | None:
+    """Return the server's TLS context for ``cert``/``key`` (PEM), None when both are empty.
+
+    The key file must not be readable by others (as a token file); TLS 1.2 at least.
+    """
+    if not cert and not key:
+        return None
+    if not (cert and key):
+        raise AccessError('tls_cert_file and tls_key_file go together (one is empty)')
+    try:
+        st = os.stat(key)
+    except OSError as exc:
+        raise AccessError('tls_key_file {!r}: {}'.format(key, exc.strerror)) from None
+    if st.st_mode & 0o077:
+        raise AccessError('tls_key_file {!r}: mode {:04o} lets other users read it; chmod '
+                          '600 it'.format(key, st.st_mode & 0o777))
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+    try:
+        ctx.load_cert_chain(cert, key)
+    except (OSError, ssl.SSLError) as exc:
+        raise AccessError('tls_cert_file {!r} / tls_key_file {!r}: {}'.format(
+            cert, key, exc)) from None
+    return ctx

@@ -12,12 +12,19 @@ subscribes, so a late joiner gets the TF tree and the URDF.
 
 Capabilities: ``clientPublish`` (CDR) on the topics of ``client_topics`` only (default the
 bridge's inputs ``cmd_vel``, ``e_stop``, ``led``): Foxglove's teleop panel drives the robot;
-when a client's Twist channel goes away (unadvertised, disconnected) one zero Twist follows,
-so the robot does not coast on the last command until the command timeout. ``parameters``
-(read-only): the parameters of the bridge node (``bridge_node``) and this node, named
-``<node>.<parameter>``. ``services``: every service of the graph matching
-``service_whitelist`` (parameter and type-description services are left out), e.g. the
-bridge's ``~/reset_odometry``.
+when the driving client's Twist channel goes away (unadvertised, disconnected) one zero Twist
+follows, so the robot does not coast on the last command until the command timeout.
+``parameters`` (read-only): the parameters of the bridge node (``bridge_node``) and this
+node, named ``<node>.<parameter>``. ``services``: the services matching ``service_whitelist``
+(default the bridge's own; :mod:`.services`).
+
+Rights (:mod:`.rights`): each client has view, drive or safety, from the token it presents
+(``rights``, ``drive_token_file``, ``safety_token_file``). A view client is offered neither
+``clientPublish`` nor ``services``. Motion (cmd_vel, led, goals) is published for one driver
+at a time (``driver_idle_timeout``), each client channel is rate limited
+(``max_publish_rate``), and an ``e_stop`` true is published at once from the server thread on
+the node's own e-stop publisher: never behind the request queue, never limited, never
+dropped. ``e_stop`` false needs safety.
 
 Security: the protocol has no authentication: anyone who reaches the port sees the robot and,
 with ``clientPublish``, drives it. The server therefore listens on 127.0.0.1 by default; reach
@@ -53,16 +60,27 @@ from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
+from std_msgs.msg import Bool
 
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError
 from m4k_bridge.descriptors import descriptor
 from m4k_bridge.diagnostics import make_status
 from m4k_bridge.foxglove import params as fparams
 from m4k_bridge.foxglove import protocol as fp
-from m4k_bridge.foxglove.access import AccessError, OriginPolicy, read_token_file
+from m4k_bridge.foxglove.access import (
+    AccessError,
+    Credentials,
+    OriginPolicy,
+    read_token_file,
+    tls_context,
+)
+from m4k_bridge.foxglove.rights import at_least, DriverLock, TokenBucket
 from m4k_bridge.foxglove.server import Server
+from m4k_bridge.foxglove.services import ServiceSide
+from m4k_bridge.foxglove.writes import ClientWrites
 from m4k_bridge.interfaces import interface_class
+from m4k_bridge.safety import E_STOP_QOS
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_rt import yamlload
 from m4k_rt.stopsignals import StopSignals
@@ -74,7 +92,7 @@ NODE_NAME = fparams.NODE_NAME
 _TYPE_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*')
 _TOPIC_NAME = re.compile(r'~?/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
 _ACTIONS_MAX = 1000          # client requests waiting for the ROS thread
-_SKIP_SERVICE_PACKAGES = ('rcl_interfaces', 'type_description_interfaces')
+_BOOL = 'std_msgs/msg/Bool'
 _TWISTS = ('geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped')
 # A publisher destroyed right after its last message can take that message with it: a reliable
 # writer's unacknowledged samples die with the writer (ros2cli's `topic pub` keeps its node
@@ -109,7 +127,7 @@ def full_type(name: str, kind: str = 'msg') -> str:
     raise ValueError('not a {} type name: {!r}'.format(kind, name))
 
 
-class FoxgloveNode(Node):
+class FoxgloveNode(ClientWrites, ServiceSide, Node):
     """The rclpy side: graph discovery, subscriptions, client publishers, services."""
 
     def __init__(self) -> None:
@@ -124,7 +142,29 @@ class FoxgloveNode(Node):
         self.nav_goals = bool(p['nav_goals'])
         self._nav_topics = {self.resolve_topic_name(t): tname
                             for t, tname in fparams.NAV_TOPICS.items()}
-        token = read_token_file(p['token_file']) if p['token_file'] else None
+        tokens = {k: read_token_file(p[k]) if p[k] else None
+                  for k in ('token_file', 'drive_token_file', 'safety_token_file')}
+        credentials = Credentials(p['rights'], tokens['token_file'],
+                                  tokens['drive_token_file'], tokens['safety_token_file'])
+        token = tokens['token_file']
+        tls = tls_context(p['tls_cert_file'], p['tls_key_file'])
+        self.service_timeout = float(p['service_timeout'])
+        self.max_publish_rate = float(p['max_publish_rate'])
+        self.max_service_rate = float(p['max_service_rate'])
+        self.lock = DriverLock(float(p['driver_idle_timeout']))
+        self._buckets: dict[tuple[int, int], TokenBucket] = {}
+        self._lock_refused: set[tuple[int, int]] = set()
+        self.refused_rights = 0
+        self.throttled = 0
+        self.e_stop_engages = 0
+        self._estop_keys: set[tuple[int, int]] = set()
+        self._estop_topic = self.resolve_topic_name('e_stop')
+        # The engage path of every client: made now, so an engage never waits for one.
+        self._estop_pub = self.create_publisher(Bool, self._estop_topic, E_STOP_QOS)
+        bridge = str(p['bridge_node'])
+        self._bridge_fqn = bridge if bridge.startswith('/') else '{}/{}'.format(
+            self.get_namespace().rstrip('/'), bridge)
+        self._init_services()
         graph_period = float(p['graph_period'])
         diag_period = float(p['diagnostics_period'])
         self._inert: set[tuple[int, int]] = set()    # nav channels while nav_goals is false
@@ -133,8 +173,6 @@ class FoxgloveNode(Node):
         self._skipped: set[str] = set()
         self._pubs: dict[tuple[int, int], tuple[Any, Any, str]] = {}
         self._retiring: list[tuple[float, Any]] = []    # (monotonic deadline, publisher)
-        self._service_ids: dict[str, int] = {}
-        self._svc: dict[int, tuple[Any, Any, str]] = {}     # id -> (client, class, name)
         self._actions: collections.deque[Callable[[], None]] = collections.deque()
         self._actions_lock = threading.Lock()
         self.actions_dropped = 0
@@ -148,7 +186,8 @@ class FoxgloveNode(Node):
                              capabilities=('clientPublish', 'parameters', 'services'),
                              encodings=('cdr',), max_queue_messages=p['max_queue_messages'],
                              max_queue_bytes=p['max_queue_bytes'],
-                             origins=OriginPolicy(p['allowed_origins']), token=token,
+                             origins=OriginPolicy(p['allowed_origins']),
+                             credentials=credentials, tls=tls,
                              max_clients=p['max_clients'],
                              max_client_channels=p['max_client_channels'],
                              # As foxglove_bridge: the apps then take the source as ROS 2
@@ -156,8 +195,8 @@ class FoxgloveNode(Node):
                              metadata={'ROS_DISTRO': os.environ.get('ROS_DISTRO') or 'jazzy'})
         self.server.start()
         local = self.address in ('127.0.0.1', 'localhost', '::1')
-        self.get_logger().info('Foxglove WebSocket server on ws://{}:{} ({}; {})'.format(
-            self.address, self.server.port,
+        self.get_logger().info('Foxglove WebSocket server on {}://{}:{} ({}; {})'.format(
+            'wss' if tls else 'ws', self.address, self.server.port,
             'localhost only; use an SSH tunnel' if local else 'serving the network',
             'token required' if token else (
                 'no token' if local else 'NO TOKEN: anyone on this network can drive the '
@@ -165,7 +204,7 @@ class FoxgloveNode(Node):
         self.poll_graph()
         self.create_timer(graph_period, self.poll_graph)
         self.create_timer(diag_period, self.publish_diagnostics)
-        self.create_timer(0.1, self._retire)
+        self.create_timer(0.1, self._tick)
 
     def destroy_node(self) -> None:
         """Stop the server (closing every connection), then the node.
@@ -217,38 +256,26 @@ class FoxgloveNode(Node):
         sub = self.create_subscription(cls, topic, forward, qos, raw=True)
         self._subs[topic] = (channel, sub, full_type(type_name))
 
-    def _poll_services(self) -> None:
-        new = []
-        for name, types in self.get_service_names_and_types():
-            if name in self._service_ids or not types:
-                continue
-            tname = types[0]
-            if tname.split('/')[0] in _SKIP_SERVICE_PACKAGES or not any(
-                    p.fullmatch(name) for p in self.service_whitelist):
-                continue
-            try:
-                req, resp = fp.service_definitions(tname)
-                cls = interface_class(tname)
-            except (OSError, LookupError, ImportError, AttributeError, ValueError) as exc:
-                self.get_logger().warning('not serving service {}: {}'.format(name, exc))
-                self._service_ids[name] = 0
-                continue
-            sid = len(self._svc) + 1
-            self._service_ids[name] = sid
-            self._svc[sid] = (self.create_client(cls, name), cls, name)
-            new.append(fp.service(sid, name, tname, req, resp))
-        if new:
-            self.server.set_services(new)
-
     # --- what clients send (server thread -> ROS thread) -------------------------------------
-    def _post(self, action: Callable[[], None], critical: bool = False) -> None:
+    def _post(self, action: Callable[[], None], critical: bool = False, front: bool = False,
+              client: int | None = None) -> None:
         # ``critical``: never dropped for the bound (a client's channel going away: its zero
-        # Twist); one per channel, so the queue stays bounded by the channels.
+        # Twist; an e-stop engage call); one per channel or engage, so the queue stays bounded.
+        # ``front``: ahead of everything queued (an e-stop engage call).
         with self._actions_lock:
-            if len(self._actions) >= _ACTIONS_MAX and not critical:
+            full = len(self._actions) >= _ACTIONS_MAX and not critical
+            if full:
                 self.actions_dropped += 1
-                return
-            self._actions.append(action)
+            elif front:
+                self._actions.appendleft(action)
+            else:
+                self._actions.append(action)
+        if full:
+            if client is not None:
+                self.server.send_text(client, fp.status(1, (
+                    'request dropped: {} requests of all clients wait for the ROS side'
+                    .format(_ACTIONS_MAX))))
+            return
         self._wake.trigger()
 
     def _run_actions(self) -> None:
@@ -267,6 +294,9 @@ class FoxgloveNode(Node):
         a topic it may publish on.
         """
         name = channel.get('topic')
+        if not at_least(self.server.client_right(client) or 'view', 'drive'):
+            self.refused_rights += 1
+            return '{}: publishing needs the drive right'.format(name)
         if not isinstance(name, str) or not _TOPIC_NAME.fullmatch(name):
             return '{!r}: not a valid topic name'.format(name)
         topic = self.resolve_topic_name(name)
@@ -287,6 +317,10 @@ class FoxgloveNode(Node):
             if not self.nav_goals:
                 self._inert.add(key)      # the 3D panel advertises it on every layout load
                 return None
+        if topic == self._estop_topic:
+            if tname != _BOOL:
+                return '{}: the e-stop is {}, not {}'.format(topic, _BOOL, tname)
+            self._estop_keys.add(key)
         graph = dict(self.get_topic_names_and_types()).get(topic, [])
         if graph and tname not in graph:
             return '{}: the graph has it as {}, not {}'.format(topic, graph[0], tname)
@@ -308,20 +342,38 @@ class FoxgloveNode(Node):
         self.get_logger().info('client {} publishes {} on {}'.format(key[0], tname, topic))
 
     def on_client_unadvertise(self, client: int, channel_id: int) -> None:
-        """Destroy the client's publisher (after one zero Twist for a velocity channel)."""
-        self._inert.discard((client, channel_id))
-        self._post(lambda: self._drop_publisher((client, channel_id)), critical=True)
+        """Destroy the client's publisher (after one zero Twist if it was driving)."""
+        key = (client, channel_id)
+        self._inert.discard(key)
+        self._estop_keys.discard(key)
+        self._buckets.pop(key, None)
+        self._lock_refused.discard(key)
+        # Only the driver's going away stops the robot: another client's would stop the
+        # robot someone else drives.
+        driver = self.lock.owner == client
+        self._post(lambda: self._drop_publisher(key, driver), critical=True)
 
-    def _drop_publisher(self, key: tuple[int, int]) -> None:
+    def on_client_gone(self, client: int) -> None:
+        """Free the driver lock if the client held it."""
+        self._forget_client_calls(client)
+        if self.lock.release(client):
+            self.server.broadcast_status(0, 'nobody drives now (the driver left)')
+
+    def _drop_publisher(self, key: tuple[int, int], driver: bool = True) -> None:
         entry = self._pubs.pop(key, None)
         if entry is None:
             return
         pub, cls, tname = entry
-        if tname not in _TWISTS:
+        if tname not in _TWISTS or not driver:
             self.destroy_publisher(pub)
             return
         pub.publish(cls())          # zero velocity: the robot stops with its client
         self._retiring.append((time.monotonic() + _RETIRE_S, pub))
+
+    def _tick(self) -> None:
+        """Fail service calls past their timeout; retire dropped clients' publishers."""
+        self._expire_calls(time.monotonic())
+        self._retire()
 
     def _retire(self) -> None:
         """Destroy dropped clients' publishers once their zero Twist is acknowledged."""
@@ -335,16 +387,6 @@ class FoxgloveNode(Node):
             else:
                 self.destroy_publisher(pub)
         self._retiring = keep
-
-    def on_client_message(self, client: int, channel_id: int, payload: bytes) -> None:
-        """Publish a client's CDR message (decoded to check it, then published by rclpy)."""
-        if (client, channel_id) in self._inert:
-            self.inert_messages += 1
-            self.server.send_text(client, fp.status(2, (
-                'not published: publishing goals and poses from the 3D panel is off '
-                '(m4k_foxglove nav_goals:=false; set it true when a nav stack uses them)')))
-            return
-        self._post(lambda: self._publish((client, channel_id), payload))
 
     def _publish(self, key: tuple[int, int], payload: bytes) -> None:
         entry = self._pubs.get(key)
@@ -393,41 +435,6 @@ class FoxgloveNode(Node):
 
         self._bridge_params.list_parameters().add_done_callback(got_list)
 
-    def on_service_call(self, client: int, service_id: int, call_id: int, encoding: str,
-                        payload: bytes) -> None:
-        """Call a ROS service with a CDR request; the response goes back as CDR."""
-        self._post(lambda: self._call(client, service_id, call_id, encoding, payload))
-
-    def _call(self, client: int, sid: int, call_id: int, encoding: str, payload: bytes) -> None:
-        cli, cls, name = self._svc[sid]
-
-        def fail(why: str) -> None:
-            self.server.send_text(client, fp.service_call_failure(
-                sid, call_id, '{}: {}'.format(name, why)))
-
-        if encoding != 'cdr':
-            fail('encoding {!r} not supported, use cdr'.format(encoding))
-            return
-        try:
-            request = deserialize_message(payload, cls.Request)
-        except Exception as exc:  # noqa: BLE001 -- rclpy raises a private error type
-            self.bad_client_messages += 1
-            fail('bad request: {}'.format(exc))
-            return
-        if not cli.service_is_ready():
-            fail('no server')
-            return
-
-        def done(fut: Any) -> None:
-            res = fut.result()
-            if res is None:
-                fail('call failed')
-                return
-            self.server.send_binary(client, fp.service_call_response(
-                sid, call_id, 'cdr', serialize_message(res)))
-
-        cli.call_async(request).add_done_callback(done)
-
     # --- diagnostics -------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
         """Publish the server's status: clients, sent, queued and dropped messages."""
@@ -442,12 +449,16 @@ class FoxgloveNode(Node):
             'refused_token': self.server.refused['token'],
             'refused_max_clients': self.server.refused['clients'],
             'nav_messages_not_published': self.inert_messages,
+            'driver': self.lock.owner_name or 'nobody', 'driver_changes': self.lock.changes,
+            'refused_rights': self.refused_rights, 'throttled_messages': self.throttled,
+            'refused_calls': self.calls_refused, 'service_timeouts': self.service_timeouts,
+            'e_stop_engages': self.e_stop_engages,
             'max_queue_messages': self.server.max_queue_messages,
             'max_queue_bytes': self.server.max_queue_bytes}
         for s in stats:
             values['client {} ({})'.format(s.id, s.address)] = (
-                'subscriptions {} sent {} dropped {} queued {} ({} bytes)'.format(
-                    s.subscriptions, s.sent, s.dropped, s.queued, s.queued_bytes))
+                'right {} subscriptions {} sent {} dropped {} queued {} ({} bytes)'.format(
+                    s.right, s.subscriptions, s.sent, s.dropped, s.queued, s.queued_bytes))
         dropping = dropped > self._last_dropped
         self._last_dropped = dropped
         msg = '{} client(s){}'.format(len(stats), '; a client reads slower than the data '

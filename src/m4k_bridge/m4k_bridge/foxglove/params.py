@@ -60,8 +60,34 @@ SPECS: tuple[Field, ...] = (
        'cannot connect (a self-hosted Lichtblick on another host needs its origin here).',
        check=_origins),
     _f('token_file', 'str', '', 'File (mode 0600, this user) holding a shared token of at '
-       'least 16 URL-safe characters; clients then connect to ws://host:port/?token=TOKEN and '
-       'any other handshake gets HTTP 401. Empty: no token (localhost behind SSH).'),
+       'least 16 URL-safe characters; clients then connect to ws://host:port/?token=TOKEN '
+       '(or Authorization: Bearer TOKEN, or subprotocol m4k-token.TOKEN) and any other '
+       'handshake gets HTTP 401. Empty: no token (localhost behind SSH).'),
+    _f('rights', 'str', 'drive', 'The right of an admitted client that presents no right '
+       'token: view (subscribe only: no publish or service capability is offered), drive '
+       '(also cmd_vel, led, e-stop engage, reset_odometry), safety (also e-stop release, '
+       'reset_motor_fault, set_pose, other allowed services). safety here lets anyone '
+       'admitted release the e-stop.', choices=('view', 'drive', 'safety')),
+    _f('drive_token_file', 'str', '', 'Token file (as token_file) whose token gives the drive '
+       'right. Empty: none.'),
+    _f('safety_token_file', 'str', '', 'Token file (as token_file) whose token gives the '
+       'safety right. Empty: nobody releases the e-stop through the live view (unless rights '
+       'is safety).'),
+    _f('driver_idle_timeout', 'float', 2.0, 'The single-driver lock: the client that drives '
+       '(publishes cmd_vel, led or goals) keeps the lock while it publishes at least this '
+       'often; after it another drive client may take over. A safety client takes over at '
+       'any time.', unit='s', lo=0.1, hi=60.0),
+    _f('max_publish_rate', 'float', 30.0, "Token bucket of each client's channel (burst: one "
+       'second of it); a message beyond it is dropped, counted and the client told with a '
+       'warning status. An e-stop engage is never limited.', unit='Hz', lo=1.0, hi=1000.0),
+    _f('max_service_rate', 'float', 2.0, "Token bucket of each client's service calls "
+       '(burst: one second of it, at least 1); beyond it the call fails with the reason. An '
+       'e-stop engage is never limited.', unit='Hz', lo=0.1, hi=100.0),
+    _f('service_timeout', 'float', 5.0, 'A service call with no response by then fails '
+       '(serviceCallFailure) and is forgotten.', unit='s', lo=0.1, hi=300.0),
+    _f('tls_cert_file', 'str', '', 'PEM certificate (chain) for wss://; with tls_key_file. '
+       'Empty: plain ws://.'),
+    _f('tls_key_file', 'str', '', 'PEM private key of tls_cert_file (mode 0600).'),
     _f('max_clients', 'int', 4, 'Connections served at once; one more is refused (HTTP 503) '
        'before serverInfo. Each client costs queues of up to max_queue_bytes.', lo=1, hi=64),
     _f('max_client_channels', 'int', 16, 'Channels one client may advertise for publishing '
@@ -69,8 +95,10 @@ SPECS: tuple[Field, ...] = (
        'naming this parameter. The shipped layout advertises 5.', lo=1, hi=256),
     _f('topic_whitelist', 'str[]', ['.*'], 'Regular expressions (full match) of the topics '
        'served.', check=_regexes),
-    _f('service_whitelist', 'str[]', ['.*'], 'Regular expressions (full match) of the '
-       'services served.', check=_regexes),
+    _f('service_whitelist', 'str[]', ['m4k_bridge/[a-z_]+'], 'Regular expressions (full '
+       'match) of the services served; a pattern without a leading / matches the name '
+       "relative to this node's namespace. Default: the bridge's own services. A service "
+       'not of the bridge needs the safety right.', check=_regexes),
     _f('client_topics', 'str[]', ['cmd_vel', 'e_stop', 'led'], 'The only topics clients may '
        'publish on (relative: the namespace applies), checked before anything of the '
        "client's advertisement is imported. [] serves a view-only live view."),

@@ -9,10 +9,13 @@ disconnected) and message data, bounded by count and bytes, where the oldest fra
 and counted when a new one does not fit (the newest data is what a live view wants). What a
 client sends is handed to a :class:`Handler` on the server thread.
 
-Who may connect is decided in the opening handshake, before anything is sent or imported
-(:meth:`Server._admit`): a foreign ``Origin`` gets HTTP 403, a missing or wrong token HTTP
-401, one client more than ``max_clients`` HTTP 503 -- a refused browser page never sees
-``serverInfo``. A client may advertise at most ``max_client_channels`` channels.
+Who may connect, and with which right, is decided in the opening handshake, before anything
+is sent or imported (:meth:`Server._admit`): a foreign ``Origin`` gets HTTP 403, a missing or
+wrong token HTTP 401, one client more than ``max_clients`` HTTP 503 -- a refused browser page
+never sees ``serverInfo``. Each client's ``serverInfo`` lists only the capabilities its right
+allows (:func:`m4k_bridge.foxglove.rights.capabilities`: a view client gets no
+``clientPublish`` and no ``services``), and it is told of, and may call, only the services
+its right allows. A client may advertise at most ``max_client_channels`` channels.
 """
 
 from __future__ import annotations
@@ -23,16 +26,20 @@ import dataclasses
 from http import HTTPStatus
 import itertools
 import json
+import ssl
 import threading
 import time
 from typing import Any, Deque, Protocol
+import weakref
 
 from websockets.asyncio.server import serve, ServerConnection
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 from m4k_bridge.foxglove import protocol as fp
-from m4k_bridge.foxglove.access import DEFAULT_ORIGINS, OriginPolicy, token_matches
+from m4k_bridge.foxglove.access import Credentials, DEFAULT_ORIGINS, OriginPolicy, presented_tokens
+from m4k_bridge.foxglove.rights import at_least
+from m4k_bridge.foxglove.rights import capabilities as right_capabilities
 
 __all__ = ['ClientStats', 'Handler', 'Server']
 
@@ -59,6 +66,9 @@ class Handler(Protocol):
                         payload: bytes) -> None:
         """Answer with :meth:`Server.send_binary` (a service call response)."""
 
+    def on_client_gone(self, client: int) -> None:
+        """Forget a client that disconnected (after its channels' unadvertise)."""
+
 
 @dataclasses.dataclass
 class ClientStats:
@@ -66,6 +76,7 @@ class ClientStats:
 
     id: int
     address: str
+    right: str
     subscriptions: int
     sent: int
     dropped: int
@@ -74,8 +85,10 @@ class ClientStats:
 
 
 class _Client:
-    def __init__(self, cid: int, ws: ServerConnection, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, cid: int, ws: ServerConnection, loop: asyncio.AbstractEventLoop,
+                 right: str) -> None:
         self.id = cid
+        self.right = right
         self.ws = ws
         self.loop = loop
         self.address = '{}:{}'.format(*ws.remote_address[:2]) if ws.remote_address else '?'
@@ -99,14 +112,19 @@ class Server:
                  name: str = 'm4k', capabilities: tuple[str, ...] = (),
                  encodings: tuple[str, ...] = ('cdr',), max_queue_messages: int = 200,
                  max_queue_bytes: int = 8 << 20, max_control: int = 1000,
-                 origins: OriginPolicy | None = None, token: str | None = None,
+                 origins: OriginPolicy | None = None, credentials: Credentials | None = None,
                  max_clients: int = 4, max_client_channels: int = 16,
-                 metadata: dict[str, str] | None = None) -> None:
+                 metadata: dict[str, str] | None = None,
+                 tls: ssl.SSLContext | None = None) -> None:
         self.handler = handler
         self.metadata = dict(metadata or {})
         # Never unchecked: a server built without a policy gets the default allow-list.
         self.origins = origins if origins is not None else OriginPolicy(DEFAULT_ORIGINS)
-        self.token = token
+        # Never unchecked either: no credentials is everyone admitted with the drive right.
+        self.credentials = credentials if credentials is not None else Credentials('drive')
+        self.tls = tls
+        self._rights: weakref.WeakKeyDictionary[ServerConnection, str] = \
+            weakref.WeakKeyDictionary()
         self.max_clients, self.max_client_channels = max_clients, max_client_channels
         self.refused: collections.Counter[str] = collections.Counter()   # why -> handshakes
         self.host, self.port, self.name = host, port, name
@@ -119,6 +137,7 @@ class Server:
         self._channels: dict[int, dict[str, Any]] = {}
         self._latched: dict[int, Deque[bytes]] = {}
         self._services: dict[int, dict[str, Any]] = {}
+        self._service_rights: dict[int, str] = {}    # service id -> the right it needs
         self._ids = itertools.count(1)
         self._channel_ids = itertools.count(1)
         self.dropped_departed = 0      # drops of clients that have left
@@ -152,7 +171,7 @@ class Server:
         try:
             server = await serve(self._handle, self.host, self.port,
                                  subprotocols=[fp.SUBPROTOCOL],  # type: ignore[list-item]
-                                 process_request=self._admit,
+                                 process_request=self._admit, ssl=self.tls,
                                  max_size=MAX_INCOMING, compression=None)
         except OSError as exc:
             self._error = exc
@@ -201,16 +220,36 @@ class Server:
                     c.subs.pop(sub, None)
                 self._control(c, text)
 
-    def set_services(self, services: list[dict[str, Any]]) -> None:
-        """Advertise services (each a dict with id, name, type, request, response)."""
+    def set_services(self, services: list[tuple[dict[str, Any], str]]) -> None:
+        """Advertise services: (dict with id, name, type, request, response; right needed).
+
+        Each client is told of the services its right lets it call, and only those.
+        """
         with self._lock:
-            new = [s for s in services if s['id'] not in self._services]
-            for s in new:
+            new = [(s, r) for s, r in services if s['id'] not in self._services]
+            for s, r in new:
                 self._services[s['id']] = s
-            if new:
-                text = fp.advertise_services(new)
-                for c in self._clients.values():
-                    self._control(c, text)
+                self._service_rights[s['id']] = r
+            for c in self._clients.values():
+                mine = [s for s, r in new if at_least(c.right, r)]
+                if mine:
+                    self._control(c, fp.advertise_services(mine))
+
+    def _visible_services(self, c: _Client) -> list[dict[str, Any]]:
+        return [s for sid, s in self._services.items()
+                if at_least(c.right, self._service_rights[sid])]
+
+    def client_right(self, client: int) -> str | None:
+        """Return the right of a connected client (None: gone)."""
+        with self._lock:
+            c = self._clients.get(client)
+            return None if c is None else c.right
+
+    def client_name(self, client: int) -> str:
+        """Return ``client N (address)`` for status texts and logs."""
+        with self._lock:
+            c = self._clients.get(client)
+            return 'client {} ({})'.format(client, c.address if c is not None else 'gone')
 
     def publish(self, channel_id: int, payload: bytes, receive_ns: int = 0,
                 latched: bool = False) -> None:
@@ -251,8 +290,8 @@ class Server:
     def stats(self) -> list[ClientStats]:
         """Return each connected client's counters."""
         with self._lock:
-            return [ClientStats(c.id, c.address, len(c.subs), c.sent, c.dropped, len(c.data),
-                                c.data_bytes) for c in self._clients.values()]
+            return [ClientStats(c.id, c.address, c.right, len(c.subs), c.sent, c.dropped,
+                                len(c.data), c.data_bytes) for c in self._clients.values()]
 
     # --- queues (caller holds the lock) -----------------------------------------------------
     def _control(self, c: _Client, item: str | bytes) -> None:
@@ -293,10 +332,14 @@ class Server:
             return conn.respond(HTTPStatus.FORBIDDEN, (
                 'Origin {!r} may not open this live view (m4k_foxglove allowed_origins)\n'
                 .format(origin if len(origins) == 1 else origins)[:300]))
-        if self.token is not None and not token_matches(request.path, self.token):
+        right = self.credentials.right(presented_tokens(
+            request.path, request.headers.get_all('Authorization'),
+            request.headers.get_all('Sec-WebSocket-Protocol')))
+        if right is None:
             self.refused['token'] += 1
-            return conn.respond(HTTPStatus.UNAUTHORIZED, 'this live view needs its token: '
-                                'connect to ws://<host>:<port>/?token=<token>\n')
+            return conn.respond(HTTPStatus.UNAUTHORIZED, (
+                'this live view needs a valid token: ws://<host>:<port>/?token=<token>, '
+                'Authorization: Bearer <token>, or subprotocol m4k-token.<token> (one)\n'))
         with self._lock:
             full = len(self._clients) >= self.max_clients
         if full:
@@ -304,13 +347,15 @@ class Server:
             return conn.respond(HTTPStatus.SERVICE_UNAVAILABLE, (
                 'this live view already serves {} clients (m4k_foxglove max_clients)\n'
                 .format(self.max_clients)))
+        self._rights[conn] = right
         return None
 
     async def _handle(self, ws: ServerConnection) -> None:
         if ws.subprotocol != fp.SUBPROTOCOL:
             await ws.close(1002, 'subprotocol {} required'.format(fp.SUBPROTOCOL))
             return
-        c = _Client(next(self._ids), ws, asyncio.get_running_loop())
+        c = _Client(next(self._ids), ws, asyncio.get_running_loop(),
+                    self._rights.pop(ws, 'view'))
         with self._lock:
             # Handshakes admitted together may pass _admit together: this is the real count.
             full = len(self._clients) >= self.max_clients
@@ -322,11 +367,12 @@ class Server:
             return
         with self._lock:
             self.clients_total += 1
-            self._control(c, fp.server_info(self.name, self.capabilities, self.encodings,
+            self._control(c, fp.server_info(self.name, self._capabilities(c), self.encodings,
                                             self.session_id, self.metadata))
             self._control(c, fp.advertise(list(self._channels.values())))
-            if self._services:
-                self._control(c, fp.advertise_services(list(self._services.values())))
+            services = self._visible_services(c)
+            if services and 'services' in self._capabilities(c):
+                self._control(c, fp.advertise_services(services))
         writer = asyncio.create_task(self._writer(c))
         try:
             async for msg in ws:
@@ -347,6 +393,10 @@ class Server:
                 channels = sorted(c.channels)
             for ch in channels:
                 self.handler.on_client_unadvertise(c.id, ch)
+            self.handler.on_client_gone(c.id)
+
+    def _capabilities(self, c: _Client) -> tuple[str, ...]:
+        return right_capabilities(c.right, self.capabilities)
 
     async def _writer(self, c: _Client) -> None:
         try:
@@ -434,8 +484,9 @@ class Server:
             raise fp.ProtocolError('subscribe: ' + '; '.join(errors))
 
     def _client_advertise(self, c: _Client, channels: list[dict[str, Any]]) -> None:
-        if 'clientPublish' not in self.capabilities:
-            raise fp.ProtocolError('advertise: clientPublish is not enabled on this server')
+        if 'clientPublish' not in self._capabilities(c):
+            raise fp.ProtocolError('advertise: clientPublish is not enabled for this client '
+                                   '(right {})'.format(c.right))
         errors = []
         for chan in channels:
             cid = int(chan['id'])
@@ -469,10 +520,13 @@ class Server:
                                        'advertised'.format(ch))
             self.handler.on_client_message(c.id, ch, payload)
         elif frame[0] == fp.CLIENT_SERVICE_CALL_REQUEST:
-            if 'services' not in self.capabilities:
-                raise fp.ProtocolError('service call: services are not enabled')
+            if 'services' not in self._capabilities(c):
+                raise fp.ProtocolError('service call: services are not enabled for this '
+                                       'client (right {})'.format(c.right))
             sid, call, enc, payload = fp.parse_service_call_request(frame)
-            if sid not in self._services:
+            need = self._service_rights.get(sid)
+            if need is None or not at_least(c.right, need):
+                # Not told of it: the same answer whether it exists or not.
                 raise fp.ProtocolError('service call: no service {}'.format(sid))
             self.handler.on_service_call(c.id, sid, call, enc, payload)
         else:
