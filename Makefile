@@ -65,7 +65,7 @@ demo: build
 	@$(ENV); demo
 
 scenarios: build
-	@$(ENV); M4K_CONFIG_DIR=$(CURDIR)/config scenarios config/scenarios $(if $(ONLY),--only $(ONLY),) \
+	@$(ENV); M4K_CONFIG_DIR=$(CURDIR)/config scenarios config/scenarios config/envelope.yaml $(if $(ONLY),--only $(ONLY),) \
 	  $(if $(SHORT),--short,)
 
 soak: build

@@ -12,7 +12,7 @@ import os
 import pytest
 from wsenv import ROOT, stack_env
 
-from m4k_bench.scenarios import bounds, spec
+from m4k_bench.scenarios import bounds, grid, spec
 from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.judge import judge, Result, trigger
 from m4k_bench.scenarios.run import run_scenario
@@ -22,6 +22,8 @@ pytest.importorskip('rclpy')
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its transport sockets for the process
 
 SCENARIOS = spec.load_dir(os.path.join(ROOT, 'config', 'scenarios'))
+ENVELOPE = os.path.join(ROOT, 'config', 'envelope.yaml')
+GRID_SAMPLE = grid.sample(ENVELOPE)
 
 
 def test_the_suite_covers_the_issue_list():
@@ -224,6 +226,42 @@ def test_scenario(sc, tmp_path, m4k_runtime_dir):
                         f'contacts {res.contacts}, stop {res.stop_s} s / {res.stop_bound_s})\n'
                         f'{res.log_tail}')
     assert res.contacts == 0 and res.min_clearance > 0.0
+
+
+def test_the_envelope_grid_covers_every_speed_motion_and_kind_or_says_why_not():
+    """Every speed x motion x kind of config/envelope.yaml is a scenario or a stated gap."""
+    env = grid.load(ENVELOPE)
+    cells = grid.cells(ENVELOPE)
+    assert len(cells) == len(env['speeds']) * len(env['motions']) * len(env['kinds'])
+    assert set(env['speeds'].values()) >= {0.05, 0.25, 1.0, 2.0}
+    assert set(env['motions']) == {'straight', 'turning', 'in_place'}
+    for c in cells:
+        assert c.scenario is not None or c.why, c
+    promised = {c.name for c in cells if c.scenario is not None}
+    # every kind has promised cells at every speed; faults in every motion
+    for kind, k in env['kinds'].items():
+        for speed in env['speeds']:
+            assert any(n.startswith(f'{kind}.{speed}.') for n in promised), (kind, speed)
+        if k['class'] == 'fault':
+            assert all(f'{kind}.{s}.{m}' in promised for s in env['speeds']
+                       for m in env['motions'])
+    # each obstacle cell meets its obstacle at full speed: beyond the ramp and the slow-down
+    raw = _raw({})
+    for c in cells:
+        if c.scenario is not None and c.scenario.stop in ('sonar', 'laser'):
+            v = c.scenario.commands[0].v
+            ahead = grid._obstacle_x(raw, v) - 0.225
+            assert ahead > v * v / (2 * 0.37) + bounds.stop_line(raw, v), c.name
+
+
+@pytest.mark.parametrize('sc', GRID_SAMPLE, ids=[s.name for s in GRID_SAMPLE])
+def test_envelope_sample(sc, tmp_path, m4k_runtime_dir):
+    """A sample of the envelope grid (config/envelope.yaml ``sample``); the whole grid runs in
+    ``make scenarios``."""
+    res = run_scenario(sc, str(tmp_path), short=True, env=stack_env(m4k_runtime_dir))
+    assert res.passed, (f'{sc.name}: {"; ".join(res.failures)} (travelled {res.travelled:.3f} m '
+                        f'of {res.commanded:.3f}, min clearance {res.min_clearance:.3f} m)\n'
+                        f'{res.log_tail}')
 
 
 def test_the_judge_sees_a_contact_when_the_guard_is_off(tmp_path, m4k_runtime_dir):
