@@ -37,6 +37,8 @@ def test_the_suite_covers_the_issue_list():
             'table_leg_centre', 'table_leg_left', 'table_leg_right', 'chair_leg_left_edge',
             'chair_leg_right_edge', 'table_leg_5cm_off', 'encoder_sign_flip', 'encoder_swap',
             'encoder_frozen', 'wheel_stall', 'estop_release', 'rt_core_restart_estop'} <= names
+    # issue 39: calibrate's overlay, then the top speed
+    assert 'calibrated_top' in names
 
 
 def _raw(world):

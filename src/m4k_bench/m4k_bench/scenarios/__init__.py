@@ -4,7 +4,9 @@
 runs each scenario (:mod:`.spec`: world overlay, scripted commander, faults, expected outcome)
 on a fresh stack (:mod:`.run`), prints a progress line per scenario, and writes
 ``<results>/README.md`` (the table), ``<results>/<name>.png`` (world, obstacles' paths, the
-robot's true path) and ``<results>/<name>.csv`` (the ground-truth samples, every 20 ms).
+robot's true path) and ``<results>/<name>.csv`` (the ground-truth samples, every 20 ms);
+written to the default ``docs/results/scenarios``, they also regenerate docs/safety.md's
+hazard table.
 Default: every ``*.yaml`` of ``<config dir>/scenarios``; a path to an envelope declaration
 (``config/envelope.yaml``, :mod:`.grid`) adds every promised cell of the grid. The progress
 line states the elapsed time and an estimate of the time left (the mean so far x the scenarios
@@ -26,6 +28,8 @@ from m4k_bench.benchlib.results import write_text
 
 __all__ = ['main']
 
+RESULTS = os.path.join('docs', 'results', 'scenarios')
+
 
 def _default_dir() -> str:
     from m4k_rt import config
@@ -39,7 +43,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     '<config dir>/scenarios)')
     ap.add_argument('--only', nargs='+', metavar='NAME', help='run only these scenarios')
     ap.add_argument('--short', action='store_true', help='the short versions (as the tests)')
-    ap.add_argument('--results', default=os.path.join('docs', 'results', 'scenarios'),
+    ap.add_argument('--results', default=RESULTS,
                     metavar='DIR', help='where the table and plots go (default: '
                     'docs/results/scenarios)')
     from m4k_rt import rosargs
@@ -99,6 +103,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         header += (f'\n\n{len(outside)} envelope cells are not promised (config/envelope.yaml, '
                    'not run): ' + '; '.join(f'{n} cells: {w}' for w, n in whys.items()) + '.')
     write_text(os.path.join(args.results, 'README.md'), report.table(results, header))
+    if os.path.abspath(args.results) == os.path.abspath(RESULTS) and os.path.isfile(
+            os.path.join('docs', 'safety.md')):
+        # the hazard table quotes these results: keep it in step (m4k_bench.hazards)
+        from m4k_bench import hazards
+        hazards.main(['--write'])
     n_ok = sum(r.passed for r in results)
     print(f'scenarios: {n_ok}/{len(results)} passed; {args.results}/README.md', file=sys.stderr)
     return 0 if n_ok == len(results) else 1
