@@ -13,8 +13,9 @@
 #   make bench RUNS=2                 two full runs, one after the other -> docs/results/bench-1, -2
 #                                     and their combined table docs/results/bench-combined.md
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
-#   make scenarios [ONLY='a b'] [SHORT=1]  config/scenarios/*.yaml on the whole stack, judged on
-#                                     ground truth -> docs/results/scenarios/ (about 6 min)
+#   make scenarios [ONLY='a b'] [SHORT=1]  config/scenarios/*.yaml, then the envelope grid
+#                                     (config/envelope.yaml), on the whole stack, judged on
+#                                     ground truth -> docs/results/scenarios/ (about 45 min)
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
 #   make fuzz [COUNT=100000] [SEED=n] [SECONDS_PER_PORT=18]  random and mutated datagrams at every
 #                                     XDDP port of a real rt_core (about 10 min), then every
@@ -65,7 +66,7 @@ demo: build
 	@$(ENV); demo
 
 scenarios: build
-	@$(ENV); M4K_CONFIG_DIR=$(CURDIR)/config scenarios config/scenarios $(if $(ONLY),--only $(ONLY),) \
+	@$(ENV); M4K_CONFIG_DIR=$(CURDIR)/config scenarios config/scenarios config/envelope.yaml $(if $(ONLY),--only $(ONLY),) \
 	  $(if $(SHORT),--short,)
 
 soak: build

@@ -10,7 +10,8 @@ import pytest
 from m4k_testing import *  # noqa: F401,F403
 
 UNIT_MODULES = frozenset({
-    'test_configuration_doc', 'test_layering', 'test_readme', 'test_real_robot_docs',
+    'test_configuration_doc', 'test_hazards', 'test_layering', 'test_readme',
+    'test_real_robot_docs',
     'test_recipes', 'test_skip_markers', 'test_test_summary', 'test_workspace_layout',
 })
 

@@ -54,18 +54,54 @@ def test_bounds_follow_config():
     # v^2 / 2a with 0.37 m/s^2
     assert b.distance_tol == pytest.approx(0.25 ** 2 / (2 * 0.37))
     # a guard stop is held to the speed-aware stop zone: t_react = 2 x 30 ms sonar + 10 ms
-    # actuator + 20 ms pipeline + 50 ms amplifier, braking at guard.brake_deceleration 1.5
+    # actuator + 20 ms pipeline + 30 ms scheduling + 50 ms amplifier, braking at
+    # guard.brake_deceleration 1.5; no slack beyond what the guard itself takes
     g = raw['control']['guard']
-    assert (g['reaction_time'], g['brake_deceleration'], g['stop_distance']) == (None, 1.5, 0.35)
-    assert b.stop_s is None and b.t_react == pytest.approx(0.06 + 0.01 + 0.02 + 0.05)
+    assert 'reaction_time' not in g            # no key replaces the whole t_react
+    assert (g['brake_deceleration'], g['stop_distance']) == (1.5, 0.35)
+    assert b.stop_s is None and b.t_react == pytest.approx(0.06 + 0.01 + 0.02 + 0.03 + 0.05)
     assert b.stop_distance(0.25) == pytest.approx(
-        0.25 * (0.14 + bounds.SCHED_S) + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
-    assert b.reach(0.25) == pytest.approx(0.25 * (0.14 + bounds.SCHED_S) + bounds.STOP_MARGIN_M)
-    # the guard's stop line: both sensors in use, so twice the slower one's (the laser's) period
+        0.25 * 0.17 + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
+    assert b.reach(0.25) == pytest.approx(0.25 * 0.17 + bounds.STOP_MARGIN_M)
+    # the guard's stop line: both sensors in use, so the laser's delay (2 periods + a sweep)
     lrf = raw['tasks']['lrf']['period_ms'] / 1000.0
     assert lrf > 0.03 and g['use_laser'] and g['use_sonar']
     assert bounds.stop_line(raw, 0.25) == pytest.approx(
-        0.25 * (2 * lrf + 0.01 + 0.02 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
+        0.25 * (2 * lrf + 0.1 + 0.01 + 0.02 + 0.03 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
+
+
+def test_the_judges_t_react_is_the_guards_and_calibration_cannot_loosen_it():
+    """One derivation (m4k_rt.control.reaction) for rt_core and the judge; an overlay's
+    actuation part (what calibrate writes) changes the guard's t_react, never the judge's."""
+    from m4k_rt.control.params import control_params
+    from m4k_rt.control.reaction import reaction
+    from m4k_rt.tasks.actuator import guard_plan
+    raw = config.load_layered(None, os.path.join(ROOT, 'config'))
+    cfg = config.parse(raw)
+    shared = type('S', (), {'config': cfg})()
+    ta = cfg.task('actuator').period_ns * 1e-9
+    plan = guard_plan(control_params(raw['control']), ta, shared)
+    assert bounds.judge_reaction(raw, 'laser') == pytest.approx(plan.reaction_time)
+    calibrated = config.deep_merge(raw, {'control': {'guard': {'amplifier_lag': 0.012}}})
+    cal_plan = guard_plan(control_params(calibrated['control']), ta, shared)
+    assert cal_plan.reaction_time == pytest.approx(plan.reaction_time - 0.038)
+    assert bounds.judge_reaction(calibrated, 'laser') == bounds.judge_reaction(raw, 'laser')
+    assert bounds.stop_line(calibrated, 2.0) == bounds.stop_line(raw, 2.0)
+    r = reaction(control_params(raw['control']).guard, 'laser', 0.2, ta)
+    assert (r.sensor_part, r.total) == (pytest.approx(0.5), pytest.approx(plan.reaction_time))
+    with pytest.raises(ValueError, match='sensor must be one of'):
+        reaction(control_params(raw['control']).guard, 'radar', 0.2, ta)
+
+
+def test_a_whole_t_react_override_is_refused():
+    """The key that let calibrate drop the sensor part is gone: an old overlay is refused."""
+    from m4k_rt.control.params import control_params, ControlConfigError
+    with pytest.raises(ControlConfigError, match=r'guard\.reaction_time.*unknown key'):
+        control_params({'guard': {'reaction_time': 0.012}})
+
+
+def test_bounds_scale_with_the_configured_sensor_period():
+    raw = config.load_layered(None, os.path.join(ROOT, 'config'))
     slower = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
                                                                sonar_timeout=1.0)))
     assert (bounds.bounds(slower, 0.25, 'sonar_unplugged').stop_s

@@ -61,7 +61,7 @@ from m4k_bridge.safety import SafetyInterface
 from m4k_bridge.shutdown import spin_until_shutdown, stop_aware_start
 from m4k_bridge.tf import RobotStatePublisher
 from m4k_msgs.msg import RtStatus
-from m4k_rt import channel, config, description, protocol, yamlload
+from m4k_rt import channel, config, description, estop_request, protocol, yamlload
 from m4k_rt.schema import Field
 from m4k_rt.stopsignals import StopSignals
 
@@ -515,7 +515,7 @@ class BridgeNode(Node):
         self._safety: SafetyInterface = SafetyInterface(
             self, lambda data: self._pumps['cmd'].send(data), self.p.topic('e_stop'),
             self.p['reset_odometry_timeout'], self.p.topic('e_stop_state'),
-            self.p['e_stop_timeout'], self._runtime_dir)
+            self.p['e_stop_timeout'], estop_request.state_dir(runtime_dir=self._runtime_dir))
         self._faults = MotorFaultInterface(
             self, lambda data: self._pumps['cmd'].send(data), self.p.topic('motor_fault'),
             self.p['reset_odometry_timeout'])

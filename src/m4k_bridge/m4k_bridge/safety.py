@@ -7,8 +7,9 @@ The stop itself is not here: ``e_stop`` (std_msgs/Bool) becomes an E_STOP datagr
 * the subscription: reliable, volatile, depth 10 -- it matches volatile publishers and
   transient-local ("latched") ones alike (a transient-local subscription would refuse
   volatile publishers);
-* the request persisted (:mod:`m4k_rt.estop_request`: ``<runtime_dir>/e_stop.request``,
-  written on every change): a restarted rt_core starts with its latch engaged, and a
+* the request persisted (:mod:`m4k_rt.estop_request`: ``<state_dir>/e_stop.request``, kept
+  across service restarts and reboots, written atomically on every change; an unreadable or
+  corrupt file reads as engaged): a restarted rt_core starts with its latch engaged, and a
   restarted bridge starts with the request engaged -- the latch survives both dying together;
 * the **gate**: while the e-stop is requested, ``cmd_vel`` is not forwarded at all (counted
   as ``cmd_vel_gated_e_stop``), so nothing can reach an RT process that has not latched yet;
@@ -110,13 +111,13 @@ class SafetyInterface:
 
     def __init__(self, node: Any, send_cmd: Any, topic: str, reset_timeout: float,
                  state_topic: str = 'e_stop_state', e_stop_timeout: float = 1.0,
-                 runtime_dir: str | None = None) -> None:
+                 state_dir: str | None = None) -> None:
         """Create the subscription and the service; ``send_cmd(bytes)`` writes to ``cmd``.
 
-        ``runtime_dir``: where the request is persisted (None: not persisted).
+        ``state_dir``: where the request is persisted (None: not persisted).
         """
         self.node = node
-        self.runtime_dir = runtime_dir
+        self.state_dir = state_dir
         self._lock = threading.Lock()      # the seq counter: the pump thread encodes too
         self.gated = 0                     # cmd_vel not forwarded while the e-stop is requested
         self.contact_requests = 0          # e-stop requests taken from the contact opening
@@ -138,14 +139,16 @@ class SafetyInterface:
         self._reset_id = 0
         self._pending: dict[int, Future] = {}
         self._links_seen = 0
-        if runtime_dir:
-            persisted = read_request(runtime_dir)
-            if persisted:
+        if state_dir:
+            persisted = read_request(state_dir)
+            if persisted.problem:
+                node.get_logger().error('e-stop request: {}'.format(persisted.problem))
+            if persisted.engaged:
                 self.requested = True
                 node.get_logger().warning(
                     'e-stop request ENGAGED from {} (persisted before a restart): cmd_vel gated, '
                     'the RT latch re-asserted on link; release with e_stop false'.format(
-                        request_path(runtime_dir)))
+                        request_path(state_dir)))
         # Every e_stop message as received, before it acts (the bridge's flight recorder).
         self.record: Callable[[Bool], None] = lambda msg: None
         node.create_subscription(Bool, topic, self._on_e_stop, E_STOP_QOS)
@@ -198,15 +201,15 @@ class SafetyInterface:
         # Send first (the stop must not wait for the file system), then persist: the RT
         # latch holds meanwhile, and the file only matters to a process that starts later.
         self._send(self._datagram(protocol.Kind.E_STOP, 1 if engage else 0))
-        if changed and self.runtime_dir:
+        if changed and self.state_dir:
             try:
-                write_request(self.runtime_dir, engage)
+                write_request(self.state_dir, engage)
             except OSError as exc:
                 self.persist_errors += 1
                 self.node.get_logger().error(
                     'cannot persist the e-stop request to {}: {} (a restart of rt_core and '
                     'the bridge together would forget it)'.format(
-                        request_path(self.runtime_dir), exc))
+                        request_path(self.state_dir), exc))
 
     def on_flags(self, flags: int) -> None:
         """Take a fresh ODOMETRY's flags: an open e-stop contact becomes an e-stop request."""
@@ -372,7 +375,7 @@ class SafetyInterface:
                   'stale_commands_rejected': self.gate.rejected,
                   'cmd_vel_gated_e_stop': self.gated,
                   'contact_requests': self.contact_requests,
-                  'persisted_in': (request_path(self.runtime_dir) if self.runtime_dir
+                  'persisted_in': (request_path(self.state_dir) if self.state_dir
                                    else 'not persisted'),
                   'persist_errors': self.persist_errors,
                   'odometry_resets': self.resets_ok, 'odometry_resets_failed': self.resets_failed,

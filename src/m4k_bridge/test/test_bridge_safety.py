@@ -82,20 +82,6 @@ def test_reset_odometry_without_acknowledgement_fails_with_the_reason():
     assert 'no acknowledgement from the RT actuator within 0.3 s' in reply.message
 
 
-def test_request_file_round_trip_and_unreadable_means_engaged(tmp_path):
-    from m4k_rt.estop_request import read_request, request_path, write_request
-    d = str(tmp_path)
-    assert read_request(d) is None                       # nothing persisted: unknown
-    write_request(d, True)
-    assert read_request(d) is True
-    write_request(d, False)
-    assert read_request(d) is False
-    with open(request_path(d), 'w', encoding='ascii') as f:
-        f.write('garbage\n')
-    assert read_request(d) is True                       # unreadable: never a reason to drive
-    assert sorted(p.name for p in tmp_path.iterdir()) == ['e_stop.request']   # no tmp left
-
-
 def _with_safety(tmp_path, fn):
     import rclpy
 
@@ -107,7 +93,7 @@ def _with_safety(tmp_path, fn):
         node = rclpy.create_node('m4k_bridge', context=context)
         sent = []
         fn(lambda: SafetyInterface(node, sent.append, 'e_stop', 0.3,
-                                   runtime_dir=str(tmp_path)), sent)
+                                   state_dir=str(tmp_path)), sent)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
@@ -120,7 +106,7 @@ def test_engaged_request_is_persisted_gates_commands_and_leads_every_link(tmp_pa
         safety = make()
         assert not safety.gating and safety.link_preamble() is None
         safety._request(True)
-        assert read_request(str(tmp_path)) is True
+        assert read_request(str(tmp_path)).engaged is True
         assert safety.gating
         _, msg = p.decode(safety.link_preamble())
         assert msg == p.EStop(1)
@@ -129,7 +115,7 @@ def test_engaged_request_is_persisted_gates_commands_and_leads_every_link(tmp_pa
         assert again.requested is True and again.gating
         assert p.decode(again.link_preamble())[1] == p.EStop(1)
         again._request(False)
-        assert read_request(str(tmp_path)) is False and not again.gating
+        assert read_request(str(tmp_path)).engaged is False and not again.gating
         assert again.link_preamble() is None
         assert make().requested is None                   # released: nothing to re-assert
 
@@ -145,7 +131,7 @@ def test_open_contact_becomes_an_e_stop_request_that_only_a_release_clears(tmp_p
         assert safety.requested is None
         safety.on_flags(p.ODOM_ESTOP_OPEN | p.ODOM_E_STOP)
         assert safety.requested is True and safety.contact_requests == 1
-        assert read_request(str(tmp_path)) is True
+        assert read_request(str(tmp_path)).engaged is True
         assert p.decode(sent[-1])[1] == p.EStop(1)
         safety.on_flags(p.ODOM_E_STOP)                    # contact closed: still requested
         assert safety.gating

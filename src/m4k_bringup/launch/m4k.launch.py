@@ -73,7 +73,7 @@ def _nodes(context, *args, **kwargs):
     """Build the actions once the launch arguments are known (bringup's plan, as ROS nodes)."""
     from m4k_bridge import params as bridge_params
     from m4k_bringup import bringup, robots
-    from m4k_rt import channel, config
+    from m4k_rt import channel, config, estop_request
 
     arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     overlay = os.path.abspath(arg('config')) if arg('config') else None
@@ -106,7 +106,9 @@ def _nodes(context, *args, **kwargs):
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
     # sim_robot first (the world outlives a driver-host restart, as the real robot would).
     specs = bringup.child_specs(overlay, '', bridge_yaml, runtime_dir, sim=simulated)
-    env = {'M4K_RUNTIME_DIR': runtime_dir, 'PYTHONUNBUFFERED': '1'}
+    # the e-stop request's state directory, resolved before the children get M4K_RUNTIME_DIR
+    env = {'M4K_RUNTIME_DIR': runtime_dir, 'PYTHONUNBUFFERED': '1',
+           'M4K_STATE_DIR': estop_request.state_dir()}
     actions = []
     sim_node = None
     for spec in specs:

@@ -48,7 +48,7 @@ from m4k_bridge import params as bridge_params
 from m4k_bringup import robots
 from m4k_bringup.child import Child, Launch, Output, Stopping
 from m4k_drivers import simbus
-from m4k_rt import config, rosargs
+from m4k_rt import config, estop_request, rosargs
 from m4k_rt.control.params import control_params
 from m4k_rt.rt_core import InstanceLock
 from m4k_rt.stopsignals import run_stoppable, StopSignals
@@ -583,7 +583,10 @@ def _run(args: argparse.Namespace, overlay: str | None, runtime_dir: str,
         yaml.safe_dump(robots.for_namespace(bridge_doc, args.namespace), f)
     extra = robots.namespaced_files(args.bridge_params, args.namespace, tmpdir)
     bridge_yaml = os.path.join(config.find_config_dir(), 'bridge.yaml')
-    env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir, PYTHONUNBUFFERED='1')
+    # the e-stop request's state directory, from this environment before the children get
+    # M4K_RUNTIME_DIR (m4k_rt.estop_request: persistent unless the runtime dir is private)
+    env = dict(os.environ, M4K_RUNTIME_DIR=runtime_dir, PYTHONUNBUFFERED='1',
+               M4K_STATE_DIR=estop_request.state_dir())
     console = Console(sys.stdout, sys.stderr, sys.stdout.isatty())
     children = [supervised_child(s, resolve_command(s, args.python_m), env, console)
                 for s in child_specs(overlay, params_file, bridge_yaml, runtime_dir, sim,

@@ -147,12 +147,49 @@ def test_brake_results_go_to_the_guards_keys_of_the_overlay():
     res = {'brake': {'decel_mps2': 2.83, 'reaction_s': 0.012, 'speed_mps': 0.48, 'points': 7,
                      'radius_m': 0.1016}}
     doc = cli.overlay_doc(res)
-    assert doc == {'control': {'guard': {'brake_deceleration': 2.83, 'reaction_time': 0.012}}}
+    # the actuation part of t_react only: there is no key that replaces the whole t_react
+    assert doc == {'control': {'guard': {'brake_deceleration': 2.83, 'amplifier_lag': 0.012}}}
     assert any('brake_deceleration' in line for line in cli._comments(res))
     res['brake']['reaction_s'] = -0.001            # noise before the write: never negative
-    # ... nor 0, which control.guard.reaction_time refuses: the 1 ms floor, and it loads.
     doc = cli.overlay_doc(res)
-    assert doc['control']['guard']['reaction_time'] == cli.REACTION_FLOOR_S
+    assert doc['control']['guard']['amplifier_lag'] == cli.ACTUATION_FLOOR_S
     from m4k_rt.config import deep_merge, load_layered
     from m4k_rt.control.params import control_params
     control_params(deep_merge(load_layered()['control'], doc['control']))
+
+
+def test_a_calibrated_robot_keeps_the_stop_distance_its_sensors_need_at_top_speed():
+    """calibrate's overlay, then rt_core's plan: d(top) still pays the laser's delay.
+
+    The issue-39 failure: the measured 12 ms replaced the whole t_react and d(2 m/s) fell from
+    2.64 m to 1.08 m, shorter than a laser-only obstacle needs. The physical need at top
+    speed: the laser's delay (2 periods + a sweep) at v, plus braking at the calibrated
+    deceleration, plus the margin -- whatever calibrate measured.
+    """
+    from m4k_drivers.calibrate import cli
+    from m4k_rt.config import deep_merge, load_layered, parse
+    from m4k_rt.control.guard import stop_distance
+    from m4k_rt.control.params import control_params
+    from m4k_rt.control.reaction import reaction
+    from m4k_rt.tasks.actuator import guard_plan
+    raw = load_layered()
+    for measured in (0.012, -0.001, 0.3):
+        doc = cli.overlay_doc({'brake': {'decel_mps2': 2.83, 'reaction_s': measured,
+                                         'speed_mps': 0.48, 'points': 7, 'radius_m': 0.1016}})
+        merged = deep_merge(raw, doc)
+        params = control_params(merged['control'])
+        cfg = parse(merged)
+        periods = {t.name: t.period_ns * 1e-9 for t in cfg.tasks}
+        shared = type('S', (), {'config': cfg})()
+        plan = guard_plan(params, periods['actuator'], shared)
+        v = plan.top_speed
+        assert v == params.linear.max_velocity == 2.0
+        sensor_delay = 2 * periods['lrf'] + params.guard.laser_scan_time
+        need = v * sensor_delay + v * v / (2 * 2.83) + params.guard.stop_distance
+        d = stop_distance(v, plan.reaction_time, plan.brake_deceleration, plan.margin)
+        assert d > need, (measured, d, need)
+        # the one derivation: the plan's t_react is the three parts, the actuation measured
+        r = reaction(params.guard, 'laser', periods['lrf'], periods['actuator'])
+        assert plan.reaction_time == r.total
+        assert r.actuation_part == max(measured, cli.ACTUATION_FLOOR_S)
+        assert r.sensor_part == sensor_delay

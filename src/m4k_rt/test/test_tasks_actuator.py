@@ -269,9 +269,10 @@ def test_guard_weakening_hook_is_refused_without_test_hooks_and_stated_with_them
 
 
 def test_top_speed_is_capped_where_the_sensors_cannot_see_far_enough(rig):
-    # a slow laser (1 s period) and weak brakes: d(v) outgrows 5.375 m below 2 m/s
+    # a sluggish amplifier (1.4 s: t_react about 2 s) and weak brakes: d(v) outgrows 5.375 m
+    # below 2 m/s
     from m4k_rt.tasks.actuator import guard_plan
-    params = control_params({'guard': {'reaction_time': 2.0, 'brake_deceleration': 0.5}})
+    params = control_params({'guard': {'amplifier_lag': 1.4, 'brake_deceleration': 0.5}})
     plan = guard_plan(params, 0.01, None, {'body': {'length': 0.45},
                                            'sensors': {'laser': {'pose': [0, 0, 0.2]}}})
     assert plan.top_speed == pytest.approx(plan.sensor_speed) and plan.top_speed < 2.0

@@ -4,9 +4,13 @@
 runs each scenario (:mod:`.spec`: world overlay, scripted commander, faults, expected outcome)
 on a fresh stack (:mod:`.run`), prints a progress line per scenario, and writes
 ``<results>/README.md`` (the table), ``<results>/<name>.png`` (world, obstacles' paths, the
-robot's true path) and ``<results>/<name>.csv`` (the ground-truth samples, every 20 ms).
-Default: every ``*.yaml`` of ``<config dir>/scenarios``. Exit 0 when every scenario passed, 1
-otherwise, 2 on a bad scenario file.
+robot's true path) and ``<results>/<name>.csv`` (the ground-truth samples, every 20 ms);
+written to the default ``docs/results/scenarios``, they also regenerate docs/safety.md's
+hazard table.
+Default: every ``*.yaml`` of ``<config dir>/scenarios``; a path to an envelope declaration
+(``config/envelope.yaml``, :mod:`.grid`) adds every promised cell of the grid. The progress
+line states the elapsed time and an estimate of the time left (the mean so far x the scenarios
+left). Exit 0 when every scenario passed, 1 otherwise, 2 on a bad scenario file.
 """
 
 from __future__ import annotations
@@ -24,6 +28,8 @@ from m4k_bench.benchlib.results import write_text
 
 __all__ = ['main']
 
+RESULTS = os.path.join('docs', 'results', 'scenarios')
+
 
 def _default_dir() -> str:
     from m4k_rt import config
@@ -37,17 +43,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                     '<config dir>/scenarios)')
     ap.add_argument('--only', nargs='+', metavar='NAME', help='run only these scenarios')
     ap.add_argument('--short', action='store_true', help='the short versions (as the tests)')
-    ap.add_argument('--results', default=os.path.join('docs', 'results', 'scenarios'),
+    ap.add_argument('--results', default=RESULTS,
                     metavar='DIR', help='where the table and plots go (default: '
                     'docs/results/scenarios)')
     from m4k_rt import rosargs
     args = rosargs.parse_args(ap, argv)       # launch_ros's --ros-args are taken, not refused
-    from m4k_bench.scenarios import report, spec
+    from m4k_bench.scenarios import grid, report, spec
     from m4k_bench.scenarios.run import run_scenario
     scs: list[spec.Scenario] = []
+    outside: list[grid.Cell] = []
     try:
         for p in args.paths or [_default_dir()]:
-            scs += spec.load_dir(p) if os.path.isdir(p) else [spec.load(p)]
+            if grid.is_grid(p):
+                cells = grid.cells(p)
+                scs += [c.scenario for c in cells if c.scenario is not None]
+                outside += [c for c in cells if c.scenario is None]
+            else:
+                scs += spec.load_dir(p) if os.path.isdir(p) else [spec.load(p)]
     except (OSError, spec.ScenarioError) as exc:
         print(f'scenarios: {exc}', file=sys.stderr)
         return 2
@@ -60,7 +72,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix='m4k-scenarios-') as work:
         for i, sc in enumerate(scs, 1):
             t0 = time.monotonic()
-            print(f'[{i}/{len(scs)}] {sc.name}: {sc.description}', file=sys.stderr, flush=True)
+            spent = t0 - t_all
+            left = '' if i == 1 else f', about {spent / (i - 1) * (len(scs) - i + 1):.0f} s left'
+            print(f'[{i}/{len(scs)}, {spent:.0f} s{left}] {sc.name}: {sc.description}',
+                  file=sys.stderr, flush=True)
             res = run_scenario(sc, work, short=args.short,
                                progress=lambda m: print('    ' + m, file=sys.stderr, flush=True))
             results.append(res)
@@ -81,7 +96,18 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"number is the simulator's ground truth (sim_truth), never odometry. Bounds from "
               f'config/ (m4k_bench.scenarios.bounds); the scenarios are config/scenarios/*.yaml; '
               f'one plot per scenario beside this file.')
+    if outside:
+        whys: dict[str, int] = {}
+        for c in outside:
+            whys[c.why] = whys.get(c.why, 0) + 1
+        header += (f'\n\n{len(outside)} envelope cells are not promised (config/envelope.yaml, '
+                   'not run): ' + '; '.join(f'{n} cells: {w}' for w, n in whys.items()) + '.')
     write_text(os.path.join(args.results, 'README.md'), report.table(results, header))
+    if os.path.abspath(args.results) == os.path.abspath(RESULTS) and os.path.isfile(
+            os.path.join('docs', 'safety.md')):
+        # the hazard table quotes these results: keep it in step (m4k_bench.hazards)
+        from m4k_bench import hazards
+        hazards.main(['--write'])
     n_ok = sum(r.passed for r in results)
     print(f'scenarios: {n_ok}/{len(results)} passed; {args.results}/README.md', file=sys.stderr)
     return 0 if n_ok == len(results) else 1

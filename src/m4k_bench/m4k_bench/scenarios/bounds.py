@@ -7,30 +7,32 @@ Physics, not ramps. For a guard stop (``sonar`` / ``laser``) at ground-truth spe
   stopping distance at that speed). The judge measures that on ground truth with exact geometry
   (:mod:`.geometry`) -- it never reads the guard, its log or any test hook;
 * the **reach** past that line: at no ground-truth sample may the robot be further past the
-  line at its true speed ``v`` of the moment than ``v * (t_react + SCHED_S) + STOP_MARGIN_M``
+  line at its true speed ``v`` of the moment than ``v * t_react + STOP_MARGIN_M``
   (:meth:`Bounds.reach`: the guard sees the line crossed ``t_react`` late, then brakes and the
-  line falls faster than the gap), with ``t_react`` the configured sensor and actuator latency
-  and ``SCHED_S`` the machine's scheduling allowance (a straight approach's stopping distance
-  from the line, ``v * (t_react + SCHED_S) + v^2 / (2 a_brake) + STOP_MARGIN_M``, is what the
-  reaction bench holds a hard approach to):
+  line falls faster than the gap), with ``t_react`` from :func:`m4k_rt.control.reaction.reaction`
+  -- the guard's own derivation, so the judge allows no slack the guard does not take (its
+  scheduling allowance and the URG's sweep are in the guard's t_react too) -- except for its
+  actuation part: the judge takes the shipped declaration of ``guard.amplifier_lag``, never
+  an overlay's (``calibrate`` writes that key; what it measures cannot loosen the judge):
 
   ======  ===================================================================
-  cause   t_react (``guard.reaction_time`` instead when set: calibrated)
+  cause   t_react (m4k_rt.control.reaction)
   ======  ===================================================================
-  sonar   2 sonar periods (pipelined ping) + 1 actuator period + lag
-  laser   2 lrf periods + one URG scan (60 / SCAN rpm) + 1 actuator period + lag
+  sonar   2 sonar periods + 1 actuator period + pipeline + scheduling + lag
+  laser   2 lrf periods + one URG scan + 1 actuator period + pipeline
+          + scheduling + lag
   ======  ===================================================================
 
-  (lag: ``guard.pipeline_latency + guard.amplifier_lag``, the datagram hops and the
-  amplifier's current rise) and ``a_brake`` the guard's ``brake_deceleration`` (at most
-  ``mu * g``; with none configured, ``mu * g``). No ``v / max_deceleration`` ramp slack: the
-  guard's stop bypasses the limiter's ramp.
+  and ``a_brake`` the guard's ``brake_deceleration`` (at most ``mu * g``; with none
+  configured, ``mu * g``). No ``v / max_deceleration`` ramp slack: the guard's stop bypasses
+  the limiter's ramp. A straight approach's stopping distance from the line is
+  ``v * t_react + v^2 / (2 a_brake) + STOP_MARGIN_M`` (:meth:`Bounds.stop_distance`).
 
 and the guard's promise: at rest, a static obstacle is no nearer than ``stop_distance`` less
 ``STOP_MARGIN_M``.
 
 For the other causes a stop *time* from the trigger to rest,
-``t_detect + lag + v / a_brake + SCHED_S``:
+``t_detect + lag + v / a_brake + sched`` (sched: ``guard.scheduling_allowance``):
 
 =====================  ==================================================  ==================
 cause                  t_detect                                            trigger
@@ -64,21 +66,15 @@ from typing import Any, Mapping
 from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
 from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
-__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'SCHED_S', 'STOP_MARGIN_M', 'bounds',
-           'stop_line', 'traction_limit']
+__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds', 'judge_reaction',
+           'sched', 'stop_line', 'traction_limit']
 
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
-URG_SCAN_S = 0.1     # URG-04LX: 600 rpm (PP SCAN)
 G = 9.80665          # m/s^2, standard gravity
 # The judge's own tolerance on a guard stop: the interpolation of the 20 ms samples at the
 # crossing (linear in travelled) and the 1 ms simulation step. Far below the 0.1 m a weakened
 # guard loses (the negative control), so a guard acting 10 cm late fails.
 STOP_MARGIN_M = 0.02
-# The scheduling allowance of the machine the suite runs on, added to every reaction and stop
-# time: the stack's wake-ups on a shared 2-vCPU VM, where even cyclictest sees outliers of
-# tens of ms (the bench's host stalls of 21-27 ms). At 0.5 m/s it is 1.5 cm; a guard acting
-# 10 cm late still fails at any speed the M4K drives.
-SCHED_S = 0.03
 # Rubber tyres on a hard floor: mu about 0.5-0.7 (issue 28). Used only when the world's robot
 # states no friction coefficient of its own (then its traction limit is the upper end, 0.7 g).
 DEFAULT_MU = 0.7
@@ -101,21 +97,20 @@ class Bounds:
     def stop_distance(self, v: float) -> float | None:
         """Return the stopping distance from the stop line at ``v`` on a straight approach.
 
-        ``v (t_react + SCHED_S) + v^2 / (2 a_brake) + STOP_MARGIN_M`` (guard stops; None for
-        the others): what the reaction bench holds a hard approach to.
+        ``v t_react + v^2 / (2 a_brake) + STOP_MARGIN_M`` (guard stops; None for the
+        others): what the reaction bench holds a hard approach to.
         """
         if self.t_react is None:
             return None
-        return (abs(v) * (self.t_react + SCHED_S) + v * v / (2.0 * self.a_brake) +
-                STOP_MARGIN_M)
+        return abs(v) * self.t_react + v * v / (2.0 * self.a_brake) + STOP_MARGIN_M
 
     def reach(self, v: float) -> float:
         """Return how far past the stop line at speed ``v`` the robot may get (guard stops).
 
-        ``v (t_react + SCHED_S) + STOP_MARGIN_M``: the guard sees the line crossed
-        ``t_react`` late; from then on it brakes, and the line falls faster than the gap.
+        ``v t_react + STOP_MARGIN_M``: the guard sees the line crossed ``t_react`` late;
+        from then on it brakes, and the line falls faster than the gap.
         """
-        return abs(v) * ((self.t_react or 0.0) + SCHED_S) + STOP_MARGIN_M
+        return abs(v) * (self.t_react or 0.0) + STOP_MARGIN_M
 
 
 def _period(raw: Mapping[str, Any], task: str) -> float:
@@ -138,30 +133,38 @@ def traction_limit(raw: Mapping[str, Any]) -> float:
     return mu * G
 
 
-def _lag(raw: Mapping[str, Any]) -> float:
-    """Return the configured hops and amplifier response after the actuator's cycle (s)."""
+def _guard(raw: Mapping[str, Any]) -> Any:
     from m4k_rt.control.params import control_params
-    g = control_params(raw.get('control')).guard
-    return float(getattr(g, 'pipeline_latency', 0.0) or 0.0) + float(
-        getattr(g, 'amplifier_lag', 0.0) or 0.0)
+    return control_params(raw.get('control')).guard
 
 
-def _t_react(raw: Mapping[str, Any], sensor: str) -> float:
-    """Return the configured reaction time for a stop ``sensor`` sees (s).
+def _lag(raw: Mapping[str, Any]) -> float:
+    """Return the hops and the amplifier's response after the actuator's cycle (s).
 
-    ``guard.reaction_time`` when set (``calibrate`` measures it), else the sensor's latency
-    (the table above) + the actuator period + ``guard.pipeline_latency`` +
-    ``guard.amplifier_lag``.
+    The amplifier's is the shipped declaration's (:func:`judge_reaction`), not an overlay's.
     """
     from m4k_rt.control.params import control_params
-    g = control_params(raw.get('control')).guard
-    fixed = getattr(g, 'reaction_time', None)
-    if fixed is not None:
-        return float(fixed)
-    ta = _period(raw, 'actuator')
-    if sensor == 'sonar':
-        return _pipeline(raw, 'sonar') + ta + _lag(raw)
-    return _pipeline(raw, 'lrf') + URG_SCAN_S + ta + _lag(raw)
+    return float(_guard(raw).pipeline_latency) + float(
+        control_params({}).guard.amplifier_lag)
+
+
+def sched(raw: Mapping[str, Any]) -> float:
+    """Return the scheduling allowance (s): the guard's own ``guard.scheduling_allowance``."""
+    return float(_guard(raw).scheduling_allowance)
+
+
+def judge_reaction(raw: Mapping[str, Any], sensor: str) -> float:
+    """Return the t_react the judge holds a stop ``sensor`` sees to (s).
+
+    The guard's derivation (:func:`m4k_rt.control.reaction.reaction`: sensor part + RT part +
+    actuation part) on the configured periods, with the actuation part of the shipped
+    declaration of ``guard.amplifier_lag`` -- independent of what ``calibrate`` wrote.
+    """
+    from m4k_rt.control.params import control_params
+    from m4k_rt.control.reaction import reaction
+    return reaction(_guard(raw), sensor, _period(raw, 'lrf' if sensor == 'laser' else 'sonar'),
+                    _period(raw, 'actuator'),
+                    actuation=control_params({}).guard.amplifier_lag).total
 
 
 def _pipeline(raw: Mapping[str, Any], task: str) -> float:
@@ -182,26 +185,20 @@ def _guard_decel(raw: Mapping[str, Any]) -> float | None:
 
 
 def stop_line(raw: Mapping[str, Any], v: float) -> float:
-    """Return the guard's configured stopping distance ahead of the front face at speed ``v``.
+    """Return the guard's stopping distance ahead of the front face at speed ``v``.
 
-    The speed-aware stop zone ``d(v) = v t_react + v^2 / (2 a_brake) + stop_distance`` from the
-    configuration (``t_react``: ``guard.reaction_time``, else twice the period of the slowest
-    front sensor in use + the actuator period + pipeline + amplifier lag), restated here from
-    the specification -- never read from the guard. A configuration without
-    ``brake_deceleration`` (the fixed-distance guard): ``stop_distance``.
+    The speed-aware stop zone ``d(v) = v t_react + v^2 / (2 a_brake) + stop_distance``
+    restated from the specification -- never read from the guard: ``t_react`` from
+    :func:`judge_reaction` for the slowest front sensor in use (the laser, else the sonar).
+    A configuration without ``brake_deceleration`` (the fixed-distance guard):
+    ``stop_distance``.
     """
-    from m4k_rt.control.params import control_params
-    g = control_params(raw.get('control')).guard
+    g = _guard(raw)
     a = _guard_decel(raw)
     if a is None or v <= 0.0:
         return g.stop_distance
-    fixed = getattr(g, 'reaction_time', None)
-    if fixed is not None:
-        t = float(fixed)
-    else:
-        pipeline = _pipeline(raw, 'lrf') if g.use_laser else _pipeline(raw, 'sonar') \
-            if g.use_sonar else 0.0
-        t = pipeline + _period(raw, 'actuator') + _lag(raw)
+    t = judge_reaction(raw, 'laser' if g.use_laser else 'sonar') if (
+        g.use_laser or g.use_sonar) else 0.0
     return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 
 
@@ -221,7 +218,7 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
     stop: float | None = None
     lag = _lag(raw)
     if cause in ('sonar', 'laser'):
-        t_react = _t_react(raw, cause)
+        t_react = judge_reaction(raw, cause)
     elif cause == 'sonar_unplugged':
         stop = g.sonar_timeout + _pipeline(raw, 'sonar') + ECHO_TIMEOUT_S + ta + lag + brake
     elif cause == 'laser_unplugged':
@@ -237,5 +234,5 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
             else math.inf
         stop = hold + v / coast
     if stop is not None:
-        stop += SCHED_S
+        stop += sched(raw)
     return Bounds(tol, stop, t_react, a_brake, mu_g, cause in UNPLUG_CAUSES)

@@ -18,8 +18,9 @@ for what only a person can measure; answers come from stdin, one per line.
    measure each angle: ``track_width``.
 6. ``brake``: drive straight at ``--brake-speed``, then
    command zero (amplifier on, as the guard's stop does) and fit the encoders' speed:
-   ``control.guard.brake_deceleration`` (m/s^2) and ``control.guard.reaction_time`` (s,
-   from the host's zero command to the wheels' deceleration); the robot travels about 1.5 m.
+   ``control.guard.brake_deceleration`` (m/s^2) and ``control.guard.amplifier_lag`` (s,
+   from the host's zero command to the wheels' deceleration: t_react's actuation part only;
+   the sensor and RT parts stay, m4k_rt.control.reaction); the robot travels about 1.5 m.
 
 The output is your overlay (``--overlay``) with the identified values merged in, so it can
 replace it; a comment block states every value's method and the numbers behind it, and
@@ -46,7 +47,7 @@ from m4k_drivers.motors.handler import MotorHandler
 
 __all__ = ['STEPS', 'Operator', 'main']
 
-REACTION_FLOOR_S = 0.001   # s, the smallest guard reaction time the overlay writes
+ACTUATION_FLOOR_S = 0.001   # s, the smallest actuation time the overlay writes
 
 STEPS = ('zero', 'sweep', 'lag', 'straight', 'turn', 'brake')
 DEFAULT_STEPS = STEPS
@@ -359,13 +360,13 @@ def overlay_doc(res: dict[str, Any]) -> dict[str, Any]:
         control['pi'] = {'kp': round(res['pi']['kp'], 5), 'ki': round(res['pi']['ki'], 5)}
     if 'brake' in res:
         # The guard's physics (issue 28): its stop distance v t_react + v^2 / (2 a_brake).
+        # t_react's actuation part only: the command path it measures starts at the host's
+        # DAC write, so the sensor and RT parts (m4k_rt.control.reaction) are not in it and
+        # stay in t_react. A reaction measured at or below 0 (noise; no command path latency
+        # in simulated time) is written as the 1 ms floor.
         control['guard'] = {'brake_deceleration': round(res['brake']['decel_mps2'], 4),
-                            # control.guard.reaction_time must be > 0: a reaction measured
-                            # at or below 0 (no command path latency, e.g. in simulated
-                            # time) is written as the 1 ms floor, not as a value the
-                            # loader refuses.
-                            'reaction_time': round(max(res['brake']['reaction_s'],
-                                                       REACTION_FLOOR_S), 4)}
+                            'amplifier_lag': round(max(res['brake']['reaction_s'],
+                                                       ACTUATION_FLOOR_S), 4)}
     doc: dict[str, Any] = {'control': control} if control else {}
     if 'dac_zero_trim' in res:
         doc['devices'] = {'motor': {'dac_zero_trim': list(res['dac_zero_trim'])}}
@@ -402,7 +403,8 @@ def _comments(res: dict[str, Any]) -> list[str]:
                  f'lambda = {pi["lambda_s"]} s')
     if 'brake' in res:
         b = res['brake']
-        c.append(f'  guard.brake_deceleration / reaction_time: zero command from a steady '
+        c.append(f'  guard.brake_deceleration / amplifier_lag (the actuation part of t_react; '
+                 f'the sensor and RT parts are kept): zero command from a steady '
                  f'{b["speed_mps"]:.3f} m/s; the wheel speed line (85..40 % of it, {b["points"]} '
                  f'samples) falls at {b["decel_mps2"]:.4f} m/s^2 and starts '
                  f'{b["reaction_s"] * 1e3:.1f} ms after the write (radius {b["radius_m"]:.5f} m)')

@@ -93,18 +93,6 @@ def speed_for_distance(d: float, reaction_time: float, deceleration: float,
     return a * (math.sqrt(t * t + 2.0 * room / a) - t)
 
 
-def reaction_time(sensor_period: float, actuator_period: float, pipeline: float,
-                  amplifier_lag: float) -> float:
-    """Return t_react from configured periods (s): 2 T_sensor + T_actuator + pipeline + lag.
-
-    A point may appear just after the sensor last looked at it: it is sampled up to one sensor
-    task period later and reaches the RT side up to one more period after that (each device
-    task drains the reply to last cycle's request). The actuator acts at its next cycle; the
-    datagram hops (driver host, RT) and the amplifier's own response add the rest.
-    """
-    return 2.0 * sensor_period + actuator_period + pipeline + amplifier_lag
-
-
 class CollisionGuard:
     """Compute the forward velocity cap from the latest range readings and the speed."""
 

@@ -142,17 +142,22 @@ class GuardParams:
         'command, ramp bypassed), bounded by tyre traction (about mu g, mu <= 0.7) and the '
         "amplifier's current limit. calibrate writes the measured value here. Too high: the "
         'stop zone is too short and the robot hits what it sees at speed.', hi=9.81))
-    reaction_time: float | None = setting(_pos(
-        's', None, 't_react of the stop zone; null: computed from the periods (2 x the '
-        'slowest guard sensor task period + the actuator period + pipeline_latency + '
-        'amplifier_lag). calibrate writes the measured command-to-deceleration time here. '
-        'Too low: the robot stops late.', nullable=True, hi=5.0))
     pipeline_latency: float = setting(_nonneg(
-        's', 0.02, 'Datagram hops sensor driver -> RT task -> actuator -> motor driver, in '
-        't_react (when reaction_time is null).'))
+        's', 0.02, 'Datagram hops sensor driver -> RT task -> actuator -> motor driver: part '
+        'of t_react (m4k_rt.control.reaction). Too low: the robot stops late.'))
+    scheduling_allowance: float = setting(_nonneg(
+        's', 0.03, 'Wake-up latency of the RT tasks on their host (a shared 2-vCPU VM shows '
+        'tens of ms): part of t_react, and the scenario judge allows no more. Too low: the '
+        'robot stops late on a loaded host.'))
+    laser_scan_time: float = setting(_nonneg(
+        's', 0.1, 'One laser sweep (URG-04LX: 600 rpm, 0.1 s): the scan is stamped at its '
+        "start and sent after it, so a point at the sweep's end is that much older; part of "
+        "t_react when the laser sets it."))
     amplifier_lag: float = setting(_nonneg(
-        's', 0.05, 'Time from the zero DAC word to full braking (amplifier and motor current '
-        'rise), in t_react (when reaction_time is null).'))
+        's', 0.05, "t_react's actuation part: from the zero DAC word to the wheels' "
+        'deceleration (amplifier and motor current rise). calibrate measures it and writes '
+        'this key only: the sensor and RT parts of t_react stay (docs/safety.md). Too low: '
+        'the robot stops late.'))
     slow_down: bool = setting(Field(
         'bool', True, 'Slow-down zone ahead of the stop zone: the forward '
         'target is capped at the inverse of d(v) with linear.'

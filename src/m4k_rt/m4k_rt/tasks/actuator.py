@@ -43,11 +43,11 @@ from m4k_rt.control.base import BaseController
 from m4k_rt.control.guard import (
     CollisionGuard,
     front_offset,
-    reaction_time,
     speed_for_distance,
 )
 from m4k_rt.control.params import control_params, ControlParams
-from m4k_rt.estop_request import read_request, request_path
+from m4k_rt.control.reaction import reaction
+from m4k_rt.estop_request import read_request, request_path, state_dir
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import PortReader, PortWriter
@@ -162,9 +162,9 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
         visible = g.sonar_range - front_offset(robot, 'sonar')
     else:
         sensor, period, visible = 'no sensor', 0.0, 0.0
-    t_react = g.reaction_time
-    if t_react is None:
-        t_react = reaction_time(period, actuator_period, g.pipeline_latency, g.amplifier_lag)
+    # sensor part + RT part + actuation part, always (calibrate writes the last one only)
+    t_react = reaction(g, sensor if sensor != 'no sensor' else 'sonar', period,
+                       actuator_period).total
     if not g.enabled:
         return GuardPlan(False, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
                          math.inf, params.linear.max_velocity, math.inf, weaken, False,
@@ -358,11 +358,16 @@ def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) ->
     # request the bridge persisted, and write to stderr.
     lines = [plan.line()]
     runtime_dir = getattr(shared, 'runtime_dir', '')
-    if runtime_dir and read_request(runtime_dir):
-        body.ctl.e_stop(True)
-        lines.append('e-stop latch ENGAGED at start-up: {} says the e-stop is requested '
-                     '(release it with e_stop false, then send a fresh command)'.format(
-                         request_path(runtime_dir)))
+    if runtime_dir:
+        where = state_dir(runtime_dir=runtime_dir)
+        persisted = read_request(where)
+        if persisted.problem:
+            lines.append('e-stop request: {}'.format(persisted.problem))
+        if persisted.engaged:
+            body.ctl.e_stop(True)
+            lines.append('e-stop latch ENGAGED at start-up: {} says the e-stop is requested '
+                         '(release it with e_stop false, then send a fresh command)'.format(
+                             request_path(where)))
     for line in lines:
         sys.stderr.write('rt_core: {}\n'.format(line))
     sys.stderr.flush()

@@ -1,0 +1,236 @@
+"""The envelope grid: scenarios generated over speed x motion x obstacle and fault kind.
+
+One declaration (``config/envelope.yaml``, top key ``envelope``) names the speeds, the motions,
+the kinds (each of a class: ``obstacle``, ``moving``, ``fault``, ``estop``), the cells that are
+not promised (with the reason) and the sample ``make test`` runs. :func:`cells` turns it into
+ordinary :class:`~m4k_bench.scenarios.spec.Scenario` objects, named ``<kind>.<speed>.<motion>``
+and validated by the same parser as a hand-written file, so the runner and the judge treat
+them alike. Where a cell puts its obstacle comes from the configuration, never from a run: far
+enough ahead for the speed ramp (``v^2 / 2 a``), the slow-down zone at that speed (d(v) with
+the ramp's deceleration) and half a metre more -- the robot meets it at full speed.
+
+* ``obstacle`` / ``moving``: straight (heading held) towards the obstacle, expect the stop of
+  the kind's ``stop`` cause; ``turning`` drives an arc of ``obstacle_radius_per_m`` x the
+  distance to a wall across it. A ``moving`` kind is a person who steps into the path from the
+  left as the robot sets off and stands there.
+* ``fault``: the fault from the start, commanded for 5 s; expect a latched motor fault and a
+  peak true speed below ``max(0.5, v + 0.2)`` m/s.
+* ``estop``: the contact opens at 30 s (world time) and closes at 32 s under a live 40 s
+  command; expect no motion after the release.
+
+Turning in place uses the rim speed ``v``: ``w = v / (track / 2)``, capped at
+``angular.max_velocity`` (the cell's description says when the cap binds).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Iterable, Mapping
+
+from m4k_bench.scenarios import spec
+from m4k_rt import yamlload
+
+__all__ = ['Cell', 'cells', 'is_grid', 'load', 'not_promised', 'sample', 'scenarios']
+
+CLASSES = ('obstacle', 'moving', 'fault', 'estop')
+FAULT_S = 5.0            # s commanded with a fault from the start
+ESTOP_AT_S, ESTOP_UNTIL_S, ESTOP_CMD_S = 30.0, 32.0, 40.0
+EXTRA_M = 0.5            # m beyond the slow-down zone: the robot meets the line at full speed
+SETTLE_S = 5.0           # s of commands beyond reaching the obstacle
+
+
+class Cell:
+    """One grid cell: its name, and the scenario (None with the reason when not promised)."""
+
+    def __init__(self, name: str, kind: str, speed: str, motion: str,
+                 scenario: spec.Scenario | None, why: str = '') -> None:
+        self.name, self.kind, self.speed, self.motion = name, kind, speed, motion
+        self.scenario, self.why = scenario, why
+
+    def __repr__(self) -> str:
+        return 'Cell({!r}{})'.format(self.name, '' if self.scenario else ', not promised')
+
+
+def is_grid(path: str) -> bool:
+    """Tell whether ``path`` is an envelope declaration (a YAML file with ``envelope:``)."""
+    if not (os.path.isfile(path) and path.endswith('.yaml')):
+        return False
+    with open(path, encoding='utf-8') as f:
+        return any(line.startswith('envelope:') for line in f)
+
+
+def _err(where: str, msg: str) -> spec.ScenarioError:
+    return spec.ScenarioError(where, msg)
+
+
+def load(path: str) -> dict[str, Any]:
+    """Read and check the declaration's shape; raise ScenarioError naming the key."""
+    with open(path, encoding='utf-8') as f:
+        doc = yamlload.load(f)
+    env = doc.get('envelope') if isinstance(doc, dict) else None
+    if not isinstance(env, dict):
+        raise _err(path, 'expected a mapping with envelope:')
+    for key in ('speeds', 'motions', 'kinds'):
+        if not isinstance(env.get(key), dict) or not env[key]:
+            raise _err(f'{path}: envelope.{key}', f'expected a non-empty mapping, got '
+                       f'{env.get(key)!r}')
+    for name, v in env['speeds'].items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v <= 3.0:
+            raise _err(f'{path}: envelope.speeds.{name}', f'expected m/s in (0, 3], got {v!r}')
+    for name, k in env['kinds'].items():
+        if not isinstance(k, dict) or k.get('class') not in CLASSES:
+            raise _err(f'{path}: envelope.kinds.{name}', f'expected {{class: one of '
+                       f'{CLASSES}}}, got {k!r}')
+        if k['class'] in ('obstacle', 'moving') and k.get('stop') not in spec.STOP_CAUSES:
+            raise _err(f'{path}: envelope.kinds.{name}.stop', f'expected one of '
+                       f'{spec.STOP_CAUSES}, got {k.get("stop")!r}')
+    unknown = set(env['motions']) - {'straight', 'turning', 'in_place'}
+    if unknown:
+        raise _err(f'{path}: envelope.motions', f'unknown motion(s) {sorted(unknown)}')
+    env.setdefault('not_promised', [])
+    env.setdefault('sample', [])
+    return env
+
+
+def _listed(value: Any, item: str) -> bool:
+    return value is None or item == value or (isinstance(value, list) and item in value)
+
+
+def _why_not(env: Mapping[str, Any], kind: str, cls: str, motion: str) -> str:
+    for rule in env['not_promised']:
+        if (_listed(rule.get('motion'), motion) and _listed(rule.get('kind'), kind)
+                and _listed(rule.get('class'), cls)):
+            return ' '.join(str(rule.get('why', 'not promised')).split())
+    return ''
+
+
+def _obstacle_x(raw: Mapping[str, Any], v: float) -> float:
+    """Return where (x of the obstacle's near side, m) the robot meets it at full speed."""
+    from m4k_bench.scenarios.bounds import judge_reaction
+    from m4k_rt.control.params import control_params
+    p = control_params(raw.get('control'))
+    a = p.linear.max_deceleration or p.linear.max_acceleration
+    t = judge_reaction(raw, 'laser')
+    slow_zone = v * t + v * v / (2.0 * a) + p.guard.stop_distance
+    front = float(((raw.get('robot') or {}).get('body') or {}).get('length', 0.45)) / 2.0
+    return round(front + v * v / (2.0 * p.linear.max_acceleration) + slow_zone + EXTRA_M, 2)
+
+
+def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
+         motion: str) -> dict[str, Any]:
+    from m4k_rt.control.params import control_params
+    p = control_params(raw.get('control'))
+    k = env['kinds'][kind]
+    cls = k['class']
+    v = float(env['speeds'][speed])
+    mo = env['motions'][motion] or {}
+    w_max = p.angular.max_velocity
+    half_track = p.track_width / 2.0
+    desc = f'{kind} at {speed} ({v:g} m/s), {motion.replace("_", " ")}'
+    if cls in ('fault', 'estop'):
+        if motion == 'straight':
+            cmd: dict[str, Any] = {'v': v, 'w': 0.0}
+        elif motion == 'turning':
+            r = float(mo.get('radius', 1.0))
+            w = min(v / r, w_max)
+            cmd = {'v': w * r, 'w': w}
+            if w < v / r:
+                desc += (f' (w capped at angular.max_velocity {w_max:g} rad/s: {w * r:g} m/s '
+                         f'on the {r:g} m circle)')
+        else:
+            w = min(v / half_track, w_max)
+            cmd = {'v': 0.0, 'w': w}
+            if w < v / half_track:
+                desc += f' (w capped at angular.max_velocity {w_max:g} rad/s)'
+        world: dict[str, Any] = {'walls': {'rectangle': [-8.0, -8.0, 8.0, 8.0]},
+                                 'obstacles': []}
+        if cls == 'fault':
+            wheel = 'both' if kind == 'wheel_stall' else 'left'
+            world['faults'] = [{'at_s': 0.0, 'kind': kind, 'wheel': wheel}]
+            return {'description': desc, 'world': world,
+                    'commands': [dict(cmd, t=FAULT_S)],
+                    'expect': {'motor_fault': True, 'max_speed': round(max(0.5, v + 0.2), 2)},
+                    'short': 0.8}
+        world['faults'] = [{'at_s': ESTOP_AT_S, 'until_s': ESTOP_UNTIL_S, 'kind': 'estop'}]
+        return {'description': desc, 'world': world,
+                'commands': [dict(cmd, t=ESTOP_CMD_S)], 'expect': {'still_after_estop': True}}
+    x = _obstacle_x(raw, v)
+    t = round((x + 0.5) / v + v / p.linear.max_acceleration + SETTLE_S, 1)
+    far = x + 3.0
+    walls: list[Any] | dict[str, Any] = {'rectangle': [-1.0, -4.0, far, 4.0]}
+    obstacles: list[Any] = []
+    if kind == 'wall':
+        walls = {'rectangle': [-1.0, -4.0, x, 4.0]}
+    elif kind == 'leg':
+        obstacles = [[[x, 0.115], [x + 0.03, 0.115], [x + 0.03, 0.145], [x, 0.145]]]
+    elif kind == 'low':
+        obstacles = [{'polygon': [[x, -0.3], [x + 0.4, -0.3], [x + 0.4, 0.3], [x, 0.3]],
+                      'height': 0.25}]
+    elif kind == 'glass':
+        obstacles = [{'polygon': [[x, -0.6], [x + 0.02, -0.6], [x + 0.02, 0.6], [x, 0.6]],
+                      'surface': 'glass'}]
+    elif kind == 'person':
+        obstacles = [{'polygon': [[x, 1.775], [x + 0.25, 1.775], [x + 0.25, 2.225],
+                                  [x, 2.225]],
+                      'path': {'start': {'after': 0.0}, 'waypoints': [[0, 0, 0], [2.0, 0, -2.0]]}}]
+    else:
+        raise _err(f'envelope.kinds.{kind}', 'no world for this obstacle kind (wall, leg, low, '
+                   'glass, person)')
+    if motion == 'turning':
+        r = float(mo.get('obstacle_radius_per_m', 3.0)) * x
+        command: dict[str, Any] = {'v': v, 'w': round(v / r, 5), 't': t}
+        desc += f' (an arc of radius {r:.1f} m)'
+    else:
+        command = {'v': v, 't': t, 'heading': 'hold'}
+    return {'description': desc + f'; the obstacle {x:.2f} m ahead',
+            'world': {'walls': walls, 'obstacles': obstacles},
+            'commands': [command], 'expect': {'stop': k['stop']}}
+
+
+def cells(path: str, raw: Mapping[str, Any] | None = None) -> list[Cell]:
+    """Return every cell of the grid at ``path`` (``raw``: the layered config, default)."""
+    from m4k_rt import config
+    env = load(path)
+    if raw is None:
+        raw = config.load_layered(None, os.path.dirname(os.path.abspath(path)))
+    out = []
+    for kind, k in env['kinds'].items():
+        for speed in env['speeds']:
+            for motion in env['motions']:
+                name = f'{kind}.{speed}.{motion}'
+                why = _why_not(env, kind, k['class'], motion)
+                if why:
+                    out.append(Cell(name, kind, speed, motion, None, why))
+                    continue
+                doc = dict(_doc(raw, env, kind, speed, motion), name=name)
+                out.append(Cell(name, kind, speed, motion,
+                                spec.parse(doc, f'{path}#{name}')))
+    names = {c.name for c in out}
+    missing = [s for s in env['sample'] if s not in names]
+    if missing:
+        raise _err(f'{path}: envelope.sample', f'no such cell(s) {missing}')
+    return out
+
+
+def sample(path: str, raw: Mapping[str, Any] | None = None) -> list[spec.Scenario]:
+    """Return the scenarios of the cells listed under ``sample`` (what ``make test`` runs)."""
+    want = load(path)['sample']
+    by = {c.name: c for c in cells(path, raw)}
+    return [_promised(by[n]) for n in want]
+
+
+def _promised(c: Cell) -> spec.Scenario:
+    if c.scenario is None:
+        raise spec.ScenarioError(c.name, f'sampled but not promised: {c.why}')
+    return c.scenario
+
+
+def scenarios(path: str, raw: Mapping[str, Any] | None = None) -> list[spec.Scenario]:
+    """Return the scenarios of every promised cell, in declaration order."""
+    return [c.scenario for c in cells(path, raw) if c.scenario is not None]
+
+
+def not_promised(path: str) -> Iterable[Cell]:
+    """Return the cells the grid declares outside the promise (with the reason)."""
+    return [c for c in cells(path) if c.scenario is None]
+
