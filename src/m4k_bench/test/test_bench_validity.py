@@ -60,13 +60,13 @@ def test_host_drops_per_10k_separate_the_simulations_share():
     from m4k_bench.benchlib import hostdrops
     log = ('m4k_drivers.host: motor: drops served=10 stale_host=0 stale_device=1 malformed=0\n'
            '[INFO] motor: drops served=9990 stale_host=3 stale_device=5 malformed=0 unexpected=0 '
-           'inactive=2 encode=0 reply_lost=0 at exit\n'
+           'inactive=2 encode=0 reply_lost=4 at exit\n'
            'imu: drops served=5 stale_host=0 stale_device=0\n')
     counts = hostdrops.parse(log)
     assert counts['motor'] == {'served': 9990, 'stale_host': 3, 'stale_device': 5,
                                'malformed': 0, 'unexpected': 0, 'inactive': 2, 'encode': 0,
-                               'reply_lost': 0}
+                               'reply_lost': 4}
     r = hostdrops.per_10k(counts['motor'])
-    assert r['commands'] == 10_000 and r['dropped'] == 10
+    assert r['commands'] == 10_000 and r['dropped'] == 10     # replies lost: not commands
     assert (r['per_10k'], r['host_per_10k'], r['sim_per_10k']) == (10.0, 5.0, 5.0)
     assert hostdrops.per_10k({'served': 0})['per_10k'] is None

@@ -82,6 +82,7 @@ class FrameExecutive:
             m.fifo, m.sched_error, m.affinity_error = (runner.fifo, runner.sched_error,
                                                        runner.affinity_error)
             m.rusage.start()             # the frame thread's counters, from now on
+            m.waits_of = runner          # ... and its timer waits (one per frame)
 
     def _frame(self, runner: RtTask) -> None:
         k_prev = self.k
@@ -121,4 +122,4 @@ class _Runner(RtTask):
             super()._run()
         finally:
             for m in self.frame.members:      # in the frame thread: RUSAGE_THREAD is its own
-                m.rusage.update(m.cycles)
+                m.rusage.update(self.cycles)

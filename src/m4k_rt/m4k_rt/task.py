@@ -85,6 +85,7 @@ class RtTask:
         # The cycle breakdown (m4k_rt.cycleprof), when profiling was switched on before.
         self.profile = cycleprof.CycleProfile() if cycleprof.enabled() else None
         self.cycles = 0
+        self.waits_of: RtTask | None = None   # the frame runner whose thread runs this task
         self.overruns = 0
         self.deadline_misses = 0
         self.body_errors = 0
@@ -271,13 +272,21 @@ class RtTask:
             if self.cycles == 1:
                 prof.cpu_mark(1)  # the first CPU reading: after the warm-up cycle
 
+    def timer_waits(self) -> int:
+        """Return the timer waits of this task's thread so far (for the extra-switch count).
+
+        A task run by a frame (``waits_of``: the frame's runner) shares that thread's waits.
+        """
+        src = self.waits_of
+        return self.cycles if src is None else src.cycles + 1
+
     def _refresh_rusage(self) -> None:
         prof = self.profile
         if prof is None:
-            self.rusage.update(self.cycles)
+            self.rusage.update(self.timer_waits())
             return
         t0 = monotonic_ns()
-        self.rusage.update(self.cycles)
+        self.rusage.update(self.timer_waits())
         prof.rusage_ns += monotonic_ns() - t0
         prof.cpu_mark(self.cycles)
 

@@ -12,9 +12,12 @@ from __future__ import annotations
 import re
 from typing import Any
 
-__all__ = ['SIM_REASONS', 'parse', 'per_10k', 'read']
+__all__ = ['REPLY_REASONS', 'SIM_REASONS', 'parse', 'per_10k', 'read']
 
 SIM_REASONS = ('stale_device',)
+# Reasons that lose a command on its way in; ``encode`` and ``reply_lost`` lose a reply (e.g.
+# the ENCODERS after the RT side stopped, at every shutdown) and are reported, not counted.
+REPLY_REASONS = ('encode', 'reply_lost')
 _LINE = re.compile(r'(?P<dev>[\w-]+): drops served=(?P<served>\d+)(?P<rest>(?: \w+=\d+)*)')
 
 
@@ -33,10 +36,11 @@ def parse(text: str) -> dict[str, dict[str, int]]:
 def per_10k(counts: dict[str, int]) -> dict[str, Any]:
     """Return one device's drops per 10 000 commands: total, host's own, simulation's, by reason.
 
-    The denominator is every command that reached the host: served + dropped.
+    The denominator is every command that reached the host: served + dropped on the way in;
+    reply-side counts are in ``by_reason`` only.
     """
     reasons = {k: v for k, v in counts.items() if k != 'served'}
-    dropped = sum(reasons.values())
+    dropped = sum(v for k, v in reasons.items() if k not in REPLY_REASONS)
     total = counts.get('served', 0) + dropped
     sim = sum(reasons.get(k, 0) for k in SIM_REASONS)
 
