@@ -73,8 +73,9 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
             proc.communicate()
         raise
     assert proc.returncode == 0, stderr[-3000:]
-    # plain progress (not a TTY); 20 with the reaction and the two channel floors
-    assert '[1/20] set-up' in stderr
+    # plain progress (not a TTY); 26 with the reaction, the two channel floors, the two
+    # frame-structure floors and the four executive conditions
+    assert '[1/26] set-up' in stderr
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
@@ -121,6 +122,16 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     bd = summ['loop_cost']['breakdown']
     assert bd['tasks']['actuator']['drain']['n'] == 1 and bd['all']['send']['n'] == 1
     assert rnd['m4k_stress']['samples'] > 0 and rnd['baseline_stress']['samples'] > 0
+    # both executives side by side, each with its own floors and the host's drop counts
+    for cond in ('m4k_frame_idle', 'm4k_frame_stress', 'm4k_slow_threads', 'm4k_slow_frame'):
+        c = rnd[cond]
+        assert c['samples'] > 0 and c['cpu_per_cycle_us'] is not None, cond
+        drops = c['host_drops']
+        assert drops['commands'] > 0 and set(drops['by_reason']) >= {'stale_host',
+                                                                    'stale_device'}, cond
+    assert rnd['floor_frame']['frame'] and rnd['floor_frame']['cpu_per_cycle_us'] > 0
+    assert rnd['floor_frame_socket']['channel'] == 'socket'
+    assert summ['ratios']['cpu_per_cycle_frame_over_threads']['values'][0] is not None
     assert rnd['ct_idle']['latency_us']['n'] > 0
     assert rnd['m4k_idle']['cyclictest']['n'] > 0        # ran concurrently
     assert rnd['baseline_idle']['cyclictest']['n'] > 0
@@ -134,6 +145,7 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     assert '![Fig. 10 periodicity](fig10_periodicity.png)' in report
     assert '## Timing analysis per task (paper Table 1)' in report
     assert 'Cycle breakdown, measured inside the loop' in report
+    assert '## Executives side by side' in report
     assert '| **all, weighted by rate** |' in report
     assert summ['machine']['kernel'] in report
     assert os.path.basename(os.readlink(latest)) == os.path.basename(summ['run']['results_dir'])

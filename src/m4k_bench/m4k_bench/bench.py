@@ -44,7 +44,17 @@ from typing import AbstractSet, Any, Callable, Sequence
 
 import numpy as np
 
-from m4k_bench.benchlib import analysis, plots, provenance, report, results, rounds, stack, system
+from m4k_bench.benchlib import (
+    analysis,
+    hostdrops,
+    plots,
+    provenance,
+    report,
+    results,
+    rounds,
+    stack,
+    system,
+)
 from m4k_bench.benchlib import progress as progress_mod
 from m4k_rt import config as rt_config_mod
 from m4k_rt import cycleprof, rosargs
@@ -65,8 +75,13 @@ FULL = {'rounds': 5, 'condition_s': 30.0, 'floor_s': 10.0, 'scaling_s': 6.0, 'rt
 QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt_n': 500,
          'cmd_trials': 10, 'reaction_trials': 10, 'reaction_speed_trials': 2}
 # One round, in this order (reversed every other round).
-CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_live', 'm4k_alone', 'baseline_idle',
-              'ct_stress', 'm4k_stress', 'baseline_stress')
+CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_frame_idle', 'm4k_live', 'm4k_alone', 'baseline_idle',
+              'm4k_slow_threads', 'm4k_slow_frame',
+              'ct_stress', 'm4k_stress', 'm4k_frame_stress', 'baseline_stress')
+# The executives side by side (m4k_rt.frame): the frame conditions run the same stack with
+# runtime.executive: frame. The slow conditions inject a body overrun (m4k_bench.slowbody).
+FRAME_OVERLAY = {'runtime': {'executive': 'frame'}}
+SLOW_BODY = 'sonar:15:10'       # the sonar body spins 15 ms of CPU every 10th cycle (0.3 s)
 SCALING_TARGET_HZ = 1000   # the scaling target's rate (analysis.TARGETS)
 PHASES = ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt', 'scaling', 'cmdlat',
           'reaction')
@@ -94,7 +109,7 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)
     # the bare floor and the channel floors
     per_round += 0 if 'floor' in skip else \
-        (1 + len(analysis.CHANNEL_FLOORS)) * (plan['floor_s'] + 2.0)
+        (3 + len(analysis.CHANNEL_FLOORS)) * (plan['floor_s'] + 2.0)
     per_round += 0 if 'breakdown' in skip else per_cond
     per_round += 0 if 'floor_paired' in skip else per_cond
     per_round += 0 if 'rtt' in skip else plan['rtt_n'] * 2 * 1e-4 + 2.0
@@ -281,7 +296,7 @@ class Bench:
                                                     'ROS_AUTOMATIC_DISCOVERY_RANGE')})
         per_round = len([c for c in ('floor', *CONDITIONS, 'floor_paired', 'breakdown', 'rtt')
                          if c not in self.skip]) + (
-            0 if 'floor' in self.skip else len(analysis.CHANNEL_FLOORS))
+            0 if 'floor' in self.skip else len(analysis.CHANNEL_FLOORS) + 2)
         per_round += 0 if 'scaling' in self.skip else 2 * len(args.rates_hz) + (
             SCALING_TARGET_HZ in args.rates_hz)
         steps = 2 + self.plan['rounds'] * per_round + (0 if 'cmdlat' in self.skip else 1) + (
@@ -302,6 +317,7 @@ class Bench:
                     'rt_config': args.rt_config, 'results_dir': self.outdir},
             'skipped': {}, 'notes': [], 'files': [], 'warmup_s': WARMUP_S,
         }
+        self.frame_tasks: tuple[str, ...] = ()
         self.task_rates = self._task_rates()
 
     # -- helpers ------------------------------------------------------------------------------
@@ -319,13 +335,21 @@ class Bench:
         except Exception as exc:  # noqa: BLE001 -- reported; the floor is then skipped
             self._note('could not read the task set for the floor: {}'.format(exc))
             return {}
+        self.frame_tasks = cfg.runtime.frame_tasks
         return {t.name: {'period_ns': t.period_ns, 'priority': t.priority,
                          'offset_ns': t.offset_ns, 'cpu': t.cpu}
                 for t in cfg.tasks if t.enabled}
 
-    def _overlay(self, actuator_period_ms: float | None) -> str | None:
+    def _executive_overlay(self, executive: str) -> str | None:
+        """Return the rt_core --config for a run under ``executive`` (threads: the user's)."""
+        if executive == 'threads':
+            return self.args.rt_config
+        return self._overlay(None, FRAME_OVERLAY, 'executive_frame.yaml')
+
+    def _overlay(self, actuator_period_ms: float | None,
+                 extra: dict[str, Any] | None = None, name: str = '') -> str | None:
         """Return the rt_core --config for a run: the user's overlay (+ actuator period)."""
-        if actuator_period_ms is None:
+        if actuator_period_ms is None and extra is None:
             return self.args.rt_config
         import yaml
 
@@ -334,9 +358,13 @@ class Bench:
         if self.args.rt_config:
             with open(self.args.rt_config, encoding='utf-8') as f:
                 data = yamlload.load(f) or {}
-        data = rt_config_mod.deep_merge(data, {'tasks': {ACTUATOR: {
-            'period_ms': actuator_period_ms}}})
-        path = os.path.join(self.tmp, 'actuator_{:g}ms.yaml'.format(actuator_period_ms))
+        if actuator_period_ms is not None:
+            data = rt_config_mod.deep_merge(data, {'tasks': {ACTUATOR: {
+                'period_ms': actuator_period_ms}}})
+        if extra is not None:
+            data = rt_config_mod.deep_merge(data, extra)
+        path = os.path.join(self.tmp, name or 'actuator_{:g}ms.yaml'.format(
+            actuator_period_ms or 0.0))
         with open(path, 'w', encoding='utf-8') as f:
             yaml.safe_dump(data, f)
         return path
@@ -345,10 +373,12 @@ class Bench:
              period_ns: int = PERIOD_NS, with_ct: bool = True,
              rt_config: str | None = None, profile: bool = False,
              floor_beside: bool = False, probe: bool = False,
-             live: bool = False) -> dict[str, Any] | None:
+             live: bool = False, slow_body: str | None = None) -> dict[str, Any] | None:
         ct = _Concurrent(seconds + WARMUP_S, period_ns // 1000, with_ct and self.has_ct)
         fl = _FloorBeside(self, seconds if floor_beside else 0.0, probe)
         env = self.env
+        if slow_body:   # fault injection: one task's body overruns now and then
+            env = dict(env, M4K_BODY_MODULES='m4k_bench.slowbody', M4K_SLOW_BODY=slow_body)
         prof_path = os.path.join(self.outdir, 'raw', tag + '_cycle_profile.json')
         if profile:     # rt_core times the parts of every cycle (m4k_rt.cycleprof)
             env = dict(env, **{cycleprof.ENV: os.path.abspath(prof_path)})
@@ -392,6 +422,8 @@ class Bench:
             if tasks is None else None,
         )
         res['stalls'] = self._stalls(res, ct_res, period_ns)
+        # Wheel commands the driver host did not serve, by reason (m4k_drivers.host).
+        res['host_drops'] = hostdrops.read(os.path.join(self.logs, tag + '.driver_host.log'))
         if floor_beside:
             res['floor'] = fl_res
         if profile:
@@ -449,16 +481,19 @@ class Bench:
         return None if r is None else {'latency_us': r} if 'error' not in r else r
 
     def _floor(self, seconds: float, probe: bool = False,
-               channel: str = 'none') -> dict[str, Any] | None:
+               channel: str = 'none', frame: bool = False) -> dict[str, Any] | None:
         if not self.task_rates:
             return None
         from m4k_bench.benchlib import floor
         ts = list(self.task_rates.values())
+        # frame: the frame executive's structure (its tasks in one thread, back to back)
+        in_frame = [i for i, n in enumerate(self.task_rates) if n in self.frame_tasks] \
+            if frame else []
         out = floor.run_floor_child([int(t['period_ns']) for t in ts],
                                     [int(t['priority']) for t in ts],
                                     [int(t['offset_ns']) for t in ts], seconds, self.env,
                                     probe=probe, channel=channel,
-                                    cpus=[t['cpu'] for t in ts])
+                                    cpus=[t['cpu'] for t in ts], frame=in_frame)
         if isinstance(out, str):
             self._note(out)
             return None
@@ -531,10 +566,26 @@ class Bench:
                 p.phase(pre + "Python floor + a task cycle's {} traffic".format(ch),
                         plan['floor_s'] + 2.0)
                 rnd['floor_' + ch] = self._floor(plan['floor_s'], channel=ch)
+            # The same two denominators in the frame executive's structure.
+            for key, ch in (('floor_frame', 'none'), ('floor_frame_socket', 'socket')):
+                p.phase(pre + 'Python floor, frame structure{}'.format(
+                    '' if ch == 'none' else ' + socket traffic'), plan['floor_s'] + 2.0)
+                rnd[key] = self._floor(plan['floor_s'], channel=ch, frame=True)
         runs: dict[str, tuple[str, Callable[[], Any]]] = {
             'ct_idle': ('cyclictest alone, idle', lambda: self._cyclictest_alone(cond_s)),
             'm4k_idle': ('m4k full stack, idle', lambda: self._m4k(
                 'm4k_idle', 'r{}_m4k_idle'.format(k), cond_s)),
+            'm4k_frame_idle': ('m4k full stack, frame executive, idle', lambda: self._m4k(
+                'm4k_frame_idle', 'r{}_m4k_frame_idle'.format(k), cond_s,
+                rt_config=self._executive_overlay('frame'))),
+            'm4k_slow_threads': ('m4k full stack, a slow sonar body, thread per task',
+                                 lambda: self._m4k('m4k_slow_threads',
+                                                   'r{}_m4k_slow_threads'.format(k), cond_s,
+                                                   slow_body=SLOW_BODY)),
+            'm4k_slow_frame': ('m4k full stack, a slow sonar body, frame executive',
+                               lambda: self._m4k('m4k_slow_frame', 'r{}_m4k_slow_frame'.format(k),
+                                                 cond_s, slow_body=SLOW_BODY,
+                                                 rt_config=self._executive_overlay('frame'))),
             'm4k_live': ('m4k full stack + live view with a viewer, idle', lambda: self._m4k(
                 'm4k_live', 'r{}_m4k_live'.format(k), cond_s, live=True)),
             'm4k_alone': ('m4k actuator alone, idle', lambda: self._m4k(
@@ -544,6 +595,9 @@ class Bench:
             'ct_stress': ('cyclictest alone, stress-ng', lambda: self._cyclictest_alone(cond_s)),
             'm4k_stress': ('m4k full stack, stress-ng', lambda: self._m4k(
                 'm4k_stress', 'r{}_m4k_stress'.format(k), cond_s)),
+            'm4k_frame_stress': ('m4k full stack, frame executive, stress-ng', lambda: self._m4k(
+                'm4k_frame_stress', 'r{}_m4k_frame_stress'.format(k), cond_s,
+                rt_config=self._executive_overlay('frame'))),
             'baseline_stress': ('plain-ROS baseline, stress-ng', lambda: self._baseline(
                 'baseline_stress', 'r{}_baseline_stress'.format(k), cond_s)),
         }

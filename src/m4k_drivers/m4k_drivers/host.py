@@ -31,20 +31,32 @@ import time
 from typing import Any, Sequence, TextIO
 
 from m4k_drivers import config as dconfig
-from m4k_drivers import registry, safety
+from m4k_drivers import hostproc, registry, safety
 from m4k_drivers.handler import DeviceHandler, DriverError, RetryPolicy, State, Status
 from m4k_rt import description, protocol, rosargs
 from m4k_rt.channel import check_runtime_dir, NrtLink
 from m4k_rt.sched import SchedError, set_thread_fifo
 from m4k_rt.stopsignals import run_stoppable, StopSignals
 
-__all__ = ['DEVICE_MODULES_ENV', 'DeviceService', 'format_reading', 'load_raw_config', 'main']
+__all__ = ['DEVICE_MODULES_ENV', 'DROP_REASONS', 'DeviceService', 'format_reading',
+           'load_raw_config', 'main']
 
 LOG = logging.getLogger('m4k_drivers.host')
 
 # Bring-up retries for as long as the host runs: 0.5 s, 1 s, 2 s, ... then every 10 s.
 BRINGUP_BACKOFF = RetryPolicy(attempts=0, base_s=0.5, factor=2.0, max_s=10.0)
 DEVICE_MODULES_ENV = 'M4K_DEVICE_MODULES'
+# Why a datagram from the RT side was not served, or a reply not delivered (DeviceService.drops):
+# stale_host   older than the spec's max_age, and the previous pass was not busy with the
+#              device: the host itself was not scheduled (a real robot sees these too);
+# stale_device older than max_age right after a device transaction longer than max_age: the
+#              device kept the loop (in simulation: sim_robot's scheduling over the sim bus);
+# malformed    failed protocol.decode;  unexpected  a kind the device's spec does not take;
+# inactive     a command for a device not ACTIVE (bring-up pending, error, deactivated);
+# encode       a reply the wire cannot carry;  reply_lost  a reply the link did not take.
+# Queue overflow and no-peer drops on the way in are counted by the RT side's PORT_STATS.
+DROP_REASONS = ('stale_host', 'stale_device', 'malformed', 'unexpected', 'inactive', 'encode',
+                'reply_lost')
 
 
 def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict[str, Any]:
@@ -90,11 +102,10 @@ class DeviceService:
         self.status_period_s = status_period_s
         self.link: Any = None
         self.seq = 0
-        self.malformed = 0
-        self.unexpected = 0
-        self.stale = 0
         self.served = 0
-        self.encode_errors = 0
+        self.drops = dict.fromkeys(DROP_REASONS, 0)
+        self._drops_logged = dict(self.drops)
+        self._busy_ns = 0                # duration of the last device transaction (serve)
         self._status_state: tuple[int, int] | None = None
         self._status_due = 0.0
         self._retry_at = 0.0
@@ -102,6 +113,38 @@ class DeviceService:
         self._lost_seen = 0
         self._links_seen = 0
         self.thread = threading.Thread(target=self.run, name=f'm4k-{kind}', daemon=True)
+
+    # -- drop counters --------------------------------------------------------------------
+    @property
+    def stale(self) -> int:
+        """Return the datagrams dropped as older than the spec's max_age (both causes)."""
+        return self.drops['stale_host'] + self.drops['stale_device']
+
+    @property
+    def malformed(self) -> int:
+        """Return the datagrams that failed to decode."""
+        return self.drops['malformed']
+
+    @property
+    def unexpected(self) -> int:
+        """Return the datagrams of a kind this device does not take."""
+        return self.drops['unexpected']
+
+    @property
+    def encode_errors(self) -> int:
+        """Return the replies the wire could not carry."""
+        return self.drops['encode']
+
+    def drop_line(self) -> str:
+        """Return the counters as one log line (parsed by the bench: benchlib.hostdrops)."""
+        return '{}: drops served={} {}'.format(self.handler.name, self.served, ' '.join(
+            '{}={}'.format(k, v) for k, v in self.drops.items()))
+
+    def _log_drops(self) -> None:
+        # Once a second at most (the status period), only when a counter moved.
+        if self.drops != self._drops_logged:
+            self._drops_logged = dict(self.drops)
+            LOG.warning('%s', self.drop_line())
 
     # -- plumbing -------------------------------------------------------------------------
     def start(self) -> None:
@@ -112,7 +155,10 @@ class DeviceService:
         """Send one datagram, stamped with the sample time when known, else now."""
         self.seq = (self.seq + 1) & 0xFFFFFFFF
         stamp = time.monotonic_ns() if stamp_ns is None else stamp_ns
-        return bool(self.link.write(protocol.encode(kind, self.seq, stamp, *fields)))
+        if self.link.write(protocol.encode(kind, self.seq, stamp, *fields)):
+            return True
+        self.drops['reply_lost'] += 1
+        return False
 
     def _send_status(self, force: bool = False) -> None:
         h = self.handler
@@ -122,6 +168,7 @@ class DeviceService:
             return
         self._status_state = key
         self._status_due = now + self.status_period_s
+        self._log_drops()
         self.send(protocol.Kind.DEVICE_STATUS, h.name[:16], int(h.state), h.status_level(),
                   h.faults & 0xFFFFFFFF, int(h.last_error))
 
@@ -189,6 +236,7 @@ class DeviceService:
         finally:
             h.shutdown()
             self.link.close()
+            LOG.info('%s at exit', self.drop_line())
 
     def _on_link_lost(self) -> None:
         h = self.handler
@@ -205,29 +253,36 @@ class DeviceService:
         try:
             hdr, msg = protocol.decode(data)
         except protocol.ProtocolError:
-            self.malformed += 1
+            self.drops['malformed'] += 1
             return
         if hdr.kind not in self.spec.accepts:
-            self.unexpected += 1
+            self.drops['unexpected'] += 1
             return
         max_age = self.spec.max_age(self.section)
         if max_age is not None and time.monotonic_ns() - hdr.stamp_ns > max_age * 1e9:
             # Queued while this host stalled: replaying it would drive (and re-enable the
-            # amplifier) on a command the RT side has long replaced.
-            self.stale += 1
+            # amplifier) on a command the RT side has long replaced.  Attributed to the device
+            # when the pass before was one device transaction longer than max_age.
+            cause = 'stale_device' if self._busy_ns > max_age * 1e9 else 'stale_host'
+            self.drops[cause] += 1
             if self.stale == 1 or self.stale % 100 == 0:
                 LOG.warning('%s: dropped %d datagram(s) older than %.3f s (a stall?)',
                             self.handler.name, self.stale, max_age)
             return
-        self.served += 1
+        if self.handler.state != State.ACTIVE:
+            self.drops['inactive'] += 1
+        else:
+            self.served += 1
         self._serve(msg)
 
     def _serve(self, msg: Any) -> None:
+        t0 = time.monotonic_ns()
         try:
             self.spec.serve(self.handler, msg, self)
         except protocol.ProtocolError as exc:     # a reading the wire cannot carry: dropped
-            self.encode_errors += 1
+            self.drops['encode'] += 1
             LOG.error('%s: cannot encode the reply: %s', self.handler.name, exc)
+        self._busy_ns = time.monotonic_ns() - t0
 
 
 # -- console bring-up --------------------------------------------------------------------
@@ -411,6 +466,11 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
     except OSError as exc:
         print(f'driver_host: {exc}', file=sys.stderr)
         return 2
+    children = hostproc.Children({})
+    if not args.print_mode and jog is None:
+        # Before any device is opened or thread started: an RT-facing device gets a process
+        # of its own (m4k_drivers.hostproc), which goes on from here with its group alone.
+        enabled, children = hostproc.fork_groups(hostproc.groups(enabled, cfg.devices))
     # sim backends reach sim_robot through the sim-bus socket in the runtime directory.
     ctx = registry.BuildContext(world_config=cfg.world_raw, runtime_dir=runtime_dir)
     if standin:
@@ -430,11 +490,12 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
         print(f'driver_host: {exc}', file=sys.stderr)
         for h in handlers.values():
             h.shutdown()
+        children.stop()
         return 2
     if signals.stopping:  # stopped during start-up: nothing was activated, shut down anyway
         for h in handlers.values():
             h.shutdown()
-        return 0
+        return 0 if children.stop() else 1
     stop = signals.event
     if args.print_mode:
         (kind, handler), = handlers.items()
@@ -448,12 +509,15 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
             print(f'driver_host: {exc}', file=sys.stderr)
             handler.shutdown()
             return 2
-    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop, group)
+    return _serve(handlers, cfg, devices, raw.get('ports') or {}, runtime_dir, stop, group,
+                  children)
 
 
 def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
            devices: dict[str, Any], ports: dict[str, Any], runtime_dir: str | None,
-           stop: threading.Event, group: str | None = None) -> int:
+           stop: threading.Event, group: str | None = None,
+           children: hostproc.Children | None = None) -> int:
+    children = children if children is not None else hostproc.Children({})
     services = []
     for kind, handler in handlers.items():
         # An explicit xddp_port wins; else the RT side's ports table; else the default.
@@ -462,18 +526,30 @@ def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
             kind, cfg.devices[kind]['xddp_port'])
         services.append(DeviceService(kind, handler, cfg.devices[kind], port, stop, runtime_dir,
                                       group=group))
+    LOG.info('serving %s (pid %d)', ', '.join(f'{s.kind}@{s.port}' for s in services),
+             os.getpid())
+    if len(services) == 1 and not children and hostproc.own_process(services[0].section):
+        # An RT-facing device's own process: served from the main thread, the only one.
+        services[0].run()
+        return 0
     for s in services:
         s.start()
-    LOG.info('serving %s', ', '.join(f'{s.kind}@{s.port}' for s in services))
+    failed = False
     while not stop.wait(0.5):
-        pass
+        gone = children.poll()
+        if gone:
+            # A device process died on its own: end the host so its supervisor restarts all.
+            LOG.error('device process %s: stopping the driver host', gone)
+            failed = True
+            stop.set()
+    clean = children.stop()
     for s in services:
         s.thread.join(timeout=5.0)
     stuck = [s.kind for s in services if s.thread.is_alive()]
     if stuck:
         LOG.error('services did not stop: %s', ', '.join(stuck))
         return 1
-    return 0
+    return 0 if clean and not failed else 1
 
 if __name__ == '__main__':
     sys.exit(main())

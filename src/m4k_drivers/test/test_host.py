@@ -1,3 +1,4 @@
+import os
 import re
 import threading
 import time
@@ -60,10 +61,18 @@ def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
                         '--device', 'motor', '--device', 'led'])
     deadline = time.monotonic() + 30
     seen = ''
-    while time.monotonic() < deadline and 'serving' not in seen:
+    while time.monotonic() < deadline and seen.count('serving') < 2:
         seen += proc.stderr.readline()
-    assert 'serving motor@motor, led@led' in seen   # devices.yaml alone: by label
+    # The motors (sched_priority > 0) in a process of their own, the LED in the host's;
+    # devices.yaml alone: each found by its label.
+    motor = re.search(r'serving motor@motor \(pid (\d+)\)', seen)
+    led = re.search(r'serving led@led \(pid (\d+)\)', seen)
+    assert motor and led, seen
+    assert int(led.group(1)) == proc.pid and int(motor.group(1)) != proc.pid
+    child = int(motor.group(1))
     assert procs.stop(proc) == 0
+    with pytest.raises(ProcessLookupError):      # the parent reaped its device process
+        os.kill(child, 0)
 
 
 def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, sim_robot):

@@ -50,6 +50,8 @@ class RuntimeConfig:
     max_datagram: int = _d('max_datagram')
     max_ports: int = _d('max_ports')
     transport: str = _d('transport')
+    executive: str = _d('executive')
+    frame_tasks: tuple[str, ...] = tuple(_d('frame_tasks'))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,8 +169,14 @@ def _mapping(v: Any, path: str) -> Mapping[str, Any]:
 def _parse_runtime(m: Any) -> RuntimeConfig:
     m = _mapping(m if m is not None else {}, 'runtime')
     schema.check_keys(m, schema.RUNTIME, 'runtime')
-    return RuntimeConfig(**{k: schema.RUNTIME[k].validate('runtime.' + k, v)
-                            for k, v in m.items()})
+    out = {k: schema.RUNTIME[k].validate('runtime.' + k, v) for k, v in m.items()}
+    if 'frame_tasks' in out:
+        names = out['frame_tasks']
+        if not all(isinstance(n, str) and n for n in names):
+            raise ConfigError('runtime.frame_tasks', 'expected a list of task names, got '
+                              '{!r}'.format(names), names)
+        out['frame_tasks'] = tuple(names)
+    return RuntimeConfig(**out)
 
 
 def _parse_ports(m: Any, max_ports: int) -> dict[str, int]:

@@ -76,6 +76,9 @@ class SharedState:
     config: config.RtConfig
     hardening: sched.Hardening
     tasks: list[RtTask] = dataclasses.field(default_factory=list)
+    # The threads to start and stop: every task's own, or the frame executive's runner in
+    # place of its members (m4k_rt.frame); empty = ``tasks``.
+    runners: list[RtTask] = dataclasses.field(default_factory=list)
     stop_event: threading.Event = dataclasses.field(default_factory=threading.Event)
     audit_installed: bool = False    # the forbidden-call audit hook (RT_STATUS flags bit)
     robot: Any = None                # tasks.state.RobotState, set by the first robot body
@@ -215,9 +218,26 @@ def _run(args: argparse.Namespace, cfg: config.RtConfig, chosen: list[config.Tas
             shared.tasks.append(RtTask(t.name, t.priority, t.period_ns, body, cpu=t.cpu,
                                        start_ns=start + t.offset_ns,
                                        ring_capacity=rt.ring_capacity, index=i))
+        try:
+            shared.runners = _runners(rt, shared.tasks, start)
+        except config.ConfigError as exc:
+            _err('config error: {}'.format(exc))
+            return 2
         return _serve(args, shared)
     finally:
         hard.close()
+
+
+def _runners(rt: config.RuntimeConfig, rt_tasks: list[RtTask], start_ns: int) -> list[RtTask]:
+    """Return the threads to run: one per task, or the frame's runner plus the others."""
+    if rt.executive != 'frame':
+        return list(rt_tasks)
+    from m4k_rt.frame import FrameExecutive
+    members = [t for t in rt_tasks if t.name in rt.frame_tasks]
+    if not members:
+        return list(rt_tasks)
+    frame = FrameExecutive(members, start_ns=start_ns)
+    return [frame.runner] + [t for t in rt_tasks if t.name not in rt.frame_tasks]
 
 
 def _serve(args: argparse.Namespace, shared: SharedState) -> int:
@@ -226,18 +246,21 @@ def _serve(args: argparse.Namespace, shared: SharedState) -> int:
     shared.audit_installed = True
     sched.freeze_gc(shared.hardening)
     stop = shared.stop_event
+    runners = shared.runners or shared.tasks
     try:
-        for t in shared.tasks:
+        for t in runners:
             t.start()
-        _err('gc frozen and disabled; running {} tasks: {}'.format(len(shared.tasks), ', '.join(
-            '{}({} ms, prio {}{})'.format(t.name, t.period_ns / 1e6, t.priority,
-                                          '' if t.fifo else ', NOT FIFO: ' + str(t.sched_error))
-            for t in shared.tasks)))
+        _err('gc frozen and disabled; running {} tasks in {} threads: {}'.format(
+            len(shared.tasks), len(runners), ', '.join(
+                '{}({} ms, prio {}{})'.format(t.name, t.period_ns / 1e6, t.priority,
+                                              '' if t.fifo else ', NOT FIFO: ' + str(
+                                                  t.sched_error))
+                for t in runners)))
         stop.wait(args.duration)
     finally:
-        for t in shared.tasks:
+        for t in runners:
             t.stop()
-        stuck = [t.name for t in shared.tasks if not t.join(2.0 * t.period_ns / 1e9 + 1.0)]
+        stuck = [t.name for t in runners if not t.join(2.0 * t.period_ns / 1e9 + 1.0)]
         modeswitch.uninstall_console_guard()
         sched.unfreeze_gc()
     for t in shared.tasks:

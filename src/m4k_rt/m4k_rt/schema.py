@@ -439,6 +439,17 @@ RUNTIME: dict[str, Field] = {
         'eventfd write per sent one, and notices a lost peer within {:g} ms (message mode '
         'only). Peers follow what the RT side offers.'.format(SHM_LIVENESS_NS * 1e-6),
         choices=TRANSPORTS),
+    'executive': Field(
+        'str', 'threads', 'How the tasks are released. threads: one SCHED_FIFO thread and '
+        'timerfd per task (the paper). frame: one SCHED_FIFO thread on one timerfd runs the '
+        'frame_tasks back to back in every frame (the shortest of their periods), actuator '
+        'first, in rate-monotonic order; the other tasks keep their own threads. A frame '
+        "task that overruns delays every task after it, the next frame's actuator included.",
+        choices=('threads', 'frame')),
+    'frame_tasks': Field(
+        'list', ['actuator', 'imu', 'led', 'sonar'], 'Tasks the frame executive runs in its '
+        'frame (executive frame only): periods whole multiples of the shortest, bodies short. '
+        'A configured name not running (disabled, or not in --tasks) is left out.'),
 }
 
 TASK: dict[str, Field] = {

@@ -85,6 +85,7 @@ class RtTask:
         # The cycle breakdown (m4k_rt.cycleprof), when profiling was switched on before.
         self.profile = cycleprof.CycleProfile() if cycleprof.enabled() else None
         self.cycles = 0
+        self.waits_of: RtTask | None = None   # the frame runner whose thread runs this task
         self.overruns = 0
         self.deadline_misses = 0
         self.body_errors = 0
@@ -225,21 +226,7 @@ class RtTask:
         """
         t_end = monotonic_ns()
         if self._open:
-            rel = self.t_rel
-            self.ring.record(rel, self.t_start, t_end, self.expirations)
-            if t_end > rel + self.period_ns:
-                self.deadline_misses += 1
-            self.cycles += 1
-            if not self.cycles & _RUSAGE_MASK:
-                self._refresh_rusage()
-            self._open = False
-            prof = self.profile
-            if prof is not None:
-                prof.body_ns += t_end - self.t_start
-                prof.record_ns += monotonic_ns() - t_end
-                prof.cycles += 1
-                if self.cycles == 1:
-                    prof.cpu_mark(1)  # the first CPU reading: after the warm-up cycle
+            self.close_cycle(t_end)
         if self._stop:
             raise TaskStopped
         tfd = self._tfd
@@ -250,7 +237,15 @@ class RtTask:
         t_start = monotonic_ns()
         if self._stop:
             raise TaskStopped
-        self.t_rel += exp * self.period_ns
+        return self.open_cycle(self.t_rel + exp * self.period_ns, t_start, exp)
+
+    def open_cycle(self, t_rel: int, t_start: int, exp: int) -> int:
+        """Start a cycle released (ideally) at ``t_rel``, begun at ``t_start``; return overruns.
+
+        ``exp``: releases since the last cycle (more than one: skipped releases, counted).
+        Also called by the frame executive (:mod:`m4k_rt.frame`) for the tasks it runs.
+        """
+        self.t_rel = t_rel
         self.t_start = t_start
         self.expirations = exp
         self._open = True
@@ -259,13 +254,39 @@ class RtTask:
             return exp - 1
         return 0
 
+    def close_cycle(self, t_end: int) -> None:
+        """Record the open cycle ending at ``t_end``: ring, deadline, cycles, rusage, profile."""
+        rel = self.t_rel
+        self.ring.record(rel, self.t_start, t_end, self.expirations)
+        if t_end > rel + self.period_ns:
+            self.deadline_misses += 1
+        self.cycles += 1
+        if not self.cycles & _RUSAGE_MASK:
+            self._refresh_rusage()
+        self._open = False
+        prof = self.profile
+        if prof is not None:
+            prof.body_ns += t_end - self.t_start
+            prof.record_ns += monotonic_ns() - t_end
+            prof.cycles += 1
+            if self.cycles == 1:
+                prof.cpu_mark(1)  # the first CPU reading: after the warm-up cycle
+
+    def timer_waits(self) -> int:
+        """Return the timer waits of this task's thread so far (for the extra-switch count).
+
+        A task run by a frame (``waits_of``: the frame's runner) shares that thread's waits.
+        """
+        src = self.waits_of
+        return self.cycles if src is None else src.cycles + 1
+
     def _refresh_rusage(self) -> None:
         prof = self.profile
         if prof is None:
-            self.rusage.update(self.cycles)
+            self.rusage.update(self.timer_waits())
             return
         t0 = monotonic_ns()
-        self.rusage.update(self.cycles)
+        self.rusage.update(self.timer_waits())
         prof.rusage_ns += monotonic_ns() - t0
         prof.cpu_mark(self.cycles)
 

@@ -220,6 +220,43 @@ RATIOS: tuple[Ratio, ...] = (
           '÷ Python floor run alone', ('m4k_idle', 'cpu_per_cycle_us'),
           ('floor', 'cpu_per_cycle_us')),
 )
+
+# The frame executive beside one thread per task (issue 42): the same ratios for its runs, and
+# its own denominators (the floor in the frame's structure, with and without the channel).
+def _frame_release(q: str, ql: str, cond: str, label: str) -> tuple[Ratio, Ratio]:
+    return (Ratio('release_{}_over_cyclictest_frame_{}'.format(q, cond), 'frame executive: '
+                  'actuator release {} ÷ concurrent cyclictest {}, {}'.format(ql, ql, label),
+                  ('m4k_frame_' + cond, 'latency_us', q), ('m4k_frame_' + cond, 'cyclictest', q)),
+            Ratio('release_{}_over_cyclictest_alone_frame_{}'.format(q, cond), 'frame '
+                  'executive: actuator release {} ÷ cyclictest alone {}, {}'.format(ql, ql, label),
+                  ('m4k_frame_' + cond, 'latency_us', q), ('ct_' + cond, 'latency_us', q)))
+
+
+FRAME_RATIOS: tuple[Ratio, ...] = (
+    *(r for c, lab in (('idle', 'idle'), ('stress', 'stress-ng'))
+      for q, ql in (('p99', 'p99'), ('p999', 'p99.9')) for r in _frame_release(q, ql, c, lab)),
+    Ratio('frame_floor_over_floor', 'Python floor in the frame structure ÷ one thread per '
+          'task, alone', ('floor_frame', 'cpu_per_cycle_us'), ('floor', 'cpu_per_cycle_us')),
+    Ratio('frame_socket_floor_over_frame_floor', 'frame floor + socket calls ÷ frame floor, '
+          'alone', ('floor_frame_socket', 'cpu_per_cycle_us'),
+          ('floor_frame', 'cpu_per_cycle_us')),
+    Ratio('cpu_per_cycle_frame_over_floor_alone', 'frame executive: RT process CPU per task '
+          'cycle (full stack, idle) ÷ Python floor (thread per task) run alone',
+          ('m4k_frame_idle', 'cpu_per_cycle_us'), ('floor', 'cpu_per_cycle_us')),
+    Ratio('cpu_per_cycle_frame_over_own_channel_floor', 'frame executive: RT process CPU per '
+          'task cycle ÷ its own channel floor (frame structure + socket calls)',
+          ('m4k_frame_idle', 'cpu_per_cycle_us'), ('floor_frame_socket', 'cpu_per_cycle_us')),
+    Ratio('cpu_per_cycle_over_own_channel_floor', 'thread per task: RT process CPU per task '
+          'cycle ÷ its own channel floor (thread per task + socket calls)',
+          ('m4k_idle', 'cpu_per_cycle_us'), ('floor_socket', 'cpu_per_cycle_us')),
+    Ratio('cpu_per_cycle_frame_over_threads', 'RT process CPU per task cycle, frame ÷ thread '
+          'per task (full stack, idle)', ('m4k_frame_idle', 'cpu_per_cycle_us'),
+          ('m4k_idle', 'cpu_per_cycle_us')),
+    Ratio('slow_body_release_p99_frame_over_threads', 'a sonar body overrunning 15 ms every '
+          '0.3 s: actuator release p99, frame ÷ thread per task',
+          ('m4k_slow_frame', 'latency_us', 'p99'), ('m4k_slow_threads', 'latency_us', 'p99')),
+)
+RATIOS = RATIOS + FRAME_RATIOS
 RATIO_KEYS = tuple(r.key for r in RATIOS)
 
 
@@ -238,6 +275,12 @@ STRICTER: tuple[Stricter, ...] = tuple(
                  ql, ql, 'idle' if c == 'idle' else 'stress-ng'),
              'release_{}_over_cyclictest_{}'.format(q, c),
              'release_{}_over_cyclictest_alone_{}'.format(q, c))
+    for c in ('idle', 'stress') for q, ql in (('p99', 'p99'), ('p999', 'p99.9'))) + tuple(
+    Stricter('release_{}_stricter_frame_{}'.format(q, c), 'frame executive: actuator release '
+             '{} ÷ cyclictest {}, the stricter of concurrent and alone, {}'.format(
+                 ql, ql, 'idle' if c == 'idle' else 'stress-ng'),
+             'release_{}_over_cyclictest_frame_{}'.format(q, c),
+             'release_{}_over_cyclictest_alone_frame_{}'.format(q, c))
     for c in ('idle', 'stress') for q, ql in (('p99', 'p99'), ('p999', 'p99.9')))
 
 
@@ -245,7 +288,8 @@ def stricter_values(a: Sequence[float | None], b: Sequence[float | None]) -> lis
     """Return the larger ratio of each round (the smaller denominator); None if one is."""
     return [max(x, y) if x is not None and y is not None else None
             for x, y in zip(a, b, strict=True)]
-M4K_CONDITIONS = ('m4k_idle', 'm4k_live', 'm4k_alone', 'm4k_stress', 'm4k_floor_paired')
+M4K_CONDITIONS = ('m4k_idle', 'm4k_live', 'm4k_alone', 'm4k_stress', 'm4k_floor_paired',
+                  'm4k_frame_idle', 'm4k_frame_stress', 'm4k_slow_threads', 'm4k_slow_frame')
 
 
 def hardened_rounds(rounds_: Sequence[Mapping[str, Any]]) -> tuple[list[dict[str, Any]],
@@ -264,18 +308,32 @@ def hardened_rounds(rounds_: Sequence[Mapping[str, Any]]) -> tuple[list[dict[str
     return out, excluded
 
 
-def round_ratios(rounds_: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Return every ratio as its per-round values and their spread (median, min, max)."""
+def round_ratios(rounds_: Sequence[Mapping[str, Any]],
+                 period_us: float = 10_000.0) -> dict[str, Any]:
+    """Return every ratio as its per-round values and their spread (median, min, max).
+
+    A round whose conditions' cyclictest reference is broken (:mod:`.validity`) gives the
+    ratio no value; the reasons are the entry's ``invalid``.
+    """
     from m4k_bench.benchlib.rounds import per_round_ratios, spread
+    from m4k_bench.benchlib.validity import round_invalid
     ok, excluded = hardened_rounds(rounds_)
     out: dict[str, Any] = {}
     for r in RATIOS:
         values = per_round_ratios(ok, r.num, r.den)
-        out[r.key] = {'label': r.label, 'spread': spread(values), 'values': values}
+        invalid = []
+        for i, rnd in enumerate(ok):
+            why = round_invalid(rnd, (r.num[0], r.den[0]), period_us)
+            if why:
+                invalid.append('round {}: {}'.format(rnd.get('round', i + 1), why))
+                values[i] = None
+        out[r.key] = {'label': r.label, 'spread': spread(values), 'values': values,
+                      'invalid': invalid}
     for st in STRICTER:
         values = stricter_values(out[st.concurrent]['values'], out[st.alone]['values'])
         out[st.key] = {'label': st.label, 'spread': spread(values), 'values': values,
-                       'of': [st.concurrent, st.alone]}
+                       'of': [st.concurrent, st.alone],
+                       'invalid': out[st.concurrent]['invalid'] + out[st.alone]['invalid']}
     out['_excluded'] = excluded
     return out
 
@@ -300,6 +358,11 @@ TARGETS: tuple[Target, ...] = (
     Target('release_p99_stricter_idle', '<=', 1.5),
     Target('release_p999_stricter_idle', '<=', 2.0),
     Target('release_p99_stricter_stress', '<=', 1.5),
+    Target('release_p99_stricter_frame_idle', '<=', 1.5),
+    Target('release_p99_stricter_frame_stress', '<=', 1.5),
+    Target('cpu_per_cycle_over_own_channel_floor', '<=', 1.3),
+    Target('cpu_per_cycle_frame_over_own_channel_floor', '<=', 1.3),
+    Target('cpu_per_cycle_frame_over_floor_alone', '<=', 2.0),
     Target('release_p999_stricter_stress', '<=', 2.0),
     Target('xddp_rtt_p50_over_raw', '<=', 1.3),
     Target('cpu_per_cycle_over_floor', '<=', 2.0),
@@ -321,6 +384,7 @@ def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, A
     rows = []
     for t in targets:
         of: dict[str, Any] | None = None
+        invalid: list[str] = []
         if t.key == 'scaling_1khz_release_p99_over_cyclictest':
             label = ('actuator alone at 1 kHz: release p99 ÷ cyclictest p99 at 1 kHz, the '
                      'stricter of concurrent and alone')
@@ -333,6 +397,7 @@ def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, A
             entry = ratios.get(t.key) or {}
             label = entry.get('label', t.key)
             sp = entry.get('spread')
+            invalid = list(entry.get('invalid') or [])
             if entry.get('of'):
                 conc, alone = entry['of']
                 of = {'concurrent': (ratios.get(conc) or {}).get('spread'),
@@ -343,7 +408,9 @@ def evaluate_targets(ratios: Mapping[str, Any], scaling: Sequence[Mapping[str, A
             m = sp['median']
             met = m <= t.limit if t.op == '<=' else m >= t.limit
         rows.append({'key': t.key, 'label': label, 'target': '{} {:g}×'.format(t.op, t.limit),
-                     'spread': sp, 'met': met, 'of': of})
+                     'spread': sp, 'met': met, 'of': of,
+                     # no valid round left: the verdict is INVALID, with the reasons
+                     'invalid': invalid if sp is None else [], 'rounds_invalid': invalid})
     return rows
 
 

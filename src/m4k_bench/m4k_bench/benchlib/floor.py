@@ -173,12 +173,63 @@ def _loop(period_ns: int, priority: int, first_ns: int, stop_ns: int, out: dict,
                            'max': stats.max})
 
 
+def _frame_loop(periods_ns: Sequence[int], priority: int, first_ns: int, stop_ns: int,
+                out: dict, channel: str = 'none', pin: int | None = None) -> None:
+    """Run the frame executive's floor: one timerfd at the shortest period.
+
+    The due cycles run back to back (m4k_rt.frame's schedule), each a clock read (+ the
+    channel's traffic).
+    """
+    from m4k_rt.frame import releases
+    try:
+        sched.set_thread_fifo(priority)
+        out['fifo'] = True
+    except sched.SchedError:
+        out['fifo'] = False
+    if pin is not None:
+        try:
+            sched.set_thread_affinity(pin)
+        except sched.SchedError as exc:
+            out['affinity_error'] = str(exc)
+    frame = min(periods_ns)
+    divisors = [p // frame for p in sorted(periods_ns)]
+    tfd = TimerFd()
+    tfd.set_abs(first_ns, frame)
+    io, io_close = _channel_call(channel)
+    read, clock, cpu = tfd.read, monotonic_ns, time.thread_time_ns
+    k, frames, cycles, c0, cyc0 = -1, 0, 0, 0, 0
+    try:
+        while True:
+            if frames == 1:
+                c0, cyc0 = cpu(), cycles          # after the first wake, as _loop
+            exp = read()
+            k_now = 0 if k < 0 else k + exp
+            for d in divisors:
+                if releases(k, k_now, d)[0]:
+                    t = clock()
+                    if io is not None:
+                        io()
+                    cycles += 1
+            k = k_now
+            frames += 1
+            if t >= stop_ns:
+                break
+        c1 = cpu()
+    finally:
+        tfd.close()
+        io_close()
+    out.update(cycles=cycles, frames=frames, cpu_ns=c1 - c0, cpu_cycles=cycles - cyc0)
+
+
 def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
               offsets_ns: Sequence[int], seconds: float, probe: bool = False,
-              channel: str = 'none', cpus: Sequence[int | None] | None = None) -> dict:
+              channel: str = 'none', cpus: Sequence[int | None] | None = None,
+              frame: Sequence[int] = ()) -> dict:
     """Run one bare loop per period for ``seconds`` in this process; return the measurements.
 
     ``cpus``: the CPU each loop is pinned to (None: not pinned), as the task set's ``cpu``.
+    ``frame``: indices of the loops one frame thread runs instead (the frame executive's
+    structure, :func:`_frame_loop`); the others keep a thread each.
     """
     if cpus is None:
         cpus = [None] * len(periods_ns)
@@ -189,11 +240,18 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
     now = monotonic_ns()
     base = timing.first_release(now + 200_000_000, max(periods_ns))
     stop = base + int(seconds * 1e9)
-    outs: list[dict] = [{} for _ in periods_ns]
-    threads = [threading.Thread(target=_loop,
-                                args=(p, pr, base + o, stop, out, probe, channel, c), daemon=True)
-               for p, pr, o, out, c in zip(periods_ns, priorities, offsets_ns, outs, cpus,
-                                           strict=True)]
+    own = [i for i in range(len(periods_ns)) if i not in set(frame)]
+    outs: list[dict] = [{'period_ns': periods_ns[i]} for i in own]
+    threads = [threading.Thread(target=_loop, args=(
+        periods_ns[i], priorities[i], base + offsets_ns[i], stop, out, probe, channel, cpus[i]),
+        daemon=True) for i, out in zip(own, outs, strict=True)]
+    if frame:
+        fout: dict = {'periods_ns': [periods_ns[i] for i in frame]}
+        outs.append(fout)
+        first = min(frame, key=lambda i: (periods_ns[i], -priorities[i]))
+        threads.append(threading.Thread(target=_frame_loop, args=(
+            [periods_ns[i] for i in frame], priorities[first], base, stop, fout, channel,
+            cpus[first]), daemon=True))
     cpu0 = time.process_time()
     t0 = time.monotonic()
     for t in threads:
@@ -208,8 +266,8 @@ def run_floor(periods_ns: Sequence[int], priorities: Sequence[int],
             'probe_us': _weighted_probe(probes) if probes else None,
             'process_cpu_s': time.process_time() - cpu0, 'wall_s': wall, 'seconds': seconds,
             'channel': channel, 'mem_locked': rep.mem_locked, 'cpus': list(cpus),
-            'fifo': all(o.get('fifo') for o in outs),
-            'threads': [dict(o, period_ns=p) for o, p in zip(outs, periods_ns, strict=True)]}
+            'fifo': all(o.get('fifo') for o in outs), 'frame': list(frame),
+            'threads': outs}
 
 
 def _weighted_probe(probes: Sequence[dict]) -> dict:
@@ -226,7 +284,8 @@ def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
                     offsets_ns: Sequence[int], seconds: float,
                     env: dict[str, str] | None = None, probe: bool = False,
                     channel: str = 'none',
-                    cpus: Sequence[int | None] | None = None) -> dict | str:
+                    cpus: Sequence[int | None] | None = None,
+                    frame: Sequence[int] = ()) -> dict | str:
     """Run the floor in a child process (hardened like rt_core); return its JSON or why not."""
     import subprocess
 
@@ -237,6 +296,7 @@ def run_floor_child(periods_ns: Sequence[int], priorities: Sequence[int],
         '--priorities', ','.join(str(p) for p in priorities),
         '--offsets-ms', ','.join('{:g}'.format(o / 1e6) for o in offsets_ns),
         '--seconds', str(seconds), '--channel', channel, *(['--probe'] if probe else []),
+        *(['--frame', ','.join(str(i) for i in frame)] if frame else []),
         *(['--cpus', format_cpus(cpus)] if cpus and any(c is not None for c in cpus) else []))
     try:
         p = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60,
@@ -288,7 +348,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--cpus', default='',
                     help="comma list of the CPU each loop is pinned to, '-' for none (the task "
                          "set's cpu:); default: none pinned")
+    ap.add_argument('--frame', default='', help='comma list of loop indices one frame thread '
+                    'runs back to back (the frame executive), default: none')
     args = ap.parse_args(argv)
+    frame = [int(x) for x in args.frame.split(',') if x]
     periods = [int(float(x) * 1e6) for x in args.periods_ms.split(',')]
     prios = [int(x) for x in args.priorities.split(',')]
     offs = [int(float(x) * 1e6) for x in args.offsets_ms.split(',')] if args.offsets_ms \
@@ -299,7 +362,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(str(exc))
     if not len(periods) == len(prios) == len(offs):
         ap.error('--periods-ms, --priorities and --offsets-ms differ in length')
-    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe, args.channel, cpus),
+    json.dump(run_floor(periods, prios, offs, args.seconds, args.probe, args.channel, cpus,
+                        frame),
               sys.stdout)
     sys.stdout.write('\n')
     sys.stdout.flush()

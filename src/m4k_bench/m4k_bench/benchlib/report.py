@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from m4k_bench import recorder
-from m4k_bench.benchlib import analysis
+from m4k_bench.benchlib import analysis, execreport
 from m4k_bench.benchlib.analysis import RATIOS
 from m4k_bench.benchlib.results import md_table
 
@@ -24,6 +24,10 @@ CONDITION_LABELS = {
     'm4k_live': 'm4k full stack + live view viewer, idle',
     'm4k_alone': 'm4k actuator alone, idle',
     'm4k_stress': 'm4k full stack, stress-ng',
+    'm4k_frame_idle': 'm4k full stack, frame executive, idle',
+    'm4k_frame_stress': 'm4k full stack, frame executive, stress-ng',
+    'm4k_slow_threads': 'm4k full stack, slow sonar body, thread per task',
+    'm4k_slow_frame': 'm4k full stack, slow sonar body, frame executive',
     'baseline_idle': 'plain ROS, idle',
     'baseline_stress': 'plain ROS, stress-ng',
 }
@@ -57,10 +61,21 @@ def fmt_spread(sp: Mapping[str, Any] | None, digits: int = 2) -> str:
                                      _f(sp['max'], digits), sp['n'])
 
 
+def verdict(t: Mapping[str, Any], bold: str = '') -> str:
+    """Return a target row's verdict; INVALID with the reason when no round had a reference."""
+    if t.get('invalid'):
+        return '{b}INVALID{b}: {}'.format('; '.join(t['invalid'][:2]), b=bold)
+    text = {True: 'met', False: 'NOT met', None: 'not measured'}[t['met']]
+    text = bold + text + bold if t['met'] is not None else text
+    if t.get('rounds_invalid'):
+        text += ' ({} round(s) left out: no valid reference)'.format(len(t['rounds_invalid']))
+    return text
+
+
 def _targets(summ: Mapping[str, Any]) -> list[str]:
     rows = []
     for t in summ.get('targets', []):
-        met = {True: '**met**', False: '**NOT met**', None: 'not measured'}[t['met']]
+        met = verdict(t, '**')
         of = t.get('of') or {}
         rows.append([t['label'], t['target'], fmt_spread(t['spread']),
                      fmt_spread(of.get('concurrent')), fmt_spread(of.get('alone')), met])
@@ -396,6 +411,7 @@ def render(summ: Mapping[str, Any]) -> str:
     for note in summ.get('notes', []):
         lines.append('* ' + note)
     lines += [''] + _targets(summ)
+    lines += [''] + execreport.section(summ)
     lines += [''] + _ratios(summ)
     lines += [''] + _per_round(summ)
     lines += [''] + _stalls(summ)
@@ -442,7 +458,7 @@ def readme_snippet(summ: Mapping[str, Any], where: str = 'docs/results/bench') -
     rows = [[t['label'], fmt_spread(t['spread']),
              fmt_spread((t.get('of') or {}).get('concurrent')),
              fmt_spread((t.get('of') or {}).get('alone')), t['target'],
-             {True: 'met', False: 'NOT met', None: 'not measured'}[t['met']]]
+             verdict(t)]
             for t in summ.get('targets', [])]
     for key in ('baseline_over_m4k_jitter_p99_stress', 'baseline_over_m4k_jitter_max_stress'):
         e = _g(summ, 'ratios', key) or {}
