@@ -12,7 +12,7 @@ import random
 
 import pytest
 
-from m4k_drivers.abi.auxspi import aux_sclk_hz, AuxSpiController, chunk_ends_high
+from m4k_drivers.abi.auxspi import aux_sclk_hz, AuxSpiController, chunk_ends_high, mosi_runs
 from m4k_drivers.abi.devices import Ws2812Strip
 from m4k_drivers.led import pixel as px
 
@@ -57,7 +57,13 @@ def test_the_old_encoding_ends_chunks_high_and_the_strip_rejects_it():
     strip = Ws2812Strip(8)
     ctl = AuxSpiController(strip, 250e6)
     ctl.transfer(frame, 0, 2_400_000, 8)
-    assert ctl.chunks == 55 and ctl.chunks_ending_high > 0
+    # The issue's figure: 24 of 55 chunks end inside a high phase (whatever the colours: the
+    # zero byte puts a chunk boundary after the first, always high, bit of every 8th LED bit).
+    assert (ctl.chunks, ctl.chunks_ending_high) == (55, 24)
+    bit_ns = 1e9 / aux_sclk_hz(250e6, 2_400_000)
+    highs = {round(d / bit_ns) for level, d in mosi_runs(frame, aux_sclk_hz(250e6, 2_400_000))
+             if level == 1}
+    assert 3 in highs                               # a 0's high stretched to 3 bits = 1.27 us
     assert strip.bad_bits > 0 and strip.rejected_frames == 1
     assert strip.shown == [(0, 0, 0)] * 8           # nothing latched
 
