@@ -113,3 +113,25 @@ def test_heading_hold_segments():
     assert sc.commands[0].hold and sc.scaled(True)[0].hold
     with pytest.raises(spec.ScenarioError, match=r'commands\[0\]'):
         spec.parse(dict(GOOD, commands=[{'v': 0.5, 'w': 0.1, 't': 2, 'heading': 'hold'}]), 'x')
+
+
+def test_the_cli_expands_the_envelope_grid_and_states_what_is_not_promised(tmp_path, capsys):
+    """``scenarios config/envelope.yaml`` takes the grid's cells as scenarios; the cells outside
+    the promise are named in the report, never run (here: --only selects none)."""
+    from m4k_bench import scenarios
+    from m4k_bench.scenarios import grid
+    envelope = os.path.join(ROOT, 'config', 'envelope.yaml')
+    assert grid.is_grid(envelope) and not grid.is_grid(os.path.join(ROOT, 'config',
+                                                                     'control.yaml'))
+    out = tmp_path / 'res'
+    assert scenarios.main([envelope, '--only', 'no.such.cell', '--results', str(out)]) == 0
+    readme = (out / 'README.md').read_text()
+    n_out = len(list(grid.not_promised(envelope)))
+    assert f'{n_out} envelope cells are not promised' in readme
+    assert 'turning in place is not guarded' in readme
+    # a bad declaration is a clear error naming the key (exit 2)
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('envelope: {speeds: {creep: -1}, motions: {straight: {}}, '
+                   'kinds: {wall: {class: obstacle, stop: sonar}}}\n')
+    assert scenarios.main([str(bad), '--results', str(out)]) == 2
+    assert 'envelope.speeds.creep' in capsys.readouterr().err

@@ -98,6 +98,7 @@ class GuardPlan:
     weaken: float
     slow_down: bool = True
     supervision: bool = True
+    reaction_parts: str = ''      # t_react in its three parts (m4k_rt.control.reaction)
 
     def line(self) -> str:
         """Return the start-up statement of the caps (one line)."""
@@ -112,6 +113,8 @@ class GuardPlan:
                          self.sensor_speed else 'CAPPED BY THE SENSORS',
                          self.reaction_time, self.brake_deceleration, self.margin,
                          self.visible, self.sensor, self.sensor_speed, self.reverse_creep)
+        if self.reaction_parts:
+            text += '; t_react ' + self.reaction_parts
         if not self.supervision:
             text += '; wheel supervision OFF (control.supervision.enabled false)'
         if self.weaken:
@@ -163,8 +166,8 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
     else:
         sensor, period, visible = 'no sensor', 0.0, 0.0
     # sensor part + RT part + actuation part, always (calibrate writes the last one only)
-    t_react = reaction(g, sensor if sensor != 'no sensor' else 'sonar', period,
-                       actuator_period).total
+    r = reaction(g, sensor if sensor != 'no sensor' else 'sonar', period, actuator_period)
+    t_react = r.total
     if not g.enabled:
         return GuardPlan(False, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
                          math.inf, params.linear.max_velocity, math.inf, weaken, False,
@@ -173,7 +176,8 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
                                       g.stop_distance)
     return GuardPlan(True, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
                      sensor_speed, min(params.linear.max_velocity, sensor_speed),
-                     g.reverse_creep_speed, weaken, g.slow_down, params.supervision.enabled)
+                     g.reverse_creep_speed, weaken, g.slow_down, params.supervision.enabled,
+                     r.text())
 
 
 def make_guard(params: ControlParams, plan: GuardPlan | None = None) -> CollisionGuard:
