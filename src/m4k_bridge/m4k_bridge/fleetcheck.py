@@ -186,8 +186,14 @@ def frame_parameter_problems(eps: Sequence[Endpoint], params: Mapping[str, Mappi
     out = []
     for fqn, p in sorted(params.items()):
         reads = {tf_namespace(e.topic) for e in eps if e.node == fqn and e.type == TF_TYPE}
-        if not reads:     # no tf listener: the frame is only a label it stamps
-            continue
+        if not reads and fqn.rsplit('/', 1)[-1] != bridge_params.NODE_NAME:
+            # a node whose listener is a node of its own (Nav2's costmaps: tf2_ros'
+            # TransformListener without a node) reads its robot's tree: the tree of the
+            # longest namespace above it. The bridge publishes its frames, reads none.
+            ns = fqn.rsplit('/', 1)[0]
+            home = max((t for t in frames if (ns + '/').startswith(t + '/') or t == ''),
+                       key=len, default=None)
+            reads = {home} if home is not None else set()
         for ns in sorted(reads):
             have = frames.get(ns)
             if not have:

@@ -100,14 +100,15 @@ def nodes(robot: str, recipes_dir: str, *, mux: bool = False, ekf: bool = False,
                             **sim, 'autostart': True,
                             'node_names': [n for _, _, n, _ in NAV2_LIFECYCLE]}))
     if slam:
-        # slam_toolbox (Jazzy) is a lifecycle node: the manager configures and activates it
+        # slam_toolbox (Jazzy) is a lifecycle node: with use_lifecycle_manager it waits for
+        # the manager to configure and activate it, and keeps a bond with it
+        # (slam_toolbox_common.cpp), so a dead mapper is noticed
         out.append(NodeSpec('slam_toolbox', 'async_slam_toolbox_node', 'slam_toolbox', ns,
                             TF_REMAPS, (files['slam'],),
                             {**sim, 'use_lifecycle_manager': True}))
         out.append(NodeSpec('nav2_lifecycle_manager', 'lifecycle_manager',
                             'lifecycle_manager_slam', ns, TF_REMAPS, (), {
-                                **sim, 'autostart': True, 'bond_timeout': 0.0,
-                                'node_names': ['slam_toolbox']}))
+                                **sim, 'autostart': True, 'node_names': ['slam_toolbox']}))
     elif map_file:
         out.append(NodeSpec('nav2_map_server', 'map_server', 'map_server', ns, TF_REMAPS, (),
                             {**sim, 'yaml_filename': map_file}))
