@@ -1,9 +1,11 @@
-"""Every scenario of config/scenarios/ (short versions) on the whole stack, judged on ground truth.
+"""The scenario suite's judge, and a sample of its worlds on the whole stack, on ground truth.
 
-Each scenario starts its own stack (bringup with the scenario's world merged over config/), is
+Each world starts its own stack (bringup with the scenario's world merged over config/), is
 driven by its scripted commander and judged by m4k_bench.scenarios on the simulator's truth:
 distance within the limiter's ramp, stops within bounds derived from config/, no contact,
-positive clearance. ``make scenarios`` runs the full versions and writes the table and plots.
+positive clearance. ``make test`` runs :data:`SAMPLE` (one world per hazard family of
+config/hazards.yaml) and a sample of the envelope grid; ``make scenarios`` runs every world and
+the whole grid and publishes the figures with their spread.
 """
 
 import math
@@ -220,8 +222,24 @@ def test_the_judge_fails_a_robot_that_backs_up_after_its_stop():
         assert any('backed up' in f for f in res.failures) == fails, (back, res.failures)
 
 
-@pytest.mark.parametrize('sc', SCENARIOS, ids=[s.name for s in SCENARIOS])
-def test_scenario(sc, tmp_path, m4k_runtime_dir):
+# One world per hazard family: collision at top speed, a dark leg at the face's edge after a
+# stop (the guard's memory), a person walking at the robot, a surface only the sonar sees, a
+# frozen encoder at a creep, the e-stop released, a process death, a restart with the e-stop
+# engaged, calibrate's overlay at top speed. The rest of config/scenarios runs in
+# ``make scenarios``.
+SAMPLE = ('wall_top', 'black_leg_left_edge', 'person_towards', 'sonar_only_glass',
+          'encoder_frozen_creep_0_05', 'estop_release', 'driver_host_killed',
+          'rt_core_restart_estop', 'calibrated_top')
+BY_NAME = {s.name: s for s in SCENARIOS}
+
+
+def test_the_sample_names_worlds_of_the_suite():
+    assert set(SAMPLE) <= set(BY_NAME), set(SAMPLE) - set(BY_NAME)
+
+
+@pytest.mark.parametrize('name', SAMPLE)
+def test_scenario(name, tmp_path, m4k_runtime_dir):
+    sc = BY_NAME[name]
     res = run_scenario(sc, str(tmp_path), short=True, env=stack_env(m4k_runtime_dir))
     assert res.passed, (f'{sc.name}: {"; ".join(res.failures)} (travelled {res.travelled:.3f} m '
                         f'of {res.commanded:.3f}, min clearance {res.min_clearance:.3f} m, '
@@ -278,9 +296,6 @@ def test_the_judge_sees_a_contact_when_the_guard_is_off(tmp_path, m4k_runtime_di
     res = run_scenario(sc, str(tmp_path), env=stack_env(m4k_runtime_dir))
     assert res.contacts >= 1 and res.min_clearance == 0.0
     assert not res.passed and any('contact' in f for f in res.failures)
-
-
-BY_NAME = {s.name: s for s in SCENARIOS}
 
 
 @pytest.mark.parametrize('name', ['wall_0_5', 'person_1_0'])
