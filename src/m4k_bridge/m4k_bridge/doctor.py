@@ -14,7 +14,8 @@ One line per problem, each with its fix; exit status 1 when there is any problem
   stamps lag the clock;
 * the rates of the base's topics against the configured task periods (far: a factor of 3);
 * ``use_sim_time`` differing between nodes, and a twist_mux without ``use_stamped`` (both read
-  through the nodes' parameter services).
+  through the nodes' parameter services);
+* a DDS graph open to the subnet (:mod:`m4k_bridge.exposure`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from m4k_bridge import params
+from m4k_bridge import exposure, params
 from m4k_bridge.graphcheck import check, Endpoint
 from m4k_bridge.interfaces import interface_class
 
@@ -257,7 +258,7 @@ class Doctor:
         out += self.tf_problems(eps)
         out += self.rate_problems(eps)
         out += self.parameter_problems()
-        return out
+        return out + exposure.graph_problems()   # an open DDS graph (m4k_bridge.exposure)
 
 
 def discover(node: Node, limit: float, settle: float = 2.0) -> None:
