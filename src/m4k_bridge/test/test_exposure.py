@@ -32,9 +32,13 @@ def test_localhost_and_off_are_not_reported(rng):
 
 def test_a_running_bridge_with_an_open_range_is_named_by_pid():
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET')
-    child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)',
-                              'm4k_bridge.node'], env=env)
+    # The child says it is up first: a Python of this venv re-executes itself once at start
+    # (the ROS wheels' bootstrapper), and /proc is not read in the middle of that.
+    child = subprocess.Popen([sys.executable, '-c',
+                              'import time; print("up", flush=True); time.sleep(60)',
+                              'm4k_bridge.node'], env=env, stdout=subprocess.PIPE, text=True)
     try:
+        assert child.stdout.readline().strip() == 'up'
         lines = graph_problems({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'})
         assert any('the bridge (pid {})'.format(child.pid) in ln for ln in lines), lines
         assert not any('this shell' in ln for ln in lines)
