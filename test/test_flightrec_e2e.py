@@ -79,10 +79,18 @@ def test_an_e_stop_dumps_the_seconds_before_it_with_the_trigger_in_metadata(
     trigger_ns = int(cd['m4k.flight_recorder.trigger_time_ns'])
     assert 'e-stop latch engaged' in cd['m4k.flight_recorder.detail']
     assert cd['m4k.flight_recorder.pre_seconds'] == '10'
+    # What it ran with: the checkout's commit and the bridge's parameters.
+    import json
+    import subprocess
+    head = subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=os.path.dirname(__file__),
+                          capture_output=True, text=True, check=True).stdout.strip()
+    assert cd['m4k.commit'].split('-')[0] == head
+    assert json.loads(cd['m4k.bridge_parameters'])['flight_recorder.seconds'] == 10.0
     listed = {t['topic_metadata']['name']: t['message_count']
               for t in meta['topics_with_message_count']}
     for topic in ('/odom', '/cmd_vel', '/cmd_vel_out', '/e_stop', '/rt_status',
-                  '/flight_recorder/rt_flags', '/flight_recorder/trigger'):
+                  '/flight_recorder/rt_flags', '/flight_recorder/trigger',
+                  '/scan', '/sonar'):              # what the guard saw
         assert listed.get(topic, 0) > 0, (topic, listed)
 
     store = get_typestore(Stores.ROS2_JAZZY)

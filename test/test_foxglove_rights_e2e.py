@@ -150,8 +150,11 @@ def test_a_view_only_client_cannot_release_the_e_stop_or_move_the_robot(rights_l
     asyncio.run(main())
 
 
+# Both wheels blocked: the robot cannot move, so no obstacle comes near and the guard never
+# takes the setpoint away before the supervision latches (one stalled wheel pivots the robot,
+# and under load the guard was seen to stop it first).
 @pytest.mark.parametrize('rights_live', [{'world': {'faults': [
-    {'at_s': 0.0, 'kind': 'wheel_stall', 'wheel': 'left'}]}}], indirect=True)
+    {'at_s': 0.0, 'kind': 'wheel_stall', 'wheel': 'both'}]}}], indirect=True)
 def test_a_driver_cannot_clear_a_motor_fault_or_release_the_e_stop(rights_live):
     port, _ = rights_live
 

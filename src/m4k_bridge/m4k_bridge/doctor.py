@@ -19,7 +19,8 @@ One line per problem, each with its fix; exit status 1 when there is any problem
 * parameters read through the nodes' services: ``use_sim_time`` differing, or true with no
   ``/clock``; a twist_mux without ``use_stamped``; a collision monitor's Range source on the
   m4k sonar that stops the robot on "no echo" or can never trigger;
-* lifecycle nodes that are not active.
+* lifecycle nodes that are not active;
+* a DDS graph open to the subnet (:mod:`m4k_bridge.exposure`).
 
 Each check is one entry of :attr:`Doctor.checks` (a method returning lines), so a new check
 is one more method there.
@@ -37,7 +38,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from m4k_bridge import fleetcheck, params
+from m4k_bridge import exposure, fleetcheck, params
 from m4k_bridge.fleetcheck import TF_TYPE, TfSample
 from m4k_bridge.graphcheck import check, Endpoint
 from m4k_bridge.interfaces import interface_class
@@ -278,7 +279,8 @@ class Doctor:
     def checks(self) -> list[Callable[[Sequence[Endpoint]], list[str]]]:
         """Return the checks run after listening, each endpoints -> lines."""
         return [self.tf_problems, self.rate_problems, self.parameter_problems,
-                lambda _eps: self.lifecycle_problems()]
+                lambda _eps: self.lifecycle_problems(),
+                lambda _eps: exposure.graph_problems()]   # an open DDS graph
 
 
 def discover(node: Node, limit: float, settle: float = 2.0) -> None:

@@ -21,7 +21,10 @@ datagrams; this module decides and writes.
   stop itself is in the bag), copies the ring's window and writes it with the recorder's
   crash-safe writer (:class:`m4k_bridge.bag.writer.BagWriter`) as a rosbag2 MCAP directory
   whose ``metadata.yaml`` ``custom_data`` names the trigger. The bridge's callbacks only
-  append to the ring and put a trigger on a queue: they never wait for a disk.
+  append to the ring and put a trigger on a queue: they never wait for a disk. After each dump
+  (and at start) the directory is pruned to its disk cap and age limit
+  (:func:`m4k_bridge.flightrec_store.prune`); a failed dump is counted and its reason kept
+  (``failed``, ``last_error``) for the recorder's diagnostic.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError, type_hash
 from m4k_bridge.bag.writer import BagError, BagWriter
+from m4k_bridge.flightrec_store import prune
 from m4k_rt import protocol, timing
 
 __all__ = ['ENTRY_OVERHEAD', 'KINDS', 'Dumper', 'RateLimit', 'Ring', 'TopicSpec', 'Trigger',
@@ -214,7 +218,13 @@ class Dumper:
     def __init__(self, ring: Ring, topics: Mapping[str, TopicSpec], directory: str,
                  pre_s: float, post_s: float,
                  log: Callable[[str, str], None] = lambda level, text: None,
-                 share: Callable[[str], str] | None = None) -> None:
+                 share: Callable[[str], str] | None = None,
+                 limits: tuple[int, float] | None = None,
+                 provenance: Mapping[str, str] | None = None) -> None:
+        # ``provenance``: more custom_data for every dump (the commit and the configuration
+        # the bridge runs with).
+        # ``limits``: (disk cap in bytes, age limit in s, 0 = none) of the dump directory;
+        # None: never pruned (tests of the dump alone).
         self.ring = ring
         self.topics = dict(topics)
         self.directory = directory
@@ -227,6 +237,12 @@ class Dumper:
         self._stop = threading.Event()
         self.written: list[str] = []
         self.failed = 0
+        self.last_error = ''
+        self.failing = False           # the last dump failed (cleared by the next good one)
+        self.limits = limits
+        self.provenance = dict(provenance or {})
+        self.pruned = 0
+        self.disk_bytes = 0
         self._thread = threading.Thread(target=self._run, name='flight_recorder', daemon=True)
         self._thread.start()
 
@@ -248,7 +264,34 @@ class Dumper:
         self._jobs.put(None)
         self._thread.join(timeout_s)
 
+    def _prune(self, keep: str = '') -> None:
+        if self.limits is None:
+            return
+        try:
+            removed, self.disk_bytes = prune(self.directory, self.limits[0], self.limits[1],
+                                             keep=keep)
+        except OSError as exc:
+            self._log('error', 'flight recorder: cannot prune {}: {}'.format(
+                self.directory, exc))
+            return
+        self.pruned += len(removed)
+        if removed:
+            self._log('warning', 'flight recorder: removed {} old dump(s) to stay within {} '
+                      'bytes / {:g} days: {}'.format(len(removed), self.limits[0],
+                                                     self.limits[1] / 86400,
+                                                     ', '.join(removed)))
+        if self.disk_bytes > self.limits[0]:
+            self._log('warning', 'flight recorder: the newest dump alone ({} bytes) is over '
+                      'the disk cap of {} bytes; kept'.format(self.disk_bytes, self.limits[0]))
+
+    def _fail(self, job: Trigger, why: str) -> None:
+        self.failed += 1
+        self.failing = True
+        self.last_error = '{}: {}'.format(job.kind, why)
+        self._log('error', 'flight recorder: dump for {} failed: {}'.format(job.kind, why))
+
     def _run(self) -> None:
+        self._prune()
         while True:
             job = self._jobs.get()
             if job is None:
@@ -257,15 +300,16 @@ class Dumper:
             if wait > 0:
                 self._stop.wait(wait)
             try:
-                self.written.append(self.dump(job))
+                path = self.dump(job)
             except (BagError, OSError, MsgDefError, ValueError) as exc:
-                self.failed += 1
-                self._log('error', 'flight recorder: dump for {} failed: {}'.format(
-                    job.kind, exc))
+                self._fail(job, str(exc))
+                continue
             except Exception as exc:  # noqa: BLE001 -- the thread must outlive one bad dump
-                self.failed += 1
-                self._log('error', 'flight recorder: dump for {} failed: {!r}'.format(
-                    job.kind, exc))
+                self._fail(job, repr(exc))
+                continue
+            self.written.append(path)
+            self.failing = False
+            self._prune(keep=path)
 
     def _definition(self, type_name: str) -> tuple[str, str]:
         if type_name not in self._defs:
@@ -294,6 +338,7 @@ class Dumper:
             'm4k.flight_recorder.post_seconds': '{:g}'.format(self.post_ns / _NS),
             'm4k.flight_recorder.ring_max_bytes': str(self.ring.max_bytes),
             'm4k.flight_recorder.ring_evicted_by_bytes': str(self.ring.evicted_bytes),
+            **self.provenance,
         }
         os.makedirs(self.directory, exist_ok=True)
         bag = BagWriter(path, library='m4k_bridge flight_recorder', custom_data=custom)

@@ -13,7 +13,14 @@ Always on with the bridge (``flight_recorder.enabled``). It keeps, in a bounded 
 * faults: ``diagnostics`` (devices, link, e-stop) and ``flight_recorder/trigger``, one
   DiagnosticStatus per trigger seen (rate-limited or not);
 * RT timing: ``rt_status`` (per-task release latency, response time, overruns, deadline
-  misses).
+  misses);
+* what the guard saw: ``scan`` and ``sonar`` as the bridge publishes them (the guard's own
+  state is in ``rt_flags``: GUARD, SLOWDOWN), so a guard-stop dump shows the obstacle.
+
+Its own health goes on ``diagnostics`` as ``m4k_bridge: flight recorder`` (once a second):
+ERROR while the last dump failed (the reason in ``last_error``), with the dumps written,
+failed and pruned and the bytes the dump directory takes against
+``flight_recorder.max_disk_bytes``.
 
 The bridge's inputs, ``cmd_vel`` and ``e_stop``, are handed over by the bridge's own callbacks
 (:meth:`FlightRecorder.keep_cmd_vel`, :meth:`FlightRecorder.keep_e_stop`): the recorder keeps
@@ -30,10 +37,13 @@ The triggers come from the RT datagrams the bridge decodes anyway
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 import time
 from typing import Any, Callable
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 
@@ -65,6 +75,35 @@ _FLAGS_KEEPALIVE_NS = _NS       # the flags are kept at every change and at leas
 
 def _spec(topic: str, type_name: str, qos: QoSProfile) -> TopicSpec:
     return TopicSpec(topic, type_name, qos_entries([qos]), qos_yaml([qos]))
+
+
+def commit(where: str | None = None) -> str:
+    """Return the checkout's commit (``<sha>``, ``<sha>-dirty``) or ``unknown``."""
+    cwd = where or os.path.dirname(os.path.realpath(__file__))
+
+    def git(*args: str) -> str | None:
+        try:
+            r = subprocess.run(['git', *args], cwd=cwd, capture_output=True, text=True,
+                               timeout=10, check=False)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return r.stdout.strip() if r.returncode == 0 else None
+
+    sha = git('rev-parse', 'HEAD')
+    if not sha:
+        return 'unknown'
+    return sha + ('-dirty' if git('status', '--porcelain', '--untracked-files=no') else '')
+
+
+def provenance(values: dict[str, Any]) -> dict[str, str]:
+    """Return the custom_data that says what a dump ran with: commit and bridge parameters.
+
+    The parameters as JSON, without ``robot_description`` (the URDF: tens of KiB, and in the
+    bag's own ``/robot_description`` when recorded).
+    """
+    params = {k: v for k, v in sorted(values.items()) if k != 'robot_description'}
+    return {'m4k.commit': commit(),
+            'm4k.bridge_parameters': json.dumps(params, sort_keys=True, default=str)}
 
 
 def flag_names(flags: int) -> str:
@@ -105,6 +144,9 @@ class FlightRecorder:
             'rt_status': (p.topic('rt_status'), 'm4k_msgs/msg/RtStatus', _RELIABLE),
             'diagnostics': (p.topic('diagnostics'), 'diagnostic_msgs/msg/DiagnosticArray',
                             _RELIABLE),
+            # What the guard saw (sensor QoS, as published).
+            'scan': (p.topic('scan'), 'sensor_msgs/msg/LaserScan', _BEST_EFFORT),
+            'sonar': (p.topic('sonar'), 'sensor_msgs/msg/Range', _BEST_EFFORT),
         }
         specs = self._specs
         self._subs = []
@@ -121,7 +163,12 @@ class FlightRecorder:
         def emit(level: str, text: str) -> None:
             (log.error if level == 'error' else log.warning)(text)
 
-        self.dumper = Dumper(self.ring, specs, self.directory, pre, post, emit)
+        self.dumper = Dumper(self.ring, specs, self.directory, pre, post, emit,
+                             limits=(p['flight_recorder.max_disk_bytes'],
+                                     p['flight_recorder.max_age_days'] * 86400.0),
+                             provenance=provenance(p.values))
+        self._diag_pub = node.create_publisher(DiagnosticArray, p.topic('diagnostics'), 10)
+        node.create_timer(1.0, self.publish_status)
         log.info('flight recorder: last {:g} s (+{:g} s after a trigger, at most {} bytes) '
                  'dumped to {} on {}'.format(pre, post, self.ring.max_bytes, self.directory,
                                              ', '.join(('e_stop', 'guard_stop', 'motor_fault',
@@ -203,6 +250,28 @@ class FlightRecorder:
         st = DiagnosticStatus(level=level, name=name, message=message, hardware_id='m4k',
                               values=[KeyValue(key=k, value=v) for k, v in values.items()])
         self.ring.add(time.time_ns(), key, serialize_message(st))
+
+    def publish_status(self) -> None:
+        """Publish the recorder's own status on diagnostics (ERROR while dumps fail)."""
+        d = self.dumper
+        if d is None:
+            return
+        cap = d.limits[0] if d.limits else 0
+        values = {'dumps_written': str(len(d.written)), 'dumps_failed': str(d.failed),
+                  'last_error': d.last_error, 'dumps_pruned': str(d.pruned),
+                  'disk_bytes': str(d.disk_bytes), 'max_disk_bytes': str(cap),
+                  'directory': self.directory}
+        if d.failing:
+            level, msg = DiagnosticStatus.ERROR, 'the last dump failed: ' + d.last_error
+        else:
+            level, msg = DiagnosticStatus.OK, '{} dump(s) written'.format(len(d.written))
+        arr = DiagnosticArray()
+        arr.header.stamp = self.node.get_clock().now().to_msg()
+        arr.status = [DiagnosticStatus(level=level, name='m4k_bridge: flight recorder',
+                                       message=msg, hardware_id='m4k',
+                                       values=[KeyValue(key=k, value=v)
+                                               for k, v in values.items()])]
+        self._diag_pub.publish(arr)
 
     def close(self) -> None:
         """Write pending dumps now and stop the dump thread."""

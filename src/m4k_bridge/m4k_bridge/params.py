@@ -317,8 +317,16 @@ SPECS: tuple[Field, ...] = (
               lo=1.0, hi=86400.0, unit='s'),
     ParamSpec('flight_recorder.directory', '', 'Directory the dumps go to, one bag directory '
               "flight_<UTC time>_<trigger> each; '' = $XDG_STATE_HOME/m4k/flight_recorder "
-              '(~/.local/state/m4k/flight_recorder). Nothing prunes it.', read_only=True,
-              check=_abs_dir),
+              '(~/.local/state/m4k/flight_recorder). Kept within max_disk_bytes and '
+              'max_age_days.', read_only=True, check=_abs_dir),
+    ParamSpec('flight_recorder.max_disk_bytes', 256 * 1024 * 1024, 'Disk cap of the flight '
+              "recorder's dumps (their files' blocks): after each dump the oldest are removed "
+              'until the rest fit; the newest dump is always kept. Only flight_* bag '
+              'directories are counted or removed.', lo=1 << 20, hi=1 << 40, read_only=True,
+              unit='bytes'),
+    ParamSpec('flight_recorder.max_age_days', 30.0, 'Dumps older than this (by the UTC time '
+              'in their name) are removed after each dump and at start. 0: no age limit.',
+              lo=0.0, hi=3650.0, read_only=True, unit='days'),
     ParamSpec('rt_stale_timeout', 3.0, 'Seconds without any datagram from the RT process '
               'after which it is reported lost (diagnostics STALE, one log line).',
               lo=0.1, hi=600.0, unit='s'),

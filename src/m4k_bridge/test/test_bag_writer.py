@@ -139,3 +139,27 @@ def test_the_default_name_moves_on_when_taken(tmp_path, monkeypatch):
     (tmp_path / 'm4k_2026_11_26-06_00_00').mkdir()
     (tmp_path / 'm4k_2026_11_26-06_00_00-2').mkdir()
     assert default_output(when) == 'm4k_2026_11_26-06_00_00-3'
+
+
+def test_recover_streams_a_bag_much_larger_than_the_memory_it_uses(tmp_path):
+    import tracemalloc
+    w, cid = _bag(tmp_path)
+    big = HI[:4] + os.urandom(64 * 1024)                 # 64 KiB payloads: 40 MiB in all
+    for i in range(640):
+        w.write(cid, 1000 + i, big, i)
+        if i % 64 == 63:
+            w.sync()
+    w.close()
+    os.truncate(w.path, os.path.getsize(w.path) - 10)  # no footer: recovery must rewrite
+    tracemalloc.start()
+    try:
+        r = bw.recover(w.directory)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert r.rewritten and r.messages == 640
+    # Held whole, the messages alone would be 40 MiB; streamed, the 4 MiB copy buffer and a
+    # record or two.
+    assert peak < 12 << 20, peak
+    summary, logs = _read(w.path)
+    assert logs == list(range(1000, 1640)) and summary.statistics.message_count == 640

@@ -58,6 +58,7 @@ __all__ = ['BagError', 'BagExistsError', 'BagWriter', 'Recovery', 'mcap_name', '
            'write_atomic']
 
 MAGIC = b'\x89MCAP0\r\n'
+_RECOVER_SYNC_BYTES = 4 << 20     # recovery writes out (and syncs) each 4 MiB it copies
 METADATA = 'metadata.yaml'
 
 
@@ -150,6 +151,11 @@ class BagWriter:
     def topics(self) -> list[TopicRecord]:
         """Return the topics with the message counts synced so far."""
         return [t.record for t in self._topics.values()]
+
+    @property
+    def pending_bytes(self) -> int:
+        """Return the bytes buffered for the next :meth:`sync`."""
+        return len(self._pending)
 
     @property
     def message_count(self) -> int:
@@ -307,6 +313,10 @@ def recover(directory: str) -> Recovery:
     Every complete Schema, Channel and Message record is kept in file order; a torn last
     record is dropped. A bag that already agrees with its metadata is left as it is.
     Raise :class:`BagError` when ``directory`` holds no MCAP of this name or it cannot be read.
+
+    The file is streamed, never held: a first pass counts (schemas and channels are kept, the
+    messages are not), a second copies the messages into the new file, which is synced each
+    :data:`_RECOVER_SYNC_BYTES`, so memory stays bounded whatever the bag's size.
     """
     path = os.path.join(directory, mcap_name(directory))
     if not os.path.isfile(path):
@@ -314,10 +324,11 @@ def recover(directory: str) -> Recovery:
             mcap_name(directory), directory))
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    messages: list[Message] = []
+    count = 0
     header = None
     complete = False
     end = 0
+    by_id: dict[int, int] = {}
     for rec, pos in _records(path):
         if isinstance(rec, Header):
             header = rec
@@ -326,7 +337,8 @@ def recover(directory: str) -> Recovery:
         elif isinstance(rec, Channel):
             channels[rec.id] = rec
         elif isinstance(rec, Message) and rec.channel_id in channels:
-            messages.append(rec)
+            count += 1
+            by_id[rec.channel_id] = by_id.get(rec.channel_id, 0) + 1
         elif isinstance(rec, Footer):
             complete = True
         if not complete:
@@ -335,8 +347,8 @@ def recover(directory: str) -> Recovery:
         raise BagError('{!r} has no MCAP header: nothing to recover'.format(path))
     size = os.path.getsize(path)
     by_topic: dict[str, int] = {c.topic: 0 for c in channels.values()}
-    for m in messages:
-        by_topic[channels[m.channel_id].topic] += 1
+    for cid, n in by_id.items():
+        by_topic[channels[cid].topic] += n
     meta_path = os.path.join(directory, METADATA)
     old: dict[str, Any] = {}
     try:
@@ -350,8 +362,8 @@ def recover(directory: str) -> Recovery:
     stale = meta_path + '.tmp'          # a sync's metadata that a crash kept from its rename
     if os.path.exists(stale):
         os.unlink(stale)
-    if complete and listed == by_topic and old.get('message_count') == len(messages):
-        return Recovery(len(messages), by_topic, True, False, 0)
+    if complete and listed == by_topic and old.get('message_count') == count:
+        return Recovery(count, by_topic, True, False, 0)
     # Rewrite into a sibling directory, then swap the files in (each rename is atomic).
     tmp_dir = os.path.join(directory, '.recover')
     if os.path.isdir(tmp_dir):
@@ -369,12 +381,23 @@ def recover(directory: str) -> Recovery:
                                schema.data.decode() if schema else '',
                                ch.metadata.get('topic_type_hash', ''),
                                qos_entries_from_yaml(qos_text), qos_text)
-    for m in messages:
-        w.write(ids[m.channel_id], m.log_time, m.data, m.sequence, m.publish_time)
+    seen: set[int] = set()
+    for rec, pos in _records(path):          # the second pass: copy, a bounded buffer
+        if pos > end and not complete:
+            break
+        if isinstance(rec, Channel):
+            seen.add(rec.id)
+        elif isinstance(rec, Message) and rec.channel_id in seen:
+            w.write(ids[rec.channel_id], rec.log_time, rec.data, rec.sequence,
+                    rec.publish_time)
+            if w.pending_bytes >= _RECOVER_SYNC_BYTES:
+                w.sync()
+        elif isinstance(rec, Footer):
+            break
     w.close()
     os.replace(os.path.join(tmp_dir, w.file_name), path)
     os.replace(os.path.join(tmp_dir, METADATA), meta_path)
     os.rmdir(tmp_dir)
     _fsync_dir(directory)
-    return Recovery(len(messages), by_topic, complete, True, 0 if complete else size - end)
+    return Recovery(count, by_topic, complete, True, 0 if complete else size - end)
 
