@@ -16,7 +16,6 @@ import os
 import random
 import shutil
 import signal
-import sys
 import tempfile
 import threading
 import time
@@ -28,6 +27,7 @@ from m4k_bench.scenarios.bounds import bounds, REST_V, SAMPLE_S, stop_line
 from m4k_bench.scenarios.geometry import Scene
 from m4k_bench.scenarios.judge import judge, Result
 from m4k_bench.scenarios.spec import Scenario
+from m4k_bringup.bringup import bringup_argv
 from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import config
 
@@ -36,12 +36,6 @@ __all__ = ['Result', 'run_scenario']
 STARTUP_TIMEOUT_S = 60.0
 SETTLE_S = 1.0            # after the last command: zero commands, then sampled until at rest
 CMD_PERIOD_S = 0.05
-
-
-def _bringup_argv(overlay: str) -> list[str]:
-    exe = shutil.which('bringup')
-    argv = [exe] if exe else [sys.executable, '-m', 'm4k_bringup.bringup']
-    return argv + ['--python-m', '--config', overlay]
 
 
 def _bringup(argv: list[str], env: dict[str, str], log_path: str) -> Child:
@@ -162,7 +156,7 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
     os.environ.setdefault('ROS_DOMAIN_ID', env['ROS_DOMAIN_ID'])
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     log_path = os.path.join(work_dir, f'{sc.name}.bringup.log')
-    proc = _bringup(_bringup_argv(overlay_path), env, log_path).start()
+    proc = _bringup(bringup_argv(overlay_path), env, log_path).start()
     ros = _Ros()
     try:
         end = time.monotonic() + STARTUP_TIMEOUT_S
