@@ -429,6 +429,8 @@ class Bench:
         res['stalls'] = self._stalls(res, ct_res, period_ns)
         # Wheel commands the driver host did not serve, by reason (m4k_drivers.host).
         res['host_drops'] = hostdrops.read(os.path.join(self.logs, tag + '.driver_host.log'))
+        # ... and those lost before they reached it (the RT side's motor port counters)
+        res['motor_port_drops'] = hostdrops.rt_side(run.recorder.port_stats.get('motor'))
         if floor_beside:
             res['floor'] = fl_res
         if profile:
