@@ -247,13 +247,24 @@ def _wait_bound(rd: str, n: int, timeout: float = 20.0) -> None:
     pytest.fail('rt_core did not bind its ports in {}'.format(rd))
 
 
+def _and_children(pid: int) -> list[int]:
+    """Return ``pid`` and its child processes (the driver host's device processes)."""
+    out = [pid]
+    for task in os.listdir('/proc/{}/task'.format(pid)):
+        with open('/proc/{}/task/{}/children'.format(pid, task)) as f:
+            out += [int(c) for c in f.read().split()]
+    return out
+
+
 def _wait_host_linked(log, timeout):
     """Wait until the driver host says it serves N devices and N of them linked to rt_core."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         text = log.read_text()
-        m = re.search(r'serving (.+)$', text, re.M)
-        if m and text.count('linked to the RT side (link 1)') >= len(m.group(1).split(', ')):
+        # one line per host process (the motors serve from their own, m4k_drivers.hostproc)
+        lines = re.findall(r'serving (.+?)(?: \(pid \d+\))?$', text, re.M)
+        n = sum(len(m.split(', ')) for m in lines)
+        if 'motor@' in text and n and text.count('linked to the RT side (link 1)') >= n:
             return
         time.sleep(0.05)
     pytest.fail('driver_host did not link its ports in {} s:\n{}'.format(
@@ -277,7 +288,7 @@ def test_rt_core_and_driver_host_have_no_inet_or_abstract_sockets(procs, tmp_pat
         inet.update(_net_inodes(kind))
     unix = _net_inodes('unix')
     for name, p in (('rt_core', core), ('driver_host', host), ('sim_robot', sim)):
-        inodes = _socket_inodes(p.pid)
+        inodes = set().union(*(_socket_inodes(pid) for pid in _and_children(p.pid)))
         assert inodes, name
         assert not inodes & set(inet), '{} has TCP/UDP/raw sockets: {}'.format(
             name, {i: inet[i] for i in inodes & set(inet)})

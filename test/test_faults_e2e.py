@@ -381,9 +381,10 @@ def test_driver_host_kill_alone_relinks_within_a_second_and_rt_keeps_counting(
             os.kill(old, signal.SIGKILL)
             probe.until(lambda o=old: children(bu.pid).get('driver_host', o) != o, 30,
                         'driver_host restarted by bringup', lin=lin)
-            probe.until(lambda n=k + 2: len(_host_log_times(text(), 'serving ')) >= n and len(
-                _host_log_times(text(), 'motor: linked to the RT side (link 1)')) >= n, 30,
-                'restarted driver host serving and linked', lin=lin)
+            # the motor's own process says when it serves (m4k_drivers.hostproc)
+            probe.until(lambda n=k + 2: len(_host_log_times(text(), 'serving motor@')) >= n
+                        and len(_host_log_times(text(), 'motor: linked to the RT side (link 1)'))
+                        >= n, 30, 'restarted driver host serving and linked', lin=lin)
             assert children(bu.pid)['rt_core'] == rt_pid, 'rt_core must survive'
         probe.until(lambda: motor_port.get('linked') and motor_port['peer_restarts']
                     >= restarts0 + KILLS, 30, 'the RT side counting every lost motor peer')
@@ -395,7 +396,7 @@ def test_driver_host_kill_alone_relinks_within_a_second_and_rt_keeps_counting(
     log_text = text()
     assert bu.returncode == 0, log_text[-3000:]
     assert 'bringup: driver_host restarted (restart {})'.format(KILLS) in log_text
-    serving = _host_log_times(log_text, 'serving ')
+    serving = _host_log_times(log_text, 'serving motor@')
     linked = _host_log_times(log_text, 'motor: linked to the RT side (link 1)')
     assert len(serving) == len(linked) == KILLS + 1, log_text[-3000:]
     # The first instance waits for rt_core to bind (both start at once): only restarts count.

@@ -10,7 +10,12 @@ root, else it says what to install), holds ``/dev/cpu_dma_latency`` at 0 µs for
    stress-ng: cyclictest alone, m4k, the baseline; the XDDP round trip on the tasks' receive
    path. Every m4k and baseline condition runs with cyclictest *concurrently*, at the
    actuator's period and priority. m4k conditions run end to end: cmd_vel over DDS -> bridge
-   -> XDDP -> actuator (+ driver_host on simulated devices). One more full-stack run per round
+   -> XDDP -> actuator (+ driver_host on simulated devices). Both executives run side by side
+   (issue 42): the frame executive idle and under stress-ng, and a fault-injected slow sonar
+   body under each (``m4k_bench.slowbody``), with the floors in the frame's structure too; every
+   m4k run reports the driver host's wheel-command drops per 10 000 by reason
+   (``benchlib.hostdrops``), and a condition whose cyclictest reference shows the host
+   stalling gives no verdict (``benchlib.validity``). One more full-stack run per round
    has rt_core's cycle profile on (``m4k_rt.cycleprof``): the per-task breakdown of a cycle
    (wake, drain + decode, control, encode + send, timing record, rusage) in the report;
 2. **scaling**, in every round (the rates reversed every other round): the actuator alone and
@@ -424,6 +429,8 @@ class Bench:
         res['stalls'] = self._stalls(res, ct_res, period_ns)
         # Wheel commands the driver host did not serve, by reason (m4k_drivers.host).
         res['host_drops'] = hostdrops.read(os.path.join(self.logs, tag + '.driver_host.log'))
+        # ... and those lost before they reached it (the RT side's motor port counters)
+        res['motor_port_drops'] = hostdrops.rt_side(run.recorder.port_stats.get('motor'))
         if floor_beside:
             res['floor'] = fl_res
         if profile:

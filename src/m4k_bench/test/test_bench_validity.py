@@ -70,3 +70,32 @@ def test_host_drops_per_10k_separate_the_simulations_share():
     assert r['commands'] == 10_000 and r['dropped'] == 10     # replies lost: not commands
     assert (r['per_10k'], r['host_per_10k'], r['sim_per_10k']) == (10.0, 5.0, 5.0)
     assert hostdrops.per_10k({'served': 0})['per_10k'] is None
+
+
+def test_commands_lost_before_the_host_are_the_rt_sides_queue_and_link_drops():
+    from m4k_bench.benchlib import hostdrops
+    from m4k_rt import protocol
+    ps = protocol.PortStats('motor', 2, 1, 9_990, 0, 6, 4, 0, 0, 1)
+    r = hostdrops.rt_side(ps)
+    assert (r['sent'], r['queue'], r['link']) == (9_990, 4, 6)
+    assert (r['queue_per_10k'], r['link_per_10k']) == (4.0, 6.0)
+    assert hostdrops.rt_side(None) is None
+
+
+def test_the_executive_section_names_a_broken_reference_per_condition():
+    from m4k_bench.benchlib import execreport
+    rnd = _round(0, 100, 8000)
+    rnd['m4k_frame_idle'] = dict(rnd['m4k_idle'], cpu_per_cycle_us=50.0, cpu_percent=1.5,
+                                 host_drops={'host_per_10k': 0.0, 'sim_per_10k': 1.0,
+                                             'dropped': 1, 'commands': 10_000,
+                                             'by_reason': {'stale_device': 1}})
+    rnd['floor_frame'] = {'cpu_per_cycle_us': 20.0}
+    lines = execreport.section({'rounds': [rnd]})
+    rows = [ln for ln in lines if ln.startswith('| 0 |')]
+    assert len(rows) == 3          # threads idle, frame idle, threads stress
+    frame = next(r for r in rows if '| frame | idle |' in r)
+    assert '| 20.0 / - |' in frame and '0.00 host + 1.00 sim / 10k (1 of 10000' in frame
+    assert frame.endswith('| valid |')
+    stress = next(r for r in rows if 'stress-ng' in r)
+    assert '| INVALID: cyclictest p99 8000 µs = 320× its p50 25 µs (the host stalls) |' in stress
+    assert execreport.section({'rounds': [{'round': 0}]}) == []

@@ -537,7 +537,7 @@ def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
     failed = False
     while not stop.wait(0.5):
         gone = children.poll()
-        if gone:
+        if gone and not stop.is_set():      # (a group-wide stop signal reaches both at once)
             # A device process died on its own: end the host so its supervisor restarts all.
             LOG.error('device process %s: stopping the driver host', gone)
             failed = True

@@ -1,5 +1,6 @@
 import os
 import re
+import signal
 import threading
 import time
 
@@ -73,6 +74,24 @@ def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
     assert procs.stop(proc) == 0
     with pytest.raises(ProcessLookupError):      # the parent reaped its device process
         os.kill(child, 0)
+
+
+def test_a_device_process_that_dies_ends_the_host_with_exit_1(procs, sim_robot,
+                                                              m4k_runtime_dir):
+    # The supervisor (bringup) watches the host's pid only: a motor process gone on its own
+    # must not leave a host that serves the sensors but never the wheels.
+    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
+                        '--device', 'motor', '--device', 'led'])
+    deadline = time.monotonic() + 30
+    seen = ''
+    while time.monotonic() < deadline and 'serving motor@2' not in seen:
+        seen += proc.stderr.readline()
+    motor = re.search(r'serving motor@2 \(pid (\d+)\)', seen)
+    assert motor, seen
+    os.kill(int(motor.group(1)), signal.SIGKILL)
+    assert proc.wait(timeout=30) == 1
+    assert 'device process motor (pid {}) exited -9: stopping the driver host'.format(
+        motor.group(1)) in proc.stderr.read()
 
 
 def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, sim_robot):

@@ -35,13 +35,18 @@ def _f(v: Any, digits: int = 1) -> str:
     return '-' if not isinstance(v, (int, float)) else '{:.{}f}'.format(v, digits)
 
 
-def _drops(d: Mapping[str, Any] | None) -> str:
-    if not d:
-        return '-'
-    reasons = ', '.join('{} {}'.format(k, v) for k, v in (d.get('by_reason') or {}).items() if v)
-    return '{} host + {} sim / 10k ({} of {}{})'.format(
-        _f(d.get('host_per_10k'), 2), _f(d.get('sim_per_10k'), 2), d.get('dropped'),
-        d.get('commands'), ': ' + reasons if reasons else '')
+def _drops(d: Mapping[str, Any] | None, rt: Mapping[str, Any] | None) -> str:
+    out = '-'
+    if d:
+        reasons = ', '.join('{} {}'.format(k, v) for k, v in (d.get('by_reason') or {}).items()
+                            if v)
+        out = '{} host + {} sim / 10k ({} of {}{})'.format(
+            _f(d.get('host_per_10k'), 2), _f(d.get('sim_per_10k'), 2), d.get('dropped'),
+            d.get('commands'), ': ' + reasons if reasons else '')
+    if rt:
+        out += '; before the host: queue {} link {} of {} sent'.format(
+            rt.get('queue'), rt.get('link'), rt.get('sent'))
+    return out
 
 
 def section(summ: Mapping[str, Any]) -> list[str]:
@@ -65,7 +70,8 @@ def section(summ: Mapping[str, Any]) -> list[str]:
                          '{} / {}'.format(act.get('overruns', '-'),
                                           act.get('deadline_misses', '-')),
                          _f(c.get('cpu_per_cycle_us')), _f(c.get('cpu_percent')),
-                         '{} / {}'.format(bare, chan), _drops(c.get('host_drops')),
+                         '{} / {}'.format(bare, chan),
+                         _drops(c.get('host_drops'), c.get('motor_port_drops')),
                          'INVALID: ' + why if why else 'valid'])
     if not rows:
         return []
@@ -78,7 +84,9 @@ def section(summ: Mapping[str, Any]) -> list[str]:
              "bare Python floor and channel floor (+ a task cycle's socket calls) in the same "
              'structure (µs per cycle). Drops: wheel commands the driver host did not serve, '
              "per 10 000 that reached it: the host's own (a real robot would see them) + the "
-             "simulation's (sim_robot answering late over the sim bus), by reason. The slow "
+             "simulation's (sim_robot answering late over the sim bus), by reason; then the "
+             "RT side's motor port: WHEEL_CMDs lost before the host (its queue full, or no host "
+             'linked: start-up and restarts). The slow '
              'rows inject a sonar body spinning 15 ms every 10th cycle (m4k_bench.slowbody).', '']
     lines += md_table(['Round', 'Executive', 'Load', 'actuator p50 / p99 / max',
                        'cyclictest p50 / p99', 'actuator overruns / misses', 'CPU µs/cycle',

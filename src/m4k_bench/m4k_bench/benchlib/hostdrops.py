@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-__all__ = ['REPLY_REASONS', 'SIM_REASONS', 'parse', 'per_10k', 'read']
+__all__ = ['REPLY_REASONS', 'SIM_REASONS', 'parse', 'per_10k', 'read', 'rt_side']
 
 SIM_REASONS = ('stale_device',)
 # Reasons that lose a command on its way in; ``encode`` and ``reply_lost`` lose a reply (e.g.
@@ -59,3 +59,19 @@ def read(path: str, device: str = 'motor') -> dict[str, Any] | None:
     except OSError:
         return None
     return per_10k(counts) if counts else None
+
+
+def rt_side(ps: Any) -> dict[str, Any] | None:
+    """Return the RT side's send-side drops of the motor port (a PortStats), per 10 000.
+
+    ``queue``: the host's receive queue was full (``dropped_full``); ``link``: no host linked
+    (``dropped_no_peer``: before it links, and while it restarts). Denominator: every
+    WHEEL_CMD the actuator tried to send.
+    """
+    if ps is None:
+        return None
+    queue, link = int(ps.dropped_full), int(ps.dropped_no_peer)
+    total = int(ps.sent) + queue + link
+    return {'sent': int(ps.sent), 'queue': queue, 'link': link,
+            'queue_per_10k': 1e4 * queue / total if total else None,
+            'link_per_10k': 1e4 * link / total if total else None}

@@ -40,6 +40,12 @@ VARIANTS: dict[str, list[str] | None] = {
     'cpu_all_load70': ['--cpu', _N, '--cpu-load', '70'],
     # memory and scheduler pressure instead of pure spinning
     'vm_switch': ['--vm', '1', '--vm-bytes', '64M', '--switch', '1'],
+    # the bench's stress until issue 42 (system.STRESS_ARGS then), and its parts alone
+    'bench_old': ['--cpu', '2', '--vm', '1', '--vm-bytes', '256M', '--io', '1'],
+    'vm256': ['--vm', '1', '--vm-bytes', '256M'],
+    'io_sync': ['--io', '1'],
+    # the bench's stress since issue 42 (system.STRESS_ARGS)
+    'bench_new': ['--cpu', _N, '--vm', '1', '--vm-bytes', '256M', '--vm-keep'],
 }
 
 
@@ -89,13 +95,14 @@ def probe(seconds: float, variants: Sequence[str] = tuple(VARIANTS)) -> list[dic
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the probe's table (markdown)."""
+    """Print the probe's table (markdown): ``[SECONDS] [VARIANT,VARIANT]``."""
     args = list(sys.argv[1:] if argv is None else argv)
     seconds = float(args[0]) if args else 10.0
+    names = args[1].split(',') if len(args) > 1 else list(VARIANTS)
     print('| variant | stress-ng | cyclictest p50 / p99 / max µs | CPU busy % | steal % | '
           'reference |')
     print('|---|---|---|---|---|---|')
-    for r in probe(seconds):
+    for r in probe(seconds, names):
         if 'error' in r:
             print('| {} | {} | {} | | | |'.format(r['variant'], r.get('stress', ''), r['error']))
             continue
