@@ -1,7 +1,7 @@
 """What one poll per frame over all ports would save: N empty-port polls vs one poll of N ports.
 
 ``python -m m4k_bench.benchlib.pollprobe [PORTS] [FRAMES]``: with PORTS Unix seqpacket pairs
-(the frame's receive ports, each a listener and a peer fd as in m4k_rt.xddp) and nothing
+(the frame's receive ports, each a listener and a peer fd as in m4k_rt.channel) and nothing
 pending -- the usual state of a port the RT side polls -- time, in thread CPU per frame:
 
 * ``per_port``: what the tasks do today, one ``poll(0)`` per port (its two fds) per cycle;
