@@ -4,7 +4,8 @@ Thin: frames come from :mod:`m4k_drivers.motors.protocol`, bytes move through a
 :class:`~m4k_drivers.motors.real.MotorBus` (real spidev or simulated peers).  A watchdog makes
 the outputs safe (code 512 on both DACs) when no command arrived for ``watchdog_periods``
 actuator periods, until a fresh command comes (docs/internals.md, driver host watchdog).
-Every fresh command also toggles the amplifier-enable heartbeat line when the bus has one: the
+Every fresh command with its enable bit set toggles the amplifier-enable heartbeat line when
+the bus has one (a command with the bit clear lets the enable drop): the
 enable is a retriggerable monostable, so when this process dies or stalls the motors lose
 their drive within the monostable's hold time even though the DACs keep their last word.
 
@@ -141,8 +142,11 @@ class MotorHandler(DeviceHandler):
         self.last_cmd_ns = self.clock()
         self._write_codes(left, right)
         self.safe = not enable
-        if self.bus is not None and self.bus.enable is not None:
-            self.bus.enable.toggle()     # after the DACs: the enable never outlives a write
+        if enable and self.bus is not None and self.bus.enable is not None:
+            # After the DACs: the enable never outlives a write. A command with the enable
+            # off does not feed the heartbeat, so the monostable drops the amplifier enable
+            # within its hold: the end of a category-1 stop (the RT side braked first).
+            self.bus.enable.toggle()
 
     def on_read(self) -> EncoderReading:
         """Read both encoders (a bad frame sets its status bit, keeps the last angle)."""
