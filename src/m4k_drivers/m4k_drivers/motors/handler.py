@@ -89,6 +89,9 @@ class MotorHandler(DeviceHandler):
         self.codes = (p.DAC_ZERO, p.DAC_ZERO)
         self.safe = True
         self.last_cmd_ns: int | None = None
+        # the last command with the enable bit set (the last heartbeat edge): while the
+        # enable is off on purpose, a low read-back is no open e-stop contact
+        self.last_enable_ns: int | None = None
         self.watchdog_trips = 0
         self.write_error = False
         self.last_raw = [0, 0]
@@ -142,6 +145,8 @@ class MotorHandler(DeviceHandler):
         self.last_cmd_ns = self.clock()
         self._write_codes(left, right)
         self.safe = not enable
+        if enable:
+            self.last_enable_ns = self.last_cmd_ns
         if enable and self.bus is not None and self.bus.enable is not None:
             # After the DACs: the enable never outlives a write. A command with the enable
             # off does not feed the heartbeat, so the monostable drops the amplifier enable
@@ -255,10 +260,10 @@ class MotorHandler(DeviceHandler):
         """Return True while this handler drives the amplifier enable (heartbeat live)."""
         if self.bus is None or self.bus.enable is None:
             return self.bus is not None      # strapped on: always driven
-        if self.last_cmd_ns is None or self.enable_hold_ns is None:
-            return self.last_cmd_ns is not None
+        if self.last_enable_ns is None or self.enable_hold_ns is None:
+            return self.last_enable_ns is not None
         now = self.clock() if now_ns is None else now_ns
-        return now - self.last_cmd_ns < self.enable_hold_ns
+        return now - self.last_enable_ns < self.enable_hold_ns
 
     def _estop_read(self) -> bool:
         """Read the e-stop read-back; True (contact open) when driven and it reads low."""

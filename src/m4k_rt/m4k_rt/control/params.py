@@ -231,11 +231,13 @@ class SupervisionParams:
         '', 0.2, 'Stall at saturation: measured speed below this fraction of the '
         'setpoint.', hi=1.0))
     effort_margin: float = setting(_pos(
-        'rad/s', 1.2, 'Effort against speed: the PI output over the feed-forward gain (the '
-        'speed it drives a free wheel at) exceeding the measured speed by this is a stall '
-        '(1.2 rad/s: 1.46 V beyond the back-EMF, 2.4 A into the 0.6 ohm armature, 80 % of '
-        'the current limit; the 0.37 m/s^2 ramp takes ~0.5 A). Too low: a hard acceleration '
-        'or a slope trips it.'))
+        'rad/s', 3.0, 'Effort against speed: the PI output over the feed-forward gain (the '
+        'speed it drives a free wheel at) exceeding the measured speed by this is a stall. '
+        '3 rad/s = 0.15 of full scale, 3.7 V beyond the back-EMF: above the current limit '
+        'times the armature resistance (the wheel would accelerate at the limit) and above '
+        'what an uncalibrated amplifier zero and dead band hold back (~2.4 V, moving_effort). '
+        'Too low: an uncalibrated wheel breaking away, a hard acceleration or a slope trips '
+        'it.'))
     still_speed: float = setting(_pos(
         'rad/s', 0.15, 'Still test: a wheel turning this much faster than its falling bound '
         'while its setpoint is zero is a symptom (0.15 rad/s = 1.5 cm/s at the rim: two '
