@@ -2,10 +2,11 @@
 
 Per wheel: the DAC's armature command ``u`` (volts, plus the amplifier's input offset, less its
 dead band) -> a voltage-mode amplifier with a current limit: ``I = clamp((u - ke * w_m) / R,
-+/-I_max)`` while enabled, ``I = 0`` while disabled (the outputs float: no drive and no
-back-EMF braking) -> motor torque ``kt * I`` (SI: ``kt = ke``) less the drive train's dry
-friction (the motor's no-load current, ``kt * I0``) -> the gear (``N`` = 12, efficiency ``eta``:
-``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when the wheel drives the
++/-I_max)`` while enabled; while disabled, ``I = -ke w_m / (R + R_db)`` through the dynamic
+brake resistor when one is wired (``dynamic_brake_ohm``), else ``I = 0`` (the outputs float:
+no drive and no back-EMF braking) -> motor torque ``kt * I`` (SI: ``kt = ke``) less the
+drive train's dry friction (the motor's no-load current, ``kt * I0``) -> the gear (``N`` =
+12, efficiency ``eta``: ``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when the wheel drives the
 motor, i.e. when braking) -> the wheel, whose inertia includes the rotor's reflected ``N^2 J_r``.
 
 The ground pushes each wheel with a traction force ``F`` (and the body with ``-F``... forward on

@@ -15,10 +15,11 @@ wall or an obstacle is not taken: the robot stops, the wheels stall, and ``colli
 the contact onset.
 
 The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md, in
-series with the e-stop contact): while it is off the amplifier's outputs float, so no current
-flows -- no drive and no back-EMF braking either -- and the wheels coast, slowed by friction
-alone (rolling resistance and the drive train: ``RobotParams.coast_decel_mps2``), whatever the
-DACs hold.  ``set_enable_until`` sets the time the heartbeat keeps the enable on; ``None`` (the
+series with the e-stop contact): while it is off the amplifier drives nothing, whatever the
+DACs hold; the dynamic brake contact shorts the armatures through ``dynamic_brake_ohm`` (the
+back-EMF brakes them), or, without one (null), the outputs float and the wheels coast, slowed
+by friction alone (rolling resistance and the drive train: ``RobotParams.coast_decel_mps2``).
+``set_enable_until`` sets the time the heartbeat keeps the enable on; ``None`` (the
 default) is an enable strapped on; ``set_estop_open`` opens the e-stop contact.  The
 amplifiers' input offsets and dead band are in :meth:`RobotParams.effective_volts`.
 

@@ -213,7 +213,7 @@ def test_stall_at_saturation_latches_even_when_the_encoder_flickers():
     # a blocked wheel whose encoder flickers one count, stalled at full output
     from m4k_rt.control.params import SupervisionParams
     from m4k_rt.control.supervision import WheelSupervisor
-    sup = WheelSupervisor(SupervisionParams())
+    sup = WheelSupervisor(SupervisionParams(), R_WHEEL, 0.40, FF)
     t = 0.0
     k = 0
     while not sup.latched and t < 1.0:
@@ -321,7 +321,7 @@ def test_no_false_trip_when_encoder_samples_come_late_and_bunched():
     """
     from m4k_rt.control.params import SupervisionParams
     from m4k_rt.control.supervision import WheelSupervisor
-    sup = WheelSupervisor(SupervisionParams())
+    sup = WheelSupervisor(SupervisionParams(), R_WHEEL, 0.40, FF)
     angle = [0.0, 0.0]
 
     def sample(speed):
@@ -343,7 +343,7 @@ def test_a_flipped_encoder_still_latches_when_samples_are_bunched():
     """Samples every third cycle only (the driver host late): still latched within 0.3 s."""
     from m4k_rt.control.params import SupervisionParams
     from m4k_rt.control.supervision import WheelSupervisor
-    sup = WheelSupervisor(SupervisionParams())
+    sup = WheelSupervisor(SupervisionParams(), R_WHEEL, 0.40, FF)
     angle = 0.0
     for k in range(30):                            # 0.3 s of cycles, 10 samples
         if k % 3 == 0:

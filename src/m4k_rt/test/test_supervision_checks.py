@@ -52,7 +52,7 @@ class Wheels:
 
 def test_the_supervisor_takes_its_settings_from_their_one_declaration():
     params = SupervisionParams()
-    s = WheelSupervisor(params)
+    s = WheelSupervisor(params, P.wheel_radius, P.track_width, FF)
     assert s.p is params and s.enabled == params.enabled
 
 

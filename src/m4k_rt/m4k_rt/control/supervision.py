@@ -102,8 +102,8 @@ class WheelSupervisor:
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
                  '_frozen_min')
 
-    def __init__(self, params: SupervisionParams, wheel_radius: float = 0.1016,
-                 track_width: float = 0.40, feed_forward: float = 1.0 / 19.685) -> None:
+    def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
+                 feed_forward: float) -> None:
         self.p = params
         self.enabled = bool(params.enabled)
         self._r_over_track = float(wheel_radius) / float(track_width)
