@@ -6,8 +6,9 @@ dead band) -> a voltage-mode amplifier with a current limit: ``I = clamp((u - ke
 brake resistor when one is wired (``dynamic_brake_ohm``), else ``I = 0`` (the outputs float:
 no drive and no back-EMF braking) -> motor torque ``kt * I`` (SI: ``kt = ke``) less the
 drive train's dry friction (the motor's no-load current, ``kt * I0``) -> the gear (``N`` =
-12, efficiency ``eta``: ``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when the wheel drives the
-motor, i.e. when braking) -> the wheel, whose inertia includes the rotor's reflected ``N^2 J_r``.
+12, efficiency ``eta``: ``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when
+the wheel drives the motor, i.e. when braking) -> the wheel, whose inertia includes the
+rotor's reflected ``N^2 J_r``.
 
 The ground pushes each wheel with a traction force ``F`` (and the body with ``-F``... forward on
 the body). While the tyre holds (``|F| <= mu * load``), the wheel's rim speed equals the ground
