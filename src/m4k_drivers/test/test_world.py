@@ -4,9 +4,9 @@ import pytest
 
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
+from m4k_drivers.drive import RobotParams
 from m4k_drivers.motors import protocol as mp
 from m4k_drivers.motors.handler import WheelCommand
-from m4k_drivers.drive import RobotParams
 from m4k_drivers.world import LEFT, Pose, RIGHT, World, WorldConfig, WorldConfigError
 
 
