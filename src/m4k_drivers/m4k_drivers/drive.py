@@ -2,11 +2,13 @@
 
 Per wheel: the DAC's armature command ``u`` (volts, plus the amplifier's input offset, less its
 dead band) -> a voltage-mode amplifier with a current limit: ``I = clamp((u - ke * w_m) / R,
-+/-I_max)`` while enabled, ``I = 0`` while disabled (the outputs float: no drive and no
-back-EMF braking) -> motor torque ``kt * I`` (SI: ``kt = ke``) less the drive train's dry
-friction (the motor's no-load current, ``kt * I0``) -> the gear (``N`` = 12, efficiency ``eta``:
-``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when the wheel drives the
-motor, i.e. when braking) -> the wheel, whose inertia includes the rotor's reflected ``N^2 J_r``.
++/-I_max)`` while enabled; while disabled, ``I = -ke w_m / (R + R_db)`` through the dynamic
+brake resistor when one is wired (``dynamic_brake_ohm``), else ``I = 0`` (the outputs float:
+no drive and no back-EMF braking) -> motor torque ``kt * I`` (SI: ``kt = ke``) less the
+drive train's dry friction (the motor's no-load current, ``kt * I0``) -> the gear (``N`` =
+12, efficiency ``eta``: ``N * eta * T`` when the motor drives the wheel, ``N * T / eta`` when
+the wheel drives the motor, i.e. when braking) -> the wheel, whose inertia includes the
+rotor's reflected ``N^2 J_r``.
 
 The ground pushes each wheel with a traction force ``F`` (and the body with ``-F``... forward on
 the body). While the tyre holds (``|F| <= mu * load``), the wheel's rim speed equals the ground
@@ -109,17 +111,27 @@ class RobotParams:
         0.70, 'Yaw inertia about the centre (uniform 0.45 x 0.28 m box of 30 kg: '
         'm (l^2 + w^2) / 12 = 0.70).', 'kg m^2'))
     drive_load_fraction: float = setting(_f(
-        1.0, 'Share of the weight on the two drive wheels (the rest on casters); each drive '
-        'wheel carries half of it (CoG on the centre line; no load transfer modelled).', '',
-        hi=1.0))
+        0.5, 'Share of the weight on the two drive wheels; the rest on the two casters (robot.'
+        'caster_x: front and rear on the centre line), whose rolling resistance slows the '
+        'body. 0.5 from the geometry: drive axle through the CoG, casters symmetric, all four '
+        'contacts equally stiff on a flat floor (docs/sim-physics.md). Each drive wheel '
+        'carries half of it (no load transfer modelled).', '', hi=1.0))
     mu: float = setting(_f(
         0.6, 'Static tyre-floor friction coefficient (rubber on indoor floor: 0.6-0.7; above 0.7 '
         'needs a source). Traction per wheel = mu * load.', '', hi=1.5))
     mu_kinetic: float = setting(_f(
         0.5, 'Sliding friction coefficient of a slipping tyre (<= mu).', '', hi=1.5))
     rolling_resistance: float = setting(_f(
-        0.015, 'Rolling resistance coefficient Crr (rubber tyre on a hard floor: 0.01-0.02).',
-        '', lo_open=False, hi=0.2))
+        0.015, 'Rolling resistance coefficient Crr (rubber tyre on a hard floor: 0.01-0.02), '
+        'drive wheels and casters alike.', '', lo_open=False, hi=0.2))
+    dynamic_brake_ohm: float | None = setting(Field(
+        'float', 8.0, 'Dynamic brake on enable loss: the armatures shorted through this '
+        'resistor (each motor) while the enable is off, by a normally-closed contact of the '
+        "enable relay, as wheelchair and AGV drives do: the motor's back-EMF brakes it with no "
+        'power (docs/real-robot.md, recommended wiring). 8 ohm: 2.75 A at top speed, under the '
+        "amplifier's 3 A the motors and wiring are sized for, braking 2.7 m/s^2 from 2 m/s "
+        '(within traction). null: no such contact, the outputs float and the robot coasts.',
+        unit='ohm', lo=0, nullable=True))
 
     @classmethod
     def from_control(cls, control: dict[str, Any] | None,
@@ -186,6 +198,16 @@ class RobotParams:
         return self.rolling_resistance * self.wheel_load_n
 
     @cached_property
+    def caster_force_n(self) -> float:
+        """Return the casters' rolling resistance on the body (both together)."""
+        return self.rolling_resistance * self.mass_kg * G * (1.0 - self.drive_load_fraction)
+
+    @cached_property
+    def resist_force_n(self) -> float:
+        """Return the rolling resistance each drive wheel overcomes in a straight line."""
+        return self.rolling_force_n + 0.5 * self.caster_force_n
+
+    @cached_property
     def ke(self) -> float:
         """Return the motor constant (V s/rad = N m/A) that makes top_speed_mps the top speed.
 
@@ -196,7 +218,7 @@ class RobotParams:
         n, eta, r = self.gear_ratio, self.gear_efficiency, self.wheel_radius_m
         wm = self.max_motor_rad_s
         a = self.supply_v - self.motor_resistance_ohm * self.no_load_current_a / eta
-        c = self.motor_resistance_ohm * self.rolling_force_n * r / (n * eta)
+        c = self.motor_resistance_ohm * self.resist_force_n * r / (n * eta)
         disc = a * a - 4.0 * wm * c
         if disc <= 0.0 or a <= 0.0:
             raise ValueError('world.robot: the supply cannot overcome the friction at any '
@@ -233,7 +255,22 @@ class RobotParams:
     def coast_decel_mps2(self) -> float:
         """Return the deceleration with the enable off (friction alone: coasting)."""
         r = self.wheel_radius_m
-        return 2.0 * (self.rolling_force_n + self.friction_torque_nm / r) / self.equivalent_mass_kg
+        return (2.0 * (self.rolling_force_n + self.friction_torque_nm / r)
+                + self.caster_force_n) / self.equivalent_mass_kg
+
+    def dynamic_brake_decel_mps2(self, v: float) -> float:
+        """Return the deceleration at straight speed ``v`` with the enable off (dynamic brake).
+
+        The shorted armature's current ``ke w_m / (R + R_db)`` brakes each wheel with
+        ``N ke I / eta``, on top of the friction; without a brake resistor: coasting.
+        """
+        if self.dynamic_brake_ohm is None:
+            return self.coast_decel_mps2
+        n, r, ke = self.gear_ratio, self.wheel_radius_m, self.ke
+        cur = ke * n * abs(v) / r / (self.motor_resistance_ohm + self.dynamic_brake_ohm)
+        brake = 2.0 * n * ke * cur / self.gear_efficiency / r
+        return min(brake / self.equivalent_mass_kg + self.coast_decel_mps2,
+                   self.traction_decel_mps2)
 
     @property
     def traction_decel_mps2(self) -> float:
@@ -251,7 +288,8 @@ class RobotParams:
         r = self.wheel_radius_m
         brake = self.gear_ratio * self.ke * self.amp_current_limit_a / self.gear_efficiency
         total = 2.0 * (brake / r + self.rolling_force_n + self.friction_torque_nm / r)
-        return min(total / self.equivalent_mass_kg, self.traction_decel_mps2)
+        return min((total + self.caster_force_n) / self.equivalent_mass_kg,
+                   self.traction_decel_mps2)
 
     def amp_offset_v(self, side: int) -> float:
         """Return one amplifier's input offset in armature volts."""
@@ -270,7 +308,7 @@ class RobotParams:
         """
         u = self.effective_volts(side, volts)
         n, eta, r, ke = self.gear_ratio, self.gear_efficiency, self.wheel_radius_m, self.ke
-        load_i = (self.no_load_current_a + self.rolling_force_n * r / (n * ke)) / eta
+        load_i = (self.no_load_current_a + self.resist_force_n * r / (n * ke)) / eta
         excess = abs(u) - self.motor_resistance_ohm * load_i
         if excess <= 0.0:
             return 0.0
@@ -312,17 +350,25 @@ def _sign(x: float) -> float:
 
 
 def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], enabled: bool,
-               dt: float) -> None:
+               dt: float, mu: tuple[float, float, float, float] | None = None) -> None:
     """Advance the drive by ``dt`` seconds (in place).
 
-    ``volts``: each amplifier's input in armature volts; ``enabled``: the amplifier enable.
+    ``volts``: each amplifier's input in armature volts; ``enabled``: the amplifier enable;
+    ``mu``: (static left, static right, kinetic left, kinetic right) under each tyre now
+    (a wet patch under one wheel); None: ``rob.mu`` / ``rob.mu_kinetic`` under both.
     """
+    mu_s = (rob.mu, rob.mu) if mu is None else (mu[0], mu[1])
+    mu_k = (rob.mu_kinetic, rob.mu_kinetic) if mu is None else (mu[2], mu[3])
     n, eta, r = rob.gear_ratio, rob.gear_efficiency, rob.wheel_radius_m
     ke, res = rob.ke, rob.motor_resistance_ohm
     s = rob.track_width_m / 2.0
     m, iz = rob.mass_kg, rob.yaw_inertia_kgm2
     jw = rob.wheel_inertia_total
     load = rob.wheel_load_n
+    # The casters' rolling resistance acts on the body (explicitly: a small dry force).
+    if st.v != 0.0 and rob.caster_force_n > 0.0:
+        dv = rob.caster_force_n * dt / m
+        st.v = st.v - dv if st.v > dv else st.v + dv if st.v < -dv else 0.0
     fric_max = rob.friction_torque_nm + rob.rolling_force_n * r    # dry friction at the wheel
     a_free = [0.0, 0.0]           # wheel torque but for traction, at the present speed
     drive = [0.0, 0.0]            # the motor's torque at the wheel
@@ -337,6 +383,12 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
                 cur = math.copysign(rob.amp_current_limit_a, cur)
             else:
                 c = n * n * ke * ke / res       # d(torque)/d(speed) at the wheel, below the limit
+        elif rob.dynamic_brake_ohm is not None:
+            # enable off: the armature shorted through the brake resistor (no current limit:
+            # the resistor sets the current), braking on the back-EMF alone
+            rt = res + rob.dynamic_brake_ohm
+            cur = -ke * n * wi / rt
+            c = n * n * ke * ke / rt
         else:
             cur = 0.0
         st.current[i] = cur
@@ -372,7 +424,7 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
         d = [r * r * p[i] + alpha + beta for i in (LEFT, RIGHT)]
         for i in (LEFT, RIGHT):
             if not stuck[i]:
-                f[i] = rob.mu_kinetic * load * kin[i]
+                f[i] = mu_k[i] * load * kin[i]
         if stuck[LEFT] and stuck[RIGHT]:
             det = d[0] * d[1] - x * x
             f[0] = (e[0] * d[1] - x * e[1]) / det
@@ -381,7 +433,7 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
             f[0] = (e[0] - x * f[1]) / d[0]
         elif stuck[RIGHT]:
             f[1] = (e[1] - x * f[0]) / d[1]
-        over = [i for i in (LEFT, RIGHT) if stuck[i] and abs(f[i]) > rob.mu * load]
+        over = [i for i in (LEFT, RIGHT) if stuck[i] and abs(f[i]) > mu_s[i] * load]
         for i in over:              # beyond static friction: the tyre slides from now on
             stuck[i] = False
             st.slipping[i] = True

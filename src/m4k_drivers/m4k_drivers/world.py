@@ -15,10 +15,11 @@ wall or an obstacle is not taken: the robot stops, the wheels stall, and ``colli
 the contact onset.
 
 The motor amplifiers have an enable input (the heartbeat monostable, docs/internals.md, in
-series with the e-stop contact): while it is off the amplifier's outputs float, so no current
-flows -- no drive and no back-EMF braking either -- and the wheels coast, slowed by friction
-alone (rolling resistance and the drive train: ``RobotParams.coast_decel_mps2``), whatever the
-DACs hold.  ``set_enable_until`` sets the time the heartbeat keeps the enable on; ``None`` (the
+series with the e-stop contact): while it is off the amplifier drives nothing, whatever the
+DACs hold; the dynamic brake contact shorts the armatures through ``dynamic_brake_ohm`` (the
+back-EMF brakes them), or, without one (null), the outputs float and the wheels coast, slowed
+by friction alone (rolling resistance and the drive train: ``RobotParams.coast_decel_mps2``).
+``set_enable_until`` sets the time the heartbeat keeps the enable on; ``None`` (the
 default) is an enable strapped on; ``set_estop_open`` opens the e-stop contact.  The
 amplifiers' input offsets and dead band are in :meth:`RobotParams.effective_volts`.
 
@@ -54,6 +55,7 @@ from m4k_drivers.drive import (
     WorldConfigError,
 )
 from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
+from m4k_drivers.floor import FloorError, parse_floor, Patch, wheel_mu
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
 from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
 
@@ -130,6 +132,13 @@ def _events(v: Any, where: str) -> dict[str, Any]:
         raise WorldConfigError(str(exc)) from None
 
 
+def _floor(v: Any, where: str) -> dict[str, Any]:
+    try:
+        return {'floor': parse_floor(v, where)}
+    except FloorError as exc:
+        raise WorldConfigError(str(exc)) from None
+
+
 def _faults(v: Any, where: str) -> dict[str, Any]:
     try:
         return {'faults': parse_faults(v, where)}
@@ -183,6 +192,10 @@ class WorldConfig:
     faults: tuple[Fault, ...] = setting(Field(
         'list', [], 'Faults scheduled from the world start (world.faults[]).',
         nullable=True, expect='a list of faults'), value=())
+    floor: tuple[Patch, ...] = setting(Field(
+        'list', [], 'Floor patches with their own tyre friction, e.g. a wet patch under one '
+        'wheel (world.floor[]: rectangle, mu, mu_kinetic; m4k_drivers.floor).',
+        nullable=True, expect='a list of {rectangle: [...], mu: ...}'), value=())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = 'world',
@@ -218,7 +231,7 @@ WORLD: dict[str, Field] = {k: f for k, f in table(WorldConfig).items() if '.' no
 WORLD['robot'] = Field('map', {}, 'The simulated robot as built (world.robot); unset keys: '
                        "the configuration's values.")
 _CONVERT = {'walls': lambda v, where: {'walls': _walls(v, where)},
-            'obstacles': _obstacles, 'events': _events, 'faults': _faults}
+            'obstacles': _obstacles, 'events': _events, 'faults': _faults, 'floor': _floor}
 
 
 def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
@@ -474,7 +487,12 @@ class World:
             return
         old_wheel = list(drv.wheel)
         v_old, w_old = drv.v, drv.w
-        step_drive(rob, drv, (self._volts[0], self._volts[1]), enabled, dt)
+        mu = None
+        if self.config.floor:
+            pose = self._pose
+            mu = wheel_mu(self.config.floor, pose.x, pose.y, pose.yaw, rob.track_width_m / 2.0,
+                          rob.mu, rob.mu_kinetic)
+        step_drive(rob, drv, (self._volts[0], self._volts[1]), enabled, dt, mu)
         v = 0.5 * (v_old + drv.v)
         w = 0.5 * (w_old + drv.w)
         x, y, th = self._pose

@@ -14,6 +14,7 @@ from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig, WorldConfigError
 
 FAR = WorldConfig.from_dict({'walls': {'rectangle': [-50, -50, 50, 50]}, 'obstacles': []}).walls
 OPEN = WorldConfig(walls=FAR, obstacles=())
+COAST = RobotParams(dynamic_brake_ohm=None)     # the enable's loss lets the motors float
 MS = 1_000_000
 
 
@@ -115,7 +116,7 @@ def test_gentle_drive_does_not_slip_and_odometry_matches_truth():
 
 
 def test_enable_dropped_coasts_on_friction_alone():
-    w, clock = _world()
+    w, clock = _world(COAST)          # no dynamic brake wired
     volts = _drive_to(w, clock, 1.0)
     w.set_enable_until(clock.t)             # the heartbeat stops: the amplifiers float
     t0, x0 = clock.t, w.state().pose.x
@@ -133,7 +134,7 @@ def test_enable_dropped_coasts_on_friction_alone():
 
 
 def test_estop_contact_cuts_the_enable_and_closing_it_drives_again():
-    w, clock = _world()
+    w, clock = _world(COAST)
     _drive_to(w, clock, 0.5)
     w.set_estop_open(True)
     assert not w.drive_enabled() and w.heartbeat_enabled()
@@ -142,6 +143,60 @@ def test_estop_contact_cuts_the_enable_and_closing_it_drives_again():
     w.set_estop_open(False)
     _run(w, clock, 3.0)
     assert w.state().v == pytest.approx(0.5, rel=0.01)
+
+
+def test_enable_dropped_with_the_dynamic_brake_brakes_on_the_back_emf():
+    w, clock = _world()
+    rob = w.robot
+    assert rob.dynamic_brake_ohm is not None             # the default: the recommended wiring
+    _drive_to(w, clock, 1.0)
+    w.set_enable_until(clock.t)             # the heartbeat stops: the brake contact closes
+    x0, t0 = w.state().pose.x, clock.t
+    _run(w, clock, 0.001)
+    s = w.state()
+    # the armature current is the back-EMF over the armature and the brake resistor
+    wm = s.wheel_speed[LEFT] * rob.gear_ratio
+    assert w._drive.current[LEFT] == pytest.approx(
+        -rob.ke * wm / (rob.motor_resistance_ohm + rob.dynamic_brake_ohm), rel=0.01)
+    assert -s.accel == pytest.approx(rob.dynamic_brake_decel_mps2(s.v), rel=0.05)
+    assert -s.accel > 3.0 * rob.coast_decel_mps2
+    rest = _run_until_rest(w, clock, 5.0)
+    assert rest is not None
+    coast = 1.0 / (2.0 * rob.coast_decel_mps2)            # what coasting from 1 m/s takes
+    assert w.state().pose.x - x0 < 0.5 * coast
+    assert (clock.t - t0) * 1e-9 < 0.5 / rob.coast_decel_mps2
+
+
+def _run_until_rest(w, clock, seconds):
+    for k in range(round(seconds * 1000)):
+        clock.t += MS
+        w.now()
+        if w.state().v == 0.0:
+            return k * 1e-3
+    return None
+
+
+def test_a_wet_patch_under_one_wheel_slips_that_wheel_only():
+    # full drive from rest with the left wheel on water: it spins, the right one grips
+    cfg = WorldConfig.from_dict({'walls': {'rectangle': [-50, -50, 50, 50]}, 'obstacles': [],
+                                 'floor': [{'rectangle': [-1.0, 0.0, 5.0, 1.0], 'mu': 0.05,
+                                            'mu_kinetic': 0.04}]})
+    clock = FakeClock()
+    w = World(cfg, clock=clock, t0_ns=0)
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, w.robot.supply_v)
+    _run(w, clock, 0.3)
+    s = w.state()
+    r = w.robot.wheel_radius_m
+    assert abs(s.slip[LEFT]) > 0.1 and s.slip[RIGHT] == pytest.approx(0.0, abs=1e-3)
+    assert s.wheel_speed[LEFT] * r > s.v + 0.1     # the left rim outruns the body
+    assert s.w > 0.0                                # the gripping right wheel turns it left
+
+
+def test_floor_patch_with_kinetic_above_static_is_refused_naming_the_field():
+    with pytest.raises(WorldConfigError, match=r'world\.floor\[0\]\.mu_kinetic: must be <= mu'):
+        WorldConfig.from_dict({'floor': [{'rectangle': [0, 0, 1, 1], 'mu': 0.2,
+                                          'mu_kinetic': 0.3}]})
 
 
 def test_a_weak_push_does_not_move_the_robot_dry_friction_holds():

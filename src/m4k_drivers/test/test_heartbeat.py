@@ -5,6 +5,7 @@ import pytest
 
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
+from m4k_drivers.drive import RobotParams
 from m4k_drivers.motors import MotorHandler, WheelCommand
 from m4k_drivers.motors.real import EnableLine
 from m4k_drivers.motors.sim import EnableMonostable, open_sim_bus
@@ -15,7 +16,10 @@ MS = 1_000_000
 
 def _rig(hold_s=0.05):
     clock = FakeClock()
-    world = World(WorldConfig(obstacles=()), clock=clock, t0_ns=0)
+    # no dynamic brake wired: losing the enable lets the motors coast (the brake:
+    # test_drive_physics)
+    world = World(WorldConfig(obstacles=(), robot=RobotParams(dynamic_brake_ohm=None)),
+                  clock=clock, t0_ns=0)
     mono = EnableMonostable(world, hold_s)
 
     def opener():

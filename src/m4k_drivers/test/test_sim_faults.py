@@ -17,9 +17,11 @@ MS = 1_000_000
 FWD = mp.command_to_code(0.125)         # 0.25 m/s open loop
 
 
-def _rig(faults=None):
+def _rig(faults=None, robot=None):
     clock = FakeClock()
     world_raw = {'walls': {'rectangle': [-20, -20, 20, 20]}, 'obstacles': []}
+    if robot is not None:
+        world_raw['robot'] = robot
     if faults is not None:
         world_raw['faults'] = faults
     world = World(WorldConfig.from_dict(world_raw), clock=clock, t0_ns=0)
@@ -103,7 +105,9 @@ def test_stalled_wheel_does_not_turn_and_its_encoder_reads_no_motion():
 
 
 def test_estop_contact_pressed_and_released_on_schedule_cuts_the_enable():
-    h, world, clock = _rig([{'at_s': 1.0, 'until_s': 2.0, 'kind': 'estop'}])
+    # no dynamic brake wired: the motors coast (the brake: test_drive_physics)
+    h, world, clock = _rig([{'at_s': 1.0, 'until_s': 2.0, 'kind': 'estop'}],
+                           robot={'dynamic_brake_ohm': None})
     _drive(h, clock, FWD, FWD, 0.99)
     assert world.drive_enabled() and not world.estop_open
     v0 = world.state().v

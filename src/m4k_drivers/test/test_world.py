@@ -4,6 +4,7 @@ import pytest
 
 from m4k_drivers import config as dconfig
 from m4k_drivers import registry
+from m4k_drivers.drive import RobotParams
 from m4k_drivers.motors import protocol as mp
 from m4k_drivers.motors.handler import WheelCommand
 from m4k_drivers.world import LEFT, Pose, RIGHT, World, WorldConfig, WorldConfigError
@@ -28,7 +29,11 @@ def test_cone_cast_sees_obstacle_off_axis():
 
 def test_spin_in_place_integrates_exact_arc(fake_clock):
     t = fake_clock
-    w = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
+    # all the weight on the drive wheels: spinning in place then meets the rolling resistance
+    # of a straight run, which steady_wheel_speed describes (the casters' share resists the
+    # body's forward motion only)
+    w = World(WorldConfig(obstacles=(), robot=RobotParams(drive_load_fraction=1.0)), clock=t,
+              t0_ns=0)
     w.set_motor_voltage(LEFT, -6.0)
     w.set_motor_voltage(RIGHT, 6.0)
     t.t = 3_000_000_000
@@ -85,7 +90,7 @@ def test_start_inside_obstacle_is_a_config_error():
      r'world\.robot\.wheels: unknown key \(allowed: amp_current_limit_a, '),
     ({'seed': 1.5}, r'world\.seed: expected an integer'),
     ({'gravity': 9.8},
-     r'world\.gravity: unknown key \(allowed: events, faults, obstacles, robot, seed, '),
+     r'world\.gravity: unknown key \(allowed: events, faults, floor, obstacles, robot, seed, '),
 ])
 def test_world_config_errors_name_the_field(section, match):
     with pytest.raises(WorldConfigError, match=match):

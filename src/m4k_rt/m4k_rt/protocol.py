@@ -130,9 +130,12 @@ class FaultCause(IntFlag):
     RIGHT_WRONG_WAY = 0x02
     LEFT_FROZEN = 0x04       # encoder angle unchanged while commanded (or a stalled wheel)
     RIGHT_FROZEN = 0x08
-    LEFT_STALL = 0x10        # not moving at PI output saturation
+    LEFT_STALL = 0x10        # not following its drive effort (stalled, or saturated)
     RIGHT_STALL = 0x20
     SWAPPED = 0x40           # each wheel answers the other's setpoint
+    LEFT_STILL = 0x80        # the wheel turns while commanded still, not braking down
+    RIGHT_STILL = 0x100
+    YAW = 0x200              # the wheels' yaw rate disagrees with the IMU's gyro
 
 
 class RtFlag(IntFlag):

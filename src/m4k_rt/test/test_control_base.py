@@ -251,6 +251,13 @@ def test_motor_lost_outputs_stale_then_hold_zero_until_fresh_command():
         ctl.step(t)
     assert ctl.flags & ODOM_MOTOR_STALE
     assert ctl.mode == MODE_FAULT
+    # a category-1 stop: the zero word brakes with the enable on ...
+    assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 1)
+    # ... until the braking time bound (top speed / a_brake) has passed; then it drops
+    bound = p.linear.max_velocity / p.guard.brake_deceleration
+    for _ in range(round(bound / 0.01) + 2):
+        t += PERIOD_NS
+        ctl.step(t)
     assert (ctl.left_code, ctl.right_code, ctl.enable) == (512, 512, 0)
     plant.speed = [0.0, 0.0]
     # encoders return; the command stored from before the recovery must not restart motion

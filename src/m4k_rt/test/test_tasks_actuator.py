@@ -150,6 +150,8 @@ def test_motor_lost_marks_outputs_stale_and_holds_zero_after_return(rig):
     motor.alive = False
     t = run(rig, body, motor, t, 20, cmd=(0.25, 0.0))
     assert state.mode == MODE_FAULT
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)   # category 1: the zero word brakes
+    t = run(rig, body, motor, t, 140, cmd=(0.25, 0.0))     # past the braking time bound
     assert motor.commands[-1] == p.WheelCmd(512, 512, 0)
     odoms = [m for h, m in rig.read_all('cmd') if h.kind == p.Kind.ODOMETRY]
     assert odoms[-1].flags & p.ODOM_MOTOR_STALE
@@ -207,7 +209,9 @@ def test_motor_fault_latches_drops_the_enable_and_only_a_reset_clears_it(rig):
     motor.frozen = list(motor.angle)                           # frozen valid frames
     t = run(rig, body, motor, t, 30, cmd=(0.25, 0.0))
     assert state.odom_flags & p.ODOM_MOTOR_FAULT and state.mode == MODE_FAULT
-    assert motor.commands[-1] == p.WheelCmd(512, 512, 0)
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)   # category 1: the zero word brakes
+    t = run(rig, body, motor, t, 140, cmd=(0.25, 0.0))     # past the braking time bound
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 0)   # then the enable drops
     assert state.motor_fault_cause and state.motor_faults == 1
     motor.frozen = None
     t = run(rig, body, motor, t, 50, cmd=(0.25, 0.0))

@@ -4,7 +4,8 @@ Thin: frames come from :mod:`m4k_drivers.motors.protocol`, bytes move through a
 :class:`~m4k_drivers.motors.real.MotorBus` (real spidev or simulated peers).  A watchdog makes
 the outputs safe (code 512 on both DACs) when no command arrived for ``watchdog_periods``
 actuator periods, until a fresh command comes (docs/internals.md, driver host watchdog).
-Every fresh command also toggles the amplifier-enable heartbeat line when the bus has one: the
+Every fresh command with its enable bit set toggles the amplifier-enable heartbeat line when
+the bus has one (a command with the bit clear lets the enable drop): the
 enable is a retriggerable monostable, so when this process dies or stalls the motors lose
 their drive within the monostable's hold time even though the DACs keep their last word.
 
@@ -102,6 +103,9 @@ class MotorHandler(DeviceHandler):
         self.codes = (p.DAC_ZERO, p.DAC_ZERO)
         self.safe = True
         self.last_cmd_ns: int | None = None
+        # the last command with the enable bit set (the last heartbeat edge): while the
+        # enable is off on purpose, a low read-back is no open e-stop contact
+        self.last_enable_ns: int | None = None
         self.watchdog_trips = 0
         self.write_error = False
         self.last_raw = [0, 0]
@@ -159,8 +163,13 @@ class MotorHandler(DeviceHandler):
         self.last_cmd_ns = self.clock()
         self._write_codes(left, right)
         self.safe = not enable
-        if self.bus is not None and self.bus.enable is not None:
-            self.bus.enable.toggle()     # after the DACs: the enable never outlives a write
+        if enable:
+            self.last_enable_ns = self.last_cmd_ns
+        if enable and self.bus is not None and self.bus.enable is not None:
+            # After the DACs: the enable never outlives a write. A command with the enable
+            # off does not feed the heartbeat, so the monostable drops the amplifier enable
+            # within its hold: the end of a category-1 stop (the RT side braked first).
+            self.bus.enable.toggle()
 
     def on_read(self) -> EncoderReading:
         """Read both encoders (a bad frame sets its status bit, keeps the last angle)."""
@@ -271,10 +280,10 @@ class MotorHandler(DeviceHandler):
         """Return True while this handler drives the amplifier enable (heartbeat live)."""
         if self.bus is None or self.bus.enable is None:
             return self.bus is not None      # strapped on: always driven
-        if self.last_cmd_ns is None or self.enable_hold_ns is None:
-            return self.last_cmd_ns is not None
+        if self.last_enable_ns is None or self.enable_hold_ns is None:
+            return self.last_enable_ns is not None
         now = self.clock() if now_ns is None else now_ns
-        return now - self.last_cmd_ns < self.enable_hold_ns
+        return now - self.last_enable_ns < self.enable_hold_ns
 
     def _estop_read(self) -> bool:
         """Read the e-stop read-back; True (stop) when driven and not asserted, or latched."""

@@ -27,9 +27,14 @@ Between 1 and 2: the e-stop contact read back open (ENCODERS status ESTOP_OPEN i
 ``e_stop.contact_samples`` consecutive samples: contact bounce and the read-back glitch when
 the heartbeat restarts are filtered) -> outputs zero (enable kept driven: its read-back
 shows the release), PI reset, the e-stop latch engaged; flags ESTOP_OPEN | E_STOP. A
-latched motor fault (``control.supervision``) -> outputs zero and the enable dropped, flag
-MOTOR_FAULT, until :meth:`reset_fault`. After step 4 the supervisor compares the wheel
-setpoints with the measured speeds and may latch the fault.
+latched motor fault (``control.supervision``) -> a category-1 stop: the zero word with the
+enable on (the amplifier brakes the motors on their back-EMF; no encoder needed), the enable
+dropped once the braking time bound ``linear.max_velocity / guard.brake_deceleration`` has
+passed, or earlier when the fault leaves the encoders trustworthy (a stall) and both read the
+wheels at rest for 0.1 s; flag MOTOR_FAULT, until :meth:`reset_fault`. *Motor stale* after
+encoders were seen stops the same way (the driver may still hear the zero word). After step 4
+the supervisor compares the wheel setpoints, the PI efforts and the gyro's yaw rate with the
+measured speeds and may latch the fault.
 The guard's configuration also caps the forward target at the top speed the sensors can stop
 for and reverse at a creep speed (``forward_limit``, ``reverse_limit``; flag CLAMPED).
 
@@ -74,7 +79,7 @@ from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.odometry import Odometry
 from m4k_rt.control.params import AxisLimits, ControlParams
 from m4k_rt.control.pid import WheelSpeedPI
-from m4k_rt.control.supervision import WheelSupervisor
+from m4k_rt.control.supervision import ENCODER_TRUST, WheelSupervisor
 from m4k_rt.protocol import (
     ENC_ESTOP_OPEN,
     ENC_INVALID_MASK,
@@ -143,7 +148,19 @@ class BaseController:
         self._alpha = params.speed_filter_alpha
         self.estop = EStopLatch(params.e_stop_linear_deceleration,
                                 params.e_stop_angular_deceleration)
-        self.supervisor = WheelSupervisor(params.supervision)
+        self.supervisor = WheelSupervisor(params.supervision, params.wheel_radius,
+                                          params.track_width, params.feed_forward)
+        # Category-1 stop: after a fault the RT side detects, the zero word brakes with the
+        # enable on for at most the time the guard's a_brake needs from the top speed, then
+        # the enable drops (earlier once trustworthy encoders read the wheels at rest).
+        self.fault_brake_ns = int(params.linear.max_velocity
+                                  / params.guard.brake_deceleration * 1e9)
+        self._fault_since_ns = 0    # when the present category-1 stop began; 0: none
+        self._rest_ns = 0           # encoder time both wheels have read at rest in that stop
+        self._imu_timeout_ns = int(params.supervision.imu_timeout * 1e9)
+        self.yaw_rate = math.nan    # the gyro's yaw rate about base_link z, rad/s
+        self.imu_rx_ns = 0
+        self.left_u = self.right_u = 0.0   # PI outputs of the last cycle (0: zero word)
         self.estop_open = False     # the contact reads open (contact_samples in a row)
         self._open_samples = 0
         self._open_needed = params.e_stop.contact_samples
@@ -209,6 +226,7 @@ class BaseController:
         order), as after an e-stop release: the command from before the fault never restarts it.
         """
         was = self.supervisor.reset()
+        self._fault_since_ns = 0
         if was:
             self.fault_resets += 1
             self.estop.holding = True
@@ -255,6 +273,33 @@ class BaseController:
                 self.left_speed += a * (hist.left_rate - self.left_speed)
                 self.right_speed += a * (hist.right_rate - self.right_speed)
 
+    def imu(self, yaw_rate: float, rx_ns: int) -> None:
+        """Take the gyro's yaw rate about base_link z (rad/s) received at ``rx_ns``."""
+        self.yaw_rate = yaw_rate
+        self.imu_rx_ns = rx_ns
+
+    def _brake_enable(self, now_ns: int, trust_rest: bool) -> int:
+        """Return the enable of a category-1 stop that began at ``_fault_since_ns``.
+
+        The zero word brakes with the enable on (back-EMF braking through the amplifier, no
+        encoder needed) until the braking time bound has passed, or, when ``trust_rest``, both
+        encoders have read the wheels at rest for 0.1 s; then the enable drops.
+        """
+        if self._fault_since_ns == 0:
+            self._fault_since_ns = now_ns
+            self._rest_ns = 0
+        if now_ns - self._fault_since_ns >= self.fault_brake_ns:
+            return 0
+        if trust_rest:
+            ms = self.params.supervision.min_speed
+            if abs(self.left_speed) < ms and abs(self.right_speed) < ms:
+                self._rest_ns += int(self.period * 1e9)
+                if self._rest_ns >= 100_000_000:
+                    return 0
+            else:
+                self._rest_ns = 0
+        return 1
+
     def _stop_outputs(self, enable: int) -> None:
         self.linear.reset(0.0)
         self.angular.reset(0.0)
@@ -262,6 +307,7 @@ class BaseController:
         self.pi_right.reset()
         self.v = self.w = 0.0
         self.left_setpoint = self.right_setpoint = 0.0
+        self.left_u = self.right_u = 0.0
         self.left_code = self.right_code = DAC_ZERO
         self.enable = enable
 
@@ -282,11 +328,16 @@ class BaseController:
                 # PI restarts from rest either way.
                 self.odom.zero_speeds()
                 self.left_speed = self.right_speed = 0.0
+                # A category-1 stop: the zero word brakes while the driver may still hear it
+                # (encoders failing, driver alive); stale from the start there is nothing to
+                # brake.
+                self._fault_since_ns = 0 if self.enc_rx_ns == 0 else now_ns
             self.motor_stale = True
             self.supervisor.idle()
             self.hold_zero = True
             self.braking = False
-            self._stop_outputs(0)
+            self._stop_outputs(0 if self._fault_since_ns == 0
+                               else self._brake_enable(now_ns, False))
             self.flags = (ODOM_MOTOR_STALE | self._estop_flags()
                           | (ODOM_MOTOR_FAULT if self.supervisor.latched else 0))
             self.mode = MODE_FAULT
@@ -294,6 +345,7 @@ class BaseController:
         if self.motor_stale:
             self.motor_stale = False
             self._hold_since_ns = now_ns
+            self._fault_since_ns = 0
         sup = self.supervisor
         if self.estop_open:
             # The contact cut the amplifier: whatever the PI would integrate is windup, and a
@@ -310,7 +362,7 @@ class BaseController:
             return
         if sup.latched:
             self.braking = False
-            self._stop_outputs(0)
+            self._stop_outputs(self._brake_enable(now_ns, not sup.cause & ENCODER_TRUST))
             self.flags = ODOM_MOTOR_FAULT | self._estop_flags()
             self.mode = MODE_FAULT
             return
@@ -374,20 +426,24 @@ class BaseController:
         if wl == 0.0 and wr == 0.0:
             self.pi_left.reset()
             self.pi_right.reset()
+            self.left_u = self.right_u = 0.0
             self.left_code = self.right_code = DAC_ZERO
         else:
-            ul = self.pi_left.update(wl, self.left_speed, dt)
-            ur = self.pi_right.update(wr, self.right_speed, dt)
+            ul = self.left_u = self.pi_left.update(wl, self.left_speed, dt)
+            ur = self.right_u = self.pi_right.update(wr, self.right_speed, dt)
             sat = sat or self.pi_left.saturated or self.pi_right.saturated
             self.left_code = command_to_code(ul)
             self.right_code = command_to_code(ur)
         self.enable = 1
+        yaw = (self.yaw_rate if self.imu_rx_ns and now_ns - self.imu_rx_ns
+               <= self._imu_timeout_ns else math.nan)
         if self.driver_safe:
             sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
-        elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.pi_left.saturated,
-                      self.pi_right.saturated):
+        elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.left_u, self.right_u,
+                      self.pi_left.saturated, self.pi_right.saturated, yaw):
             self.braking = False
-            self._stop_outputs(0)
+            self._fault_since_ns = 0
+            self._stop_outputs(self._brake_enable(now_ns, False))
             self.flags = ODOM_MOTOR_FAULT | self._estop_flags()
             self.mode = MODE_FAULT
             return

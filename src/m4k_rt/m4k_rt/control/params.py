@@ -199,34 +199,83 @@ class GuardParams:
 
 @dataclass(frozen=True)
 class SupervisionParams:
-    """Wheel supervision settings (see ``control.supervision``)."""
+    """Wheel supervision settings (see ``control.supervision``): the one declaration."""
 
     enabled: bool = setting(Field(
         'bool', True, 'Wheel supervision: wrong direction, stall, '
-        'frozen or swapped encoders latch a motor fault. false: a '
-        'wrong-sign encoder drives the PI to full scale.'))
+        'frozen or swapped encoders, a wheel turning while commanded still and wheels '
+        'disagreeing with the IMU latch a motor fault. false: a wrong-sign encoder drives the '
+        'PI to full scale.'))
     speed_threshold: float = setting(_pos(
-        'rad/s', 0.5, 'Supervision acts while |wheel setpoint| is above this (0.5 rad/s = '
-        '5 cm/s at the rim). Too low: false trips from encoder quantization at crawl speed.'))
+        'rad/s', 0.5, 'The wrong-way, saturation-stall and swap tests act while |wheel '
+        'setpoint| is above this (0.5 rad/s = 5 cm/s at the rim); below it the frozen, '
+        'effort, still and IMU tests watch the wheels. Too low: a reversal read as wrong way.'))
     min_speed: float = setting(_pos(
         'rad/s', 0.3, 'A measured wheel speed below this has no direction (the wrong-way and '
-        'swap tests ignore it).'))
+        'swap tests ignore it; a category-1 stop after a stall counts it as rest). Too low: a '
+        'reversal read as wrong way.'))
     wrong_way_time: float = setting(_pos(
         's', 0.1, 'A wheel turning against its setpoint this '
         'long latches the fault.', hi=0.3))
     frozen_time: float = setting(_pos(
         's', 0.15, 'An encoder angle unchanged this long while the '
-        'wheel is commanded latches the fault.', hi=0.3))
+        'wheel is told to turn (seen following its setpoint, or moving_effort) latches the '
+        'fault.', hi=0.3))
+    moving_effort: float = setting(_pos(
+        '', 0.12, 'The frozen test acts on a wheel never seen turning with its setpoint '
+        'once |PI output| (normalized, 1 = full scale) is at least this: enough to break any '
+        'plausible wheel away from rest (friction takes ~0.014 on the simulated base; an '
+        'uncalibrated amplifier zero and dead band up to ~2.4 V more), so a PI winding up on '
+        'a frozen reading is caught at any setpoint. Too low: an uncalibrated wheel still '
+        'breaking away trips it; too high: a frozen-from-start encoder at a creep waits for '
+        'the IMU test.', hi=1.0))
     stall_time: float = setting(_pos(
-        's', 0.2, 'A wheel below stall_ratio of its setpoint with '
-        'the PI output saturated this long latches the fault.',
-        hi=0.3))
+        's', 0.2, 'A wheel not following its drive effort (stall_ratio at saturation, or '
+        'effort_margin) this long latches the fault.', hi=0.3))
     stall_ratio: float = setting(_pos(
-        '', 0.2, 'Stall: measured speed below this fraction of the '
+        '', 0.2, 'Stall at saturation: measured speed below this fraction of the '
         'setpoint.', hi=1.0))
+    effort_margin: float = setting(_pos(
+        'rad/s', 3.0, 'Effort against speed: the PI output over the feed-forward gain (the '
+        'speed it drives a free wheel at) exceeding the measured speed by this is a stall. '
+        '3 rad/s = 0.15 of full scale, 3.7 V beyond the back-EMF: above the current limit '
+        'times the armature resistance (the wheel would accelerate at the limit) and above '
+        'what an uncalibrated amplifier zero and dead band hold back (~2.4 V, moving_effort). '
+        'Too low: an uncalibrated wheel breaking away, a hard acceleration or a slope trips '
+        'it.'))
+    still_speed: float = setting(_pos(
+        'rad/s', 0.15, 'Still test: a wheel turning this much faster than its falling bound '
+        'while its setpoint is zero is a symptom (0.15 rad/s = 1.5 cm/s at the rim: two '
+        'encoder counts over the 20 ms feedback window, which noise does not hold for '
+        'still_time). Slower creeps at a zero command go unseen.'))
+    still_deceleration: float = setting(_pos(
+        'rad/s^2', 6.0, 'Still test: with a zero setpoint (zero word, the drive brakes) the '
+        "wheel's speed must stay under a bound falling at this rate from its speed when the "
+        'setpoint went to zero (the drive brakes at ~28 rad/s^2, friction alone 3.6, the '
+        'ramps reach a zero setpoint with the wheel within 0.3 rad/s of it). Too high: a '
+        'traction-limited stop on a slippery floor trips it.'))
+    still_time: float = setting(_pos(
+        's', 0.15, 'A wheel above the still bound (+ still_speed) this long latches the fault.',
+        hi=0.3))
     swap_time: float = setting(_pos(
         's', 0.1, "Wheels answering each other's setpoints this "
         'long (swapped channels) latch the fault.', hi=0.3))
+    use_imu: bool = setting(Field(
+        'bool', True, "Compare the wheels' yaw rate with the IMU gyro's (fresh samples "
+        'only; a stale IMU skips the test). false: an encoder frozen from the start at a creep '
+        '(below moving_effort) latches only once the PI has wound up to moving_effort.'))
+    yaw_tolerance: float = setting(_pos(
+        'rad/s', 0.08, "Yaw test: |wheels' yaw rate - gyro| beyond this (plus yaw_ratio) is a "
+        'symptom. Covers gyro noise and bias (myAHRS+: ~0.003 rad/s each) and the skew of '
+        'the IMU and encoder samples (0.04 rad/s). Too low: turns trip it.'))
+    yaw_ratio: float = setting(Field(
+        'float', 0.25, 'Yaw test: the tolerance grows by this fraction of the larger yaw rate '
+        '(tyre slip, track-width error).', lo=0, hi=1.0))
+    yaw_time: float = setting(_pos(
+        's', 0.15, 'The yaw symptom this long latches the fault.', hi=0.3))
+    imu_timeout: float = setting(_pos(
+        's', 0.05, 'A gyro sample older than this (IMU task receive time) is not used by the '
+        'yaw test.', hi=1.0))
 
 
 def _axis_deceleration(limits: AxisLimits) -> float:

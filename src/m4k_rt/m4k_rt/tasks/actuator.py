@@ -203,7 +203,7 @@ class ActuatorBody:
     def __init__(self, cmd_sock: RtPort, motor_sock: RtPort, state: RobotState,
                  params: ControlParams, period_s: float,
                  clock: Callable[[], int] = time.monotonic_ns,
-                 plan: GuardPlan | None = None) -> None:
+                 plan: GuardPlan | None = None, imu_z: float = 1.0) -> None:
         self.params = params
         self.state = state
         self.ctl = BaseController(params, period_s)
@@ -218,6 +218,7 @@ class ActuatorBody:
         self._cmd_out = PortWriter(cmd_sock)
         self._motor_out = PortWriter(motor_sock)
         self._clock = clock
+        self._imu_z = imu_z        # base_link z seen in imu_link (mount): gyro z -> yaw rate
         self._odom_every = params.odom_every_n
         self._vmax = params.linear.max_velocity
         self._odom_countdown = params.odom_every_n
@@ -290,7 +291,9 @@ class ActuatorBody:
                 self.unexpected += 1
         if latest is not None:
             ctl.command(latest.linear_x, latest.angular_z, now)
-        # 3. guard + control
+        # 3. guard + control (the gyro's yaw rate for the wheel supervision's cross-check)
+        imu_rx = state.imu_rx_ns
+        ctl.imu(state.imu_gz * self._imu_z, imu_rx)
         guard = self.guard
         speed = ctl.v if ctl.v > ctl.odom.v else ctl.odom.v
         cap = guard.evaluate(now, self._vmax, state.sonar_range, state.sonar_rx_ns,
@@ -351,13 +354,26 @@ def raw_section(task: TaskConfig, shared: Any, name: str) -> Any:
     return None
 
 
+def imu_z_axis(robot: Any) -> float:
+    """Return base_link's z axis seen along imu_link's z (1: mounted upright, -1: upside down).
+
+    From ``robot.sensors.imu.pose`` (roll, pitch): the gyro's z reading times this is the
+    body's yaw rate. Without a mount the IMU is taken as upright.
+    """
+    try:
+        pose = robot['sensors']['imu']['pose']
+        return math.cos(float(pose[3])) * math.cos(float(pose[4]))
+    except (KeyError, IndexError, TypeError, ValueError):
+        return 1.0
+
+
 def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> ActuatorBody:
     """Build the actuator body from its task config, its ``cmd``/``motor`` ports and state."""
     params = control_params(control_section(task, shared))
     period = task.period_ns * 1e-9
     plan = guard_plan(params, period, shared, raw_section(task, shared, 'robot'), test_weaken())
     body = ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params, period,
-                        plan=plan)
+                        plan=plan, imu_z=imu_z_axis(raw_section(task, shared, 'robot')))
     # Start-up, before any loop runs: the one place the RT process may read the e-stop
     # request the bridge persisted, and write to stderr.
     lines = [plan.line()]

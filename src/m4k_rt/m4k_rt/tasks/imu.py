@@ -10,11 +10,12 @@ freshest orientation, not a backlog.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
-from m4k_rt.protocol import Kind
+from m4k_rt.protocol import ImuStatus, Kind
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
@@ -24,6 +25,7 @@ __all__ = ['ImuBody', 'make_imu']
 _IMU = Kind.IMU
 _DEVICE_STATUS = Kind.DEVICE_STATUS
 _REQUEST = Kind.REQUEST
+_IMU_OK = int(ImuStatus.OK)
 
 
 class ImuBody(DeviceTaskBody):
@@ -50,6 +52,7 @@ class ImuBody(DeviceTaskBody):
         reader = self._dev_in
         reader.start_cycle()
         n = 0
+        gz = math.nan
         while (got := reader.next()) is not None:
             kind = got[0].kind
             if kind == _IMU:
@@ -58,12 +61,18 @@ class ImuBody(DeviceTaskBody):
                 n = reader.length
                 self._latest_view[:n] = reader.view[:n]
                 self.samples += 1
+                msg = got[1]
+                if msg.status == _IMU_OK:
+                    gz = msg.gz
+                else:
+                    gz = math.nan     # a sample the driver flags: no yaw rate for supervision
             elif kind == _DEVICE_STATUS:
                 self.state.record_device_status('imu', got[1], now)
             else:
                 self.unexpected += 1
         if n:
             self._out.forward(self._latest_view[:n])
+            self.state.imu_gz = gz    # the wheel supervision's yaw cross-check (actuator)
             self.state.imu_rx_ns = now
         self.unexpected += self._out_in.discard()   # the bridge only reads this port
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, 0)

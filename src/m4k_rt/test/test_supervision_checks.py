@@ -1,0 +1,156 @@
+"""The wheel supervision's cross-checks, one at a time, on synthetic samples (pure).
+
+Each check is fed what a fault makes the wheels, the PI and the gyro report, and what a healthy
+base under the same command reports; the first must latch within the check's time (0.3 s at
+most), the second never. Speeds in rad/s at the wheel, 10 ms cycles, one encoder sample each.
+"""
+
+import math
+
+import pytest
+
+from m4k_rt.control.params import control_params, SupervisionParams
+from m4k_rt.control.supervision import COUNT, WheelSupervisor
+from m4k_rt.protocol import FaultCause
+
+DT = 0.01
+P = control_params(None)
+FF = P.feed_forward
+R_OVER_T = P.wheel_radius / P.track_width
+
+
+def sup(**kw):
+    return WheelSupervisor(SupervisionParams(**kw), P.wheel_radius, P.track_width, FF)
+
+
+class Wheels:
+    """Angles integrated from the speeds each cycle; ``step`` feeds one cycle to ``s``."""
+
+    def __init__(self, s):
+        self.s = s
+        self.angle = [0.0, 0.0]
+        self.t = 0.0
+
+    def step(self, sp, meas, u=None, yaw=math.nan, read=None, sat=(False, False)):
+        """One cycle: the wheels turn at ``meas`` (``read``: what the encoders say instead)."""
+        for k in (0, 1):
+            self.angle[k] += meas[k] * DT
+        shown = self.angle if read is None else read
+        self.s.encoders(shown[0], shown[1])
+        if u is None:
+            u = (FF * sp[0], FF * sp[1])
+        self.t += DT
+        return self.s.step(DT, sp[0], sp[1], meas[0], meas[1], u[0], u[1], sat[0], sat[1], yaw)
+
+    def run(self, seconds, *args, **kw):
+        """Run; return the time into the run at which the fault latched (None: never)."""
+        for k in range(round(seconds / DT)):
+            if self.step(*args, **kw):
+                return (k + 1) * DT
+        return None
+
+
+def test_the_supervisor_takes_its_settings_from_their_one_declaration():
+    params = SupervisionParams()
+    s = WheelSupervisor(params, P.wheel_radius, P.track_width, FF)
+    assert s.p is params and s.enabled == params.enabled
+
+
+def test_a_wheel_driven_while_commanded_still_latches():
+    w = Wheels(sup())
+    dt = w.run(1.0, (0.0, 0.0), (0.5, 0.0))            # the left wheel creeps at 5 cm/s
+    assert dt is not None and dt <= 0.3
+    assert w.s.cause == FaultCause.LEFT_STILL
+
+
+def test_a_wheel_braking_down_at_a_zero_setpoint_is_still_healthy():
+    w = Wheels(sup())
+    speed = 19.0                                        # a guard stop from top speed
+    for _ in range(100):
+        speed = max(speed - 28.0 * DT, 0.0)             # the drive's braking: ~28 rad/s^2
+        assert not w.step((0.0, 0.0), (speed, speed))
+    assert not w.s.latched
+
+
+def test_encoder_noise_at_rest_is_not_motion():
+    # +/-1 count flicker at rest, read as the speed it implies over the 20 ms feedback window
+    s = sup()
+    last = 0.0
+    for k in range(300):
+        flick = COUNT * (1, -1, 0)[k % 3]
+        speed = (flick - last) / (2 * DT)
+        last = flick
+        s.encoders(flick, -flick)
+        assert not s.step(DT, 0.0, 0.0, speed, -speed, 0.0, 0.0, False, False, 0.0)
+
+
+def test_wheels_describing_a_turn_the_gyro_does_not_see_latch():
+    # the left encoder flipped at 4 cm/s: the wheels say a spin, the body drives straight
+    w = Wheels(sup())
+    dt = w.run(1.0, (0.4, 0.4), (-0.4, 0.4), yaw=0.0, u=(FF * 0.4, FF * 0.4))
+    assert dt is not None and dt <= 0.3
+    assert w.s.cause & FaultCause.YAW
+
+
+@pytest.mark.parametrize('slip', [0.0, 0.2])
+def test_the_gyro_agreeing_within_slip_does_not_latch(slip):
+    w = Wheels(sup())
+    wl, wr = 2.0, 4.0                                   # a turn at 0.3 m/s
+    yaw = R_OVER_T * (wr - wl) * (1.0 - slip)           # the body turns less when tyres slip
+    assert w.run(2.0, (wl, wr), (wl, wr), yaw=yaw) is None
+
+
+def test_no_gyro_sample_means_no_yaw_test():
+    w = Wheels(sup())
+    assert w.run(1.0, (0.2, 0.2), (-0.2, 0.2), yaw=math.nan) is None
+
+
+def test_effort_without_motion_is_a_stall_below_saturation():
+    w = Wheels(sup())
+    still = [0.0, 0.0]
+    # the PI drives the left wheel at a free-running 5 rad/s, the encoder flickers at rest
+    dt = None
+    for k in range(40):
+        still[0] = COUNT * (k % 2)
+        if w.step((0.3, 0.3), (0.0, 0.3), u=(5.0 * FF, 0.3 * FF), read=[still[0], w.angle[1]]):
+            dt = w.t
+            break
+    assert dt is not None and dt <= 0.3
+    assert w.s.cause & (FaultCause.LEFT_STALL | FaultCause.LEFT_FROZEN)
+
+
+def test_a_wheel_that_followed_then_froze_latches_at_a_creep():
+    w = Wheels(sup())
+    assert w.run(1.0, (0.2, 0.2), (0.2, 0.2)) is None     # 2 cm/s, both healthy
+    frozen = w.angle[0]
+    dt = None
+    for k in range(100):
+        if w.step((0.2, 0.2), (0.2, 0.2), read=[frozen, w.angle[1] + 0.2 * DT]):
+            dt = (k + 1) * DT
+            break
+    assert dt is not None and dt <= 0.3
+    assert w.s.cause & FaultCause.LEFT_FROZEN
+
+
+def test_a_wheel_not_yet_broken_away_under_a_small_effort_is_not_frozen():
+    # an uncalibrated amplifier: the left wheel needs more than the feed-forward to start
+    w = Wheels(sup())
+    assert w.run(1.0, (0.3, 0.3), (0.0, 0.3), u=(0.05, 0.3 * FF), yaw=R_OVER_T * 0.3) is None
+
+
+def test_a_still_reading_wheel_the_gyro_shows_turning_unseen_latches():
+    # frozen from the start: both wheels turn, the left encoder reads nothing, the body
+    # drives straight although the encoders describe a pivot
+    w = Wheels(sup())
+    dt = None
+    for k in range(100):
+        if w.step((0.2, 0.2), (0.0, 0.2), u=(0.02, 0.2 * FF), yaw=0.0,
+                  read=[0.0, w.angle[1] + 0.2 * DT]):
+            dt = (k + 1) * DT
+            break
+    assert dt is not None and dt <= 0.3
+
+
+def test_supervision_off_latches_nothing():
+    w = Wheels(sup(enabled=False))
+    assert w.run(1.0, (0.0, 0.0), (3.0, -3.0), yaw=0.0) is None
