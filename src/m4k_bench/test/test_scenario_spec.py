@@ -61,10 +61,17 @@ def test_bounds_follow_config():
     assert b.stop_distance(0.25) == pytest.approx(
         0.25 * (0.14 + bounds.SCHED_S) + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
     assert b.reach(0.25) == pytest.approx(0.25 * (0.14 + bounds.SCHED_S) + bounds.STOP_MARGIN_M)
-    # the guard's stop line: both sensors in use, so twice the slower one's (the laser's) period
+    # the guard's stop line: both sensors in use, so twice the slower one's (the laser's)
+    # period, or the longest timeout when that is longer (the guard acts on a reading until
+    # it is that old)
     lrf = raw['tasks']['lrf']['period_ms'] / 1000.0
     assert lrf > 0.03 and g['use_laser'] and g['use_sonar']
+    sensor = max(2 * lrf, g['laser_timeout'], g['sonar_timeout'])
     assert bounds.stop_line(raw, 0.25) == pytest.approx(
+        0.25 * (sensor + 0.01 + 0.02 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
+    quick = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
+                                                              laser_timeout=0.1)))
+    assert bounds.stop_line(quick, 0.25) == pytest.approx(
         0.25 * (2 * lrf + 0.01 + 0.02 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
     slower = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
                                                                sonar_timeout=1.0)))

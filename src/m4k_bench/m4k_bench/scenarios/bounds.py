@@ -186,7 +186,8 @@ def stop_line(raw: Mapping[str, Any], v: float) -> float:
 
     The speed-aware stop zone ``d(v) = v t_react + v^2 / (2 a_brake) + stop_distance`` from the
     configuration (``t_react``: ``guard.reaction_time``, else twice the period of the slowest
-    front sensor in use + the actuator period + pipeline + amplifier lag), restated here from
+    front sensor in use or the longest timeout of a sensor in use, whichever is longer, + the
+    actuator period + pipeline + amplifier lag), restated here from
     the specification -- never read from the guard. A configuration without
     ``brake_deceleration`` (the fixed-distance guard): ``stop_distance``.
     """
@@ -201,7 +202,11 @@ def stop_line(raw: Mapping[str, Any], v: float) -> float:
     else:
         pipeline = _pipeline(raw, 'lrf') if g.use_laser else _pipeline(raw, 'sonar') \
             if g.use_sonar else 0.0
-        t = pipeline + _period(raw, 'actuator') + _lag(raw)
+        # the guard acts on a reading until it is a timeout old (aged from its acquisition):
+        # its sensor part is never shorter than the longest timeout of a sensor in use
+        timeout = max(g.laser_timeout if g.use_laser else 0.0,
+                      g.sonar_timeout if g.use_sonar else 0.0)
+        t = max(pipeline, timeout) + _period(raw, 'actuator') + _lag(raw)
     return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 
 
