@@ -58,9 +58,9 @@ def test_memory_capacity_must_be_a_positive_int():
 def test_point_is_carried_with_the_robot_motion():
     m = ObstacleMemory(8)
     m.add_robot_point(1.225, 0.1, LASER, LASER_RADIUS, 0.0, 0.0, 0.0)   # 1 m ahead of the face
-    assert m.nearest(FRONT, HW, 0.0, 0.0, 0.0) == pytest.approx(1.0 - LASER_RADIUS)
+    assert m.nearest(FRONT, HW, 0.0, 0.0, 0.0) == pytest.approx(1.0)
     # 0.6 m further on: 0.4 m left
-    assert m.nearest(FRONT, HW, 0.6, 0.0, 0.0) == pytest.approx(0.4 - LASER_RADIUS)
+    assert m.nearest(FRONT, HW, 0.6, 0.0, 0.0) == pytest.approx(0.4)
     # turned 90 deg left at the same place: the point is to the right, out of the corridor
     assert m.nearest(FRONT, HW, 0.6, 0.0, math.pi / 2) == math.inf
     # driven past it: behind the front face, not in the way
@@ -161,8 +161,8 @@ def test_black_leg_that_leaves_the_sonar_cone_is_remembered():
         # the sonar: the leg while it is inside the cone, else no echo
         sx = lx - FRONT
         in_cone = abs(math.atan2(ly, sx)) <= HALF
-        rng = math.hypot(sx, ly) if in_cone else math.inf
-        f.take_sonar(SonarSighting(step + 1, t, rng - 0.0 if in_cone else math.inf, rng))
+        rng = math.hypot(sx, ly) - 0.015 if in_cone else math.inf   # to the leg's surface
+        f.take_sonar(SonarSighting(step + 1, t, rng, rng))
         seen.append((x, in_cone, f.nearest(x, 0.0, 0.0)))
     left_cone = [x for x, c, _ in seen if not c and x > 2.0]
     assert left_cone, 'the leg never left the cone: the test would prove nothing'
@@ -178,10 +178,10 @@ def test_glass_the_laser_sees_through_is_kept_again_by_the_next_ping():
     f = feed()
     f.history.record(MS, 0.0, 0.0, 0.0)
     f.take_sonar(SonarSighting(1, MS, 1.5, 1.5))
-    assert f.nearest(0.0, 0.0, 0.0) < 1.5
+    assert f.nearest(0.0, 0.0, 0.0) <= 1.5
     f.take_laser(laser_rec(1, MS, scan(far=4000)))          # the laser sees through glass
     f.take_sonar(SonarSighting(2, 2 * MS, 1.5, 1.5))       # still echoing: kept again
-    assert f.nearest(0.0, 0.0, 0.0) < 1.5
+    assert f.nearest(0.0, 0.0, 0.0) <= 1.5
 
 
 def test_a_new_record_is_taken_once():

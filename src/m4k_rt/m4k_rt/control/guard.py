@@ -35,8 +35,16 @@ away (reverse is capped to a creep speed elsewhere: there is no rear sensor).
   the speed the stop zone allows at every distance: at every distance the robot can still stop.
   The cap never falls below ``slow_floor`` (so the robot reaches the stop line, which then
   stops it, instead of creeping toward it forever).
+* **Memory.** Besides the latest readings the guard takes the nearest point of its obstacle
+  memory (:mod:`m4k_rt.control.memory`): what a sensor saw in the corridor, carried with the
+  robot's motion, forgotten only when a sensor sees the place free.
+* **Unknown.** A laser error code (1-19) on a corridor beam measured nothing there: while the
+  latest scan has one, forward speed is capped at ``unknown_speed``, the speed whose stop zone
+  the sonar alone covers across the corridor (``tasks.actuator.unknown_speed``).
 * **Staleness.** A sensor in use whose last valid reading is older than its timeout (or that
-  never reported) is *stale*. With ``stale_policy='stop'`` (default, fail-safe) a stale sensor
+  never reported) is *stale*. Readings are aged from when they were *acquired* (the ping; the
+  start of the URG's sweep), and t_react's sensor part is never shorter than a timeout
+  (:func:`reaction_time`). With ``stale_policy='stop'`` (default, fail-safe) a stale sensor
   counts as an obstacle at distance 0: forward motion stops until it reports again. With
   ``'ignore'`` a stale sensor is left out; ``stale`` still reports it.
 * **Test-only weakening** (``weaken``, metres; 0 in every real configuration): every distance

@@ -45,7 +45,7 @@ class LaserSighting(NamedTuple):
     """One laser scan as the guard takes it."""
 
     seq: int
-    acquired_ns: int                # the scan's stamp: the start of its sweep
+    acquired_ns: int                # when its corridor beams were measured (mid window)
     gap: float                      # nearest corridor point ahead of the front face (inf: none)
     unknown: bool                   # a corridor step carried an error code 1-19
     lanes: tuple[float, ...]        # x0, y0, x1, y1, ...: nearest point per lane, robot frame

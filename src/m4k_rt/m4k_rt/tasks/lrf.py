@@ -72,14 +72,20 @@ class LrfBody(DeviceTaskBody):
                 sector = self.sector
                 gap = sector.minimum(msg.angle_min, msg.angle_increment, msg.range_min,
                                      msg.range_max, msg.ranges)
-                acq = hdr.stamp_ns if hdr.stamp_ns < now else now
+                # the corridor's beams are measured some way into the sweep: date them by
+                # the middle of their window (step i at stamp + i x time_increment)
+                i0, i1 = sector.window(msg.angle_min, msg.angle_increment, len(msg.ranges))
+                acq = hdr.stamp_ns + int((i0 + i1) * 0.5 * msg.time_increment * 1e9)
+                if acq > now:
+                    acq = now
                 self.scans += 1
                 state.laser_sighting = LaserSighting(
                     self.scans, acq, gap, sector.unknown, sector.lanes(self.laser_x),
                     msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
                     msg.ranges)
                 state.laser_front_min = gap
-                state.laser_rx_ns = acq
+                # staleness from the sweep's start: the oldest step of the scan
+                state.laser_rx_ns = hdr.stamp_ns if hdr.stamp_ns < now else now
             elif hdr.kind == _DEVICE_STATUS:
                 state.record_device_status('lrf', msg, now)
             else:
