@@ -144,8 +144,8 @@ class GuardParams:
         'stop zone is too short and the robot hits what it sees at speed.', hi=9.81))
     reaction_time: float | None = setting(_pos(
         's', None, 't_react of the stop zone; null: computed from the periods (2 x the '
-        'slowest guard sensor task period + the actuator period + pipeline_latency + '
-        'amplifier_lag). calibrate writes the measured command-to-deceleration time here. '
+        'slowest guard sensor task period, or the longest guard sensor timeout when that is '
+        'longer, + the actuator period + pipeline_latency + amplifier_lag). calibrate writes the measured command-to-deceleration time here. '
         'Too low: the robot stops late.', nullable=True, hi=5.0))
     pipeline_latency: float = setting(_nonneg(
         's', 0.02, 'Datagram hops sensor driver -> RT task -> actuator -> motor driver, in '
