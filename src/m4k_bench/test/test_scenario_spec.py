@@ -63,10 +63,16 @@ def test_bounds_follow_config():
     assert b.stop_distance(0.25) == pytest.approx(
         0.25 * 0.17 + 0.25 ** 2 / (2 * 1.5) + bounds.STOP_MARGIN_M)
     assert b.reach(0.25) == pytest.approx(0.25 * 0.17 + bounds.STOP_MARGIN_M)
-    # the guard's stop line: both sensors in use, so the laser's delay (2 periods + a sweep)
+    # the guard's stop line: both sensors in use, so the laser's delay (2 periods + a sweep,
+    # or its timeout when that is longer: the guard acts on a scan until it is that old)
     lrf = raw['tasks']['lrf']['period_ms'] / 1000.0
     assert lrf > 0.03 and g['use_laser'] and g['use_sonar']
+    sensor = max(2 * lrf + 0.1, g['laser_timeout'], g['sonar_timeout'])
     assert bounds.stop_line(raw, 0.25) == pytest.approx(
+        0.25 * (sensor + 0.01 + 0.02 + 0.03 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
+    quick = dict(raw, control=dict(raw['control'], guard=dict(raw['control']['guard'],
+                                                              laser_timeout=0.1)))
+    assert bounds.stop_line(quick, 0.25) == pytest.approx(
         0.25 * (2 * lrf + 0.1 + 0.01 + 0.02 + 0.03 + 0.05) + 0.25 ** 2 / 3.0 + 0.35)
 
 
@@ -81,14 +87,19 @@ def test_the_judges_t_react_is_the_guards_and_calibration_cannot_loosen_it():
     shared = type('S', (), {'config': cfg})()
     ta = cfg.task('actuator').period_ns * 1e-9
     plan = guard_plan(control_params(raw['control']), ta, shared)
-    assert bounds.judge_reaction(raw, 'laser') == pytest.approx(plan.reaction_time)
+    assert bounds.judge_reaction(raw, 'laser', timeouts=True) == pytest.approx(
+        plan.reaction_time)
     calibrated = config.deep_merge(raw, {'control': {'guard': {'amplifier_lag': 0.012}}})
     cal_plan = guard_plan(control_params(calibrated['control']), ta, shared)
     assert cal_plan.reaction_time == pytest.approx(plan.reaction_time - 0.038)
-    assert bounds.judge_reaction(calibrated, 'laser') == bounds.judge_reaction(raw, 'laser')
+    assert bounds.judge_reaction(calibrated, 'laser', timeouts=True) == bounds.judge_reaction(
+        raw, 'laser', timeouts=True)
     assert bounds.stop_line(calibrated, 2.0) == bounds.stop_line(raw, 2.0)
-    r = reaction(control_params(raw['control']).guard, 'laser', 0.2, ta)
-    assert (r.sensor_part, r.total) == (pytest.approx(0.5), pytest.approx(plan.reaction_time))
+    gp = control_params(raw['control']).guard
+    r = reaction(gp, 'laser', 0.2, ta, timeouts=True)
+    assert (r.sensor_part, r.total) == (pytest.approx(max(0.5, gp.laser_timeout)),
+                                        pytest.approx(plan.reaction_time))
+    assert reaction(gp, 'laser', 0.2, ta).sensor_part == pytest.approx(0.5)
     with pytest.raises(ValueError, match='sensor must be one of'):
         reaction(control_params(raw['control']).guard, 'radar', 0.2, ta)
 

@@ -62,19 +62,26 @@ def test_sonar_publishes_ranges_for_the_guard_and_forwards(ports):
     rig.write('sonar', p.Kind.SONAR, 0.75, p.SONAR_OK, stamp=40 * MS)
     body(ctx(60 * MS))
     assert state.sonar_range == pytest.approx(0.75)
-    assert state.sonar_rx_ns == 60 * MS
+    # aged from the ping: the echo's stamp less its flight time (1.5 m at 343 m/s)
+    assert state.sonar_rx_ns == 40 * MS - int(2e9 * 0.75 / 343.0)
+    assert state.sonar_sighting.range_m == pytest.approx(0.75)
+    assert state.sonar_sighting.acquired_ns == state.sonar_rx_ns
     assert p.decode(rig.nrt['sonar_out'].read(timeout=1.0))[1].range_m == pytest.approx(0.75)
     # no echo: free ahead, still a fresh reading
-    rig.write('sonar', p.Kind.SONAR, 0.0, p.SONAR_NO_ECHO)
+    rig.write('sonar', p.Kind.SONAR, 0.0, p.SONAR_NO_ECHO, stamp=85 * MS)
     body(ctx(90 * MS))
-    assert state.sonar_range == math.inf and state.sonar_rx_ns == 90 * MS
+    assert state.sonar_range == math.inf and state.sonar_rx_ns == 85 * MS
+    # a stamp from the future (a clock step) is taken as now, never younger
+    rig.write('sonar', p.Kind.SONAR, 0.0, p.SONAR_NO_ECHO, stamp=500 * MS)
+    body(ctx(100 * MS))
+    assert state.sonar_rx_ns == 100 * MS
     # a timeout does not refresh the reading: it can go stale
     rig.write('sonar', p.Kind.SONAR, 0.0, p.SONAR_TIMEOUT)
     body(ctx(120 * MS))
-    assert state.sonar_rx_ns == 90 * MS
+    assert state.sonar_rx_ns == 100 * MS
     assert state.sonar_status == p.SONAR_TIMEOUT
     assert body.failed == 1
-    assert len(rig.read_all('sonar_out')) == 2    # every reply is forwarded to the bridge
+    assert len(rig.read_all('sonar_out')) == 3    # every reply is forwarded to the bridge
 
 
 def _scan(front_mm):
@@ -95,12 +102,14 @@ def test_lrf_front_sector_minimum_reaches_the_state(ports):
     rig.nrt['lrf'].write(data)
     body(ctx(400 * MS))
     assert state.laser_front_min == pytest.approx(0.8)
-    assert state.laser_rx_ns == 400 * MS
+    assert state.laser_rx_ns == 250 * MS          # the scan's own stamp: its sweep's start
+    assert state.laser_sighting.gap == pytest.approx(0.8)
+    assert not state.laser_sighting.unknown
     assert rig.nrt['lrf_out'].read(timeout=1.0) == data
     rig.nrt['lrf'].write(b'MK\x01\x07' + b'\x00' * 40)   # truncated scan: counted, ignored
     body(ctx(600 * MS))
     assert rig.rt['lrf'].counters.malformed == 1
-    assert state.laser_rx_ns == 400 * MS
+    assert state.laser_rx_ns == 250 * MS
 
 
 def _shown(rig):
@@ -180,7 +189,7 @@ def test_sonar_reading_stops_the_actuator_on_its_next_cycle(ports):
         if k % 3 == 0:
             for _ in rig.read_all('sonar'):  # fake sonar handler answers each trigger
                 rng = sonar_range[0]
-                rig.write('sonar', p.Kind.SONAR, rng, p.SONAR_OK)
+                rig.write('sonar', p.Kind.SONAR, rng, p.SONAR_OK, stamp=t)
                 if rng < 0.35 and obstacle_reply_at is None:
                     obstacle_reply_at = k
             son(ctx(t + MS))

@@ -153,18 +153,20 @@ def sched(raw: Mapping[str, Any]) -> float:
     return float(_guard(raw).scheduling_allowance)
 
 
-def judge_reaction(raw: Mapping[str, Any], sensor: str) -> float:
+def judge_reaction(raw: Mapping[str, Any], sensor: str, timeouts: bool = False) -> float:
     """Return the t_react the judge holds a stop ``sensor`` sees to (s).
 
     The guard's derivation (:func:`m4k_rt.control.reaction.reaction`: sensor part + RT part +
     actuation part) on the configured periods, with the actuation part of the shipped
     declaration of ``guard.amplifier_lag`` -- independent of what ``calibrate`` wrote.
+    ``timeouts``: the guard's stop zone (its sensor part covers the sensors' timeouts); False:
+    the delay of the sensor that saw the obstacle, reporting on time (a stop's own bound).
     """
     from m4k_rt.control.params import control_params
     from m4k_rt.control.reaction import reaction
     return reaction(_guard(raw), sensor, _period(raw, 'lrf' if sensor == 'laser' else 'sonar'),
                     _period(raw, 'actuator'),
-                    actuation=control_params({}).guard.amplifier_lag).total
+                    actuation=control_params({}).guard.amplifier_lag, timeouts=timeouts).total
 
 
 def _pipeline(raw: Mapping[str, Any], task: str) -> float:
@@ -197,7 +199,7 @@ def stop_line(raw: Mapping[str, Any], v: float) -> float:
     a = _guard_decel(raw)
     if a is None or v <= 0.0:
         return g.stop_distance
-    t = judge_reaction(raw, 'laser' if g.use_laser else 'sonar') if (
+    t = judge_reaction(raw, 'laser' if g.use_laser else 'sonar', timeouts=True) if (
         g.use_laser or g.use_sonar) else 0.0
     return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 

@@ -110,7 +110,7 @@ def _obstacle_x(raw: Mapping[str, Any], v: float) -> float:
     from m4k_rt.control.params import control_params
     p = control_params(raw.get('control'))
     a = p.linear.max_deceleration or p.linear.max_acceleration
-    t = judge_reaction(raw, 'laser')
+    t = judge_reaction(raw, 'laser', timeouts=True)   # the guard's own stop zone
     slow_zone = v * t + v * v / (2.0 * a) + p.guard.stop_distance
     front = float(((raw.get('robot') or {}).get('body') or {}).get('length', 0.45)) / 2.0
     return round(front + v * v / (2.0 * p.linear.max_acceleration) + slow_zone + EXTRA_M, 2)

@@ -35,8 +35,16 @@ away (reverse is capped to a creep speed elsewhere: there is no rear sensor).
   the speed the stop zone allows at every distance: at every distance the robot can still stop.
   The cap never falls below ``slow_floor`` (so the robot reaches the stop line, which then
   stops it, instead of creeping toward it forever).
+* **Memory.** Besides the latest readings the guard takes the nearest point of its obstacle
+  memory (:mod:`m4k_rt.control.memory`): what a sensor saw in the corridor, carried with the
+  robot's motion, forgotten only when a sensor sees the place free.
+* **Unknown.** A laser error code (1-19) on a corridor beam measured nothing there: while the
+  latest scan has one, forward speed is capped at ``unknown_speed``, the speed whose stop zone
+  the sonar alone covers across the corridor (``tasks.actuator.unknown_speed``).
 * **Staleness.** A sensor in use whose last valid reading is older than its timeout (or that
-  never reported) is *stale*. With ``stale_policy='stop'`` (default, fail-safe) a stale sensor
+  never reported) is *stale*. Readings are aged from when they were *acquired* (the ping; the
+  start of the URG's sweep), and t_react's sensor part is never shorter than a timeout
+  (:func:`reaction_time`). With ``stale_policy='stop'`` (default, fail-safe) a stale sensor
   counts as an obstacle at distance 0: forward motion stops until it reports again. With
   ``'ignore'`` a stale sensor is left out; ``stale`` still reports it.
 * **Test-only weakening** (``weaken``, metres; 0 in every real configuration): every distance
@@ -100,13 +108,15 @@ class CollisionGuard:
                  'reaction_time', 'brake_deceleration', 'slow_deceleration', 'weaken',
                  'use_sonar', 'use_laser', 'sonar_timeout_ns', 'laser_timeout_ns',
                  'stale_policy', 'active', 'slowing', 'sonar_stale', 'laser_stale',
-                 'distance', 'activations', 'trip_distance', 'held_trip')
+                 'distance', 'activations', 'trip_distance', 'held_trip', 'unknown_speed',
+                 'unknown', 'memory_distance')
 
     def __init__(self, *, enabled: bool, stop_distance: float, release_margin: float,
                  slow_down: bool, slow_deceleration: float, slow_floor: float,
                  reaction_time: float, brake_deceleration: float, use_sonar: bool,
                  use_laser: bool, sonar_timeout: float, laser_timeout: float,
-                 stale_policy: str, weaken: float = 0.0) -> None:
+                 stale_policy: str, weaken: float = 0.0,
+                 unknown_speed: float = math.inf) -> None:
         """Take the ``control.guard`` settings, the slow-down deceleration and t_react.
 
         The settings' defaults and ranges are declared once, in
@@ -120,6 +130,9 @@ class CollisionGuard:
         self.brake_deceleration = _check('brake_deceleration', brake_deceleration,
                                          positive=True)
         self.weaken = _check('weaken', weaken)
+        # inf: no cap (no unknown policy, e.g. the guard's own unit tests)
+        self.unknown_speed = (math.inf if unknown_speed == math.inf
+                              else _check('unknown_speed', unknown_speed))
         for name, value in (('sonar_timeout', sonar_timeout), ('laser_timeout', laser_timeout)):
             _check(name, value, positive=True)
         if stale_policy not in STALE_POLICIES:
@@ -142,6 +155,8 @@ class CollisionGuard:
         self.sonar_stale = False
         self.laser_stale = False
         self.distance = math.inf
+        self.memory_distance = math.inf
+        self.unknown = False
         self.trip_distance = self.stop_distance
         self.held_trip = 0.0            # the stop zone a trip holds while the robot brakes
 
@@ -150,12 +165,16 @@ class CollisionGuard:
         return stop_distance(v, self.reaction_time, self.brake_deceleration, self.stop_distance)
 
     def evaluate(self, now_ns: int, max_velocity: float, sonar_range: float, sonar_rx_ns: int,
-                 laser_min: float, laser_rx_ns: int, speed: float = 0.0) -> float:
+                 laser_min: float, laser_rx_ns: int, speed: float = 0.0,
+                 memory_min: float = math.inf, unknown: bool = False) -> float:
         """Return the forward velocity cap (``math.inf`` = no cap, 0.0 = stop).
 
-        ``*_rx_ns`` is when the last valid reading arrived (0 = never); a reading with nothing
-        in range is ``math.inf``. ``speed`` is the robot's forward speed now (m/s; the larger
-        of commanded and measured), which sizes the stop zone.
+        ``*_rx_ns`` is when the last valid reading was *acquired* (0 = never): its age is
+        judged against the timeout; a reading with nothing in range is ``math.inf``.
+        ``speed`` is the robot's forward speed now (m/s; the larger of commanded and
+        measured), which sizes the stop zone. ``memory_min`` is the obstacle memory's nearest
+        gap (:mod:`m4k_rt.control.memory`), ``unknown`` whether the laser's last scan had an
+        error code in the corridor (the speed is then capped at ``unknown_speed``).
         """
         if not self.enabled:
             self.active = self.slowing = False
@@ -178,6 +197,9 @@ class CollisionGuard:
                     d = 0.0
             elif laser_min < d:
                 d = laser_min
+        self.memory_distance = memory_min
+        if memory_min < d:
+            d = memory_min
         if self.weaken and d != 0.0:
             d += self.weaken     # test-only: a fail-safe stale stop is never weakened
         self.distance = d
@@ -203,15 +225,21 @@ class CollisionGuard:
             self.activations += 1
         if self.active:
             self.slowing = False
+            self.unknown = False
             return 0.0
+        cap = math.inf
         if self.slow_down and d != math.inf:
             cap = speed_for_distance(d, self.reaction_time, self.slow_deceleration,
                                      self.stop_distance)
             if cap < self.slow_floor:
                 cap = self.slow_floor
-            if cap < max_velocity:
-                self.slowing = True
-                return cap
+        # an error code in the corridor: slow to what the sonar alone can guard
+        self.unknown = unknown and self.unknown_speed < max_velocity
+        if self.unknown and self.unknown_speed < cap:
+            cap = self.unknown_speed
+        if cap < max_velocity:
+            self.slowing = True
+            return cap
         self.slowing = False
         return math.inf
 
@@ -231,6 +259,24 @@ def front_offset(robot: Any, sensor: str) -> float:
     return off if math.isfinite(off) and off > 0.0 else 0.0
 
 
+def sensor_x(robot: Any, sensor: str) -> float:
+    """Return ``robot.sensors.<sensor>.pose[0]`` (m, base_link x), 0 when the section lacks it."""
+    try:
+        x = float(robot['sensors'][sensor]['pose'][0])
+    except (KeyError, TypeError, IndexError, ValueError):
+        return 0.0
+    return x if math.isfinite(x) else 0.0
+
+
+def body_front(robot: Any) -> float:
+    """Return the front face's x (``robot.body.length / 2``, m), 0 when not given."""
+    try:
+        f = float(robot['body']['length']) / 2.0
+    except (KeyError, TypeError, ValueError):
+        return 0.0
+    return f if math.isfinite(f) and f > 0.0 else 0.0
+
+
 def body_half_width(robot: Any, default: float = 0.14) -> float:
     """Return half the body's width (``robot.body.width / 2``), or ``default`` when not given."""
     try:
@@ -240,8 +286,11 @@ def body_half_width(robot: Any, default: float = 0.14) -> float:
     return w if math.isfinite(w) and w > 0.0 else default
 
 
+LANES = 8   # the corridor's width in this many lanes: the laser keeps its nearest point per lane
+
+
 class FrontCorridor:
-    """Nearest laser point inside the front face's swept corridor, as a gap ahead of the face.
+    """The laser's view of the front face's swept corridor, as gaps ahead of the face.
 
     The corridor is the strip the front face sweeps driving straight ahead: lateral offset
     ``|r sin a| <= half_width`` (half the body width plus the lateral margin) and forward
@@ -253,15 +302,17 @@ class FrontCorridor:
     +-90 deg when the laser is at the face) are looked at; their sin and cos are computed once
     per scan geometry and cached.
 
-    Ranges are the LASER_SCAN's millimetres; values below 20 are URG error codes and values
-    outside [range_min, range_max] are not measurements -- both are skipped. A corridor
-    without a single valid point reports ``math.inf`` (nothing seen): code 0 is "nothing
-    within 5.6 m", and the other codes (a black or shiny surface) measured nothing -- the
-    laser's counterpart of the sonar's no echo, also inf and fresh. The scan itself answered,
-    so the laser stays fresh; only no scan at all makes it stale (docs/sensor-outcomes.md).
+    Ranges are the LASER_SCAN's millimetres; values below 20 are URG error codes (SCIP 2.0).
+    Code 0 ("possibly at 22 m": nothing within 5.6 m) is free space. Codes 1-19 (low
+    intensity -- a black surface --, strong reflection, errors on neighbouring steps,
+    non-measurable) measured nothing: such a step is **unknown**, reported as ``unknown`` and
+    never taken as free (the guard then caps the speed, docs/sensor-outcomes.md). Values
+    outside [range_min, range_max] are not measurements and are skipped. A corridor without a
+    valid point has the gap ``math.inf``.
     """
 
-    __slots__ = ('half_width', 'offset', 'half_angle', '_key', '_i0', '_i1', '_cos', '_sin')
+    __slots__ = ('half_width', 'offset', 'half_angle', '_key', '_i0', '_i1', '_cos', '_sin',
+                 'unknown', '_lane_x', '_lane_y', '_lane_d')
 
     def __init__(self, half_width: float, offset: float = 0.0) -> None:
         self.half_width = _check('corridor half width', half_width, positive=True)
@@ -273,6 +324,10 @@ class FrontCorridor:
         self._i1 = -1
         self._cos: list[float] = []
         self._sin: list[float] = []
+        self.unknown = False          # the last scan had an error code inside the corridor
+        self._lane_x = [0.0] * LANES
+        self._lane_y = [0.0] * LANES
+        self._lane_d = [math.inf] * LANES
 
     def window(self, angle_min: float, angle_increment: float, count: int) -> tuple[int, int]:
         """Return the inclusive index range (i0, i1) of the beams that can reach the corridor."""
@@ -288,12 +343,16 @@ class FrontCorridor:
                 self._i1 = min(count - 1, i1)
             angles = [angle_min + i * angle_increment for i in range(self._i0, self._i1 + 1)]
             self._cos = [math.cos(a) for a in angles]
-            self._sin = [abs(math.sin(a)) for a in angles]
+            self._sin = [math.sin(a) for a in angles]
         return self._i0, self._i1
 
     def minimum(self, angle_min: float, angle_increment: float, range_min: float,
                 range_max: float, ranges_mm: tuple[int, ...] | list[int]) -> float:
-        """Return the smallest gap (m) between the front face and a corridor point, inf if none."""
+        """Return the smallest gap (m) between the front face and a corridor point, inf if none.
+
+        Also sets ``unknown`` (an error code 1-19 on a corridor beam) and the nearest point of
+        each lane (:meth:`lanes`).
+        """
         i0, i1 = self.window(angle_min, angle_increment, len(ranges_mm))
         lo = range_min * 1000.0
         if lo < 20.0:
@@ -304,14 +363,45 @@ class FrontCorridor:
         best = math.inf
         cos = self._cos
         sin = self._sin
+        lane_d = self._lane_d
+        lane_x = self._lane_x
+        lane_y = self._lane_y
+        for k in range(LANES):
+            lane_d[k] = math.inf
+        lane_w = 2.0 * hw / LANES
+        unknown = False
         for i in range(i0, i1 + 1):
             r = ranges_mm[i]
             if lo <= r <= hi:
                 k = i - i0
-                if r * sin[k] <= hw:
+                y = r * sin[k]
+                if -hw <= y <= hw:
                     d = r * cos[k] - off
                     if d < best:
                         best = d
+                    lane = int((y + hw) / lane_w)
+                    if lane >= LANES:
+                        lane = LANES - 1
+                    if d < lane_d[lane]:
+                        lane_d[lane] = d
+                        lane_x[lane] = r * cos[k]
+                        lane_y[lane] = y
+            elif 0 < r < 20:
+                unknown = True       # measured nothing: not free (class notes)
+        self.unknown = unknown
         if best == math.inf:
             return math.inf
         return best * 0.001 if best > 0.0 else 0.0
+
+    def lanes(self, laser_x: float) -> tuple[float, ...]:
+        """Return the last scan's nearest point per lane ahead of the face (x0, y0, ...; m).
+
+        Robot frame: ``laser_x`` is the laser's x on the robot. Lanes without a point (or with
+        one behind the front face) are left out.
+        """
+        out: list[float] = []
+        for k in range(LANES):
+            if self._lane_d[k] != math.inf and self._lane_d[k] >= 0.0:
+                out.append(laser_x + self._lane_x[k] * 0.001)
+                out.append(self._lane_y[k] * 0.001)
+        return tuple(out)

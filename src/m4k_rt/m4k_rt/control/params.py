@@ -187,10 +187,23 @@ class GuardParams:
     use_laser: bool = setting(Field(
         'bool', True, "Feed the laser's corridor minimum to the guard."))
     sonar_timeout: float = setting(_pos(
-        's', 0.2, 'Without a valid sonar reading this long the sonar '
-        'is stale (see stale_policy).'))
+        's', 0.2, 'A sonar reading older than this (aged from its ping) leaves the sonar '
+        'stale (see stale_policy). Part of t_react (its sensor part is never shorter).'))
     laser_timeout: float = setting(_pos(
-        's', 0.5, 'Without a scan this long the laser is stale.'))
+        's', 0.7, 'A scan older than this (aged from its stamp, the start of the sweep) leaves '
+        'the laser stale. Part of t_react (its sensor part is never shorter). Normal scans '
+        'are up to about 0.6 s old when the next one replaces them (a 0.1 s sweep and its '
+        'transfer, then up to two 0.2 s lrf periods): shorter stops the robot on every '
+        'late scan.'))
+    memory_points: int = setting(Field(
+        'int', 64, 'Obstacle memory size (points in the odometry frame, m4k_rt.control.memory): '
+        'what a sensor saw in the corridor is kept until a sensor sees that place free. Full: '
+        'the point farthest from the robot is replaced. Too small: a busy scene pushes out '
+        'what only the memory still knows.', lo=8, hi=1024))
+    sonar_cone: float = setting(_pos(
+        'rad', 0.2618, "The sonar's full beam angle (US-100: about 15 deg): where its echo may "
+        'come from and what its cone covers when it frees memory points. Too wide: the sonar '
+        'frees places it cannot hear; too narrow: arcs miss the corridor edges.', hi=1.0))
     stale_policy: str = setting(Field(
         'str', 'stop', 'stop: a stale sensor counts as an obstacle '
         '(fail-safe); ignore: drive on without it.',

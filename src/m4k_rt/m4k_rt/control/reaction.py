@@ -6,7 +6,12 @@
   appears just after the sensor looked at it is sampled up to one task period later, and the
   device task hands that reading on up to one more period after that (each cycle drains the
   reply to the previous cycle's request). The URG stamps the start of its sweep and sends
-  after it: a point at the sweep's end reaches the handler one scan time later.
+  after it: a point at the sweep's end reaches the handler one scan time later. For the
+  guard's stop zone (``timeouts=True``) the sensor part is never shorter than the longest
+  staleness timeout of a guard sensor in use (``guard.laser_timeout``,
+  ``guard.sonar_timeout``): the guard acts on a reading until it is that old (aged from its
+  acquisition), so a point that appears just after a reading was taken may go unseen that
+  long when the next reading is late.
 * **RT part**: the actuator's period (it acts at its next cycle), ``guard.pipeline_latency``
   (the datagram hops driver host -> RT -> actuator -> motor service) and
   ``guard.scheduling_allowance`` (the wake-up latency of the tasks on their host: measured,
@@ -52,13 +57,14 @@ class Reaction:
 
 
 def reaction(guard: Any, sensor: str, sensor_period: float, actuator_period: float,
-             actuation: float | None = None) -> Reaction:
+             actuation: float | None = None, timeouts: bool = False) -> Reaction:
     """Return t_react for ``sensor`` (``laser`` / ``sonar``) from ``control.guard`` settings.
 
     ``sensor_period`` is the sensor task's period and ``actuator_period`` the actuator's (s).
     ``actuation`` replaces ``guard.amplifier_lag`` (the judge's own figure); None: the
-    configured (possibly calibrated) value. Raise ValueError for an unknown sensor or a
-    negative period.
+    configured (possibly calibrated) value. ``timeouts``: the guard's stop zone, whose sensor
+    part covers the staleness timeouts of the guard sensors in use. Raise ValueError for an
+    unknown sensor or a negative period.
     """
     if sensor not in SENSORS:
         raise ValueError('sensor must be one of {}, got {!r}'.format(SENSORS, sensor))
@@ -68,6 +74,11 @@ def reaction(guard: Any, sensor: str, sensor_period: float, actuator_period: flo
     sensor_part = 2.0 * sensor_period
     if sensor == 'laser':
         sensor_part += float(guard.laser_scan_time)
+    if timeouts:
+        longest = max(float(guard.laser_timeout) if guard.use_laser else 0.0,
+                      float(guard.sonar_timeout) if guard.use_sonar else 0.0)
+        if longest > sensor_part:
+            sensor_part = longest
     rt_part = actuator_period + float(guard.pipeline_latency) + float(
         guard.scheduling_allowance)
     act = float(guard.amplifier_lag) if actuation is None else float(actuation)

@@ -41,12 +41,17 @@ from typing import Any, Callable, Mapping
 from m4k_rt.config import load_layered, TaskConfig
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.guard import (
+    body_front,
+    body_half_width,
     CollisionGuard,
     front_offset,
+    sensor_x,
     speed_for_distance,
 )
+from m4k_rt.control.memory import ObstacleMemory
 from m4k_rt.control.params import control_params, ControlParams
 from m4k_rt.control.reaction import reaction
+from m4k_rt.control.sightings import SightingFeed
 from m4k_rt.estop_request import read_request, request_path, state_dir
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
@@ -99,6 +104,7 @@ class GuardPlan:
     slow_down: bool = True
     supervision: bool = True
     reaction_parts: str = ''      # t_react in its three parts (m4k_rt.control.reaction)
+    unknown_speed: float = math.inf
 
     def line(self) -> str:
         """Return the start-up statement of the caps (one line)."""
@@ -115,6 +121,9 @@ class GuardPlan:
                          self.visible, self.sensor, self.sensor_speed, self.reverse_creep)
         if self.reaction_parts:
             text += '; t_react ' + self.reaction_parts
+        if self.unknown_speed < self.top_speed:
+            text += ('; a laser error code in the corridor (unknown) caps it to {:.2f} m/s (the '
+                     'sonar alone covers d(v) across the corridor)'.format(self.unknown_speed))
         if not self.supervision:
             text += '; wheel supervision OFF (control.supervision.enabled false)'
         if self.weaken:
@@ -166,7 +175,8 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
     else:
         sensor, period, visible = 'no sensor', 0.0, 0.0
     # sensor part + RT part + actuation part, always (calibrate writes the last one only)
-    r = reaction(g, sensor if sensor != 'no sensor' else 'sonar', period, actuator_period)
+    r = reaction(g, sensor if sensor != 'no sensor' else 'sonar', period, actuator_period,
+                 timeouts=True)
     t_react = r.total
     if not g.enabled:
         return GuardPlan(False, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
@@ -177,7 +187,31 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
     return GuardPlan(True, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
                      sensor_speed, min(params.linear.max_velocity, sensor_speed),
                      g.reverse_creep_speed, weaken, g.slow_down, params.supervision.enabled,
-                     r.text())
+                     r.text(), unknown_speed(params, robot, t_react))
+
+
+def sonar_full_width(params: ControlParams, robot: Any) -> float:
+    """Return how far ahead of the front face the sonar's cone spans the whole corridor (m)."""
+    g = params.guard
+    half_width = body_half_width(robot) + g.lateral_margin
+    return half_width / math.tan(g.sonar_cone / 2.0) - front_offset(robot, 'sonar')
+
+
+def unknown_speed(params: ControlParams, robot: Any, t_react: float) -> float:
+    """Return the forward cap while the laser reports an error code in the corridor (m/s).
+
+    An error code measured nothing there (a black surface: docs/sensor-outcomes.md), so only
+    the sonar can see it: the cap is the speed whose stop zone d(v) the sonar's cone covers
+    across the whole corridor (and within its reach). Without the sonar, nothing sees what
+    the laser cannot: the reverse creep.
+    """
+    g = params.guard
+    if not g.use_sonar:
+        return g.reverse_creep_speed
+    reach = g.sonar_range - front_offset(robot, 'sonar')
+    full = min(sonar_full_width(params, robot), reach)
+    v = speed_for_distance(max(full, 0.0), t_react, g.brake_deceleration, g.stop_distance)
+    return v if v > g.slow_floor else g.slow_floor
 
 
 def make_guard(params: ControlParams, plan: GuardPlan | None = None) -> CollisionGuard:
@@ -194,7 +228,22 @@ def make_guard(params: ControlParams, plan: GuardPlan | None = None) -> Collisio
                           brake_deceleration=g.brake_deceleration,
                           use_sonar=g.use_sonar, use_laser=g.use_laser,
                           sonar_timeout=g.sonar_timeout, laser_timeout=g.laser_timeout,
-                          stale_policy=g.stale_policy, weaken=plan.weaken)
+                          stale_policy=g.stale_policy, weaken=plan.weaken,
+                          unknown_speed=plan.unknown_speed)
+
+
+def make_feed(params: ControlParams, robot: Any) -> SightingFeed:
+    """Build the guard's obstacle memory and the feed that fills it (the robot's geometry)."""
+    g = params.guard
+    sx = sensor_x(robot, 'sonar')
+    front = body_front(robot)
+    if front <= 0.0:
+        front = sx       # a bare test config: the face where the sonar is
+    return SightingFeed(ObstacleMemory(g.memory_points), sonar_x=sx,
+                        laser_x=sensor_x(robot, 'laser'), front_x=front,
+                        half_width=body_half_width(robot) + g.lateral_margin,
+                        sonar_half_angle=g.sonar_cone / 2.0,
+                        sonar_reach=g.sonar_range)
 
 
 class ActuatorBody:
@@ -203,12 +252,16 @@ class ActuatorBody:
     def __init__(self, cmd_sock: RtPort, motor_sock: RtPort, state: RobotState,
                  params: ControlParams, period_s: float,
                  clock: Callable[[], int] = time.monotonic_ns,
-                 plan: GuardPlan | None = None, imu_z: float = 1.0) -> None:
+                 plan: GuardPlan | None = None, imu_z: float = 1.0,
+                 robot: Any = None) -> None:
         self.params = params
         self.state = state
         self.ctl = BaseController(params, period_s)
-        self.plan = plan if plan is not None else guard_plan(params, period_s)
+        self.plan = plan if plan is not None else guard_plan(params, period_s, None, robot)
         self.guard = make_guard(params, self.plan)
+        self.feed = make_feed(params, robot)
+        self._use_sonar = params.guard.use_sonar
+        self._use_laser = params.guard.use_laser
         if self.plan.enabled:
             self.ctl.forward_limit = self.plan.top_speed
             self.ctl.reverse_limit = self.plan.reverse_creep
@@ -236,6 +289,10 @@ class ActuatorBody:
                 'wheel_cmd_dropped': self._motor_out.dropped, 'odom_sent': self._cmd_out.sent,
                 'odom_dropped': self._cmd_out.dropped,
                 'guard_activations': self.guard.activations,
+                'memory_points': self.feed.memory.used,
+                'memory_added': self.feed.memory.added,
+                'memory_freed': self.feed.memory.freed,
+                'memory_evicted': self.feed.memory.evicted,
                 'e_stop_engagements': c.estop.engagements, 'e_stop_releases': c.estop.releases,
                 'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets,
                 'motor_faults': c.supervisor.faults, 'fault_resets': c.fault_resets}
@@ -257,6 +314,11 @@ class ActuatorBody:
                 state.record_device_status('motor', msg, now)
             else:
                 self.unexpected += 1
+        odom = ctl.odom
+        feed = self.feed
+        feed.history.record(now, odom.x, odom.y, odom.yaw)
+        resets = ctl.pose_resets
+        before = (odom.x, odom.y, odom.yaw)
         # 2. velocity commands, e-stop and pose reset, in the order they arrived
         reader = self._cmd_in
         reader.start_cycle()
@@ -291,13 +353,26 @@ class ActuatorBody:
                 self.unexpected += 1
         if latest is not None:
             ctl.command(latest.linear_x, latest.angular_z, now)
-        # 3. guard + control (the gyro's yaw rate for the wheel supervision's cross-check)
+        if ctl.pose_resets != resets:
+            # the odometry frame moved under the robot: carry the memory into the new one
+            feed.rebase(before, (odom.x, odom.y, odom.yaw))
+        # 3. the gyro's yaw rate for the wheel supervision's cross-check; the guard (memory
+        # fed first) + control
         imu_rx = state.imu_rx_ns
         ctl.imu(state.imu_gz * self._imu_z, imu_rx)
         guard = self.guard
-        speed = ctl.v if ctl.v > ctl.odom.v else ctl.odom.v
+        unknown = False
+        if self._use_sonar:
+            feed.take_sonar(state.sonar_sighting)
+        if self._use_laser:
+            scan = state.laser_sighting
+            feed.take_laser(scan)
+            unknown = scan is not None and scan.unknown
+        memory_min = feed.nearest(odom.x, odom.y, odom.yaw)
+        speed = ctl.v if ctl.v > odom.v else odom.v
         cap = guard.evaluate(now, self._vmax, state.sonar_range, state.sonar_rx_ns,
-                             state.laser_front_min, state.laser_rx_ns, speed)
+                             state.laser_front_min, state.laser_rx_ns, speed, memory_min,
+                             unknown)
         ctl.step(now, cap, guard.active)
         # 4. outputs
         self._motor_out.send(_WHEEL_CMD, now, ctl.left_code, ctl.right_code, ctl.enable)
@@ -373,7 +448,8 @@ def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) ->
     period = task.period_ns * 1e-9
     plan = guard_plan(params, period, shared, raw_section(task, shared, 'robot'), test_weaken())
     body = ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params, period,
-                        plan=plan, imu_z=imu_z_axis(raw_section(task, shared, 'robot')))
+                        plan=plan, imu_z=imu_z_axis(raw_section(task, shared, 'robot')),
+                        robot=raw_section(task, shared, 'robot'))
     # Start-up, before any loop runs: the one place the RT process may read the e-stop
     # request the bridge persisted, and write to stderr.
     lines = [plan.line()]

@@ -8,7 +8,13 @@ the smallest gap between the body's front face and a point in its swept corridor
 (``control.guard.FrontCorridor``: body half width + ``control.guard.lateral_margin``) for the
 actuator's collision guard, then sends this cycle's
 REQUEST. A scan whose sector holds no valid point reports ``inf`` (nothing seen) but still
-refreshes ``laser_rx_ns``: the laser is alive.
+refreshes ``laser_rx_ns``: the laser is alive. ``laser_rx_ns`` is the scan's own stamp (the
+URG stamps the start of its sweep: the oldest step; the driver host maps it onto
+CLOCK_MONOTONIC), never later than now: the guard ages the scan from when it was taken, not
+from when it arrived. The whole scan also goes to the guard as one
+:class:`~m4k_rt.control.sightings.LaserSighting` in ``laser_sighting`` (its steps free memory
+points, its nearest point per corridor lane is kept, and an error code in the corridor is
+``unknown``).
 """
 
 from __future__ import annotations
@@ -17,8 +23,9 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
-from m4k_rt.control.guard import body_half_width, front_offset, FrontCorridor
+from m4k_rt.control.guard import body_half_width, front_offset, FrontCorridor, sensor_x
 from m4k_rt.control.params import control_params
+from m4k_rt.control.sightings import LaserSighting
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.actuator import control_section, raw_section
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
@@ -36,9 +43,11 @@ class LrfBody(DeviceTaskBody):
 
     def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: RobotState,
                  half_width: float = 0.19,
-                 clock: Callable[[], int] = time.monotonic_ns, front: float = 0.0) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns, front: float = 0.0,
+                 laser_x: float = 0.0) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
         self.sector = FrontCorridor(half_width, front)
+        self.laser_x = laser_x      # m, the laser's x on the robot (lane points' frame)
         self.scans = 0
 
     @property
@@ -52,15 +61,26 @@ class LrfBody(DeviceTaskBody):
         """Run one LRF cycle."""
         self._poll_device(ctx, _SCAN, 'lrf', SCAN_REQUEST)
 
-    def _on_reading(self, msg: Any, now: int) -> None:
+    def _on_reading(self, hdr: Any, msg: Any, now: int) -> None:
         """Forward one scan and give the guard its front corridor's nearest point."""
         state = self.state
+        sector = self.sector
         self._out.forward(self._dev_in.raw())
-        state.laser_front_min = self.sector.minimum(
-            msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
-            msg.ranges)
-        state.laser_rx_ns = now
+        gap = sector.minimum(msg.angle_min, msg.angle_increment, msg.range_min,
+                             msg.range_max, msg.ranges)
+        # the corridor's beams are measured some way into the sweep: date them by the middle
+        # of their window (step i at stamp + i x time_increment)
+        i0, i1 = sector.window(msg.angle_min, msg.angle_increment, len(msg.ranges))
+        acq = hdr.stamp_ns + int((i0 + i1) * 0.5 * msg.time_increment * 1e9)
+        if acq > now:
+            acq = now
         self.scans += 1
+        state.laser_sighting = LaserSighting(
+            self.scans, acq, gap, sector.unknown, sector.lanes(self.laser_x),
+            msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max, msg.ranges)
+        state.laser_front_min = gap
+        # staleness from the sweep's start: the oldest step of the scan
+        state.laser_rx_ns = hdr.stamp_ns if hdr.stamp_ns < now else now
 
 
 def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfBody:
@@ -69,4 +89,4 @@ def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfB
     robot = raw_section(task, shared, 'robot')
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
                    body_half_width(robot) + params.guard.lateral_margin,
-                   front=front_offset(robot, 'laser'))
+                   front=front_offset(robot, 'laser'), laser_x=sensor_x(robot, 'laser'))

@@ -230,7 +230,7 @@ class DeviceTaskBody:
         while (got := reader.next()) is not None:
             hdr, msg = got
             if hdr.kind == reading:
-                self._on_reading(msg, now)
+                self._on_reading(hdr, msg, now)
             elif hdr.kind == _DEVICE_STATUS:
                 self.state.record_device_status(device, msg, now)
             else:
@@ -239,6 +239,6 @@ class DeviceTaskBody:
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, request_arg)
         self.cycles += 1
 
-    def _on_reading(self, msg: Any, now: int) -> None:
+    def _on_reading(self, hdr: Any, msg: Any, now: int) -> None:
         """Handle one reading of a polled device (bodies that use :meth:`_poll_device`)."""
         raise NotImplementedError

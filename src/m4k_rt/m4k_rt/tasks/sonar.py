@@ -9,9 +9,13 @@ collision guard, forwards it unchanged, then sends this cycle's trigger.
 What reaches the guard:
 
 * status OK -> ``sonar_range`` = the range less how far the body's front face is ahead of the
-  sonar (``guard.front_offset``: 0 on the front face), ``sonar_rx_ns`` = now;
-* status NO_ECHO (nothing within range) -> ``sonar_range`` = inf, stamp refreshed: a valid
-  "free ahead" reading;
+  sonar (``guard.front_offset``: 0 on the front face), ``sonar_rx_ns`` = when the ping went
+  out: the datagram's stamp (the driver host's CLOCK_MONOTONIC when it had the echo) less the
+  echo's flight time, never later than now -- the guard ages the reading from there;
+* status NO_ECHO (nothing within range) -> ``sonar_range`` = inf, stamp refreshed likewise: a
+  valid "free ahead" reading;
+* both also as one :class:`~m4k_rt.control.sightings.SonarSighting` in ``sonar_sighting``
+  (one reference store: the actuator files it in the guard's obstacle memory);
 * status TIMEOUT / FAULT -> counted, the stamp is *not* refreshed. Repeated failures make the
   reading stale after ``control.guard.sonar_timeout`` and the guard then applies its stale
   policy (default: stop forward motion).
@@ -25,6 +29,7 @@ from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
 from m4k_rt.control.guard import front_offset
+from m4k_rt.control.sightings import SonarSighting, SPEED_OF_SOUND
 from m4k_rt.protocol import Kind, SONAR_NO_ECHO, SONAR_OK
 from m4k_rt.tasks.actuator import raw_section
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
@@ -59,20 +64,24 @@ class SonarBody(DeviceTaskBody):
         """Run one sonar cycle."""
         self._poll_device(ctx, _SONAR, 'sonar', TRIGGER)
 
-    def _on_reading(self, msg: Any, now: int) -> None:
+    def _on_reading(self, hdr: Any, msg: Any, now: int) -> None:
         """Give the guard one range (or "nothing within range"), then forward it."""
         state = self.state
         status = msg.status
         state.sonar_status = status
-        if status == SONAR_OK:
-            d = msg.range_m - self.front
-            state.sonar_range = d if d > 0.0 else 0.0
-            state.sonar_rx_ns = now
+        if status == SONAR_OK or status == SONAR_NO_ECHO:
+            rng = msg.range_m if status == SONAR_OK else _INF
+            acq = hdr.stamp_ns
+            if rng != _INF:
+                acq -= int(2.0e9 * rng / SPEED_OF_SOUND)   # the ping, not the echo's return
+            if acq > now:
+                acq = now      # a stamp from the future is not younger than now
+            d = rng - self.front
+            d = d if d > 0.0 else 0.0
             self.readings += 1
-        elif status == SONAR_NO_ECHO:
-            state.sonar_range = _INF
-            state.sonar_rx_ns = now
-            self.readings += 1
+            state.sonar_sighting = SonarSighting(self.readings, acq, d, rng)
+            state.sonar_range = d
+            state.sonar_rx_ns = acq
         else:
             self.failed += 1
         self._out.forward(self._dev_in.raw())

@@ -14,15 +14,19 @@ Ownership (writer -> fields):
   ``guard_trip_distance``, ``guard_slowing``, ``motor_fault_cause``, ``motor_faults``,
   ``estop_open``, ``e_stop_engaged``, ``guard_plan`` (once, at build time), ``motor_level``,
   ``motor_status``, ``motor_status_rx_ns``, ``actuator_cycles``
-* sonar:    ``sonar_range``, ``sonar_status``, ``sonar_rx_ns``, ``sonar_level``,
-  ``sonar_device``, ``sonar_device_rx_ns``
-* lrf:      ``laser_front_min``, ``laser_rx_ns``, ``lrf_level``, ``lrf_status``,
-  ``lrf_status_rx_ns``
+* sonar:    ``sonar_range``, ``sonar_status``, ``sonar_rx_ns``, ``sonar_sighting``,
+  ``sonar_level``, ``sonar_device``, ``sonar_device_rx_ns``
+* lrf:      ``laser_front_min``, ``laser_rx_ns``, ``laser_sighting``, ``lrf_level``,
+  ``lrf_status``, ``lrf_status_rx_ns``
 * imu:      ``imu_gz``, ``imu_rx_ns``, ``imu_level``, ``imu_status``, ``imu_status_rx_ns``
 * led:      ``led_override``, ``led_level``, ``led_status``, ``led_status_rx_ns``
 
 Times are CLOCK_MONOTONIC ns of the *receiving* task's cycle start (0 = never), so freshness
-is judged on the RT process's own clock. ``*_level`` fields hold the device's last
+is judged on the RT process's own clock -- but for ``sonar_rx_ns`` and ``laser_rx_ns``: when
+the reading was *acquired* (the ping; the start of the URG's sweep), so the guard ages a
+reading from the moment it describes. ``*_sighting`` is the whole reading as one immutable
+record (``m4k_rt.control.sightings``; None until the first), for the guard's obstacle memory.
+``*_level`` fields hold the device's last
 DEVICE_STATUS level (protocol.LEVEL_*). The last DEVICE_STATUS itself (the decoded
 ``protocol.DeviceStatus``: storing the reference allocates nothing beyond the decode, and one
 reference store is atomic, so a reader never sees fields of two reports) is kept per device in
@@ -58,8 +62,8 @@ class RobotState:
         'mode', 'odom_flags', 'v', 'w', 'x', 'y', 'yaw', 'guard_active', 'motor_level',
         'actuator_cycles', 'guard_trip_distance', 'guard_plan', 'motor_fault_cause',
         'motor_faults', 'guard_slowing', 'estop_open', 'e_stop_engaged',
-        'sonar_range', 'sonar_status', 'sonar_rx_ns', 'sonar_level',
-        'laser_front_min', 'laser_rx_ns', 'lrf_level',
+        'sonar_range', 'sonar_status', 'sonar_rx_ns', 'sonar_level', 'sonar_sighting',
+        'laser_front_min', 'laser_rx_ns', 'lrf_level', 'laser_sighting',
         'imu_gz', 'imu_rx_ns', 'imu_level',
         'led_override', 'led_level',
         'motor_status', 'motor_status_rx_ns', 'imu_status', 'imu_status_rx_ns',
@@ -91,10 +95,12 @@ class RobotState:
         self.sonar_status = SONAR_OK
         self.sonar_rx_ns = 0
         self.sonar_level = LEVEL_OK
+        self.sonar_sighting: Any = None  # control.sightings.SonarSighting
         # lrf
         self.laser_front_min = math.inf  # m, front-sector minimum; inf = nothing seen
         self.laser_rx_ns = 0
         self.lrf_level = LEVEL_OK
+        self.laser_sighting: Any = None  # control.sightings.LaserSighting
         # imu
         self.imu_gz = math.nan           # rad/s, gyro z of the newest valid sample (imu_link)
         self.imu_rx_ns = 0
