@@ -189,7 +189,9 @@ def test_a_calibrated_robot_keeps_the_stop_distance_its_sensors_need_at_top_spee
         d = stop_distance(v, plan.reaction_time, plan.brake_deceleration, plan.margin)
         assert d > need, (measured, d, need)
         # the one derivation: the plan's t_react is the three parts, the actuation measured
-        r = reaction(params.guard, 'laser', periods['lrf'], periods['actuator'])
+        # (the stop zone's sensor part also covers the sensors' staleness timeouts)
+        r = reaction(params.guard, 'laser', periods['lrf'], periods['actuator'], timeouts=True)
         assert plan.reaction_time == r.total
         assert r.actuation_part == max(measured, cli.ACTUATION_FLOOR_S)
-        assert r.sensor_part == sensor_delay
+        assert r.sensor_part == max(sensor_delay, params.guard.laser_timeout,
+                                    params.guard.sonar_timeout)
