@@ -125,12 +125,12 @@ def test_the_judge_triggers_on_the_leg_5cm_off_centre_and_bounds_the_stop():
     assert any('physically impossible' in f for f in hard.failures), hard.failures
 
 
-def _slowdown_samples(raw, wall_x, v0, late=0.0, soft=0.37, hard=2.9, front=0.225,
-                      soft_from=0.8):
-    """A slow-down approach: ``v0``, then ``soft`` braking ``soft_from`` m out, the guard's
-    hard stop where the exact gap reaches its stop line at the true speed (``late`` m later);
-    ``soft_from`` just outside the stop line at ``v0`` (0.74 m at 0.5 m/s)."""
+def _slowdown_samples(raw, wall_x, v0, late=0.0, soft=0.37, hard=2.9, front=0.225):
+    """A slow-down approach: ``v0``, then ``soft`` braking from just outside the stop line at
+    ``v0`` (6 cm), the guard's hard stop where the exact gap reaches its stop line at the true
+    speed (``late`` m later)."""
     tripped = False
+    soft_from = bounds.stop_line(raw, v0) + 0.06
 
     def next_speed(t, x, vv):
         nonlocal tripped
@@ -200,6 +200,24 @@ def test_the_judge_holds_an_intrusion_to_the_stopping_distance_from_its_moment(r
     assert not any(f.startswith('went ') for f in res.failures), res.failures
     assert any('stepped in' in f for f in res.failures) == fails, res.failures
     assert not fails or not res.passed
+
+
+@pytest.mark.parametrize('gap, accepted', [(0.42, True), (0.8, False)])
+def test_a_guard_stop_short_of_the_line_passes_only_inside_the_release_band(gap, accepted):
+    """A robot at rest in front of a wall that never crossed the judge's line: inside the
+    guard's own release band it stopped (a few cm early: safe); far before it, it stopped for
+    nothing and fails."""
+    raw = _raw({'walls': {'rectangle': [-1.0, -2.0, 0.225 + gap, 2.0]}, 'obstacles': []})
+    sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.25, 't': 2.0}],
+                     'expect': {'stop': 'sonar'}}, 'early.yaml')
+    b = bounds.bounds(raw, 0.25, 'sonar')
+    res = Result('early', '', 0.0, samples=_truth_run(0.0, 3.0, lambda t, x, vv: 0.0))
+    judge(sc, res, b, raw)
+    stop_failures = [f for f in res.failures if f.startswith('stop')]
+    if accepted:
+        assert stop_failures == [], res.failures
+    else:
+        assert any('short of its line' in f for f in stop_failures), res.failures
 
 
 def test_the_judge_fails_a_robot_that_backs_up_after_its_stop():

@@ -209,7 +209,11 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
                 s: list[dict[str, Any]]) -> None:
     trig = trigger(sc, s, raw, b.t_react)
     if trig is None:
-        res.failures.append(f'stop ({sc.stop}): its trigger never happened')
+        early = _stopped_before_the_line(sc, s, raw)
+        if early is None:
+            res.failures.append(f'stop ({sc.stop}): its trigger never happened')
+        elif early:
+            res.failures.append(f'stop ({sc.stop}): its trigger never happened; {early}')
         return
     t0, travelled0, _ = trig       # its speed: the guard judge uses each sample's own
     # The simulator stamps when the robot came to rest (1 ms steps): the first sample
@@ -237,6 +241,37 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
         elif held_s < 1.0:
             res.failures.append(f'stop ({sc.stop}): at rest only {held_s:.2f} s before the run '
                                 f'ended: staying stopped not shown')
+
+
+def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
+                             raw: dict[str, Any]) -> str | None:
+    """Judge a guard stop that never crossed its line: the robot rested short of it.
+
+    The guard sizes its line from its own readings, which the obstacle memory keeps at the
+    nearest a sensor reported (noise, the sonar's arc, a pose from the reading's acquisition),
+    so at the slow floor it may stop a few cm before the judge's exact line: safe, and the
+    promise at rest holds. Accepted when the robot came to rest (and stayed) with its front
+    clearance inside the guard's own release band -- between ``stop_distance`` and
+    d(``slow_floor``) + ``release_margin`` + the judge's margin; None when it never came to
+    rest in front of anything (the plain "never happened"), else what is wrong, e.g. a stop
+    for nothing far before the line. '' when accepted.
+    """
+    if sc.stop not in ('sonar', 'laser') or not s or s[-1].get('rest_since_ns') is None:
+        return None
+    g = _guard_params(raw)
+    gap = float(s[-1]['front_clearance'])
+    band = stop_line(raw, g.slow_floor) + g.release_margin + STOP_MARGIN_M
+    if gap < g.stop_distance:
+        return f'rest {gap:.3f} m from the obstacle, inside stop_distance {g.stop_distance:.3f} m'
+    if gap > band:
+        return (f'rest {gap:.3f} m from the obstacle, before the guard\'s release band '
+                f'(<= {band:.3f} m): a stop short of its line')
+    return ''
+
+
+def _guard_params(raw: dict[str, Any]) -> Any:
+    from m4k_rt.control.params import control_params
+    return control_params(raw.get('control')).guard
 
 
 INTRUSION_M = 0.01   # m the gap may close beyond the robot's travel in one sample (noise)
