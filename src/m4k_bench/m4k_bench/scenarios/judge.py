@@ -264,7 +264,7 @@ def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
     if gap < g.stop_distance:
         return f'rest {gap:.3f} m from the obstacle, inside stop_distance {g.stop_distance:.3f} m'
     if gap > band:
-        return (f'rest {gap:.3f} m from the obstacle, before the guard\'s release band '
+        return (f"rest {gap:.3f} m from the obstacle, before the guard's release band "
                 f'(<= {band:.3f} m): a stop short of its line')
     return ''
 
