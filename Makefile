@@ -1,24 +1,23 @@
 # m4k -- one entry point. Every target sets the workspace up first (idempotent, seconds when done).
+# How long each takes, as measured: the README ("Two commands" and "Results"), stated once there.
 #   make run [CONFIG=my_robot.yaml] [FOXGLOVE=1]   the robot stack on simulated hardware (Ctrl-C
 #                                     stops it); FOXGLOVE=1 adds the live view on localhost:8765
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests
-#                                     (about 16 min on a 2-vCPU VM)
 #   make check                        lint + the unit tiers: make test without the tests marked
 #                                     e2e (they start the stack, processes or ROS nodes); lint,
-#                                     colcon test and the workspace tier side by side (about
-#                                     3 min on a 2-vCPU VM; 4.5 min when it is busy elsewhere)
+#                                     colcon test and the workspace tier side by side
 #   make bench [QUICK=1] [ROUNDS=5]   the evidence in rounds (Table 1, utilization, Fig. 10, scaling)
-#                                     and the guard's reaction (about 45 min; QUICK=1 about 9 min)
+#                                     and the guard's reaction
 #   make bench RUNS=2                 two full runs, one after the other -> docs/results/bench-1, -2
 #                                     and their combined table docs/results/bench-combined.md
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
 #   make scenarios [ONLY='a b'] [SHORT=1]  config/scenarios/*.yaml, then the envelope grid
 #                                     (config/envelope.yaml), on the whole stack, judged on
-#                                     ground truth -> docs/results/scenarios/ (about 45 min)
+#                                     ground truth -> docs/results/scenarios/
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
 #   make fuzz [COUNT=100000] [SEED=n] [SECONDS_PER_PORT=18]  random and mutated datagrams at every
-#                                     XDDP port of a real rt_core (about 10 min), then every
+#                                     XDDP port of a real rt_core, then every
 #                                     property test with the same seed and 20x the examples
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
