@@ -84,9 +84,9 @@ def test_a_device_process_that_dies_ends_the_host_with_exit_1(procs, sim_robot,
                         '--device', 'motor', '--device', 'led'])
     deadline = time.monotonic() + 30
     seen = ''
-    while time.monotonic() < deadline and 'serving motor@2' not in seen:
+    while time.monotonic() < deadline and 'serving motor@motor' not in seen:
         seen += proc.stderr.readline()
-    motor = re.search(r'serving motor@2 \(pid (\d+)\)', seen)
+    motor = re.search(r'serving motor@motor \(pid (\d+)\)', seen)
     assert motor, seen
     os.kill(int(motor.group(1)), signal.SIGKILL)
     assert proc.wait(timeout=30) == 1
