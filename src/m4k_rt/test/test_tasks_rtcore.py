@@ -144,7 +144,8 @@ def test_rt_status_guard_follows_an_obstacle_reading(procs, tmp_path, peers):
 
     def sonar(range_m):
         def write():
-            link.write('sonar', p.Kind.SONAR, range_m, p.SONAR_OK)
+            # stamped now, as the driver stamps its ping: the guard ages a reading from it
+            link.write('sonar', p.Kind.SONAR, range_m, p.SONAR_OK, stamp=monotonic_ns())
             link.read_all('sonar')          # the task's triggers, not needed here
         return write
 
