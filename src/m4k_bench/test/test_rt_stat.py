@@ -8,11 +8,11 @@ import threading
 import time
 
 import pytest
-import yaml
 
 from m4k_bench import echo_peer, recorder, rt_stat
 from m4k_rt import channel, protocol
 from m4k_rt.tasks import echo
+from m4k_testing import rtcore
 
 pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 
@@ -20,29 +20,15 @@ SRC = os.path.join(os.path.dirname(__file__), '..', '..', 'm4k_rt')
 
 
 def _env(extra=None):
-    env = dict(os.environ)
-    env['PYTHONPATH'] = os.pathsep.join([os.path.abspath(SRC)] + [
-        p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
-    env.update(extra or {})
-    return env
+    return rtcore.rt_core_env(SRC, extra)
 
 
-def _overlay(tmp_path, doc):
-    p = tmp_path / 'overlay.yaml'
-    p.write_text(yaml.safe_dump(doc))
-    return str(p)
-
-
-def _fast(tmp_path, **runtime):
-    # Small, quick configuration: no memory locking in tests, monitor every 0.3 s.
-    return _overlay(tmp_path, {
-        'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10,
-                    **runtime},
-        'tasks': {'monitor': {'period_ms': 300}}})
+_overlay = rtcore.write_overlay
+_fast = rtcore.fast_overlay
 
 
 def _start(procs, args, env=None):
-    return procs.start(['python', '-m', 'm4k_rt.rt_core', *args], env=_env(env))
+    return rtcore.start_rt_core(procs, SRC, args, env)
 
 
 def test_echo_stack_ships_task_stats_and_second_core_is_refused(procs, tmp_path,

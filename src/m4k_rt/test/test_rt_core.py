@@ -7,7 +7,8 @@ those tools are the bench's.
 import os
 
 import pytest
-import yaml
+
+from m4k_testing import rtcore
 
 pytestmark = pytest.mark.e2e  # starts processes / ROS nodes: the end-to-end tier
 
@@ -15,29 +16,15 @@ SRC = os.path.join(os.path.dirname(__file__), '..')
 
 
 def _env(extra=None):
-    env = dict(os.environ)
-    env['PYTHONPATH'] = os.pathsep.join([os.path.abspath(SRC)] + [
-        p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p])
-    env.update(extra or {})
-    return env
+    return rtcore.rt_core_env(SRC, extra)
 
 
-def _overlay(tmp_path, doc):
-    p = tmp_path / 'overlay.yaml'
-    p.write_text(yaml.safe_dump(doc))
-    return str(p)
-
-
-def _fast(tmp_path, **runtime):
-    # Small, quick configuration: no memory locking in tests, monitor every 0.3 s.
-    return _overlay(tmp_path, {
-        'runtime': {'mlockall': False, 'cpu_dma_latency': False, 'start_delay_ms': 10,
-                    **runtime},
-        'tasks': {'monitor': {'period_ms': 300}}})
+_overlay = rtcore.write_overlay
+_fast = rtcore.fast_overlay
 
 
 def _start(procs, args, env=None):
-    return procs.start(['python', '-m', 'm4k_rt.rt_core', *args], env=_env(env))
+    return rtcore.start_rt_core(procs, SRC, args, env)
 
 
 def test_bad_priority_exits_2_naming_the_field(procs, tmp_path, m4k_runtime_dir):
