@@ -60,6 +60,7 @@ TOOLS = {
     'recipes': (['--help'], 0, r'usage: '),
     'reaction': (['--help'], 0, r'usage: '),
     'sonar_echo_width': (['--help'], 0, r'usage: '),
+    'bringup_check': (['--help'], 0, r'usage: bringup_check'),
     'flightrec_bench': (['--help'], 0, r'usage: '),
     'soak': (['--duration', '0.5', '--warmup', '0', '--no-stress', '--results', '{tmp}'],
              None, r'Files: summary.json'),

@@ -93,7 +93,13 @@ class Children:
         return gone
 
     def stop(self, timeout_s: float = STOP_WAIT_S) -> bool:
-        """SIGTERM every child, wait for them (SIGKILL after ``timeout_s``); True when clean."""
+        """SIGTERM every child, wait for them (SIGKILL after ``timeout_s``); True when clean.
+
+        A child ended by this SIGTERM itself (a stop that came while it was still starting, its
+        own handler not yet installed) stopped as asked; one that exited non-zero before the
+        stop, or had to be killed, did not.
+        """
+        before = dict(self.codes)
         for pid in self.pids:
             try:
                 os.kill(pid, signal.SIGTERM)
@@ -109,7 +115,9 @@ class Children:
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)
             del self.pids[pid]
-        return clean and all(c == 0 for c in self.codes.values())
+        asked = [c for n, c in self.codes.items() if n not in before]
+        return clean and all(c == 0 for c in before.values()) and all(
+            c in (0, -signal.SIGTERM) for c in asked)
 
 
 def fork_groups(device_groups: Iterable[list[str]]) -> tuple[list[str], Children]:

@@ -9,6 +9,7 @@ import threading
 import time
 
 from m4k_drivers import config as dconfig
+from m4k_drivers import hostproc
 from m4k_drivers.handler import DeviceHandler
 from m4k_drivers.host import DeviceService, DROP_REASONS
 from m4k_drivers.hostproc import groups, own_process
@@ -103,3 +104,32 @@ def test_rt_facing_devices_get_a_process_of_their_own():
     assert groups(['imu', 'led'], sections) == [['imu', 'led']]          # no child at all
     assert groups(['motor'], sections) == [['motor']]                    # served inline
     assert groups(['motor', 'other'], sections) == [['motor'], ['other'], []]
+
+
+def _child(code):
+    """Fork a child that exits with ``code`` at once, or (None) waits for a signal with the
+    default SIGTERM disposition (a process still starting: it dies -15)."""
+    import os
+    import signal
+    pid = os.fork()
+    if pid == 0:                               # pragma: no cover - the child
+        if code is None:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            time.sleep(30)
+        os._exit(code or 0)
+    return pid
+
+
+def test_a_child_ended_by_the_stop_itself_stopped_cleanly():
+    """A stop that reaches a device process before its own handler (still starting) ends it
+    by the SIGTERM: it stopped as asked, the host exits 0."""
+    children = hostproc.Children({_child(None): 'motor'})
+    assert children.stop(timeout_s=10.0)
+    assert children.codes == {'motor': -15}
+
+
+def test_a_child_that_exited_non_zero_before_the_stop_is_not_clean():
+    children = hostproc.Children({_child(3): 'motor'})
+    time.sleep(0.2)
+    assert children.poll() is not None
+    assert not children.stop(timeout_s=10.0)
