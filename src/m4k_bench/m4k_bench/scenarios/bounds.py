@@ -66,8 +66,8 @@ from typing import Any, Mapping
 from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
 from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
-__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds', 'judge_reaction',
-           'sched', 'stop_line', 'traction_limit']
+__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds', 'guard_params',
+           'judge_reaction', 'sched', 'stop_line', 'traction_limit']
 
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
 G = 9.80665          # m/s^2, standard gravity
@@ -133,7 +133,8 @@ def traction_limit(raw: Mapping[str, Any]) -> float:
     return mu * G
 
 
-def _guard(raw: Mapping[str, Any]) -> Any:
+def guard_params(raw: Mapping[str, Any]) -> Any:
+    """Return the ``control.guard`` settings of a layered configuration."""
     from m4k_rt.control.params import control_params
     return control_params(raw.get('control')).guard
 
@@ -144,13 +145,13 @@ def _lag(raw: Mapping[str, Any]) -> float:
     The amplifier's is the shipped declaration's (:func:`judge_reaction`), not an overlay's.
     """
     from m4k_rt.control.params import control_params
-    return float(_guard(raw).pipeline_latency) + float(
+    return float(guard_params(raw).pipeline_latency) + float(
         control_params({}).guard.amplifier_lag)
 
 
 def sched(raw: Mapping[str, Any]) -> float:
     """Return the scheduling allowance (s): the guard's own ``guard.scheduling_allowance``."""
-    return float(_guard(raw).scheduling_allowance)
+    return float(guard_params(raw).scheduling_allowance)
 
 
 def judge_reaction(raw: Mapping[str, Any], sensor: str, timeouts: bool = False) -> float:
@@ -164,7 +165,8 @@ def judge_reaction(raw: Mapping[str, Any], sensor: str, timeouts: bool = False) 
     """
     from m4k_rt.control.params import control_params
     from m4k_rt.control.reaction import reaction
-    return reaction(_guard(raw), sensor, _period(raw, 'lrf' if sensor == 'laser' else 'sonar'),
+    return reaction(guard_params(raw), sensor,
+                    _period(raw, 'lrf' if sensor == 'laser' else 'sonar'),
                     _period(raw, 'actuator'),
                     actuation=control_params({}).guard.amplifier_lag, timeouts=timeouts).total
 
@@ -181,8 +183,7 @@ def _pipeline(raw: Mapping[str, Any], task: str) -> float:
 
 def _guard_decel(raw: Mapping[str, Any]) -> float | None:
     """Return ``guard.brake_deceleration``: what the guard's stop assumes the drive gives."""
-    from m4k_rt.control.params import control_params
-    a = getattr(control_params(raw.get('control')).guard, 'brake_deceleration', None)
+    a = getattr(guard_params(raw), 'brake_deceleration', None)
     return None if a is None else float(a)
 
 
@@ -195,7 +196,7 @@ def stop_line(raw: Mapping[str, Any], v: float) -> float:
     A configuration without ``brake_deceleration`` (the fixed-distance guard):
     ``stop_distance``.
     """
-    g = _guard(raw)
+    g = guard_params(raw)
     a = _guard_decel(raw)
     if a is None or v <= 0.0:
         return g.stop_distance

@@ -15,6 +15,7 @@ from typing import Any
 
 from m4k_bench.scenarios.bounds import (
     Bounds,
+    guard_params,
     REST_V,
     SAMPLE_S,
     STAY_M,
@@ -64,9 +65,8 @@ def judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     if not s:
         res.failures.append('no ground truth sampled')
         return
-    from m4k_rt.control.params import control_params
     # the front band the guard watches: the face and the guard's lateral margin each side
-    scene = Scene(raw, lateral=control_params(raw.get('control')).guard.lateral_margin)
+    scene = Scene(raw, lateral=guard_params(raw).lateral_margin)
     for x in s:                       # the judge's own geometry, on every ground-truth sample
         x['clearance'], x['front_clearance'] = scene.judge_sample(x)
     last = s[-1]
@@ -258,7 +258,7 @@ def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
     """
     if sc.stop not in ('sonar', 'laser') or not s or s[-1].get('rest_since_ns') is None:
         return None
-    g = _guard_params(raw)
+    g = guard_params(raw)
     gap = float(s[-1]['front_clearance'])
     band = stop_line(raw, g.slow_floor) + g.release_margin + STOP_MARGIN_M
     if gap < g.stop_distance:
@@ -267,11 +267,6 @@ def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
         return (f"rest {gap:.3f} m from the obstacle, before the guard's release band "
                 f'(<= {band:.3f} m): a stop short of its line')
     return ''
-
-
-def _guard_params(raw: dict[str, Any]) -> Any:
-    from m4k_rt.control.params import control_params
-    return control_params(raw.get('control')).guard
 
 
 INTRUSION_M = 0.01   # m the gap may close beyond the robot's travel in one sample (noise)
@@ -348,7 +343,6 @@ def _judge_guard_stop(res: Result, b: Bounds, raw: dict[str, Any], s: list[dict[
        intrusion (an obstacle stepped in inside the line: nobody can keep stop_distance from
        it; the intrusion rule above applies instead).
     """
-    from m4k_rt.control.params import control_params
     worst, intruded = _deepest(s, raw, b, i_rest)
     if worst is not None:
         measure, v_at, allowed, kind = worst
@@ -366,7 +360,7 @@ def _judge_guard_stop(res: Result, b: Bounds, raw: dict[str, Any], s: list[dict[
         res.stop_m, res.stop_bound_m = 0.0, b.reach(res.peak_speed)
     if intruded:
         return
-    g = control_params(raw.get('control')).guard
+    g = guard_params(raw)
     rest = s[i_rest]
     at_rest = float(rest['front_clearance'])
     at_trigger = next((x for x in s if int(x['t_ns']) >= t0), rest)
