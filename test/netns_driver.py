@@ -2,8 +2,9 @@
 
 ``python netns_driver.py CONTROL STATUS``: every 50 ms it reads CONTROL (a number: publish a
 Twist with that linear.x; ``off``: publish nothing) and writes to STATUS how many
-subscriptions its cmd_vel publisher matched and how many it published (``matched sent``), so
-the test sees discovery across the link. SIGTERM or SIGINT end it.
+subscriptions its cmd_vel publisher matched, how many it published and the word it acted on
+(``matched sent word``), so the test sees discovery across the link and knows when ``off`` took
+effect. SIGTERM or SIGINT end it.
 """
 
 import os
@@ -39,7 +40,7 @@ def main(control: str, status: str) -> int:
                 sent += 1
             tmp = status + '.tmp'
             with open(tmp, 'w', encoding='utf-8') as f:
-                f.write('{} {}\n'.format(pub.get_subscription_count(), sent))
+                f.write('{} {} {}\n'.format(pub.get_subscription_count(), sent, word))
             os.replace(tmp, status)
             rclpy.spin_once(node, timeout_sec=0.0)
             time.sleep(0.05)

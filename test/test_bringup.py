@@ -16,6 +16,7 @@ import yaml
 from m4k_bridge import params as bridge_params
 from m4k_bringup import bringup
 from m4k_testing import child_pids
+from m4k_testing.ros import call
 
 LAUNCH = os.path.join(ROOT, 'src', 'm4k_bringup', 'launch', 'm4k.launch.py')
 BASE_OVERLAY = {'runtime': {'mlockall': False, 'cpu_dma_latency': False,
@@ -224,10 +225,10 @@ def _remote_parameters(names, timeout=30.0):
     try:
         client = node.create_client(GetParameters, '/m4k_bridge/get_parameters')
         assert client.wait_for_service(timeout_sec=timeout), 'no /m4k_bridge/get_parameters'
-        future = client.call_async(GetParameters.Request(names=list(names)))
-        executor.spin_until_future_complete(future, timeout_sec=timeout)
-        assert future.done(), 'get_parameters did not answer'
-        values = [parameter_value_to_python(v) for v in future.result().values]
+        reply = call(client, GetParameters.Request(names=list(names)),
+                     lambda t: executor.spin_once(timeout_sec=t), timeout,
+                     '/m4k_bridge/get_parameters')
+        values = [parameter_value_to_python(v) for v in reply.values]
         return dict(zip(names, values, strict=True))
     finally:
         executor.shutdown()

@@ -122,6 +122,7 @@ class Graph:
             env = stack_env('/nonexistent')
             proc = subprocess.run(
                 [sys.executable, '-m', 'm4k_bridge.doctor', '--duration', '2.5',
+                 '--discovery', '20',
                  '--config-dir', self.config],
                 env=env, capture_output=True, text=True, timeout=120)
         finally:

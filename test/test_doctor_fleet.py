@@ -159,6 +159,7 @@ class Fleet:
         try:
             proc = subprocess.run(
                 [sys.executable, '-m', 'm4k_bridge.doctor', '--duration', '2.5',
+                 '--discovery', '20',
                  '--config-dir', self.config], env=stack_env('/nonexistent'),
                 capture_output=True, text=True, timeout=180)
         finally:

@@ -26,6 +26,7 @@ import yaml
 from m4k_rt import protocol
 from m4k_rt.control.params import control_params
 from m4k_testing import child_pids
+from m4k_testing.ros import call
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 
@@ -75,6 +76,11 @@ class Truth:
     def latest(self):
         self.poll()
         return self.reports[-1] if self.reports else None
+
+
+def _spin(user):
+    """spin_once for :func:`m4k_testing.ros.call` on the stack fixture's user node."""
+    return lambda t: user.executor.spin_once(timeout_sec=t)
 
 
 def _spin_collect(user, truth, seconds, each=None, period=0.05):
@@ -173,9 +179,7 @@ def test_reset_odometry_zeroes_the_pose_after_the_rt_side_confirms(stack):  # no
                     20, 'odom to advance 0.2 m', each=lambda: cmd.publish(msg))
     client = user.node.create_client(Trigger, '/m4k_bridge/reset_odometry')
     user.spin_until(client.service_is_ready, 20, 'the reset_odometry service')
-    future = client.call_async(Trigger.Request())
-    user.spin_until(future.done, 10, 'the reset_odometry answer')
-    reply = future.result()
+    reply = call(client, Trigger.Request(), _spin(user), 20, 'the reset_odometry service')
     assert reply.success, reply.message
     n = len(odom)
     user.spin_until(lambda: len(odom) > n + 2, 5, 'odom after the reset')
@@ -213,9 +217,9 @@ def test_e_stop_service_state_and_applied_velocity_follow_the_rt_latch(
     assert applied[-1].header.frame_id == 'base_footprint'
     client = user.node.create_client(SetBool, '/m4k_bridge/e_stop')
     user.spin_until(client.service_is_ready, 20, 'the e_stop service')
-    future = client.call_async(SetBool.Request(data=True))
-    user.spin_until(future.done, 10, 'the e_stop answer', each=lambda: cmd.publish(msg))
-    assert future.result().success, future.result().message
+    reply = call(client, SetBool.Request(data=True), _spin(user), 20, 'the e_stop service',
+                 each=lambda: cmd.publish(msg))
+    assert reply.success, reply.message
     user.spin_until(lambda: state[-1].data is True, 5, 'e_stop_state true',
                     each=lambda: cmd.publish(msg))
     user.spin_until(lambda: applied[-1].twist.linear.x == 0.0, 5, 'cmd_vel_out to reach 0',
@@ -223,9 +227,8 @@ def test_e_stop_service_state_and_applied_velocity_follow_the_rt_latch(
     _spin_collect(user, truth, 1.6, each=lambda: cmd.publish(msg))
     assert abs(truth.latest()['v']) < AT_REST
     assert applied[-1].twist.linear.x == 0.0       # commands still arrive: the latch holds
-    future = client.call_async(SetBool.Request(data=False))
-    user.spin_until(future.done, 10, 'the release answer')
-    assert future.result().success, future.result().message
+    reply = call(client, SetBool.Request(data=False), _spin(user), 20, 'the release')
+    assert reply.success, reply.message
     user.spin_until(lambda: state[-1].data is False, 5, 'e_stop_state false')
     assert proc.poll() is None
 
@@ -236,9 +239,9 @@ def test_set_pose_moves_the_odometry_after_the_rt_side_confirms(stack):  # noqa:
     odom = user.got['odom']
     client = user.node.create_client(SetPose, '/m4k_bridge/set_pose')
     user.spin_until(client.service_is_ready, 20, 'the set_pose service')
-    future = client.call_async(SetPose.Request(x=1.0, y=2.0, yaw=0.5))
-    user.spin_until(future.done, 10, 'the set_pose answer')
-    assert future.result().success, future.result().message
+    reply = call(client, SetPose.Request(x=1.0, y=2.0, yaw=0.5), _spin(user), 20,
+                 'the set_pose service')
+    assert reply.success, reply.message
     n = len(odom)
     user.spin_until(lambda: len(odom) > n + 2, 5, 'odom after set_pose')
     p = odom[-1].pose.pose
@@ -378,8 +381,7 @@ def test_e_stop_latch_survives_kill_9_of_rt_core_and_then_the_bridge(
     from std_srvs.srv import SetBool
     client = user.node.create_client(SetBool, '/m4k_bridge/e_stop')
     user.spin_until(client.service_is_ready, 30, "the new bridge's e_stop service")
-    future = client.call_async(SetBool.Request(data=False))
-    user.spin_until(future.done, 20, 'the release answer')
-    assert future.result().success, future.result().message
+    reply = call(client, SetBool.Request(data=False), _spin(user), 30, 'the release')
+    assert reply.success, reply.message
     user.spin_until(lambda: truth_w() > 0.3, 30, 'a fresh command after the release to turn '
                     'the robot', each=lambda: cmd.publish(turn))

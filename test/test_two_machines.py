@@ -116,11 +116,12 @@ def _say(path, word):
 
 
 def _status(path):
+    """(matched, sent, word) from the laptop's STATUS file; zeros before its first write."""
     try:
-        matched, sent = path.read_text().split()
-        return int(matched), int(sent)
+        matched, sent, word = path.read_text().split()
+        return int(matched), int(sent), word
     except (OSError, ValueError):
-        return 0, 0
+        return 0, 0, ''
 
 
 def _wait(predicate, timeout, what, truth):
@@ -189,8 +190,11 @@ def test_cut_link_stops_the_robot_and_restoring_it_does_not_restart_it(
                   travelled, allowed, (after[0]['t_ns'] - t_cut) * 1e-9, bound_s))
         # the laptop stops commanding, then the link comes back: nothing may move the robot
         _say(control, 'off')
+        # the laptop reads its control file every 50 ms: wait until it says it acted on 'off'
+        _wait(lambda: _status(status)[2] == 'off', 10, 'the laptop to stop publishing', truth)
         sent = _status(status)[1]
-        _wait(lambda: _status(status)[1] == sent, 5, 'the laptop to stop publishing', truth)
+        _collect(truth, 0.3)
+        assert _status(status)[1] == sent, 'the laptop published after acting on off'
         link.up()
         rest = truth.latest()
         _collect(truth, 3.0)

@@ -45,6 +45,7 @@ from m4k_bridge.interfaces import interface_class
 
 __all__ = ['Doctor', 'main']
 
+RETRY_S = 1.0                      # a service request unanswered this long is sent again
 NODE_NAME = '_m4k_doctor'          # hidden: not part of the graph it inspects
 RATE_FACTOR = 3.0                  # a rate beyond configured / 3 .. configured * 3 is "far"
 STALE_TF_S = 1.0                   # a dynamic transform this far behind the clock is stale
@@ -181,9 +182,18 @@ class Doctor:
                 self.node.destroy_client(cli)
                 continue
             pending[fqn] = (cli, cli.call_async(req))
+        # Fast DDS may answer a request before the server has met this client's response
+        # reader, and that answer is lost: ask again, every RETRY_S, until the timeout.
         end = time.monotonic() + timeout
+        again = time.monotonic() + RETRY_S
         while time.monotonic() < end and not all(f.done() for _, f in pending.values()):
             rclpy.spin_once(self.node, timeout_sec=0.05)
+            if time.monotonic() >= again:
+                again = time.monotonic() + RETRY_S
+                for fqn, (cli, fut) in list(pending.items()):
+                    if not fut.done():
+                        cli.remove_pending_request(fut)
+                        pending[fqn] = (cli, cli.call_async(requests[fqn]))
         out = {}
         for fqn, (cli, fut) in pending.items():
             if fut.done() and fut.result() is not None:
@@ -288,6 +298,8 @@ def discover(node: Node, limit: float, settle: float = 2.0) -> None:
 
     Two seconds: on a loaded host DDS discovery announces participants more than a second
     apart, and a graph read in such a gap is missing the base (seen: "no m4k_bridge node").
+    A settled graph with no base in it is waited on to the limit: the base is what doctor
+    checks, and other nodes (a teleop) can settle before it is discovered (seen in CI).
     """
     start = time.monotonic()
     last, changed = None, start
@@ -298,8 +310,13 @@ def discover(node: Node, limit: float, settle: float = 2.0) -> None:
                sum(node.count_publishers(t) + node.count_subscribers(t) for t, _ in topics))
         if now != last:
             last, changed = now, time.monotonic()
-        elif now[0] > 1 and time.monotonic() - changed >= settle:
+        elif bridge_seen(node) and time.monotonic() - changed >= settle:
             return
+
+
+def bridge_seen(node: Node) -> bool:
+    """True when the graph holds an m4k_bridge node (any namespace): until then, keep waiting."""
+    return any(name == params.NODE_NAME for name, _ in node.get_node_names_and_namespaces())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
