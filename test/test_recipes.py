@@ -155,14 +155,19 @@ def test_nav2_frames_footprint_and_scan_match_the_robot():
     links = _links()
     assert n['amcl']['base_frame_id'] == 'base_footprint' in links
     assert n['collision_monitor']['base_frame_id'] == 'base_footprint'
-    body = config.load_layered()['robot']['body']
+    layered = config.load_layered()
+    body = layered['robot']['body']
+    # the wheels stand outside the body: their outer faces are the footprint's sides there
+    wheel_face = layered['control']['track_width'] / 2 + layered['robot']['wheel_width'] / 2
     for costmap in ('local_costmap/local_costmap', 'global_costmap/global_costmap'):
         c = n[costmap]
         assert c['robot_base_frame'] in links
         pts = yaml.safe_load(c['footprint'])
         xs, ys = [p[0] for p in pts], [p[1] for p in pts]
         assert max(xs) - min(xs) == pytest.approx(body['length']) == pytest.approx(0.45)
-        assert max(ys) - min(ys) == pytest.approx(body['width']) == pytest.approx(0.28)
+        assert max(ys) == -min(ys) == pytest.approx(wheel_face) == pytest.approx(0.225)
+        # the body's sides are there too (not the bounding box of the wheels)
+        assert sorted({abs(y) for y in ys}) == pytest.approx([body['width'] / 2, wheel_face])
         scan = c['obstacle_layer']['scan']
         assert scan['inf_is_valid'] is True and scan['data_type'] == 'LaserScan'
         assert scan['topic'] == '/' + params.spec('topics.scan').default    # absolute

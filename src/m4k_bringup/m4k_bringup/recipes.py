@@ -39,6 +39,7 @@ from m4k_bringup import fleet
 from m4k_drivers.lrf.sim import URG04LX_PP
 from m4k_rt import config as rt_config
 from m4k_rt.control import guard
+from m4k_rt.control.footprint import outline_of
 from m4k_rt.control.guard import front_offset
 from m4k_rt.control.params import control_params
 from m4k_rt.tasks.actuator import guard_plan
@@ -149,10 +150,10 @@ def _limits(layered: Mapping[str, Any]) -> dict[str, float]:
 
 
 def _footprint(layered: Mapping[str, Any]) -> str:
-    body = layered['robot']['body']
-    x, y = float(body['length']) / 2.0, float(body['width']) / 2.0
-    pts = [[x, y], [x, -y], [-x, -y], [-x, y]]
-    return '[' + ', '.join('[{:g}, {:g}]'.format(*p) for p in pts) + ']'
+    """Nav2's footprint: the robot's outline, the drive wheels outside the body included."""
+    c = control_params(layered.get('control'))
+    pts = outline_of(layered['robot'], c.track_width, c.wheel_radius)
+    return '[' + ', '.join('[{:g}, {:g}]'.format(round(x, 4), round(y, 4)) for x, y in pts) + ']'
 
 
 INFLATION_RADIUS_M = 0.45

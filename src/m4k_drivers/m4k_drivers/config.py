@@ -222,10 +222,11 @@ def fill_actuator_period(raw: dict[str, Any]) -> dict[str, Any]:
 
 
 def validate(doc: dict[str, Any], control: dict[str, Any] | None = None,
-             body: dict[str, Any] | None = None) -> DriverConfig:
+             body: dict[str, Any] | None = None, wheel_width: Any = None) -> DriverConfig:
     """Validate a whole document with ``devices:`` and ``world:`` sections.
 
-    ``control`` (the stack's ``control:`` section) and ``body`` (``robot.body``) give the
+    ``control`` (the stack's ``control:`` section), ``body`` (``robot.body``) and
+    ``wheel_width`` (``robot.wheel_width``) give the
     simulated robot's defaults, so the simulator is the configured robot -- one source for each
     physical value -- unless ``world.robot`` says how it was built differently.
     """
@@ -243,7 +244,7 @@ def validate(doc: dict[str, Any], control: dict[str, Any] | None = None,
         out[kind] = validate_device(kind, section, f'devices.{kind}')
     world_raw = doc.get('world') or {}
     try:
-        robot = (RobotParams.from_control(control, body)
+        robot = (RobotParams.from_control(control, body, wheel_width)
                  if control is not None or body is not None else None)
         world = WorldConfig.from_dict(world_raw, robot=robot)
     except WorldConfigError as exc:

@@ -74,6 +74,10 @@ class RobotParams:
         0.45, 'Body length, the contact footprint (Table 2). Default: robot.body.length.', 'm'))
     width_m: float = setting(_f(
         0.28, 'Body width, the contact footprint (Table 2). Default: robot.body.width.', 'm'))
+    wheel_width_m: float = setting(_f(
+        0.05, 'Drive wheel width: the wheels stand outside the body (centres track_width '
+        'apart) and are part of the contact footprint (m4k_rt.control.footprint). Default: '
+        'robot.wheel_width.', 'm'))
     # drive
     top_speed_mps: float = setting(_f(
         2.0, 'Straight-line speed on the floor at full armature voltage (Table 2: 2 m/s); sets '
@@ -135,12 +139,14 @@ class RobotParams:
 
     @classmethod
     def from_control(cls, control: dict[str, Any] | None,
-                     body: dict[str, Any] | None = None) -> RobotParams:
+                     body: dict[str, Any] | None = None,
+                     wheel_width: Any = None) -> RobotParams:
         """Return the robot ``control:`` and ``robot.body`` describe (unset keys: the defaults).
 
         Full scale is the wheel speed at code 1023, so the top speed is that times the radius.
-        The body's footprint (``robot.body.length``/``width``, the URDF's) is the one the
-        simulator's contacts use.
+        The body (``robot.body.length``/``width``, the URDF's) and the drive wheels outside it
+        (``control.track_width``, ``robot.wheel_width``) make the outline the simulator's
+        contacts use (:mod:`m4k_rt.control.footprint`).
         """
         base = cls()
         given: dict[str, float] = {}
@@ -157,10 +163,14 @@ class RobotParams:
                     name = key if where == 'control' else f'body.{key}'
                     given[key] = float(table_[name].validate(f'{where}.{key}', v,
                                                              WorldConfigError))
+        if wheel_width is not None:
+            given['wheel_width'] = float(schema.ROBOT['wheel_width'].validate(
+                'robot.wheel_width', wheel_width, WorldConfigError))
         radius = given.get('wheel_radius', base.wheel_radius_m)
         out = replace(base, wheel_diameter_m=2.0 * radius,
                       length_m=given.get('length', base.length_m),
                       width_m=given.get('width', base.width_m),
+                      wheel_width_m=given.get('wheel_width', base.wheel_width_m),
                       track_width_m=given.get('track_width', base.track_width_m),
                       gear_ratio=given.get('gear_ratio', base.gear_ratio))
         if 'full_scale_wheel_speed' in given:

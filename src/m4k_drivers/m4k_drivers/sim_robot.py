@@ -423,7 +423,8 @@ def _main(args: argparse.Namespace, signals: Any) -> int:
         cfg = dconfig.validate({'devices': raw.get('devices') or {},
                                 'world': raw.get('world') or {}},
                                control=raw.get('control') or {},
-                               body=(raw.get('robot') or {}).get('body'))
+                               body=(raw.get('robot') or {}).get('body'),
+                               wheel_width=(raw.get('robot') or {}).get('wheel_width'))
         standin = dconfig.kernel_standin(raw)
         runtime_dir = channel.ensure_runtime_dir(
             args.runtime_dir or (raw.get('runtime') or {}).get('runtime_dir'))

@@ -57,6 +57,7 @@ from m4k_drivers.drive import (
 from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
 from m4k_drivers.floor import FloorError, parse_floor, Patch, wheel_mu
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
+from m4k_rt.control.footprint import outline
 from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
 
 __all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'WORLD', 'World', 'WorldConfig',
@@ -258,6 +259,9 @@ class World:
                  clock: Callable[[], int] = time.monotonic_ns, t0_ns: int | None = None) -> None:
         self.config = config or WorldConfig()
         self.robot = self.config.robot
+        r = self.robot
+        self._outline = np.array(outline(r.length_m, r.width_m, r.track_width_m,
+                                         r.wheel_radius_m, r.wheel_width_m))
         self.clock = clock
         self._lock = threading.RLock()
         segs = [tuple(s) for s in self.config.walls]
@@ -596,10 +600,10 @@ class World:
     def front_clearance(self, pose: Pose, max_range: float = 10.0) -> float:
         """Return how far ahead of the footprint's front face the nearest surface is (any surface).
 
-        Rays along the heading from five points across the front face: what a guard would have
-        to see, whatever the sensors make of it.
+        Rays along the heading from five points across the outline's width (body and wheels)
+        at the front face: what a guard would have to see, whatever the sensors make of it.
         """
-        hl, hw = self.robot.length_m / 2.0, self.robot.width_m / 2.0
+        hl, hw = self.robot.length_m / 2.0, float(self._outline[:, 1].max())
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
         best = math.inf
         with self._lock:
@@ -625,11 +629,13 @@ class World:
         return best
 
     def footprint(self, pose: Pose) -> np.ndarray:
-        """Return the 4 footprint corners (4x2) of the robot body at ``pose``."""
-        hl, hw = self.robot.length_m / 2.0, self.robot.width_m / 2.0
+        """Return the robot's outline (Nx2, counter-clockwise) at ``pose``: body and wheels.
+
+        The drive wheels stand outside the body (:mod:`m4k_rt.control.footprint`): a leg that
+        clears the body's side but not a wheel is a contact.
+        """
         c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        local = np.array([(hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw)])
-        return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
+        return self._outline @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
 
     def collides(self, pose: Pose) -> bool:
         """Return True when the footprint at ``pose`` touches a wall or obstacle."""
@@ -651,16 +657,17 @@ class World:
         return any(self._inside(corners, poly[0]) for poly in self._polys)
 
     @staticmethod
-    def _inside(convex: np.ndarray, p: Sequence[float]) -> bool:
-        sign = 0.0
-        for i in range(len(convex)):
-            x1, y1 = convex[i]
-            x2, y2 = convex[(i + 1) % len(convex)]
-            c = _cross(x2 - x1, y2 - y1, p[0] - x1, p[1] - y1)
-            if sign and c * sign < 0:
-                return False
-            sign = sign or c
-        return True
+    def _inside(poly: np.ndarray, p: Sequence[float]) -> bool:
+        """Return True when ``p`` lies inside the simple polygon ``poly`` (even-odd rule)."""
+        x, y = p[0], p[1]
+        inside = False
+        n = len(poly)
+        for i in range(n):
+            x1, y1 = poly[i]
+            x2, y2 = poly[(i + 1) % n]
+            if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
+                inside = not inside
+        return inside
 
     # -- sensing --------------------------------------------------------------------------
     def state(self) -> RobotState:

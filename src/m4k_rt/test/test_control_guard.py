@@ -248,14 +248,15 @@ def test_corridor_nothing_in_range_and_error_codes_only_are_inf():
 
 
 def test_corridor_measures_from_the_front_face_not_the_laser():
-    from m4k_rt.control.guard import body_half_width, front_offset, FrontCorridor
+    from m4k_rt.control.footprint import half_width_of
+    from m4k_rt.control.guard import front_offset, FrontCorridor
     robot = {'body': {'length': 0.45, 'width': 0.28},
              'sensors': {'laser': {'pose': [0.0, 0, 0.2, 0, 0, 0]},
                          'sonar': {'pose': [0.225, 0, 0.1, 0, 0, 0]}}}
     assert front_offset(robot, 'laser') == pytest.approx(0.225)
     assert front_offset(robot, 'sonar') == 0.0
     assert front_offset({}, 'laser') == 0.0                      # no robot section: as measured
-    assert body_half_width(robot) == pytest.approx(0.14)
+    assert half_width_of(robot, 0.40) == pytest.approx(0.20)    # no wheel width: the centres
     corridor = FrontCorridor(0.19, 0.225)
     inc = math.radians(1.0)
     ranges = [0] * 241

@@ -292,3 +292,29 @@ def test_top_speed_is_capped_where_the_sensors_cannot_see_far_enough(rig):
     run(rig, body, motor, t, 800, cmd=(2.0, 0.0), before_cycle=clear)
     assert body.ctl.v == pytest.approx(plan.top_speed)
     assert state.odom_flags & p.ODOM_CLAMPED
+
+
+def test_the_guards_corridor_takes_in_the_wheels_outside_the_body(rig, m4k_runtime_dir):
+    # The shipped robot: a 0.28 m body on wheels whose outer faces are 0.225 m from the centre
+    # line. The actuator's memory and the laser's corridor are that wide plus the lateral
+    # margin, so a 3 cm leg 0.21 m off the line (past the body, in the wheel's path) is in it.
+    import math
+    from m4k_rt.control.footprint import half_width_of
+    from m4k_rt.control.guard import FrontCorridor
+    shared = _factory_shared(m4k_runtime_dir)
+    raw = shared.config.raw
+    task = [t for t in shared.config.tasks if t.name == 'actuator'][0]
+    body = make_actuator(task, rig.rt, shared)
+    wheel_face = raw['control']['track_width'] / 2 + raw['robot']['wheel_width'] / 2
+    margin = raw['control']['guard']['lateral_margin']
+    assert wheel_face > raw['robot']['body']['width'] / 2
+    assert body.feed.half_width == pytest.approx(wheel_face + margin)
+    corridor = FrontCorridor(half_width_of(raw['robot'], raw['control']['track_width'])
+                             + margin, 0.225)
+    inc = math.radians(0.352)
+    a = math.atan2(0.21, 3.0)
+    ranges = [0] * 682
+    i = round((a + math.radians(120.0)) / inc)
+    ranges[i] = round(math.hypot(3.0, 0.21) * 1000)
+    assert corridor.minimum(-math.radians(120.0), inc, 0.02, 5.6, ranges) == pytest.approx(
+        3.0 - 0.225, abs=0.01)

@@ -98,7 +98,8 @@ class Scene:
         """
         from m4k_drivers.world import RobotParams, World, WorldConfig
         robot = RobotParams.from_control(dict(raw.get('control') or {}),
-                                         (raw.get('robot') or {}).get('body'))
+                                         (raw.get('robot') or {}).get('body'),
+                                         (raw.get('robot') or {}).get('wheel_width'))
         cfg = WorldConfig.from_dict(dict(raw.get('world') or {}), robot=robot)
         self.config = cfg
         self.robot = cfg.robot

@@ -118,6 +118,7 @@ def _obstacle_x(raw: Mapping[str, Any], v: float) -> float:
 
 def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
          motion: str) -> dict[str, Any]:
+    from m4k_rt.control.footprint import half_width_of
     from m4k_rt.control.params import control_params
     p = control_params(raw.get('control'))
     k = env['kinds'][kind]
@@ -163,6 +164,10 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
         walls = {'rectangle': [-1.0, -4.0, x, 4.0]}
     elif kind == 'leg':
         obstacles = [[[x, 0.115], [x + 0.03, 0.115], [x + 0.03, 0.145], [x, 0.145]]]
+    elif kind == 'wheel_leg':
+        # past the body's side, in the left wheel's path (m4k_rt.control.footprint)
+        out = half_width_of(raw.get('robot'), p.track_width)
+        obstacles = [[[x, out - 0.03], [x + 0.03, out - 0.03], [x + 0.03, out], [x, out]]]
     elif kind == 'low':
         obstacles = [{'polygon': [[x, -0.3], [x + 0.4, -0.3], [x + 0.4, 0.3], [x, 0.3]],
                       'height': 0.25}]
@@ -174,8 +179,8 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
                                   [x, 2.225]],
                       'path': {'start': {'after': 0.0}, 'waypoints': [[0, 0, 0], [2.0, 0, -2.0]]}}]
     else:
-        raise _err(f'envelope.kinds.{kind}', 'no world for this obstacle kind (wall, leg, low, '
-                   'glass, person)')
+        raise _err(f'envelope.kinds.{kind}', 'no world for this obstacle kind (wall, leg, '
+                   'wheel_leg, low, glass, person)')
     if motion == 'turning':
         r = float(mo.get('obstacle_radius_per_m', 3.0)) * x
         command: dict[str, Any] = {'v': v, 'w': round(v / r, 5), 't': t}

@@ -277,15 +277,6 @@ def body_front(robot: Any) -> float:
     return f if math.isfinite(f) and f > 0.0 else 0.0
 
 
-def body_half_width(robot: Any, default: float = 0.14) -> float:
-    """Return half the body's width (``robot.body.width / 2``), or ``default`` when not given."""
-    try:
-        w = float(robot['body']['width']) / 2.0
-    except (KeyError, TypeError, ValueError):
-        return default
-    return w if math.isfinite(w) and w > 0.0 else default
-
-
 LANES = 8   # the corridor's width in this many lanes: the laser keeps its nearest point per lane
 
 

@@ -168,9 +168,9 @@ class GuardParams:
         'speed until the stop zone stops it (0: it creeps toward the '
         'stop line ever more slowly).'))
     lateral_margin: float = setting(_nonneg(
-        'm', 0.05, "Added to each side of the body's half width "
-        "for the laser's corridor test. 0: an obstacle grazing "
-        'the side is not seen.'))
+        'm', 0.05, "Added to each side of the robot's half width (the drive wheels' "
+        "outer faces, m4k_rt.control.footprint) for the laser's corridor test. 0: an "
+        'obstacle grazing the side is not seen.'))
     reverse_creep_speed: float = setting(_pos(
         'm/s', 0.1, 'Reverse speed cap: no rear sensor guards '
         'reversing, so it is limited to a creep. Higher: the '

@@ -40,9 +40,9 @@ from typing import Any, Callable, Mapping
 
 from m4k_rt.config import load_layered, TaskConfig
 from m4k_rt.control.base import BaseController
+from m4k_rt.control.footprint import half_width_of
 from m4k_rt.control.guard import (
     body_front,
-    body_half_width,
     CollisionGuard,
     front_offset,
     sensor_x,
@@ -193,7 +193,7 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
 def sonar_full_width(params: ControlParams, robot: Any) -> float:
     """Return how far ahead of the front face the sonar's cone spans the whole corridor (m)."""
     g = params.guard
-    half_width = body_half_width(robot) + g.lateral_margin
+    half_width = half_width_of(robot, params.track_width) + g.lateral_margin
     return half_width / math.tan(g.sonar_cone / 2.0) - front_offset(robot, 'sonar')
 
 
@@ -241,7 +241,7 @@ def make_feed(params: ControlParams, robot: Any) -> SightingFeed:
         front = sx       # a bare test config: the face where the sonar is
     return SightingFeed(ObstacleMemory(g.memory_points), sonar_x=sx,
                         laser_x=sensor_x(robot, 'laser'), front_x=front,
-                        half_width=body_half_width(robot) + g.lateral_margin,
+                        half_width=half_width_of(robot, params.track_width) + g.lateral_margin,
                         sonar_half_angle=g.sonar_cone / 2.0,
                         sonar_reach=g.sonar_range)
 

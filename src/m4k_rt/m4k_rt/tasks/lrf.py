@@ -5,7 +5,8 @@ Ports: ``lrf`` (driver host: REQUEST out, LASER_SCAN and DEVICE_STATUS in) and `
 replying to the previous REQUEST (the URG-04LX takes 100 ms per scan, well inside the 200 ms
 period), forwards it unchanged (its stamp and device stamp are the measurement's), computes
 the smallest gap between the body's front face and a point in its swept corridor
-(``control.guard.FrontCorridor``: body half width + ``control.guard.lateral_margin``) for the
+(``control.guard.FrontCorridor``: the outline's half width -- the wheels stand outside the
+body, ``control.footprint`` -- + ``control.guard.lateral_margin``) for the
 actuator's collision guard, then sends this cycle's
 REQUEST. A scan whose sector holds no valid point reports ``inf`` (nothing seen) but still
 refreshes ``laser_rx_ns``: the laser is alive. ``laser_rx_ns`` is the scan's own stamp (the
@@ -23,7 +24,8 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
-from m4k_rt.control.guard import body_half_width, front_offset, FrontCorridor, sensor_x
+from m4k_rt.control.footprint import half_width_of
+from m4k_rt.control.guard import front_offset, FrontCorridor, sensor_x
 from m4k_rt.control.params import control_params
 from m4k_rt.control.sightings import LaserSighting
 from m4k_rt.protocol import Kind
@@ -88,5 +90,5 @@ def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfB
     params = control_params(control_section(task, shared))
     robot = raw_section(task, shared, 'robot')
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
-                   body_half_width(robot) + params.guard.lateral_margin,
+                   half_width_of(robot, params.track_width) + params.guard.lateral_margin,
                    front=front_offset(robot, 'laser'), laser_x=sensor_x(robot, 'laser'))
