@@ -63,12 +63,26 @@ def test_the_judge_measures_a_thin_leg_anywhere_across_the_front_face(offset):
     assert front == pytest.approx(0.225)       # the simulator's footprint (robot.yaml body)
     assert scene.front_clearance(0.0, 0.0, 0.0) == pytest.approx(2.5 - front)
     assert scene.clearance(0.0, 0.0, 0.0) == pytest.approx(2.5 - front)
-    # beside the band the face sweeps it is not ahead, however close: the far wall is
-    assert scene.front_clearance(0.0, offset + 0.14 + 0.021, 0.0) == pytest.approx(8.0 - front)
+    # beside the band the robot sweeps (its outline: the wheels' outer faces, 0.225 m) it is
+    # not ahead, however close: the far wall is
+    assert scene.band == pytest.approx((-0.225, 0.225))
+    assert scene.front_clearance(0.0, offset + 0.225 + 0.021, 0.0) == pytest.approx(8.0 - front)
     assert Scene(_raw({'walls': [], 'obstacles': [_leg(2.52, offset, 0.04)]})).front_clearance(
-        0.0, offset - 0.161, 0.0) == math.inf
+        0.0, offset - 0.246, 0.0) == math.inf
     # touching: contact (distance 0), however it is approached
     assert scene.clearance(2.5 - front, 0.0, 0.0) == 0.0
+
+
+def test_a_leg_past_the_body_in_the_wheels_path_is_ahead_and_a_contact_at_the_wheel():
+    # The judge's outline is the simulator's: a 3 cm leg 0.21 m off the line is in the band
+    # the robot sweeps, and touching it with the wheel is a contact; its side in line with the
+    # wheel's outer face (y = 0.225) metres ahead is not.
+    leg = [[3.0, 0.195], [3.03, 0.195], [3.03, 0.225], [3.0, 0.225]]
+    scene = Scene(_raw({'walls': [], 'obstacles': [leg]}))
+    assert scene.front_clearance(0.0, 0.0, 0.0) == pytest.approx(3.0 - 0.225)
+    assert scene.clearance(0.0, 0.0, 0.0) == pytest.approx(math.hypot(3.0 - 0.225, 0.055))
+    assert scene.clearance(2.8, 0.0, 0.0) == pytest.approx(0.055)      # the body's side
+    assert scene.clearance(3.0 - 0.1016, 0.0, 0.0) == 0.0               # the wheel's front
 
 
 def test_the_five_rays_missed_the_leg_the_judge_sees():

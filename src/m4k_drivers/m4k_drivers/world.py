@@ -651,7 +651,13 @@ class World:
                     a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
         d4 = _cross(b[..., 2] - b[..., 0], b[..., 3] - b[..., 1],
                     a[..., 2] - b[..., 0], a[..., 3] - b[..., 1])
-        if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0)):
+        # Collinear edges give all four crosses zero: they touch only where their extents
+        # overlap (a leg's side in line with a wheel's, metres apart, is no contact).
+        overlap = ((np.maximum(a[..., 0], a[..., 2]) >= np.minimum(b[..., 0], b[..., 2]))
+                   & (np.maximum(b[..., 0], b[..., 2]) >= np.minimum(a[..., 0], a[..., 2]))
+                   & (np.maximum(a[..., 1], a[..., 3]) >= np.minimum(b[..., 1], b[..., 3]))
+                   & (np.maximum(b[..., 1], b[..., 3]) >= np.minimum(a[..., 1], a[..., 3])))
+        if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0) & overlap):
             return True
         # An obstacle entirely inside the footprint crosses no edge: test one of its vertices.
         return any(self._inside(corners, poly[0]) for poly in self._polys)

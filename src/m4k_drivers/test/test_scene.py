@@ -173,3 +173,20 @@ def test_the_world_stamps_when_the_robot_came_to_rest(fake_clock):
     clock.t = 4_000_000_000
     w.advance_to(clock.t)
     assert w.rest_since_ns == t_rest        # still at rest since then
+
+
+def test_the_wheels_are_part_of_the_footprint_and_in_line_edges_far_apart_do_not_touch():
+    # The drive wheels stand outside the 0.28 m body (outer faces 0.225 m off the centre
+    # line): a leg 0.21 m off the line clears the body and meets the wheel. A leg whose side
+    # is in line with the wheel's outer face, metres ahead, is no contact (collinear edges).
+    from m4k_drivers.world import Pose, World, WorldConfig
+    leg = [[3.0, 0.195], [3.03, 0.195], [3.03, 0.225], [3.0, 0.225]]
+    w = World(WorldConfig.from_dict({'walls': {'rectangle': [-1.0, -3.0, 8.0, 3.0]},
+                                     'obstacles': [leg]}), clock=lambda: 0, t0_ns=0)
+    assert not w.collides(Pose(0.0, 0.0, 0.0))
+    assert w.collides(Pose(3.0, 0.0, 0.0))              # the left wheel at the leg
+    assert not w.collides(Pose(3.0, -0.1, 0.0))         # shifted right: the wheel clears it
+    # beside the leg the body's side passes it 5.5 cm away; 2 cm before the wheel meets it,
+    # the wheel's front is the nearest part
+    assert w.clearance(Pose(2.8, 0.0, 0.0)) == pytest.approx(0.195 - 0.14, abs=1e-6)
+    assert w.clearance(Pose(2.8784, 0.0, 0.0)) == pytest.approx(0.02, abs=1e-6)

@@ -59,7 +59,12 @@ def seg_seg_distance(a: np.ndarray, b: np.ndarray) -> float:
                 p[..., 1] - q[..., 1])
     d4 = _cross(q[..., 2] - q[..., 0], q[..., 3] - q[..., 1], p[..., 2] - q[..., 0],
                 p[..., 3] - q[..., 1])
-    if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0)):
+    # collinear segments give all four crosses zero: they touch only where their extents meet
+    overlap = ((np.maximum(p[..., 0], p[..., 2]) >= np.minimum(q[..., 0], q[..., 2]))
+               & (np.maximum(q[..., 0], q[..., 2]) >= np.minimum(p[..., 0], p[..., 2]))
+               & (np.maximum(p[..., 1], p[..., 3]) >= np.minimum(q[..., 1], q[..., 3]))
+               & (np.maximum(q[..., 1], q[..., 3]) >= np.minimum(p[..., 1], p[..., 3])))
+    if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0) & overlap):
         return 0.0
     best = min(float(_point_seg(a[:, 0], a[:, 1], b).min()),
                float(_point_seg(a[:, 2], a[:, 3], b).min()),
