@@ -315,7 +315,7 @@ def discover(node: Node, limit: float, settle: float = 2.0) -> None:
 
 
 def bridge_seen(node: Node) -> bool:
-    """True when the graph holds an m4k_bridge node (any namespace): until then, keep waiting."""
+    """Return whether the graph holds an m4k_bridge node (any namespace): until then, wait."""
     return any(name == params.NODE_NAME for name, _ in node.get_node_names_and_namespaces())
 
 

@@ -5,12 +5,17 @@ import pathlib
 import pytest
 import yaml
 
-from m4k_rt.control.footprint import DEFAULT_HALF_WIDTH, half_width, half_width_of, outline, \
-    outline_of
+from m4k_rt.control.footprint import (
+    DEFAULT_HALF_WIDTH,
+    half_width,
+    half_width_of,
+    outline,
+    outline_of,
+)
 
 
 def _area(pts):
-    return 0.5 * sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(pts, pts[1:] + pts[:1]))
+    return 0.5 * sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(pts, pts[1:] + pts[:1], strict=True))
 
 
 def test_the_m4k_outline_takes_in_the_wheels_outside_the_body():

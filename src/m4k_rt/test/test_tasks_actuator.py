@@ -299,6 +299,7 @@ def test_the_guards_corridor_takes_in_the_wheels_outside_the_body(rig, m4k_runti
     # line. The actuator's memory and the laser's corridor are that wide plus the lateral
     # margin, so a 3 cm leg 0.21 m off the line (past the body, in the wheel's path) is in it.
     import math
+
     from m4k_rt.control.footprint import half_width_of
     from m4k_rt.control.guard import FrontCorridor
     shared = _factory_shared(m4k_runtime_dir)
