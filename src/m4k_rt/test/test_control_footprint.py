@@ -15,7 +15,8 @@ from m4k_rt.control.footprint import (
 
 
 def _area(pts):
-    return 0.5 * sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(pts, pts[1:] + pts[:1], strict=True))
+    pairs = zip(pts, pts[1:] + pts[:1], strict=True)
+    return 0.5 * sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in pairs)
 
 
 def test_the_m4k_outline_takes_in_the_wheels_outside_the_body():
