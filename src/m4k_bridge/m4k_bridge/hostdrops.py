@@ -8,7 +8,9 @@ stamped with the time the RT side received it (docs/internals.md, "HOST_DROPS fo
 The counters are cumulative since the host process started.  :class:`HostDropMonitor` keeps
 the reports of the last window (the bridge's ``stats_window``) and judges the difference:
 OK when no counter moved in the window, WARN when one did (with the drops per second over
-the window), STALE when the RT side got no report within the stale timeout (driver host gone).
+the window), STALE when nothing was forwarded within the stale timeout (RT side gone) or the
+last report the RT side got is older than the window (driver host gone: its counts no longer
+cover the window judged; the device's own ``m4k_drivers: <device>`` status says so sooner).
 Counters that go back mean a new host process: its counts all happened since it started, so
 they are judged against zero.
 """
@@ -81,7 +83,11 @@ class HostDropMonitor:
             values.update(zip(protocol.HOST_DROP_REASONS, last[2:], strict=True))
             values.update(window_s=span, window_drops=drops, window_drops_per_s=rate,
                           age_s=age)
-            if now_ns - dev.rx_ns > self.stale_ns or now_ns - last[0] > self.stale_ns:
+            if now_ns - dev.rx_ns > self.stale_ns:
+                level = protocol.LEVEL_STALE
+                msg = 'nothing forwarded by the RT process for {:.1f} s'.format(
+                    (now_ns - dev.rx_ns) * _NS)
+            elif now_ns - last[0] > self.window_ns:
                 level = protocol.LEVEL_STALE
                 msg = 'no drop report from the driver host for {:.1f} s'.format(age)
             elif drops:

@@ -183,8 +183,16 @@ def test_host_drops_warn_while_a_counter_moved_within_the_window_then_ok():
     level, msg, values = _host_status(m, 14 * s)
     assert level == b'\x00' and values['window_drops'] == '0' and values['window_s'] == '10'
     assert values['stale_host'] == '5'            # the cumulative counts stay
-    level, msg, _ = _host_status(m, 18 * s)       # the RT side heard nothing for 4 s
-    assert level == b'\x03' and 'no drop report' in msg
+    level, msg, _ = _host_status(m, 18 * s)       # nothing forwarded for 4 s (> stale_s)
+    assert level == b'\x03' and 'nothing forwarded' in msg
+    # the RT monitor keeps forwarding the host's last report: stale once it is older than
+    # the window (its counts no longer cover it), not before
+    last = _drops('motor', 214, inactive=4, stale_host=5, stale_device=1)
+    m.feed(protocol.Kind.HOST_DROPS, last, 23 * s, 14 * s)
+    assert _host_status(m, 23 * s)[0] == b'\x00'
+    m.feed(protocol.Kind.HOST_DROPS, last, 25 * s, 14 * s)
+    level, msg, _ = _host_status(m, 25 * s)
+    assert level == b'\x03' and msg == 'no drop report from the driver host for 11.0 s'
 
 
 def test_host_drops_of_a_restarted_host_count_from_zero():
