@@ -48,8 +48,9 @@ class StatsShipper:
     FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then -- on the other ports
     (``status``) -- one DEVICE_STATUS per device that ever reported (its last report, level
     STALE when older than ``device_stale_ns``, stamped with its arrival time) and one
-    PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then
-    RT_STATUS, which closes a batch. Nothing is encoded when no port has a peer; cursors move
+    PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then --
+    on every port -- one HOST_DROPS per device whose driver host ever sent one (its last
+    counters, stamped with their arrival), then RT_STATUS, which closes a batch. Nothing is encoded when no port has a peer; cursors move
     on regardless.
     """
 
