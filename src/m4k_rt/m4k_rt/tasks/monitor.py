@@ -50,8 +50,8 @@ class StatsShipper:
     STALE when older than ``device_stale_ns``, stamped with its arrival time) and one
     PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then --
     on every port -- one HOST_DROPS per device whose driver host ever sent one (its last
-    counters, stamped with their arrival), then RT_STATUS, which closes a batch. Nothing is encoded when no port has a peer; cursors move
-    on regardless.
+    counters, stamped with their arrival), then RT_STATUS, which closes a batch. Nothing is
+    encoded when no port has a peer; cursors move on regardless.
     """
 
     def __init__(self, shared: MonitorShared, ports: Sequence[tuple[Any, bool]],
