@@ -34,6 +34,8 @@ def test_commands_dropped_after_a_host_stall_appear_in_diagnostics_by_reason(
         procs, tmp_path, m4k_runtime_dir):
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
+
+    from m4k_msgs.msg import RtStatus
     overlay = tmp_path / 'overlay.yaml'
     overlay.write_text(yaml.safe_dump({'runtime': {'mlockall': False, 'cpu_dma_latency': False,
                                                    'start_delay_ms': 10}}))
@@ -50,6 +52,9 @@ def test_commands_dropped_after_a_host_stall_appear_in_diagnostics_by_reason(
     seen = []
     node.create_subscription(DiagnosticArray, 'diagnostics', lambda m: seen.extend(
         s for s in m.status if s.name == STATUS), 10)
+    motor_port = {}          # the RT side's own counters of the motor port (for the printout)
+    node.create_subscription(RtStatus, 'rt_status', lambda m: motor_port.update(
+        (p.label, (p.sent, p.dropped_full, p.dropped_no_peer)) for p in m.ports), 10)
 
     def until(pred, timeout, what):
         deadline = time.monotonic() + timeout
@@ -64,6 +69,7 @@ def test_commands_dropped_after_a_host_stall_appear_in_diagnostics_by_reason(
               and int(_values(seen[-1])['served']) > 100, 90,
               'the motor served and no drop in the window')
         before = _values(seen[-1])
+        port_before = motor_port.get('motor')
         m = re.search(r'serving motor@\S+ \(pid (\d+)\)', log_path.read_text())
         assert m, log_path.read_text()[-3000:]
         motor_pid = int(m.group(1))
@@ -74,6 +80,7 @@ def test_commands_dropped_after_a_host_stall_appear_in_diagnostics_by_reason(
         motor_pid = None
         until(lambda: any(s.level == b'\x01' for s in seen[n:]), 30, 'WARN after the stall')
         warn = next(s for s in seen[n:] if s.level == b'\x01')
+        port_after = motor_port.get('motor')
     finally:
         if motor_pid is not None:
             os.kill(motor_pid, signal.SIGCONT)
@@ -85,7 +92,8 @@ def test_commands_dropped_after_a_host_stall_appear_in_diagnostics_by_reason(
     text = log_path.read_text()
     assert bu.returncode == 0, text[-3000:]
     values = _values(warn)
-    print('motor host stalled 0.5 s:', warn.message)
+    print('motor host stalled 0.5 s:', warn.message, '| RT motor port (sent, dropped_full, '
+          'dropped_no_peer) before/after:', port_before, port_after)
     stale = int(values['stale_host']) + int(values['stale_device'])
     before_stale = int(before['stale_host']) + int(before['stale_device'])
     # The commands queued during the stall were dropped as stale, and said so by reason.
