@@ -31,11 +31,11 @@ K = Kind
 ACCEPTS: Mapping[str, frozenset[int]] = {
     'status': frozenset(), 'stat': frozenset(),
     'cmd': frozenset({K.VELOCITY_CMD, K.E_STOP, K.ODOM_RESET, K.SET_POSE}),
-    'motor': frozenset({K.ENCODERS, K.DEVICE_STATUS}),
-    'imu': frozenset({K.IMU, K.DEVICE_STATUS}), 'imu_out': frozenset(),
-    'led': frozenset({K.DEVICE_STATUS}), 'led_in': frozenset({K.LED}),
-    'sonar': frozenset({K.SONAR, K.DEVICE_STATUS}), 'sonar_out': frozenset(),
-    'lrf': frozenset({K.LASER_SCAN, K.DEVICE_STATUS}), 'lrf_out': frozenset(),
+    'motor': frozenset({K.ENCODERS, K.DEVICE_STATUS, K.HOST_DROPS}),
+    'imu': frozenset({K.IMU, K.DEVICE_STATUS, K.HOST_DROPS}), 'imu_out': frozenset(),
+    'led': frozenset({K.DEVICE_STATUS, K.HOST_DROPS}), 'led_in': frozenset({K.LED}),
+    'sonar': frozenset({K.SONAR, K.DEVICE_STATUS, K.HOST_DROPS}), 'sonar_out': frozenset(),
+    'lrf': frozenset({K.LASER_SCAN, K.DEVICE_STATUS, K.HOST_DROPS}), 'lrf_out': frozenset(),
 }
 
 _F64 = (0.0, -0.0, 1.0, -1.0, 0.25, 2.0, -2.0, 1e308, -1e308, 5e-324, -5e-324, 1e-9, 3.4e38,
@@ -100,6 +100,8 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
         return (u(rng, 32), f(rng), f(rng), f(rng))
     if kind == K.FAULT_RESET:
         return (u(rng, 32), rng.randint(0, 1))
+    if kind == K.HOST_DROPS:
+        return ('dev',) + tuple(u(rng, 64) for _ in range(8))
     if kind == K.SAFETY_STATUS:
         return tuple(f(rng) for _ in range(8)) + (u(rng, 32), u(rng, 32), u(rng, 32))
     if kind == K.FORBIDDEN_SITE:

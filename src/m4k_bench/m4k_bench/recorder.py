@@ -91,6 +91,7 @@ class Recorder:
         self.tasks: dict[str, TaskSeries] = {}
         self.rt_status: Any = None
         self.port_stats: dict[str, protocol.PortStats] = {}   # label -> latest (``status``)
+        self.host_drops: dict[str, protocol.HostDrops] = {}   # device -> latest (forwarded)
         self.datagrams = 0
         self.malformed: dict[str, int] = {}
         self.ignored = 0
@@ -121,6 +122,8 @@ class Recorder:
             self.rt_status = payload
         elif header.kind == protocol.Kind.PORT_STATS:
             self.port_stats[payload.label] = payload
+        elif header.kind == protocol.Kind.HOST_DROPS:
+            self.host_drops[payload.device] = payload
         else:
             self.ignored += 1
         return int(header.kind)

@@ -3,8 +3,10 @@
 Opens the monitor's ``stat`` port (on demand: the ``status`` port belongs to the bridge), reads
 one monitor batch (closed by RT_STATUS) and prints a Fig. 5-like table: task, priority,
 period, cycles, context switches, the mode-switch analogue, page faults, forbidden calls with
-the last call site, overruns, deadline misses and the p99 release latency. ``--watch``
-refreshes every batch, with statistics accumulated since rt_stat started.
+the last call site, overruns, deadline misses and the p99 release latency; then, per device
+whose driver host reported them (HOST_DROPS, forwarded by the monitor), the datagrams it served
+and the ones it dropped by reason. ``--watch`` refreshes every batch, with statistics
+accumulated since rt_stat started.
 """
 
 import argparse
@@ -66,6 +68,14 @@ def format_stat(rec: recorder.Recorder) -> str:
         for s in t.sites.values():
             lines.append('  {}: {} at {}:{} in {}() x{}'.format(
                 t.name, s.event, s.file, s.line, s.func, s.calls))
+    if rec.host_drops:
+        reasons = protocol.HOST_DROP_REASONS
+        row = '{:<10} {:>10}' + ' {:>12}' * len(reasons)
+        lines.append(row.format('DEVICE', 'SERVED', *(r.upper() for r in reasons)))
+        for name, d in sorted(rec.host_drops.items()):
+            lines.append(row.format(name, d.served, *d[2:]))
+        lines.append('driver host drops since its process started (docs/internals.md, '
+                     '"Driver host")')
     return '\n'.join(lines) + '\n'
 
 

@@ -1,7 +1,8 @@
 """RT timing and health -> m4k_msgs/RtStatus and diagnostic_msgs (pure: no rclpy, no sockets).
 
 The RT monitor task ships each task's per-cycle samples in TASK_STATS batches, plus RT_STATUS,
-the last DEVICE_STATUS of each device (and, on ``stat``, the TASK_HEALTH extra kind).
+the last DEVICE_STATUS and HOST_DROPS of each device (and, on ``stat``, the TASK_HEALTH extra
+kind).
 :class:`RtMonitor` keeps a sliding window of samples per task (``stats_window`` seconds of
 releases) and computes the paper's statistics with :func:`m4k_rt.timing.analyze` -- the same
 code the recorder and the benchmarks use -- then the Liu-Layland and response-time tests of
@@ -20,6 +21,7 @@ from typing import Any, Iterable, Mapping
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
+from m4k_bridge.hostdrops import HostDropMonitor
 from m4k_msgs.msg import RtStatus, TaskTiming, TimingStats, XddpPort
 from m4k_rt import protocol, timing
 
@@ -131,12 +133,14 @@ class RtMonitor:
         # device -> (last DEVICE_STATUS, bridge rx ns, RT arrival ns = its header stamp)
         self.devices: dict[str, tuple[protocol.DeviceStatus, int, int]] = {}
         self.ports: dict[int, tuple[protocol.PortStats, int]] = {}  # port -> (stats, rx ns)
+        self.host_drops = HostDropMonitor(window_s, stale_s)
 
     def set_window(self, window_s: float) -> None:
         """Change the sliding window (takes effect with the next batch)."""
         self.window_ns = int(window_s * 1e9)
         for t in self.tasks.values():
             t.window_ns = self.window_ns
+        self.host_drops.window_ns = self.window_ns
 
     def _task(self, name: str) -> TaskWindow:
         t = self.tasks.get(name)
@@ -159,6 +163,8 @@ class RtMonitor:
                                             rx_ns if stamp_ns is None else stamp_ns)
         elif kind == protocol.Kind.PORT_STATS:
             self.ports[payload.port] = (payload, rx_ns)
+        elif kind == protocol.Kind.HOST_DROPS:
+            self.host_drops.feed(payload, rx_ns, rx_ns if stamp_ns is None else stamp_ns)
         elif kind == protocol.Kind.TASK_HEALTH:
             self._task(payload.name).health = payload
         elif kind == protocol.Kind.FORBIDDEN_SITE:
@@ -278,6 +284,17 @@ class RtMonitor:
             out.append(make_status('{}: task {}'.format(prefix, t.name), level, msg, values,
                                    hardware_id='m4k_rt'))
         return out
+
+    def host_drop_statuses(self, now_ns: int,
+                           prefix: str = 'm4k_drivers') -> list[DiagnosticStatus]:
+        """Return one ``<prefix>: <device> host drops`` status per device that reported.
+
+        From the driver host's drop counters (HOST_DROPS); :mod:`m4k_bridge.hostdrops`
+        judges them.
+        """
+        return [make_status('{}: {} host drops'.format(prefix, name), level, msg, values,
+                            hardware_id='driver_host')
+                for name, level, msg, values in self.host_drops.levels(now_ns)]
 
     def device_levels(self, now_ns: int) -> Iterable[tuple[str, int, str, dict[str, Any]]]:
         """Yield (device, level, message, values) from the forwarded DEVICE_STATUS reports.

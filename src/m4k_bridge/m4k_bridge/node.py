@@ -629,6 +629,7 @@ class BridgeNode(Node):
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = self._monitor.task_statuses(now)
+        arr.status.extend(self._monitor.host_drop_statuses(now))
         arr.status.extend(_diagnostic(s) for s in statuses)
         arr.status.append(self._safety.status(h.last_odom, h.last_odom_ns, now))
         arr.status.append(self._safety_report.status(now))

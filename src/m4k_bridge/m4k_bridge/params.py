@@ -288,8 +288,9 @@ SPECS: tuple[Field, ...] = (
               'counted (sonar diagnostic).', check=_no_echo),
     ParamSpec('sonar_max_range', 4.5, 'Sonar maximum range [m] (US-100: 4.5 m); must exceed '
               'sonar_min_range.', lo=0.01, hi=20.0, unit='m'),
-    ParamSpec('stats_window', 10.0, 'Sliding window of RT timing samples behind rt_status '
-              '[s].', lo=1.0, hi=600.0, unit='s'),
+    ParamSpec('stats_window', 10.0, 'Sliding window of RT timing samples behind rt_status, '
+              'and of the driver host drops judged in diagnostics [s].', lo=1.0, hi=600.0,
+              unit='s'),
     ParamSpec('rt_status_period', 1.0, 'Publication period of rt_status [s].',
               lo=0.05, hi=60.0, unit='s'),
     ParamSpec('diagnostics_period', 1.0, 'Publication period of diagnostics [s] (REP-107: 1 Hz).',

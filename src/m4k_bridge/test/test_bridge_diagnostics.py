@@ -148,3 +148,58 @@ def test_port_stats_of_a_gone_rt_process_are_kept_unlinked_and_old_ports_dropped
     assert [(x.port, x.linked) for x in ports] == [(1, True)]
     ports = m.port_msgs(9_000_000_000)                                  # now it is gone too
     assert [(x.port, x.linked, x.sent) for x in ports] == [(1, False, 10)]
+
+
+def _drops(device, served, **reasons):
+    counts = [reasons.pop(r, 0) for r in protocol.HOST_DROP_REASONS]
+    assert not reasons
+    return protocol.HostDrops(device, served, *counts)
+
+
+def _host_status(m, now):
+    (st,) = m.host_drop_statuses(now)
+    return st.level, st.message, {kv.key: kv.value for kv in st.values}
+
+
+def test_host_drops_warn_while_a_counter_moved_within_the_window_then_ok():
+    s = 1_000_000_000
+    m = RtMonitor(window_s=10.0, stale_s=3.0)
+    assert m.host_drop_statuses(0) == []          # no report: no status
+    m.feed(protocol.Kind.HOST_DROPS, _drops('motor', 100, inactive=4), 1 * s, 1 * s)
+    level, msg, values = _host_status(m, 1 * s)
+    # counts older than the bridge's first report are not judged as recent
+    assert level == b'\x00' and msg == 'no drops in the last 0.0 s (4 since the host started)'
+    m.feed(protocol.Kind.HOST_DROPS, _drops('motor', 200, inactive=4, stale_host=5,
+                                            stale_device=1), 3 * s, 3 * s)
+    level, msg, values = _host_status(m, 3 * s)
+    assert level == b'\x01'
+    assert msg == '6 dropped in the last 2.0 s (3/s): stale_host 5, stale_device 1'
+    assert (values['window_drops'], values['window_drops_per_s'], values['served']) == (
+        '6', '3', '200')
+    assert (values['stale_host'], values['stale_device'], values['inactive']) == ('5', '1', '4')
+    for t in range(4, 15):                        # quiet for more than the window
+        m.feed(protocol.Kind.HOST_DROPS, _drops('motor', 200 + t, inactive=4, stale_host=5,
+                                                stale_device=1), t * s, t * s)
+    level, msg, values = _host_status(m, 14 * s)
+    assert level == b'\x00' and values['window_drops'] == '0' and values['window_s'] == '10'
+    assert values['stale_host'] == '5'            # the cumulative counts stay
+    level, msg, _ = _host_status(m, 18 * s)       # nothing forwarded for 4 s (> stale_s)
+    assert level == b'\x03' and 'nothing forwarded' in msg
+    # the RT monitor keeps forwarding the host's last report: stale once it is older than
+    # the window (its counts no longer cover it), not before
+    last = _drops('motor', 214, inactive=4, stale_host=5, stale_device=1)
+    m.feed(protocol.Kind.HOST_DROPS, last, 23 * s, 14 * s)
+    assert _host_status(m, 23 * s)[0] == b'\x00'
+    m.feed(protocol.Kind.HOST_DROPS, last, 25 * s, 14 * s)
+    level, msg, _ = _host_status(m, 25 * s)
+    assert level == b'\x03' and msg == 'no drop report from the driver host for 11.0 s'
+
+
+def test_host_drops_of_a_restarted_host_count_from_zero():
+    s = 1_000_000_000
+    m = RtMonitor(window_s=10.0, stale_s=3.0)
+    m.feed(protocol.Kind.HOST_DROPS, _drops('motor', 900, stale_host=40), 1 * s, 1 * s)
+    m.feed(protocol.Kind.HOST_DROPS, _drops('motor', 5, reply_lost=2), 2 * s, 2 * s)
+    level, msg, values = _host_status(m, 2 * s)
+    assert level == b'\x01' and msg.endswith(': reply_lost 2')
+    assert values['window_drops'] == '2' and values['stale_host'] == '0'

@@ -339,6 +339,44 @@ def test_device_status_from_the_monitor_drives_device_diagnostics(harness):
     assert level == b'\x00' and values['source'] == 'data_arrival'
 
 
+def test_host_drops_from_the_monitor_become_one_diagnostic_per_device(harness):
+    diags = harness.collect(DiagnosticArray, 'diagnostics')
+    rt = harness.rt
+    t0 = time.monotonic_ns()
+    sent = {'n': 0}
+
+    def feed():
+        # As the RT monitor forwards them once a second: the motor's host dropped three stale
+        # commands between its first two reports; the LED's never dropped anything.
+        if sent['n'] < 2:
+            now = time.monotonic_ns()
+            stale = 0 if sent['n'] == 0 else 3
+            rt.send('status', protocol.Kind.HOST_DROPS, 'motor', 100 + 50 * sent['n'], stale,
+                    0, 0, 0, 0, 0, 0, stamp=now)
+            rt.send('status', protocol.Kind.HOST_DROPS, 'led', 10, 0, 0, 0, 0, 0, 0, 0,
+                    stamp=now)
+            sent['n'] += 1
+
+    def ready():
+        return any(_statuses(d).get('m4k_drivers: motor host drops', (b'',))[0] == b'\x01'
+                   for d in diags)
+
+    assert harness.spin_until(ready, each=feed)
+    st = [_statuses(d) for d in diags if _statuses(d).get(
+        'm4k_drivers: motor host drops', (b'',))[0] == b'\x01'][-1]
+    level, msg, values = st['m4k_drivers: motor host drops']
+    assert msg.startswith('3 dropped in the last') and msg.endswith(': stale_host 3')
+    assert {k: values[k] for k in ('served', *protocol.HOST_DROP_REASONS, 'window_drops')} == {
+        'served': '150', 'stale_host': '3', 'stale_device': '0', 'malformed': '0',
+        'unexpected': '0', 'inactive': '0', 'encode': '0', 'reply_lost': '0',
+        'window_drops': '3'}
+    assert 0.0 < float(values['window_drops_per_s'])
+    assert float(values['age_s']) <= (time.monotonic_ns() - t0) * 1e-9
+    level, msg, values = st['m4k_drivers: led host drops']
+    assert level == b'\x00' and values['window_drops'] == '0' and values['served'] == '10'
+    assert not harness.bridge.health.counters.get('unexpected_status')
+
+
 def test_rt_restart_is_survived_and_reported(harness):
     odom = harness.collect(Odometry, 'odom')
     rt = harness.rt

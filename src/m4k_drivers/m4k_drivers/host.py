@@ -7,9 +7,10 @@ served -- which datagram kinds it takes, the reply it sends, its stream rate, it
 link-loss behaviour, its ``--print`` line -- is the :class:`m4k_drivers.registry.ServiceSpec`
 its own package registers next to its backends (e.g. :mod:`m4k_drivers.motors.service`); this
 module is the plumbing around those specs and names no device.  It sends DEVICE_STATUS on every
-state change and every second.  When the RT side goes away the host keeps running, relinks,
-and runs the device's link-loss hook (the motors go safe at once).  SIGINT/SIGTERM deactivate
-every device (motors at zero), clean up and exit 0.
+state change and every second, each followed by HOST_DROPS (its drop counters, which the RT
+monitor forwards to the bridge's /diagnostics).  When the RT side goes away the host keeps
+running, relinks, and runs the device's link-loss hook (the motors go safe at once).
+SIGINT/SIGTERM deactivate every device (motors at zero), clean up and exit 0.
 
 Bring-up without an RT process: ``driver_host --device imu --print`` prints decoded readings;
 ``--port``/``--bus`` select a real device path (and the ``real`` backend), e.g.
@@ -55,8 +56,8 @@ DEVICE_MODULES_ENV = 'M4K_DEVICE_MODULES'
 # inactive     a command for a device not ACTIVE (bring-up pending, error, deactivated);
 # encode       a reply the wire cannot carry;  reply_lost  a reply the link did not take.
 # Queue overflow and no-peer drops on the way in are counted by the RT side's PORT_STATS.
-DROP_REASONS = ('stale_host', 'stale_device', 'malformed', 'unexpected', 'inactive', 'encode',
-                'reply_lost')
+# The list itself is the HOST_DROPS datagram's (the wire carries every counter, in this order).
+DROP_REASONS = protocol.HOST_DROP_REASONS
 
 
 def load_raw_config(path: str | None = None, overlay: str | None = None) -> dict[str, Any]:
@@ -112,6 +113,10 @@ class DeviceService:
         self._attempt = 0
         self._lost_seen = 0
         self._links_seen = 0
+        # A no-peer episode (no RT process: start-up, rt_core restarting): when it began
+        # (monotonic s; None = not in one) and the replies it lost.
+        self._no_peer_since: float | None = None
+        self._no_peer_lost = 0
         self.thread = threading.Thread(target=self.run, name=f'm4k-{kind}', daemon=True)
 
     # -- drop counters --------------------------------------------------------------------
@@ -156,9 +161,30 @@ class DeviceService:
         self.seq = (self.seq + 1) & 0xFFFFFFFF
         stamp = time.monotonic_ns() if stamp_ns is None else stamp_ns
         if self.link.write(protocol.encode(kind, self.seq, stamp, *fields)):
+            if self._no_peer_since is not None:
+                self._end_no_peer('linked')
             return True
         self.drops['reply_lost'] += 1
+        if not self.link.linked:
+            self._lost_without_peer()
         return False
+
+    def _lost_without_peer(self) -> None:
+        # Expected while no RT process runs: one line when the episode starts and one when it
+        # ends, not the drop line every status period.  Still counted in reply_lost.
+        if self._no_peer_since is None:
+            self._no_peer_since = time.monotonic()
+            self._no_peer_lost = 0
+            LOG.warning('%s: no RT peer: replies are not delivered (counted as reply_lost) '
+                        'until it links', self.handler.name)
+        self._no_peer_lost += 1
+        self._drops_logged['reply_lost'] += 1      # told by the episode's lines instead
+
+    def _end_no_peer(self, how: str) -> None:
+        assert self._no_peer_since is not None
+        LOG.warning('%s: RT peer %s after %.1f s without one: %d replies lost', self.handler.name,
+                    how, time.monotonic() - self._no_peer_since, self._no_peer_lost)
+        self._no_peer_since = None
 
     def _send_status(self, force: bool = False) -> None:
         h = self.handler
@@ -171,6 +197,7 @@ class DeviceService:
         self._log_drops()
         self.send(protocol.Kind.DEVICE_STATUS, h.name[:16], int(h.state), h.status_level(),
                   h.faults & 0xFFFFFFFF, int(h.last_error))
+        self.send(protocol.Kind.HOST_DROPS, h.name[:16], self.served, *self.drops.values())
 
     def _bring_up(self) -> None:
         """Configure + activate when due; on failure schedule the next try with backoff."""
@@ -236,6 +263,8 @@ class DeviceService:
         finally:
             h.shutdown()
             self.link.close()
+            if self._no_peer_since is not None:
+                self._end_no_peer('still absent at exit')
             LOG.info('%s at exit', self.drop_line())
 
     def _on_link_lost(self) -> None:

@@ -38,6 +38,7 @@ class _Motor(DeviceHandler):
 class _Link:
     def __init__(self) -> None:
         self.accept = True
+        self.linked = True          # a peer that refuses (a full socket), not no peer
         self.sent: list[bytes] = []
 
     def write(self, data: bytes) -> bool:

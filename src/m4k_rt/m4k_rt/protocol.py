@@ -266,6 +266,7 @@ class Kind(IntEnum):
     APPLIED_VELOCITY = 16
     SET_POSE = 17
     FAULT_RESET = 18
+    HOST_DROPS = 19
     # Sent by the RT monitor (FORBIDDEN_SITE, TASK_HEALTH on `stat` only, SAFETY_STATUS on
     # `status`; docs/internals.md); numbered apart from the kinds above since they were
     # introduced as an extension.
@@ -459,6 +460,32 @@ class PortStats(NamedTuple):
     peer_restarts: int
 
 
+class HostDrops(NamedTuple):
+    """What the driver host did with one device's datagrams from the RT side (cumulative).
+
+    ``served`` datagrams reached the device; every other field counts one drop reason
+    (:data:`HOST_DROP_REASONS`, m4k_drivers.host): ``stale_host``/``stale_device`` older than
+    the device's max age (the host was not scheduled / the last device transaction kept it),
+    ``malformed``, ``unexpected`` (a kind the device does not take), ``inactive`` (device not
+    ACTIVE), ``encode`` (a reply the wire cannot carry), ``reply_lost`` (a reply the link did
+    not take).  The counters start at 0 with each host process.
+    """
+
+    device: str
+    served: int
+    stale_host: int
+    stale_device: int
+    malformed: int
+    unexpected: int
+    inactive: int
+    encode: int
+    reply_lost: int
+
+
+# The one list of the driver host's drop reasons: HOST_DROPS's counter fields, in wire order.
+HOST_DROP_REASONS: tuple[str, ...] = HostDrops._fields[2:]
+
+
 class EStop(NamedTuple):
     """Emergency stop request: ``engage`` 1 latches the stop in the RT actuator, 0 releases it."""
 
@@ -608,6 +635,7 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.APPLIED_VELOCITY, 'dd', AppliedVelocity, (0, 2)),
     _spec(Kind.SET_POSE, 'Iddd', SetPose, (1, 4)),
     _spec(Kind.FAULT_RESET, 'IB', FaultReset, ranges=((1, 0, 1),)),
+    _spec(Kind.HOST_DROPS, '16s8Q', HostDrops, string=NAME_SIZE),
     _spec(Kind.SAFETY_STATUS, 'ddddddddIII', SafetyStatus, (0, 8)),
     _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
           ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,

@@ -49,6 +49,7 @@ FIELDS = {
     Kind.APPLIED_VELOCITY: st.tuples(F64, F64),
     Kind.SET_POSE: st.tuples(U32, F64, F64, F64),
     Kind.FAULT_RESET: st.tuples(U32, st.integers(0, 1)),
+    Kind.HOST_DROPS: st.tuples(NAME, *[U64] * 8),
     Kind.SAFETY_STATUS: st.tuples(F64, F64, F64, F64, F64, F64, F64, F64, U32, U32, U32),
     Kind.FORBIDDEN_SITE: st.tuples(NAME, U8, st.sampled_from(sorted(p.EVENT_CODES)), U32, U32,
                                    U32, FILE, FUNC),
@@ -62,7 +63,8 @@ PAYLOAD_TYPES = {
     Kind.REQUEST: p.Request, Kind.RT_STATUS: p.RtStatus, Kind.DEVICE_STATUS: p.DeviceStatus,
     Kind.PORT_STATS: p.PortStats, Kind.E_STOP: p.EStop, Kind.ODOM_RESET: p.OdomReset,
     Kind.APPLIED_VELOCITY: p.AppliedVelocity, Kind.SET_POSE: p.SetPose,
-    Kind.FAULT_RESET: p.FaultReset, Kind.SAFETY_STATUS: p.SafetyStatus,
+    Kind.FAULT_RESET: p.FaultReset, Kind.HOST_DROPS: p.HostDrops,
+    Kind.SAFETY_STATUS: p.SafetyStatus,
     Kind.FORBIDDEN_SITE: p.ForbiddenSite, Kind.TASK_HEALTH: p.TaskHealth,
 }
 
@@ -89,6 +91,7 @@ EXAMPLES = {
     Kind.APPLIED_VELOCITY: (0.25, -0.5),
     Kind.SET_POSE: (7, 1.5, -2.0, 0.75),
     Kind.FAULT_RESET: (3, 1),
+    Kind.HOST_DROPS: ('motor', 9_990, 7, 1, 0, 2, 0, 0, 2 ** 64 - 1),
     Kind.SAFETY_STATUS: (2.0, 3.2, 0.48, 1.5, 0.35, 0.49, 0.0, 0.1, 0x7, 0, 0),
     Kind.FORBIDDEN_SITE: ('led', 2, 'open', 311, 42, 400, '/x/led_body.py', 'cycle'),
     Kind.TASK_HEALTH: ('imu', 1, 3, 2, 1, 0, 4, 0, 1, 85, 17),

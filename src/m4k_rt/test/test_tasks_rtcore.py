@@ -204,6 +204,48 @@ def test_monitor_forwards_each_device_status_and_marks_a_silent_one_stale(procs,
     assert p.Kind.DEVICE_STATUS in kinds[:last]
 
 
+def test_monitor_forwards_each_hosts_drop_counters_on_status_and_stat(procs, tmp_path, peers):
+    """HOST_DROPS from the driver host's side of two device ports reaches the bridge's port
+    and rt_stat's, renamed to the RT-side device and stamped with its arrival; the device
+    tasks take it as one of their kinds (not ``unexpected``)."""
+    proc = _start_fast(procs, tmp_path, {}, {})
+    link = peers('status', 'stat', 'motor', 'led')
+    t0 = monotonic_ns()
+
+    def host_reports():                      # every cycle of the test loop (20 ms)
+        link.write('motor', p.Kind.HOST_DROPS, 'motor-left', 9_990, 7, 1, 0, 2, 0, 0, 3)
+        link.write('led', p.Kind.HOST_DROPS, 'led', 50, 0, 0, 1, 0, 0, 0, 0)
+        link.read_all('motor')
+        link.read_all('led')
+
+    def drops(got):
+        return {m.device: (h, m) for h, m in got if h.kind == p.Kind.HOST_DROPS}
+
+    got = _status_until(link, lambda got: len(drops(got)) == 2, 10, 'both forwarded',
+                        host_reports)
+    stat = []
+    deadline = time.monotonic() + 10
+    while len(drops(stat)) < 2:
+        assert time.monotonic() < deadline, 'HOST_DROPS not on stat'
+        host_reports()
+        stat += link.read_all('stat')
+        time.sleep(0.02)
+    health = []
+    while not any(h.kind == p.Kind.TASK_HEALTH and m.name == 'actuator' for h, m in health):
+        assert time.monotonic() < deadline + 10, 'no actuator TASK_HEALTH'
+        host_reports()
+        health += link.read_all('stat')
+        time.sleep(0.02)
+    procs.stop(proc)
+    for where in (got, stat):
+        (hm, motor), (hl, led) = drops(where)['motor'], drops(where)['led']
+        assert motor == p.HostDrops('motor', 9_990, 7, 1, 0, 2, 0, 0, 3)
+        assert led == p.HostDrops('led', 50, 0, 0, 1, 0, 0, 0, 0)
+        assert t0 <= hm.stamp_ns <= monotonic_ns() and t0 <= hl.stamp_ns <= monotonic_ns()
+    unexpected = {m.name: m.unexpected for h, m in health if h.kind == p.Kind.TASK_HEALTH}
+    assert unexpected['actuator'] == 0 and unexpected['led'] == 0
+
+
 def test_monitor_rejects_a_bad_device_stale_time(procs, tmp_path, m4k_runtime_dir):
     proc = _start_fast(procs, tmp_path, {}, {'device_stale_s': -1})
     _, err = proc.communicate(timeout=30)

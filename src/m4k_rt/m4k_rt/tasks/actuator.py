@@ -69,6 +69,7 @@ WEAKEN_ENV = 'M4K_TEST_GUARD_WEAKEN_M'
 _VELOCITY_CMD = Kind.VELOCITY_CMD
 _ENCODERS = Kind.ENCODERS
 _DEVICE_STATUS = Kind.DEVICE_STATUS
+_HOST_DROPS = Kind.HOST_DROPS
 _WHEEL_CMD = Kind.WHEEL_CMD
 _ODOMETRY = Kind.ODOMETRY
 _E_STOP = Kind.E_STOP
@@ -312,6 +313,8 @@ class ActuatorBody:
                              hdr.seq)
             elif hdr.kind == _DEVICE_STATUS:
                 state.record_device_status('motor', msg, now)
+            elif hdr.kind == _HOST_DROPS:
+                state.record_host_drops('motor', msg, now)
             else:
                 self.unexpected += 1
         odom = ctl.odom

@@ -24,6 +24,7 @@ __all__ = ['ImuBody', 'make_imu']
 
 _IMU = Kind.IMU
 _DEVICE_STATUS = Kind.DEVICE_STATUS
+_HOST_DROPS = Kind.HOST_DROPS
 _REQUEST = Kind.REQUEST
 _IMU_OK = int(ImuStatus.OK)
 
@@ -68,6 +69,8 @@ class ImuBody(DeviceTaskBody):
                     gz = math.nan     # a sample the driver flags: no yaw rate for supervision
             elif kind == _DEVICE_STATUS:
                 self.state.record_device_status('imu', got[1], now)
+            elif kind == _HOST_DROPS:
+                self.state.record_host_drops('imu', got[1], now)
             else:
                 self.unexpected += 1
         if n:

@@ -58,6 +58,7 @@ ECHO_EVERY_NS = 1_000_000_000
 
 _LED = Kind.LED
 _DEVICE_STATUS = Kind.DEVICE_STATUS
+_HOST_DROPS = Kind.HOST_DROPS
 
 
 class LedBody:
@@ -121,6 +122,8 @@ class LedBody:
         while (got := reader.next()) is not None:
             if got[0].kind == _DEVICE_STATUS:
                 self.state.record_device_status('led', got[1], now)
+            elif got[0].kind == _HOST_DROPS:
+                self.state.record_host_drops('led', got[1], now)
             else:
                 self.unexpected += 1
         override = self.override

@@ -48,9 +48,10 @@ class StatsShipper:
     FORBIDDEN_SITE on ports flagged ``extra`` (the ``stat`` port), then -- on the other ports
     (``status``) -- one DEVICE_STATUS per device that ever reported (its last report, level
     STALE when older than ``device_stale_ns``, stamped with its arrival time) and one
-    PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then
-    RT_STATUS, which closes a batch. Nothing is encoded when no port has a peer; cursors move
-    on regardless.
+    PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then --
+    on every port -- one HOST_DROPS per device whose driver host ever sent one (its last
+    counters, stamped with their arrival), then RT_STATUS, which closes a batch. Nothing is
+    encoded when no port has a peer; cursors move on regardless.
     """
 
     def __init__(self, shared: MonitorShared, ports: Sequence[tuple[Any, bool]],
@@ -63,6 +64,7 @@ class StatsShipper:
         # (device name as bytes, RobotState attribute of its report, attribute of its arrival)
         self._devices = [(name.encode(), status, rx)
                          for name, (status, rx) in DEVICE_SLOTS.items()]
+        self._drop_names = [(name, name.encode()) for name in DEVICE_SLOTS]
         per = (max_datagram - protocol.encoded_size(protocol.Kind.TASK_STATS, 0)) \
             // protocol.TASK_STATS_SAMPLE.size
         self.batch = max(1, min(batch, per, protocol.MAX_STATS_SAMPLES))
@@ -121,6 +123,25 @@ class StatsShipper:
             size = protocol.encode_into(buf, 0, protocol.Kind.DEVICE_STATUS, self.seq, rx,
                                         name, d.state, level, d.faults, d.last_error)
             self._send(size, _TO_STATUS)
+
+    def _ship_host_drops(self) -> None:
+        """Forward each device's last HOST_DROPS on every port, stamped with its arrival.
+
+        Both consumers want them: the bridge's diagnostics and ``rt_stat``'s drop table.
+        """
+        robot = self._robot
+        if robot is None:
+            return
+        buf = self._buf
+        drops = robot.host_drops
+        for name, wire_name in self._drop_names:
+            got = drops.get(name)
+            if got is None:
+                continue                   # that device's host never reported (or is older)
+            d, rx = got
+            size = protocol.encode_into(buf, 0, protocol.Kind.HOST_DROPS, self.seq, rx,
+                                        wire_name, *d[1:])
+            self._send(size, _TO_ALL)
 
     def _ship_ports(self, now: int) -> None:
         """Send every port's RT-side counters as one PORT_STATS each on ``status``."""
@@ -219,6 +240,8 @@ class StatsShipper:
         if status_linked:
             self._ship_devices(now)
             self._ship_ports(now)
+        if any(linked):
+            self._ship_host_drops()
         if any(linked):
             h = self.shared.hardening
             flags = ((protocol.RT_FLAG_GC_FROZEN if h.gc_frozen else 0)

@@ -30,6 +30,7 @@ from m4k_rt.tasks.interfaces import CycleContext, RtPort
 __all__ = ['DRAIN_MAX', 'DeviceTaskBody', 'PortReader', 'PortWriter']
 
 _DEVICE_STATUS = Kind.DEVICE_STATUS
+_HOST_DROPS = Kind.HOST_DROPS
 _REQUEST = Kind.REQUEST
 
 # Upper bound of datagrams one body reads from one port per cycle: a flooding peer costs a
@@ -233,6 +234,8 @@ class DeviceTaskBody:
                 self._on_reading(hdr, msg, now)
             elif hdr.kind == _DEVICE_STATUS:
                 self.state.record_device_status(device, msg, now)
+            elif hdr.kind == _HOST_DROPS:
+                self.state.record_host_drops(device, msg, now)
             else:
                 self.unexpected += 1
         self.unexpected += self._out_in.discard()   # the bridge only reads this port

@@ -41,7 +41,7 @@ import math
 from typing import Any
 
 from m4k_rt.control.base import MODE_FAULT
-from m4k_rt.protocol import DeviceStatus, LEVEL_OK, SONAR_OK
+from m4k_rt.protocol import DeviceStatus, HostDrops, LEVEL_OK, SONAR_OK
 
 __all__ = ['DEVICE_SLOTS', 'RobotState', 'robot_state']
 
@@ -68,7 +68,7 @@ class RobotState:
         'led_override', 'led_level',
         'motor_status', 'motor_status_rx_ns', 'imu_status', 'imu_status_rx_ns',
         'led_status', 'led_status_rx_ns', 'sonar_device', 'sonar_device_rx_ns',
-        'lrf_status', 'lrf_status_rx_ns',
+        'lrf_status', 'lrf_status_rx_ns', 'host_drops',
     )
 
     def __init__(self) -> None:
@@ -119,6 +119,8 @@ class RobotState:
         self.sonar_device_rx_ns = 0
         self.lrf_status: DeviceStatus | None = None
         self.lrf_status_rx_ns = 0
+        # last HOST_DROPS per device (DEVICE_SLOTS name) and its arrival (writer: its task)
+        self.host_drops: dict[str, tuple[HostDrops, int]] = {}
 
     def record_device_status(self, device: str, msg: DeviceStatus, now_ns: int) -> None:
         """Keep ``device``'s latest DEVICE_STATUS (called only by that device's own task).
@@ -130,6 +132,13 @@ class RobotState:
         setattr(self, device + '_level', msg.level)
         setattr(self, status_attr, msg)
         setattr(self, rx_attr, now_ns)
+
+    def record_host_drops(self, device: str, msg: HostDrops, now_ns: int) -> None:
+        """Keep the driver host's latest drop counters for ``device`` (its own task only).
+
+        Arrives with DEVICE_STATUS, about once a second: the tuple is the only allocation.
+        """
+        self.host_drops[device] = (msg, now_ns)
 
     def set_guard_plan(self, plan: Any) -> None:
         """Keep the guard's start-up plan (the actuator, at build time) for the monitor."""
