@@ -186,6 +186,8 @@ def test_record_killed_with_sigkill_leaves_a_bag_that_independent_readers_open(
                        timeout=60)
     assert r.returncode == 0, r.stderr
     assert not partial.exists() and (out / 'crash_0.mcap').is_file()
+    with open(out / 'crash_0.mcap', 'rb') as f:          # and indexed now
+        assert make_reader(f).get_summary().chunk_indexes
     after = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert {t['topic_metadata']['name']: t['message_count']
             for t in after['topics_with_message_count']} == in_file

@@ -167,6 +167,27 @@ def test_the_commit_is_an_mcap_metadata_record_listed_in_the_summary(tmp_path):
     assert [(m.name, m.metadata) for m in meta] == [('m4k', {'m4k.commit': 'abc123'})]
 
 
+def test_the_chunk_index_is_written_by_the_last_sync_and_partial_files_read_linearly(
+        tmp_path):
+    w = bw.BagWriter(str(tmp_path / 'p'))
+    cid = w.add_topic('/a', 'std_msgs/msg/String', 'string data\n', '', [], '')
+    for i in range(30):
+        w.write(cid, 1000 + i, HI, i)
+        if i % 10 == 9:
+            w.sync()
+    spec = _SpecReader(w.path)                    # the running (or crashed) partial file
+    assert spec.chunk_indexes == [] and 0x08 not in spec.groups
+    with open(w.path, 'rb') as f:
+        reader = make_reader(f)
+        assert reader.get_summary().statistics.chunk_count == 3
+        assert [m.log_time for _, _, m in reader.iter_messages()] == list(range(1000, 1030))
+    w.close()
+    spec = _SpecReader(w.path)
+    assert len(spec.chunk_indexes) == 3
+    assert sorted(t for ci in spec.chunk_indexes for _, t, _ in spec.messages(ci)) == \
+        list(range(1000, 1030))
+
+
 def test_an_empty_bag_has_no_chunk_and_stays_readable(tmp_path):
     w = bw.BagWriter(str(tmp_path / 'e'))
     w.close()

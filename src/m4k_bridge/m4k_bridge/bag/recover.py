@@ -15,7 +15,7 @@ import struct
 from typing import Any, Iterator
 
 from mcap.exceptions import McapError
-from mcap.records import Channel, Footer, Header, Message, Schema
+from mcap.records import Channel, ChunkIndex, Footer, Header, Message, Schema, Statistics
 from mcap.stream_reader import StreamReader
 import yaml
 
@@ -102,6 +102,7 @@ def _repair(directory: str, file_name: str) -> Recovery:
     header = None
     complete = False
     end = 0
+    chunks = indexed = 0                # Statistics' chunk count; chunk indexes in the summary
     by_id: dict[int, int] = {}
     for rec, pos in _records(path):
         if isinstance(rec, Header):
@@ -113,6 +114,10 @@ def _repair(directory: str, file_name: str) -> Recovery:
         elif isinstance(rec, Message) and rec.channel_id in channels:
             count += 1
             by_id[rec.channel_id] = by_id.get(rec.channel_id, 0) + 1
+        elif isinstance(rec, Statistics):
+            chunks = rec.chunk_count
+        elif isinstance(rec, ChunkIndex):
+            indexed += 1
         elif isinstance(rec, Footer):
             complete = True
         if not complete:
@@ -136,7 +141,10 @@ def _repair(directory: str, file_name: str) -> Recovery:
     stale = meta_path + '.tmp'          # a sync's metadata that a crash kept from its rename
     if os.path.exists(stale):
         os.unlink(stale)
-    if complete and listed == by_topic and old.get('message_count') == count:
+    # A partial file's syncs left the chunk indexes out (the last sync writes them): rewrite it
+    # so that it is indexed.
+    if complete and indexed == chunks and listed == by_topic and \
+            old.get('message_count') == count:
         return Recovery(count, by_topic, True, False, 0)
     # Rewrite into a sibling directory, then swap the files in (each rename is atomic).
     tmp_dir = os.path.join(directory, '.recover')

@@ -18,10 +18,13 @@ Used by the recorder (:mod:`m4k_bridge.bag.record`) and the flight recorder's du
   one sync period. (That in-place rewrite is why the name changes only at the end: a crash
   inside the ``pwrite`` can tear the partial file, never the final one.)
 * Messages go into uncompressed chunks of at most :data:`CHUNK_BYTES` (one per sync at least),
-  each followed by a message index per channel, and the summary lists a chunk index per chunk
-  (MCAP specification, "Chunk Index"): a seeking reader (Lichtblick, Foxglove, rosbag2's MCAP
-  plugin, the ``mcap`` readers) goes straight to the chunks of a time range instead of reading
-  the whole file, and Lichtblick opens files over 1 GiB only when they are indexed.
+  each followed by a message index per channel, and the last sync's summary lists a chunk
+  index per chunk (MCAP specification, "Chunk Index"): a seeking reader (Lichtblick, Foxglove,
+  rosbag2's MCAP plugin, the ``mcap`` readers) goes straight to the chunks of a time range
+  instead of reading the whole file, and Lichtblick opens files over 1 GiB only when they are
+  indexed. The syncs before it write the summary without the chunk indexes (a list that grows
+  a chunk a second, rewritten each second, would make a long recording's cost quadratic):
+  a seeking reader reads such a partial file linearly, and ``record --recover`` indexes it.
 * ``metadata.yaml`` (rosbag2 format 9) is written at the start and at each sync, with the
   counts and times of exactly the messages synced, atomically: the new text is fsynced under a
   temporary name before the MCAP grows and renamed over the old one after the MCAP's
@@ -289,7 +292,7 @@ class BagWriter:
         self._pending_chunk_indexes.append(index)
         self._chunk = _OpenChunk()
 
-    def _trailer(self, data_end: int) -> bytes:
+    def _trailer(self, data_end: int, indexed: bool) -> bytes:
         stats = Statistics(
             message_count=sum(self._counts.values()), schema_count=len(self._schemas),
             channel_count=len(self._channels), attachment_count=0,
@@ -302,7 +305,8 @@ class BagWriter:
             (Opcode.SCHEMA, b''.join(_record(s) for s in self._schemas.values())),
             (Opcode.CHANNEL, b''.join(_record(c) for c in self._channels.values())),
             (Opcode.STATISTICS, _record(stats)),
-            (Opcode.CHUNK_INDEX, b''.join(_record(c) for c in self._chunk_indexes)),
+            (Opcode.CHUNK_INDEX,
+             b''.join(_record(c) for c in self._chunk_indexes) if indexed else b''),
             (Opcode.METADATA_INDEX, b''.join(_record(m) for m in self._metadata_indexes))]
         summary = bytearray()
         offsets = bytearray()
@@ -321,8 +325,13 @@ class BagWriter:
                                 summary_crc=crc))
         return head + bytes(summary) + footer + MAGIC
 
-    def sync(self) -> None:
-        """Write the buffered records and a new trailer, fsync, then update metadata.yaml."""
+    def sync(self, indexed: bool = False) -> None:
+        """Write the buffered records and a new trailer, fsync, then update metadata.yaml.
+
+        ``indexed``: the trailer's summary lists the chunk indexes (the last sync does). The
+        others leave them out: the list grows by one chunk a sync, and rewriting it every
+        second would cost an hour's recording about 400 KiB a second by its end.
+        """
         if self._closed:
             return
         self._close_chunk()           # every sync ends the chunk: each sync is indexed
@@ -338,7 +347,7 @@ class BagWriter:
         self._pending_chunk_indexes = []
         data = bytes(self._pending)
         self._pending = bytearray()
-        blob = data + self._trailer(self._data_end + len(data))
+        blob = data + self._trailer(self._data_end + len(data), indexed)
         for t in self._topics.values():
             t.record.count = self._counts.get(t.channel_id, 0)
         meta = os.path.join(self.work_directory, METADATA)
@@ -372,7 +381,7 @@ class BagWriter:
         if self._closed:
             return
         try:
-            self.sync()
+            self.sync(indexed=True)
         finally:
             self._closed = True
             os.close(self._fd)
