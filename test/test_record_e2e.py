@@ -122,6 +122,17 @@ def test_record_refuses_an_existing_output_directory(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ['earlier_0.mcap']
 
 
+def test_record_refuses_a_name_whose_partial_exists(tmp_path):
+    crashed = tmp_path / 'run.partial'           # what a crashed recording of 'run' leaves
+    crashed.mkdir()
+    r = subprocess.run([sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
+                        str(tmp_path / 'run')], env=stack_env(str(tmp_path / 'rt')),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert str(crashed) in r.stderr and '--recover' in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != 'rt') == ['run.partial']
+
+
 def _mcap_counts(path):
     """Messages per topic in the MCAP, read linearly by the mcap package's streaming reader."""
     counts = {}
