@@ -77,8 +77,14 @@ def test_demo_reaches_the_goal_around_the_obstacle_without_contact(procs, tmp_pa
     assert 'PASS' in report and 'Fig. 9' in report
 
     # The run is also recorded as MCAP (m4k_bridge.bag.record): the planner's commands and odom.
+    # It is indexed, and names the same commit as summary.json (one lookup for both).
     with open(run / 'bag' / 'bag_0.mcap', 'rb') as f:
-        summary = make_reader(f).get_summary()
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
     counts = {ch.topic: summary.statistics.channel_message_counts.get(cid, 0)
               for cid, ch in summary.channels.items()}
     assert counts.get('/odom', 0) > 100 and counts.get('/cmd_vel', 0) > 100, counts
+    assert summary.chunk_indexes and not (run / 'bag.partial').exists()
+    prov = json.loads((run / 'summary.json').read_text())['provenance']
+    assert meta['m4k']['m4k.commit'] == prov['commit'] + ('-dirty' if prov['dirty'] else '')

@@ -112,12 +112,17 @@ def test_an_e_stop_dumps_the_seconds_before_it_with_the_trigger_in_metadata(
     assert not any('E_STOP' in m for t, m in flags if t < trigger_ns - 200_000_000)
     assert any('E_STOP' in m for t, m in flags if t > trigger_ns)
 
-    # The mcap package reads the same file on its own, with mcap-ros2-support's decoder.
+    # The mcap package reads the same file on its own, with mcap-ros2-support's decoder,
+    # through the dump's chunk indexes; the MCAP file names the commit too.
     mcap = os.path.join(path, os.path.basename(path) + '_0.mcap')
     with open(mcap, 'rb') as f:
-        got = [m for _, _, _, m in make_reader(f, decoder_factories=[DecoderFactory()])
-               .iter_decoded_messages(topics=['/e_stop'])]
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_summary().chunk_indexes
+        got = [m for _, _, _, m in reader.iter_decoded_messages(topics=['/e_stop'])]
+        mcap_meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert [m.data for m in got] == [True]
+    assert mcap_meta['m4k']['m4k.commit'] == cd['m4k.commit']
+    assert not os.path.exists(path + '.partial')          # renamed once whole
 
 
 SMALL_RING = {'m4k_bridge': {'ros__parameters': {'flight_recorder': {'max_bytes': 65536}}}}

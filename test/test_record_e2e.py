@@ -1,13 +1,16 @@
 """record: an MCAP recording of the running stack, read back with independent decoders.
 
-Also: a recorder killed with SIGKILL leaves a bag that the ``mcap`` package and rosbags open
-as it is (each with its own parser and CDR decoder), and an existing ``-o`` is refused.
+Also: a recorder killed with SIGKILL leaves nothing under the name it was given, and a bag
+under that name with ``.partial`` appended that the ``mcap`` package and rosbags open as it is
+(each with its own parser and CDR decoder) and that ``--recover`` names; an existing ``-o`` is
+refused. A finished recording is indexed (chunk indexes in its summary) and names the commit.
 
 The file is read with the ``mcap`` reader and decoded by mcap-ros2-support's decoder (its own
 CDR parser driven by the schema text in the file), not by the recorder's code or rclpy: a wrong
 or incomplete ``ros2msg`` schema, or bytes that are not the messages, fail the decode.
 """
 
+import os
 import signal
 import subprocess
 import sys
@@ -45,12 +48,20 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
     rec.send_signal(signal.SIGTERM)
     assert rec.wait(20) == 0, err.read_text()[-2000:]
     path = out / 'run1_0.mcap'
+    assert out.is_dir() and not (tmp_path / 'run1.partial').exists()   # renamed when done
+    head = subprocess.run(['git', 'rev-parse', 'HEAD'], capture_output=True, text=True,
+                          cwd=os.path.dirname(__file__), check=True).stdout.strip()
     counts, decoded, hashes = {}, {}, {}
     with open(path, 'rb') as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         header = reader.get_header()
         assert header.profile == 'ros2'
         summary = reader.get_summary()
+        # Indexed: the summary's chunk indexes cover every message (Lichtblick seeks by them).
+        assert summary.chunk_indexes and summary.statistics.chunk_count == len(
+            summary.chunk_indexes)
+        commits = [m.metadata['m4k.commit'] for m in reader.iter_metadata() if m.name == 'm4k']
+        assert len(commits) == 1 and commits[0].split('-')[0] == head
         for ch in summary.channels.values():
             hashes[ch.topic] = ch.metadata.get('topic_type_hash', '')
             schema = summary.schemas[ch.schema_id]
@@ -79,6 +90,7 @@ def test_record_writes_mcap_that_an_independent_decoder_reads(stack, procs,  # n
     # The directory is a rosbag2 bag: metadata.yaml (format 9) agrees with the MCAP file.
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['version'] == 9 and meta['storage_identifier'] == 'mcap'
+    assert meta['custom_data']['m4k.commit'] == commits[0]
     assert meta['relative_file_paths'] == ['run1_0.mcap'] == [f['path'] for f in meta['files']]
     by_id = {ch.id: ch.topic for ch in summary.channels.values()}
     in_file = {by_id[i]: n for i, n in summary.statistics.channel_message_counts.items()}
@@ -110,6 +122,17 @@ def test_record_refuses_an_existing_output_directory(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ['earlier_0.mcap']
 
 
+def test_record_refuses_a_name_whose_partial_exists(tmp_path):
+    crashed = tmp_path / 'run.partial'           # what a crashed recording of 'run' leaves
+    crashed.mkdir()
+    r = subprocess.run([sys.executable, '-m', 'm4k_bridge.bag.record', '-o',
+                        str(tmp_path / 'run')], env=stack_env(str(tmp_path / 'rt')),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert str(crashed) in r.stderr and '--recover' in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != 'rt') == ['run.partial']
+
+
 def _mcap_counts(path):
     """Messages per topic in the MCAP, read linearly by the mcap package's streaming reader."""
     counts = {}
@@ -134,8 +157,12 @@ def test_record_killed_with_sigkill_leaves_a_bag_that_independent_readers_open(
     user.spin_for(5.0)
     rec.send_signal(signal.SIGKILL)
     assert rec.wait(20) == -signal.SIGKILL
-    path = out / 'crash_0.mcap'
-    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    # Nothing under the name asked for: the cut-off recording says so in its own name.
+    assert not out.exists()
+    partial = tmp_path / 'crash.partial'
+    path = partial / 'crash_0.mcap'
+    meta = yaml.safe_load((partial / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']
     assert meta['version'] == 9 and meta['relative_file_paths'] == ['crash_0.mcap']
     listed = {t['topic_metadata']['name']: t['message_count']
               for t in meta['topics_with_message_count']}
@@ -156,18 +183,22 @@ def test_record_killed_with_sigkill_leaves_a_bag_that_independent_readers_open(
     assert all(listed[t] <= in_file[t] for t in listed), (listed, in_file)
     # 2. rosbags opens the directory (metadata.yaml + MCAP) and its own CDR decoder reads it.
     store = get_typestore(Stores.ROS2_JAZZY)
-    with Reader(out) as bag:
+    with Reader(partial) as bag:
         conns = [c for c in bag.connections if c.topic == '/odom']
         assert conns and conns[0].msgtype == 'nav_msgs/msg/Odometry'
         decoded = [store.deserialize_cdr(raw, conns[0].msgtype)
                    for _, _, raw in bag.messages(connections=conns)]
     assert len(decoded) == len(odoms)
     assert decoded[-1].child_frame_id == 'base_footprint'
-    # 3. --recover: a bag as the crash left it needs nothing, or only the metadata catching up.
+    # 3. --recover: a bag as the crash left it needs nothing, or only the metadata catching up;
+    # either way it gets the name asked for.
     r = subprocess.run([sys.executable, '-m', 'm4k_bridge.bag.record', '--recover', str(out)],
                        env=stack_env(m4k_runtime_dir), capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0, r.stderr
+    assert not partial.exists() and (out / 'crash_0.mcap').is_file()
+    with open(out / 'crash_0.mcap', 'rb') as f:          # and indexed now
+        assert make_reader(f).get_summary().chunk_indexes
     after = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert {t['topic_metadata']['name']: t['message_count']
             for t in after['topics_with_message_count']} == in_file

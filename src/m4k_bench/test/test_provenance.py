@@ -23,7 +23,7 @@ def test_provenance_names_the_checkout_commit_and_the_machine_without_its_name()
 
 def test_outside_a_checkout_the_commit_is_unknown_not_guessed(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(provenance.os.path, 'realpath', lambda p: str(tmp_path / 'x.py'))
+    monkeypatch.setattr(os.path, 'realpath', lambda p: str(tmp_path / 'x.py'))
     monkeypatch.setenv('GIT_CEILING_DIRECTORIES', str(tmp_path.parent))
     assert provenance.commit(str(tmp_path)) == {'commit': None, 'dirty': None}
     assert 'commit unknown on ' in provenance.text({**provenance.provenance(str(tmp_path)),

@@ -39,7 +39,7 @@ import time
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError, type_hash
-from m4k_bridge.bag.writer import BagError, BagWriter
+from m4k_bridge.bag.writer import BagError, BagWriter, partial_directory
 from m4k_bridge.flightrec_store import prune
 from m4k_rt import protocol, timing
 
@@ -325,7 +325,7 @@ class Dumper:
         base = os.path.join(self.directory, 'flight_{}_{}'.format(_stamp(trigger.wall_ns),
                                                                   trigger.kind))
         path, n = base, 1
-        while os.path.lexists(path):
+        while os.path.lexists(path) or os.path.lexists(partial_directory(path)):
             n += 1
             path = '{}-{}'.format(base, n)
         custom = {
@@ -341,7 +341,10 @@ class Dumper:
             **self.provenance,
         }
         os.makedirs(self.directory, exist_ok=True)
+        # Written as <path>.partial and renamed to <path> once whole: a reader (or an rsync of
+        # the dump directory) never finds a half dump under a dump's name.
         bag = BagWriter(path, library='m4k_bridge flight_recorder', custom_data=custom)
+        complete = False
         try:
             channels: dict[str, int] = {}
             seq: collections.Counter[str] = collections.Counter()
@@ -354,8 +357,9 @@ class Dumper:
                 if key in channels:
                     bag.write(channels[key], t_ns, data, seq[key])
                     seq[key] += 1
+            complete = True
         finally:
-            bag.close()
+            bag.close(complete)
         self._log('warning', 'flight recorder: {} ({}): {} messages of {:.1f} s before and '
                   '{:.1f} s after -> {}'.format(trigger.kind, trigger.detail,
                                                  bag.message_count, self.pre_ns / _NS,

@@ -38,8 +38,6 @@ The triggers come from the RT datagrams the bridge decodes anyway
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import time
 from typing import Any, Callable
 
@@ -59,6 +57,7 @@ from m4k_bridge.flightrec import (
     Triggers,
 )
 from m4k_bridge.interfaces import interface_class
+from m4k_bridge.provenance import COMMIT_KEY, commit_text
 from m4k_rt import protocol
 
 __all__ = ['FlightRecorder']
@@ -77,24 +76,6 @@ def _spec(topic: str, type_name: str, qos: QoSProfile) -> TopicSpec:
     return TopicSpec(topic, type_name, qos_entries([qos]), qos_yaml([qos]))
 
 
-def commit(where: str | None = None) -> str:
-    """Return the checkout's commit (``<sha>``, ``<sha>-dirty``) or ``unknown``."""
-    cwd = where or os.path.dirname(os.path.realpath(__file__))
-
-    def git(*args: str) -> str | None:
-        try:
-            r = subprocess.run(['git', *args], cwd=cwd, capture_output=True, text=True,
-                               timeout=10, check=False)
-        except (OSError, subprocess.TimeoutExpired):
-            return None
-        return r.stdout.strip() if r.returncode == 0 else None
-
-    sha = git('rev-parse', 'HEAD')
-    if not sha:
-        return 'unknown'
-    return sha + ('-dirty' if git('status', '--porcelain', '--untracked-files=no') else '')
-
-
 def provenance(values: dict[str, Any]) -> dict[str, str]:
     """Return the custom_data that says what a dump ran with: commit and bridge parameters.
 
@@ -102,7 +83,7 @@ def provenance(values: dict[str, Any]) -> dict[str, str]:
     bag's own ``/robot_description`` when recorded).
     """
     params = {k: v for k, v in sorted(values.items()) if k != 'robot_description'}
-    return {'m4k.commit': commit(),
+    return {COMMIT_KEY: commit_text(),
             'm4k.bridge_parameters': json.dumps(params, sort_keys=True, default=str)}
 
 

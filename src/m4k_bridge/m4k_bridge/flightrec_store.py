@@ -5,7 +5,9 @@ A repeating incident (a guard stop every minute for a week) writes a dump each
 recorder starts, :func:`prune` removes dumps older than ``max_age_s``, then the oldest until
 the dumps take at most ``max_disk_bytes`` -- newest evidence kept. Only this recorder's own
 dumps are touched: directories named ``flight_<UTC time>_<trigger>[-n]`` directly in the dump
-directory; anything else there is left alone (and not counted). A dump's age comes from the
+directory, and the same names ending in ``.partial`` (a dump a crash cut off before its
+rename takes disk like any other: it counts towards the cap and goes by the same rules);
+anything else there is left alone (and not counted). A dump's age comes from the
 UTC time in its name (a copy with rsync keeps it), its size from the blocks its files take.
 """
 
@@ -20,7 +22,8 @@ from typing import NamedTuple
 
 __all__ = ['DumpDir', 'dumps', 'prune']
 
-_NAME = re.compile(r'flight_(\d{4})_(\d\d)_(\d\d)-(\d\d)_(\d\d)_(\d\d)_[a-z_]+(-\d+)?')
+_NAME = re.compile(r'flight_(\d{4})_(\d\d)_(\d\d)-(\d\d)_(\d\d)_(\d\d)_[a-z_]+(-\d+)?'
+                   r'(?:\.partial)?')
 
 
 class DumpDir(NamedTuple):

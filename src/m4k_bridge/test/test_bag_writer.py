@@ -13,6 +13,7 @@ from mcap.reader import make_reader, NonSeekingReader
 import pytest
 import yaml
 
+from m4k_bridge.bag import recover as br
 from m4k_bridge.bag import writer as bw
 
 # std_msgs/msg/String 'hi' in CDR: encapsulation header, length 3, 'hi\0'.
@@ -49,9 +50,25 @@ def test_an_existing_directory_is_refused_and_left_untouched(tmp_path):
     assert sorted(os.listdir(target)) == ['keep.txt']
 
 
+def test_a_partial_bag_of_that_name_is_refused_too(tmp_path):
+    (tmp_path / 'b.partial').mkdir()                  # a crashed recording of the same name
+    with pytest.raises(bw.BagExistsError, match='b.partial'):
+        bw.BagWriter(str(tmp_path / 'b'))
+    assert sorted(os.listdir(tmp_path)) == ['b.partial']
+
+
+def test_a_failed_writer_keeps_its_partial_name(tmp_path):
+    w, cid = _bag(tmp_path)
+    w.write(cid, 7, HI)
+    w.close(complete=False)
+    assert sorted(os.listdir(tmp_path)) == ['b.partial']
+    assert _read(w.path)[1] == [7]
+
+
 def test_metadata_exists_from_the_start_and_lists_nothing(tmp_path):
     w, _ = _bag(tmp_path)
-    meta = _meta(w.directory)
+    meta = _meta(w.work_directory)
+    assert w.work_directory == str(tmp_path / 'b.partial') and not os.path.exists(w.directory)
     assert meta['message_count'] == 0 and meta['relative_file_paths'] == ['b_0.mcap']
     summary, logs = _read(w.path)
     assert logs == [] and summary.statistics.message_count == 0
@@ -68,7 +85,7 @@ def test_between_syncs_the_file_is_the_last_synced_bag_and_metadata_matches(tmp_
     summary, logs = _read(w.path)
     assert logs == [1_000, 1_001, 1_002, 1_003, 1_004]
     assert summary.statistics.message_count == 5
-    meta = _meta(w.directory)
+    meta = _meta(w.work_directory)
     assert meta['message_count'] == 5
     assert meta['topics_with_message_count'][0]['message_count'] == 5
     assert meta['starting_time']['nanoseconds_since_epoch'] == 1_000
@@ -91,7 +108,7 @@ def test_recover_leaves_a_consistent_bag_alone(tmp_path):
     w.write(cid, 5, HI)
     w.close()
     before = open(w.path, 'rb').read()
-    r = bw.recover(w.directory)
+    r = br.recover(w.directory)
     assert (r.complete, r.rewritten, r.messages) == (True, False, 1)
     assert open(w.path, 'rb').read() == before
 
@@ -111,7 +128,7 @@ def test_recover_keeps_every_complete_record_of_a_torn_write(tmp_path):
     os.truncate(w.path, cut)
     with pytest.raises(Exception):           # noqa: B017 -- what a reader makes of it now
         _read(w.path)
-    r = bw.recover(w.directory)
+    r = br.recover(w.directory)
     assert not r.complete and r.rewritten and r.dropped_bytes > 0
     summary, logs = _read(w.path)
     assert logs[:4] == [100, 101, 102, 103] and len(logs) == r.messages >= 4
@@ -126,7 +143,7 @@ def test_recover_keeps_every_complete_record_of_a_torn_write(tmp_path):
 def test_recover_refuses_a_directory_without_the_bag_file(tmp_path):
     (tmp_path / 'x').mkdir()
     with pytest.raises(bw.BagError, match='not a bag'):
-        bw.recover(str(tmp_path / 'x'))
+        br.recover(str(tmp_path / 'x'))
 
 
 def test_the_default_name_moves_on_when_taken(tmp_path, monkeypatch):
@@ -153,7 +170,7 @@ def test_recover_streams_a_bag_much_larger_than_the_memory_it_uses(tmp_path):
     os.truncate(w.path, os.path.getsize(w.path) - 10)  # no footer: recovery must rewrite
     tracemalloc.start()
     try:
-        r = bw.recover(w.directory)
+        r = br.recover(w.directory)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()

@@ -2,49 +2,28 @@
 
 Every results writer of m4k_bench (bench, soak, fuzz, scenarios, demo, live view) stores
 :func:`provenance` in what it writes, so a figure in the docs can be traced to the code it
-measured and compared with another run on the same kind of machine. The machine is described
-by what it is (CPU model, cores, memory, kernel, preemption model, virtualization), never by
-its hostname: two runs on identical VMs compare, a renamed host does not break the link.
+measured and compared with another run on the same kind of machine. The commit comes from
+:mod:`m4k_bridge.provenance`, the lookup the bags (flight recorder, ``record``) use too. The
+machine is described by what it is (CPU model, cores, memory, kernel, preemption model,
+virtualization), never by its hostname: two runs on identical VMs compare, a renamed host does
+not break the link.
 """
 
 from __future__ import annotations
 
 import datetime
-import os
 import platform
-import subprocess
 from typing import Any
 
 from m4k_bench.benchlib import system
+from m4k_bridge import provenance as bridge_provenance
 
 __all__ = ['commit', 'machine', 'provenance', 'text']
 
 
-def _git(args: list[str], cwd: str) -> str | None:
-    try:
-        p = subprocess.run(['git', *args], cwd=cwd, capture_output=True, text=True,
-                           timeout=10, check=False)
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    return p.stdout.strip() if p.returncode == 0 else None
-
-
 def commit(where: str | None = None) -> dict[str, Any]:
-    """Return ``{commit, dirty}`` of the checkout the code runs from (None when unknown).
-
-    Looked up from ``where``, else this module's real location (a symlink install points
-    into the source tree), else the working directory. ``dirty``: tracked files differ from
-    the commit, so the commit alone does not reproduce the run.
-    """
-    here = os.path.dirname(os.path.realpath(__file__))
-    for cwd in (where, here, os.getcwd()):
-        if not cwd or not os.path.isdir(cwd):
-            continue
-        sha = _git(['rev-parse', 'HEAD'], cwd)
-        if sha:
-            status = _git(['status', '--porcelain', '--untracked-files=no'], cwd)
-            return {'commit': sha, 'dirty': None if status is None else bool(status)}
-    return {'commit': None, 'dirty': None}
+    """Return ``{commit, dirty}`` of the checkout (:func:`m4k_bridge.provenance.commit`)."""
+    return bridge_provenance.commit(where)
 
 
 def machine() -> dict[str, Any]:

@@ -18,10 +18,14 @@ play DIR`` and rosbags take as it is. DIR defaults to ``m4k_<UTC time>`` (``-2``
 appended if that exists); a DIR given with ``-o`` that exists is refused (exit 2): a recording
 never overwrites another.
 
-Crash safety (:mod:`m4k_bridge.bag.writer`): once a second the messages so far are written and
-fsynced behind a fresh summary and footer, and metadata.yaml is replaced atomically to match,
-so after ``kill -9`` or a power cut the directory is a complete bag of everything but the last
-second. SIGINT / SIGTERM (or ``--duration``) end the recording cleanly. Exit codes: 0 done,
+Crash safety (:mod:`m4k_bridge.bag.writer`): the bag is written as ``DIR.partial`` and renamed
+to ``DIR`` when the recording ends, so a bag under the name asked for is always whole. Once a
+second the messages so far are written as an indexed chunk and fsynced behind a fresh summary
+and footer, and metadata.yaml is replaced atomically to match, so after ``kill -9`` or a power
+cut ``DIR.partial`` is a complete bag of everything but the last second (``--recover DIR``
+checks it, repairs a torn last write, and renames it to ``DIR``). The bag records the commit of
+the code that wrote it (``m4k.commit``). SIGINT / SIGTERM (or ``--duration``) end the
+recording cleanly. Exit codes: 0 done,
 1 the bag could not be created or a sync failed (e.g. disk full: the recording stops there,
 what was synced stays readable), 2 bad arguments (an existing ``-o`` DIR among them).
 """
@@ -43,8 +47,10 @@ from rclpy.signals import SignalHandlerOptions
 from m4k_bridge import params as bridge_params
 from m4k_bridge.bag.metadata import qos_entries
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError, split_type, type_hash
-from m4k_bridge.bag.writer import BagError, BagExistsError, BagWriter, recover
+from m4k_bridge.bag.recover import recover
+from m4k_bridge.bag.writer import BagError, BagExistsError, BagWriter, partial_directory
 from m4k_bridge.interfaces import interface_class
+from m4k_bridge.provenance import COMMIT_KEY, commit_text
 
 __all__ = ['DEFAULT_TOPICS', 'Recorder', 'SYNC_PERIOD_S', 'main', 'qos_yaml']
 
@@ -106,7 +112,8 @@ class Recorder:
         """Create the bag ``directory`` (:class:`BagExistsError` if it exists) and subscribe."""
         self.node = node
         self.topics = [node.resolve_topic_name(t) for t in topics]
-        self.bag = BagWriter(directory, library='m4k_bridge record')
+        self.bag = BagWriter(directory, library='m4k_bridge record',
+                             custom_data={COMMIT_KEY: commit_text()})
         self.path = self.bag.path
         self._channels: dict[str, int] = {}
         self.counts: dict[str, int] = {}
@@ -184,7 +191,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument('--duration', type=float, default=0.0,
                     help='stop after this many seconds (default: until SIGINT/SIGTERM)')
     ap.add_argument('--recover', metavar='DIR',
-                    help='make the crashed bag DIR whole (MCAP summary, metadata.yaml) and exit')
+                    help='make the crashed bag DIR (left as DIR.partial) whole (MCAP index and '
+                         'summary, metadata.yaml), name it DIR and exit')
     return ap
 
 
@@ -193,7 +201,7 @@ def default_output(now: datetime.datetime | None = None) -> str:
     base = 'm4k_' + (now or datetime.datetime.now(datetime.timezone.utc)).strftime(
         '%Y_%m_%d-%H_%M_%S')
     name, n = base, 1
-    while os.path.lexists(name):
+    while os.path.lexists(name) or os.path.lexists(partial_directory(name)):
         n += 1
         name = '{}-{}'.format(base, n)
     return name
@@ -208,7 +216,7 @@ def _recover(directory: str) -> int:
     state = 'complete' if r.complete else 'cut short ({} bytes of a torn record dropped)'.format(
         r.dropped_bytes)
     print('record: {}: MCAP {}; {} messages ({}); {}'.format(
-        directory, state, r.messages, ', '.join('{} {}'.format(t, n)
+        r.directory, state, r.messages, ', '.join('{} {}'.format(t, n)
                                                  for t, n in sorted(r.counts.items())),
         'rewritten' if r.rewritten else 'metadata already matches, nothing to do'),
         file=sys.stderr)
@@ -227,11 +235,12 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     out_dir = args.output or default_output()
-    if os.path.lexists(out_dir):
-        print('record: output directory {!r} exists: a recording never overwrites one '
-              '(choose another -o, or omit -o for a new m4k_<UTC time>; a crashed bag is '
-              'made whole with --recover)'.format(out_dir), file=sys.stderr)
-        return 2
+    for taken in (out_dir, partial_directory(out_dir)):
+        if os.path.lexists(taken):
+            print('record: output directory {!r} exists: a recording never overwrites one '
+                  '(choose another -o, or omit -o for a new m4k_<UTC time>; a crashed bag is '
+                  'made whole with --recover)'.format(taken), file=sys.stderr)
+            return 2
     stop = []
     previous = {sig: signal.signal(sig, lambda signum, frame: stop.append(signum))
                 for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -256,7 +265,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             rec.finish()
             total = sum(rec.counts.values())
             print('record: {} messages on {} topics -> {}'.format(
-                total, len(rec.counts), rec.path), file=sys.stderr)
+                total, len(rec.counts), rec.bag.path), file=sys.stderr)
             if rec.error is not None:
                 print('record: stopped: {}'.format(rec.error), file=sys.stderr)
         if node is not None:

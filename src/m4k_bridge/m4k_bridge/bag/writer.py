@@ -1,31 +1,37 @@
-"""A rosbag2 MCAP directory that is a complete, readable bag after every sync (no ROS).
+"""A rosbag2 MCAP directory, indexed, readable after every sync, named only when whole (no ROS).
 
 Used by the recorder (:mod:`m4k_bridge.bag.record`) and the flight recorder's dumps
 (:mod:`m4k_bridge.flightrec`). Why it is written this way:
 
 * A bag is the directory ``DIR/`` with ``DIR/<DIR name>_0.mcap`` and ``DIR/metadata.yaml``.
-  The directory is created here and must not exist: a writer never overwrites
-  (:class:`BagExistsError`).
+  It is written under the temporary name ``DIR.partial/`` (:data:`PARTIAL`) beside it and
+  renamed to ``DIR`` by :meth:`BagWriter.close`, after the last sync: a reader never finds a
+  bag under its final name that is still being written or was cut off, and a crash leaves a
+  directory whose name says so (``record --recover`` finishes it). Neither name may exist
+  beforehand: a writer never overwrites (:class:`BagExistsError`).
 * Messages are buffered in memory and written by :meth:`BagWriter.sync` (the callers sync once
   a second). Each sync writes the new records over the previous trailer and a new trailer
-  behind them (``DataEnd``, a summary with schemas, channels and statistics, summary offsets,
-  the footer and the closing magic) in one ``pwrite``, then ``fsync``: between syncs the file
-  on disk is a finished MCAP that every reader opens, the seeking ones too. A ``kill -9`` or a
-  power cut loses what came after the last sync -- at most one sync period.
+  behind them (``DataEnd``, a summary with schemas, channels, statistics, chunk and metadata
+  indexes, summary offsets, the footer and the closing magic) in one ``pwrite``, then
+  ``fsync``: between syncs the partial file is a finished MCAP that every reader opens, the
+  seeking ones too. A ``kill -9`` or a power cut loses what came after the last sync -- at most
+  one sync period. (That in-place rewrite is why the name changes only at the end: a crash
+  inside the ``pwrite`` can tear the partial file, never the final one.)
+* Messages go into uncompressed chunks of at most :data:`CHUNK_BYTES` (one per sync at least),
+  each followed by a message index per channel, and the last sync's summary lists a chunk
+  index per chunk (MCAP specification, "Chunk Index"): a seeking reader (Lichtblick, Foxglove,
+  rosbag2's MCAP plugin, the ``mcap`` readers) goes straight to the chunks of a time range
+  instead of reading the whole file, and Lichtblick opens files over 1 GiB only when they are
+  indexed. The syncs before it write the summary without the chunk indexes (a list that grows
+  a chunk a second, rewritten each second, would make a long recording's cost quadratic):
+  a seeking reader reads such a partial file linearly, and ``record --recover`` indexes it.
 * ``metadata.yaml`` (rosbag2 format 9) is written at the start and at each sync, with the
   counts and times of exactly the messages synced, atomically: the new text is fsynced under a
   temporary name before the MCAP grows and renamed over the old one after the MCAP's
-  ``fsync``. It is always a whole file, and it never lists a message the MCAP lacks; a crash
-  inside a sync leaves it one sync behind the MCAP.
-* Messages are not chunked (rosbag2's ``fastwrite`` storage preset does the same:
-  ``noChunking``): every record is final the moment it is written, at the price of no
-  compression. Readers without a chunk index read such a file linearly (the ``mcap`` Python
-  reader, rosbags and rosbag2's MCAP plugin all do).
-
-If the process dies inside a sync's ``pwrite`` (a window of tens of microseconds a second; the
-file then ends in a torn record, without a footer), or between the MCAP's ``pwrite`` and the
-metadata's rename (the metadata lags), :func:`recover` rewrites the file and the metadata from
-every complete record the file holds.
+  ``fsync``. It never lists a message the MCAP lacks.
+* ``custom_data`` (the commit, a flight recorder's trigger) goes to ``metadata.yaml`` and to an
+  MCAP Metadata record ``m4k`` (listed in the summary's metadata index), so a viewer of the
+  MCAP alone shows it too.
 """
 
 from __future__ import annotations
@@ -33,33 +39,39 @@ from __future__ import annotations
 import dataclasses
 import os
 import struct
-from typing import Any, Iterator, Mapping
+from typing import Any, Mapping
 import zlib
 
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
+    Chunk,
+    ChunkIndex,
     DataEnd,
     Footer,
     Header,
     Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
     Schema,
     Statistics,
     SummaryOffset,
 )
-from mcap.stream_reader import StreamReader
 from mcap.well_known import MessageEncoding, SchemaEncoding
-import yaml
 
-from m4k_bridge.bag.metadata import metadata_yaml, qos_entries_from_yaml, TopicRecord
+from m4k_bridge.bag.metadata import metadata_yaml, TopicRecord
 
-__all__ = ['BagError', 'BagExistsError', 'BagWriter', 'Recovery', 'mcap_name', 'recover',
-           'write_atomic']
+__all__ = ['BagError', 'BagExistsError', 'BagWriter', 'CHUNK_BYTES', 'METADATA', 'PARTIAL',
+           'finish', 'fsync_dir', 'mcap_name', 'partial_directory', 'write_atomic']
 
 MAGIC = b'\x89MCAP0\r\n'
-_RECOVER_SYNC_BYTES = 4 << 20     # recovery writes out (and syncs) each 4 MiB it copies
 METADATA = 'metadata.yaml'
+PARTIAL = '.partial'             # suffix of a bag directory still being written (or cut off)
+METADATA_NAME = 'm4k'            # the MCAP Metadata record that carries custom_data
+# A chunk is closed past this many bytes of records (the mcap writers' default size): small
+# enough that a seek reads little more than it needs, large enough that the index stays small.
+CHUNK_BYTES = 1 << 20
 
 
 class BagError(OSError):
@@ -75,7 +87,13 @@ def mcap_name(directory: str) -> str:
     return os.path.basename(os.path.normpath(directory)) + '_0.mcap'
 
 
-def _fsync_dir(directory: str) -> None:
+def partial_directory(directory: str) -> str:
+    """Return the temporary name ``directory`` has while it is written: ``<directory>.partial``."""
+    return os.path.normpath(directory) + PARTIAL
+
+
+def fsync_dir(directory: str) -> None:
+    """Make a rename or a new file in ``directory`` durable."""
     fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(fd)
@@ -94,7 +112,7 @@ def _write_durable(path: str, text: str) -> str:
 def write_atomic(path: str, text: str) -> None:
     """Replace ``path`` by ``text``: temporary file, fsync, rename, fsync of the directory."""
     os.replace(_write_durable(path + '.tmp', text), path)
-    _fsync_dir(os.path.dirname(path) or '.')
+    fsync_dir(os.path.dirname(path) or '.')
 
 
 def _record(rec: Any) -> bytes:
@@ -110,30 +128,72 @@ class _Topic:
     record: TopicRecord
 
 
+class _OpenChunk:
+    """The message records of the chunk being filled, and their index entries."""
+
+    def __init__(self) -> None:
+        self.records = bytearray()
+        self.index: dict[int, list[tuple[int, int]]] = {}
+        self.start = self.end = 0
+
+    def add(self, channel_id: int, log_time: int, record: bytes) -> None:
+        self.start = min(self.start, log_time) if self.records else log_time
+        self.end = max(self.end, log_time)
+        self.index.setdefault(channel_id, []).append((log_time, len(self.records)))
+        self.records += record
+
+
+def _chunk_bytes(chunk: _OpenChunk, offset: int) -> tuple[bytes, ChunkIndex]:
+    """Return the Chunk record and its message indexes at file ``offset``, and its index."""
+    data = bytes(chunk.records)
+    rec = _record(Chunk(compression='', data=data, message_start_time=chunk.start,
+                        message_end_time=chunk.end, uncompressed_crc=zlib.crc32(data),
+                        uncompressed_size=len(data)))
+    out = bytearray(rec)
+    offsets: dict[int, int] = {}
+    for cid in sorted(chunk.index):
+        # Log-time order within a channel, as the specification asks of a message index.
+        entries = sorted(chunk.index[cid])
+        offsets[cid] = offset + len(out)
+        out += _record(MessageIndex(channel_id=cid, records=entries))
+    index = ChunkIndex(message_start_time=chunk.start, message_end_time=chunk.end,
+                       chunk_start_offset=offset, chunk_length=len(rec),
+                       message_index_offsets=offsets, message_index_length=len(out) - len(rec),
+                       compression='', compressed_size=len(data), uncompressed_size=len(data))
+    return bytes(out), index
+
+
 class BagWriter:
     """Write one bag directory; :meth:`sync` makes everything so far durable and readable."""
 
     def __init__(self, directory: str, library: str = 'm4k_bridge',
                  custom_data: Mapping[str, str] | None = None,
-                 file_name: str | None = None) -> None:
-        """Create ``directory`` and its MCAP file; raise :class:`BagExistsError` if it exists.
+                 file_name: str | None = None, atomic: bool = True) -> None:
+        """Create ``directory`` (``<directory>.partial`` until closed) and its MCAP file.
 
-        ``file_name``: the MCAP's name (default ``<directory name>_0.mcap``).
+        Raise :class:`BagExistsError` if either name exists. ``file_name``: the MCAP's name
+        (default ``<directory name>_0.mcap``). ``atomic`` False: write under the final name
+        (:func:`m4k_bridge.bag.recover.recover` does, inside a directory of its own).
         """
-        self.directory = directory
+        self.directory = os.path.normpath(directory)
+        self.work_directory = partial_directory(directory) if atomic else self.directory
+        for name in {self.directory, self.work_directory}:
+            if os.path.lexists(name):
+                raise BagExistsError(
+                    'output directory {!r} exists: a recording never overwrites one (choose '
+                    'another name, or move it away)'.format(name))
         try:
             os.makedirs(os.path.dirname(os.path.abspath(directory)), exist_ok=True)
-            os.mkdir(directory)
+            os.mkdir(self.work_directory)
         except FileExistsError:
-            raise BagExistsError(
-                'output directory {!r} exists: a recording never overwrites one (choose '
-                'another name, or move it away)'.format(directory)) from None
+            raise BagExistsError('output directory {!r} exists: a recording never overwrites '
+                                 'one'.format(self.work_directory)) from None
         except OSError as exc:
             raise BagError('cannot create {!r}: {} (errno {})'.format(
-                directory, exc.strerror, exc.errno)) from None
+                self.work_directory, exc.strerror, exc.errno)) from None
         self.file_name = file_name or mcap_name(directory)
-        self.path = os.path.join(directory, self.file_name)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        self._fd = os.open(os.path.join(self.work_directory, self.file_name),
+                           os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self.custom_data = dict(custom_data or {})
         self._pending = bytearray(MAGIC + _record(Header(profile='ros2', library=library)))
         self._data_end = 0            # file offset where the trailer starts
@@ -144,8 +204,28 @@ class BagWriter:
         self._pending_counts: dict[int, int] = {}
         self._start_ns = self._end_ns = 0
         self._pending_start = self._pending_end = 0
+        self._chunk = _OpenChunk()
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._pending_chunk_indexes: list[ChunkIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
         self._closed = False
+        if self.custom_data:
+            rec = _record(Metadata(name=METADATA_NAME, metadata=self.custom_data))
+            self._metadata_indexes.append(MetadataIndex(
+                offset=len(self._pending), length=len(rec), name=METADATA_NAME))
+            self._pending += rec
         self.sync()
+
+    @property
+    def path(self) -> str:
+        """Return where the MCAP file is now (under the partial name until closed)."""
+        where = self.directory if self.renamed else self.work_directory
+        return os.path.join(where, self.file_name)
+
+    @property
+    def renamed(self) -> bool:
+        """Tell whether the bag is closed and under its final name."""
+        return self._closed and not os.path.lexists(self.work_directory)
 
     @property
     def topics(self) -> list[TopicRecord]:
@@ -155,7 +235,7 @@ class BagWriter:
     @property
     def pending_bytes(self) -> int:
         """Return the bytes buffered for the next :meth:`sync`."""
-        return len(self._pending)
+        return len(self._pending) + len(self._chunk.records)
 
     @property
     def message_count(self) -> int:
@@ -168,6 +248,8 @@ class BagWriter:
 
         ``msgdef``: the ``ros2msg`` schema text; ``qos``: version-9 metadata entries;
         ``qos_text``: the same as rosbag2's MCAP channel metadata ``offered_qos_profiles``.
+        The Schema and Channel records go to the data section outside the chunks, ahead of
+        every chunk that holds a message of the channel.
         """
         if topic in self._topics:
             return self._topics[topic].channel_id
@@ -190,27 +272,42 @@ class BagWriter:
     def write(self, channel_id: int, log_time_ns: int, data: bytes, sequence: int = 0,
               publish_time_ns: int | None = None) -> None:
         """Buffer one serialized message (durable at the next :meth:`sync`)."""
-        self._pending += _record(Message(
+        self._chunk.add(channel_id, log_time_ns, _record(Message(
             channel_id=channel_id, sequence=sequence & 0xFFFFFFFF, log_time=log_time_ns,
             publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
-            data=data))
+            data=data)))
         self._pending_counts[channel_id] = self._pending_counts.get(channel_id, 0) + 1
         if not self._pending_start or log_time_ns < self._pending_start:
             self._pending_start = log_time_ns
         self._pending_end = max(self._pending_end, log_time_ns)
+        if len(self._chunk.records) >= CHUNK_BYTES:
+            self._close_chunk()
 
-    def _trailer(self, data_end: int) -> bytes:
+    def _close_chunk(self) -> None:
+        if not self._chunk.index:
+            return
+        # The chunk lands at the file offset where the pending bytes end after the next sync.
+        blob, index = _chunk_bytes(self._chunk, self._data_end + len(self._pending))
+        self._pending += blob
+        self._pending_chunk_indexes.append(index)
+        self._chunk = _OpenChunk()
+
+    def _trailer(self, data_end: int, indexed: bool) -> bytes:
         stats = Statistics(
             message_count=sum(self._counts.values()), schema_count=len(self._schemas),
-            channel_count=len(self._channels), attachment_count=0, metadata_count=0,
-            chunk_count=0, message_start_time=self._start_ns, message_end_time=self._end_ns,
+            channel_count=len(self._channels), attachment_count=0,
+            metadata_count=len(self._metadata_indexes), chunk_count=len(self._chunk_indexes),
+            message_start_time=self._start_ns, message_end_time=self._end_ns,
             channel_message_counts=dict(self._counts))
         head = _record(DataEnd(data_section_crc=0))
         summary_start = data_end + len(head)
         groups: list[tuple[int, bytes]] = [
             (Opcode.SCHEMA, b''.join(_record(s) for s in self._schemas.values())),
             (Opcode.CHANNEL, b''.join(_record(c) for c in self._channels.values())),
-            (Opcode.STATISTICS, _record(stats))]
+            (Opcode.STATISTICS, _record(stats)),
+            (Opcode.CHUNK_INDEX,
+             b''.join(_record(c) for c in self._chunk_indexes) if indexed else b''),
+            (Opcode.METADATA_INDEX, b''.join(_record(m) for m in self._metadata_indexes))]
         summary = bytearray()
         offsets = bytearray()
         for opcode, data in groups:
@@ -228,10 +325,16 @@ class BagWriter:
                                 summary_crc=crc))
         return head + bytes(summary) + footer + MAGIC
 
-    def sync(self) -> None:
-        """Write the buffered records and a new trailer, fsync, then update metadata.yaml."""
+    def sync(self, indexed: bool = False) -> None:
+        """Write the buffered records and a new trailer, fsync, then update metadata.yaml.
+
+        ``indexed``: the trailer's summary lists the chunk indexes (the last sync does). The
+        others leave them out: the list grows by one chunk a sync, and rewriting it every
+        second would cost an hour's recording about 400 KiB a second by its end.
+        """
         if self._closed:
             return
+        self._close_chunk()           # every sync ends the chunk: each sync is indexed
         for cid, n in self._pending_counts.items():
             self._counts[cid] = self._counts.get(cid, 0) + n
         if self._pending_counts:
@@ -240,12 +343,14 @@ class BagWriter:
             self._end_ns = max(self._end_ns, self._pending_end)
         self._pending_counts = {}
         self._pending_start = self._pending_end = 0
+        self._chunk_indexes += self._pending_chunk_indexes
+        self._pending_chunk_indexes = []
         data = bytes(self._pending)
         self._pending = bytearray()
-        blob = data + self._trailer(self._data_end + len(data))
+        blob = data + self._trailer(self._data_end + len(data), indexed)
         for t in self._topics.values():
             t.record.count = self._counts.get(t.channel_id, 0)
-        meta = os.path.join(self.directory, METADATA)
+        meta = os.path.join(self.work_directory, METADATA)
         try:
             # The new metadata is durable under a temporary name before the MCAP grows and
             # renamed over the old one after: it never lists a message the file lacks.
@@ -260,144 +365,38 @@ class BagWriter:
             os.fsync(self._fd)
             self._data_end += len(data)
             os.replace(tmp, meta)
-            _fsync_dir(self.directory)
+            fsync_dir(self.work_directory)
         except OSError as exc:
             if isinstance(exc, BagError):
                 raise
             raise BagError('cannot write {!r}: {} (errno {})'.format(
                 self.path, exc.strerror, exc.errno)) from None
 
-    def close(self) -> None:
-        """Sync and close the file (idempotent)."""
+    def close(self, complete: bool = True) -> None:
+        """Sync, close the file and give the directory its final name (idempotent).
+
+        ``complete`` False (the caller failed half-way): the directory keeps its partial name.
+        A sync that fails leaves it there too (the error is raised).
+        """
         if self._closed:
             return
         try:
-            self.sync()
+            self.sync(indexed=True)
         finally:
             self._closed = True
             os.close(self._fd)
+        if complete and self.work_directory != self.directory:
+            finish(self.work_directory, self.directory)
 
 
-# --- recovery ---------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass
-class Recovery:
-    """What :func:`recover` found and did."""
-
-    messages: int
-    counts: dict[str, int]
-    complete: bool          # the MCAP ended with a valid footer
-    rewritten: bool         # the MCAP and/or metadata.yaml were rewritten
-    dropped_bytes: int      # bytes after the last complete record (a torn write)
-
-
-def _records(path: str) -> Iterator[tuple[Any, int]]:
-    """Yield (record, end offset) of the MCAP at ``path`` up to its first incomplete record."""
-    with open(path, 'rb') as f:
-        reader = StreamReader(f, skip_magic=False, emit_chunks=False)
-        it = reader.records
-        while True:
-            try:
-                rec = next(it)
-            except StopIteration:
-                return
-            except (McapError, EOFError, struct.error, ValueError, UnicodeDecodeError):
-                return
-            yield rec, f.tell()
-
-
-def recover(directory: str) -> Recovery:
-    """Make a crashed bag directory whole: MCAP with a trailer, metadata.yaml that matches it.
-
-    Every complete Schema, Channel and Message record is kept in file order; a torn last
-    record is dropped. A bag that already agrees with its metadata is left as it is.
-    Raise :class:`BagError` when ``directory`` holds no MCAP of this name or it cannot be read.
-
-    The file is streamed, never held: a first pass counts (schemas and channels are kept, the
-    messages are not), a second copies the messages into the new file, which is synced each
-    :data:`_RECOVER_SYNC_BYTES`, so memory stays bounded whatever the bag's size.
-    """
-    path = os.path.join(directory, mcap_name(directory))
-    if not os.path.isfile(path):
-        raise BagError('no {} in {!r}: not a bag written by m4k'.format(
-            mcap_name(directory), directory))
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    count = 0
-    header = None
-    complete = False
-    end = 0
-    by_id: dict[int, int] = {}
-    for rec, pos in _records(path):
-        if isinstance(rec, Header):
-            header = rec
-        elif isinstance(rec, Schema):
-            schemas[rec.id] = rec
-        elif isinstance(rec, Channel):
-            channels[rec.id] = rec
-        elif isinstance(rec, Message) and rec.channel_id in channels:
-            count += 1
-            by_id[rec.channel_id] = by_id.get(rec.channel_id, 0) + 1
-        elif isinstance(rec, Footer):
-            complete = True
-        if not complete:
-            end = pos
-    if header is None:
-        raise BagError('{!r} has no MCAP header: nothing to recover'.format(path))
-    size = os.path.getsize(path)
-    by_topic: dict[str, int] = {c.topic: 0 for c in channels.values()}
-    for cid, n in by_id.items():
-        by_topic[channels[cid].topic] += n
-    meta_path = os.path.join(directory, METADATA)
-    old: dict[str, Any] = {}
+def finish(work_directory: str, directory: str) -> None:
+    """Rename the synced bag ``work_directory`` to ``directory``, never over another bag."""
+    if os.path.lexists(directory):
+        raise BagExistsError('cannot name the bag {!r}: {!r} appeared meanwhile; it stays '
+                             'under its partial name'.format(work_directory, directory))
     try:
-        with open(meta_path, encoding='utf-8') as f:
-            old = (yaml.safe_load(f) or {}).get('rosbag2_bagfile_information', {})
-    except (OSError, yaml.YAMLError, AttributeError):
-        old = {}
-    listed = {t['topic_metadata']['name']: t.get('message_count')
-              for t in old.get('topics_with_message_count', []) or []
-              if isinstance(t, dict) and 'topic_metadata' in t}
-    stale = meta_path + '.tmp'          # a sync's metadata that a crash kept from its rename
-    if os.path.exists(stale):
-        os.unlink(stale)
-    if complete and listed == by_topic and old.get('message_count') == count:
-        return Recovery(count, by_topic, True, False, 0)
-    # Rewrite into a sibling directory, then swap the files in (each rename is atomic).
-    tmp_dir = os.path.join(directory, '.recover')
-    if os.path.isdir(tmp_dir):
-        for name in os.listdir(tmp_dir):
-            os.unlink(os.path.join(tmp_dir, name))
-        os.rmdir(tmp_dir)
-    custom = {str(k): str(v) for k, v in (old.get('custom_data') or {}).items()}
-    w = BagWriter(tmp_dir, library=header.library or 'm4k_bridge', custom_data=custom,
-                  file_name=os.path.basename(path))
-    ids: dict[int, int] = {}
-    for cid, ch in channels.items():
-        schema = schemas.get(ch.schema_id)
-        qos_text = ch.metadata.get('offered_qos_profiles', '')
-        ids[cid] = w.add_topic(ch.topic, schema.name if schema else '',
-                               schema.data.decode() if schema else '',
-                               ch.metadata.get('topic_type_hash', ''),
-                               qos_entries_from_yaml(qos_text), qos_text)
-    seen: set[int] = set()
-    for rec, pos in _records(path):          # the second pass: copy, a bounded buffer
-        if pos > end and not complete:
-            break
-        if isinstance(rec, Channel):
-            seen.add(rec.id)
-        elif isinstance(rec, Message) and rec.channel_id in seen:
-            w.write(ids[rec.channel_id], rec.log_time, rec.data, rec.sequence,
-                    rec.publish_time)
-            if w.pending_bytes >= _RECOVER_SYNC_BYTES:
-                w.sync()
-        elif isinstance(rec, Footer):
-            break
-    w.close()
-    os.replace(os.path.join(tmp_dir, w.file_name), path)
-    os.replace(os.path.join(tmp_dir, METADATA), meta_path)
-    os.rmdir(tmp_dir)
-    _fsync_dir(directory)
-    return Recovery(count, by_topic, complete, True, 0 if complete else size - end)
-
+        os.rename(work_directory, directory)
+        fsync_dir(os.path.dirname(os.path.abspath(directory)))
+    except OSError as exc:
+        raise BagError('cannot rename {!r} to {!r}: {} (errno {})'.format(
+            work_directory, directory, exc.strerror, exc.errno)) from None
