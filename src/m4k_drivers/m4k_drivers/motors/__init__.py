@@ -12,13 +12,24 @@ from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.amplifier import AMP_PARAMS, check_amplifier
 from m4k_drivers.motors.handler import EncoderReading, MotorHandler, WheelCommand
 from m4k_drivers.motors.service import SERVICE
-from m4k_drivers.registry import BuildContext, Param, register, register_service
+from m4k_drivers.registry import BuildContext, Derived, Param, register, register_service
+from m4k_rt.config import shipped_period_s
 
 __all__ = ['EncoderReading', 'MotorHandler', 'RealMotorHandler', 'WheelCommand']
 
+
+
+def _actuator_period_s() -> float:
+    return shipped_period_s('actuator')
+
+
 _HANDLER = {
-    'period_s': Param(float, 0.01, 'service period, s; the driver host gives it the actuator '
-                      "task's (tasks.actuator.period_ms) from the layered configuration"),
+    # The actuator's period, declared once in tasks: (config/m4k.yaml); the driver host
+    # fills it from the layered configuration (config.fill_actuator_period), a bare section
+    # from the shipped one.
+    'period_s': Param(float, Derived('tasks.actuator.period_ms', _actuator_period_s),
+                      "service period, s (the actuator task's period_ms / 1000); the "
+                      'watchdog and the stale-command age count in it.'),
     'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
     'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
     'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read (0..6)',

@@ -73,8 +73,8 @@ class MotorHandler(DeviceHandler):
 
     kind = 'motor'
 
-    def __init__(self, opener: Callable[[], MotorBus], *, name: str = 'motor',
-                 period_s: float = 0.01, watchdog_periods: int = 10,
+    def __init__(self, opener: Callable[[], MotorBus], *, period_s: float, name: str = 'motor',
+                 watchdog_periods: int = 10,
                  max_wheel_rad_s: float = 30.0, lead_bits: int = 1,
                  dac_sign: Sequence[int] = (1, 1), dac_zero_trim: Sequence[int] = (0, 0),
                  enc_direction: Sequence[int] = (1, 1), enc_zero: Sequence[int] = (0, 0),
