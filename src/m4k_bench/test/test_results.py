@@ -6,6 +6,7 @@ import json
 import os
 
 import m4k_bench
+from m4k_bench import recorder
 from m4k_bench.benchlib import results
 
 # json.dump calls allowed outside the writer, with why: the bench's rounds.json is a list
@@ -65,3 +66,13 @@ def test_no_tool_writes_its_json_results_by_hand():
             if n and rel != os.path.join('benchlib', 'results.py'):
                 found[rel] = n
     assert found == _NOT_A_SUMMARY
+
+
+def test_rt_stats_summary_comes_through_the_writer(tmp_path):
+    # the recorder serialised its summary with json.dumps into its own file (no json.dump to
+    # count above): what it writes now carries the writer's provenance
+    paths = recorder.Recorder().write(str(tmp_path))
+    with open(paths['json']) as f:
+        doc = json.load(f)
+    assert set(doc) == {'tasks', 'warmup_cycles_skipped', 'provenance'}
+    assert set(doc['provenance']) == {'commit', 'dirty', 'machine', 'measured_utc'}
