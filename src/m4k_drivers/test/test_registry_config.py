@@ -9,7 +9,7 @@ from m4k_drivers import config as dconfig
 from m4k_drivers import motors, registry
 from m4k_drivers.handler import DeviceIOError, DeviceNotFoundError, retry, RetryPolicy, State
 from m4k_drivers.imu.handler import ImuHandler
-from m4k_drivers.motors.handler import MotorHandler
+from m4k_drivers.motors.handler import HANDLER_PARAMS, MotorHandler
 from m4k_rt.config import load_layered, shipped_period_s
 
 
@@ -188,6 +188,18 @@ def test_the_motor_package_states_no_actuator_period_of_its_own():
     assert found == []
     param = inspect.signature(MotorHandler).parameters['period_s']
     assert param.default is inspect.Parameter.empty
+
+
+def test_the_motor_handlers_defaults_are_its_config_schemas():
+    # MotorHandler restated the seven defaults its Param table declares (10, 30.0, 1, [1, 1],
+    # ...): the keyword defaults are now the table's own objects, for both backends' schemas.
+    sig = inspect.signature(MotorHandler).parameters
+    for name, p in HANDLER_PARAMS.items():
+        if name != 'period_s':
+            assert sig[name].default is p.default, name
+    for backend in ('real', 'sim'):
+        params = registry.get('motor', backend).params
+        assert all(params[k] is p for k, p in HANDLER_PARAMS.items()), backend
 
 
 def test_a_device_links_to_the_port_labelled_with_its_kind_by_default():
