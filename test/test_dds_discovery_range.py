@@ -1,6 +1,6 @@
 """The discovery range the robot ships with (LOCALHOST + ROS_STATIC_PEERS), on two machines.
 
-Two network namespaces joined by a veth pair (``test_two_machines.Link``), the robot stack
+Two network namespaces joined by a veth pair (``twomachines.Link``), the robot stack
 (bringup) in one, a plain rclpy ``cmd_vel`` publisher (``netns_driver.py``) in the other,
 Fast DDS on UDP only. The veth has **no multicast flag and no multicast route**: what
 discovers here is the static peer list alone. Judged on the simulator's ground truth.
@@ -14,17 +14,14 @@ discovers here is the static peer list alone. Judged on the simulator's ground t
   access control; docs/live-view.md ("The DDS graph") says to firewall the RTPS ports.
 """
 
-import os
-import signal
-import subprocess
 import time
 
 import pytest
 from test_bringup import write_overlay
 from test_estop_e2e import Truth
 from test_stack_e2e import START
-from test_two_machines import _ip, _say, _status, Link
-from wsenv import ROOT, stack_env
+from twomachines import ip, laptop_status, Link, net_env, say, start_pair, stop
+from wsenv import stack_env
 
 pytestmark = [
     pytest.mark.allow_leaks('fds'),
@@ -39,19 +36,11 @@ def unicast_link():
     lk = Link()
     try:
         for ns in (lk.robot, lk.laptop):       # no multicast anywhere on the link
-            _ip('-n', ns, 'route', 'del', '224.0.0.0/4', 'dev', lk.veth[ns], check=False)
-            _ip('-n', ns, 'link', 'set', lk.veth[ns], 'multicast', 'off')
+            ip('-n', ns, 'route', 'del', '224.0.0.0/4', 'dev', lk.veth[ns], check=False)
+            ip('-n', ns, 'link', 'set', lk.veth[ns], 'multicast', 'off')
         yield lk
     finally:
         lk.close()
-
-
-def _env(base, rng, peer):
-    env = dict(base, ROS_AUTOMATIC_DISCOVERY_RANGE=rng, FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
-    env.pop('ROS_STATIC_PEERS', None)
-    if peer:
-        env['ROS_STATIC_PEERS'] = peer
-    return env
 
 
 @pytest.mark.parametrize('robot_peer, laptop_range, laptop_peer, drives', [
@@ -66,17 +55,13 @@ def test_localhost_with_static_peers(unicast_link, procs, tmp_path, m4k_runtime_
         lk.up()                                # a LAN where multicast passes
     truth = Truth(m4k_runtime_dir)
     control, status = tmp_path / 'control', tmp_path / 'status'
-    _say(control, 'off')
+    say(control, 'off')
     base = stack_env(m4k_runtime_dir)
     overlay = write_overlay(tmp_path, {'world': {'start': START}})
-    robot = procs.start(lk.argv(lk.robot, [
-        'python', '-m', 'm4k_bringup.bringup', '--python-m', '--config', overlay,
-        '--no-status']), env=_env(base, 'LOCALHOST', lk.addr[lk.laptop] if robot_peer else ''),
-        stdout=open(tmp_path / 'bringup.out', 'w'), stderr=open(tmp_path / 'bringup.err', 'w'))
-    laptop = procs.start(lk.argv(lk.laptop, [
-        'python', os.path.join(ROOT, 'test', 'netns_driver.py'), str(control), str(status)]),
-        env=_env(base, laptop_range, lk.addr[lk.robot] if laptop_peer else ''),
-        stdout=open(tmp_path / 'laptop.out', 'w'), stderr=open(tmp_path / 'laptop.err', 'w'))
+    robot, laptop = start_pair(
+        procs, lk, tmp_path, overlay, control, status,
+        net_env(base, 'LOCALHOST', lk.addr[lk.laptop] if robot_peer else ''),
+        net_env(base, laptop_range, lk.addr[lk.robot] if laptop_peer else ''))
     try:
         deadline = time.monotonic() + 60
         while truth.latest() is None:
@@ -84,7 +69,7 @@ def test_localhost_with_static_peers(unicast_link, procs, tmp_path, m4k_runtime_
                 (tmp_path / 'bringup.err').read_text()[-3000:]
             time.sleep(0.1)
         start = truth.latest()
-        _say(control, '0.2')
+        say(control, '0.2')
         end = time.monotonic() + (60 if drives else QUIET_S)
         while time.monotonic() < end:
             truth.poll()
@@ -92,15 +77,9 @@ def test_localhost_with_static_peers(unicast_link, procs, tmp_path, m4k_runtime_
                 break
             time.sleep(0.1)
         moved = truth.latest()['v'] > 0.1
-        assert moved == drives, (_status(status), truth.latest(), start)
-        assert (_status(status)[0] > 0) == drives, _status(status)
+        assert moved == drives, (laptop_status(status), truth.latest(), start)
+        assert (laptop_status(status)[0] > 0) == drives, laptop_status(status)
         assert laptop.poll() is None and robot.poll() is None
     finally:
-        _say(control, 'off')
-        for proc in (laptop, robot):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(40)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        say(control, 'off')
+        stop(laptop, robot)

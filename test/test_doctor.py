@@ -7,8 +7,6 @@ The ground truth is how the graph was built; doctor must name that problem (its 
 and a line saying what and how to fix it), and find nothing in the healthy graph (exit 0).
 """
 
-import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -23,8 +21,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, LaserScan, Range
 from tf2_msgs.msg import TFMessage
-from wsenv import ROOT, stack_env
-import yaml
+from wsenv import config_with, stack_env
 
 from m4k_bridge import doctor
 
@@ -39,17 +36,10 @@ def slow_config(tmp_path_factory):
     """Return the configuration doctor judges rates against: config/ with the 100 Hz IMU and
     33 Hz sonar slowed to 20 Hz (a stand-in bridge in this shared, loaded test process keeps
     such rates reliably; the judgement is the same ratio)."""
-    d = tmp_path_factory.mktemp('config')
-    for name in os.listdir(os.path.join(ROOT, 'config')):
-        src = os.path.join(ROOT, 'config', name)
-        if os.path.isfile(src):
-            shutil.copy(src, d)
-    doc = yaml.safe_load((d / 'm4k.yaml').read_text())
-    for task in ('imu', 'sonar'):
-        doc['tasks'][task]['period_ms'] = 50
-    (d / 'm4k.yaml').write_text(yaml.safe_dump(doc))
-    RATES.update(doctor.expected_rates(str(d)))
-    return str(d)
+    d = config_with(tmp_path_factory.mktemp('config'), {'m4k.yaml': {'tasks': {
+        'imu': {'period_ms': 50}, 'sonar': {'period_ms': 50}}}})
+    RATES.update(doctor.expected_rates(d))
+    return d
 
 
 RATES = {}

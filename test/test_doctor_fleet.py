@@ -12,8 +12,6 @@ Ground truth is how the graph was built: the clean fleet exits 0, each mistake e
 a line naming it.
 """
 
-import os
-import shutil
 import subprocess
 import sys
 import threading
@@ -29,8 +27,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, LaserScan, Range
 from tf2_msgs.msg import TFMessage
-from wsenv import ROOT, stack_env
-import yaml
+from wsenv import config_with, stack_env
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
 ROBOTS = ('r1', 'r2', 'r3')
@@ -179,19 +176,9 @@ class Fleet:
 def config_dir(tmp_path_factory):
     """config/ with the IMU, sonar and odometry at 10 Hz (three stand-in bridges in one
     loaded test process keep such rates; the judgement is the same ratio)."""
-    d = tmp_path_factory.mktemp('config')
-    for name in os.listdir(os.path.join(ROOT, 'config')):
-        src = os.path.join(ROOT, 'config', name)
-        if os.path.isfile(src):
-            shutil.copy(src, d)
-    doc = yaml.safe_load((d / 'm4k.yaml').read_text())
-    for task in ('imu', 'sonar'):
-        doc['tasks'][task]['period_ms'] = 100
-    (d / 'm4k.yaml').write_text(yaml.safe_dump(doc))
-    control = yaml.safe_load((d / 'control.yaml').read_text())
-    control['control']['odom_every_n'] = 10
-    (d / 'control.yaml').write_text(yaml.safe_dump(control))
-    return str(d)
+    return config_with(tmp_path_factory.mktemp('config'), {
+        'm4k.yaml': {'tasks': {'imu': {'period_ms': 100}, 'sonar': {'period_ms': 100}}},
+        'control.yaml': {'control': {'odom_every_n': 10}}})
 
 
 def _one(lines, *words):

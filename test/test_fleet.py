@@ -46,7 +46,10 @@ import pytest
 from test_bringup import write_overlay
 from test_estop_e2e import Truth
 from test_stack_e2e import START
+from twomachines import ip, net_env
 from wsenv import ROOT, stack_env
+
+from m4k_bringup.bringup import bringup_argv
 
 pytestmark = [
     pytest.mark.allow_leaks('fds'),
@@ -55,11 +58,6 @@ pytestmark = [
 ]
 
 ROBOTS = ('r1', 'r2', 'r3')
-
-
-def _ip(*args, check=True):
-    return subprocess.run(['ip', *args], check=check, capture_output=True, text=True,
-                          timeout=10)
 
 
 class Fleet:
@@ -73,21 +71,21 @@ class Fleet:
         self.veth = {m: ('f{}{}'.format(m, tag), 'h{}{}'.format(m, tag)) for m in machines}
         self.created = []
         try:
-            _ip('netns', 'add', self.hub)
+            ip('netns', 'add', self.hub)
             self.created.append(self.hub)
-            _ip('-n', self.hub, 'link', 'add', 'br0', 'type', 'bridge')
-            _ip('-n', self.hub, 'link', 'set', 'br0', 'up')
+            ip('-n', self.hub, 'link', 'add', 'br0', 'type', 'bridge')
+            ip('-n', self.hub, 'link', 'set', 'br0', 'up')
             for i, m in enumerate(machines):
                 ns, (inner, outer) = self.ns[m], self.veth[m]
-                _ip('netns', 'add', ns)
+                ip('netns', 'add', ns)
                 self.created.append(ns)
-                _ip('link', 'add', inner, 'type', 'veth', 'peer', 'name', outer)
-                _ip('link', 'set', inner, 'netns', ns)
-                _ip('link', 'set', outer, 'netns', self.hub)
-                _ip('-n', self.hub, 'link', 'set', outer, 'master', 'br0')
-                _ip('-n', self.hub, 'link', 'set', outer, 'up')
-                _ip('-n', ns, 'addr', 'add', '10.232.{}.{}/24'.format(net, i + 1), 'dev', inner)
-                _ip('-n', ns, 'link', 'set', 'lo', 'up')
+                ip('link', 'add', inner, 'type', 'veth', 'peer', 'name', outer)
+                ip('link', 'set', inner, 'netns', ns)
+                ip('link', 'set', outer, 'netns', self.hub)
+                ip('-n', self.hub, 'link', 'set', outer, 'master', 'br0')
+                ip('-n', self.hub, 'link', 'set', outer, 'up')
+                ip('-n', ns, 'addr', 'add', '10.232.{}.{}/24'.format(net, i + 1), 'dev', inner)
+                ip('-n', ns, 'link', 'set', 'lo', 'up')
                 self.up(m)
         except BaseException:
             self.close()
@@ -95,18 +93,18 @@ class Fleet:
 
     def up(self, m):
         ns, inner = self.ns[m], self.veth[m][0]
-        _ip('-n', ns, 'link', 'set', inner, 'multicast', 'on', 'up')
-        _ip('-n', ns, 'route', 'replace', '224.0.0.0/4', 'dev', inner)
+        ip('-n', ns, 'link', 'set', inner, 'multicast', 'on', 'up')
+        ip('-n', ns, 'route', 'replace', '224.0.0.0/4', 'dev', inner)
 
     def down(self, m):
-        _ip('-n', self.ns[m], 'link', 'set', self.veth[m][0], 'down')
+        ip('-n', self.ns[m], 'link', 'set', self.veth[m][0], 'down')
 
     def argv(self, m, argv):
         return ['ip', 'netns', 'exec', self.ns[m], *argv]
 
     def close(self):
         for ns in reversed(self.created):
-            _ip('netns', 'del', ns, check=False)
+            ip('netns', 'del', ns, check=False)
         self.created = []
 
 
@@ -117,16 +115,12 @@ def fleet():
         yield f
     finally:
         f.close()
-        left = _ip('netns', 'list').stdout
+        left = ip('netns', 'list').stdout
         assert not any(ns in left for ns in list(f.ns.values()) + [f.hub])
 
 
 def _env(runtime_dir):
-    env = stack_env(runtime_dir)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
-    env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
-    env.pop('ROS_STATIC_PEERS', None)
-    return env
+    return net_env(stack_env(runtime_dir))
 
 
 def _say(path, doc):
@@ -265,8 +259,7 @@ def test_three_robots_one_argument_each_trees_apart_driven_apart_link_drop_stops
         rt = str(tmp_path / ('rt-' + r))
         os.makedirs(rt, mode=0o700)
         truths[r] = Truth(rt)
-        robots[r] = procs.start(fleet.argv(r, [
-            sys.executable, '-m', 'm4k_bringup.bringup', '--python-m', '--config', overlay,
+        robots[r] = procs.start(fleet.argv(r, bringup_argv(overlay) + [
             '--no-status', '--robot', r]), env=_env(rt),
             stdout=open(tmp_path / (r + '.out'), 'w'), stderr=open(tmp_path / (r + '.err'), 'w'))
     control, status = tmp_path / 'control', tmp_path / 'status'

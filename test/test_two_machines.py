@@ -16,18 +16,14 @@ a fresh command does. Needs root (namespaces); every namespace and link is remov
 """
 
 import math
-import os
-import random
 import shutil
-import signal
-import subprocess
 import time
 
 import pytest
 from test_bringup import write_overlay
 from test_estop_e2e import _actuator_period_s, _dist, _motor_tau_s, AT_REST, STILL_M, Truth
 from test_stack_e2e import _control, START
-from wsenv import ROOT
+from twomachines import ip, laptop_status, Link, net_env, say, start_pair, stop
 
 from m4k_rt.control.params import control_params
 
@@ -41,55 +37,6 @@ V = 0.25
 LINK_SLACK_S = 0.1   # last command up to one 50 ms publishing period before the cut, + margin
 
 
-def _ip(*args, check=True):
-    return subprocess.run(['ip', *args], check=check, capture_output=True, text=True,
-                          timeout=10)
-
-
-class Link:
-    """Two namespaces and the veth pair between them (removed by ``close``)."""
-
-    def __init__(self):
-        tag = '{:x}'.format(random.getrandbits(20))
-        self.robot, self.laptop = 'm4kr' + tag, 'm4kl' + tag
-        self.veth = {self.robot: 'vr' + tag, self.laptop: 'vl' + tag}
-        net = random.randrange(256)
-        self.addr = {self.robot: '10.231.{}.1'.format(net), self.laptop: '10.231.{}.2'.format(net)}
-        self.created = []
-        try:
-            for ns in (self.robot, self.laptop):
-                _ip('netns', 'add', ns)
-                self.created.append(ns)
-            _ip('link', 'add', self.veth[self.robot], 'type', 'veth', 'peer', 'name',
-                self.veth[self.laptop])
-            for ns in (self.robot, self.laptop):
-                _ip('link', 'set', self.veth[ns], 'netns', ns)
-                _ip('-n', ns, 'addr', 'add', self.addr[ns] + '/30', 'dev', self.veth[ns])
-                _ip('-n', ns, 'link', 'set', 'lo', 'up')
-            self.up()
-        except BaseException:
-            self.close()
-            raise
-
-    def up(self):
-        for ns in (self.robot, self.laptop):
-            _ip('-n', ns, 'link', 'set', self.veth[ns], 'multicast', 'on', 'up')
-            # taking the link down drops its routes: (re)add the multicast one each time
-            _ip('-n', ns, 'route', 'replace', '224.0.0.0/4', 'dev', self.veth[ns])
-
-    def down(self):
-        for ns in (self.robot, self.laptop):
-            _ip('-n', ns, 'link', 'set', self.veth[ns], 'down')
-
-    def argv(self, ns, argv):
-        return ['ip', 'netns', 'exec', ns, *argv]
-
-    def close(self):
-        for ns in reversed(self.created):
-            _ip('netns', 'del', ns, check=False)   # deleting a namespace deletes its veth end
-        self.created = []
-
-
 @pytest.fixture
 def link():
     lk = Link()
@@ -97,31 +44,8 @@ def link():
         yield lk
     finally:
         lk.close()
-        left = _ip('netns', 'list').stdout
+        left = ip('netns', 'list').stdout
         assert lk.robot not in left and lk.laptop not in left
-
-
-def _net_env(env):
-    env = dict(env)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SUBNET'
-    env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
-    env.pop('ROS_STATIC_PEERS', None)
-    return env
-
-
-def _say(path, word):
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(word)
-    os.replace(tmp, path)
-
-
-def _status(path):
-    """(matched, sent, word) from the laptop's STATUS file; zeros before its first write."""
-    try:
-        matched, sent, word = path.read_text().split()
-        return int(matched), int(sent), word
-    except (OSError, ValueError):
-        return 0, 0, ''
 
 
 def _wait(predicate, timeout, what, truth):
@@ -153,25 +77,18 @@ def test_cut_link_stops_the_robot_and_restoring_it_does_not_restart_it(
     truth = Truth(m4k_runtime_dir)
     control = tmp_path / 'control'
     status = tmp_path / 'status'
-    _say(control, 'off')
-    env = _net_env(stack_env(m4k_runtime_dir))
+    say(control, 'off')
+    env = net_env(stack_env(m4k_runtime_dir))
     overlay = write_overlay(tmp_path, {'world': {'start': START}})
-    robot = procs.start(link.argv(link.robot, [
-        'python', '-m', 'm4k_bringup.bringup', '--python-m', '--config', overlay,
-        '--no-status']), env=env, stdout=open(tmp_path / 'bringup.out', 'w'),
-        stderr=open(tmp_path / 'bringup.err', 'w'))
-    laptop = procs.start(link.argv(link.laptop, [
-        'python', os.path.join(ROOT, 'test', 'netns_driver.py'), str(control), str(status)]),
-        env=env, stdout=open(tmp_path / 'laptop.out', 'w'),
-        stderr=open(tmp_path / 'laptop.err', 'w'))
+    robot, laptop = start_pair(procs, link, tmp_path, overlay, control, status, env, env)
     try:
-        _wait(lambda: truth.latest() is not None and _status(status)[0] > 0
+        _wait(lambda: truth.latest() is not None and laptop_status(status)[0] > 0
               or robot.poll() is not None or laptop.poll() is not None, 60,
               'the stack up and the laptop matched across the link', truth)
         assert robot.poll() is None, (tmp_path / 'bringup.err').read_text()[-3000:]
         assert laptop.poll() is None, (tmp_path / 'laptop.err').read_text()[-3000:]
         # drive
-        _say(control, str(V))
+        say(control, str(V))
         _wait(lambda: truth.reports[-1]['v'] > V - 0.01, 30, 'the true speed 0.25 m/s', truth)
         before = truth.latest()
         t_cut = time.monotonic_ns()
@@ -189,27 +106,22 @@ def test_cut_link_stops_the_robot_and_restoring_it_does_not_restart_it(
               '{:.2f} s after the event (bound {:.2f} s)'.format(
                   travelled, allowed, (after[0]['t_ns'] - t_cut) * 1e-9, bound_s))
         # the laptop stops commanding, then the link comes back: nothing may move the robot
-        _say(control, 'off')
+        say(control, 'off')
         # the laptop reads its control file every 50 ms: wait until it says it acted on 'off'
-        _wait(lambda: _status(status)[2] == 'off', 10, 'the laptop to stop publishing', truth)
-        sent = _status(status)[1]
+        _wait(lambda: laptop_status(status)[2] == 'off', 10, 'the laptop to stop publishing',
+              truth)
+        sent = laptop_status(status)[1]
         _collect(truth, 0.3)
-        assert _status(status)[1] == sent, 'the laptop published after acting on off'
+        assert laptop_status(status)[1] == sent, 'the laptop published after acting on off'
         link.up()
         rest = truth.latest()
         _collect(truth, 3.0)
         assert _dist(truth.latest(), rest) < STILL_M
         assert all(abs(r['v']) < AT_REST for r in truth.reports if r['t_ns'] > rest['t_ns'])
         # a fresh command from the laptop drives again (discovery recovered across the link)
-        _say(control, str(V))
+        say(control, str(V))
         _wait(lambda: truth.reports[-1]['v'] > 0.1, 30, 'a fresh command to drive', truth)
-        _say(control, '0.0')
+        say(control, '0.0')
         assert robot.poll() is None
     finally:
-        for proc in (laptop, robot):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(40)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        stop(laptop, robot)

@@ -146,3 +146,28 @@ def check_provenance(doc: dict) -> None:
     machine = prov['machine']
     assert machine['cpus_online'] >= 1 and machine['kernel'] and 'cpu_model' in machine
     assert 'hostname' not in machine and 'node' not in machine
+
+
+def config_with(dest: str, overlays: dict[str, dict]) -> str:
+    """Return ``dest`` holding the repository's ``config/`` with ``overlays`` merged in.
+
+    ``overlays`` maps a layer's file name (``m4k.yaml``, ``control.yaml``) to the settings
+    deep-merged into that file (m4k_rt.config.deep_merge, the stack's one layering), for a
+    tool pointed at a config directory (``--config-dir``, ``M4K_CONFIG_DIR``).
+    """
+    import shutil
+
+    import yaml
+
+    from m4k_rt.config import deep_merge
+    src = os.path.join(ROOT, 'config')
+    for name in os.listdir(src):
+        if os.path.isfile(os.path.join(src, name)):
+            shutil.copy(os.path.join(src, name), dest)
+    for name, over in overlays.items():
+        path = os.path.join(dest, name)
+        with open(path, encoding='utf-8') as f:
+            doc = yaml.safe_load(f)
+        with open(path, 'w', encoding='utf-8') as f:
+            yaml.safe_dump(deep_merge(doc, over), f)
+    return str(dest)

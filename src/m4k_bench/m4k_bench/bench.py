@@ -53,7 +53,6 @@ from m4k_bench.benchlib import (
     analysis,
     hostdrops,
     plots,
-    provenance,
     report,
     results,
     rounds,
@@ -738,15 +737,12 @@ class Bench:
             plots.scaling(s['scaling'], os.path.join(self.outdir, 'scaling.png'))
             s['files'].append('scaling.png')
         s['method'] = report.method_lines(s, self.env.get('ROS_DOMAIN_ID'))
-        s['provenance'] = provenance.provenance()
         s['files'] = sorted(set(s['files']) | {'report.md', 'summary.json', 'rounds.json',
                                                'readme_snippet.md'})
         with open(os.path.join(self.outdir, 'rounds.json'), 'w', encoding='utf-8') as f:
-            json.dump(self.rounds, f, indent=1, default=str)
+            json.dump(self.rounds, f, indent=1, default=str)   # a list of rounds, not a summary
             f.write('\n')
-        with open(os.path.join(self.outdir, 'summary.json'), 'w', encoding='utf-8') as f:
-            json.dump(s, f, indent=2, default=str)
-            f.write('\n')
+        s = results.write_json(os.path.join(self.outdir, 'summary.json'), s)
         with open(os.path.join(self.outdir, 'report.md'), 'w', encoding='utf-8') as f:
             f.write(report.render(s))
         with open(os.path.join(self.outdir, 'readme_snippet.md'), 'w', encoding='utf-8') as f:

@@ -29,6 +29,7 @@ from typing import Any, cast, Sequence
 import numpy as np
 
 from m4k_bench import recorder
+from m4k_bench.benchlib import results
 from m4k_bench.echo_peer import EchoPeer
 from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import channel, config, cycleprof, rosargs, timing
@@ -273,8 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     res = run(args.duration, args.rtt)
     sys.stdout.write(format_report(res))
     if args.json:
-        with open(args.json, 'w', encoding='utf-8') as f:
-            json.dump(res, f, indent=2, default=str)
+        results.write_json(args.json, res)
     return 0
 
 

@@ -453,9 +453,7 @@ def _analyse(rec: Recorder, raw: dict[str, Any], goal: Sequence[float], toleranc
     _write_csv(os.path.join(out_dir, 'trajectory.csv'), odom, world, ref, clear, v_pose)
     summary['figures'] = [os.path.basename(p) for p in _plots(
         out_dir, geom, world, odom, cmd, v_pose, goal_w, tolerance, max_v, twist_ms)]
-    with open(os.path.join(out_dir, 'summary.json'), 'w', encoding='utf-8') as f:
-        json.dump(summary, f, indent=2)
-        f.write('\n')
+    results.write_json(os.path.join(out_dir, 'summary.json'), summary)
     with open(os.path.join(out_dir, 'report.md'), 'w', encoding='utf-8') as f:
         f.write(_report(summary))
     return summary

@@ -34,6 +34,7 @@ from typing import Any, Sequence
 import yaml
 
 from m4k_bench.benchlib import provenance, results
+from m4k_bringup.bringup import bringup_argv
 from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import rosargs
 
@@ -84,8 +85,7 @@ def run_once(enabled: bool, window_s: float, warmup_s: float, env: dict[str, str
     env = dict(env, M4K_RUNTIME_DIR=os.path.join(tmp, 'rt'))
     log_path = os.path.join(tmp, 'bringup.log')
     # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
-    proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
-                             '--no-status', '--config', overlay], env,
+    proc = Child('bringup', bringup_argv(overlay) + ['--no-status'], env,
                  output=Output(log_path=log_path),
                  stopping=Stopping(timeout=40.0, must_end=True)).start()
     ctx = rclpy.context.Context()

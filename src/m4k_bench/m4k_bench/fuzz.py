@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import shutil
 import sys
@@ -52,7 +51,7 @@ import time
 from typing import Any, Mapping, Sequence
 
 from m4k_bench import fuzzlinks, fuzzstream, recorder
-from m4k_bench.benchlib import provenance, stack, stallprobe
+from m4k_bench.benchlib import provenance, results, stack, stallprobe
 from m4k_bench.fuzzstream import ACCEPTS, Expectation
 
 # rt_core registers the monitor body on import: config.load needs it to know that body.
@@ -320,8 +319,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.seed = int.from_bytes(os.urandom(4), 'little')
     out = run(args)
     if args.json:
-        with open(args.json, 'w') as f:
-            json.dump(out, f, indent=1)
+        results.write_json(args.json, out, indent=1)
     if args.results:
         _write_results(args.results, out)
     _say('fuzz: {} (seed {}; replay: make fuzz SEED={})'.format(
@@ -494,9 +492,7 @@ def _summarize(args: argparse.Namespace, cfg: config.RtConfig, obs: fuzzlinks.Ob
 
 
 def _write_results(outdir: str, out: dict[str, Any]) -> None:
-    os.makedirs(outdir, exist_ok=True)
-    with open(os.path.join(outdir, 'results.json'), 'w') as f:
-        json.dump(out, f, indent=1)
+    out = results.write_json(os.path.join(outdir, 'results.json'), out, indent=1)
     from m4k_bench.fuzzreport import format_report
     with open(os.path.join(outdir, 'report.md'), 'w') as f:
         f.write(format_report(out))

@@ -29,8 +29,9 @@ import tempfile
 import time
 from typing import Any, Sequence
 
-from m4k_bench.benchlib import provenance
+from m4k_bench.benchlib import results
 from m4k_bridge.interfaces import interface_class
+from m4k_bringup.bringup import bringup_argv
 from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import rosargs
 
@@ -212,8 +213,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     env['M4K_RUNTIME_DIR'] = os.path.join(tmp, 'rt')
     log_path = os.path.join(tmp, 'bringup.log')
     # bringup stops its own children on SIGTERM: 40 s for that, then SIGKILL.
-    proc = Child('bringup', [sys.executable, '-m', 'm4k_bringup.bringup', '--no-status',
-                             '--foxglove', '--foxglove-port', '0'], env,
+    proc = Child('bringup', bringup_argv(python_m=False) + [
+        '--no-status', '--foxglove', '--foxglove-port', '0'], env,
                  output=Output(log_path=log_path),
                  stopping=Stopping(timeout=40.0, must_end=True)).start()
     try:
@@ -235,12 +236,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     render(got, os.path.join(args.results, 'liveview.png'))
     server = [{kv.key: kv.value for kv in st.values} for _, a in got['/diagnostics']
               for st in a.status if st.name == 'm4k_foxglove: server']
-    summary = {'messages': {t: len(v) for t, v in got.items()},
-               'server': server[-1] if server else None,
-               'provenance': provenance.provenance()}
-    with open(os.path.join(args.results, 'summary.json'), 'w') as f:
-        json.dump(summary, f, indent=2)
-        f.write('\n')
+    summary = results.write_json(os.path.join(args.results, 'summary.json'), {
+        'messages': {t: len(v) for t, v in got.items()},
+        'server': server[-1] if server else None})
     print(json.dumps(summary, indent=2))
     return 0
 

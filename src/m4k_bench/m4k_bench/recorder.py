@@ -16,16 +16,16 @@ The formatting functions are pure (summary dict in, text out) so the bench tool 
 import argparse
 import csv
 import dataclasses
-import json
 import math
 import os
 import sys
 import time
 from typing import Any, Iterable, Sequence
 
+from m4k_bench.benchlib import results
 from m4k_rt import protocol, rosargs, timing
 
-__all__ = ['Recorder', 'TaskSeries', 'format_table1', 'main', 'summary_json']
+__all__ = ['Recorder', 'TaskSeries', 'format_table1', 'main']
 
 _US = 1e-3  # ns -> us
 _MS = 1e-6  # ns -> ms
@@ -152,8 +152,7 @@ class Recorder:
             for t in self.tasks.values():
                 for row in zip(t.t_rel, t.t_start, t.t_end, t.expirations, strict=True):
                     w.writerow([t.name, *row])
-        with open(paths['json'], 'w', encoding='utf-8') as f:
-            f.write(summary_json(summ))
+        results.write_json(paths['json'], summ)
         return paths
 
 
@@ -217,11 +216,6 @@ def summarize(series: Iterable[TaskSeries], rt_status: Any = None,
     if rt_status is not None:
         out['rt_status'] = dict(rt_status._asdict())
     return out
-
-
-def summary_json(summ: dict[str, Any]) -> str:
-    """Serialise a summary as indented JSON."""
-    return json.dumps(summ, indent=2, sort_keys=False) + '\n'
 
 
 def _f(v: float | None, digits: int = 3) -> str:

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import os
 import shutil
 import signal
@@ -42,6 +41,7 @@ from typing import Any, Sequence
 
 from m4k_bench import core_bench, recorder, soaktime
 from m4k_bench.benchlib import provenance, results, stack, system
+from m4k_bringup.bringup import bringup_argv
 from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import channel, config, rosargs
 
@@ -248,8 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if low.priority != act.priority:
         refs[low.name] = (low.priority, os.path.join(outdir, 'cyclictest-{}.hist'.format(
             low.name)), os.path.join(outdir, 'cyclictest-{}.v.txt'.format(low.name)))
-    argv_bu = [sys.executable, '-m', 'm4k_bringup.bringup', '--python-m',
-               '--status-interval', '10'] + (['--config', args.config] if args.config else [])
+    argv_bu = bringup_argv(args.config) + ['--status-interval', '10']
     _log('{} s (warm-up {} s), stress {}, results {}'.format(
         args.duration, warmup, 'off' if args.no_stress else 'on', outdir))
     rss: dict[str, list[tuple[float, int]]] = {n: [] for n in ['bringup', *NAMES]}
@@ -383,8 +382,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _write(outdir: str, summary: dict[str, Any], rss: dict[str, list[tuple[float, int]]],
            period_us: int) -> None:
-    with open(os.path.join(outdir, 'summary.json'), 'w') as f:
-        json.dump(summary, f, indent=1, default=str)
+    results.write_json(os.path.join(outdir, 'summary.json'), summary, indent=1)
     with open(os.path.join(outdir, 'rss.csv'), 'w', newline='') as f:
         w = csv.writer(f)
         w.writerow(['process', 't_s', 'rss_kib'])

@@ -26,13 +26,14 @@ from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.real import EnableLine, ReadbackLine
 from m4k_drivers.motors.sim import EnableMonostable, EstopReadback, open_sim_bus
 from m4k_drivers.world import World, WorldConfig
-from m4k_rt.config import deep_merge, load_layered
+from m4k_rt.config import deep_merge, load_layered, shipped_period_s
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.params import control_params
 
 __all__ = ['PERIOD_NS', 'VirtualBase']
 
-PERIOD_NS = 10_000_000          # the actuator period
+# the actuator period, as the shipped configuration declares it (tasks.actuator.period_ms)
+PERIOD_NS = round(shipped_period_s('actuator') * 1e9)
 
 
 class _Clock:

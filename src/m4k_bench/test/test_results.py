@@ -1,10 +1,17 @@
 """benchlib.results, the one results writer: stamped folders, provenance, Markdown tables."""
 
+import ast
 import datetime
 import json
 import os
 
+import m4k_bench
+from m4k_bench import recorder
 from m4k_bench.benchlib import results
+
+# json.dump calls allowed outside the writer, with why: the bench's rounds.json is a list
+# of rounds (no mapping to carry a provenance), the floor probe prints to its parent's pipe.
+_NOT_A_SUMMARY = {'bench.py': 1, 'benchlib/floor.py': 1}
 
 
 def test_stamped_folders_are_new_every_time(tmp_path):
@@ -38,3 +45,34 @@ def test_markdown_tables_and_pages(tmp_path):
     results.write_text(page, '# t')
     with open(page) as f:
         assert f.read() == '# t\n'
+
+
+def test_no_tool_writes_its_json_results_by_hand():
+    # Seven tools (bench, core_bench, demo, fuzz, liveview, recorder, soak) wrote summary.json
+    # with their own json.dump beside this writer; a new one would be a twin again.
+    root = os.path.dirname(m4k_bench.__file__)
+    found: dict[str, int] = {}
+    for d, _, files in os.walk(root):
+        for name in files:
+            if not name.endswith('.py'):
+                continue
+            path = os.path.join(d, name)
+            rel = os.path.relpath(path, root)
+            with open(path, encoding='utf-8') as f:
+                tree = ast.parse(f.read())
+            n = sum(1 for c in ast.walk(tree) if isinstance(c, ast.Call)
+                    and isinstance(c.func, ast.Attribute) and c.func.attr == 'dump'
+                    and isinstance(c.func.value, ast.Name) and c.func.value.id == 'json')
+            if n and rel != os.path.join('benchlib', 'results.py'):
+                found[rel] = n
+    assert found == _NOT_A_SUMMARY
+
+
+def test_rt_stats_summary_comes_through_the_writer(tmp_path):
+    # the recorder serialised its summary with json.dumps into its own file (no json.dump to
+    # count above): what it writes now carries the writer's provenance
+    paths = recorder.Recorder().write(str(tmp_path))
+    with open(paths['json']) as f:
+        doc = json.load(f)
+    assert set(doc) == {'tasks', 'warmup_cycles_skipped', 'provenance'}
+    assert set(doc['provenance']) == {'commit', 'dirty', 'machine', 'measured_utc'}

@@ -16,7 +16,6 @@ Every error is a :class:`ConfigError` whose message starts with the dotted field
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 import os
 from pathlib import Path
@@ -201,7 +200,7 @@ def validate_device(kind: str, section: Any, where: str) -> dict[str, Any]:
             doc = f' ({param.doc})' if param.doc else ''
             raise ConfigError(f'{where}.{name}: missing, required by backend {backend!r}{doc}')
         else:
-            out[name] = copy.deepcopy(param.default)
+            out[name] = param.default_value()
     return out
 
 

@@ -21,6 +21,7 @@ only its own package and the configuration: a kind registered by a module the ho
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 import importlib
 import time
@@ -34,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from m4k_drivers.world import World
 
 __all__ = [
-    'COMMON_KEYS', 'KIND_MODULES', 'BackendSpec', 'BuildContext', 'Jog', 'Param',
+    'COMMON_KEYS', 'KIND_MODULES', 'BackendSpec', 'BuildContext', 'Derived', 'Jog', 'Param',
     'RegistryError', 'Replier', 'ServiceSpec', 'backends', 'create', 'get', 'kinds', 'register',
     'register_service', 'service',
 ]
@@ -69,12 +70,28 @@ _REQUIRED = object()
 
 
 @dataclass(frozen=True)
+class Derived:
+    """A default that another setting of the layered configuration declares.
+
+    The value is read when a section is validated, so the number lives in one place (a task
+    period in ``tasks:``, config/m4k.yaml) and a backend's schema only names it.
+    """
+
+    source: str                # the setting it comes from, as the docs name it
+    read: Callable[[], Any]    # its value in the shipped configuration
+
+    def __str__(self) -> str:
+        return f'<{self.source}>'
+
+
+@dataclass(frozen=True)
 class Param:
     """One config field of a backend: accepted type(s), default (omit = required), help.
 
     ``check`` (optional) validates the value after the type check: it returns None when the
     value is fine, else a short reason ("must be 1 or -1"); :mod:`m4k_drivers.config` turns
-    that into a ConfigError naming the field and the value.
+    that into a ConfigError naming the field and the value.  A :class:`Derived` default is
+    read from the setting it names when a section leaves the field out.
     """
 
     type: type | tuple[type, ...]
@@ -87,6 +104,12 @@ class Param:
         """Return True when the field has no default."""
         return self.default is _REQUIRED
 
+    def default_value(self) -> Any:
+        """Return the default a section without this field gets (a fresh copy)."""
+        if isinstance(self.default, Derived):
+            return self.default.read()
+        return copy.deepcopy(self.default)
+
     def as_field(self) -> Field:
         """Return this as a schema Field (m4k_rt.schema), which validates it and documents it."""
         types = self.type if isinstance(self.type, tuple) else (self.type,)
@@ -97,8 +120,10 @@ class Param:
             reason = check(value) if check is not None else None
             return None if reason is None else f'{reason}, got {value!r}'
 
-        return Field('|'.join(names), REQUIRED if self.required else self.default, self.doc,
-                     nullable=type(None) in types,
+        derived = self.default if isinstance(self.default, Derived) else None
+        default = REQUIRED if self.required else str(derived) if derived else self.default
+        return Field('|'.join(names), default, self.doc,
+                     nullable=type(None) in types, derived_from=derived.source if derived else '',
                      expect=' or '.join(t.__name__ for t in types),
                      check=full if check is not None else None)
 

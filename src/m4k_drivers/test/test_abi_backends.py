@@ -33,6 +33,9 @@ from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.real import open_real_bus, open_real_enable
 from m4k_drivers.sonar import protocol as sp
 from m4k_drivers.sonar.real import open_gpio_sonar
+from m4k_rt.config import shipped_period_s
+
+PERIOD_S = shipped_period_s('actuator')   # the actuator task's, as shipped
 
 CHIP = '/dev/gpiochip0'
 
@@ -74,7 +77,8 @@ class _Rig:
                                  ldac_line=22 if ldac else None,
                                  enable=lambda: open_real_enable(CHIP, 25))
         # 10 ms per reading, so the jump filter sees a wheel speed
-        return MotorHandler(opener, name='motor', clock=FakeClock(step_ns=10_000_000))
+        return MotorHandler(opener, name='motor', clock=FakeClock(step_ns=10_000_000),
+                            period_s=PERIOD_S)
 
 
 @pytest.mark.parametrize('ldac', [False, True])
@@ -125,7 +129,8 @@ def test_ldac_driven_holds_both_outputs_until_the_pulse(kernel):
 def test_encoder_in_the_wrong_spi_mode_is_refused_at_configure(kernel):
     rig = _Rig(kernel, ldac=False)
     h = MotorHandler(lambda: open_real_bus('/dev/spidev0.0', '/dev/spidev0.1', '/dev/spidev1.0',
-                                           '/dev/spidev1.1', enc_mode=0), name='motor')
+                                           '/dev/spidev1.1', enc_mode=0), name='motor',
+                     period_s=PERIOD_S)
     with pytest.raises(DriverError, match='AS5045'):
         h.configure()
     h.cleanup()

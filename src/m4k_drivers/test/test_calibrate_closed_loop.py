@@ -21,9 +21,11 @@ from m4k_drivers.drive import DriveState, step_drive
 from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import World, WorldConfig
-from m4k_rt.config import deep_merge, load_layered
+from m4k_rt.config import deep_merge, load_layered, shipped_period_s
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.params import control_params
+
+PERIOD_S = shipped_period_s('actuator')   # the actuator task's, as shipped
 
 # drive_load_fraction 1.0 (no caster load): with the casters' share (the simulator's default
 # 0.5 since issue 39) calibrate's sweep puts both zero trims 2 codes (0.09 V) low -- a gap of
@@ -38,7 +40,8 @@ def _robot(trim=(0, 0)):
     world = World(WorldConfig.from_dict({'robot': AS_BUILT, 'obstacles': [], 'seed': 7,
                                          'walls': {'rectangle': [-20, -20, 20, 20]}}),
                   clock=clock, t0_ns=0)
-    handler = MotorHandler(lambda: open_sim_bus(world), clock=clock, dac_zero_trim=trim)
+    handler = MotorHandler(lambda: open_sim_bus(world), clock=clock, dac_zero_trim=trim,
+                           period_s=PERIOD_S)
     return world, handler, clock
 
 

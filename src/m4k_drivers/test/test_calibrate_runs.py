@@ -7,6 +7,9 @@ from m4k_drivers.calibrate import runs
 from m4k_drivers.motors.handler import MotorHandler
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import World, WorldConfig
+from m4k_rt.config import shipped_period_s
+
+PERIOD_S = shipped_period_s('actuator')   # the actuator task's, as shipped
 
 
 def _rig():
@@ -19,7 +22,7 @@ def _rig():
     def opener():
         bus['bus'] = open_sim_bus(world, noise_lsb=0.0)
         return bus['bus']
-    handler = MotorHandler(opener, clock=clock)
+    handler = MotorHandler(opener, clock=clock, period_s=PERIOD_S)
     stop = SteppingStop(clock)
     return runs.MotorRig(handler, stop, clock=clock.seconds), world, bus, stop
 
@@ -105,7 +108,8 @@ def test_brake_run_measures_the_simulators_braking_and_a_reaction_within_two_per
     world = World(WorldConfig.from_dict({'obstacles': [], 'robot': robot,
                                          'walls': {'rectangle': [-9, -9, 9, 9]}}),
                   clock=clock, t0_ns=0)
-    handler = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.5), clock=clock)
+    handler = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.5), clock=clock,
+                           period_s=PERIOD_S)
     stop = SteppingStop(clock)
     with runs.MotorRig(handler, stop, clock=clock.seconds) as rig:
         t_zero, before, after = runs.brake(rig, 0.25, 1.5)
@@ -135,7 +139,8 @@ def test_lag_run_times_the_simulators_straight_line_time_constant(robot):
     world = World(WorldConfig.from_dict({'obstacles': [], 'robot': robot,
                                          'walls': {'rectangle': [-9, -9, 9, 9]}}),
                   clock=clock, t0_ns=0)
-    handler = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.5), clock=clock)
+    handler = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.5), clock=clock,
+                           period_s=PERIOD_S)
     band = robot.get('deadband_v', 0.0) / 24.0 * fit.DAC_SPAN
     with runs.MotorRig(handler, SteppingStop(clock), clock=clock.seconds) as rig:
         plateaus = runs.lag(rig, 0.15, 0.6, 0.6, print, band)

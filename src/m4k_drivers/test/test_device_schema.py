@@ -17,7 +17,10 @@ def test_every_backend_field_is_a_documented_schema_field_whose_default_validate
     for sec in sections:
         for name, field in sec.fields.items():
             assert field.description, (sec.title, name)
-            if not field.required and name != 'xddp_port':
+            # a placeholder names where the default comes from: the port labelled with the
+            # kind, a setting of the layered configuration (Derived; its value is checked in
+            # test_registry_config)
+            if not field.required and name != 'xddp_port' and not field.derived_from:
                 assert field.problem(field.default) is None, (sec.title, name)
 
 

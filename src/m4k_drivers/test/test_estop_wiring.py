@@ -20,7 +20,10 @@ from m4k_drivers.abi.devices import As5045, Mcp4911, Monostable, RelayReadback
 from m4k_drivers.abi.kernel import GpioChip, KernelStandIn, SpiNode
 from m4k_drivers.motors.handler import MotorHandler, READBACK_FAULT_SAMPLES, WheelCommand
 from m4k_drivers.motors.real import open_real_bus, open_real_enable, open_real_readback
+from m4k_rt.config import shipped_period_s
 from m4k_rt.protocol import EncoderStatus
+
+PERIOD_S = shipped_period_s('actuator')   # the actuator task's, as shipped
 
 CHIP = '/dev/gpiochip0'
 MS = 1_000_000
@@ -45,7 +48,8 @@ class _Rig:
                                  '/dev/spidev1.1', enable=lambda: open_real_enable(CHIP, 25),
                                  readback=lambda: open_real_readback(CHIP, 26,
                                                                      active_low=configured_low))
-        self.h = MotorHandler(opener, name='motor', clock=self.clock, enable_hold_s=0.05)
+        self.h = MotorHandler(opener, name='motor', clock=self.clock, enable_hold_s=0.05,
+                              period_s=PERIOD_S)
         self.h.configure()
         self.h.activate()
 

@@ -19,6 +19,9 @@ from m4k_drivers.motors.jog import (
 )
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig
+from m4k_rt.config import shipped_period_s
+
+PERIOD_S = shipped_period_s('actuator')   # the actuator task's, as shipped
 
 
 class Tty(io.StringIO):
@@ -44,7 +47,7 @@ def _rig(**kw):
         bus = open_sim_bus(world, noise_lsb=0.0)
         dacs.extend(port.dev for port in bus.dacs)
         return bus
-    return MotorHandler(opener, clock=clock, **kw), world, clock, dacs
+    return MotorHandler(opener, clock=clock, **({'period_s': PERIOD_S} | kw)), world, clock, dacs
 
 
 def _angles(world):

@@ -9,7 +9,10 @@ from m4k_drivers.motors.handler import MotorHandler, WheelCommand
 from m4k_drivers.motors.real import open_real_bus
 from m4k_drivers.motors.sim import open_sim_bus
 from m4k_drivers.world import LEFT, RIGHT, World, WorldConfig
+from m4k_rt.config import shipped_period_s
 from m4k_rt.protocol import EncoderStatus
+
+PERIOD_S = shipped_period_s('actuator')   # the actuator task's, as shipped
 
 
 # -- MCP4911 frames (hand-computed: bit15 /A-B=0, bit14 BUF, bit13 /GA, bit12 /SHDN, D9..D0<<2)
@@ -152,7 +155,8 @@ def test_unwrap_rejects_impossible_jump_then_resyncs():
 def make_sim(world_cfg=None, **kw):
     clock = FakeClock()
     world = World(world_cfg or WorldConfig(), clock=clock, t0_ns=0)
-    h = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.0), clock=clock, **kw)
+    h = MotorHandler(lambda: open_sim_bus(world, noise_lsb=0.0), clock=clock,
+                     **({'period_s': PERIOD_S} | kw))
     return h, world, clock
 
 
@@ -252,7 +256,7 @@ def test_driven_ldac_pulses_once_after_both_dac_words():
     from m4k_drivers.motors.real import MotorBus
     log = []
     bus = MotorBus(*_ports(log), ldac=_Ldac(log))
-    h = MotorHandler(lambda: bus, clock=FakeClock())
+    h = MotorHandler(lambda: bus, clock=FakeClock(), period_s=PERIOD_S)
     h.configure()
     h.activate()
     log.clear()
@@ -344,7 +348,8 @@ def test_encoder_frame_fault_sets_status_bit_keeps_angle():
 
 def test_configure_missing_spidev_names_the_path():
     h = MotorHandler(lambda: open_real_bus('/dev/spidev9.9', '/dev/spidev9.8',
-                                           '/dev/spidev9.7', '/dev/spidev9.6'))
+                                           '/dev/spidev9.7', '/dev/spidev9.6'),
+                     period_s=PERIOD_S)
     with pytest.raises(DeviceNotFoundError, match=r'/dev/spidev9\.9: No such file or directory '
                                                   r'\(errno 2\)'):
         h.configure()
@@ -380,7 +385,8 @@ def test_drive_straight_through_dac_frames_encoders_match_pose():
 @pytest.mark.hardware
 def test_real_motor_bus_configures():
     h = MotorHandler(lambda: open_real_bus('/dev/spidev0.0', '/dev/spidev0.1',
-                                           '/dev/spidev1.0', '/dev/spidev1.1'))
+                                           '/dev/spidev1.0', '/dev/spidev1.1'),
+                     period_s=PERIOD_S)
     h.configure()
     h.activate()
     assert h.read().status == Status.OK

@@ -1,10 +1,16 @@
+import ast
+import inspect
+import os
+
 import pytest
+import yaml
 
 from m4k_drivers import config as dconfig
-from m4k_drivers import registry
+from m4k_drivers import motors, registry
 from m4k_drivers.handler import DeviceIOError, DeviceNotFoundError, retry, RetryPolicy, State
 from m4k_drivers.imu.handler import ImuHandler
-from m4k_drivers.motors.handler import MotorHandler
+from m4k_drivers.motors.handler import HANDLER_PARAMS, MotorHandler
+from m4k_rt.config import load_layered, shipped_period_s
 
 
 def test_registry_lists_backends_per_kind():
@@ -147,6 +153,53 @@ def test_the_motor_service_runs_at_the_actuator_tasks_period_unless_told_otherwi
     own = {**raw, 'devices': {'motor': {'backend': 'sim', 'period_s': 0.005}}}
     assert dconfig.fill_actuator_period(own)['devices']['motor']['period_s'] == 0.005
     assert dconfig.fill_actuator_period({'devices': {'motor': {}}}) == {'devices': {'motor': {}}}
+
+
+def test_a_bare_motor_section_runs_at_the_shipped_actuator_period(tmp_path, monkeypatch):
+    # The default is read from tasks.actuator.period_ms, not restated: a configuration that
+    # declares another actuator period gives a bare motor section that one.
+    bare = dconfig.validate({'devices': {'motor': {'backend': 'sim'}}}).devices['motor']
+    assert bare['period_s'] == pytest.approx(shipped_period_s('actuator'))
+    shipped = load_layered()
+    shipped['tasks']['actuator']['period_ms'] = 25
+    (tmp_path / 'm4k.yaml').write_text(yaml.safe_dump(shipped))
+    monkeypatch.setenv('M4K_CONFIG_DIR', str(tmp_path))
+    other = dconfig.validate({'devices': {'motor': {'backend': 'sim'}}}).devices['motor']
+    assert other['period_s'] == pytest.approx(0.025)
+    field = registry.get('motor', 'sim').params['period_s'].as_field()
+    assert field.derived_from == 'tasks.actuator.period_ms'
+    assert field.doc_default() == '<tasks.actuator.period_ms>'
+    assert field.problem(bare['period_s']) is None
+
+
+def test_the_motor_package_states_no_actuator_period_of_its_own():
+    # the twins this closed: a 0.01 in the Param default, the service's fallback and the
+    # handler's keyword default. The handler takes the period it is given.
+    period = shipped_period_s('actuator')
+    pkg = os.path.dirname(motors.__file__)
+    found = []
+    for name in sorted(os.listdir(pkg)):
+        if name.endswith('.py'):
+            with open(os.path.join(pkg, name), encoding='utf-8') as f:
+                tree = ast.parse(f.read())
+            found += [f'{name}:{n.lineno}' for n in ast.walk(tree)
+                      if isinstance(n, ast.Constant) and type(n.value) is float
+                      and n.value == period]
+    assert found == []
+    param = inspect.signature(MotorHandler).parameters['period_s']
+    assert param.default is inspect.Parameter.empty
+
+
+def test_the_motor_handlers_defaults_are_its_config_schemas():
+    # MotorHandler restated the seven defaults its Param table declares (10, 30.0, 1, [1, 1],
+    # ...): the keyword defaults are now the table's own objects, for both backends' schemas.
+    sig = inspect.signature(MotorHandler).parameters
+    for name, p in HANDLER_PARAMS.items():
+        if name != 'period_s':
+            assert sig[name].default is p.default, name
+    for backend in ('real', 'sim'):
+        params = registry.get('motor', backend).params
+        assert all(params[k] is p for k, p in HANDLER_PARAMS.items()), backend
 
 
 def test_a_device_links_to_the_port_labelled_with_its_kind_by_default():

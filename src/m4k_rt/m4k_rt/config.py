@@ -22,7 +22,7 @@ from m4k_rt.schema import ConfigError
 
 __all__ = [
     'ConfigError', 'LAYERS', 'RtConfig', 'RuntimeConfig', 'TaskConfig', 'deep_merge',
-    'find_config_dir', 'load', 'load_layered', 'parse',
+    'find_config_dir', 'load', 'load_layered', 'parse', 'shipped_period_s',
 ]
 
 LAYERS = ('m4k.yaml', 'devices.yaml', 'control.yaml', 'robot.yaml')
@@ -152,6 +152,16 @@ def load_layered(overlay: str | None = None, config_dir: str | None = None) -> d
     if overlay:
         merged = deep_merge(merged, _read_yaml(overlay))
     return merged
+
+
+def shipped_period_s(task: str, config_dir: str | None = None) -> float:
+    """Return the period of ``task`` as the layered configuration declares it, in s.
+
+    The one source of a task period (``tasks.<task>.period_ms``, config/m4k.yaml) for code
+    that runs without the RT side's validated configuration: the motor service's default
+    period, a guard plan on a bare rig.
+    """
+    return float(load_layered(config_dir=config_dir)['tasks'][task]['period_ms']) * 1e-3
 
 
 # --- validation -----------------------------------------------------------------------------

@@ -19,11 +19,15 @@ import struct
 import sys
 from typing import Any, NamedTuple, Sequence
 
+from m4k_rt.channel.contract import DEFAULT_MAX_DATAGRAM
+
 MAGIC = 0x4B4D  # b'MK' on the wire
 VERSION = 1
 HEADER_FORMAT = '<HBBIq'
 HEADER_SIZE = 16
-MAX_DATAGRAM = 4096  # xddp's default max_datagram: every encodable datagram fits in it
+# The channel's default limit (declared once, in its contract): every encodable datagram fits
+# in it, so MAX_SCAN_RANGES and MAX_STATS_SAMPLES below are derived from it.
+MAX_DATAGRAM = DEFAULT_MAX_DATAGRAM
 SEQ_MASK = 0xFFFFFFFF
 
 DAC_ZERO = 512

@@ -1,6 +1,7 @@
 """Tests for m4k_rt.protocol: exact bytes, round trips, validation and fuzzing."""
 
 from array import array
+import ast
 import math
 import struct
 
@@ -9,6 +10,8 @@ from hypothesis import strategies as st
 import pytest
 
 from m4k_rt import protocol as p
+from m4k_rt import schema
+from m4k_rt.channel import contract
 from m4k_rt.protocol import Header, Kind, ProtocolError
 from m4k_testing import examples
 
@@ -226,6 +229,21 @@ def test_encoded_size_matches_layouts():
     assert p.encoded_size(Kind.LASER_SCAN, p.MAX_SCAN_RANGES) <= p.MAX_DATAGRAM
     assert p.encoded_size(Kind.TASK_STATS, p.MAX_STATS_SAMPLES) <= p.MAX_DATAGRAM
     assert p.encoded_size(Kind.TASK_STATS, p.MAX_STATS_SAMPLES + 1) > p.MAX_DATAGRAM
+
+
+def test_the_wire_limit_is_the_channels_one_declaration():
+    # MAX_DATAGRAM was a second 4096 beside the channel's contract: the protocol module now
+    # states no datagram limit of its own (no number bound to a *DATAGRAM* name), and the
+    # schema's default is the same declaration.
+    with open(p.__file__, encoding='utf-8') as f:
+        tree = ast.parse(f.read())
+    stated = [t.id for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign))
+              for t in (n.targets if isinstance(n, ast.Assign) else [n.target])
+              if isinstance(t, ast.Name) and 'DATAGRAM' in t.id
+              and any(isinstance(c, ast.Constant) for c in ast.walk(n.value))]
+    assert stated == []
+    assert p.MAX_DATAGRAM == contract.DEFAULT_MAX_DATAGRAM
+    assert schema.RUNTIME['max_datagram'].default == contract.DEFAULT_MAX_DATAGRAM
 
 
 # ---- round trips ----

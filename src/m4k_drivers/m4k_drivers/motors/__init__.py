@@ -8,30 +8,19 @@ from __future__ import annotations
 
 from typing import Any
 
-from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.amplifier import AMP_PARAMS, check_amplifier
-from m4k_drivers.motors.handler import EncoderReading, MotorHandler, WheelCommand
+from m4k_drivers.motors.handler import (
+    EncoderReading,
+    HANDLER_PARAMS,
+    MotorHandler,
+    WheelCommand,
+)
 from m4k_drivers.motors.service import SERVICE
 from m4k_drivers.registry import BuildContext, Param, register, register_service
 
 __all__ = ['EncoderReading', 'MotorHandler', 'RealMotorHandler', 'WheelCommand']
 
-_HANDLER = {
-    'period_s': Param(float, 0.01, 'service period, s; the driver host gives it the actuator '
-                      "task's (tasks.actuator.period_ms) from the layered configuration"),
-    'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
-    'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
-    'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read (0..6)',
-                       p.check_lead_bits),
-    'dac_sign': Param(list, [1, 1], '[left, right] +1/-1: -1 mirrors a DAC code about 512 '
-                      '(a motor wired the other way round)', p.check_sign_pair),
-    'dac_zero_trim': Param(list, [0, 0], '[left, right] codes added to 512 so the amplifier '
-                           f'sees zero (|trim| <= {p.DAC_TRIM_MAX})', p.check_trim_pair),
-    'enc_direction': Param(list, [1, 1], '[left, right] +1/-1 so wheel angles grow forward',
-                           p.check_sign_pair),
-    'enc_zero': Param(list, [0, 0], '[left, right] AS5045 reading taken as wheel angle 0',
-                      p.check_zero_pair),
-}
+
 def _check_active(value: object) -> str | None:
     return None if value in ('high', 'low') else "must be 'high' or 'low'"
 
@@ -71,7 +60,7 @@ _HEARTBEAT = {
                             'SCHED_OTHER); below every RT task, above ordinary load, so the '
                             'heartbeat keeps its period on a busy machine'),
 }
-_COMMON = _HANDLER | _HEARTBEAT
+_COMMON = HANDLER_PARAMS | _HEARTBEAT
 
 
 class RealMotorHandler(MotorHandler):
@@ -100,7 +89,7 @@ def _handler_kw(params: dict[str, Any], ctx: BuildContext) -> dict[str, Any]:
         raise ValueError(f"devices.motor.estop_readback_line: {params['estop_readback_line']!r} "
                          f"is the heartbeat output on {params['heartbeat_chip']!r}; the "
                          'read-back is a separate input after the e-stop contact')
-    return {k: params[k] for k in _HANDLER} | {
+    return {k: params[k] for k in HANDLER_PARAMS} | {
         'clock': ctx.clock, 'enable_hold_s': hold if params['heartbeat'] else None}
 
 

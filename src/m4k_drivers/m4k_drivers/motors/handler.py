@@ -33,10 +33,12 @@ from typing import Any, Callable, NamedTuple, Sequence
 from m4k_drivers.handler import DeviceHandler, DeviceIdentityError, DriverError
 from m4k_drivers.motors import protocol as p
 from m4k_drivers.motors.real import MotorBus
+from m4k_drivers.registry import Derived, Param
+from m4k_rt.config import shipped_period_s
 from m4k_rt.protocol import EncoderStatus
 
-__all__ = ['READBACK_FAULT_SAMPLES', 'EncoderReading', 'EstopReadbackFault', 'MotorHandler',
-           'WheelCommand']
+__all__ = ['HANDLER_PARAMS', 'READBACK_FAULT_SAMPLES', 'EncoderReading', 'EstopReadbackFault',
+           'MotorHandler', 'WheelCommand']
 
 
 class WheelCommand(NamedTuple):
@@ -62,6 +64,35 @@ _FRAME_BITS = (EncoderStatus.LEFT_FRAME, EncoderStatus.RIGHT_FRAME)
 READBACK_FAULT_SAMPLES = 3           # readings in a row before a contradiction latches
 
 
+def _actuator_period_s() -> float:
+    return shipped_period_s('actuator')
+
+
+# The handler's settings, declared once: the config schema of both backends (registry.Param)
+# and the constructor's defaults below are this table.
+HANDLER_PARAMS: dict[str, Param] = {
+    # The actuator's period, declared once in tasks: (config/m4k.yaml); the driver host
+    # fills it from the layered configuration (config.fill_actuator_period), a bare section
+    # from the shipped one.
+    'period_s': Param(float, Derived('tasks.actuator.period_ms', _actuator_period_s),
+                      "service period, s (the actuator task's period_ms / 1000); the "
+                      'watchdog and the stale-command age count in it.'),
+    'watchdog_periods': Param(int, 10, 'periods without WHEEL_CMD before outputs go safe'),
+    'max_wheel_rad_s': Param(float, 30.0, 'fastest plausible wheel speed for jump rejection'),
+    'lead_bits': Param(int, 1, 'dummy bits before the AS5045 frame in an SPI read (0..6)',
+                       p.check_lead_bits),
+    'dac_sign': Param(list, [1, 1], '[left, right] +1/-1: -1 mirrors a DAC code about 512 '
+                      '(a motor wired the other way round)', p.check_sign_pair),
+    'dac_zero_trim': Param(list, [0, 0], '[left, right] codes added to 512 so the amplifier '
+                           f'sees zero (|trim| <= {p.DAC_TRIM_MAX})', p.check_trim_pair),
+    'enc_direction': Param(list, [1, 1], '[left, right] +1/-1 so wheel angles grow forward',
+                           p.check_sign_pair),
+    'enc_zero': Param(list, [0, 0], '[left, right] AS5045 reading taken as wheel angle 0',
+                      p.check_zero_pair),
+}
+_DEFAULT = {k: v.default for k, v in HANDLER_PARAMS.items()}
+
+
 class EstopReadbackFault(DriverError):
     """The read-back shows the enable asserted while this handler does not command it."""
 
@@ -73,11 +104,14 @@ class MotorHandler(DeviceHandler):
 
     kind = 'motor'
 
-    def __init__(self, opener: Callable[[], MotorBus], *, name: str = 'motor',
-                 period_s: float = 0.01, watchdog_periods: int = 10,
-                 max_wheel_rad_s: float = 30.0, lead_bits: int = 1,
-                 dac_sign: Sequence[int] = (1, 1), dac_zero_trim: Sequence[int] = (0, 0),
-                 enc_direction: Sequence[int] = (1, 1), enc_zero: Sequence[int] = (0, 0),
+    def __init__(self, opener: Callable[[], MotorBus], *, period_s: float, name: str = 'motor',
+                 watchdog_periods: int = _DEFAULT['watchdog_periods'],
+                 max_wheel_rad_s: float = _DEFAULT['max_wheel_rad_s'],
+                 lead_bits: int = _DEFAULT['lead_bits'],
+                 dac_sign: Sequence[int] = _DEFAULT['dac_sign'],
+                 dac_zero_trim: Sequence[int] = _DEFAULT['dac_zero_trim'],
+                 enc_direction: Sequence[int] = _DEFAULT['enc_direction'],
+                 enc_zero: Sequence[int] = _DEFAULT['enc_zero'],
                  clock: Callable[[], int] = time.monotonic_ns,
                  enable_hold_s: float | None = None, **kw: Any) -> None:
         super().__init__(name, **kw)

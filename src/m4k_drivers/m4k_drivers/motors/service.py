@@ -40,7 +40,8 @@ def format_reading(value: EncoderReading) -> str:
 
 
 def _period(section: Mapping[str, Any]) -> float:
-    return float(section.get('period_s', 0.01))
+    # the validated section always has it (a Derived default: the actuator task's period)
+    return float(section['period_s'])
 
 
 def _max_age(section: Mapping[str, Any]) -> float:

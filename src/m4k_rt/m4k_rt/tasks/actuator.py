@@ -38,7 +38,7 @@ import sys
 import time
 from typing import Any, Callable, Mapping
 
-from m4k_rt.config import load_layered, TaskConfig
+from m4k_rt.config import shipped_period_s, TaskConfig
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.footprint import half_width_of
 from m4k_rt.control.guard import (
@@ -140,7 +140,7 @@ def _task_period(shared: Any, body: str) -> float:
             return float(t.period_ns) * 1e-9
     # Not a task of this configuration (a bare rig, or the task disabled): the period the
     # shipped configuration declares for it (config/m4k.yaml tasks:), never a second number.
-    return float(load_layered()['tasks'][body]['period_ms']) * 1e-3
+    return shipped_period_s(body)
 
 
 def test_weaken(environ: Mapping[str, str] = os.environ) -> float:
