@@ -402,3 +402,24 @@ def test_negative_control_supervision_off_with_a_flipped_encoder_fails(tmp_path,
         res.failures
     assert res.peak_speed > 0.5, (res.peak_speed, res.failures)
     assert any('peak speed' in f for f in res.failures), res.failures
+
+
+@pytest.mark.parametrize('w, exercised', [(0.25, True), (0.0, False)])
+def test_the_e_stop_judge_counts_a_turn_in_place_as_being_driven(w, exercised):
+    # estop.*.in_place: the robot turns on the spot (travelled stays 0) when the contact
+    # opens; that is a drive under a live command, and the release is judged. A robot that
+    # neither moved nor turned before the contact opened did not exercise it.
+    from m4k_bench.scenarios.judge import _judge_estop_release
+    dt = 0.02
+    samples, th = [], 0.0
+    for k in range(400):                      # 8 s: turning 0-4 s, contact open 4-6 s
+        t = k * dt
+        opened = 4.0 <= t < 6.0
+        wk = w if t < 4.0 else 0.0
+        th += wk * dt
+        samples.append({'t_ns': int(t * 1e9), 'x': 0.0, 'y': 0.0, 'theta': th, 'v': 0.0,
+                        'w': wk, 'travelled': 0.0, 'estop_open': opened})
+    res = Result('estop', '', 0.0, samples=samples, cmd_end_ns=int(8.0 * 1e9))
+    _judge_estop_release(res, samples)
+    assert (res.failures == []) == exercised, res.failures
+    assert any('before the robot moved' in f for f in res.failures) != exercised

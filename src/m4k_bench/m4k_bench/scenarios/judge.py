@@ -165,19 +165,33 @@ def _judge_motor_fault(res: Result, s: list[dict[str, Any]]) -> None:
                             f'move')
 
 
+TURNED_RAD = 0.1     # rad of heading: a robot turning in place has been driven (the rim of a
+#                     wheel 0.2 m from the centre has moved 2 cm, as ``travelled`` asks)
+
+
+def turned(s: list[dict[str, Any]]) -> float:
+    """Return the heading change summed over the samples ``s`` (rad, each step wrapped)."""
+    total = 0.0
+    for a, b in zip(s, s[1:], strict=False):
+        d = float(b['theta']) - float(a['theta'])
+        total += abs(math.atan2(math.sin(d), math.cos(d)))
+    return total
+
+
 def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
     """Judge the e-stop release: no motion once the contact closes (no reset, command live).
 
     The contact (``estop_open`` on ground truth) must have opened while the robot was being
-    driven, then closed; from the closing sample on, the robot stays at rest.
+    driven (it had moved, or turned: a turn in place travels nowhere), then closed; from the closing sample on, the robot stays at rest.
     """
     i_open = next((i for i, x in enumerate(s) if x.get('estop_open')), None)
     if i_open is None:
         res.failures.append('e-stop: the contact never opened during the drive')
         return
-    if float(s[i_open]['travelled']) < 0.02:
-        res.failures.append('e-stop: the contact opened before the robot moved (the stack came '
-                            'up late): the release under a live command was not exercised')
+    if float(s[i_open]['travelled']) < 0.02 and turned(s[:i_open + 1]) < TURNED_RAD:
+        res.failures.append('e-stop: the contact opened before the robot moved or turned (the '
+                            'stack came up late): the release under a live command was not '
+                            'exercised')
         return
     i_close = next((i for i in range(i_open, len(s)) if not s[i].get('estop_open')), None)
     if i_close is None:
@@ -189,7 +203,8 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
                             'under a live command was not exercised')
         return
     # the robot may still be coasting when the contact closes: from its rest on
-    i_rest = next((i for i in range(i_close, len(s)) if abs(float(s[i]['v'])) < REST_V), None)
+    i_rest = next((i for i in range(i_close, len(s)) if abs(float(s[i]['v'])) < REST_V
+                   and abs(float(s[i]['w'])) < 0.02), None)
     if i_rest is None:
         res.failures.append('e-stop: never at rest after the release')
         return
