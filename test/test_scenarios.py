@@ -423,3 +423,19 @@ def test_the_e_stop_judge_counts_a_turn_in_place_as_being_driven(w, exercised):
     _judge_estop_release(res, samples)
     assert (res.failures == []) == exercised, res.failures
     assert any('before the robot moved' in f for f in res.failures) != exercised
+
+
+def test_a_turn_on_the_spot_whose_centre_wobbles_is_not_backing_up():
+    # The centre of a body spinning at 1.25 rad/s on a 3 mm circle: projected on the sweeping
+    # heading it goes forth and back by metres in sum, but it never reversed. The same wobble
+    # while not turning would be a retreat (test_the_judge_fails_a_robot_that_backs_up_...).
+    from m4k_bench.scenarios.bounds import STAY_M
+    from m4k_bench.scenarios.judge import _backed_up
+    s = []
+    for k in range(2000):
+        t = k * 0.02
+        th = 1.25 * t
+        s.append({'t_ns': int(t * 1e9), 'x': 0.003 * math.cos(7.0 * t),
+                  'y': 0.003 * math.sin(7.0 * t), 'theta': th, 'w': 1.25, 'v': 0.0})
+    assert _backed_up(s) < STAY_M
+    assert _backed_up([dict(x, w=0.0) for x in s]) > 0.0

@@ -121,16 +121,31 @@ def judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
         _judge_stop(sc, res, b, raw, s)
 
 
+TURNING_W = 0.02     # rad/s: the judge's own "at rest" for the yaw rate
+
+
 def _backed_up(s: list[dict[str, Any]]) -> float:
-    """Return how far the body moved backwards along its own heading (m, ground truth)."""
-    back = 0.0
+    """Return the largest retreat along the body's own heading (m, ground truth).
+
+    The path is summed along the heading, step by step, over the steps the body is not
+    turning (|w| < ``TURNING_W``); the retreat is how far it fell back from the furthest point
+    it had reached (a drawdown). While it turns, the heading the steps are projected on sweeps
+    round, and the centre's small wobble of a turn on the spot projects as metres of forth and
+    back: estop.slow.in_place summed 1.1 cm "backed up" from a centre that never left a
+    2.7 mm circle (every backward step while turning; 3 um while not).
+    """
+    path = peak = worst = 0.0
     for a, c in zip(s, s[1:], strict=False):
+        if abs(float(a['w'])) >= TURNING_W:
+            continue
         th = float(a['theta'])
-        step = ((float(c['x']) - float(a['x'])) * math.cos(th) +
-                (float(c['y']) - float(a['y'])) * math.sin(th))
-        if step < 0.0:
-            back -= step
-    return back
+        path += ((float(c['x']) - float(a['x'])) * math.cos(th) +
+                 (float(c['y']) - float(a['y'])) * math.sin(th))
+        if path > peak:
+            peak = path
+        elif peak - path > worst:
+            worst = peak - path
+    return worst
 
 
 FAULT_HOLD_S = 1.0   # a latched fault: outputs zero and at rest this long before the commands end
@@ -182,7 +197,8 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
     """Judge the e-stop release: no motion once the contact closes (no reset, command live).
 
     The contact (``estop_open`` on ground truth) must have opened while the robot was being
-    driven (it had moved, or turned: a turn in place travels nowhere), then closed; from the closing sample on, the robot stays at rest.
+    driven (it had moved, or turned: a turn in place travels nowhere), then closed; from the
+    closing sample on, the robot stays at rest.
     """
     i_open = next((i for i, x in enumerate(s) if x.get('estop_open')), None)
     if i_open is None:
