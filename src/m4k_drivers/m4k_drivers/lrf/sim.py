@@ -191,7 +191,9 @@ class UrgSim:
             with self._lock:
                 self._stop = True
             self._wake()
-            self._thread.join(timeout=5.0)
+            # its select wakes within 0.5 s: 2 s keeps sim_robot's whole close (sim-bus 2 s,
+            # this, LEDs 2 s) inside bringup's 8 s stop budget even if the thread hangs
+            self._thread.join(timeout=2.0)
             self._thread = None
         self._unplug()
         for fd in (self._wake_r, self._wake_w):
