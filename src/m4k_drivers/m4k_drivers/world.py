@@ -60,7 +60,8 @@ from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneEr
 from m4k_rt.control.footprint import outline
 from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
 
-__all__ = ['LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'WORLD', 'World', 'WorldConfig',
+__all__ = ['inside', 'LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'segments_touch',
+           'WORLD', 'World', 'WorldConfig',
            'WorldConfigError']
 
 REST_V = 0.01        # m/s: below this the robot is at rest (truth's rest_since_ns)
@@ -237,6 +238,42 @@ _CONVERT = {'walls': lambda v, where: {'walls': _walls(v, where)},
 
 def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
     return ax * by - ay * bx
+
+
+def segments_touch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return which segments of ``a`` (N x 4) touch which of ``b`` (M x 4): an N x M mask.
+
+    Each of the two must straddle the other's line; collinear segments give all four crosses
+    zero and touch only where their extents overlap (a leg's side in line with a wheel's,
+    metres apart, is no contact). The simulator's contact test and the scenario judge's
+    clearance both take this one test.
+    """
+    p, q = a[:, None, :], b[None, :, :]
+    d1 = _cross(p[..., 2] - p[..., 0], p[..., 3] - p[..., 1], q[..., 0] - p[..., 0],
+                q[..., 1] - p[..., 1])
+    d2 = _cross(p[..., 2] - p[..., 0], p[..., 3] - p[..., 1], q[..., 2] - p[..., 0],
+                q[..., 3] - p[..., 1])
+    d3 = _cross(q[..., 2] - q[..., 0], q[..., 3] - q[..., 1], p[..., 0] - q[..., 0],
+                p[..., 1] - q[..., 1])
+    d4 = _cross(q[..., 2] - q[..., 0], q[..., 3] - q[..., 1], p[..., 2] - q[..., 0],
+                p[..., 3] - q[..., 1])
+    overlap = ((np.maximum(p[..., 0], p[..., 2]) >= np.minimum(q[..., 0], q[..., 2]))
+               & (np.maximum(q[..., 0], q[..., 2]) >= np.minimum(p[..., 0], p[..., 2]))
+               & (np.maximum(p[..., 1], p[..., 3]) >= np.minimum(q[..., 1], q[..., 3]))
+               & (np.maximum(q[..., 1], q[..., 3]) >= np.minimum(p[..., 1], p[..., 3])))
+    return np.asarray((d1 * d2 <= 0) & (d3 * d4 <= 0) & overlap)
+
+
+def inside(poly: np.ndarray, x: float, y: float) -> bool:
+    """Return True when (x, y) lies inside the simple polygon ``poly`` (even-odd rule)."""
+    result = False
+    n = len(poly)
+    for i in range(n):
+        x1, y1 = poly[i]
+        x2, y2 = poly[(i + 1) % n]
+        if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
+            result = not result
+    return result
 
 
 def _point_seg(px: float, py: float, seg: np.ndarray) -> np.ndarray:
@@ -640,40 +677,11 @@ class World:
     def collides(self, pose: Pose) -> bool:
         """Return True when the footprint at ``pose`` touches a wall or obstacle."""
         corners = self.footprint(pose)
-        edges = np.hstack([corners, np.roll(corners, -1, axis=0)])   # 4 x (x1,y1,x2,y2)
-        a = edges[:, None, :]
-        b = self._seg[None, :, :]
-        d1 = _cross(a[..., 2] - a[..., 0], a[..., 3] - a[..., 1],
-                    b[..., 0] - a[..., 0], b[..., 1] - a[..., 1])
-        d2 = _cross(a[..., 2] - a[..., 0], a[..., 3] - a[..., 1],
-                    b[..., 2] - a[..., 0], b[..., 3] - a[..., 1])
-        d3 = _cross(b[..., 2] - b[..., 0], b[..., 3] - b[..., 1],
-                    a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
-        d4 = _cross(b[..., 2] - b[..., 0], b[..., 3] - b[..., 1],
-                    a[..., 2] - b[..., 0], a[..., 3] - b[..., 1])
-        # Collinear edges give all four crosses zero: they touch only where their extents
-        # overlap (a leg's side in line with a wheel's, metres apart, is no contact).
-        overlap = ((np.maximum(a[..., 0], a[..., 2]) >= np.minimum(b[..., 0], b[..., 2]))
-                   & (np.maximum(b[..., 0], b[..., 2]) >= np.minimum(a[..., 0], a[..., 2]))
-                   & (np.maximum(a[..., 1], a[..., 3]) >= np.minimum(b[..., 1], b[..., 3]))
-                   & (np.maximum(b[..., 1], b[..., 3]) >= np.minimum(a[..., 1], a[..., 3])))
-        if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0) & overlap):
+        edges = np.hstack([corners, np.roll(corners, -1, axis=0)])   # N x (x1,y1,x2,y2)
+        if np.any(segments_touch(edges, self._seg)):
             return True
         # An obstacle entirely inside the footprint crosses no edge: test one of its vertices.
-        return any(self._inside(corners, poly[0]) for poly in self._polys)
-
-    @staticmethod
-    def _inside(poly: np.ndarray, p: Sequence[float]) -> bool:
-        """Return True when ``p`` lies inside the simple polygon ``poly`` (even-odd rule)."""
-        x, y = p[0], p[1]
-        inside = False
-        n = len(poly)
-        for i in range(n):
-            x1, y1 = poly[i]
-            x2, y2 = poly[(i + 1) % n]
-            if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
-                inside = not inside
-        return inside
+        return any(inside(corners, poly[0][0], poly[0][1]) for poly in self._polys)
 
     # -- sensing --------------------------------------------------------------------------
     def state(self) -> RobotState:

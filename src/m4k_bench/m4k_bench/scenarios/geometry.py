@@ -24,11 +24,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from m4k_drivers.world import inside, segments_touch
+
 __all__ = ['Scene', 'seg_seg_distance']
-
-
-def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
-    return ax * by - ay * bx
 
 
 def _point_seg(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> np.ndarray:
@@ -50,21 +48,7 @@ def seg_seg_distance(a: np.ndarray, b: np.ndarray) -> float:
     """
     if len(a) == 0 or len(b) == 0:
         return math.inf
-    p, q = a[:, None, :], b[None, :, :]
-    d1 = _cross(p[..., 2] - p[..., 0], p[..., 3] - p[..., 1], q[..., 0] - p[..., 0],
-                q[..., 1] - p[..., 1])
-    d2 = _cross(p[..., 2] - p[..., 0], p[..., 3] - p[..., 1], q[..., 2] - p[..., 0],
-                q[..., 3] - p[..., 1])
-    d3 = _cross(q[..., 2] - q[..., 0], q[..., 3] - q[..., 1], p[..., 0] - q[..., 0],
-                p[..., 1] - q[..., 1])
-    d4 = _cross(q[..., 2] - q[..., 0], q[..., 3] - q[..., 1], p[..., 2] - q[..., 0],
-                p[..., 3] - q[..., 1])
-    # collinear segments give all four crosses zero: they touch only where their extents meet
-    overlap = ((np.maximum(p[..., 0], p[..., 2]) >= np.minimum(q[..., 0], q[..., 2]))
-               & (np.maximum(q[..., 0], q[..., 2]) >= np.minimum(p[..., 0], p[..., 2]))
-               & (np.maximum(p[..., 1], p[..., 3]) >= np.minimum(q[..., 1], q[..., 3]))
-               & (np.maximum(q[..., 1], q[..., 3]) >= np.minimum(p[..., 1], p[..., 3])))
-    if np.any((d1 * d2 <= 0) & (d3 * d4 <= 0) & overlap):
+    if np.any(segments_touch(a, b)):
         return 0.0
     best = min(float(_point_seg(a[:, 0], a[:, 1], b).min()),
                float(_point_seg(a[:, 2], a[:, 3], b).min()),
@@ -75,18 +59,6 @@ def seg_seg_distance(a: np.ndarray, b: np.ndarray) -> float:
 
 def _edges(poly: np.ndarray) -> np.ndarray:
     return np.hstack([poly, np.roll(poly, -1, axis=0)])
-
-
-def _inside(poly: np.ndarray, x: float, y: float) -> bool:
-    """Return True when (x, y) lies inside the (any simple) polygon: even-odd rule."""
-    inside = False
-    n = len(poly)
-    for i in range(n):
-        x1, y1 = poly[i]
-        x2, y2 = poly[(i + 1) % n]
-        if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
-            inside = not inside
-    return inside
 
 
 class Scene:
@@ -140,8 +112,8 @@ class Scene:
             return 0.0
         for poly in self.obstacles(offsets):
             # one polygon wholly inside the other crosses no edge
-            if _inside(fp, float(poly[0, 0]), float(poly[0, 1])) or \
-                    _inside(poly, float(fp[0, 0]), float(fp[0, 1])):
+            if inside(fp, float(poly[0, 0]), float(poly[0, 1])) or \
+                    inside(poly, float(fp[0, 0]), float(fp[0, 1])):
                 return 0.0
         return d
 
