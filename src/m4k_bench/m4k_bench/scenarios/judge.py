@@ -220,7 +220,7 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
         return
     # the robot may still be coasting when the contact closes: from its rest on
     i_rest = next((i for i in range(i_close, len(s)) if abs(float(s[i]['v'])) < REST_V
-                   and abs(float(s[i]['w'])) < 0.02), None)
+                   and abs(float(s[i]['w'])) < TURNING_W), None)
     if i_rest is None:
         res.failures.append('e-stop: never at rest after the release')
         return
@@ -229,7 +229,7 @@ def _judge_estop_release(res: Result, s: list[dict[str, Any]]) -> None:
     v_max = max(abs(float(x['v'])) for x in after)
     w_max = max(abs(float(x['w'])) for x in after)
     held = (int(after[-1]['t_ns']) - int(s[i_close]['t_ns'])) / 1e9
-    if moved > STAY_M or v_max >= REST_V or w_max >= 0.02:
+    if moved > STAY_M or v_max >= REST_V or w_max >= TURNING_W:
         res.failures.append(f'e-stop release restarted motion: {moved:.3f} m, up to '
                             f'{v_max:.3f} m/s, {w_max:.3f} rad/s with no reset')
     elif held < 1.0:

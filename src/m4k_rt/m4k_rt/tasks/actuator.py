@@ -191,11 +191,18 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
                      r.text(), unknown_speed(params, robot, t_react))
 
 
+def corridor_half_width(params: ControlParams, robot: Any) -> float:
+    """Return the guard's corridor half width: the robot's outline's + the lateral margin (m).
+
+    The laser's corridor (lrf task), the memory's and the sonar's coverage all take this one.
+    """
+    return half_width_of(robot, params.track_width) + params.guard.lateral_margin
+
+
 def sonar_full_width(params: ControlParams, robot: Any) -> float:
     """Return how far ahead of the front face the sonar's cone spans the whole corridor (m)."""
-    g = params.guard
-    half_width = half_width_of(robot, params.track_width) + g.lateral_margin
-    return half_width / math.tan(g.sonar_cone / 2.0) - front_offset(robot, 'sonar')
+    return (corridor_half_width(params, robot) / math.tan(params.guard.sonar_cone / 2.0)
+            - front_offset(robot, 'sonar'))
 
 
 def unknown_speed(params: ControlParams, robot: Any, t_react: float) -> float:
@@ -242,7 +249,7 @@ def make_feed(params: ControlParams, robot: Any) -> SightingFeed:
         front = sx       # a bare test config: the face where the sonar is
     return SightingFeed(ObstacleMemory(g.memory_points), sonar_x=sx,
                         laser_x=sensor_x(robot, 'laser'), front_x=front,
-                        half_width=half_width_of(robot, params.track_width) + g.lateral_margin,
+                        half_width=corridor_half_width(params, robot),
                         sonar_half_angle=g.sonar_cone / 2.0,
                         sonar_reach=g.sonar_range)
 

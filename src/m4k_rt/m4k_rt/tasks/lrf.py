@@ -24,12 +24,11 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
-from m4k_rt.control.footprint import half_width_of
 from m4k_rt.control.guard import front_offset, FrontCorridor, sensor_x
 from m4k_rt.control.params import control_params
 from m4k_rt.control.sightings import LaserSighting
 from m4k_rt.protocol import Kind
-from m4k_rt.tasks.actuator import control_section, raw_section
+from m4k_rt.tasks.actuator import control_section, corridor_half_width, raw_section
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import DeviceTaskBody
 from m4k_rt.tasks.state import robot_state, RobotState
@@ -90,5 +89,5 @@ def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfB
     params = control_params(control_section(task, shared))
     robot = raw_section(task, shared, 'robot')
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
-                   half_width_of(robot, params.track_width) + params.guard.lateral_margin,
+                   corridor_half_width(params, robot),
                    front=front_offset(robot, 'laser'), laser_x=sensor_x(robot, 'laser'))
