@@ -72,7 +72,8 @@ def test_starts_motor_stale_until_encoders_arrive():
 
 
 def test_fresh_command_drives_and_distance_matches_acceleration_limit():
-    ctl, p = make()
+    # the Plant has no dry friction: the break-away boost (for friction and dead band) off
+    ctl, p = make(pi={'breakaway_rate': 0.0})
     plant = Plant(p.full_scale_wheel_speed)
     t = drive(ctl, plant, 1, 0)            # first encoders: baseline, motor alive
     t = drive(ctl, plant, 400, t, cmd=(0.25, 0.0))

@@ -119,6 +119,20 @@ class PiGains:
         'wind it up to drive the wheels past the setpoint -- backwards '
         'after a stop. Underspeed (load, stall) integrates as always. Too '
         'small: slow correction of an overspeed; too large: windup.'))
+    breakaway_rate: float = setting(_nonneg(
+        '1/s', 2.0, 'Break-away: while a wheel has not yet turned 3 encoder counts its '
+        "setpoint's way since the setpoint left zero (or changed sign), and does not turn "
+        'against it, the integrator rises at least this fast (normalized command per second) '
+        "in the setpoint's direction. Static friction and an amplifier dead band (up to "
+        '~2.4 V uncalibrated, supervision.moving_effort) hold a wheel at rest at a creep, where '
+        'ki alone takes over a second to wind through them; this starts it within ~0.1 s, and '
+        'gives the wheel supervision an effort to judge a blocked wheel or a frozen encoder '
+        'by. 0: off. Too high: a jerk when an uncalibrated wheel breaks away.'))
+    breakaway_effort: float = setting(_pos(
+        '', 0.15, 'Break-away: the boost stops once |PI output| reaches this (normalized; '
+        'above supervision.moving_effort, so a wheel that has not moved by then is judged '
+        'frozen or blocked): it caps what a frozen encoder makes the wheel do before the '
+        'supervision latches.', hi=1.0))
 
 
 @dataclass(frozen=True)

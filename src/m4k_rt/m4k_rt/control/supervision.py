@@ -100,7 +100,7 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
-                 '_frozen_min')
+                 'frozen_min')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -123,7 +123,7 @@ class WheelSupervisor:
         self._following = [False, False]   # the wheel was seen following its setpoint
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
-        self._frozen_min = 4.0 * COUNT / params.frozen_time
+        self.frozen_min = 4.0 * COUNT / params.frozen_time
 
     @property
     def latched(self) -> bool:
@@ -195,7 +195,7 @@ class WheelSupervisor:
                     self._following[k] = True   # seen turning the way it is told
                 self._ref[k] = a
                 t[_FROZEN + k] = 0.0
-            elif asp >= self._frozen_min and (self._following[k]
+            elif asp >= self.frozen_min and (self._following[k]
                                              or abs(u) >= p.moving_effort
                                              or (unseen_turn and self._following[1 - k])):
                 t[_FROZEN + k] += dt
@@ -210,8 +210,13 @@ class WheelSupervisor:
             else:
                 t[_STALL + k] = 0.0
             if sp == 0.0:
+                # The bound follows the wheel down (a wheel that has been slow cannot be
+                # braking from a higher speed any more) and falls at still_deceleration: a
+                # wheel braked from speed that settles on a driven creep trips it as soon as
+                # one that was slow from the start (a guard stop from 1 m/s: 1.7 s before).
                 b = self._bound[k]
-                b = abs(m) if b < 0.0 else max(b - p.still_deceleration * dt, 0.0)
+                b = abs(m) if b < 0.0 else max(min(b, abs(m) + 0.5 * p.still_speed)
+                                               - p.still_deceleration * dt, 0.0)
                 self._bound[k] = b
                 if abs(m) > b + p.still_speed:
                     t[_STILL + k] += dt
@@ -222,7 +227,12 @@ class WheelSupervisor:
                 t[_STILL + k] = 0.0
         self._fresh = False
         diff = sp_left - sp_right
-        if (diff > th or diff < -th) and (abs(sp_left) > th or abs(sp_right) > th):
+        if saturated_left or saturated_right:
+            # a wheel at its output limit cannot follow its setpoint, so being nearer the
+            # other's is no evidence (an uncalibrated base at top speed in a turn); the time
+            # stands (a true swap saturates a PI soon, after it has counted)
+            pass
+        elif (diff > th or diff < -th) and (abs(sp_left) > th or abs(sp_right) > th):
             own = abs(meas_left - sp_left) + abs(meas_right - sp_right)
             other = abs(meas_left - sp_right) + abs(meas_right - sp_left)
             t[_SWAP] = t[_SWAP] + dt if own - other > th else 0.0
