@@ -44,7 +44,7 @@ def from_the_start(kind: str, wheel: str, v: float, w: float, seed: int,
 
 def still_after_stop(v: float, w: float, guard: bool, seed: int, offset_v: float = 1.0,
                      limit_s: float = 3.0) -> tuple[float | None, float | None]:
-    """A left amplifier offset drives the wheel at a zero command; stop from (v, w).
+    """Stop from (v, w) with a left amplifier offset that drives the wheel at a zero command.
 
     Return (latch time after the left setpoint reached zero, after the healthy right wheel
     reached rest on ground truth): a ramped stop (``guard`` False) or a guard stop (the
@@ -106,8 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         (0.0, 0.8, False), (1.0, 0.0, True), (0.25, 0.4, True)):
         cells = []
         for off in (1.0, -1.0, 0.6):
-            runs = [still_after_stop(v, w, guard, s, off) for s in seeds]
-            cells.append(f'{_worst([r[0] for r in runs])} / {_worst([r[1] for r in runs])}')
+            stops = [still_after_stop(v, w, guard, s, off) for s in seeds]
+            cells.append(f'{_worst([r[0] for r in stops])} / {_worst([r[1] for r in stops])}')
         what = 'guard stop' if guard else 'ramped stop'
         print(f'| {what} from {v} m/s {w} rad/s | ' + ' | '.join(cells) + ' |', flush=True)
     return 0
