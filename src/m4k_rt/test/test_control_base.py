@@ -45,7 +45,11 @@ class Plant:
 
 
 def make(**section):
-    p = control_params(section or None)
+    # The Plant has no dry friction and no dead band: the PI's break-away boost (pi.
+    # breakaway_rate, for exactly those) is off unless a test sets it; the closed loop with
+    # the physics (m4k_bench test_supervision_closed_loop) drives it.
+    section.setdefault('pi', {}).setdefault('breakaway_rate', 0.0)
+    p = control_params(section)
     return BaseController(p, 0.01), p
 
 
@@ -72,8 +76,7 @@ def test_starts_motor_stale_until_encoders_arrive():
 
 
 def test_fresh_command_drives_and_distance_matches_acceleration_limit():
-    # the Plant has no dry friction: the break-away boost (for friction and dead band) off
-    ctl, p = make(pi={'breakaway_rate': 0.0})
+    ctl, p = make()
     plant = Plant(p.full_scale_wheel_speed)
     t = drive(ctl, plant, 1, 0)            # first encoders: baseline, motor alive
     t = drive(ctl, plant, 400, t, cmd=(0.25, 0.0))

@@ -126,11 +126,12 @@ def test_break_away_raises_the_integral_at_its_rate_up_to_its_effort_while_start
     assert pi.update(0.2, 0.0, 0.01, starting=True) == pytest.approx(0.15 + 0.4 * 0.2 * 0.01)
 
 
-@pytest.mark.parametrize('measured, starting', [(0.0, False), (-0.5, True)])
-def test_break_away_does_not_act_once_started_or_while_the_wheel_turns_the_old_way(measured,
+@pytest.mark.parametrize('measured, starting', [(0.0, False), (-0.5, True), (0.153, True)])
+def test_break_away_does_not_act_once_started_or_while_the_wheel_reads_motion(measured,
                                                                                    starting):
     plain = WheelSpeedPI(0.02, 0.4, 0.05)
-    boost = WheelSpeedPI(0.02, 0.4, 0.05, breakaway_rate=2.0, breakaway_effort=0.15)
+    boost = WheelSpeedPI(0.02, 0.4, 0.05, breakaway_rate=2.0, breakaway_effort=0.15,
+                         breakaway_still=0.1)
     for _ in range(5):
         assert boost.update(-0.2, -measured, 0.01, starting) == \
             pytest.approx(plain.update(-0.2, -measured, 0.01))

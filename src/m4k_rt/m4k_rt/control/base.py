@@ -132,16 +132,20 @@ class BaseController:
         self.angular = _limiter(params.angular)
         self.wheel_limit = params.wheel_limit
         pi = params.pi
+        # one count of encoder noise over the feedback window reads as this speed
+        count_speed = 1.5 * COUNT / (params.speed_feedback_window * self.period)
         self.pi_left = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
                                     anti_windup=pi.anti_windup, kt=pi.kt,
                                     band=pi.integral_band,
                                     breakaway_rate=pi.breakaway_rate,
-                                    breakaway_effort=pi.breakaway_effort)
+                                    breakaway_effort=pi.breakaway_effort,
+                                    breakaway_still=count_speed)
         self.pi_right = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
                                      anti_windup=pi.anti_windup, kt=pi.kt,
                                      band=pi.integral_band,
                                      breakaway_rate=pi.breakaway_rate,
-                                     breakaway_effort=pi.breakaway_effort)
+                                     breakaway_effort=pi.breakaway_effort,
+                                     breakaway_still=count_speed)
         # break-away: per wheel, the angle it starts from and whether it has been seen
         # turning its setpoint's way since the setpoint left zero (pid: breakaway_rate)
         self._angles = [0.0, 0.0]
@@ -496,6 +500,14 @@ class BaseController:
             self._start_ref[k] = a
         self._start_sp[k] = sp
         ref = self._start_ref[k]
+        if self.supervisor.unseen[k]:
+            # turning unseen (its encoder frozen: the gyro and the other wheel show it turn):
+            # more effort than the other wheel's would only speed it up until the latch
+            pi = self.pi_left if k == 0 else self.pi_right
+            other = abs((self.pi_right if k == 0 else self.pi_left).integral)
+            if abs(pi.integral) > other:
+                pi.integral = math.copysign(other, pi.integral)
+            return False
         if ref != ref:                               # NaN: started
             return False
         d = (a - ref) if sp > 0.0 else (ref - a)

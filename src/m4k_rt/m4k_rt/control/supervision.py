@@ -66,6 +66,9 @@ __all__ = ['cause_text', 'COUNT', 'ENCODER_TRUST', 'FROZEN_COUNTS', 'WheelSuperv
 
 COUNT = 2.0 * math.pi / 4096     # one count of the 12-bit AS5045, rad
 FROZEN_COUNTS = 3                # less motion than this is "not moving" (noise: +/-1 count)
+# A still-reading wheel that the other wheel and the gyro show turning this many counts its
+# setpoint's way turns unseen (gyro bias 0.005 rad/s over a 0.2 s start: 2.6 counts)
+UNSEEN_COUNTS = 6
 
 _LEFT_WRONG = int(FaultCause.LEFT_WRONG_WAY)
 _RIGHT_WRONG = int(FaultCause.RIGHT_WRONG_WAY)
@@ -100,7 +103,7 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
-                 'frozen_min')
+                 'frozen_min', 'unseen', '_psi', '_prev', '_u_other', '_u_psi')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -124,6 +127,15 @@ class WheelSupervisor:
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
         self.frozen_min = 4.0 * COUNT / params.frozen_time
+        # Unseen motion: the gyro's heading, integrated over encoder time (the encoders' own
+        # turn over a cycle without a gyro sample: no evidence either way), and per wheel the
+        # other wheel's angle and that heading when its window began. The other wheel's
+        # counts less the gyro's turn are the still-reading wheel's own motion.
+        self.unseen = [False, False]     # the wheel turns its setpoint's way, encoder still
+        self._psi = 0.0
+        self._prev = [math.nan, math.nan]
+        self._u_other = [math.nan, math.nan]
+        self._u_psi = [0.0, 0.0]
 
     @property
     def latched(self) -> bool:
@@ -147,6 +159,9 @@ class WheelSupervisor:
             self._bound[k] = -1.0
             self._following[k] = False
             self._sp[k] = 0.0
+            self.unseen[k] = False
+            self._u_other[k] = math.nan
+            self._prev[k] = math.nan
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
@@ -172,9 +187,15 @@ class WheelSupervisor:
         # The gyro against the turn the encoders describe: a wheel that reads still while the
         # other turns the same way describes a turn; if the body does not make half of it,
         # the still wheel turns unseen (frozen from the start, below moving_effort).
-        w_enc = self._r_over_track * (meas_right - meas_left)
-        unseen_turn = (p.use_imu and yaw_rate == yaw_rate and sp_left * sp_right > 0.0
-                       and yaw_rate * w_enc < 0.5 * w_enc * w_enc)
+        ang = self._angle
+        prev = self._prev
+        if prev[0] == prev[0]:
+            if p.use_imu and yaw_rate == yaw_rate:
+                self._psi += yaw_rate * dt
+            else:
+                self._psi += self._r_over_track * ((ang[1] - prev[1]) - (ang[0] - prev[0]))
+        prev[0] = ang[0]
+        prev[1] = ang[1]
         for k in (0, 1):
             sp = sp_left if k == 0 else sp_right
             m = meas_left if k == 0 else meas_right
@@ -185,22 +206,40 @@ class WheelSupervisor:
                 t[_WRONG + k] += dt
             else:
                 t[_WRONG + k] = 0.0
+            a = ang[k]
             if sp * self._sp[k] <= 0.0:
                 self._following[k] = False      # a new setpoint direction (or zero)
+                self._u_other[k] = math.nan     # and a new unseen-motion window
+                self.unseen[k] = False
             self._sp[k] = sp
-            a = self._angle[k]
             ref = self._ref[k]
             if not abs(a - ref) < FROZEN_COUNTS * COUNT:     # moved (or no reference yet)
                 if (a - ref) * sp > 0.0:
                     self._following[k] = True   # seen turning the way it is told
                 self._ref[k] = a
+                self._u_other[k] = math.nan
+                self.unseen[k] = False
                 t[_FROZEN + k] = 0.0
-            elif asp >= self.frozen_min and (self._following[k]
-                                             or abs(u) >= p.moving_effort
-                                             or (unseen_turn and self._following[1 - k])):
-                t[_FROZEN + k] += dt
             else:
-                t[_FROZEN + k] = 0.0
+                if self._u_other[k] != self._u_other[k]:
+                    self._u_other[k] = ang[1 - k]
+                    self._u_psi[k] = self._psi
+                # this wheel's motion as the other wheel's encoder and the gyro tell it
+                turn = (self._psi - self._u_psi[k]) / self._r_over_track
+                own = (ang[1] - self._u_other[k] - turn) if k == 0 else \
+                    (ang[0] - self._u_other[k] + turn)
+                if own * sp >= UNSEEN_COUNTS * COUNT * asp:
+                    self.unseen[k] = True
+                if asp >= self.frozen_min and self.unseen[k]:
+                    # integrated evidence (6 counts beyond the gyro's drift), no per-cycle
+                    # noise to ride out: a third of frozen_time confirms it, before the
+                    # wheel the PI cannot see speeds up far
+                    t[_FROZEN + k] += 3.0 * dt
+                elif asp >= self.frozen_min and (self._following[k]
+                                                 or abs(u) >= p.moving_effort):
+                    t[_FROZEN + k] += dt
+                else:
+                    t[_FROZEN + k] = 0.0
             # the speed the effort would drive a free wheel at, against the speed measured in
             # the effort's direction
             excess = abs(u) / kff - (m if u >= 0.0 else -m)
