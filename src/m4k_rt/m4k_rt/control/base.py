@@ -515,7 +515,10 @@ class BaseController:
             self._start_ref[k] = math.nan
             return False
         if d <= -FROZEN_COUNTS * COUNT:
-            self._start_ref[k] = a                   # still turning the old way
+            # still turning the old way (a reversal: the plain PI has error enough), or its
+            # encoder counts against the effort (a sign flip): no boost either way
+            self._start_ref[k] = a
+            return False
         return True
 
     def _estop_flags(self) -> int:

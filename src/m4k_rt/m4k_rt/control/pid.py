@@ -94,10 +94,11 @@ class WheelSpeedPI:
             integral += self.ki * error * dt
         s = 1.0 if setpoint > 0.0 else -1.0
         if starting and self.breakaway_rate > 0.0 and setpoint != 0.0 \
-                and -abs(setpoint) < s * measured <= self.breakaway_still:
-            # only while it reads no motion its setpoint's way beyond a count of noise (motion
-            # pauses the boost: the 3 counts that end it lag the wheel) and does not clearly
-            # still turn the old way (a reversal: the plain PI has error enough)
+                and -self.breakaway_still <= measured <= self.breakaway_still:
+            # only while it reads no motion beyond a count of noise: motion its setpoint's way
+            # pauses the boost (the 3 counts that end it lag the wheel); motion the other way
+            # is a reversal (the plain PI has error enough) or an encoder counting against
+            # the effort (a sign flip, swapped channels: more effort only runs it away)
             boosted = self.integral + s * self.breakaway_rate * dt
             cap = s * self.breakaway_effort - base        # the integral at the capped output
             if s > 0.0:

@@ -15,11 +15,15 @@ has held without a break:
   4 counts in ``frozen_time`` (0.04 rad/s at 0.15 s) and it should be turning: it was seen
   following this setpoint (a wheel that turned does not stop by itself: a magnet slipping
   mid-drive, a wheel blocked), or its effort ``|u| >= moving_effort`` (enough to break any
-  plausible wheel away from rest: the PI winding up on a reading that never moved reaches it)
-  or the other wheel follows the same way and the gyro shows less than half the turn the
-  encoders describe (the still-reading wheel turns unseen: frozen from the start, below that
-  effort) (``frozen_time``). A dead encoder, or a wheel that does not turn at all (blocked:
-  its honest encoder only shows noise, and the body turns as the encoders say);
+  plausible wheel away from rest: the PI's break-away boost gets a wheel that has not moved
+  there within ~0.1 s) (``frozen_time``); or it turns *unseen*: since it last moved (or its
+  setpoint left zero), the other wheel's counts less the gyro's integrated turn put its own
+  motion ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
+  does not make the pivot the encoders describe; integrated, so quantization cannot reset
+  it, and only over a start, so the gyro's bias cannot build up: a third of ``frozen_time``
+  confirms it, and the controller then gives that wheel no more effort than the other's).
+  A dead encoder, or a wheel that does not turn at all (blocked: its honest encoder only
+  shows noise, and the body turns as the encoders say);
 * **stall** (effort against speed): the PI output is saturated and the wheel turns at less
   than ``stall_ratio`` of its setpoint, or the effort's free-running speed ``|u| / kff``
   exceeds the measured speed in the effort's direction by ``effort_margin``: the amplifier
@@ -69,6 +73,7 @@ FROZEN_COUNTS = 3                # less motion than this is "not moving" (noise:
 # A still-reading wheel that the other wheel and the gyro show turning this many counts its
 # setpoint's way turns unseen (gyro bias 0.005 rad/s over a 0.2 s start: 2.6 counts)
 UNSEEN_COUNTS = 6
+START_WINDOW = 0.3               # s after a setpoint leaves zero: the counts-against test
 
 _LEFT_WRONG = int(FaultCause.LEFT_WRONG_WAY)
 _RIGHT_WRONG = int(FaultCause.RIGHT_WRONG_WAY)
@@ -103,7 +108,8 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
-                 'frozen_min', 'unseen', '_psi', '_prev', '_u_other', '_u_psi')
+                 'frozen_min', 'unseen', '_psi', '_prev', '_u_other', '_u_psi', '_s_ref',
+                 '_s_age')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -136,6 +142,10 @@ class WheelSupervisor:
         self._prev = [math.nan, math.nan]
         self._u_other = [math.nan, math.nan]
         self._u_psi = [0.0, 0.0]
+        # start window (the first START_WINDOW s after a setpoint left zero or changed sign):
+        # this wheel's angle, the other's and the heading then; its age
+        self._s_ref = [[math.nan] * 3, [math.nan] * 3]
+        self._s_age = [0.0, 0.0]
 
     @property
     def latched(self) -> bool:
@@ -162,6 +172,7 @@ class WheelSupervisor:
             self.unseen[k] = False
             self._u_other[k] = math.nan
             self._prev[k] = math.nan
+            self._s_ref[k][0] = math.nan
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
@@ -202,8 +213,16 @@ class WheelSupervisor:
             u = u_left if k == 0 else u_right
             sat = saturated_left if k == 0 else saturated_right
             asp = abs(sp)
+            if sp * self._sp[k] <= 0.0:
+                sref = self._s_ref[k]                # a new start window
+                sref[0], sref[1], sref[2] = ang[k], ang[1 - k], self._psi
+                self._s_age[k] = 0.0
+            else:
+                self._s_age[k] += dt
             if asp > th and ((m > ms and sp < 0.0) or (m < -ms and sp > 0.0)):
                 t[_WRONG + k] += dt
+            elif self._counts_against(k, sp):
+                t[_WRONG + k] += 3.0 * dt            # integrated evidence, as unseen below
             else:
                 t[_WRONG + k] = 0.0
             a = ang[k]
@@ -296,6 +315,27 @@ class WheelSupervisor:
             self.faults += 1
             return True
         return False
+
+    def _counts_against(self, k: int, sp: float) -> bool:
+        """Return True if wheel ``k``'s encoder counts against its setpoint over a start.
+
+        Within START_WINDOW s of its setpoint leaving zero (or changing sign): it reads
+        FROZEN_COUNTS against the setpoint while the other wheel's counts less the gyro's
+        turn put its own motion UNSEEN_COUNTS the setpoint's way -- a sign flip or crossed
+        channels at a creep, below speed_threshold, where a reversal cannot be told from a
+        fault by the speed alone. Short, so the gyro's bias cannot build up; a wheel still
+        turning the old way (a reversal) reads against, but is inferred against too.
+        """
+        sref = self._s_ref[k]
+        if sp == 0.0 or sref[0] != sref[0] or self._s_age[k] > START_WINDOW:
+            return False
+        ang = self._angle
+        turn = (self._psi - sref[2]) / self._r_over_track
+        own = (ang[1] - sref[1] - turn) if k == 0 else (ang[0] - sref[1] + turn)
+        if sp < 0.0:
+            return (ang[k] - sref[0] >= FROZEN_COUNTS * COUNT
+                    and own <= -UNSEEN_COUNTS * COUNT)
+        return ang[k] - sref[0] <= -FROZEN_COUNTS * COUNT and own >= UNSEEN_COUNTS * COUNT
 
     def reset(self) -> bool:
         """Clear the latched fault (an explicit request); return whether one was latched."""
