@@ -121,8 +121,8 @@ class PiGains:
         'small: slow correction of an overspeed; too large: windup.'))
     breakaway_rate: float = setting(_nonneg(
         '1/s', 2.0, 'Break-away: while a wheel has not yet turned 3 encoder counts its '
-        "setpoint's way since the setpoint left zero (or changed sign), and does not turn "
-        'against it, the integrator rises at least this fast (normalized command per second) '
+        "setpoint's way since the setpoint left zero (or changed sign), and reads no motion "
+        'beyond a count of noise, the integrator rises at least this fast (normalized per s) '
         "in the setpoint's direction. Static friction and an amplifier dead band (up to "
         '~2.4 V uncalibrated, supervision.moving_effort) hold a wheel at rest at a creep, where '
         'ki alone takes over a second to wind through them; this starts it within ~0.1 s, and '
