@@ -31,11 +31,16 @@ BASES: dict[str, dict[str, float]] = {
 CREEPS = ((0.02, 0.0), (0.05, 0.0), (-0.02, 0.0), (0.02, 0.05), (0.0, 0.1))
 
 
-def from_the_start(kind: str, wheel: str, v: float, w: float, seed: int,
+def from_the_start(kind: str, wheel: str | None, v: float, w: float, seed: int,
                    robot: dict[str, Any], limit_s: float = 3.0) -> tuple[float | None, float]:
-    """Return (latch time after the first command or None, ground-truth peak speed m/s)."""
-    vb = VirtualBase(world={'seed': seed, 'robot': robot,
-                            'faults': [{'at_s': 0.0, 'kind': kind, 'wheel': wheel}]})
+    """Return (latch time after the first command or None, ground-truth peak speed m/s).
+
+    ``wheel``: left or right; None for a fault of both (crossed channels).
+    """
+    fault: dict[str, Any] = {'at_s': 0.0, 'kind': kind}
+    if wheel is not None:
+        fault['wheel'] = wheel
+    vb = VirtualBase(world={'seed': seed, 'robot': robot, 'faults': [fault]})
     try:
         return vb.run(limit_s, v, w, until=vb.faulted), vb.world.peak_speed
     finally:

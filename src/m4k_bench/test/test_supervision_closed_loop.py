@@ -88,7 +88,7 @@ _CREEPS = [(0.02, 0.0), (-0.02, 0.0), (0.02, 0.05), (0.0, 0.1)]
 
 
 @pytest.mark.parametrize('base', list(BASES))
-@pytest.mark.parametrize('kind', ['encoder_frozen', 'wheel_stall'])
+@pytest.mark.parametrize('kind', ['encoder_frozen', 'wheel_stall', 'encoder_sign_flip'])
 @pytest.mark.parametrize('wheel', ['left', 'right'])
 @pytest.mark.parametrize('v, w', _CREEPS, ids=['straight', 'reverse', 'turning', 'in-place'])
 def test_a_fault_from_the_very_start_at_a_creep_latches_within_0_3_s_of_the_first_command(
@@ -98,6 +98,16 @@ def test_a_fault_from_the_very_start_at_a_creep_latches_within_0_3_s_of_the_firs
     # supervision judges the break-away effort, the other wheel and the gyro
     seed = 1 + (_CREEPS.index((v, w)) + len(base)) % 3
     latched, _ = from_the_start(kind, wheel, v, w, seed, BASES[base], limit_s=1.0)
+    assert latched is not None and latched <= LATCH_S, latched
+
+
+@pytest.mark.parametrize('base, v, w', [('calibrated', 0.02, 0.05), ('trim -2 codes', 0.02, 0.05),
+                                         ('calibrated', 0.0, 0.1), ('uncalibrated', 0.0, 0.1),
+                                         ('uncalibrated', 0.0, -0.1)])
+def test_channels_crossed_from_the_start_at_a_creep_latch_within_0_3_s(base, v, w):
+    # (uncalibrated and turning forward, both wheels' setpoints one way, it takes the yaw
+    # rate test up to 0.40 s: docs/safety.md)
+    latched, _ = from_the_start('encoder_swap', None, v, w, 2, BASES[base], limit_s=1.0)
     assert latched is not None and latched <= LATCH_S, latched
 
 
