@@ -19,7 +19,8 @@ needed exceeds ``mu * load``, the wheel slips: the ground's force is kinetic fri
 the body follows only the friction -- so the encoders (on the wheel shafts) report a rotation
 the body did not make, as a real robot's odometry does. Rolling resistance (``Crr * load``) and
 the drive train's friction are dry (Coulomb) friction: below them nothing moves, at a stop they
-hold.
+hold; at rest the drive train's sticks ``breakaway_friction`` times harder than it runs (a wheel
+starts only above that, then runs against the running friction).
 
 Defaults and their sources: docs/sim-physics.md. Each parameter is declared once, on its
 :class:`RobotParams` field (type, default, unit, range, source; :data:`ROBOT_FIELDS` is the
