@@ -54,6 +54,8 @@ class LaserSighting(NamedTuple):
     range_min: float
     range_max: float
     ranges: tuple[int, ...]         # the raw steps (mm; < 20: error codes)
+    near: tuple[float, ...] = ()    # x0, y0, ...: points a turn can meet (robot frame,
+    #                                 m4k_rt.control.turnguard.near_points)
 
 
 class PoseHistory:
@@ -113,12 +115,17 @@ class SightingFeed:
 
     __slots__ = ('memory', 'history', 'sonar_x', 'laser_x', 'front_x', 'half_width',
                  'half_angle', 'sonar_reach', '_sonar_seq', '_laser_seq', 'sonar_taken',
-                 'laser_taken')
+                 'laser_taken', 'near', 'near_reach')
 
     def __init__(self, memory: ObstacleMemory, *, sonar_x: float, laser_x: float,
                  front_x: float, half_width: float, sonar_half_angle: float,
-                 sonar_reach: float) -> None:
+                 sonar_reach: float, near: ObstacleMemory | None = None,
+                 near_reach: float = 0.0) -> None:
         self.memory = memory
+        # the turn guard's points: what the laser saw within a turn's reach (own memory, so a
+        # wall beside the robot never pushes the corridor's points out)
+        self.near = near if near is not None else ObstacleMemory(1)
+        self.near_reach = near_reach
         self.history = PoseHistory()
         self.sonar_x = sonar_x            # m, robot frame
         self.laser_x = laser_x
@@ -167,6 +174,16 @@ class SightingFeed:
         lanes = rec.lanes
         for k in range(0, len(lanes), 2):
             mem.add_robot_point(lanes[k], lanes[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
+        near = self.near
+        pts = rec.near
+        if pts or near.used:
+            near.free_by_scan(self.laser_x, rec.angle_min, rec.angle_increment, rec.range_min,
+                              rec.range_max, rec.ranges, px, py, pyaw)
+            for k in range(0, len(pts), 2):
+                near.add_robot_point(pts[k], pts[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
+            # out of a turn's reach now (the robot drove on): a turn cannot meet them
+            h_now = h.head
+            near.forget_beyond(h.x[h_now], h.y[h_now], self.near_reach + LASER_RADIUS)
 
     def nearest(self, x: float, y: float, yaw: float) -> float:
         """Return the memory's nearest gap ahead of the front face at pose (x, y, yaw)."""
@@ -184,9 +201,9 @@ class SightingFeed:
         tx = new[0] - (c * old[0] - s * old[1])
         ty = new[1] - (s * old[0] + c * old[1])
         self.history.rebase(c, s, tx, ty, dyaw)
-        m = self.memory
-        for i in range(m.capacity):
-            x = m.x[i]
-            y = m.y[i]
-            m.x[i] = c * x - s * y + tx
-            m.y[i] = s * x + c * y + ty
+        for m in (self.memory, self.near):
+            for i in range(m.capacity):
+                x = m.x[i]
+                y = m.y[i]
+                m.x[i] = c * x - s * y + tx
+                m.y[i] = s * x + c * y + ty
