@@ -139,7 +139,7 @@ def test_the_cli_expands_the_envelope_grid_and_states_what_is_not_promised(tmp_p
     readme = (out / 'README.md').read_text()
     n_out = len(list(grid.not_promised(envelope)))
     assert f'{n_out} envelope cells are not promised' in readme
-    assert 'turning in place is not guarded' in readme
+    assert 'a box under its plane, glass it sees through' in readme
     # a bad declaration is a clear error naming the key (exit 2)
     bad = tmp_path / 'bad.yaml'
     bad.write_text('envelope: {speeds: {creep: -1}, motions: {straight: {}}, '

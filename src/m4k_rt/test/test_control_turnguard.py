@@ -199,3 +199,11 @@ def test_the_controller_stops_a_capped_turn_after_the_ramp_and_lets_the_other_wa
     ctl.command(0.0, -0.8, t)
     ctl.step(t, ccw_cap=0.0, cw_cap=0.3)
     assert -0.3 <= ctl.w < 0.0 and ctl.flags & ODOM_SLOWDOWN
+
+
+def test_a_stale_laser_stops_turns_both_ways_as_it_stops_forward_motion():
+    g = _guard()
+    g.evaluate((_memory(),), 0.0, 0.0, 0.0, 0.0, blind=True)
+    assert (g.ccw_cap, g.cw_cap) == (0.0, 0.0)
+    g.evaluate((_memory(),), 0.0, 0.0, 0.0, 0.0)
+    assert (g.ccw_cap, g.cw_cap) == (math.inf, math.inf)

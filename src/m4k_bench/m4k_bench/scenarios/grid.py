@@ -155,6 +155,8 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
         world['faults'] = [{'at_s': ESTOP_AT_S, 'until_s': ESTOP_UNTIL_S, 'kind': 'estop'}]
         return {'description': desc, 'world': world,
                 'commands': [dict(cmd, t=ESTOP_CMD_S)], 'expect': {'still_after_estop': True}}
+    if motion == 'in_place':
+        return _in_place_doc(raw, p, kind, min(v / half_track, w_max), desc)
     x = _obstacle_x(raw, v)
     t = round((x + 0.5) / v + v / p.linear.max_acceleration + SETTLE_S, 1)
     far = x + 3.0
@@ -190,6 +192,48 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
     return {'description': desc + f'; the obstacle {x:.2f} m ahead',
             'world': {'walls': walls, 'obstacles': obstacles},
             'commands': [command], 'expect': {'stop': k['stop']}}
+
+
+IN_PLACE_GAP = 0.045    # m between the obstacle and the outline at the start of a turn in place
+IN_PLACE_S = 4.0        # s of turning toward it
+
+
+def _in_place_doc(raw: Mapping[str, Any], p: Any, kind: str, w: float,
+                  desc: str) -> dict[str, Any]:
+    """Return a turn in place with the obstacle where the turn meets it.
+
+    The robot starts ``IN_PLACE_GAP`` from the obstacle (it was pushed up to a robot at rest,
+    or the robot reversed or arced there): a wall across the front face, a 3 cm leg beside the
+    body's front-left corner (the turn counter-clockwise swings the corner into it), or one
+    beside the body just ahead of the left wheel (clockwise: the wheel's front swings into
+    it), within a few degrees. The turn guard must keep it from turning that way.
+    """
+    from m4k_rt.control.footprint import outline_of
+    robot = raw.get('robot')
+    shape = outline_of(robot, p.track_width, p.wheel_radius)
+    front, side = shape[0]      # the body's front-left corner (m4k_rt.control.footprint)
+    g = IN_PLACE_GAP
+    walls: Any = {'rectangle': [-2.0, -2.0, 2.0, 2.0]}
+    obstacles: list[Any] = []
+    if kind == 'wall':
+        walls = {'rectangle': [-2.0, -2.0, front + g, 2.0]}
+    elif kind == 'leg':
+        # beside the front-left corner of the body (its side, y = width / 2)
+        x0, y0 = front - 0.04, side + g
+        obstacles = [[[x0, y0], [x0 + 0.03, y0], [x0 + 0.03, y0 + 0.03], [x0, y0 + 0.03]]]
+    elif kind == 'wheel_leg':
+        # beside the body just ahead of the left wheel: a clockwise turn swings the wheel's
+        # front into it
+        x0, y0 = p.wheel_radius + g, side + g
+        obstacles = [[[x0, y0], [x0 + 0.03, y0], [x0 + 0.03, y0 + 0.03], [x0, y0 + 0.03]]]
+        w = -w
+    else:
+        raise _err(f'envelope.kinds.{kind}', 'no turn-in-place world for this kind (wall, '
+                   'leg, wheel_leg); declare its in_place cells under not_promised')
+    return {'description': desc + f' toward the obstacle {g:g} m from the outline',
+            'world': {'walls': walls, 'obstacles': obstacles},
+            'commands': [{'v': 0.0, 'w': round(w, 5), 't': IN_PLACE_S}],
+            'expect': {'distance': 0}}
 
 
 def cells(path: str, raw: Mapping[str, Any] | None = None) -> list[Cell]:

@@ -268,11 +268,20 @@ class TurnGuard:
         return ccw, cw
 
     def evaluate(self, memories: Sequence[ObstacleMemory], x: float, y: float, yaw: float,
-                 w_now: float) -> None:
-        """Set ``ccw_cap`` / ``cw_cap`` (rad/s, >= 0; inf: none) for the yaw rate ``w_now``."""
+                 w_now: float, blind: bool = False) -> None:
+        """Set ``ccw_cap`` / ``cw_cap`` (rad/s, >= 0; inf: none) for the yaw rate ``w_now``.
+
+        ``blind``: the laser is stale under the fail-safe policy (no scan yet, or too old): no
+        turn either way, as the forward guard stops forward motion then -- the memory alone
+        cannot say what came near since.
+        """
         if not self.enabled:
             self.ccw_cap = self.cw_cap = math.inf
             self.slowing = False
+            return
+        if blind:
+            self.ccw_cap = self.cw_cap = 0.0
+            self.slowing = True
             return
         ccw, cw = self.free_angles(memories, x, y, yaw)
         self.ccw_free = ccw

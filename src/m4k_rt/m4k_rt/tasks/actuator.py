@@ -398,7 +398,8 @@ class ActuatorBody:
         turn = self.turn
         w_now = ctl.w if abs(ctl.w) >= abs(odom.w) else odom.w
         if turn.enabled and (w_now != 0.0 or ctl.cmd_angular != 0.0):
-            turn.evaluate(self._memories, odom.x, odom.y, odom.yaw, w_now)
+            turn.evaluate(self._memories, odom.x, odom.y, odom.yaw, w_now,
+                          guard.laser_stale and guard.stale_policy == 'stop')
         ctl.step(now, cap, guard.active, turn.ccw_cap, turn.cw_cap)
         # 4. outputs
         self._motor_out.send(_WHEEL_CMD, now, ctl.left_code, ctl.right_code, ctl.enable)
