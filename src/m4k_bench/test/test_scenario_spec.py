@@ -53,6 +53,10 @@ def test_bounds_follow_config():
     b = bounds.bounds(raw, 0.25, 'sonar')
     # v^2 / 2a with 0.37 m/s^2
     assert b.distance_tol == pytest.approx(0.25 ** 2 / (2 * 0.37))
+    # a turn in place: the centre may wander TURN_WANDER, never less; a straight 'must not
+    # move' stays exact
+    assert bounds.bounds(raw, 0.0, None, turning=True).distance_tol == bounds.TURN_WANDER
+    assert bounds.bounds(raw, 0.0, None).distance_tol == 0.0
     # a guard stop is held to the speed-aware stop zone: t_react = 2 x 30 ms sonar + 10 ms
     # actuator + 20 ms pipeline + 30 ms scheduling + 50 ms amplifier, braking at
     # guard.brake_deceleration 1.5; no slack beyond what the guard itself takes

@@ -207,3 +207,32 @@ def test_a_stale_laser_stops_turns_both_ways_as_it_stops_forward_motion():
     assert (g.ccw_cap, g.cw_cap) == (0.0, 0.0)
     g.evaluate((_memory(),), 0.0, 0.0, 0.0, 0.0)
     assert (g.ccw_cap, g.cw_cap) == (math.inf, math.inf)
+
+
+def _wall_scan(x: float) -> tuple[float, float, list[int]]:
+    """Return a URG-like scan (angle_min, increment, steps) of a wall across x = ``x``."""
+    inc = math.radians(360.0 / 1024)
+    amin = -inc * 341
+    ranges = []
+    for i in range(683):
+        c = math.cos(amin + i * inc)
+        ranges.append(int(x / c * 1000) if c > 0.05 and x / c < 5.6 else 0)
+    return amin, inc, ranges
+
+
+@pytest.mark.parametrize('gap', [0.005, 0.02, 0.03, 0.045, 0.06, 0.2])
+def test_a_wall_across_the_front_at_any_gap_gives_caps_and_never_raises(gap):
+    """Every ring a near point can be in has an answer in both tables (a wall 3 cm off once
+    raised an IndexError in the RT actuator: the contact table's rings end sooner)."""
+    g = _guard()
+    amin, inc, ranges = _wall_scan(0.225 + gap)
+    pts = near_points(amin, inc, 0.02, 5.6, ranges, g.reach, 0.0)
+    m = ObstacleMemory(64)
+    for k in range(0, len(pts), 2):
+        m.add_robot_point(pts[k], pts[k + 1], LASER, LASER_RADIUS, 0.0, 0.0, 0.0)
+    for w in (-1.0, 0.0, 1.0):
+        g.evaluate((m,), 0.0, 0.0, 0.0, w)
+        assert g.ccw_cap >= 0.0 and g.cw_cap >= 0.0
+    if gap < math.hypot(0.225, 0.14) - 0.225:
+        # the front corners swing out past the wall: no turn either way
+        assert g.ccw_cap == 0.0 and g.cw_cap == 0.0

@@ -194,7 +194,8 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
             'commands': [command], 'expect': {'stop': k['stop']}}
 
 
-IN_PLACE_GAP = 0.045    # m between the obstacle and the outline at the start of a turn in place
+IN_PLACE_GAP = 0.03     # m between the obstacle and the outline at the start of a turn in place
+#                        (less than the body corner swings out past the front face: 4 cm)
 IN_PLACE_S = 4.0        # s of turning toward it
 
 

@@ -235,6 +235,7 @@ class TurnGuard:
         s = math.sin(yaw)
         reach2 = self.reach * self.reach
         keep = self.keep
+        contact = self.contact
         for mem in memories:
             if mem.used == 0:
                 continue
@@ -255,9 +256,13 @@ class TurnGuard:
                 if k < 0:
                     continue
                 if keep.blocked[k][j]:
-                    # inside the margin already: as far as the outline itself allows
-                    a = self.contact.ccw[k][j]
-                    b = self.contact.cw[k][j]
+                    # inside the margin already: as far as the outline itself allows (a ring
+                    # beyond the contact table's reach is never met within CONTACT_MARGIN)
+                    if k < contact.rings:
+                        a = contact.ccw[k][j]
+                        b = contact.cw[k][j]
+                    else:
+                        a = b = math.inf
                 else:
                     a = keep.ccw[k][j]
                     b = keep.cw[k][j]
