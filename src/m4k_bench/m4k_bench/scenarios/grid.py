@@ -24,6 +24,7 @@ Turning in place uses the rim speed ``v``: ``w = v / (track / 2)``, capped at
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any, Iterable, Mapping
 
@@ -187,11 +188,29 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
         r = float(mo.get('obstacle_radius_per_m', 3.0)) * x
         command: dict[str, Any] = {'v': v, 'w': round(v / r, 5), 't': t}
         desc += f' (an arc of radius {r:.1f} m)'
+        if kind in ('leg', 'wheel_leg'):
+            # on the arc, as far along it and as far off it as the straight world's: it enters
+            # the straight corridor from the side, late
+            obstacles = [_on_arc(poly, x, r) for poly in obstacles]
+            desc += ', the leg on the arc'
     else:
         command = {'v': v, 't': t, 'heading': 'hold'}
     return {'description': desc + f'; the obstacle {x:.2f} m ahead',
             'world': {'walls': walls, 'obstacles': obstacles},
             'commands': [command], 'expect': {'stop': k['stop']}}
+
+
+def _on_arc(poly: list[list[float]], s: float, r: float) -> list[list[float]]:
+    """Carry a polygon placed ``s`` ahead of the start onto the arc of radius ``r`` (left).
+
+    The polygon's point (px, py) is taken relative to where a straight drive is after ``s``
+    (px - s, py) and placed the same way relative to where the arc is after ``s``.
+    """
+    a = s / r
+    ox, oy = r * math.sin(a), r * (1.0 - math.cos(a))
+    c, sn = math.cos(a), math.sin(a)
+    return [[round(ox + c * (px - s) - sn * py, 4), round(oy + sn * (px - s) + c * py, 4)]
+            for px, py in poly]
 
 
 IN_PLACE_GAP = 0.03     # m between the obstacle and the outline at the start of a turn in place

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from m4k_rt.control.arc import nearest_on_arc
 from m4k_rt.control.memory import LASER, LASER_RADIUS, ObstacleMemory
 
 __all__ = ['LaserSighting', 'POSE_HISTORY', 'PoseHistory', 'SightingFeed', 'SonarSighting',
@@ -56,6 +57,8 @@ class LaserSighting(NamedTuple):
     ranges: tuple[int, ...]         # the raw steps (mm; < 20: error codes)
     near: tuple[float, ...] = ()    # x0, y0, ...: points a turn can meet (robot frame,
     #                                 m4k_rt.control.turnguard.near_points)
+    arcs: tuple[float, ...] = ()    # x0, y0, ...: the nearest point along each arc
+    #                                 (robot frame, m4k_rt.control.arc.arc_points)
 
 
 class PoseHistory:
@@ -174,6 +177,9 @@ class SightingFeed:
         lanes = rec.lanes
         for k in range(0, len(lanes), 2):
             mem.add_robot_point(lanes[k], lanes[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
+        arcs = rec.arcs
+        for k in range(0, len(arcs), 2):
+            mem.add_robot_point(arcs[k], arcs[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
         near = self.near
         pts = rec.near
         if pts or near.used:
@@ -188,6 +194,12 @@ class SightingFeed:
     def nearest(self, x: float, y: float, yaw: float) -> float:
         """Return the memory's nearest gap ahead of the front face at pose (x, y, yaw)."""
         return self.memory.nearest(self.front_x, self.half_width, x, y, yaw)
+
+    def nearest_on_arc(self, kappa: float, x: float, y: float, yaw: float,
+                       horizon: float) -> float:
+        """Return the memory's nearest gap along the arc ``kappa`` (m4k_rt.control.arc)."""
+        return nearest_on_arc(self.memory, kappa, self.half_width, self.front_x, x, y, yaw,
+                              horizon)
 
     def rebase(self, old: tuple[float, float, float], new: tuple[float, float, float]) -> None:
         """Carry the memory and the history into the odometry frame after a pose reset.
