@@ -141,9 +141,10 @@ def _repair(directory: str, file_name: str) -> Recovery:
     stale = meta_path + '.tmp'          # a sync's metadata that a crash kept from its rename
     if os.path.exists(stale):
         os.unlink(stale)
-    # A partial file's syncs left the chunk indexes out (the last sync writes them): rewrite it
-    # so that it is indexed.
-    if complete and indexed == chunks and listed == by_topic and \
+    # A partial file's syncs left the summary out (the last sync writes it, with the chunk
+    # indexes): rewrite it so that it is indexed. Every message is in a chunk, so a file with
+    # messages and no chunk index is a partial one.
+    if complete and indexed == chunks and (indexed or not count) and listed == by_topic and \
             old.get('message_count') == count:
         return Recovery(count, by_topic, True, False, 0)
     # Rewrite into a sibling directory, then swap the files in (each rename is atomic).

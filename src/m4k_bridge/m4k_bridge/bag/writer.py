@@ -11,33 +11,32 @@ Used by the recorder (:mod:`m4k_bridge.bag.record`) and the flight recorder's du
   beforehand: a writer never overwrites (:class:`BagExistsError`).
 * Messages are buffered in memory and written by :meth:`BagWriter.sync` (the callers sync once
   a second). A sync never writes over data or a live trailer. It first *retires* the live
-  trailer (``DataEnd``, a summary with schemas, channels, statistics and metadata index,
-  summary offsets, the footer and the closing magic): one 9-byte record header, inside one
-  disk sector, turns its ``DataEnd`` into a private record (opcode :data:`RETIRED`, in the
-  0x80-0xFF range the MCAP specification leaves to applications) that spans the whole old
-  trailer, so a stream reader skips it; an index reader still finds the old footer at the
-  end of the file, whose summary is untouched. ``fsync``. Then the new records and a new
-  trailer are appended behind it, ``fsync``. Between syncs the partial file is a finished
-  MCAP that every reader opens, the seeking ones too; at every moment of a sync it is
-  readable by a stream reader up to the last sync (Lichtblick's path for these files, see
-  docs/recording.md). A ``kill -9`` or a power cut loses what came after the last sync -- at
-  most one sync period. The name changes only at the end, so a bag under its final name was
-  closed. Each retired trailer stays in the file (its size, about 1 KB, a sync).
+  trailer (``DataEnd``, the footer and the closing magic, 50 bytes): one 9-byte record
+  header, inside one disk sector, turns its ``DataEnd`` into a private record (opcode
+  :data:`RETIRED`, in the 0x80-0xFF range the MCAP specification leaves to applications)
+  that spans the old trailer, so a stream reader skips it; a reader that starts from the end
+  still finds the old footer there. ``fsync``. Then the new records and a new trailer are
+  appended behind it, ``fsync``. Between syncs the partial file is a finished MCAP that
+  every reader opens; at every byte of a sync it is readable by a stream reader up to the
+  last sync (Lichtblick's path for these files; docs/recording.md has the evidence). A
+  ``kill -9`` or a power cut loses what came after the last sync -- at most one sync
+  period. The name changes only at the end, so a bag under its final name was closed.
 * Messages go into uncompressed chunks of at most :data:`CHUNK_BYTES` (one per sync at least),
   each followed by a message index per channel, and the last sync's summary lists a chunk
   index per chunk (MCAP specification, "Chunk Index"): a seeking reader (Lichtblick, Foxglove,
   rosbag2's MCAP plugin, the ``mcap`` readers) goes straight to the chunks of a time range
   instead of reading the whole file, and Lichtblick opens files over 1 GiB only when they are
-  indexed. The syncs before it write the summary without the chunk indexes (a list that grows
-  a chunk a second, rewritten each second, would make a long recording's cost quadratic):
-  a seeking reader reads such a partial file linearly, and ``record --recover`` indexes it.
+  indexed. The syncs before it write no summary (the chunk index list grows a chunk a
+  second, and every trailer stays in the file): a reader reads such a partial file
+  linearly, finding schemas and channels in the data section, and ``record --recover``
+  indexes it.
 * ``metadata.yaml`` (rosbag2 format 9) is written at the start and at each sync, with the
   counts and times of exactly the messages synced, atomically: the new text is fsynced under a
   temporary name before the MCAP grows and renamed over the old one after the MCAP's
   ``fsync``. It never lists a message the MCAP lacks.
 * ``custom_data`` (the commit, a flight recorder's trigger) goes to ``metadata.yaml`` and to an
-  MCAP Metadata record ``m4k`` (listed in the summary's metadata index), so a viewer of the
-  MCAP alone shows it too.
+  MCAP Metadata record ``m4k`` (listed in the final summary's metadata index), so a viewer
+  of the MCAP alone shows it too.
 """
 
 from __future__ import annotations
@@ -320,20 +319,29 @@ class BagWriter:
         self._chunk = _OpenChunk()
 
     def _trailer(self, data_end: int, indexed: bool) -> bytes:
+        """Return DataEnd, the summary (the last sync's only), the footer and the magic.
+
+        Without ``indexed`` there is no summary (footer ``summary_start`` 0, as the
+        specification allows): a summary repeats every schema, about 30 KB a second for the
+        stack's topics, and each sync leaves its trailer in the file when it retires it. A
+        reader finds the schemas and channels in the data section instead.
+        """
+        head = _record(DataEnd(data_section_crc=0))
+        if not indexed:
+            return head + _record(Footer(summary_start=0, summary_offset_start=0,
+                                         summary_crc=0)) + MAGIC
         stats = Statistics(
             message_count=sum(self._counts.values()), schema_count=len(self._schemas),
             channel_count=len(self._channels), attachment_count=0,
             metadata_count=len(self._metadata_indexes), chunk_count=len(self._chunk_indexes),
             message_start_time=self._start_ns, message_end_time=self._end_ns,
             channel_message_counts=dict(self._counts))
-        head = _record(DataEnd(data_section_crc=0))
         summary_start = data_end + len(head)
         groups: list[tuple[int, bytes]] = [
             (Opcode.SCHEMA, b''.join(_record(s) for s in self._schemas.values())),
             (Opcode.CHANNEL, b''.join(_record(c) for c in self._channels.values())),
             (Opcode.STATISTICS, _record(stats)),
-            (Opcode.CHUNK_INDEX,
-             b''.join(_record(c) for c in self._chunk_indexes) if indexed else b''),
+            (Opcode.CHUNK_INDEX, b''.join(_record(c) for c in self._chunk_indexes)),
             (Opcode.METADATA_INDEX, b''.join(_record(m) for m in self._metadata_indexes))]
         summary = bytearray()
         offsets = bytearray()
@@ -355,10 +363,11 @@ class BagWriter:
     def sync(self, indexed: bool = False) -> None:
         """Retire the live trailer, append the buffered records and a new trailer, fsync each.
 
-        ``indexed``: the trailer's summary lists the chunk indexes (the last sync does). The
-        others leave them out: the list grows by one chunk a sync, and rewriting it every
-        second would cost an hour's recording about 400 KiB a second by its end. A sync with
-        nothing new and no index to write writes nothing.
+        ``indexed``: the trailer has the summary, with the chunk indexes (the last sync). The
+        others have no summary: the chunk index list grows by one chunk a sync, and writing
+        it every second would cost an hour's recording about 400 KiB a second by its end; the
+        schemas alone are 30 KB (see :meth:`_trailer`). A sync with nothing new and no
+        summary to write writes nothing.
         """
         if self._closed:
             return
