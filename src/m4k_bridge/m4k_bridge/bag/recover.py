@@ -1,10 +1,11 @@
 """Make a crashed bag whole: an MCAP with its index and trailer, a metadata.yaml to match (no ROS).
 
 ``record --recover DIR`` calls :func:`recover`. A crash leaves the bag under its partial name
-(``DIR.partial``, :data:`m4k_bridge.bag.writer.PARTIAL`): the last sync's file, complete but
-for the rare crash inside a sync's ``pwrite`` (a torn last record, no footer) or between the
-MCAP's ``fsync`` and the metadata's rename (the metadata one sync behind). Recovery keeps every
-complete record, rewrites what needs it, and gives the directory its final name.
+(``DIR.partial``, :data:`m4k_bridge.bag.writer.PARTIAL`): the last sync's file, without a
+summary or chunk indexes (the last sync writes them), and after a power cut inside a sync's
+append a torn last record with no footer; or the metadata one sync behind (a crash between the
+MCAP's ``fsync`` and the metadata's rename). Recovery keeps every complete record, rewrites
+what needs it, and gives the directory its final name.
 """
 
 from __future__ import annotations

@@ -400,7 +400,9 @@ class BagWriter:
             if self._trailer_at is not None:
                 # Retire the live trailer: its DataEnd header (9 bytes, inside one sector)
                 # becomes a private record spanning it, so a stream reader skips the old
-                # summary and footer. Its bytes stay: the file's last 37 are still its footer.
+                # footer. Its bytes stay: the file's last 37 are still that footer. Only the
+                # first two bytes change (DataEnd 0x0F, length 4 -> 0x80, length 41): a cut
+                # after either leaves a valid file.
                 self._pwrite(_record_header(RETIRED, self._eof - self._trailer_at - 9),
                              self._trailer_at)
                 os.fsync(self._fd)
