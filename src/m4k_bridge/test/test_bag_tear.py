@@ -126,3 +126,32 @@ def test_recover_makes_every_cut_a_whole_bag_of_the_synced_messages(cuts, tmp_pa
         results.add((where, n))
         shutil.rmtree(d)
     assert ('after', cuts['after']) in results and ('before', cuts['before']) in results
+
+
+def test_a_disk_full_append_leaves_the_file_as_the_last_sync_did(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from m4k_bridge.bag import writer as bw
+    w = bw.BagWriter(str(tmp_path / 'full'))
+    cid = bt.add_string_topic(w, '/chatter')
+    for i in range(4):
+        w.write(cid, bt.T0 + i, bt.cdr_string(bt.message_text(i)), i)
+    w.sync()
+    synced = open(w.path, 'rb').read()                 # noqa: SIM115
+    real = os.pwrite
+
+    def full(fd, data, offset):                       # the append gets half its bytes down
+        if fd == w._fd and len(data) > 9:
+            real(fd, data[:len(data) // 2], offset)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(fd, data, offset)
+
+    monkeypatch.setattr(os, 'pwrite', full)
+    w.write(cid, bt.T0 + 10, bt.cdr_string('lost'), 10)
+    with pytest.raises(bw.BagError, match='No space left'):
+        w.sync()
+    monkeypatch.setattr(os, 'pwrite', real)
+    assert open(w.path, 'rb').read() == synced           # noqa: SIM115 -- byte for byte
+    got = _rosbags(w.work_directory)
+    assert [g[3] for g in got] == [bt.message_text(i) for i in range(4)]

@@ -413,10 +413,28 @@ class BagWriter:
             os.replace(tmp, meta)
             fsync_dir(self.work_directory)
         except OSError as exc:
+            if self._eof != trailer_at - len(data) + len(blob):   # the append did not finish
+                self._restore()
             if isinstance(exc, BagError):
                 raise
             raise BagError('cannot write {!r}: {} (errno {})'.format(
                 self.path, exc.strerror, exc.errno)) from None
+
+    def _restore(self) -> None:
+        """After a failed append (a full disk): the file as the last sync left it, if possible.
+
+        Cut the torn tail and give the retired trailer its DataEnd header back; neither needs
+        a new block. Best effort: if this fails too, a stream reader and ``--recover`` still
+        read everything synced.
+        """
+        if self._trailer_at is None:
+            return
+        try:
+            os.ftruncate(self._fd, self._eof)
+            self._pwrite(_record(DataEnd(data_section_crc=0))[:9], self._trailer_at)
+            os.fsync(self._fd)
+        except OSError:
+            pass
 
     def _pwrite(self, data: bytes, offset: int) -> None:
         written = os.pwrite(self._fd, data, offset)
