@@ -27,6 +27,7 @@ S = 1_000_000_000
 T0 = 1_800_000_000 * S
 SYNCS = 3                      # syncs before the one that is cut
 PER_SYNC = 2                   # messages per sync
+FLAG = '/flag'                 # std_msgs/Bool, first published in the cut sync (data: true)
 
 
 def cdr_string(text: str) -> bytes:
@@ -42,15 +43,19 @@ def message_text(i: int) -> str:
 
 def add_string_topic(w: Any, topic: str) -> int:
     """Register ``topic`` as ``record`` does for a ``std_msgs/String`` publisher."""
+    return add_topic(w, topic, 'std_msgs/msg/String')
+
+
+def add_topic(w: Any, topic: str, type_name: str) -> int:
+    """Register ``topic`` of ``type_name`` as ``record`` does for a publisher of it."""
     from rclpy.qos import QoSProfile
 
     from m4k_bridge.bag.metadata import qos_entries
     from m4k_bridge.bag.msgdef import message_definition, type_hash
     from m4k_bridge.bag.record import qos_yaml
     profiles = [QoSProfile(depth=10)]
-    return int(w.add_topic(topic, 'std_msgs/msg/String', message_definition('std_msgs/msg/String'),
-                           type_hash('std_msgs/msg/String'), qos_entries(profiles),
-                           qos_yaml(profiles)))
+    return int(w.add_topic(topic, type_name, message_definition(type_name),
+                           type_hash(type_name), qos_entries(profiles), qos_yaml(profiles)))
 
 
 @contextlib.contextmanager
@@ -94,7 +99,8 @@ def tear_images(out_dir: str, writer_module: ModuleType | None = None) -> dict[s
     """Write every distinct cut of one sync under ``out_dir``; return the manifest.
 
     Manifest: ``before`` / ``after`` (messages synced before the cut sync / after it),
-    ``texts`` (every message's text, in order), and ``images``: for each cut, its bag
+    ``texts`` (every message's decoded ``data``, in order: the last is the ``/flag`` Bool),
+    and ``images``: for each cut, its bag
     directory, file, the write it tore (``op``, 0-based; ``-1``: before the first write),
     the kind of that write (``pwrite`` of ``length`` bytes at ``offset``) and the bytes of it
     that reached the disk (``k``), in the order the cuts happen.
@@ -110,8 +116,14 @@ def tear_images(out_dir: str, writer_module: ModuleType | None = None) -> dict[s
         if s == SYNCS:
             before = bytes(open(w.path, 'rb').read())   # noqa: SIM115
             meta_before = open(os.path.join(w.work_directory, 'metadata.yaml')).read()  # noqa
-        for _ in range(PER_SYNC):
-            w.write(cid, T0 + n * S // 10, cdr_string(message_text(n)), n)
+        for k in range(PER_SYNC):
+            if s == SYNCS and k == PER_SYNC - 1:
+                # A topic that appears in the cut sync: its Schema and Channel records are in
+                # the append too, ahead of the chunk.
+                flag = add_topic(w, FLAG, 'std_msgs/msg/Bool')
+                w.write(flag, T0 + n * S // 10, b'\x00\x01\x00\x00\x01', n)
+            else:
+                w.write(cid, T0 + n * S // 10, cdr_string(message_text(n)), n)
             n += 1
         if s < SYNCS:
             w.sync()
@@ -152,7 +164,7 @@ def tear_images(out_dir: str, writer_module: ModuleType | None = None) -> dict[s
                        'kind': op[0], 'offset': op[1], 'length': len(op[2]), 'k': k,
                        'size': len(image)})
     manifest = {'before': SYNCS * PER_SYNC, 'after': (SYNCS + 1) * PER_SYNC,
-                'texts': [message_text(i) for i in range(n)],
+                'texts': [message_text(i) for i in range(n - 1)] + [True],
                 'ops': [{'kind': o[0], 'offset': o[1], 'length': len(o[2])} for o in ops],
                 'images': images}
     with open(os.path.join(out_dir, 'manifest.json'), 'w') as f:
