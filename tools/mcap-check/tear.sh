@@ -5,6 +5,7 @@
 #   tools/mcap-check/tear.sh REV        the writer of git revision REV (for comparison; report only)
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
+[[ -d $here/node_modules/@mcap/core ]] || { echo "tear.sh: run 'npm ci' in $here first (node 20, npm)" >&2; exit 2; }
 cd "$here/../.."
 source tools/env.sh
 out=$(mktemp -d /tmp/m4k-tears.XXXXXX)
