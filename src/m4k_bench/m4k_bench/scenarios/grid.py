@@ -97,10 +97,10 @@ def _listed(value: Any, item: str) -> bool:
     return value is None or item == value or (isinstance(value, list) and item in value)
 
 
-def _why_not(env: Mapping[str, Any], kind: str, cls: str, motion: str) -> str:
+def _why_not(env: Mapping[str, Any], kind: str, cls: str, motion: str, speed: str) -> str:
     for rule in env['not_promised']:
         if (_listed(rule.get('motion'), motion) and _listed(rule.get('kind'), kind)
-                and _listed(rule.get('class'), cls)):
+                and _listed(rule.get('class'), cls) and _listed(rule.get('speed'), speed)):
             return ' '.join(str(rule.get('why', 'not promised')).split())
     return ''
 
@@ -187,27 +187,34 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
     if motion == 'turning':
         r = float(mo.get('obstacle_radius_per_m', 3.0)) * x
         command: dict[str, Any] = {'v': v, 'w': round(v / r, 5), 't': t}
+        commands: list[dict[str, Any]] = [command]
         desc += f' (an arc of radius {r:.1f} m)'
         if kind in ('leg', 'wheel_leg'):
-            # on the arc, as far along it and as far off it as the straight world's: it enters
-            # the straight corridor from the side, late
-            obstacles = [_on_arc(poly, x, r) for poly in obstacles]
-            desc += ', the leg on the arc'
+            # straight up to speed, then the arc (the ramps of v and w differ, so an arc from
+            # rest is no circle); the leg on the arc, as far along and as far off it as the
+            # straight world's: it enters the straight corridor from the side, late
+            acc = p.linear.max_acceleration
+            s0 = v * v / (2.0 * acc)
+            t0 = round(v / acc, 2)
+            obstacles = [_on_arc(poly, x, r, s0) for poly in obstacles]
+            commands = [{'v': v, 't': t0}, dict(command, t=round(t - t0, 1))]
+            desc += f', straight for {s0:.2f} m to speed, the leg on the arc'
     else:
-        command = {'v': v, 't': t, 'heading': 'hold'}
+        commands = [{'v': v, 't': t, 'heading': 'hold'}]
     return {'description': desc + f'; the obstacle {x:.2f} m ahead',
             'world': {'walls': walls, 'obstacles': obstacles},
-            'commands': [command], 'expect': {'stop': k['stop']}}
+            'commands': commands, 'expect': {'stop': k['stop']}}
 
 
-def _on_arc(poly: list[list[float]], s: float, r: float) -> list[list[float]]:
+def _on_arc(poly: list[list[float]], s: float, r: float, s0: float = 0.0) -> list[list[float]]:
     """Carry a polygon placed ``s`` ahead of the start onto the arc of radius ``r`` (left).
 
-    The polygon's point (px, py) is taken relative to where a straight drive is after ``s``
-    (px - s, py) and placed the same way relative to where the arc is after ``s``.
+    The drive goes straight for ``s0``, then on the arc. The polygon's point (px, py) is taken
+    relative to where a straight drive is after ``s`` (px - s, py) and placed the same way
+    relative to where this drive is after ``s``.
     """
-    a = s / r
-    ox, oy = r * math.sin(a), r * (1.0 - math.cos(a))
+    a = (s - s0) / r
+    ox, oy = s0 + r * math.sin(a), r * (1.0 - math.cos(a))
     c, sn = math.cos(a), math.sin(a)
     return [[round(ox + c * (px - s) - sn * py, 4), round(oy + sn * (px - s) + c * py, 4)]
             for px, py in poly]
@@ -267,7 +274,7 @@ def cells(path: str, raw: Mapping[str, Any] | None = None) -> list[Cell]:
         for speed in env['speeds']:
             for motion in env['motions']:
                 name = f'{kind}.{speed}.{motion}'
-                why = _why_not(env, kind, k['class'], motion)
+                why = _why_not(env, kind, k['class'], motion, speed)
                 if why:
                     out.append(Cell(name, kind, speed, motion, None, why))
                     continue
