@@ -59,3 +59,28 @@ def test_a_leg_on_the_arc_outside_the_straight_corridor_is_seen_along_the_arc():
     assert nearest_on_arc(m, -1.0 / r, HW, FRONT, 0.0, 0.0, 0.0, 5.0) == math.inf
     # beyond the horizon it is not looked at
     assert nearest_on_arc(m, 1.0 / r, HW, FRONT, 0.0, 0.0, 0.0, 0.5) == math.inf
+
+
+def test_the_curvature_of_a_motion_is_an_arc_only_when_it_drives_forward_and_bends():
+    from m4k_rt.control.arc import curvature, MIN_SPEED, STRAIGHT
+    assert curvature(1.0, 0.5) == pytest.approx(0.5)
+    assert curvature(1.0, -0.5) == pytest.approx(-0.5)
+    assert curvature(MIN_SPEED / 2, 1.0) == 0.0          # a turn in place: the turn guard's
+    assert curvature(-0.1, 0.5) == 0.0                   # reversing
+    assert curvature(2.0, STRAIGHT) == 0.0               # straight within a centimetre
+    assert curvature(0.1, 1.5) == max(CURVATURES)        # tighter: the tightest kept arc
+
+
+def test_the_feed_measures_the_commands_arc_when_it_bends_otherwise():
+    from m4k_rt.control.sightings import SightingFeed
+    feed = SightingFeed(ObstacleMemory(16), sonar_x=FRONT, laser_x=0.0, front_x=FRONT,
+                        half_width=HW, sonar_half_angle=0.13, sonar_reach=4.5)
+    r, a = 2.0, 0.6
+    feed.memory.add_robot_point(r * math.sin(a), r * (1.0 - math.cos(a)), LASER, LASER_RADIUS,
+                                0.0, 0.0, 0.0)
+    on_arc = r * (a - math.asin(FRONT / r))
+    # driving straight, told to turn left on the 2 m arc: the command's arc finds it
+    assert feed.nearest_on_arcs(1.0, 0.0, 1.0, 0.5, 0.0, 0.0, 0.0, 1.5) == pytest.approx(
+        on_arc, abs=0.01)
+    # turning right and told to go on doing so: neither arc meets it
+    assert feed.nearest_on_arcs(1.0, -0.5, 1.0, -0.5, 0.0, 0.0, 0.0, 1.5) == math.inf

@@ -34,11 +34,32 @@ from typing import Sequence
 
 from m4k_rt.control.memory import NONE, ObstacleMemory, URG_MIN_MM
 
-__all__ = ['arc_gap', 'arc_points', 'CURVATURES', 'nearest_on_arc', 'STRAIGHT']
+__all__ = ['arc_gap', 'arc_points', 'CURVATURES', 'curvature', 'HORIZON', 'MIN_SPEED',
+           'nearest_on_arc', 'SAME', 'STRAIGHT']
 
 # 1/m: the arcs the laser's nearest points are kept for (radii 8, 4, 2, 1 and 0.5 m each way)
 CURVATURES = (-2.0, -1.0, -0.5, -0.25, -0.125, 0.125, 0.25, 0.5, 1.0, 2.0)
 STRAIGHT = 0.002   # 1/m: |kappa| below this is straight (3.3 m ahead: 1 cm of drift)
+HORIZON = 1.0      # m beyond the stop zone: memory points farther are not looked at
+MIN_SPEED = 0.01   # m/s: slower is a turn in place (the turn guard's), not an arc
+SAME = 0.01        # 1/m: curvatures this close share one band (3 mm apart at 1.5 m)
+
+
+def curvature(v: float, w: float) -> float:
+    """Return the arc's curvature w / v (1/m) within the kept arcs' range; 0: straight or none.
+
+    Slower than ``MIN_SPEED`` forward (a turn in place, reversing) or gentler than
+    ``STRAIGHT`` is 0; tighter than the tightest kept arc is taken as it.
+    """
+    if v <= MIN_SPEED:
+        return 0.0
+    k = w / v
+    top = CURVATURES[-1]
+    if k > top:
+        return top
+    if k < -top:
+        return -top
+    return k if (k >= STRAIGHT or k <= -STRAIGHT) else 0.0
 
 
 def arc_gap(px: float, py: float, kappa: float, half_width: float, front: float) -> float:

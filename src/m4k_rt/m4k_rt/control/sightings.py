@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from m4k_rt.control.arc import nearest_on_arc
+from m4k_rt.control.arc import curvature, HORIZON, nearest_on_arc, SAME
 from m4k_rt.control.memory import LASER, LASER_RADIUS, ObstacleMemory
 
 __all__ = ['LaserSighting', 'POSE_HISTORY', 'PoseHistory', 'SightingFeed', 'SonarSighting',
@@ -195,11 +195,24 @@ class SightingFeed:
         """Return the memory's nearest gap ahead of the front face at pose (x, y, yaw)."""
         return self.memory.nearest(self.front_x, self.half_width, x, y, yaw)
 
-    def nearest_on_arc(self, kappa: float, x: float, y: float, yaw: float,
-                       horizon: float) -> float:
-        """Return the memory's nearest gap along the arc ``kappa`` (m4k_rt.control.arc)."""
-        return nearest_on_arc(self.memory, kappa, self.half_width, self.front_x, x, y, yaw,
-                              horizon)
+    def nearest_on_arcs(self, v: float, w: float, cmd_v: float, cmd_w: float, x: float,
+                        y: float, yaw: float, stop_zone: float) -> float:
+        """Return the memory's nearest gap along the arc of the motion and of the command.
+
+        (m4k_rt.control.arc) ``stop_zone``: d(v) now; points beyond it + ``HORIZON`` are not
+        looked at. The command's arc is measured only when it bends differently from the
+        motion's (one pass on a steady arc); inf when neither is an arc.
+        """
+        best = math.inf
+        done = math.nan
+        for k in (curvature(v, w), curvature(cmd_v, cmd_w)):
+            if k != 0.0 and not abs(k - done) < SAME:
+                done = k
+                g = nearest_on_arc(self.memory, k, self.half_width, self.front_x, x, y, yaw,
+                                   stop_zone + HORIZON)
+                if g < best:
+                    best = g
+        return best
 
     def rebase(self, old: tuple[float, float, float], new: tuple[float, float, float]) -> None:
         """Carry the memory and the history into the odometry frame after a pose reset.

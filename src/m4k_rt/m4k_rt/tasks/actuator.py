@@ -39,7 +39,6 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import shipped_period_s, TaskConfig
-from m4k_rt.control.arc import CURVATURES, STRAIGHT
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.footprint import half_width_of
 from m4k_rt.control.guard import (
@@ -79,11 +78,6 @@ _ODOM_RESET = Kind.ODOM_RESET
 _SET_POSE = Kind.SET_POSE
 _APPLIED = Kind.APPLIED_VELOCITY
 _FAULT_RESET = Kind.FAULT_RESET
-
-
-ARC_HORIZON = 1.0          # m beyond the stop zone: memory points farther are not on the arc
-ARC_MIN_SPEED = 0.01       # m/s: slower is a turn in place (the turn guard's), not an arc
-ARC_MAX_CURVATURE = max(CURVATURES)   # 1/m: tighter arcs are taken as this one (0.5 m)
 
 
 @dataclass(frozen=True)
@@ -283,7 +277,9 @@ class ActuatorBody:
         self.guard = make_guard(params, self.plan)
         self.feed = make_feed(params, robot)
         self.turn = make_turn_guard(params, robot, self.plan.reaction_time)
-        self._memories = (self.feed.near, self.feed.memory)
+        # the turn guard's points: the laser's within reach (the corridor memory's are ahead of
+        # the face, beyond any turn's reach once the forward guard has held the robot off them)
+        self._memories = (self.feed.near,)
         self._use_sonar = params.guard.use_sonar
         self._use_laser = params.guard.use_laser
         if self.plan.enabled:
@@ -399,18 +395,10 @@ class ActuatorBody:
         speed = ctl.v if ctl.v > odom.v else odom.v
         if speed > 0.0:
             # on an arc: the memory's gaps along the arc of the motion and of the command too
-            horizon = guard.stop_distance_at(speed) + ARC_HORIZON
-            for v_, w_ in ((odom.v, odom.w), (ctl.cmd_linear, ctl.cmd_angular)):
-                if v_ > ARC_MIN_SPEED:
-                    k = w_ / v_
-                    if k > ARC_MAX_CURVATURE:
-                        k = ARC_MAX_CURVATURE
-                    elif k < -ARC_MAX_CURVATURE:
-                        k = -ARC_MAX_CURVATURE
-                    if k >= STRAIGHT or k <= -STRAIGHT:
-                        g = feed.nearest_on_arc(k, odom.x, odom.y, odom.yaw, horizon)
-                        if g < memory_min:
-                            memory_min = g
+            g = feed.nearest_on_arcs(odom.v, odom.w, ctl.cmd_linear, ctl.cmd_angular, odom.x,
+                                     odom.y, odom.yaw, guard.stop_distance_at(speed))
+            if g < memory_min:
+                memory_min = g
         cap = guard.evaluate(now, self._vmax, state.sonar_range, state.sonar_rx_ns,
                              state.laser_front_min, state.laser_rx_ns, speed, memory_min,
                              unknown)
