@@ -35,6 +35,7 @@ import yaml
 
 from m4k_bench import recorder
 from m4k_bench.soak import children
+from m4k_bringup.bringup import bringup_argv
 from m4k_rt import channel, config
 from m4k_rt.control.params import control_params
 
@@ -133,9 +134,8 @@ class Probe:
 def _start_bringup(procs, tmp_path, overlay, runtime_dir):
     """Start bringup with ``overlay`` in the test's runtime dir; its log in bringup.log."""
     with open(tmp_path / 'bringup.log', 'w') as log:
-        return procs.start(['python', '-m', 'm4k_bringup.bringup', '--python-m', '--config',
-                            str(overlay), '--status-interval', '1'], env=stack_env(runtime_dir),
-                           stdout=log, stderr=subprocess.STDOUT)
+        return procs.start(bringup_argv(str(overlay)) + ['--status-interval', '1'],
+                           env=stack_env(runtime_dir), stdout=log, stderr=subprocess.STDOUT)
 
 
 def _assert_rt_kept_counting(probe):
