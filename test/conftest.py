@@ -30,7 +30,7 @@ SERIAL_MODULES = frozenset({
 })
 
 # The second low-priority stream's modules, run after the package tier (balanced on the
-# measured times of a fresh clone's run: docs/internals.md, "make test's streams").
+# measured times of a fresh clone's run: docs/testing.md).
 AFTER_PACKAGES = frozenset({
     'test_bench_smoke', 'test_doctor_fleet', 'test_launch_ros_args', 'test_record_e2e',
 })
