@@ -21,18 +21,21 @@ UNIT_MODULES = frozenset({
     'test_recipes', 'test_skip_markers', 'test_test_summary', 'test_workspace_layout',
 })
 
-# A stop judged against its line or its deadline, a drive against its limits, on the
-# simulator's ground truth: the outcome depends on the CPU the stack gets, so these never share
-# the machine with each other (the lower-priority streams beside them use its idle time).
+# A stop judged against its line, a drive against its limits or a fit against the robot's
+# time constants, on the simulator's ground truth: the outcome depends on the CPU the stack
+# gets, so these never share the machine with each other (the lower-priority streams beside
+# them use its idle time). The kill, e-stop and cut-link tests judge states (at rest, stays
+# there, nothing moves it), not times, and run in the other streams.
 SERIAL_MODULES = frozenset({
     'test_scenarios', 'test_demo', 'test_stack_e2e', 'test_tasks_e2e', 'test_tf_e2e',
-    'test_estop_e2e', 'test_motor_safety', 'test_faults_e2e', 'test_two_machines', 'test_fleet',
+    'test_fleet',
 })
 
 # The second low-priority stream's modules, run after the package tier (balanced on the
 # measured times of a fresh clone's run: docs/testing.md).
 AFTER_PACKAGES = frozenset({
     'test_bench_smoke', 'test_doctor_fleet', 'test_launch_ros_args', 'test_record_e2e',
+    'test_faults_e2e', 'test_two_machines',
 })
 
 
