@@ -83,7 +83,7 @@ else
     markers="$markers and not serial" packages || r=1
     wait $lint_pid || r=1
     cat "$tmp/lint.log"
-    echo "== workspace tests after the packages (-m '$markers and after_packages') =="
+    echo "== workspace tests after the packages (-m '$markers and not serial and after_packages') =="
     run_pytest after_packages test -m "$markers and not serial and after_packages" || r=1
     exit $r
   ) >"$tmp/packages.log" 2>&1 & packages_pid=$!
