@@ -65,10 +65,10 @@ def test_the_curvature_of_a_motion_is_an_arc_only_when_it_drives_forward_and_ben
     from m4k_rt.control.arc import curvature, MIN_SPEED, STRAIGHT
     assert curvature(1.0, 0.5) == pytest.approx(0.5)
     assert curvature(1.0, -0.5) == pytest.approx(-0.5)
-    assert curvature(MIN_SPEED / 2, 1.0) == 0.0          # a turn in place: the turn guard's
+    assert curvature(MIN_SPEED / 2, 0.02) == 0.0         # creeping: no arc
     assert curvature(-0.1, 0.5) == 0.0                   # reversing
     assert curvature(2.0, STRAIGHT) == 0.0               # straight within a centimetre
-    assert curvature(0.1, 1.5) == max(CURVATURES)        # tighter: the tightest kept arc
+    assert curvature(0.2, 1.5) == max(CURVATURES)        # tighter: the tightest kept arc
 
 
 def test_the_feed_measures_the_commands_arc_when_it_bends_otherwise():

@@ -41,7 +41,9 @@ __all__ = ['arc_gap', 'arc_points', 'CURVATURES', 'curvature', 'HORIZON', 'MIN_S
 CURVATURES = (-2.0, -1.0, -0.5, -0.25, -0.125, 0.125, 0.25, 0.5, 1.0, 2.0)
 STRAIGHT = 0.002   # 1/m: |kappa| below this is straight (3.3 m ahead: 1 cm of drift)
 HORIZON = 1.0      # m beyond the stop zone: memory points farther are not looked at
-MIN_SPEED = 0.01   # m/s: slower is a turn in place (the turn guard's), not an arc
+MIN_SPEED = 0.1    # m/s: slower is no arc: a heading correction while creeping up to a stop
+#                    line (w 0.02 rad/s at the 0.05 m/s slow floor) is a 2.5 m "arc" that
+#                    only moves the stop a few mm; a turn at a creep is the turn guard's
 SAME = 0.01        # 1/m: curvatures this close share one band (3 mm apart at 1.5 m)
 
 
