@@ -150,3 +150,12 @@ def test_the_cli_expands_the_envelope_grid_and_states_what_is_not_promised(tmp_p
                    'kinds: {wall: {class: obstacle, stop: sonar}}}\n')
     assert scenarios.main([str(bad), '--results', str(out)]) == 2
     assert 'envelope.speeds.creep' in capsys.readouterr().err
+
+
+def test_a_clearance_expectation_is_parsed_and_stated():
+    doc = {'description': 'd', 'world': {}, 'commands': [{'v': 0.5, 'w': 0.5, 't': 1.0}],
+           'expect': {'min_clearance': 0.25}}
+    sc = spec.parse(doc, 'x.yaml')
+    assert sc.min_clearance == 0.25 and 'clearance >= 0.25 m' in sc.expected()
+    with pytest.raises(spec.ScenarioError, match='min_clearance'):
+        spec.parse(dict(doc, expect={'min_clearance': -1}), 'x.yaml')
