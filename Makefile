@@ -3,7 +3,8 @@
 #   make run [CONFIG=my_robot.yaml] [FOXGLOVE=1]   the robot stack on simulated hardware (Ctrl-C
 #                                     stops it); FOXGLOVE=1 adds the live view on localhost:8765
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
-#   make test                         lint + colcon test of every package + workspace tests
+#   make test                         lint + colcon test of every package + workspace tests, in
+#                                     three streams side by side (docs/testing.md)
 #   make check                        lint + the unit tiers: make test without the tests marked
 #                                     e2e (they start the stack, processes or ROS nodes); lint,
 #                                     colcon test and the workspace tier side by side

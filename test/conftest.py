@@ -3,6 +3,12 @@
 The workspace tests are the end-to-end tier: every module here is marked ``e2e`` (it starts the
 stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODULES`, which
 ``make check`` runs with the packages' unit tests. A new module is end to end unless listed.
+
+``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams side by side: the
+modules in :data:`SERIAL_MODULES` (marked ``serial``: judged on the simulator's physics in
+wall-clock time) one after the other at normal priority, and the rest in two streams at a
+lower priority -- the modules in :data:`AFTER_PACKAGES` after the package tier, every other
+one (a new module too) from the start.
 """
 
 import pytest
@@ -15,9 +21,31 @@ UNIT_MODULES = frozenset({
     'test_recipes', 'test_skip_markers', 'test_test_summary', 'test_workspace_layout',
 })
 
+# A stop judged against its line, a drive against its limits or a fit against the robot's
+# time constants, on the simulator's ground truth: the outcome depends on the CPU the stack
+# gets, so these never share the machine with each other (the lower-priority streams beside
+# them use its idle time). The kill, e-stop and cut-link tests judge states (at rest, stays
+# there, nothing moves it), not times, and run in the other streams.
+SERIAL_MODULES = frozenset({
+    'test_scenarios', 'test_demo', 'test_stack_e2e', 'test_tasks_e2e', 'test_tf_e2e',
+    'test_fleet',
+})
+
+# The second low-priority stream's modules, run after the package tier (balanced on the
+# measured times of a fresh clone's run: docs/testing.md).
+AFTER_PACKAGES = frozenset({
+    'test_bench_smoke', 'test_doctor_fleet', 'test_launch_ros_args', 'test_record_e2e',
+    'test_faults_e2e', 'test_two_machines',
+})
+
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark every test of a module outside :data:`UNIT_MODULES` ``e2e``."""
+    """Mark every test of a module outside :data:`UNIT_MODULES` ``e2e``, and those of
+    :data:`SERIAL_MODULES` ``serial`` and of :data:`AFTER_PACKAGES` ``after_packages``."""
     for item in items:
         if item.path.stem not in UNIT_MODULES:
             item.add_marker(pytest.mark.e2e)
+        if item.path.stem in SERIAL_MODULES:
+            item.add_marker(pytest.mark.serial)
+        if item.path.stem in AFTER_PACKAGES:
+            item.add_marker(pytest.mark.after_packages)

@@ -56,7 +56,8 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     publish = tmp_path / 'published'
     argv = [sys.executable, '-c', 'import sys; from m4k_bench.bench import main; '
             'sys.exit(main())', '--quick', '--duration', '2', '--rounds', '1', '--rtt-n', '200',
-            '--cmd-trials', '3', '--rates', '500', '--no-install', '--results', str(results),
+            '--cmd-trials', '3', '--reaction-trials', '2', '--reaction-speed-trials', '1',
+            '--rates', '500', '--no-install', '--results', str(results),
             '--publish', str(publish)]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             stdin=subprocess.DEVNULL)
@@ -139,6 +140,13 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     assert [r['rate_hz'] for r in summ['scaling']] == [500, 500]
     assert summ['cmd_latency']['trials'] + summ['cmd_latency']['lost'] == 3, \
         summ['cmd_latency']
+    # the guard's reaction ran its trials (2 at the first speed, 1 at each other) and wrote
+    # its evidence; a phase that raised would be a summary with an 'error' and no trials
+    reaction = summ['reaction']
+    assert 'error' not in reaction, reaction
+    assert reaction['trials'] + len(reaction['failed']) >= 1, reaction
+    for name in ('reaction.md', 'reaction.json', 'reaction.csv'):
+        assert (out / 'reaction' / name).is_file(), name
     check_verdicts_follow_the_measurements(summ)
     assert all(t['spread'] is None or t['spread']['n'] == 1 for t in summ['targets'])
     report = (out / 'report.md').read_text()

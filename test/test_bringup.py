@@ -35,8 +35,8 @@ def start_bringup(procs, tmp_path, runtime_dir, overlay, tag='bringup', extra=()
     out = open(tmp_path / (tag + '.out'), 'w')
     err = open(tmp_path / (tag + '.err'), 'w')
     try:
-        return procs.start(['python', '-m', 'm4k_bringup.bringup', '--python-m', '--config',
-                            overlay, '--status-interval', '1', *extra],
+        return procs.start(bringup.bringup_argv(str(overlay)) + ['--status-interval', '1',
+                                                                 *extra],
                            env=stack_env(runtime_dir), stdout=out, stderr=err)
     finally:
         out.close()
@@ -363,8 +363,8 @@ def test_the_live_view_takes_a_parameter_file_and_bringup_checks_it_first(procs,
     # A misspelt key would be ignored by rclpy (a LAN live view without its token): refused.
     bad = tmp_path / 'live.yaml'
     bad.write_text('m4k_foxglove:\n  ros__parameters:\n    token_fle: /x\n')
-    p = procs.start(['python', '-m', 'm4k_bringup.bringup', '--foxglove', '--foxglove-params',
-                     str(bad), '--no-status'], env=stack_env(str(tmp_path / 'rt')))
+    p = procs.start(bringup.bringup_argv() + ['--foxglove', '--foxglove-params', str(bad),
+                                              '--no-status'], env=stack_env(str(tmp_path / 'rt')))
     _, err = p.communicate(timeout=60)
     assert p.returncode == 2, err
     assert "unknown parameter 'token_fle'" in err

@@ -12,12 +12,14 @@ import os
 import pytest
 from wsenv import stack_env
 
+from m4k_bringup.bringup import bringup_argv
+
 DUP = 'control:\n  cmd_vel_timeout: 0.5\n  odom_every_n: 5\n  cmd_vel_timeout: 0.2\n'
 WHY = "duplicate key 'cmd_vel_timeout' at line 4 (first given at line 2)"
 
 
 @pytest.mark.parametrize('argv', [
-    ['python', '-m', 'm4k_bringup.bringup', '--no-status', '--config'],
+    [*bringup_argv(), '--no-status', '--config'],
     ['python', '-m', 'm4k_rt.rt_core', '--config'],
     ['python', '-m', 'm4k_drivers.host', '--overlay'],
 ], ids=['bringup', 'rt_core', 'driver_host'])
@@ -137,22 +139,19 @@ def _prefixed(prefix, body):
 # Every path a configuration file takes at start-up: (argv before the file, the section the
 # bad body goes under).
 PATHS = {
-    'bringup --config': (['python', '-m', 'm4k_bringup.bringup', '--no-status', '--config'],
-                         ''),
+    'bringup --config': ([*bringup_argv(), '--no-status', '--config'], ''),
     'rt_core --config': (['python', '-m', 'm4k_rt.rt_core', '--config'], ''),
     'driver_host --overlay': (['python', '-m', 'm4k_drivers.host', '--overlay'], ''),
     'bridge --params-file': (['python', '-m', 'm4k_bridge.node', '--ros-args',
                               '--params-file'], BRIDGE),
     'bringup --namespace --bridge-params': (
-        ['python', '-m', 'm4k_bringup.bringup', '--no-status', '--namespace', 'r1',
-         '--bridge-params'], BRIDGE),
+        [*bringup_argv(), '--no-status', '--namespace', 'r1', '--bridge-params'], BRIDGE),
     'bringup --robot --bridge-params': (
-        ['python', '-m', 'm4k_bringup.bringup', '--no-status', '--robot', 'r1',
-         '--bridge-params'], BRIDGE),
+        [*bringup_argv(), '--no-status', '--robot', 'r1', '--bridge-params'], BRIDGE),
     'foxglove --params-file': (['python', '-m', 'm4k_bridge.foxglove.node', '--ros-args',
                                 '--params-file'], FOX),
-    'bringup --foxglove-params': (['python', '-m', 'm4k_bringup.bringup', '--no-status',
-                                   '--foxglove', '--foxglove-params'], FOX),
+    'bringup --foxglove-params': ([*bringup_argv(), '--no-status', '--foxglove',
+                                   '--foxglove-params'], FOX),
 }
 
 
@@ -181,8 +180,8 @@ def test_a_duplicate_key_in_a_namespaced_bridge_parameter_file_exits_2(procs, tm
     # plain PyYAML first, which kept 0.9 without a word.
     bad = _write(tmp_path / 'params.yaml', BRIDGE + '    max_linear_velocity: 0.2\n'
                  '    max_linear_velocity: 0.9\n')
-    p = procs.start(['python', '-m', 'm4k_bringup.bringup', '--no-status', *flag,
-                     '--bridge-params', bad], env=stack_env(m4k_runtime_dir))
+    p = procs.start([*bringup_argv(), '--no-status', *flag, '--bridge-params', bad],
+                    env=stack_env(m4k_runtime_dir))
     _, err = p.communicate(timeout=120)
     assert p.returncode == 2, err
     assert "duplicate key 'max_linear_velocity' at line 4 (first given at line 3)" in err, err

@@ -18,6 +18,7 @@ from test_bringup import write_overlay
 from test_stack_e2e import RosUser, START
 from wsenv import ground_truth, ROOT, stack_env
 
+from m4k_bringup.bringup import bringup_argv
 from m4k_rt import estop_request
 
 pytestmark = pytest.mark.allow_leaks('fds')  # FastDDS keeps its sockets for the process
@@ -64,8 +65,8 @@ def _start(procs, tmp_path, env, overlay, tag):
                                        if k.startswith(('M4K_', 'STATE_'))})
     full['M4K_WORLD_REPORT'] = stack_env(runtime)['M4K_WORLD_REPORT']
     with open(tmp_path / f'{tag}.err', 'w') as err:
-        return procs.start(['python', '-m', 'm4k_bringup.bringup', '--python-m', '--config',
-                            overlay, '--no-status'], env=full, stdout=err, stderr=err)
+        return procs.start(bringup_argv(str(overlay)) + ['--no-status'], env=full, stdout=err,
+                           stderr=err)
 
 
 def test_an_engaged_e_stop_survives_a_service_restart_through_the_units_paths(procs, tmp_path):

@@ -20,6 +20,8 @@ import pytest
 from wsenv import stack_env
 import yaml
 
+from m4k_bringup.bringup import bringup_argv
+
 rclpy = pytest.importorskip('rclpy')
 
 STATUS = 'm4k_drivers: motor host drops'
@@ -41,8 +43,7 @@ def test_commands_dropped_after_a_host_stall_appear_in_diagnostics_by_reason(
                                                    'start_delay_ms': 10}}))
     log_path = tmp_path / 'bringup.log'
     with open(log_path, 'w') as log:
-        bu = procs.start(['python', '-m', 'm4k_bringup.bringup', '--python-m', '--config',
-                          str(overlay), '--status-interval', '1'],
+        bu = procs.start(bringup_argv(str(overlay)) + ['--status-interval', '1'],
                          env=stack_env(m4k_runtime_dir), stdout=log, stderr=subprocess.STDOUT)
     ctx = rclpy.Context()
     rclpy.init(context=ctx)

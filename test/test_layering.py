@@ -433,3 +433,22 @@ def test_the_circle_finder_sees_a_lazy_import_back(tmp_path):
     assert graph['pk.a'] == {'pk.sub.b'} and graph['pk.sub.b'] == {'pk.a'}
     assert graph['pk.c'] == {'pk.a', 'pk.sub.b'}
     assert _cycles(graph) == [['pk.a', 'pk.sub.b']]
+
+
+def test_the_tests_start_the_stack_with_bringups_one_recipe():
+    # Every workspace test that starts bringup takes its command from bringup_argv, as the
+    # tools do (src/m4k_bench/test/test_stack_recipe.py): no `-m m4k_bringup.bringup` spelt out.
+    here = os.path.dirname(os.path.abspath(__file__))
+    inline = []
+    for name in sorted(os.listdir(here)):
+        if not name.endswith('.py'):
+            continue
+        with open(os.path.join(here, name), encoding='utf-8') as f:
+            tree = ast.parse(f.read())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.List):
+                words = [e.value if isinstance(e, ast.Constant) else None for e in node.elts]
+                if any(a == '-m' and b == 'm4k_bringup.bringup'
+                       for a, b in zip(words, words[1:], strict=False)):
+                    inline.append(f'{name}:{node.lineno}')
+    assert inline == []

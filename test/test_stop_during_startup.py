@@ -18,6 +18,7 @@ import pytest
 from wsenv import LineWatch, stack_env
 import yaml
 
+from m4k_bringup.bringup import bringup_argv
 from m4k_rt.stopsignals import blocked_stop_signals
 from m4k_testing import child_pids
 
@@ -29,7 +30,7 @@ EXECUTABLES = {
     'driver_host': (['python', '-m', 'm4k_drivers.host'],
                     'driver_host: stopped (SIGTERM); outputs safe'),
     'bridge': (['python', '-m', 'm4k_bridge.node'], 'm4k_bridge: stopped (SIGTERM)'),
-    'bringup': (['python', '-m', 'm4k_bringup.bringup', '--python-m', '--no-status'],
+    'bringup': (bringup_argv() + ['--no-status'],
                 'bringup: stopped (SIGTERM)'),
     'baseline': (['python', '-m', 'm4k_bench.baseline', '--duration', '60'],
                  'baseline: stopped (SIGTERM); motors safe'),

@@ -4,6 +4,16 @@
 # marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
 # static checks listed in test/conftest.py) -- the fast loop while editing; its three tiers run
 # side by side.
+# `make test` runs three streams side by side, each on its own ROS domain and temp directory:
+#   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
+#            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
+#            at the caller's priority;
+#   packages lint beside colcon test of every package (less its serial tests), then the
+#            workspace modules in test/conftest.py AFTER_PACKAGES, 10 nice steps lower;
+#   e2e      every other workspace module, 10 nice steps lower.
+# The end-to-end tests mostly wait on the stack (a module like test_doctor uses a fifth of a
+# core); a serial test's stack uses about one core, which the lower priority of the others
+# leaves it, so a stop is judged on a machine as calm as when it ran alone.
 # Exits non-zero on any failure, and when no test ran at all.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -55,15 +65,47 @@ if [[ $markers == *'not e2e'* ]]; then
   cat "$out/workspace"
   rm -rf "$out"
 else
-  # Lint needs no stack: it runs beside the package tier (which leaves a core idle while its
-  # packages wait on each other); the end-to-end workspace tier then has the machine alone.
-  out=$(mktemp -d)
-  lint >"$out/lint" 2>&1 & lint_pid=$!
-  packages || rc=1
-  wait $lint_pid || rc=1
-  cat "$out/lint"
-  rm -rf "$out"
-  workspace || rc=1
+  base=$ROS_DOMAIN_ID
+  lower=$(( $(nice) + 10 > 19 ? 19 : $(nice) + 10 ))
+  tmp=$(mktemp -d /tmp/m4k-test.XXXXXX)   # short: the runtime dirs' socket paths
+  # run_pytest <stream> <pytest args...>: a workspace-style pytest run with its own junit file
+  # and its own temp directory (two pytest sessions must not share one).
+  run_pytest() {
+    local name=$1; shift
+    python -m pytest -q -p no:cacheprovider --basetemp="$tmp/$name" \
+      --junitxml="build/workspace_test/test_results/$name/pytest.xml" "$@"
+  }
+  (
+    export ROS_DOMAIN_ID=$(( base % 100 + 1 ))
+    renice -n "$lower" -p $BASHPID >/dev/null
+    r=0
+    lint >"$tmp/lint.log" 2>&1 & lint_pid=$!
+    markers="$markers and not serial" packages || r=1
+    wait $lint_pid || r=1
+    cat "$tmp/lint.log"
+    echo "== workspace tests after the packages (-m '$markers and not serial and after_packages') =="
+    run_pytest after_packages test -m "$markers and not serial and after_packages" || r=1
+    exit $r
+  ) >"$tmp/packages.log" 2>&1 & packages_pid=$!
+  (
+    export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
+    renice -n "$lower" -p $BASHPID >/dev/null
+    echo "== workspace tests (-m '$markers and not serial and not after_packages') =="
+    run_pytest e2e test -m "$markers and not serial and not after_packages"
+  ) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
+  echo "== serial stream: the tests marked serial, one at a time (-m '$markers and serial') =="
+  run_pytest serial test -m "$markers and serial" || rc=1
+  # The package tests marked serial, by pytest on their files (colcon test skips them above).
+  mapfile -t serial_files < <(grep -l 'mark\.serial' src/*/test/test_*.py)
+  if (( ${#serial_files[@]} )); then
+    run_pytest serial_packages "${serial_files[@]}" -m "$markers and serial" || rc=1
+  fi
+  wait $packages_pid || rc=1
+  echo "== lint, colcon test, then the workspace modules after the packages =="
+  cat "$tmp/packages.log"
+  wait $e2e_pid || rc=1
+  cat "$tmp/e2e.log"
+  rm -rf "$tmp"
 fi
 
 echo "== summary =="

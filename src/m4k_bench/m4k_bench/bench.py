@@ -144,6 +144,12 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--cmd-trials', type=int, default=None,
                     help='cmd_vel latency trials (default {:g}, quick {:g})'.format(
                         FULL['cmd_trials'], QUICK['cmd_trials']))
+    ap.add_argument('--reaction-trials', type=int, default=None,
+                    help='guard reaction trials at the first speed (default {:g}, quick {:g})'
+                    .format(FULL['reaction_trials'], QUICK['reaction_trials']))
+    ap.add_argument('--reaction-speed-trials', type=int, default=None,
+                    help='guard reaction trials at each higher speed (default {:g}, quick {:g})'
+                    .format(FULL['reaction_speed_trials'], QUICK['reaction_speed_trials']))
     ap.add_argument('--rates', default=','.join(str(r) for r in RATES_HZ), metavar='HZ,HZ',
                     help='actuator rates of the scaling phase (default %(default)s)')
     ap.add_argument('--rt-config', default=None, metavar='FILE',
@@ -165,7 +171,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                                    args.rounds)
     except ValueError as exc:
         ap.error(str(exc))
-    for key in ('rtt_n', 'cmd_trials'):
+    for key in ('rtt_n', 'cmd_trials', 'reaction_trials', 'reaction_speed_trials'):
         value = getattr(args, key)
         if value is not None:
             if value < 1:

@@ -53,6 +53,10 @@ def test_bounds_follow_config():
     b = bounds.bounds(raw, 0.25, 'sonar')
     # v^2 / 2a with 0.37 m/s^2
     assert b.distance_tol == pytest.approx(0.25 ** 2 / (2 * 0.37))
+    # a turn in place: the centre may wander TURN_WANDER, never less; a straight 'must not
+    # move' stays exact
+    assert bounds.bounds(raw, 0.0, None, turning=True).distance_tol == bounds.TURN_WANDER
+    assert bounds.bounds(raw, 0.0, None).distance_tol == 0.0
     # a guard stop is held to the speed-aware stop zone: t_react = 2 x 30 ms sonar + 10 ms
     # actuator + 20 ms pipeline + 30 ms scheduling + 50 ms amplifier, braking at
     # guard.brake_deceleration 1.5; no slack beyond what the guard itself takes
@@ -139,10 +143,19 @@ def test_the_cli_expands_the_envelope_grid_and_states_what_is_not_promised(tmp_p
     readme = (out / 'README.md').read_text()
     n_out = len(list(grid.not_promised(envelope)))
     assert f'{n_out} envelope cells are not promised' in readme
-    assert 'turning in place is not guarded' in readme
+    assert 'a box under its plane, glass it sees through' in readme
     # a bad declaration is a clear error naming the key (exit 2)
     bad = tmp_path / 'bad.yaml'
     bad.write_text('envelope: {speeds: {creep: -1}, motions: {straight: {}}, '
                    'kinds: {wall: {class: obstacle, stop: sonar}}}\n')
     assert scenarios.main([str(bad), '--results', str(out)]) == 2
     assert 'envelope.speeds.creep' in capsys.readouterr().err
+
+
+def test_a_clearance_expectation_is_parsed_and_stated():
+    doc = {'description': 'd', 'world': {}, 'commands': [{'v': 0.5, 'w': 0.5, 't': 1.0}],
+           'expect': {'min_clearance': 0.25}}
+    sc = spec.parse(doc, 'x.yaml')
+    assert sc.min_clearance == 0.25 and 'clearance >= 0.25 m' in sc.expected()
+    with pytest.raises(spec.ScenarioError, match='min_clearance'):
+        spec.parse(dict(doc, expect={'min_clearance': -1}), 'x.yaml')

@@ -60,9 +60,8 @@ from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneEr
 from m4k_rt.control.footprint import outline
 from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
 
-__all__ = ['inside', 'LEFT', 'RIGHT', 'Pose', 'RobotParams', 'RobotState', 'segments_touch',
-           'WORLD', 'World', 'WorldConfig',
-           'WorldConfigError']
+__all__ = ['inside', 'LEFT', 'RIGHT', 'point_seg', 'Pose', 'RobotParams', 'RobotState',
+           'segments_touch', 'WORLD', 'World', 'WorldConfig', 'WorldConfigError']
 
 REST_V = 0.01        # m/s: below this the robot is at rest (truth's rest_since_ns)
 
@@ -276,14 +275,19 @@ def inside(poly: np.ndarray, x: float, y: float) -> bool:
     return result
 
 
-def _point_seg(px: float, py: float, seg: np.ndarray) -> np.ndarray:
-    """Return the distance from (px, py) to each segment (rows x1, y1, x2, y2)."""
-    ax, ay = seg[:, 0], seg[:, 1]
-    bx, by = seg[:, 2] - ax, seg[:, 3] - ay
+def point_seg(px: float | np.ndarray, py: float | np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Return the distance of a point, or of P points, (px, py) to each segment.
+
+    ``seg`` is S x 4 (rows x1, y1, x2, y2); the result has shape S for one point, P x S for P.
+    The simulator's and the scenario judge's (m4k_bench.scenarios.geometry), written once.
+    """
+    qx = np.asarray(px, dtype=float)[..., None] - seg[:, 0]
+    qy = np.asarray(py, dtype=float)[..., None] - seg[:, 1]
+    bx, by = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
     ll = bx * bx + by * by
     with np.errstate(divide='ignore', invalid='ignore'):
-        u = np.clip(np.where(ll > 0, ((px - ax) * bx + (py - ay) * by) / ll, 0.0), 0.0, 1.0)
-    return np.hypot(ax + u * bx - px, ay + u * by - py)
+        u = np.clip(np.where(ll > 0, (qx * bx + qy * by) / ll, 0.0), 0.0, 1.0)
+    return np.asarray(np.hypot(qx - u * bx, qy - u * by))
 
 
 SURFACE_CODES = {'normal': 0, 'soft': 1, 'glass': 2, 'black': 3}
@@ -655,15 +659,12 @@ class World:
             return 0.0
         corners = self.footprint(pose)
         seg = self._seg
-        best = math.inf
         # corner -> segment and segment end -> footprint edge: the minimum of two segments'
         # distance when they do not cross.
-        for px, py in corners:
-            best = min(best, float(_point_seg(px, py, seg).min()))
+        best = float(point_seg(corners[:, 0], corners[:, 1], seg).min())
         edges = np.hstack([corners, np.roll(corners, -1, axis=0)])
-        for x, y in np.vstack([seg[:, :2], seg[:, 2:]]):
-            best = min(best, float(_point_seg(x, y, edges).min()))
-        return best
+        ends = np.vstack([seg[:, :2], seg[:, 2:]])
+        return min(best, float(point_seg(ends[:, 0], ends[:, 1], edges).min()))
 
     def footprint(self, pose: Pose) -> np.ndarray:
         """Return the robot's outline (Nx2, counter-clockwise) at ``pose``: body and wheels.

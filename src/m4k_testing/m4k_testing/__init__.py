@@ -15,6 +15,10 @@ module may import it (test/test_layering.py). What it gives:
 * The ``hardware`` marker for tests that need the real robot (CI runs ``-m 'not hardware'``).
 * The ``e2e`` marker for the end-to-end tier: tests that start the stack, its processes or ROS
   nodes. ``make check`` runs ``-m 'not e2e and not hardware'``; ``make test`` runs them all.
+* The ``serial`` marker for the tests judged on the simulator's physics in wall-clock time (a
+  stop against its line, a drive against its limits, calibrate's fit): ``make test`` runs them
+  one after the other, at normal priority, while everything else runs beside them at a lower
+  one (tools/run-tests.sh), so two of them never share the machine.
 * The ``ros2cli`` marker for tests that need launch/launch_ros/ros2cli (not on PyPI): skipped,
   saying so, where they do not import; the skip policy accepts that skip only there.
 * The ``needs_ros_package(name)`` marker for tests that need a ROS package PyPI lacks (e.g.
@@ -105,6 +109,12 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         'markers', 'e2e: the end-to-end tier (starts the stack, its processes or ROS nodes); '
         'make check deselects it, make test runs it')
+    config.addinivalue_line(
+        'markers', "serial: judged on the simulator's physics in wall-clock time; make test runs "
+        'these one at a time at normal priority, the rest beside them at a lower one')
+    config.addinivalue_line(
+        'markers', 'after_packages: a workspace module make test runs after the package tier, '
+        'in the second lower-priority stream (test/conftest.py)')
     config.addinivalue_line(
         'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
         'install or the ros-verify environment); skipped with the reason elsewhere')

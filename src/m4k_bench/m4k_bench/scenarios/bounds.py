@@ -205,13 +205,23 @@ def stop_line(raw: Mapping[str, Any], v: float) -> float:
     return abs(v) * t + v * v / (2.0 * a) + g.stop_distance
 
 
-def bounds(raw: Mapping[str, Any], v: float, cause: str | None) -> Bounds:
-    """Return the bounds for forward speed ``v`` and stop ``cause`` from the layered config."""
+TURN_WANDER = 0.01   # m: the centre of a robot turning in place wanders by the wheels' slip and
+#                     unequal lags (a turn started and stopped at 1.5 rad/s: a few mm)
+
+
+def bounds(raw: Mapping[str, Any], v: float, cause: str | None,
+           turning: bool = False) -> Bounds:
+    """Return the bounds for forward speed ``v`` and stop ``cause`` from the layered config.
+
+    ``turning``: a command turns (w != 0): the distance tolerance is at least ``TURN_WANDER``.
+    """
     from m4k_rt.control.params import control_params
     p = control_params(raw.get('control'))
     accel = p.linear.max_acceleration
     decel = p.linear.max_deceleration or accel
     tol = v * v / (2.0 * min(accel, decel))
+    if turning and tol < TURN_WANDER:
+        tol = TURN_WANDER
     ta = _period(raw, 'actuator')
     mu_g = traction_limit(raw)
     a_brake = min(_guard_decel(raw) or mu_g, mu_g)

@@ -24,20 +24,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from m4k_drivers.world import inside, segments_touch
+from m4k_drivers.world import inside, point_seg, segments_touch
 
 __all__ = ['Scene', 'seg_seg_distance']
-
-
-def _point_seg(px: np.ndarray, py: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Return the distance of points (px, py) (shape P) to segments (S x 4): P x S."""
-    ax, ay = seg[None, :, 0], seg[None, :, 1]
-    bx, by = seg[None, :, 2] - ax, seg[None, :, 3] - ay
-    ll = bx * bx + by * by
-    qx, qy = px[:, None] - ax, py[:, None] - ay
-    with np.errstate(divide='ignore', invalid='ignore'):
-        u = np.clip(np.where(ll > 0, (qx * bx + qy * by) / ll, 0.0), 0.0, 1.0)
-    return np.asarray(np.hypot(qx - u * bx, qy - u * by))
 
 
 def seg_seg_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -50,10 +39,10 @@ def seg_seg_distance(a: np.ndarray, b: np.ndarray) -> float:
         return math.inf
     if np.any(segments_touch(a, b)):
         return 0.0
-    best = min(float(_point_seg(a[:, 0], a[:, 1], b).min()),
-               float(_point_seg(a[:, 2], a[:, 3], b).min()),
-               float(_point_seg(b[:, 0], b[:, 1], a).min()),
-               float(_point_seg(b[:, 2], b[:, 3], a).min()))
+    best = min(float(point_seg(a[:, 0], a[:, 1], b).min()),
+               float(point_seg(a[:, 2], a[:, 3], b).min()),
+               float(point_seg(b[:, 0], b[:, 1], a).min()),
+               float(point_seg(b[:, 2], b[:, 3], a).min()))
     return best
 
 

@@ -24,6 +24,7 @@ Turning in place uses the rim speed ``v``: ``w = v / (track / 2)``, capped at
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any, Iterable, Mapping
 
@@ -96,10 +97,10 @@ def _listed(value: Any, item: str) -> bool:
     return value is None or item == value or (isinstance(value, list) and item in value)
 
 
-def _why_not(env: Mapping[str, Any], kind: str, cls: str, motion: str) -> str:
+def _why_not(env: Mapping[str, Any], kind: str, cls: str, motion: str, speed: str) -> str:
     for rule in env['not_promised']:
         if (_listed(rule.get('motion'), motion) and _listed(rule.get('kind'), kind)
-                and _listed(rule.get('class'), cls)):
+                and _listed(rule.get('class'), cls) and _listed(rule.get('speed'), speed)):
             return ' '.join(str(rule.get('why', 'not promised')).split())
     return ''
 
@@ -155,6 +156,8 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
         world['faults'] = [{'at_s': ESTOP_AT_S, 'until_s': ESTOP_UNTIL_S, 'kind': 'estop'}]
         return {'description': desc, 'world': world,
                 'commands': [dict(cmd, t=ESTOP_CMD_S)], 'expect': {'still_after_estop': True}}
+    if motion == 'in_place':
+        return _in_place_doc(raw, p, kind, min(v / half_track, w_max), desc)
     x = _obstacle_x(raw, v)
     t = round((x + 0.5) / v + v / p.linear.max_acceleration + SETTLE_S, 1)
     far = x + 3.0
@@ -184,12 +187,80 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
     if motion == 'turning':
         r = float(mo.get('obstacle_radius_per_m', 3.0)) * x
         command: dict[str, Any] = {'v': v, 'w': round(v / r, 5), 't': t}
+        commands: list[dict[str, Any]] = [command]
         desc += f' (an arc of radius {r:.1f} m)'
+        if kind in ('leg', 'wheel_leg'):
+            # straight up to speed, then the arc (the ramps of v and w differ, so an arc from
+            # rest is no circle); the leg on the arc, as far along and as far off it as the
+            # straight world's: it enters the straight corridor from the side, late
+            acc = p.linear.max_acceleration
+            s0 = v * v / (2.0 * acc)
+            t0 = round(v / acc, 2)
+            obstacles = [_on_arc(poly, x, r, s0) for poly in obstacles]
+            commands = [{'v': v, 't': t0}, dict(command, t=round(t - t0, 1))]
+            desc += f', straight for {s0:.2f} m to speed, the leg on the arc'
     else:
-        command = {'v': v, 't': t, 'heading': 'hold'}
+        commands = [{'v': v, 't': t, 'heading': 'hold'}]
     return {'description': desc + f'; the obstacle {x:.2f} m ahead',
             'world': {'walls': walls, 'obstacles': obstacles},
-            'commands': [command], 'expect': {'stop': k['stop']}}
+            'commands': commands, 'expect': {'stop': k['stop']}}
+
+
+def _on_arc(poly: list[list[float]], s: float, r: float, s0: float = 0.0) -> list[list[float]]:
+    """Carry a polygon placed ``s`` ahead of the start onto the arc of radius ``r`` (left).
+
+    The drive goes straight for ``s0``, then on the arc. The polygon's point (px, py) is taken
+    relative to where a straight drive is after ``s`` (px - s, py) and placed the same way
+    relative to where this drive is after ``s``.
+    """
+    a = (s - s0) / r
+    ox, oy = s0 + r * math.sin(a), r * (1.0 - math.cos(a))
+    c, sn = math.cos(a), math.sin(a)
+    return [[round(ox + c * (px - s) - sn * py, 4), round(oy + sn * (px - s) + c * py, 4)]
+            for px, py in poly]
+
+
+IN_PLACE_GAP = 0.03     # m between the obstacle and the outline at the start of a turn in place
+#                        (less than the body corner swings out past the front face: 4 cm)
+IN_PLACE_S = 4.0        # s of turning toward it
+
+
+def _in_place_doc(raw: Mapping[str, Any], p: Any, kind: str, w: float,
+                  desc: str) -> dict[str, Any]:
+    """Return a turn in place with the obstacle where the turn meets it.
+
+    The robot starts ``IN_PLACE_GAP`` from the obstacle (it was pushed up to a robot at rest,
+    or the robot reversed or arced there): a wall across the front face, a 3 cm leg beside the
+    body's front-left corner (the turn counter-clockwise swings the corner into it), or one
+    beside the body just ahead of the left wheel (clockwise: the wheel's front swings into
+    it), within a few degrees. The turn guard must keep it from turning that way.
+    """
+    from m4k_rt.control.footprint import outline_of
+    robot = raw.get('robot')
+    shape = outline_of(robot, p.track_width, p.wheel_radius)
+    front, side = shape[0]      # the body's front-left corner (m4k_rt.control.footprint)
+    g = IN_PLACE_GAP
+    walls: Any = {'rectangle': [-2.0, -2.0, 2.0, 2.0]}
+    obstacles: list[Any] = []
+    if kind == 'wall':
+        walls = {'rectangle': [-2.0, -2.0, front + g, 2.0]}
+    elif kind == 'leg':
+        # beside the front-left corner of the body (its side, y = width / 2)
+        x0, y0 = front - 0.04, side + g
+        obstacles = [[[x0, y0], [x0 + 0.03, y0], [x0 + 0.03, y0 + 0.03], [x0, y0 + 0.03]]]
+    elif kind == 'wheel_leg':
+        # beside the body just ahead of the left wheel: a clockwise turn swings the wheel's
+        # front into it
+        x0, y0 = p.wheel_radius + g, side + g
+        obstacles = [[[x0, y0], [x0 + 0.03, y0], [x0 + 0.03, y0 + 0.03], [x0, y0 + 0.03]]]
+        w = -w
+    else:
+        raise _err(f'envelope.kinds.{kind}', 'no turn-in-place world for this kind (wall, '
+                   'leg, wheel_leg); declare its in_place cells under not_promised')
+    return {'description': desc + f' toward the obstacle {g:g} m from the outline',
+            'world': {'walls': walls, 'obstacles': obstacles},
+            'commands': [{'v': 0.0, 'w': round(w, 5), 't': IN_PLACE_S}],
+            'expect': {'distance': 0}}
 
 
 def cells(path: str, raw: Mapping[str, Any] | None = None) -> list[Cell]:
@@ -203,7 +274,7 @@ def cells(path: str, raw: Mapping[str, Any] | None = None) -> list[Cell]:
         for speed in env['speeds']:
             for motion in env['motions']:
                 name = f'{kind}.{speed}.{motion}'
-                why = _why_not(env, kind, k['class'], motion)
+                why = _why_not(env, kind, k['class'], motion, speed)
                 if why:
                     out.append(Cell(name, kind, speed, motion, None, why))
                     continue

@@ -96,6 +96,9 @@ def judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     res.peak_speed = max(max(abs(float(x['v'])),
                              abs(float(x.get('wheel_speed_left', 0.0))) * radius,
                              abs(float(x.get('wheel_speed_right', 0.0))) * radius) for x in s)
+    if sc.min_clearance is not None and not res.min_clearance >= sc.min_clearance:
+        res.failures.append(f'minimum clearance {res.min_clearance:.3f} m on ground truth < '
+                            f'{sc.min_clearance:g} m expected')
     if sc.max_speed is not None and not res.peak_speed < sc.max_speed:
         res.failures.append(f'peak speed {res.peak_speed:.3f} m/s on ground truth (body or wheel '
                             f'rim) >= {sc.max_speed:g} m/s')

@@ -145,7 +145,7 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
     raw = config.load_layered(overlay_path, (env or os.environ).get('M4K_CONFIG_DIR'))
     cmds = sc.scaled(short)
     v = max((abs(c.v) for c in cmds), default=0.0)
-    b = bounds(raw, v, sc.stop)
+    b = bounds(raw, v, sc.stop, any(c.w != 0.0 for c in cmds))
     res = Result(sc.name, sc.expected(), sc.commanded_distance(short), distance_tol=b.distance_tol,
                  stop_bound_s=b.stop_s)
     runtime_dir = tempfile.mkdtemp(prefix=f'm4k-scen-{sc.name}-')

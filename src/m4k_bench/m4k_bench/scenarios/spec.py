@@ -23,6 +23,8 @@ A scenario is one YAML file (``config/scenarios/*.yaml`` ships the suite; write 
       still_after_estop: true           # after the e-stop contact (world.faults) closes again
                                         # the robot stays at rest (no reset is ever sent)
       max_w_after_kill: 0.02            # rad/s: |w| on ground truth from the kill on
+      min_clearance: 0.25               # m: the footprint never nearer to any surface (an arc,
+                                        # where the stop line along a straight band says nothing)
     short: 0.5                          # the test's version: command durations x 0.5
 
 ``expect.stop`` names why the robot must come to rest, and so which bound from ``config/``
@@ -97,6 +99,7 @@ class Scenario:
     motor_fault: bool = False       # expect a latched motor fault
     still_after_estop: bool = False  # no motion after the e-stop contact closes again
     max_w_after_kill: float | None = None   # rad/s: |w| from the kill on
+    min_clearance: float | None = None      # m: the footprint never nearer to any surface
     e_stop: bool = False            # the runner requests an e-stop before driving
     path: str = ''
     overlay: dict[str, Any] = field(default_factory=dict)
@@ -124,6 +127,8 @@ class Scenario:
             parts.append('no motion after the e-stop release')
         if self.max_w_after_kill is not None:
             parts.append(f'|w| < {self.max_w_after_kill:g} rad/s after the kill')
+        if self.min_clearance is not None:
+            parts.append(f'clearance >= {self.min_clearance:g} m')
         return ', '.join(p for p in parts if p) + '; no contact'
 
 
@@ -200,6 +205,11 @@ EXPECT: dict[str, Field] = {
                                'again the robot stays at rest (no reset is ever sent).'),
     'max_w_after_kill': Field('float', None, '|w| on ground truth from the kill on stays below '
                               'this.', unit='rad/s', lo=0, nullable=True),
+    'min_clearance': Field('float', None, 'The footprint never comes nearer than this to any '
+                           'surface (ground truth: the judge\'s exact geometry and the '
+                           'simulator\'s 5 ms minimum). For a drive on an arc, where the stop '
+                           'line the judge draws along a straight band says nothing.',
+                           unit='m', lo=0, nullable=True),
 }
 
 
@@ -235,7 +245,8 @@ def parse(doc: Any, where: str) -> Scenario:
                     exp['stop'], top['short'], max_speed=exp['max_speed'],
                     motor_fault=exp['motor_fault'],
                     still_after_estop=exp['still_after_estop'],
-                    max_w_after_kill=exp['max_w_after_kill'], e_stop=top['e_stop'],
+                    max_w_after_kill=exp['max_w_after_kill'],
+                    min_clearance=exp['min_clearance'], e_stop=top['e_stop'],
                     path=where, overlay=top['config'] or {})
 
 

@@ -20,12 +20,13 @@ never overwrites another.
 
 Crash safety (:mod:`m4k_bridge.bag.writer`): the bag is written as ``DIR.partial`` and renamed
 to ``DIR`` when the recording ends, so a bag under the name asked for is always whole. Once a
-second the messages so far are written as an indexed chunk and fsynced behind a fresh summary
-and footer, and metadata.yaml is replaced atomically to match, so after ``kill -9`` or a power
-cut ``DIR.partial`` is a complete bag of everything but the last second (``--recover DIR``
-checks it, repairs a torn last write, and renames it to ``DIR``). The bag records the commit of
-the code that wrote it (``m4k.commit``). SIGINT / SIGTERM (or ``--duration``) end the
-recording cleanly. Exit codes: 0 done,
+second the messages so far are appended as an indexed chunk with a fresh footer behind them
+(the old one retired, never overwritten; the summary comes with the last sync) and fsynced,
+and metadata.yaml is replaced atomically to match, so after ``kill -9`` or a power cut
+``DIR.partial`` is a complete bag of everything but the last second (``--recover DIR``
+checks it, repairs a torn last write, indexes it, and renames it to ``DIR``). The bag records
+the commit of the code that wrote it (``m4k.commit``). SIGINT / SIGTERM (or ``--duration``)
+end the recording cleanly. Exit codes: 0 done,
 1 the bag could not be created or a sync failed (e.g. disk full: the recording stops there,
 what was synced stays readable), 2 bad arguments (an existing ``-o`` DIR among them).
 """

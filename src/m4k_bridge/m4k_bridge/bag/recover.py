@@ -1,10 +1,11 @@
 """Make a crashed bag whole: an MCAP with its index and trailer, a metadata.yaml to match (no ROS).
 
 ``record --recover DIR`` calls :func:`recover`. A crash leaves the bag under its partial name
-(``DIR.partial``, :data:`m4k_bridge.bag.writer.PARTIAL`): the last sync's file, complete but
-for the rare crash inside a sync's ``pwrite`` (a torn last record, no footer) or between the
-MCAP's ``fsync`` and the metadata's rename (the metadata one sync behind). Recovery keeps every
-complete record, rewrites what needs it, and gives the directory its final name.
+(``DIR.partial``, :data:`m4k_bridge.bag.writer.PARTIAL`): the last sync's file, without a
+summary or chunk indexes (the last sync writes them), and after a power cut inside a sync's
+append a torn last record with no footer; or the metadata one sync behind (a crash between the
+MCAP's ``fsync`` and the metadata's rename). Recovery keeps every complete record, rewrites
+what needs it, and gives the directory its final name.
 """
 
 from __future__ import annotations
@@ -141,9 +142,10 @@ def _repair(directory: str, file_name: str) -> Recovery:
     stale = meta_path + '.tmp'          # a sync's metadata that a crash kept from its rename
     if os.path.exists(stale):
         os.unlink(stale)
-    # A partial file's syncs left the chunk indexes out (the last sync writes them): rewrite it
-    # so that it is indexed.
-    if complete and indexed == chunks and listed == by_topic and \
+    # A partial file's syncs left the summary out (the last sync writes it, with the chunk
+    # indexes): rewrite it so that it is indexed. Every message is in a chunk, so a file with
+    # messages and no chunk index is a partial one.
+    if complete and indexed == chunks and (indexed or not count) and listed == by_topic and \
             old.get('message_count') == count:
         return Recovery(count, by_topic, True, False, 0)
     # Rewrite into a sibling directory, then swap the files in (each rename is atomic).

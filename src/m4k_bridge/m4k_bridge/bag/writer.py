@@ -10,28 +10,33 @@ Used by the recorder (:mod:`m4k_bridge.bag.record`) and the flight recorder's du
   directory whose name says so (``record --recover`` finishes it). Neither name may exist
   beforehand: a writer never overwrites (:class:`BagExistsError`).
 * Messages are buffered in memory and written by :meth:`BagWriter.sync` (the callers sync once
-  a second). Each sync writes the new records over the previous trailer and a new trailer
-  behind them (``DataEnd``, a summary with schemas, channels, statistics, chunk and metadata
-  indexes, summary offsets, the footer and the closing magic) in one ``pwrite``, then
-  ``fsync``: between syncs the partial file is a finished MCAP that every reader opens, the
-  seeking ones too. A ``kill -9`` or a power cut loses what came after the last sync -- at most
-  one sync period. (That in-place rewrite is why the name changes only at the end: a crash
-  inside the ``pwrite`` can tear the partial file, never the final one.)
+  a second). A sync never writes over data or a live trailer. It first *retires* the live
+  trailer (``DataEnd``, the footer and the closing magic, 50 bytes): one 9-byte record
+  header, inside one disk sector, turns its ``DataEnd`` into a private record (opcode
+  :data:`RETIRED`, in the 0x80-0xFF range the MCAP specification leaves to applications)
+  that spans the old trailer, so a stream reader skips it; a reader that starts from the end
+  still finds the old footer there. ``fsync``. Then the new records and a new trailer are
+  appended behind it, ``fsync``. Between syncs the partial file is a finished MCAP that
+  every reader opens; at every byte of a sync it is readable by a stream reader up to the
+  last sync (Lichtblick's path for these files; docs/recording.md has the evidence). A
+  ``kill -9`` or a power cut loses what came after the last sync -- at most one sync
+  period. The name changes only at the end, so a bag under its final name was closed.
 * Messages go into uncompressed chunks of at most :data:`CHUNK_BYTES` (one per sync at least),
   each followed by a message index per channel, and the last sync's summary lists a chunk
   index per chunk (MCAP specification, "Chunk Index"): a seeking reader (Lichtblick, Foxglove,
   rosbag2's MCAP plugin, the ``mcap`` readers) goes straight to the chunks of a time range
   instead of reading the whole file, and Lichtblick opens files over 1 GiB only when they are
-  indexed. The syncs before it write the summary without the chunk indexes (a list that grows
-  a chunk a second, rewritten each second, would make a long recording's cost quadratic):
-  a seeking reader reads such a partial file linearly, and ``record --recover`` indexes it.
+  indexed. The syncs before it write no summary (the chunk index list grows a chunk a
+  second, and every trailer stays in the file): a reader reads such a partial file
+  linearly, finding schemas and channels in the data section, and ``record --recover``
+  indexes it.
 * ``metadata.yaml`` (rosbag2 format 9) is written at the start and at each sync, with the
   counts and times of exactly the messages synced, atomically: the new text is fsynced under a
   temporary name before the MCAP grows and renamed over the old one after the MCAP's
   ``fsync``. It never lists a message the MCAP lacks.
 * ``custom_data`` (the commit, a flight recorder's trigger) goes to ``metadata.yaml`` and to an
-  MCAP Metadata record ``m4k`` (listed in the summary's metadata index), so a viewer of the
-  MCAP alone shows it too.
+  MCAP Metadata record ``m4k`` (listed in the final summary's metadata index), so a viewer
+  of the MCAP alone shows it too.
 """
 
 from __future__ import annotations
@@ -69,6 +74,10 @@ MAGIC = b'\x89MCAP0\r\n'
 METADATA = 'metadata.yaml'
 PARTIAL = '.partial'             # suffix of a bag directory still being written (or cut off)
 METADATA_NAME = 'm4k'            # the MCAP Metadata record that carries custom_data
+# The opcode of a retired trailer (and of sector padding): a record in the range the MCAP
+# specification reserves for application extensions (0x80-0xFF), which readers skip.
+RETIRED = 0x80
+SECTOR = 512                     # a retired trailer's 9-byte header never straddles one
 # A chunk is closed past this many bytes of records (the mcap writers' default size): small
 # enough that a seek reads little more than it needs, large enough that the index stays small.
 CHUNK_BYTES = 1 << 20
@@ -113,6 +122,22 @@ def write_atomic(path: str, text: str) -> None:
     """Replace ``path`` by ``text``: temporary file, fsync, rename, fsync of the directory."""
     os.replace(_write_durable(path + '.tmp', text), path)
     fsync_dir(os.path.dirname(path) or '.')
+
+
+def _record_header(opcode: int, length: int) -> bytes:
+    return struct.pack('<BQ', opcode, length)
+
+
+def _sector_pad(offset: int) -> bytes:
+    """Return a private record that moves a 9-byte header at ``offset`` off a sector boundary.
+
+    The header of a trailer is later rewritten in place (retired); a write inside one sector
+    is all-or-nothing on disks that write sectors atomically, a write across two is not.
+    """
+    if offset % SECTOR <= SECTOR - 9:
+        return b''
+    size = SECTOR - offset % SECTOR + SECTOR      # 513..520 bytes, the smallest pad that fits
+    return _record_header(RETIRED, size - 9) + bytes(size - 9)
 
 
 def _record(rec: Any) -> bytes:
@@ -196,7 +221,8 @@ class BagWriter:
                            os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self.custom_data = dict(custom_data or {})
         self._pending = bytearray(MAGIC + _record(Header(profile='ros2', library=library)))
-        self._data_end = 0            # file offset where the trailer starts
+        self._eof = 0                 # the file's size: everything is appended here
+        self._trailer_at: int | None = None   # where the live trailer (its DataEnd) starts
         self._schemas: dict[str, Schema] = {}
         self._channels: dict[str, Channel] = {}
         self._topics: dict[str, _Topic] = {}
@@ -287,26 +313,35 @@ class BagWriter:
         if not self._chunk.index:
             return
         # The chunk lands at the file offset where the pending bytes end after the next sync.
-        blob, index = _chunk_bytes(self._chunk, self._data_end + len(self._pending))
+        blob, index = _chunk_bytes(self._chunk, self._eof + len(self._pending))
         self._pending += blob
         self._pending_chunk_indexes.append(index)
         self._chunk = _OpenChunk()
 
     def _trailer(self, data_end: int, indexed: bool) -> bytes:
+        """Return DataEnd, the summary (the last sync's only), the footer and the magic.
+
+        Without ``indexed`` there is no summary (footer ``summary_start`` 0, as the
+        specification allows): a summary repeats every schema, about 30 KB a second for the
+        stack's topics, and each sync leaves its trailer in the file when it retires it. A
+        reader finds the schemas and channels in the data section instead.
+        """
+        head = _record(DataEnd(data_section_crc=0))
+        if not indexed:
+            return head + _record(Footer(summary_start=0, summary_offset_start=0,
+                                         summary_crc=0)) + MAGIC
         stats = Statistics(
             message_count=sum(self._counts.values()), schema_count=len(self._schemas),
             channel_count=len(self._channels), attachment_count=0,
             metadata_count=len(self._metadata_indexes), chunk_count=len(self._chunk_indexes),
             message_start_time=self._start_ns, message_end_time=self._end_ns,
             channel_message_counts=dict(self._counts))
-        head = _record(DataEnd(data_section_crc=0))
         summary_start = data_end + len(head)
         groups: list[tuple[int, bytes]] = [
             (Opcode.SCHEMA, b''.join(_record(s) for s in self._schemas.values())),
             (Opcode.CHANNEL, b''.join(_record(c) for c in self._channels.values())),
             (Opcode.STATISTICS, _record(stats)),
-            (Opcode.CHUNK_INDEX,
-             b''.join(_record(c) for c in self._chunk_indexes) if indexed else b''),
+            (Opcode.CHUNK_INDEX, b''.join(_record(c) for c in self._chunk_indexes)),
             (Opcode.METADATA_INDEX, b''.join(_record(m) for m in self._metadata_indexes))]
         summary = bytearray()
         offsets = bytearray()
@@ -326,15 +361,19 @@ class BagWriter:
         return head + bytes(summary) + footer + MAGIC
 
     def sync(self, indexed: bool = False) -> None:
-        """Write the buffered records and a new trailer, fsync, then update metadata.yaml.
+        """Retire the live trailer, append the buffered records and a new trailer, fsync each.
 
-        ``indexed``: the trailer's summary lists the chunk indexes (the last sync does). The
-        others leave them out: the list grows by one chunk a sync, and rewriting it every
-        second would cost an hour's recording about 400 KiB a second by its end.
+        ``indexed``: the trailer has the summary, with the chunk indexes (the last sync). The
+        others have no summary: the chunk index list grows by one chunk a sync, and writing
+        it every second would cost an hour's recording about 400 KiB a second by its end; the
+        schemas alone are 30 KB (see :meth:`_trailer`). A sync with nothing new and no
+        summary to write writes nothing.
         """
         if self._closed:
             return
         self._close_chunk()           # every sync ends the chunk: each sync is indexed
+        if not self._pending and not indexed and self._trailer_at is not None:
+            return
         for cid, n in self._pending_counts.items():
             self._counts[cid] = self._counts.get(cid, 0) + n
         if self._pending_counts:
@@ -345,9 +384,10 @@ class BagWriter:
         self._pending_start = self._pending_end = 0
         self._chunk_indexes += self._pending_chunk_indexes
         self._pending_chunk_indexes = []
-        data = bytes(self._pending)
+        data = bytes(self._pending) + _sector_pad(self._eof + len(self._pending))
         self._pending = bytearray()
-        blob = data + self._trailer(self._data_end + len(data), indexed)
+        trailer_at = self._eof + len(data)
+        blob = data + self._trailer(trailer_at, indexed)
         for t in self._topics.values():
             t.record.count = self._counts.get(t.channel_id, 0)
         meta = os.path.join(self.work_directory, METADATA)
@@ -357,20 +397,50 @@ class BagWriter:
             tmp = _write_durable(meta + '.tmp', metadata_yaml(
                 self.file_name, self.topics, self._start_ns, self._end_ns,
                 custom_data=self.custom_data))
-            written = os.pwrite(self._fd, blob, self._data_end)
-            if written != len(blob):
-                raise BagError('short write to {!r}: {} of {} bytes'.format(
-                    self.path, written, len(blob)))
-            os.ftruncate(self._fd, self._data_end + len(blob))
+            if self._trailer_at is not None:
+                # Retire the live trailer: its DataEnd header (9 bytes, inside one sector)
+                # becomes a private record spanning it, so a stream reader skips the old
+                # footer. Its bytes stay: the file's last 37 are still that footer. Only the
+                # first two bytes change (DataEnd 0x0F, length 4 -> 0x80, length 41): a cut
+                # after either leaves a valid file.
+                self._pwrite(_record_header(RETIRED, self._eof - self._trailer_at - 9),
+                             self._trailer_at)
+                os.fsync(self._fd)
+            self._pwrite(blob, self._eof)      # only ever past the end: nothing is overwritten
+            os.ftruncate(self._fd, self._eof + len(blob))   # a failed sync's tail, if retried
             os.fsync(self._fd)
-            self._data_end += len(data)
+            self._trailer_at, self._eof = trailer_at, self._eof + len(blob)
             os.replace(tmp, meta)
             fsync_dir(self.work_directory)
         except OSError as exc:
+            if self._eof != trailer_at - len(data) + len(blob):   # the append did not finish
+                self._restore()
             if isinstance(exc, BagError):
                 raise
             raise BagError('cannot write {!r}: {} (errno {})'.format(
                 self.path, exc.strerror, exc.errno)) from None
+
+    def _restore(self) -> None:
+        """After a failed append (a full disk): the file as the last sync left it, if possible.
+
+        Cut the torn tail and give the retired trailer its DataEnd header back; neither needs
+        a new block. Best effort: if this fails too, a stream reader and ``--recover`` still
+        read everything synced.
+        """
+        if self._trailer_at is None:
+            return
+        try:
+            os.ftruncate(self._fd, self._eof)
+            self._pwrite(_record(DataEnd(data_section_crc=0))[:9], self._trailer_at)
+            os.fsync(self._fd)
+        except OSError:
+            pass
+
+    def _pwrite(self, data: bytes, offset: int) -> None:
+        written = os.pwrite(self._fd, data, offset)
+        if written != len(data):
+            raise BagError('short write to {!r}: {} of {} bytes'.format(
+                self.path, written, len(data)))
 
     def close(self, complete: bool = True) -> None:
         """Sync, close the file and give the directory its final name (idempotent).

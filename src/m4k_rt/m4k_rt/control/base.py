@@ -328,8 +328,14 @@ class BaseController:
         self.enable = enable
 
     def step(self, now_ns: int, forward_cap: float = math.inf,
-             guard_active: bool = False) -> None:
-        """Run one control cycle at ``now_ns`` with the guard's forward velocity cap."""
+             guard_active: bool = False, ccw_cap: float = math.inf,
+             cw_cap: float = math.inf) -> None:
+        """Run one control cycle at ``now_ns`` with the guard's caps.
+
+        ``forward_cap``: the forward guard's (m/s); ``ccw_cap`` / ``cw_cap``: the turn guard's
+        on the yaw rate each way (rad/s, >= 0). A zero cap stops that motion after the ramp:
+        the drive brakes it (``m4k_rt.control.guard``, ``m4k_rt.control.turnguard``).
+        """
         dt = (now_ns - self._last_step_ns) * 1e-9 if self._last_step_ns else self.period
         if dt <= 0.0 or dt > 2.0 * self.period:
             dt = self.period if dt <= 0.0 else 2.0 * self.period
@@ -408,6 +414,15 @@ class BaseController:
             flags |= ODOM_SLOWDOWN if forward_cap > 0.0 and not guard_active else ODOM_GUARD
         if guard_active:
             flags |= ODOM_GUARD
+        turn_stop = False
+        if tw > ccw_cap:
+            tw = ccw_cap
+            turn_stop = ccw_cap <= 0.0
+            flags |= ODOM_GUARD if turn_stop else ODOM_SLOWDOWN
+        elif tw < -cw_cap:
+            tw = -cw_cap
+            turn_stop = cw_cap <= 0.0
+            flags |= ODOM_GUARD if turn_stop else ODOM_SLOWDOWN
         estop = self.estop
         if estop.blocking:
             # The e-stop's own ramp replaces the limiters; they restart from this output.
@@ -426,6 +441,11 @@ class BaseController:
             v = 0.0
             self.linear.override(0.0)
             flags |= ODOM_GUARD
+        if (ccw_cap <= 0.0 and w > 0.0) or (cw_cap <= 0.0 and w < 0.0):
+            w = 0.0      # a turn stop: no ramp, the wheels brake the rotation
+            self.angular.override(0.0)
+            flags |= ODOM_GUARD
+            turn_stop = True
         self.v = v
         self.w = w
         # 4. kinematics and wheel control
@@ -472,7 +492,7 @@ class BaseController:
         moving = abs(v) > _MOVING_EPS or abs(w) > _MOVING_EPS
         if estop.engaged:
             self.mode = MODE_E_STOP
-        elif flags & ODOM_GUARD and (guard_active or forward_cap <= 0.0):
+        elif flags & ODOM_GUARD and (guard_active or forward_cap <= 0.0 or turn_stop):
             self.mode = MODE_OBSTACLE
         elif cmd_stale and moving:
             self.mode = MODE_BRAKING

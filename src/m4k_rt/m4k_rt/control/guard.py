@@ -1,9 +1,12 @@
 """Collision guard: a speed-aware protective field on forward motion (pure).
 
 Evaluated every actuator cycle from the latest readings the sonar and lrf tasks left in the
-shared state and the robot's current forward speed. The guard only ever caps *forward*
-(positive) linear velocity: rotation and reversing stay allowed so the robot can turn or back
-away (reverse is capped to a creep speed elsewhere: there is no rear sensor).
+shared state and the robot's current forward speed. This guard only ever caps *forward*
+(positive) linear velocity: reversing stays allowed so the robot can back away (capped to a
+creep speed elsewhere: there is no rear sensor); a turn is capped by the turn guard
+(:mod:`m4k_rt.control.turnguard`) only where it would swing the outline into what the laser
+saw. On an arc the gap also comes from the memory's points along the arc
+(:mod:`m4k_rt.control.arc`).
 
 * **Stop zone, speed-switched.** The distance the robot needs to stop from speed v is
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ['LASER', 'LASER_RADIUS', 'MERGE', 'ObstacleMemory', 'SONAR', 'SONAR_RADIUS',
+__all__ = ['LASER', 'LASER_RADIUS', 'MERGE', 'NONE', 'ObstacleMemory', 'SONAR', 'SONAR_RADIUS',
            'scan_frees', 'URG_FAR_CODE', 'URG_MIN_MM']
 
 NONE = 0
@@ -71,7 +71,7 @@ class ObstacleMemory:
     """Up to ``capacity`` obstacle points in the odometry frame (see the module notes)."""
 
     __slots__ = ('capacity', 'x', 'y', 'r', 'src', 'used', 'added', 'merged', 'evicted',
-                 'freed')
+                 'freed', 'left')
 
     def __init__(self, capacity: int) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:
@@ -86,6 +86,7 @@ class ObstacleMemory:
         self.merged = 0      # readings that refreshed a kept point
         self.evicted = 0     # points replaced because the memory was full
         self.freed = 0       # points a sensor saw free
+        self.left = 0        # points dropped as out of reach (forget_beyond)
 
     def clear(self) -> None:
         """Forget every point (a pose reset moves the odometry frame under them)."""
@@ -136,6 +137,26 @@ class ObstacleMemory:
         self.src[i] = NONE
         self.used -= 1
         self.freed += 1
+
+    def forget_beyond(self, px: float, py: float, radius: float) -> None:
+        """Drop the points farther than ``radius`` from (px, py): out of a user's reach.
+
+        For a memory whose user can only meet points that near (the turn guard's sweep): the
+        points are not seen free, so they count in ``left``, not ``freed``.
+        """
+        if self.used == 0:
+            return
+        r2 = radius * radius
+        kinds = self.src
+        for i in range(self.capacity):
+            if kinds[i] == NONE:
+                continue
+            dx = self.x[i] - px
+            dy = self.y[i] - py
+            if dx * dx + dy * dy > r2:
+                kinds[i] = NONE
+                self.used -= 1
+                self.left += 1
 
     def add_sonar_arc(self, rng: float, sensor_x: float, half_angle: float, half_width: float,
                       pose_x: float, pose_y: float, pose_yaw: float) -> None:

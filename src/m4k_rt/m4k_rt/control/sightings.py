@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from m4k_rt.control.arc import curvature, HORIZON, nearest_on_arc, SAME
 from m4k_rt.control.memory import LASER, LASER_RADIUS, ObstacleMemory
 
 __all__ = ['LaserSighting', 'POSE_HISTORY', 'PoseHistory', 'SightingFeed', 'SonarSighting',
@@ -54,6 +55,10 @@ class LaserSighting(NamedTuple):
     range_min: float
     range_max: float
     ranges: tuple[int, ...]         # the raw steps (mm; < 20: error codes)
+    near: tuple[float, ...] = ()    # x0, y0, ...: points a turn can meet (robot frame,
+    #                                 m4k_rt.control.turnguard.near_points)
+    arcs: tuple[float, ...] = ()    # x0, y0, ...: the nearest point along each arc
+    #                                 (robot frame, m4k_rt.control.arc.arc_points)
 
 
 class PoseHistory:
@@ -113,12 +118,17 @@ class SightingFeed:
 
     __slots__ = ('memory', 'history', 'sonar_x', 'laser_x', 'front_x', 'half_width',
                  'half_angle', 'sonar_reach', '_sonar_seq', '_laser_seq', 'sonar_taken',
-                 'laser_taken')
+                 'laser_taken', 'near', 'near_reach')
 
     def __init__(self, memory: ObstacleMemory, *, sonar_x: float, laser_x: float,
                  front_x: float, half_width: float, sonar_half_angle: float,
-                 sonar_reach: float) -> None:
+                 sonar_reach: float, near: ObstacleMemory | None = None,
+                 near_reach: float = 0.0) -> None:
         self.memory = memory
+        # the turn guard's points: what the laser saw within a turn's reach (own memory, so a
+        # wall beside the robot never pushes the corridor's points out)
+        self.near = near if near is not None else ObstacleMemory(1)
+        self.near_reach = near_reach
         self.history = PoseHistory()
         self.sonar_x = sonar_x            # m, robot frame
         self.laser_x = laser_x
@@ -167,10 +177,42 @@ class SightingFeed:
         lanes = rec.lanes
         for k in range(0, len(lanes), 2):
             mem.add_robot_point(lanes[k], lanes[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
+        arcs = rec.arcs
+        for k in range(0, len(arcs), 2):
+            mem.add_robot_point(arcs[k], arcs[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
+        near = self.near
+        pts = rec.near
+        if pts or near.used:
+            near.free_by_scan(self.laser_x, rec.angle_min, rec.angle_increment, rec.range_min,
+                              rec.range_max, rec.ranges, px, py, pyaw)
+            for k in range(0, len(pts), 2):
+                near.add_robot_point(pts[k], pts[k + 1], LASER, LASER_RADIUS, px, py, pyaw)
+            # out of a turn's reach now (the robot drove on): a turn cannot meet them
+            h_now = h.head
+            near.forget_beyond(h.x[h_now], h.y[h_now], self.near_reach + LASER_RADIUS)
 
     def nearest(self, x: float, y: float, yaw: float) -> float:
         """Return the memory's nearest gap ahead of the front face at pose (x, y, yaw)."""
         return self.memory.nearest(self.front_x, self.half_width, x, y, yaw)
+
+    def nearest_on_arcs(self, v: float, w: float, cmd_v: float, cmd_w: float, x: float,
+                        y: float, yaw: float, stop_zone: float) -> float:
+        """Return the memory's nearest gap along the arc of the motion and of the command.
+
+        (m4k_rt.control.arc) ``stop_zone``: d(v) now; points beyond it + ``HORIZON`` are not
+        looked at. The command's arc is measured only when it bends differently from the
+        motion's (one pass on a steady arc); inf when neither is an arc.
+        """
+        best = math.inf
+        done = math.nan
+        for k in (curvature(v, w), curvature(cmd_v, cmd_w)):
+            if k != 0.0 and not abs(k - done) < SAME:
+                done = k
+                g = nearest_on_arc(self.memory, k, self.half_width, self.front_x, x, y, yaw,
+                                   stop_zone + HORIZON)
+                if g < best:
+                    best = g
+        return best
 
     def rebase(self, old: tuple[float, float, float], new: tuple[float, float, float]) -> None:
         """Carry the memory and the history into the odometry frame after a pose reset.
@@ -184,9 +226,9 @@ class SightingFeed:
         tx = new[0] - (c * old[0] - s * old[1])
         ty = new[1] - (s * old[0] + c * old[1])
         self.history.rebase(c, s, tx, ty, dyaw)
-        m = self.memory
-        for i in range(m.capacity):
-            x = m.x[i]
-            y = m.y[i]
-            m.x[i] = c * x - s * y + tx
-            m.y[i] = s * x + c * y + ty
+        for m in (self.memory, self.near):
+            for i in range(m.capacity):
+                x = m.x[i]
+                y = m.y[i]
+                m.x[i] = c * x - s * y + tx
+                m.y[i] = s * x + c * y + ty

@@ -52,6 +52,7 @@ from m4k_rt.control.memory import ObstacleMemory
 from m4k_rt.control.params import control_params, ControlParams
 from m4k_rt.control.reaction import reaction
 from m4k_rt.control.sightings import SightingFeed
+from m4k_rt.control.turnguard import make_turn_guard, turn_reach
 from m4k_rt.estop_request import read_request, request_path, state_dir
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
@@ -106,6 +107,7 @@ class GuardPlan:
     supervision: bool = True
     reaction_parts: str = ''      # t_react in its three parts (m4k_rt.control.reaction)
     unknown_speed: float = math.inf
+    turn_reach: float = 0.0       # m: the turn guard watches points this near (0: none)
 
     def line(self) -> str:
         """Return the start-up statement of the caps (one line)."""
@@ -125,6 +127,10 @@ class GuardPlan:
         if self.unknown_speed < self.top_speed:
             text += ('; a laser error code in the corridor (unknown) caps it to {:.2f} m/s (the '
                      'sonar alone covers d(v) across the corridor)'.format(self.unknown_speed))
+        if self.turn_reach > 0.0:
+            text += ('; turns capped so the outline + lateral margin stops short of what the '
+                     'laser saw within {:.3f} m of the axle (rear 120 deg blind)'
+                     .format(self.turn_reach))
         if not self.supervision:
             text += '; wheel supervision OFF (control.supervision.enabled false)'
         if self.weaken:
@@ -188,7 +194,8 @@ def guard_plan(params: ControlParams, actuator_period: float, shared: Any = None
     return GuardPlan(True, t_react, g.brake_deceleration, g.stop_distance, visible, sensor,
                      sensor_speed, min(params.linear.max_velocity, sensor_speed),
                      g.reverse_creep_speed, weaken, g.slow_down, params.supervision.enabled,
-                     r.text(), unknown_speed(params, robot, t_react))
+                     r.text(), unknown_speed(params, robot, t_react),
+                     turn_reach(params, robot) if g.use_laser else 0.0)
 
 
 def corridor_half_width(params: ControlParams, robot: Any) -> float:
@@ -251,7 +258,8 @@ def make_feed(params: ControlParams, robot: Any) -> SightingFeed:
                         laser_x=sensor_x(robot, 'laser'), front_x=front,
                         half_width=corridor_half_width(params, robot),
                         sonar_half_angle=g.sonar_cone / 2.0,
-                        sonar_reach=g.sonar_range)
+                        sonar_reach=g.sonar_range, near=ObstacleMemory(g.memory_points),
+                        near_reach=turn_reach(params, robot))
 
 
 class ActuatorBody:
@@ -268,6 +276,10 @@ class ActuatorBody:
         self.plan = plan if plan is not None else guard_plan(params, period_s, None, robot)
         self.guard = make_guard(params, self.plan)
         self.feed = make_feed(params, robot)
+        self.turn = make_turn_guard(params, robot, self.plan.reaction_time)
+        # the turn guard's points: the laser's within reach (the corridor memory's are ahead of
+        # the face, beyond any turn's reach once the forward guard has held the robot off them)
+        self._memories = (self.feed.near,)
         self._use_sonar = params.guard.use_sonar
         self._use_laser = params.guard.use_laser
         if self.plan.enabled:
@@ -301,6 +313,7 @@ class ActuatorBody:
                 'memory_added': self.feed.memory.added,
                 'memory_freed': self.feed.memory.freed,
                 'memory_evicted': self.feed.memory.evicted,
+                'near_points': self.feed.near.used, 'turn_stops': self.turn.stops,
                 'e_stop_engagements': c.estop.engagements, 'e_stop_releases': c.estop.releases,
                 'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets,
                 'motor_faults': c.supervisor.faults, 'fault_resets': c.fault_resets}
@@ -380,10 +393,22 @@ class ActuatorBody:
             unknown = scan is not None and scan.unknown
         memory_min = feed.nearest(odom.x, odom.y, odom.yaw)
         speed = ctl.v if ctl.v > odom.v else odom.v
+        if speed > 0.0:
+            # on an arc: the memory's gaps along the arc of the motion and of the command too
+            g = feed.nearest_on_arcs(odom.v, odom.w, ctl.cmd_linear, ctl.cmd_angular, odom.x,
+                                     odom.y, odom.yaw, guard.stop_distance_at(speed))
+            if g < memory_min:
+                memory_min = g
         cap = guard.evaluate(now, self._vmax, state.sonar_range, state.sonar_rx_ns,
                              state.laser_front_min, state.laser_rx_ns, speed, memory_min,
                              unknown)
-        ctl.step(now, cap, guard.active)
+        # the turn guard, whenever a turn is asked for or under way
+        turn = self.turn
+        w_now = ctl.w if abs(ctl.w) >= abs(odom.w) else odom.w
+        if turn.enabled and (w_now != 0.0 or ctl.cmd_angular != 0.0):
+            turn.evaluate(self._memories, odom.x, odom.y, odom.yaw, w_now,
+                          guard.laser_stale and guard.stale_policy == 'stop')
+        ctl.step(now, cap, guard.active, turn.ccw_cap, turn.cw_cap)
         # 4. outputs
         self._motor_out.send(_WHEEL_CMD, now, ctl.left_code, ctl.right_code, ctl.enable)
         odom = ctl.odom

@@ -15,7 +15,8 @@ CLOCK_MONOTONIC), never later than now: the guard ages the scan from when it was
 from when it arrived. The whole scan also goes to the guard as one
 :class:`~m4k_rt.control.sightings.LaserSighting` in ``laser_sighting`` (its steps free memory
 points, its nearest point per corridor lane is kept, and an error code in the corridor is
-``unknown``).
+``unknown``), with the scan's points within a turn's reach of base_link for the turn guard
+(``control.turnguard.near_points``).
 """
 
 from __future__ import annotations
@@ -24,9 +25,11 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import TaskConfig
-from m4k_rt.control.guard import front_offset, FrontCorridor, sensor_x
+from m4k_rt.control.arc import arc_points
+from m4k_rt.control.guard import body_front, front_offset, FrontCorridor, sensor_x
 from m4k_rt.control.params import control_params
 from m4k_rt.control.sightings import LaserSighting
+from m4k_rt.control.turnguard import near_points, turn_reach
 from m4k_rt.protocol import Kind
 from m4k_rt.tasks.actuator import control_section, corridor_half_width, raw_section
 from m4k_rt.tasks.interfaces import CycleContext, RtPort
@@ -45,10 +48,14 @@ class LrfBody(DeviceTaskBody):
     def __init__(self, dev_sock: RtPort, out_sock: RtPort, state: RobotState,
                  half_width: float = 0.19,
                  clock: Callable[[], int] = time.monotonic_ns, front: float = 0.0,
-                 laser_x: float = 0.0) -> None:
+                 laser_x: float = 0.0, near_reach: float = 0.0,
+                 face_x: float = 0.0) -> None:
         super().__init__(dev_sock, out_sock, state, clock)
         self.sector = FrontCorridor(half_width, front)
+        self.half_width = half_width
+        self.face_x = face_x        # m, the front face's x on the robot (arc gaps)
         self.laser_x = laser_x      # m, the laser's x on the robot (lane points' frame)
+        self.near_reach = near_reach  # m from base_link: points a turn can meet (0: none)
         self.scans = 0
 
     @property
@@ -78,7 +85,11 @@ class LrfBody(DeviceTaskBody):
         self.scans += 1
         state.laser_sighting = LaserSighting(
             self.scans, acq, gap, sector.unknown, sector.lanes(self.laser_x),
-            msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max, msg.ranges)
+            msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max, msg.ranges,
+            near_points(msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
+                        msg.ranges, self.near_reach, self.laser_x) if self.near_reach else (),
+            arc_points(msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max,
+                       msg.ranges, self.laser_x, self.half_width, self.face_x))
         state.laser_front_min = gap
         # staleness from the sweep's start: the oldest step of the scan
         state.laser_rx_ns = hdr.stamp_ns if hdr.stamp_ns < now else now
@@ -90,4 +101,5 @@ def make_lrf(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> LrfB
     robot = raw_section(task, shared, 'robot')
     return LrfBody(ports['lrf'], ports['lrf_out'], robot_state(shared),
                    corridor_half_width(params, robot),
-                   front=front_offset(robot, 'laser'), laser_x=sensor_x(robot, 'laser'))
+                   front=front_offset(robot, 'laser'), laser_x=sensor_x(robot, 'laser'),
+                   near_reach=turn_reach(params, robot), face_x=body_front(robot))
