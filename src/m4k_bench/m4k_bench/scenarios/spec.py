@@ -206,8 +206,8 @@ EXPECT: dict[str, Field] = {
     'max_w_after_kill': Field('float', None, '|w| on ground truth from the kill on stays below '
                               'this.', unit='rad/s', lo=0, nullable=True),
     'min_clearance': Field('float', None, 'The footprint never comes nearer than this to any '
-                           'surface (ground truth: the judge\'s exact geometry and the '
-                           'simulator\'s 5 ms minimum). For a drive on an arc, where the stop '
+                           "surface (ground truth: the judge's exact geometry and the "
+                           "simulator's 5 ms minimum). For a drive on an arc, where the stop "
                            'line the judge draws along a straight band says nothing.',
                            unit='m', lo=0, nullable=True),
 }
