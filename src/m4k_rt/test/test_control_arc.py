@@ -84,3 +84,13 @@ def test_the_feed_measures_the_commands_arc_when_it_bends_otherwise():
         on_arc, abs=0.01)
     # turning right and told to go on doing so: neither arc meets it
     assert feed.nearest_on_arcs(1.0, -0.5, 1.0, -0.5, 0.0, 0.0, 0.0, 1.5) == math.inf
+
+
+def test_an_arc_that_drifts_less_than_the_margin_over_the_stop_zone_is_straight():
+    from m4k_rt.control.arc import curvature, DRIFT
+    # a heading correction (w 0.05 at 0.5 m/s: R 10 m) over a 0.8 m stop zone drifts 3 cm
+    # -> 0.032 m > DRIFT: an arc; over 0.5 m it drifts 1.25 cm: straight
+    assert curvature(0.5, 0.05, 0.8) == pytest.approx(0.1)
+    assert curvature(0.5, 0.05, 0.5) == 0.0
+    # the same curvature over the 3.3 m stop zone at 2 m/s is an arc
+    assert 0.1 * 3.3 ** 2 / 2 > DRIFT and curvature(2.0, 0.2, 3.3) == pytest.approx(0.1)

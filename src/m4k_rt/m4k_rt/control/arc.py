@@ -34,7 +34,7 @@ from typing import Sequence
 
 from m4k_rt.control.memory import NONE, ObstacleMemory, URG_MIN_MM
 
-__all__ = ['arc_gap', 'arc_points', 'CURVATURES', 'curvature', 'HORIZON', 'MIN_SPEED',
+__all__ = ['arc_gap', 'arc_points', 'CURVATURES', 'curvature', 'DRIFT', 'HORIZON', 'MIN_SPEED',
            'nearest_on_arc', 'SAME', 'STRAIGHT']
 
 # 1/m: the arcs the laser's nearest points are kept for (radii 8, 4, 2, 1 and 0.5 m each way)
@@ -45,23 +45,32 @@ MIN_SPEED = 0.1    # m/s: slower is no arc: a heading correction while creeping 
 #                    line (w 0.02 rad/s at the 0.05 m/s slow floor) is a 2.5 m "arc" that
 #                    only moves the stop a few mm; a turn at a creep is the turn guard's
 SAME = 0.01        # 1/m: curvatures this close share one band (3 mm apart at 1.5 m)
+DRIFT = 0.02       # m: an arc drifting less over the stop zone is straight (the lateral
+#                    margin, 5 cm, covers it)
 
 
-def curvature(v: float, w: float) -> float:
+def curvature(v: float, w: float, stop_zone: float = math.inf) -> float:
     """Return the arc's curvature w / v (1/m) within the kept arcs' range; 0: straight or none.
 
-    Slower than ``MIN_SPEED`` forward (a turn in place, reversing) or gentler than
-    ``STRAIGHT`` is 0; tighter than the tightest kept arc is taken as it.
+    Slower than ``MIN_SPEED`` forward (a turn in place, reversing) is 0; so is an arc that
+    drifts less than ``DRIFT`` from the straight line over ``stop_zone`` (m, the guard's d(v);
+    inf: no such allowance): the lateral margin covers it, and a heading correction is no arc
+    (read as one, it moved the stop in front of a person a few cm, out of the judge's band).
+    Gentler than
+    ``STRAIGHT`` is 0 as well; tighter than the tightest kept arc is taken as it.
     """
     if v <= MIN_SPEED:
         return 0.0
     k = w / v
+    a = k if k >= 0.0 else -k
+    if a < STRAIGHT or a * stop_zone * stop_zone < 2.0 * DRIFT:
+        return 0.0
     top = CURVATURES[-1]
     if k > top:
         return top
     if k < -top:
         return -top
-    return k if (k >= STRAIGHT or k <= -STRAIGHT) else 0.0
+    return k
 
 
 def arc_gap(px: float, py: float, kappa: float, half_width: float, front: float) -> float:

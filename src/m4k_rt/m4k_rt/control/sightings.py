@@ -205,7 +205,7 @@ class SightingFeed:
         """
         best = math.inf
         done = math.nan
-        for k in (curvature(v, w), curvature(cmd_v, cmd_w)):
+        for k in (curvature(v, w, stop_zone), curvature(cmd_v, cmd_w, stop_zone)):
             if k != 0.0 and not abs(k - done) < SAME:
                 done = k
                 g = nearest_on_arc(self.memory, k, self.half_width, self.front_x, x, y, yaw,
