@@ -15,15 +15,11 @@ has held without a break:
   4 counts in ``frozen_time`` (0.04 rad/s at 0.15 s) and it should be turning: it was seen
   following this setpoint (a wheel that turned does not stop by itself: a magnet slipping
   mid-drive, a wheel blocked), or its effort ``|u| >= moving_effort`` (enough to break any
-  plausible wheel away from rest: the PI's break-away boost gets a wheel that has not moved
-  there within ~0.1 s) (``frozen_time``); or it turns *unseen*: since it last moved (or its
-  setpoint left zero), the other wheel's counts less the gyro's integrated turn put its own
-  motion ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
-  does not make the pivot the encoders describe; integrated, so quantization cannot reset
-  it, and only over a start, so the gyro's bias cannot build up: a third of ``frozen_time``
-  confirms it, and the controller then gives that wheel no more effort than the other's).
-  A dead encoder, or a wheel that does not turn at all (blocked: its honest encoder only
-  shows noise, and the body turns as the encoders say);
+  plausible wheel away from rest: the PI winding up on a reading that never moved reaches it)
+  or the other wheel follows the same way and the gyro shows less than half the turn the
+  encoders describe (the still-reading wheel turns unseen: frozen from the start, below that
+  effort) (``frozen_time``). A dead encoder, or a wheel that does not turn at all (blocked:
+  its honest encoder only shows noise, and the body turns as the encoders say);
 * **stall** (effort against speed): the PI output is saturated and the wheel turns at less
   than ``stall_ratio`` of its setpoint, or the effort's free-running speed ``|u| / kff``
   exceeds the measured speed in the effort's direction by ``effort_margin``: the amplifier
@@ -70,10 +66,6 @@ __all__ = ['cause_text', 'COUNT', 'ENCODER_TRUST', 'FROZEN_COUNTS', 'WheelSuperv
 
 COUNT = 2.0 * math.pi / 4096     # one count of the 12-bit AS5045, rad
 FROZEN_COUNTS = 3                # less motion than this is "not moving" (noise: +/-1 count)
-# A still-reading wheel that the other wheel and the gyro show turning this many counts its
-# setpoint's way turns unseen (gyro bias 0.005 rad/s over a 0.2 s start: 2.6 counts)
-UNSEEN_COUNTS = 6
-START_WINDOW = 0.3               # s after a setpoint leaves zero: the counts-against test
 
 _LEFT_WRONG = int(FaultCause.LEFT_WRONG_WAY)
 _RIGHT_WRONG = int(FaultCause.RIGHT_WRONG_WAY)
@@ -108,8 +100,7 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
-                 'frozen_min', 'unseen', '_psi', '_prev', '_u_other', '_u_psi', '_s_ref',
-                 '_s_age')
+                 '_frozen_min')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -132,20 +123,7 @@ class WheelSupervisor:
         self._following = [False, False]   # the wheel was seen following its setpoint
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
-        self.frozen_min = 4.0 * COUNT / params.frozen_time
-        # Unseen motion: the gyro's heading, integrated over encoder time (the encoders' own
-        # turn over a cycle without a gyro sample: no evidence either way), and per wheel the
-        # other wheel's angle and that heading when its window began. The other wheel's
-        # counts less the gyro's turn are the still-reading wheel's own motion.
-        self.unseen = [False, False]     # the wheel turns its setpoint's way, encoder still
-        self._psi = 0.0
-        self._prev = [math.nan, math.nan]
-        self._u_other = [math.nan, math.nan]
-        self._u_psi = [0.0, 0.0]
-        # start window (the first START_WINDOW s after a setpoint left zero or changed sign):
-        # this wheel's angle, the other's and the heading then; its age
-        self._s_ref = [[math.nan] * 3, [math.nan] * 3]
-        self._s_age = [0.0, 0.0]
+        self._frozen_min = 4.0 * COUNT / params.frozen_time
 
     @property
     def latched(self) -> bool:
@@ -169,10 +147,6 @@ class WheelSupervisor:
             self._bound[k] = -1.0
             self._following[k] = False
             self._sp[k] = 0.0
-            self.unseen[k] = False
-            self._u_other[k] = math.nan
-            self._prev[k] = math.nan
-            self._s_ref[k][0] = math.nan
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
@@ -198,67 +172,35 @@ class WheelSupervisor:
         # The gyro against the turn the encoders describe: a wheel that reads still while the
         # other turns the same way describes a turn; if the body does not make half of it,
         # the still wheel turns unseen (frozen from the start, below moving_effort).
-        ang = self._angle
-        prev = self._prev
-        if prev[0] == prev[0]:
-            if p.use_imu and yaw_rate == yaw_rate:
-                self._psi += yaw_rate * dt
-            else:
-                self._psi += self._r_over_track * ((ang[1] - prev[1]) - (ang[0] - prev[0]))
-        prev[0] = ang[0]
-        prev[1] = ang[1]
+        w_enc = self._r_over_track * (meas_right - meas_left)
+        unseen_turn = (p.use_imu and yaw_rate == yaw_rate and sp_left * sp_right > 0.0
+                       and yaw_rate * w_enc < 0.5 * w_enc * w_enc)
         for k in (0, 1):
             sp = sp_left if k == 0 else sp_right
             m = meas_left if k == 0 else meas_right
             u = u_left if k == 0 else u_right
             sat = saturated_left if k == 0 else saturated_right
             asp = abs(sp)
-            if sp * self._sp[k] <= 0.0:
-                sref = self._s_ref[k]                # a new start window
-                sref[0], sref[1], sref[2] = ang[k], ang[1 - k], self._psi
-                self._s_age[k] = 0.0
-            else:
-                self._s_age[k] += dt
             if asp > th and ((m > ms and sp < 0.0) or (m < -ms and sp > 0.0)):
                 t[_WRONG + k] += dt
-            elif self._counts_against(k, sp):
-                t[_WRONG + k] += 3.0 * dt            # integrated evidence, as unseen below
             else:
                 t[_WRONG + k] = 0.0
-            a = ang[k]
             if sp * self._sp[k] <= 0.0:
                 self._following[k] = False      # a new setpoint direction (or zero)
-                self._u_other[k] = math.nan     # and a new unseen-motion window
-                self.unseen[k] = False
             self._sp[k] = sp
+            a = self._angle[k]
             ref = self._ref[k]
             if not abs(a - ref) < FROZEN_COUNTS * COUNT:     # moved (or no reference yet)
                 if (a - ref) * sp > 0.0:
                     self._following[k] = True   # seen turning the way it is told
                 self._ref[k] = a
-                self._u_other[k] = math.nan
-                self.unseen[k] = False
                 t[_FROZEN + k] = 0.0
+            elif asp >= self._frozen_min and (self._following[k]
+                                             or abs(u) >= p.moving_effort
+                                             or (unseen_turn and self._following[1 - k])):
+                t[_FROZEN + k] += dt
             else:
-                if self._u_other[k] != self._u_other[k]:
-                    self._u_other[k] = ang[1 - k]
-                    self._u_psi[k] = self._psi
-                # this wheel's motion as the other wheel's encoder and the gyro tell it
-                turn = (self._psi - self._u_psi[k]) / self._r_over_track
-                own = (ang[1] - self._u_other[k] - turn) if k == 0 else \
-                    (ang[0] - self._u_other[k] + turn)
-                if own * sp >= UNSEEN_COUNTS * COUNT * asp:
-                    self.unseen[k] = True
-                if asp >= self.frozen_min and self.unseen[k]:
-                    # integrated evidence (6 counts beyond the gyro's drift), no per-cycle
-                    # noise to ride out: a third of frozen_time confirms it, before the
-                    # wheel the PI cannot see speeds up far
-                    t[_FROZEN + k] += 3.0 * dt
-                elif asp >= self.frozen_min and (self._following[k]
-                                                 or abs(u) >= p.moving_effort):
-                    t[_FROZEN + k] += dt
-                else:
-                    t[_FROZEN + k] = 0.0
+                t[_FROZEN + k] = 0.0
             # the speed the effort would drive a free wheel at, against the speed measured in
             # the effort's direction
             excess = abs(u) / kff - (m if u >= 0.0 else -m)
@@ -268,13 +210,8 @@ class WheelSupervisor:
             else:
                 t[_STALL + k] = 0.0
             if sp == 0.0:
-                # The bound follows the wheel down (a wheel that has been slow cannot be
-                # braking from a higher speed any more) and falls at still_deceleration: a
-                # wheel braked from speed that settles on a driven creep trips it as soon as
-                # one that was slow from the start (a guard stop from 1 m/s: 1.7 s before).
                 b = self._bound[k]
-                b = abs(m) if b < 0.0 else max(min(b, abs(m) + 0.5 * p.still_speed)
-                                               - p.still_deceleration * dt, 0.0)
+                b = abs(m) if b < 0.0 else max(b - p.still_deceleration * dt, 0.0)
                 self._bound[k] = b
                 if abs(m) > b + p.still_speed:
                     t[_STILL + k] += dt
@@ -285,12 +222,7 @@ class WheelSupervisor:
                 t[_STILL + k] = 0.0
         self._fresh = False
         diff = sp_left - sp_right
-        if saturated_left or saturated_right:
-            # a wheel at its output limit cannot follow its setpoint, so being nearer the
-            # other's is no evidence (an uncalibrated base at top speed in a turn); the time
-            # stands (a true swap saturates a PI soon, after it has counted)
-            pass
-        elif (diff > th or diff < -th) and (abs(sp_left) > th or abs(sp_right) > th):
+        if (diff > th or diff < -th) and (abs(sp_left) > th or abs(sp_right) > th):
             own = abs(meas_left - sp_left) + abs(meas_right - sp_right)
             other = abs(meas_left - sp_right) + abs(meas_right - sp_left)
             t[_SWAP] = t[_SWAP] + dt if own - other > th else 0.0
@@ -315,27 +247,6 @@ class WheelSupervisor:
             self.faults += 1
             return True
         return False
-
-    def _counts_against(self, k: int, sp: float) -> bool:
-        """Return True if wheel ``k``'s encoder counts against its setpoint over a start.
-
-        Within START_WINDOW s of its setpoint leaving zero (or changing sign): it reads
-        FROZEN_COUNTS against the setpoint while the other wheel's counts less the gyro's
-        turn put its own motion UNSEEN_COUNTS the setpoint's way -- a sign flip or crossed
-        channels at a creep, below speed_threshold, where a reversal cannot be told from a
-        fault by the speed alone. Short, so the gyro's bias cannot build up; a wheel still
-        turning the old way (a reversal) reads against, but is inferred against too.
-        """
-        sref = self._s_ref[k]
-        if sp == 0.0 or sref[0] != sref[0] or self._s_age[k] > START_WINDOW:
-            return False
-        ang = self._angle
-        turn = (self._psi - sref[2]) / self._r_over_track
-        own = (ang[1] - sref[1] - turn) if k == 0 else (ang[0] - sref[1] + turn)
-        if sp < 0.0:
-            return (ang[k] - sref[0] >= FROZEN_COUNTS * COUNT
-                    and own <= -UNSEEN_COUNTS * COUNT)
-        return ang[k] - sref[0] <= -FROZEN_COUNTS * COUNT and own >= UNSEEN_COUNTS * COUNT
 
     def reset(self) -> bool:
         """Clear the latched fault (an explicit request); return whether one was latched."""
