@@ -4,16 +4,17 @@
 # marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
 # static checks listed in test/conftest.py) -- the fast loop while editing; its three tiers run
 # side by side.
-# `make test` runs three streams side by side, each on its own ROS domain and temp directory:
-#   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
-#            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
-#            at the caller's priority;
+# `make test` runs two streams side by side, each on its own ROS domain and temp directory, then
+# the serial tests alone:
 #   packages lint beside colcon test of every package (less its serial tests), then the
 #            workspace modules in test/conftest.py AFTER_PACKAGES, 10 nice steps lower;
-#   e2e      every other workspace module, 10 nice steps lower.
+#   e2e      every other workspace module, 10 nice steps lower;
+#   serial   then, alone: the tests marked `serial` (judged on the simulator's physics in
+#            wall-clock time: test/conftest.py SERIAL_MODULES, and the package tests marked
+#            so), one at a time, at the caller's priority.
 # The end-to-end tests mostly wait on the stack (a module like test_doctor uses a fifth of a
-# core); a serial test's stack uses about one core, which the lower priority of the others
-# leaves it, so a stop is judged on a machine as calm as when it ran alone.
+# core); a serial test's stack uses about one core. With all three side by side a fresh clone
+# took 12.5 min, and two physics-judged tests failed on the load (docs/testing.md).
 # Exits non-zero on any failure, and when no test ran at all.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -93,6 +94,14 @@ else
     echo "== workspace tests (-m '$markers and not serial and not after_packages') =="
     run_pytest e2e test -m "$markers and not serial and not after_packages"
   ) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
+  wait $packages_pid || rc=1
+  echo "== lint, colcon test, then the workspace modules after the packages =="
+  cat "$tmp/packages.log"
+  wait $e2e_pid || rc=1
+  cat "$tmp/e2e.log"
+  # The physics-judged tests last, alone: beside the two streams above a loaded host let a
+  # guard weakened by 10 cm land where the judge cannot tell (a fresh clone's run, 12.5 min
+  # with all three side by side), and stretched calibrate's timed lags.
   echo "== serial stream: the tests marked serial, one at a time (-m '$markers and serial') =="
   run_pytest serial test -m "$markers and serial" || rc=1
   # The package tests marked serial, by pytest on their files (colcon test skips them above).
@@ -100,11 +109,6 @@ else
   if (( ${#serial_files[@]} )); then
     run_pytest serial_packages "${serial_files[@]}" -m "$markers and serial" || rc=1
   fi
-  wait $packages_pid || rc=1
-  echo "== lint, colcon test, then the workspace modules after the packages =="
-  cat "$tmp/packages.log"
-  wait $e2e_pid || rc=1
-  cat "$tmp/e2e.log"
   rm -rf "$tmp"
 fi
 

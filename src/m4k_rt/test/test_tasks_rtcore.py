@@ -95,14 +95,20 @@ def _drive_silent(peers, motor, seconds):
     return odoms
 
 
-def test_guard_without_sensors_blocks_forward_but_allows_turning(procs, tmp_path, peers):
+def test_guard_without_sensors_blocks_forward_and_turning_but_allows_reverse(procs, tmp_path,
+                                                                             peers):
+    """No laser: the guard stops forward motion and, since the turn guard cannot see what a
+    turn would swing the outline into, turns too (m4k_rt.control.turnguard); reversing (at
+    the creep cap) stays allowed, so the robot can back away."""
     proc = _start(procs, tmp_path, {}, 30)          # guard on, stale policy stop, no sensors
     link = peers('cmd', 'motor')
     motor = FakeMotor(link, control_params(None).full_scale_wheel_speed)
     odoms = _drive(link, motor, (0.25, 0.5), 1.5)
     assert odoms[-1].flags & p.ODOM_GUARD
     assert abs(odoms[-1].x) < 0.01
-    assert odoms[-1].w > 0.2
+    assert abs(odoms[-1].w) < 0.01
+    odoms = _drive(link, motor, (-0.1, 0.0), 1.5)
+    assert odoms[-1].v < -0.05
     procs.stop(proc)
 
 
