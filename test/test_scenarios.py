@@ -345,11 +345,13 @@ def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(name, tmp_pat
     env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
     res = run_scenario(sc, str(tmp_path), short=True, env=env)
     assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
-    # for the intended reason: it reached the obstacle and stopped inside the distance the
-    # guard promises (not "its trigger never happened": a robot that never got near it proves
-    # nothing)
+    # for the intended reason: it reached the obstacle and stopped late -- past the stop line
+    # at its speed of the moment (the creep of a slow-down approach: seen at 0.10-0.12 m/s on
+    # wall_0_5), or at rest inside the distance the guard promises -- not "its trigger never
+    # happened" (a robot that never got near it proves nothing)
     assert not any('never' in f for f in res.failures), res.failures
-    assert any("inside the guard's stop_distance" in f for f in res.failures), res.failures
+    assert any("inside the guard's stop_distance" in f or 'past the stop line' in f
+               for f in res.failures), res.failures
 
 
 def _person_samples(raw, rest_gap, walk_after=0.0, v0=1.0, person_x=4.0, front=0.225):
@@ -439,3 +441,32 @@ def test_a_turn_on_the_spot_whose_centre_wobbles_is_not_backing_up():
                   'y': 0.003 * math.sin(7.0 * t), 'theta': th, 'w': 1.25, 'v': 0.0})
     assert _backed_up(s) < STAY_M
     assert _backed_up([dict(x, w=0.0) for x in s]) > 0.0
+
+
+def test_the_judge_fails_a_drive_cut_with_no_fault_declared():
+    """A world with nothing declared to fail: an amplifier enable dropped while commanded (a
+    motor fault latched on a healthy wheel) fails, whatever the clearance; kept on, it passes;
+    declared (a fault world), that rule does not apply."""
+    raw = _raw({'walls': {'rectangle': [-1.0, -3.0, 6.0, 3.0]}, 'obstacles': []})
+    sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.5, 't': 2.0}],
+                     'expect': {'min_clearance': 0.25}}, 'arc.yaml')
+    b = bounds.bounds(raw, 0.5, None)
+
+    def run(cut_at_s):
+        s = _truth_run(0.5, 3.0, lambda t, x, vv: (max(vv - 0.05, 0.0)
+                                                    if t >= cut_at_s * 1e9 else vv))
+        for x in s:
+            x['motor_enabled'] = x['t_ns'] < cut_at_s * 1e9
+        res = Result('arc', '', 1.0, samples=s, cmd_end_ns=int(2.0e9))
+        judge(sc, res, b, raw)
+        return res
+
+    assert any('lost power' in f for f in run(0.34).failures)
+    assert not any('lost power' in f for f in run(9.0).failures)
+    faulted = spec.parse({'world': dict(raw['world'], faults=[
+        {'at_s': 0.0, 'kind': 'encoder_frozen', 'wheel': 'left'}]),
+        'commands': [{'v': 0.5, 't': 2.0}], 'expect': {'min_clearance': 0.25}}, 'f.yaml')
+    res = run(0.34)
+    res.failures.clear()
+    judge(faulted, res, b, raw)
+    assert not any('lost power' in f for f in res.failures)

@@ -14,7 +14,9 @@ Deterministic: the same world seed, the same run. Used by ``python -m m4k_bench.
 
 from __future__ import annotations
 
+import collections
 import math
+import random
 from typing import Any, Callable, Mapping
 
 from m4k_drivers.drive import RobotParams
@@ -51,12 +53,17 @@ class VirtualBase:
 
     ``world``: a ``world:`` overlay (robot, faults, floor, seed...); ``control``: a
     ``control:`` overlay over ``config/`` (e.g. supervision settings). ``imu``: feed the gyro
-    to the controller (False: as with the IMU unplugged).
+    to the controller (False: as with the IMU unplugged). ``imu_lag_s``: each gyro sample
+    reaches the controller this long after it was taken, plus up to ``imu_jitter_s`` more
+    (uniform, from the world's seed; in order): on the robot the gyro arrives one hop after
+    the encoders (the IMU task's period, the driver host's I2C read), and under load tens
+    of ms later.
     """
 
     def __init__(self, world: Mapping[str, Any] | None = None,
                  control: Mapping[str, Any] | None = None, imu: bool = True,
-                 heartbeat_hold_s: float = 0.05) -> None:
+                 heartbeat_hold_s: float = 0.05, imu_lag_s: float = 0.0,
+                 imu_jitter_s: float = 0.0) -> None:
         cfg = load_layered()
         self.control = deep_merge(cfg.get('control') or {}, dict(control or {}))
         body = (cfg.get('robot') or {}).get('body')
@@ -83,6 +90,11 @@ class VirtualBase:
             self.imu.configure()
             self.imu.activate()
         self.params = control_params(self.control)
+        self._imu_lag_ns = round(imu_lag_s * 1e9)
+        self._imu_jitter_ns = round(imu_jitter_s * 1e9)
+        self._rng = random.Random(int((world or {}).get('seed', 0)))
+        self._imu_queue: collections.deque[tuple[int, int, float]] = collections.deque()
+        self._imu_last: tuple[int, float, int] | None = None   # (stamp, rate, rx) newest
         self.ctl = BaseController(self.params, PERIOD_NS * 1e-9)
 
     @property
@@ -101,7 +113,20 @@ class VirtualBase:
         if self.imu is not None:
             s = self.imu.read()
             if s.value is not None and s.value.status == 0:
-                ctl.imu(s.value.angular_velocity[2], now)
+                stamp = self.imu.sample_ns or now
+                due = stamp + self._imu_lag_ns + (
+                    self._rng.randrange(self._imu_jitter_ns + 1) if self._imu_jitter_ns else 0)
+                if self._imu_queue:
+                    due = max(due, self._imu_queue[-1][0])
+                self._imu_queue.append((due, stamp, s.value.angular_velocity[2]))
+            q = self._imu_queue
+            while q and q[0][0] <= now:
+                _, stamp, rate = q.popleft()
+                self._imu_last = (stamp, rate, now)
+                ctl.imu(rate, now, stamp)
+            if self._imu_last is not None:          # the actuator gives the newest each cycle
+                stamp, rate, rx = self._imu_last
+                ctl.imu(rate, rx, stamp)
         if v is not None:
             ctl.command(v, w, now)
         ctl.step(now, forward_cap, guard_active)

@@ -5,12 +5,16 @@ handler over the simulated SPI DACs and AS5045s, the IMU handler over the myAHRS
 with the simulator's noise and bias, the heartbeat monostable, the drive physics). A fault is
 injected once the robot runs at its speed (the simulator's own fault kinds: the encoders keep
 sending valid frames); the supervision must latch within 0.3 s of the onset, and the robot
-must come to rest on ground truth. Healthy drives at a creep, with starts, stops, turns and
-reversals, must latch nothing. Deterministic: fixed seeds, no wall clock.
+must come to rest on ground truth. Faults there from the very start at a creep latch within
+0.3 s of the first command, on a calibrated base, one whose zero trims calibrate left 2 codes
+low, and an uncalibrated one (dead band, offsets). Healthy drives on the same bases, at a
+creep, with starts, stops, turns and reversals, and at top speed with turns, must latch
+nothing. Deterministic: fixed seeds, no wall clock.
 """
 
 import pytest
 
+from m4k_bench.latch import BASES, from_the_start, still_after_stop
 from m4k_bench.virtualbase import VirtualBase
 from m4k_rt.control.supervision import cause_text
 
@@ -72,9 +76,54 @@ def test_an_encoder_frozen_from_the_start_at_a_creep_never_runs_away(v):
     try:
         assert vb.run(1.0, v, 0.0, until=vb.faulted) is not None
         vb.run(3.0, v, 0.0)
-        assert vb.world.peak_speed < 0.1 and vb.world.travelled < 0.05
+        # Until the latch the PI's break-away boost drives the wheel whose encoder never
+        # moves up to pi.breakaway_effort (0.15 of full scale: 0.3 m/s at its rim), the body
+        # at about half that; the runaway of issue 39 reached 2.0 m/s.
+        assert vb.world.peak_speed < 0.25 and vb.world.travelled < 0.05
     finally:
         vb.close()
+
+
+_CREEPS = [(0.02, 0.0), (-0.02, 0.0), (0.02, 0.05), (0.0, 0.1)]
+
+
+@pytest.mark.parametrize('base', list(BASES))
+@pytest.mark.parametrize('kind', ['encoder_frozen', 'wheel_stall', 'encoder_sign_flip'])
+@pytest.mark.parametrize('wheel', ['left', 'right'])
+@pytest.mark.parametrize('v, w', _CREEPS, ids=['straight', 'reverse', 'turning', 'in-place'])
+def test_a_fault_from_the_very_start_at_a_creep_latches_within_0_3_s_of_the_first_command(
+        base, kind, wheel, v, w):
+    # the docking case: the fault is there before the first command; a dead band and a
+    # trim left low (or none: uncalibrated) hold healthy wheels at rest too, so the
+    # supervision judges the break-away effort, the other wheel and the gyro
+    seed = 1 + (_CREEPS.index((v, w)) + len(base)) % 3
+    latched, _ = from_the_start(kind, wheel, v, w, seed, BASES[base], limit_s=1.0)
+    assert latched is not None and latched <= LATCH_S, latched
+
+
+@pytest.mark.parametrize('base, v, w', [('calibrated', 0.02, 0.05), ('trim -2 codes', 0.02, 0.05),
+                                         ('calibrated', 0.0, 0.1), ('uncalibrated', 0.0, 0.1),
+                                         ('uncalibrated', 0.0, -0.1)])
+def test_channels_crossed_from_the_start_at_a_creep_latch_within_0_3_s(base, v, w):
+    # (uncalibrated and turning forward, both wheels' setpoints one way, it takes the yaw
+    # rate test up to 0.40 s: docs/safety.md)
+    latched, _ = from_the_start('encoder_swap', None, v, w, 2, BASES[base], limit_s=1.0)
+    assert latched is not None and latched <= LATCH_S, latched
+
+
+@pytest.mark.parametrize('v, w, guard', [(0.25, 0.0, False), (0.0, 0.8, False),
+                                         (1.0, 0.0, True), (0.25, 0.4, True)],
+                         ids=['ramped-stop', 'ramped-stop-in-place', 'guard-stop-1mps',
+                              'guard-stop-turning'])
+def test_a_wheel_driven_after_a_stop_latches_within_0_3_s_of_when_it_should_rest(v, w, guard):
+    # a 1 V amplifier offset on the left: the PI holds it while driving, the zero word does
+    # not. It should rest once its setpoint is zero, and not before the drive has braked it
+    # from speed: judged against the healthy right wheel reaching rest on ground truth.
+    after_zero, after_rest = still_after_stop(v, w, guard, seed=2)
+    assert after_zero is not None
+    assert after_rest is not None and after_rest <= LATCH_S, (after_zero, after_rest)
+    if not guard:
+        assert after_zero <= LATCH_S
 
 
 def test_a_fault_stop_brakes_with_the_drive_then_drops_the_enable():
@@ -95,11 +144,17 @@ def test_a_fault_stop_brakes_with_the_drive_then_drops_the_enable():
 
 
 @pytest.mark.parametrize('seed', [1, 2])
-def test_healthy_creeping_starts_stops_and_turns_latch_nothing(seed):
-    vb = VirtualBase(world={'seed': seed})
+@pytest.mark.parametrize('base', list(BASES) + ['uncalibrated, worst dead band'])
+def test_healthy_creeping_starts_stops_and_turns_latch_nothing(seed, base):
+    # the worst dead band the supervision allows for: 2.4 V (offset -1.2 V, band 1.2 V)
+    robot = BASES.get(base, {'amp_offset_left_v': -1.2, 'amp_offset_right_v': 0.3,
+                             'deadband_v': 1.2})
+    vb = VirtualBase(world={'seed': seed, 'robot': robot})
     segments = [(0.01, 0.0, 0.8), (0.0, 0.0, 0.4), (0.02, 0.0, 0.8), (0.0, 0.0, 0.4),
                 (0.02, 0.05, 0.8), (0.0, 0.1, 0.8), (0.0, -0.2, 0.8), (0.05, 0.0, 0.8),
-                (-0.05, 0.0, 0.8), (0.0, 0.0, 0.5)]
+                (-0.05, 0.0, 0.8), (0.0, 0.0, 0.5), (0.08, 0.0, 0.8), (0.0, 0.0, 0.5),
+                (0.03, 0.0, 0.5), (0.0, 0.0, 0.3), (0.01, 0.1, 0.6), (0.0, 0.0, 0.3),
+                (0.25, 0.4, 1.5), (0.25, -0.4, 1.0), (0.0, 0.0, 1.0)]
     try:
         for v, w, t in segments:
             assert vb.run(t, v, w, until=vb.faulted) is None, \
@@ -108,8 +163,10 @@ def test_healthy_creeping_starts_stops_and_turns_latch_nothing(seed):
         vb.close()
 
 
-def test_healthy_guard_stop_from_speed_and_reversal_in_place_latch_nothing():
-    vb = VirtualBase(world={'seed': 2})
+@pytest.mark.parametrize('base', list(BASES))
+def test_healthy_guard_stop_from_speed_reversal_in_place_and_top_speed_turns_latch_nothing(
+        base):
+    vb = VirtualBase(world={'seed': 1 + len(base) % 3, 'robot': BASES[base]})
     try:
         assert vb.run(3.5, 1.0, 0.0, until=vb.faulted) is None
         assert vb.run(1.0, 1.0, 0.0, until=vb.faulted, forward_cap=0.0,
@@ -117,5 +174,41 @@ def test_healthy_guard_stop_from_speed_and_reversal_in_place_latch_nothing():
         for w in (1.5, -1.5, 0.0):
             assert vb.run(1.5, 0.0, w, until=vb.faulted) is None, \
                 cause_text(vb.ctl.supervisor.cause)
+        # top speed, then turns there (an uncalibrated wheel saturates short of its setpoint)
+        for v, w, t in ((2.0, 0.0, 6.0), (2.0, 0.6, 2.0), (1.5, -0.6, 2.0), (0.0, 0.0, 2.0)):
+            assert vb.run(t, v, w, until=vb.faulted) is None, \
+                (v, w, cause_text(vb.ctl.supervisor.cause))
     finally:
         vb.close()
+
+
+_ARCS = [(0.5, 0.5), (0.5, -0.5), (0.25, 0.5), (1.0, 0.5), (0.1, 0.2), (2.0, 1.0)]
+
+
+@pytest.mark.parametrize('base', list(BASES))
+@pytest.mark.parametrize('lag, jitter', [(0.0, 0.0), (0.02, 0.0), (0.05, 0.03)],
+                         ids=['gyro-in-step', 'gyro-20ms-late', 'gyro-50-80ms-late'])
+def test_healthy_arcs_from_rest_latch_nothing_when_the_gyro_comes_late(base, lag, jitter):
+    # v ramps at 0.37 m/s^2 and w at 1.85 rad/s^2, so an arc from rest pivots on its inner
+    # wheel, still below break-away, while the outer wheel turns the body: the gyro, a hop
+    # behind the encoders, must be compared with them at its own instant (issue 39: a
+    # healthy wheel latched frozen at the start of arc_leg_outside_0_5 under load)
+    for seed in (1, 2):
+        for v, w in _ARCS:
+            vb = VirtualBase(world={'seed': seed, 'robot': BASES[base]}, imu_lag_s=lag,
+                             imu_jitter_s=jitter)
+            try:
+                assert vb.run(1.5, v, w, until=vb.faulted) is None, \
+                    (seed, v, w, cause_text(vb.ctl.supervisor.cause))
+            finally:
+                vb.close()
+
+
+@pytest.mark.parametrize('kind', ['encoder_frozen', 'wheel_stall', 'encoder_sign_flip'])
+@pytest.mark.parametrize('v, w', [(0.02, 0.0), (0.02, 0.05), (0.0, 0.1)],
+                         ids=['straight', 'turning', 'in-place'])
+def test_a_fault_from_the_start_latches_within_0_3_s_with_the_gyro_30_ms_late(kind, v, w):
+    for wheel in ('left', 'right'):
+        latched, _ = from_the_start(kind, wheel, v, w, 2, BASES['uncalibrated'], limit_s=1.0,
+                                    imu_lag_s=0.03)
+        assert latched is not None and latched <= LATCH_S, (wheel, latched)

@@ -19,7 +19,8 @@ needed exceeds ``mu * load``, the wheel slips: the ground's force is kinetic fri
 the body follows only the friction -- so the encoders (on the wheel shafts) report a rotation
 the body did not make, as a real robot's odometry does. Rolling resistance (``Crr * load``) and
 the drive train's friction are dry (Coulomb) friction: below them nothing moves, at a stop they
-hold.
+hold; at rest the drive train's sticks ``breakaway_friction`` times harder than it runs (a wheel
+starts only above that, then runs against the running friction).
 
 Defaults and their sources: docs/sim-physics.md. Each parameter is declared once, on its
 :class:`RobotParams` field (type, default, unit, range, source; :data:`ROBOT_FIELDS` is the
@@ -102,6 +103,12 @@ class RobotParams:
     no_load_current_a: float = setting(_f(
         0.3, "Motor no-load current: the drive train's dry friction (brushes, bearings, gear) "
         'kt * I0, also while coasting (assumed, same class).', 'A', lo_open=False))
+    breakaway_friction: float = setting(_f(
+        1.3, 'Break-away (static) friction of the drive train over its running friction '
+        '(no_load_current_a): brushes and gear teeth stick at rest, so a wheel starts only '
+        'once its drive exceeds this multiple and then runs against the running friction '
+        '(assumed: 1.2-1.5 for a brushed gearmotor; 1.0 is pure Coulomb friction).', '',
+        lo=1.0, lo_open=False, hi=3.0))
     gear_efficiency: float = setting(_f(
         0.9, 'Gear efficiency under load (spur/planetary 12:1: 0.85-0.95).', '', hi=1.0))
     rotor_inertia_kgm2: float = setting(_f(
@@ -247,6 +254,11 @@ class RobotParams:
         return self.gear_ratio * self.ke * self.no_load_current_a
 
     @property
+    def breakaway_torque_nm(self) -> float:
+        """Return the drive train's friction at rest (what a start must exceed), at the wheel."""
+        return self.breakaway_friction * self.friction_torque_nm
+
+    @property
     def equivalent_mass_kg(self) -> float:
         """Return the mass the two wheels' torques accelerate in a straight line."""
         return self.mass_kg + 2.0 * self.wheel_inertia_total / self.wheel_radius_m ** 2
@@ -380,6 +392,8 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
         dv = rob.caster_force_n * dt / m
         st.v = st.v - dv if st.v > dv else st.v + dv if st.v < -dv else 0.0
     fric_max = rob.friction_torque_nm + rob.rolling_force_n * r    # dry friction at the wheel
+    # at rest the drive train sticks harder than it runs (break-away); rolling resistance not
+    fric_rest = rob.breakaway_torque_nm + rob.rolling_force_n * r
     a_free = [0.0, 0.0]           # wheel torque but for traction, at the present speed
     drive = [0.0, 0.0]            # the motor's torque at the wheel
     p = [0.0, 0.0]                # dt / (J + c dt): implicit in the back-EMF damping
@@ -410,13 +424,13 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
         if wi != 0.0:
             tau -= math.copysign(fric_max, wi)
         else:
-            tau -= max(-fric_max, min(fric_max, tau))
+            tau -= max(-fric_rest, min(fric_rest, tau))
         a_free[i] = tau
         p[i] = dt / (jw + c * dt)
     c_wheel = [dt / pi - jw for pi in p]      # the damping each p was built with, * dt
     # A wheel at rest whose drive is below its dry friction is held by that friction (like a
     # blocked one: zero speed) as long as the torque needed to hold it stays below it too.
-    held = [st.blocked[i] or (st.wheel[i] == 0.0 and abs(drive[i]) <= fric_max)
+    held = [st.blocked[i] or (st.wheel[i] == 0.0 and abs(drive[i]) <= fric_rest)
             for i in (LEFT, RIGHT)]
     for i in (LEFT, RIGHT):
         if held[i]:
@@ -450,11 +464,11 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
             kin[i] = _sign(f[i])
         # A held wheel the ground turns harder than its friction holds starts to roll.
         freed = [i for i in (LEFT, RIGHT) if held[i] and not st.blocked[i] and stuck[i]
-                 and abs(drive[i] - f[i] * r) > fric_max]
+                 and abs(drive[i] - f[i] * r) > fric_rest]
         for i in freed:
             held[i] = False
             p[i] = dt / (jw + c_wheel[i])
-            a_free[i] = drive[i] - math.copysign(fric_max, drive[i] - f[i] * r)
+            a_free[i] = drive[i] - math.copysign(fric_max, drive[i] - f[i] * r)   # now running
         if not over and not freed:
             break
     old = list(st.wheel)
@@ -470,7 +484,7 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
                 st.slipping[i] = False
         # Dry friction stops a wheel: crossing zero with less drive than friction is a stop.
         elif (old[i] != 0.0 and _sign(st.wheel[i]) != _sign(old[i])
-              and abs(drive[i]) <= fric_max):
+              and abs(drive[i]) <= fric_rest):
             st.wheel[i] = 0.0
     if not any(st.slipping):      # gripping: the body goes where the wheels roll
         st.v = 0.5 * r * (st.wheel[0] + st.wheel[1])

@@ -229,3 +229,28 @@ def test_turning_in_place_keeps_the_centre_still():
     s = w.state()
     assert math.hypot(s.pose.x, s.pose.y) < 1e-9
     assert s.w > 0.5 and w.peak_slip < 1e-6
+
+
+def test_a_drive_between_running_and_break_away_friction_keeps_a_wheel_turning_not_starting():
+    # the drive train sticks harder at rest (breakaway_friction) than it runs: a drive between
+    # the two holds a resting robot still and keeps a rolling one rolling (stick-slip at a creep)
+    rob = RobotParams(drive_load_fraction=1.0)          # no casters: the wheels' friction only
+    run_t = rob.friction_torque_nm + rob.rolling_force_n * rob.wheel_radius_m
+    rest_t = rob.breakaway_torque_nm + rob.rolling_force_n * rob.wheel_radius_m
+    assert rest_t > run_t
+    # volts whose stall current gives a wheel torque halfway between the two
+    per_volt = rob.gear_ratio * rob.gear_efficiency * rob.ke / rob.motor_resistance_ohm
+    volts = 0.5 * (run_t + rest_t) / per_volt
+    w, clock = _world(rob)
+    for side in (LEFT, RIGHT):
+        w.set_motor_voltage(side, volts)
+    _run(w, clock, 1.0)
+    assert w.state().v == 0.0                            # held: below break-away
+    w2, clock2 = _world(rob)
+    for side in (LEFT, RIGHT):
+        w2.set_motor_voltage(side, 3.0 * volts)          # started above it...
+    _run(w2, clock2, 0.5)
+    for side in (LEFT, RIGHT):
+        w2.set_motor_voltage(side, volts)                # ...then the same volts
+    _run(w2, clock2, 2.0)
+    assert w2.state().v > 0.0                            # rolls on: above running friction

@@ -122,3 +122,10 @@ def test_a_dataclass_field_without_a_declaration_is_refused():
 
     with pytest.raises(TypeError, match='do not match'):
         section(Shared, {'y': Field('float', 1.0)})
+
+
+def test_a_break_away_effort_at_or_below_the_moving_effort_is_refused_naming_it():
+    with pytest.raises(ControlConfigError, match=r'control\.pi\.breakaway_effort: must be > '
+                       r'supervision\.moving_effort'):
+        control_params({'pi': {'breakaway_effort': 0.12}})
+    control_params({'pi': {'breakaway_effort': 0.12, 'breakaway_rate': 0.0}})   # boost off

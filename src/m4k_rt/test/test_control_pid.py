@@ -113,3 +113,25 @@ def test_the_integral_band_leaves_transients_to_p_and_feed_forward():
     for bad in (0.0, -1.0, math.nan, True):
         with pytest.raises(PidError, match='band'):
             WheelSpeedPI(0.02, 0.4, band=bad)
+
+
+def test_break_away_raises_the_integral_at_its_rate_up_to_its_effort_while_starting():
+    # a creep setpoint on a wheel at rest: ki alone winds up at 0.4 * 0.2 = 0.08/s
+    pi = WheelSpeedPI(0.02, 0.4, 0.05, breakaway_rate=2.0, breakaway_effort=0.15)
+    u = [pi.update(0.2, 0.0, 0.01, starting=True) for _ in range(5)]
+    assert u[-1] == pytest.approx(0.05 * 0.2 + 0.02 * 0.2 + 2.0 * 0.05)
+    u = [pi.update(0.2, 0.0, 0.01, starting=True) for _ in range(2)]
+    assert u[-1] == pytest.approx(0.15)                 # the boost stops at breakaway_effort
+    # beyond it only ki integrates, starting or not
+    assert pi.update(0.2, 0.0, 0.01, starting=True) == pytest.approx(0.15 + 0.4 * 0.2 * 0.01)
+
+
+@pytest.mark.parametrize('measured, starting', [(0.0, False), (-0.5, True), (0.153, True)])
+def test_break_away_does_not_act_once_started_or_while_the_wheel_reads_motion(measured,
+                                                                                   starting):
+    plain = WheelSpeedPI(0.02, 0.4, 0.05)
+    boost = WheelSpeedPI(0.02, 0.4, 0.05, breakaway_rate=2.0, breakaway_effort=0.15,
+                         breakaway_still=0.1)
+    for _ in range(5):
+        assert boost.update(-0.2, -measured, 0.01, starting) == \
+            pytest.approx(plain.update(-0.2, -measured, 0.01))

@@ -218,7 +218,7 @@ def test_stall_at_saturation_latches_even_when_the_encoder_flickers():
     k = 0
     while not sup.latched and t < 1.0:
         k += 1
-        sup.encoders(COUNT * (k % 2), 10.0 * k)
+        sup.encoders(COUNT * (k % 2), 10.0 * k, k * 10_000_000)
         sup.step(0.01, 10.0, 10.0, 0.1, 10.0, 1.0, 10.0 * FF, True, False)
         t += 0.01
     # one count of flicker is no motion (FROZEN_COUNTS): the frozen test sees it first
@@ -323,11 +323,13 @@ def test_no_false_trip_when_encoder_samples_come_late_and_bunched():
     from m4k_rt.control.supervision import WheelSupervisor
     sup = WheelSupervisor(SupervisionParams(), R_WHEEL, 0.40, FF)
     angle = [0.0, 0.0]
+    stamp = [0]
 
     def sample(speed):
         for i in (0, 1):
             angle[i] += speed * 0.01
-        sup.encoders(angle[0], angle[1])
+        stamp[0] += 10_000_000
+        sup.encoders(angle[0], angle[1], stamp[0])
 
     sample(-0.6)                                   # the rebound, beyond min_speed (0.3)
     assert not sup.step(0.01, 2.0, 2.0, -0.6, -0.6, 2.0 * FF, 2.0 * FF, False, False)
@@ -348,7 +350,7 @@ def test_a_flipped_encoder_still_latches_when_samples_are_bunched():
     for k in range(30):                            # 0.3 s of cycles, 10 samples
         if k % 3 == 0:
             angle -= 1.0 * 0.03                    # the left wheel reads backwards
-            sup.encoders(angle, -angle)
+            sup.encoders(angle, -angle, k * 10_000_000)
         if sup.step(0.01, 2.0, 2.0, -1.0, 1.0, 2.0 * FF, 2.0 * FF, False, False):
             break
     assert sup.latched and sup.cause & FaultCause.LEFT_WRONG_WAY

@@ -102,6 +102,9 @@ def judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     if sc.max_speed is not None and not res.peak_speed < sc.max_speed:
         res.failures.append(f'peak speed {res.peak_speed:.3f} m/s on ground truth (body or wheel '
                             f'rim) >= {sc.max_speed:g} m/s')
+    if not (sc.motor_fault or sc.faults or sc.e_stop or sc.world.get('faults')
+            or sc.world.get('events')):
+        _judge_drive_kept(res, s)
     if sc.motor_fault:
         _judge_motor_fault(res, s)
     elif all(c.v >= 0.0 for c in sc.commands):
@@ -149,6 +152,26 @@ def _backed_up(s: list[dict[str, Any]]) -> float:
         elif peak - path > worst:
             worst = peak - path
     return worst
+
+
+def _judge_drive_kept(res: Result, s: list[dict[str, Any]]) -> None:
+    """Judge a world with nothing declared to fail: the drive stays powered while commanded.
+
+    With no fault, kill, e-stop or sensor event in the world, only a false stop can drop the
+    amplifier enable while the commands are live (a motor fault latched on a healthy wheel, a
+    link or a sensor going stale under load); a guard stop brakes with the enable on. Judged
+    on ground truth from the first powered sample to the end of the commands.
+    """
+    end = res.cmd_end_ns
+    first = next((i for i, x in enumerate(s) if x.get('motor_enabled')), None)
+    if end is None or first is None:
+        return
+    cut = [x for x in s[first:] if int(x['t_ns']) <= end and not x.get('motor_enabled', True)]
+    if cut:
+        at = (int(cut[0]['t_ns']) - int(s[first]['t_ns'])) * 1e-9
+        res.failures.append(f'the drive lost power {at:.2f} s into the run with no fault '
+                            f'declared ({len(cut)} sample(s) unpowered while commanded): a '
+                            f'false motor fault or a stale link')
 
 
 FAULT_HOLD_S = 1.0   # a latched fault: outputs zero and at rest this long before the commands end

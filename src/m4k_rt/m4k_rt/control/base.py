@@ -79,7 +79,7 @@ from m4k_rt.control.limiter import SpeedLimiter
 from m4k_rt.control.odometry import Odometry
 from m4k_rt.control.params import AxisLimits, ControlParams
 from m4k_rt.control.pid import WheelSpeedPI
-from m4k_rt.control.supervision import ENCODER_TRUST, WheelSupervisor
+from m4k_rt.control.supervision import COUNT, ENCODER_TRUST, FROZEN_COUNTS, WheelSupervisor
 from m4k_rt.protocol import (
     ENC_ESTOP_OPEN,
     ENC_INVALID_MASK,
@@ -132,12 +132,25 @@ class BaseController:
         self.angular = _limiter(params.angular)
         self.wheel_limit = params.wheel_limit
         pi = params.pi
+        # one count of encoder noise over the feedback window reads as this speed
+        count_speed = 1.5 * COUNT / (params.speed_feedback_window * self.period)
         self.pi_left = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
                                     anti_windup=pi.anti_windup, kt=pi.kt,
-                                    band=pi.integral_band)
+                                    band=pi.integral_band,
+                                    breakaway_rate=pi.breakaway_rate,
+                                    breakaway_effort=pi.breakaway_effort,
+                                    breakaway_still=count_speed)
         self.pi_right = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
                                      anti_windup=pi.anti_windup, kt=pi.kt,
-                                     band=pi.integral_band)
+                                     band=pi.integral_band,
+                                     breakaway_rate=pi.breakaway_rate,
+                                     breakaway_effort=pi.breakaway_effort,
+                                     breakaway_still=count_speed)
+        # break-away: per wheel, the angle it starts from and whether it has been seen
+        # turning its setpoint's way since the setpoint left zero (pid: breakaway_rate)
+        self._angles = [0.0, 0.0]
+        self._start_ref = [math.nan, math.nan]
+        self._start_sp = [0.0, 0.0]
         self._fb_window = params.speed_feedback_window
         self._fb_min_ns = max(1, int(0.5 * self._fb_window * self.period * 1e9))
         self.odom = Odometry(params.wheel_radius, params.track_width,
@@ -262,7 +275,9 @@ class BaseController:
             self._open_samples = 0
             self.estop_open = False
         self.driver_safe = bool(status & ENC_SAFE)
-        self.supervisor.encoders(left_angle, right_angle)
+        self.supervisor.encoders(left_angle, right_angle, stamp_ns)
+        self._angles[0] = left_angle
+        self._angles[1] = right_angle
         self.encoder_samples += 1
         self.enc_rx_ns = rx_ns
         odom = self.odom
@@ -273,10 +288,16 @@ class BaseController:
                 self.left_speed += a * (hist.left_rate - self.left_speed)
                 self.right_speed += a * (hist.right_rate - self.right_speed)
 
-    def imu(self, yaw_rate: float, rx_ns: int) -> None:
-        """Take the gyro's yaw rate about base_link z (rad/s) received at ``rx_ns``."""
+    def imu(self, yaw_rate: float, rx_ns: int, stamp_ns: int | None = None) -> None:
+        """Take the gyro's yaw rate about base_link z (rad/s) received at ``rx_ns``.
+
+        ``stamp_ns``: when the sample was taken (the datagram's stamp; None: ``rx_ns``). The
+        newest sample is given every cycle; the supervision takes each stamp once.
+        """
         self.yaw_rate = yaw_rate
         self.imu_rx_ns = rx_ns
+        if rx_ns:
+            self.supervisor.gyro(yaw_rate, rx_ns if stamp_ns is None else stamp_ns)
 
     def _brake_enable(self, now_ns: int, trust_rest: bool) -> int:
         """Return the enable of a category-1 stop that began at ``_fault_since_ns``.
@@ -305,6 +326,7 @@ class BaseController:
         self.angular.reset(0.0)
         self.pi_left.reset()
         self.pi_right.reset()
+        self._start_sp[0] = self._start_sp[1] = 0.0
         self.v = self.w = 0.0
         self.left_setpoint = self.right_setpoint = 0.0
         self.left_u = self.right_u = 0.0
@@ -446,11 +468,14 @@ class BaseController:
         if wl == 0.0 and wr == 0.0:
             self.pi_left.reset()
             self.pi_right.reset()
+            self._start_sp[0] = self._start_sp[1] = 0.0
             self.left_u = self.right_u = 0.0
             self.left_code = self.right_code = DAC_ZERO
         else:
-            ul = self.left_u = self.pi_left.update(wl, self.left_speed, dt)
-            ur = self.right_u = self.pi_right.update(wr, self.right_speed, dt)
+            ul = self.left_u = self.pi_left.update(wl, self.left_speed, dt,
+                                                   self._starting(0, wl))
+            ur = self.right_u = self.pi_right.update(wr, self.right_speed, dt,
+                                                     self._starting(1, wr))
             sat = sat or self.pi_left.saturated or self.pi_right.saturated
             self.left_code = command_to_code(ul)
             self.right_code = command_to_code(ur)
@@ -481,6 +506,46 @@ class BaseController:
             self.mode = MODE_DRIVING
         else:
             self.mode = MODE_IDLE
+
+    def _starting(self, k: int, sp: float) -> bool:
+        """Return True while wheel ``k`` has not turned FROZEN_COUNTS its setpoint's way.
+
+        Counted from the angle at which its setpoint left zero or changed sign (moved along
+        while the wheel still turns the old way); encoder counts, not the speed estimate, and
+        whole FROZEN_COUNTS steps either way, so +/-1 count of noise neither starts it nor
+        drags its reference. (No roll-back of the boost once it has started: measured, one
+        noisy count made it roll back below the break-away and a creeping wheel stuck again.)
+        """
+        a = self._angles[k]
+        if abs(sp) < self.supervisor.frozen_min:
+            # too slow to move FROZEN_COUNTS + 1 within frozen_time: the supervision does not
+            # judge it, and a boost would only throw the wheel (a heading hold's 4 mrad/s)
+            self._start_sp[k] = 0.0
+            return False
+        if sp * self._start_sp[k] <= 0.0:           # left zero or changed sign: restart
+            self._start_ref[k] = a
+        self._start_sp[k] = sp
+        ref = self._start_ref[k]
+        if self.supervisor.unseen[k]:
+            # turning unseen (its encoder frozen: the gyro and the other wheel show it turn):
+            # more effort than the other wheel's would only speed it up until the latch
+            pi = self.pi_left if k == 0 else self.pi_right
+            other = abs((self.pi_right if k == 0 else self.pi_left).integral)
+            if abs(pi.integral) > other:
+                pi.integral = math.copysign(other, pi.integral)
+            return False
+        if ref != ref:                               # NaN: started
+            return False
+        d = (a - ref) if sp > 0.0 else (ref - a)
+        if d >= FROZEN_COUNTS * COUNT:
+            self._start_ref[k] = math.nan
+            return False
+        if d <= -FROZEN_COUNTS * COUNT:
+            # still turning the old way (a reversal: the plain PI has error enough), or its
+            # encoder counts against the effort (a sign flip): no boost either way
+            self._start_ref[k] = a
+            return False
+        return True
 
     def _estop_flags(self) -> int:
         estop = self.estop

@@ -119,6 +119,20 @@ class PiGains:
         'wind it up to drive the wheels past the setpoint -- backwards '
         'after a stop. Underspeed (load, stall) integrates as always. Too '
         'small: slow correction of an overspeed; too large: windup.'))
+    breakaway_rate: float = setting(_nonneg(
+        '1/s', 2.0, 'Break-away: while a wheel has not yet turned 3 encoder counts its '
+        "setpoint's way since the setpoint left zero (or changed sign), and reads no motion "
+        'beyond a count of noise, the integrator rises at least this fast (normalized per s) '
+        "in the setpoint's direction. Static friction and an amplifier dead band (up to "
+        '~2.4 V uncalibrated, supervision.moving_effort) hold a wheel at rest at a creep, where '
+        'ki alone takes over a second to wind through them; this starts it within ~0.1 s, and '
+        'gives the wheel supervision an effort to judge a blocked wheel or a frozen encoder '
+        'by. 0: off. Too high: a jerk when an uncalibrated wheel breaks away.'))
+    breakaway_effort: float = setting(_pos(
+        '', 0.15, 'Break-away: the boost stops once |PI output| reaches this (normalized; '
+        'above supervision.moving_effort, so a wheel that has not moved by then is judged '
+        'frozen or blocked): it caps what a frozen encoder makes the wheel do before the '
+        'supervision latches.', hi=1.0))
 
 
 @dataclass(frozen=True)
@@ -239,9 +253,11 @@ class SupervisionParams:
         'once |PI output| (normalized, 1 = full scale) is at least this: enough to break any '
         'plausible wheel away from rest (friction takes ~0.014 on the simulated base; an '
         'uncalibrated amplifier zero and dead band up to ~2.4 V more), so a PI winding up on '
-        'a frozen reading is caught at any setpoint. Too low: an uncalibrated wheel still '
-        'breaking away trips it; too high: a frozen-from-start encoder at a creep waits for '
-        'the IMU test.', hi=1.0))
+        'a frozen reading is caught at any setpoint; the break-away boost (pi.breakaway_rate, '
+        'up to pi.breakaway_effort, which must be above this) gets a wheel that has not moved '
+        'there within ~0.1 s. Too low: an uncalibrated wheel still breaking away trips it; '
+        'too high: a wheel blocked or an encoder frozen from the start is judged late.',
+        hi=1.0))
     stall_time: float = setting(_pos(
         's', 0.2, 'A wheel not following its drive effort (stall_ratio at saturation, or '
         'effort_margin) this long latches the fault.', hi=0.3))
@@ -276,7 +292,7 @@ class SupervisionParams:
     use_imu: bool = setting(Field(
         'bool', True, "Compare the wheels' yaw rate with the IMU gyro's (fresh samples "
         'only; a stale IMU skips the test). false: an encoder frozen from the start at a creep '
-        '(below moving_effort) latches only once the PI has wound up to moving_effort.'))
+        'latches only once the PI has reached moving_effort (the break-away boost: ~0.1 s).'))
     yaw_tolerance: float = setting(_pos(
         'rad/s', 0.08, "Yaw test: |wheels' yaw rate - gyro| beyond this (plus yaw_ratio) is a "
         'symptom. Covers gyro noise and bias (myAHRS+: ~0.003 rad/s each) and the skew of '
@@ -388,4 +404,14 @@ def control_params(mapping: Mapping[str, Any] | None, path: str = 'control') -> 
                 f'{path}.e_stop.{axis}_deceleration',
                 f'must be >= {axis}.max_deceleration ({normal!r}: the e-stop may not brake '
                 f'more gently than a stale command), got {value!r}')
+    # A boost that stops below the effort the frozen test waits for would leave a blocked
+    # wheel at a creep to the slow plain PI again (1.5 s at 2 cm/s).
+    sup = params.supervision
+    if params.pi.breakaway_rate > 0.0 and sup.enabled \
+            and params.pi.breakaway_effort <= sup.moving_effort:
+        raise ControlConfigError(
+            f'{path}.pi.breakaway_effort',
+            f'must be > supervision.moving_effort ({sup.moving_effort!r}: a wheel that has '
+            f'not moved must reach the effort it is judged by), got '
+            f'{params.pi.breakaway_effort!r}')
     return params

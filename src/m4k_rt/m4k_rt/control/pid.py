@@ -36,11 +36,13 @@ class WheelSpeedPI:
     """PI speed controller with feed-forward, output saturation and anti-windup."""
 
     __slots__ = ('kp', 'ki', 'kff', 'kt', 'limit', 'anti_windup', 'integral', 'saturated',
-                 'band', '_back_calc')
+                 'band', '_back_calc', 'breakaway_rate', 'breakaway_effort',
+                 'breakaway_still')
 
     def __init__(self, kp: float, ki: float, kff: float = 0.0, *, limit: float = 1.0,
                  anti_windup: str = 'clamping', kt: float | None = None,
-                 band: float = math.inf) -> None:
+                 band: float = math.inf, breakaway_rate: float = 0.0,
+                 breakaway_effort: float = 0.0, breakaway_still: float = 0.0) -> None:
         for name, value in (('kp', kp), ('ki', ki), ('kff', kff)):
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0.0:
                 raise PidError(f'{name} must be a finite number >= 0, got {value!r}')
@@ -63,6 +65,14 @@ class WheelSpeedPI:
         self.anti_windup = anti_windup
         self.band = float(band)
         self._back_calc = anti_windup == 'back_calculation'
+        for name, value in (('breakaway_rate', breakaway_rate),
+                            ('breakaway_effort', breakaway_effort),
+                            ('breakaway_still', breakaway_still)):
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0.0:
+                raise PidError(f'{name} must be a finite number >= 0, got {value!r}')
+        self.breakaway_rate = float(breakaway_rate)
+        self.breakaway_effort = float(breakaway_effort)
+        self.breakaway_still = float(breakaway_still)   # a measured speed that is noise
         self.integral = 0.0
         self.saturated = False
 
@@ -71,13 +81,30 @@ class WheelSpeedPI:
         self.integral = 0.0
         self.saturated = False
 
-    def update(self, setpoint: float, measured: float, dt: float) -> float:
-        """Return the saturated command for one control period of ``dt`` seconds."""
+    def update(self, setpoint: float, measured: float, dt: float,
+               starting: bool = False) -> float:
+        """Return the saturated command for one control period of ``dt`` seconds.
+
+        ``starting``: the wheel has not yet been seen turning its setpoint's way (break-away).
+        """
         error = setpoint - measured
         base = self.kff * setpoint + self.kp * error
         integral = self.integral
         if (-self.band <= error <= self.band) or abs(measured) <= abs(setpoint):
             integral += self.ki * error * dt
+        s = 1.0 if setpoint > 0.0 else -1.0
+        if starting and self.breakaway_rate > 0.0 and setpoint != 0.0 \
+                and -self.breakaway_still <= measured <= self.breakaway_still:
+            # only while it reads no motion beyond a count of noise: motion its setpoint's way
+            # pauses the boost (the 3 counts that end it lag the wheel); motion the other way
+            # is a reversal (the plain PI has error enough) or an encoder counting against
+            # the effort (a sign flip, swapped channels: more effort only runs it away)
+            boosted = self.integral + s * self.breakaway_rate * dt
+            cap = s * self.breakaway_effort - base        # the integral at the capped output
+            if s > 0.0:
+                integral = max(integral, min(boosted, cap))
+            else:
+                integral = min(integral, max(boosted, cap))
         u = base + integral
         lim = self.limit
         if u > lim:

@@ -15,11 +15,15 @@ has held without a break:
   4 counts in ``frozen_time`` (0.04 rad/s at 0.15 s) and it should be turning: it was seen
   following this setpoint (a wheel that turned does not stop by itself: a magnet slipping
   mid-drive, a wheel blocked), or its effort ``|u| >= moving_effort`` (enough to break any
-  plausible wheel away from rest: the PI winding up on a reading that never moved reaches it)
-  or the other wheel follows the same way and the gyro shows less than half the turn the
-  encoders describe (the still-reading wheel turns unseen: frozen from the start, below that
-  effort) (``frozen_time``). A dead encoder, or a wheel that does not turn at all (blocked:
-  its honest encoder only shows noise, and the body turns as the encoders say);
+  plausible wheel away from rest: the PI's break-away boost gets a wheel that has not moved
+  there within ~0.1 s) (``frozen_time``); or it turns *unseen*: since it last moved (or its
+  setpoint left zero), the other wheel's counts less the gyro's integrated turn put its own
+  motion ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
+  does not make the pivot the encoders describe; integrated, so quantization cannot reset
+  it, and only over a start, so the gyro's bias cannot build up: a third of ``frozen_time``
+  confirms it, and the controller then gives that wheel no more effort than the other's).
+  A dead encoder, or a wheel that does not turn at all (blocked: its honest encoder only
+  shows noise, and the body turns as the encoders say);
 * **stall** (effort against speed): the PI output is saturated and the wheel turns at less
   than ``stall_ratio`` of its setpoint, or the effort's free-running speed ``|u| / kff``
   exceeds the measured speed in the effort's direction by ``effort_margin``: the amplifier
@@ -40,6 +44,18 @@ has held without a break:
   IMU and encoder samples (up to 20 ms at the 1.85 rad/s^2 angular limit: 0.04 rad/s); the
   ratio covers tyre slip and track-width error (a slipping wheel under a 25 % difference
   does not trip it).
+
+**Aligned in time.** The unseen and counts-against tests compare the other wheel's counts with
+the gyro's integrated turn, so both must be taken at one instant: the gyro reaches the RT side
+one hop (an IMU task period, the driver host's I2C read) after the encoders, and under load
+tens of ms later. Held and integrated per actuator cycle, a turn starting up (an arc from
+rest: the inner wheel still below break-away while the outer one drives the body round at
+1.85 rad/s^2) ran ahead in the encoders of a gyro 20 ms late by 13 counts of the still
+wheel's "own" motion, and latched a healthy wheel frozen (arc_leg_outside_0_5 under load).
+So the gyro is integrated over its samples' own acquisition stamps (:meth:`gyro`), the
+encoders kept with theirs (:meth:`encoders`), and both tests read the two at the newest instant
+both cover (``RING`` samples of each, linearly interpolated). A gap in the gyro longer than
+``GYRO_GAP_S`` restarts the integration and every window on it.
 
 A symptom that holds for its time latches the fault; a cycle without it resets its time.
 Every symptom time is *encoder* time: it advances only over cycles that brought a new
@@ -62,10 +78,16 @@ import math
 from m4k_rt.control.params import SupervisionParams
 from m4k_rt.protocol import FaultCause
 
-__all__ = ['cause_text', 'COUNT', 'ENCODER_TRUST', 'FROZEN_COUNTS', 'WheelSupervisor']
+__all__ = ['cause_text', 'COUNT', 'ENCODER_TRUST', 'FROZEN_COUNTS', 'RING', 'WheelSupervisor']
 
 COUNT = 2.0 * math.pi / 4096     # one count of the 12-bit AS5045, rad
 FROZEN_COUNTS = 3                # less motion than this is "not moving" (noise: +/-1 count)
+# A still-reading wheel that the other wheel and the gyro show turning this many counts its
+# setpoint's way turns unseen (gyro bias 0.005 rad/s over a 0.2 s start: 2.6 counts)
+UNSEEN_COUNTS = 6
+START_WINDOW = 0.3               # s after a setpoint leaves zero: the counts-against test
+RING = 32                        # encoder and gyro samples kept to align the two (0.32 s)
+GYRO_GAP_NS = 100_000_000        # a longer gap between gyro samples restarts the integration
 
 _LEFT_WRONG = int(FaultCause.LEFT_WRONG_WAY)
 _RIGHT_WRONG = int(FaultCause.RIGHT_WRONG_WAY)
@@ -100,7 +122,8 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
-                 '_frozen_min')
+                 'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
+                 '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -123,18 +146,113 @@ class WheelSupervisor:
         self._following = [False, False]   # the wheel was seen following its setpoint
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
-        self._frozen_min = 4.0 * COUNT / params.frozen_time
+        self.frozen_min = 4.0 * COUNT / params.frozen_time
+        # Unseen motion: the gyro's heading integrated over the gyro's own stamps, the
+        # encoder angles kept with theirs (rings of RING samples), and the two read at one
+        # instant ``_at`` (this wheel's angle, the other's, the heading; per wheel order
+        # [left angle, right angle, heading]); ``_epoch`` counts restarts of the heading.
+        self.unseen = [False, False]     # the wheel turns its setpoint's way, encoder still
+        self._et = [0] * RING             # encoder stamps (ns)
+        self._el = [0.0] * RING
+        self._er = [0.0] * RING
+        self._en = 0                      # encoder samples taken (ring index: _en % RING)
+        self._gt = [0] * RING             # gyro stamps (ns), this epoch
+        self._gp = [0.0] * RING           # the heading integrated up to that stamp (rad)
+        self._gn = 0                      # gyro samples taken in this epoch
+        self._g_rate = 0.0
+        self._epoch = 0
+        self._at: list[float] | None = None   # [left, right, heading] at the aligned instant
+        # per wheel, the unseen window's start [epoch, other wheel's angle, heading] and the
+        # start window's [epoch, this angle, other angle, heading] (epoch -1: not taken yet)
+        self._u_ref = [[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]
+        self._s_ref = [[-1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]]
+        self._s_age = [0.0, 0.0]
 
     @property
     def latched(self) -> bool:
         """Return True while a motor fault is latched."""
         return self.cause != 0
 
-    def encoders(self, left_angle: float, right_angle: float) -> None:
-        """Note one valid ENCODERS sample (did either angle change since the last?)."""
+    def encoders(self, left_angle: float, right_angle: float, stamp_ns: int) -> None:
+        """Note one valid ENCODERS sample taken at ``stamp_ns`` (the driver's stamp)."""
         self._fresh = True
         self._angle[0] = left_angle
         self._angle[1] = right_angle
+        if self._en and stamp_ns <= self._et[(self._en - 1) % RING]:
+            return          # not newer (a repeat): the ring keeps time order
+        i = self._en % RING
+        self._et[i] = stamp_ns
+        self._el[i] = left_angle
+        self._er[i] = right_angle
+        self._en += 1
+
+    def gyro(self, yaw_rate: float, stamp_ns: int) -> None:
+        """Note one gyro sample (rad/s about base_link z) taken at ``stamp_ns``.
+
+        The heading is integrated sample to sample (trapezoid) on the samples' own stamps; a
+        sample that is no newer than the last is the same one again and is ignored, a NaN or a
+        gap over GYRO_GAP_NS restarts the integration (a new epoch: every window on the old
+        heading restarts).
+        """
+        n = self._gn
+        if n:
+            last = self._gt[(n - 1) % RING]
+            if stamp_ns <= last:
+                return
+            if yaw_rate != yaw_rate or stamp_ns - last > GYRO_GAP_NS:
+                self._gn = n = 0
+                self._epoch += 1
+        if yaw_rate != yaw_rate:
+            return
+        i = n % RING
+        if n:
+            j = (n - 1) % RING
+            self._gp[i] = self._gp[j] + 0.5 * (yaw_rate + self._g_rate) * \
+                (stamp_ns - self._gt[j]) * 1e-9
+        else:
+            self._gp[i] = 0.0
+        self._gt[i] = stamp_ns
+        self._g_rate = yaw_rate
+        self._gn = n + 1
+
+    def _aligned(self) -> list[float] | None:
+        """Return [left angle, right angle, heading] at the newest instant both rings cover.
+
+        That instant is the older of the newest encoder and gyro stamps; the other ring is
+        interpolated there. None when the rings do not overlap (no gyro, or one too old).
+        """
+        en, gn = self._en, self._gn
+        if not en or not gn:
+            return None
+        et, gt = self._et, self._gt
+        t_e, t_g = et[(en - 1) % RING], gt[(gn - 1) % RING]
+        if t_g <= t_e:
+            k = self._find(et, en, t_g)
+            if k < 0:
+                return None
+            i, j = k % RING, (k + 1) % RING
+            f = (t_g - et[i]) / (et[j] - et[i]) if k < en - 1 else 0.0
+            el, er = self._el, self._er
+            return [el[i] + f * (el[j] - el[i]), er[i] + f * (er[j] - er[i]),
+                    self._gp[(gn - 1) % RING]]
+        k = self._find(gt, gn, t_e)
+        if k < 0:
+            return None
+        i, j = k % RING, (k + 1) % RING
+        f = (t_e - gt[i]) / (gt[j] - gt[i]) if k < gn - 1 else 0.0
+        e = (en - 1) % RING
+        return [self._el[e], self._er[e], self._gp[i] + f * (self._gp[j] - self._gp[i])]
+
+    @staticmethod
+    def _find(ts: list[int], n: int, t: int) -> int:
+        """Return the newest sample count k with ts[k % RING] <= t, or -1 (older than the ring)."""
+        k = n - 1
+        oldest = max(0, n - RING)
+        while k >= oldest:
+            if ts[k % RING] <= t:
+                return k
+            k -= 1
+        return -1
 
     def idle(self) -> None:
         """Restart every symptom time (a cycle in which the wheels are not expected to follow)."""
@@ -147,6 +265,9 @@ class WheelSupervisor:
             self._bound[k] = -1.0
             self._following[k] = False
             self._sp[k] = 0.0
+            self.unseen[k] = False
+            self._u_ref[k][0] = -1.0
+            self._s_ref[k][0] = -1.0
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
@@ -170,37 +291,66 @@ class WheelSupervisor:
         ms = p.min_speed
         kff = self._kff
         # The gyro against the turn the encoders describe: a wheel that reads still while the
-        # other turns the same way describes a turn; if the body does not make half of it,
-        # the still wheel turns unseen (frozen from the start, below moving_effort).
-        w_enc = self._r_over_track * (meas_right - meas_left)
-        unseen_turn = (p.use_imu and yaw_rate == yaw_rate and sp_left * sp_right > 0.0
-                       and yaw_rate * w_enc < 0.5 * w_enc * w_enc)
+        # other turns the same way describes a turn; if the body does not make it, the still
+        # wheel turns unseen (frozen from the start, below moving_effort). Both read at one
+        # instant (``_aligned``); without a gyro there is no evidence either way.
+        ang = self._angle
+        at = self._at = self._aligned() if p.use_imu else None
+        epoch = float(self._epoch)
         for k in (0, 1):
             sp = sp_left if k == 0 else sp_right
             m = meas_left if k == 0 else meas_right
             u = u_left if k == 0 else u_right
             sat = saturated_left if k == 0 else saturated_right
             asp = abs(sp)
+            sref = self._s_ref[k]
+            if sp * self._sp[k] <= 0.0:
+                sref[0] = -1.0                       # a new start window, taken below
+                self._s_age[k] = 0.0
+            else:
+                self._s_age[k] += dt
+            if at is not None and sref[0] != epoch:
+                sref[0], sref[1], sref[2], sref[3] = epoch, at[k], at[1 - k], at[2]
             if asp > th and ((m > ms and sp < 0.0) or (m < -ms and sp > 0.0)):
                 t[_WRONG + k] += dt
+            elif self._counts_against(k, sp):
+                t[_WRONG + k] += 3.0 * dt            # integrated evidence, as unseen below
             else:
                 t[_WRONG + k] = 0.0
+            a = ang[k]
             if sp * self._sp[k] <= 0.0:
                 self._following[k] = False      # a new setpoint direction (or zero)
+                self._u_ref[k][0] = -1.0        # and a new unseen-motion window
+                self.unseen[k] = False
             self._sp[k] = sp
-            a = self._angle[k]
             ref = self._ref[k]
             if not abs(a - ref) < FROZEN_COUNTS * COUNT:     # moved (or no reference yet)
                 if (a - ref) * sp > 0.0:
                     self._following[k] = True   # seen turning the way it is told
                 self._ref[k] = a
+                self._u_ref[k][0] = -1.0
+                self.unseen[k] = False
                 t[_FROZEN + k] = 0.0
-            elif asp >= self._frozen_min and (self._following[k]
-                                             or abs(u) >= p.moving_effort
-                                             or (unseen_turn and self._following[1 - k])):
-                t[_FROZEN + k] += dt
             else:
-                t[_FROZEN + k] = 0.0
+                uref = self._u_ref[k]
+                if at is not None:
+                    if uref[0] != epoch:
+                        uref[0], uref[1], uref[2] = epoch, at[1 - k], at[2]
+                    # this wheel's motion as the other wheel's encoder and the gyro tell it
+                    turn = (at[2] - uref[2]) / self._r_over_track
+                    own = (at[1] - uref[1] - turn) if k == 0 else (at[0] - uref[1] + turn)
+                    if own * sp >= UNSEEN_COUNTS * COUNT * asp:
+                        self.unseen[k] = True
+                if asp >= self.frozen_min and self.unseen[k]:
+                    # integrated evidence (6 counts beyond the gyro's drift), no per-cycle
+                    # noise to ride out: a third of frozen_time confirms it, before the
+                    # wheel the PI cannot see speeds up far
+                    t[_FROZEN + k] += 3.0 * dt
+                elif asp >= self.frozen_min and (self._following[k]
+                                                 or abs(u) >= p.moving_effort):
+                    t[_FROZEN + k] += dt
+                else:
+                    t[_FROZEN + k] = 0.0
             # the speed the effort would drive a free wheel at, against the speed measured in
             # the effort's direction
             excess = abs(u) / kff - (m if u >= 0.0 else -m)
@@ -210,8 +360,13 @@ class WheelSupervisor:
             else:
                 t[_STALL + k] = 0.0
             if sp == 0.0:
+                # The bound follows the wheel down (a wheel that has been slow cannot be
+                # braking from a higher speed any more) and falls at still_deceleration: a
+                # wheel braked from speed that settles on a driven creep trips it as soon as
+                # one that was slow from the start (a guard stop from 1 m/s: 1.7 s before).
                 b = self._bound[k]
-                b = abs(m) if b < 0.0 else max(b - p.still_deceleration * dt, 0.0)
+                b = abs(m) if b < 0.0 else max(min(b, abs(m) + 0.5 * p.still_speed)
+                                               - p.still_deceleration * dt, 0.0)
                 self._bound[k] = b
                 if abs(m) > b + p.still_speed:
                     t[_STILL + k] += dt
@@ -222,7 +377,12 @@ class WheelSupervisor:
                 t[_STILL + k] = 0.0
         self._fresh = False
         diff = sp_left - sp_right
-        if (diff > th or diff < -th) and (abs(sp_left) > th or abs(sp_right) > th):
+        if saturated_left or saturated_right:
+            # a wheel at its output limit cannot follow its setpoint, so being nearer the
+            # other's is no evidence (an uncalibrated base at top speed in a turn); the time
+            # stands (a true swap saturates a PI soon, after it has counted)
+            pass
+        elif (diff > th or diff < -th) and (abs(sp_left) > th or abs(sp_right) > th):
             own = abs(meas_left - sp_left) + abs(meas_right - sp_right)
             other = abs(meas_left - sp_right) + abs(meas_right - sp_left)
             t[_SWAP] = t[_SWAP] + dt if own - other > th else 0.0
@@ -247,6 +407,28 @@ class WheelSupervisor:
             self.faults += 1
             return True
         return False
+
+    def _counts_against(self, k: int, sp: float) -> bool:
+        """Return True if wheel ``k``'s encoder counts against its setpoint over a start.
+
+        Within START_WINDOW s of its setpoint leaving zero (or changing sign): it reads
+        FROZEN_COUNTS against the setpoint while the other wheel's counts less the gyro's
+        turn put its own motion UNSEEN_COUNTS the setpoint's way -- a sign flip or crossed
+        channels at a creep, below speed_threshold, where a reversal cannot be told from a
+        fault by the speed alone. Short, so the gyro's bias cannot build up; a wheel still
+        turning the old way (a reversal) reads against, but is inferred against too.
+        """
+        sref = self._s_ref[k]
+        at = self._at
+        if (sp == 0.0 or at is None or sref[0] != float(self._epoch)
+                or self._s_age[k] > START_WINDOW):
+            return False
+        turn = (at[2] - sref[3]) / self._r_over_track
+        own = (at[1] - sref[2] - turn) if k == 0 else (at[0] - sref[2] + turn)
+        if sp < 0.0:
+            return (at[k] - sref[1] >= FROZEN_COUNTS * COUNT
+                    and own <= -UNSEEN_COUNTS * COUNT)
+        return at[k] - sref[1] <= -FROZEN_COUNTS * COUNT and own >= UNSEEN_COUNTS * COUNT
 
     def reset(self) -> bool:
         """Clear the latched fault (an explicit request); return whether one was latched."""

@@ -382,7 +382,7 @@ class ActuatorBody:
         # 3. the gyro's yaw rate for the wheel supervision's cross-check; the guard (memory
         # fed first) + control
         imu_rx = state.imu_rx_ns
-        ctl.imu(state.imu_gz * self._imu_z, imu_rx)
+        ctl.imu(state.imu_gz * self._imu_z, imu_rx, state.imu_stamp_ns)
         guard = self.guard
         unknown = False
         if self._use_sonar:

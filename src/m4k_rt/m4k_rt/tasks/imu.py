@@ -54,6 +54,7 @@ class ImuBody(DeviceTaskBody):
         reader.start_cycle()
         n = 0
         gz = math.nan
+        stamp = 0
         while (got := reader.next()) is not None:
             kind = got[0].kind
             if kind == _IMU:
@@ -63,6 +64,7 @@ class ImuBody(DeviceTaskBody):
                 self._latest_view[:n] = reader.view[:n]
                 self.samples += 1
                 msg = got[1]
+                stamp = got[0].stamp_ns
                 if msg.status == _IMU_OK:
                     gz = msg.gz
                 else:
@@ -77,6 +79,7 @@ class ImuBody(DeviceTaskBody):
             self._out.forward(self._latest_view[:n])
             self.state.imu_gz = gz    # the wheel supervision's yaw cross-check (actuator)
             self.state.imu_rx_ns = now
+            self.state.imu_stamp_ns = stamp   # when the driver took it (the supervision aligns)
         self.unexpected += self._out_in.discard()   # the bridge only reads this port
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, 0)
         self.cycles += 1

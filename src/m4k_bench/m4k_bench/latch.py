@@ -1,0 +1,129 @@
+"""Wheel supervision latch times in the closed loop, in virtual time (docs/safety.md's tables).
+
+Run: ``python -m m4k_bench.latch [--seeds 1 2 3]``. Each figure is the simulated time from
+the first command (or from the moment named) to the latched motor fault, the worst over the
+seeds, from :class:`m4k_bench.virtualbase.VirtualBase` (the RT controller driving the
+simulated base: the faults are the simulator's own, judged by the supervisor without ground
+truth). Deterministic: the same seeds, the same figures; not a load-dependent measurement.
+
+Bases: ``calibrated`` (the default simulated base: no amplifier offset or dead band),
+``trim -2 codes`` (a 0.9 V dead band and both zero trims 2 codes low, as ``calibrate`` leaves
+a caster-loaded base), ``uncalibrated`` (0.9 V dead band, offsets +0.3 / -1.2 V).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any, Sequence
+
+from m4k_bench.virtualbase import VirtualBase
+
+__all__ = ['BASES', 'CREEPS', 'from_the_start', 'main', 'still_after_stop']
+
+TRIM_V = 2 * 24.0 / 511          # two DAC codes of the 24 V full scale
+BASES: dict[str, dict[str, float]] = {
+    'calibrated': {},
+    'trim -2 codes': {'amp_offset_left_v': -TRIM_V, 'amp_offset_right_v': -TRIM_V,
+                      'deadband_v': 0.9},
+    'uncalibrated': {'amp_offset_left_v': 0.3, 'amp_offset_right_v': -1.2, 'deadband_v': 0.9},
+}
+# creep motions (v m/s, w rad/s): straight, reverse, turning, in place
+CREEPS = ((0.02, 0.0), (0.05, 0.0), (-0.02, 0.0), (0.02, 0.05), (0.0, 0.1))
+
+
+def from_the_start(kind: str, wheel: str | None, v: float, w: float, seed: int,
+                   robot: dict[str, Any], limit_s: float = 3.0,
+                   imu_lag_s: float = 0.0) -> tuple[float | None, float]:
+    """Return (latch time after the first command or None, ground-truth peak speed m/s).
+
+    ``wheel``: left or right; None for a fault of both (crossed channels). ``imu_lag_s``: the
+    gyro reaches the controller this long after the encoders (VirtualBase).
+    """
+    fault: dict[str, Any] = {'at_s': 0.0, 'kind': kind}
+    if wheel is not None:
+        fault['wheel'] = wheel
+    vb = VirtualBase(world={'seed': seed, 'robot': robot, 'faults': [fault]},
+                     imu_lag_s=imu_lag_s)
+    try:
+        return vb.run(limit_s, v, w, until=vb.faulted), vb.world.peak_speed
+    finally:
+        vb.close()
+
+
+def still_after_stop(v: float, w: float, guard: bool, seed: int, offset_v: float = 1.0,
+                     limit_s: float = 3.0) -> tuple[float | None, float | None]:
+    """Stop from (v, w) with a left amplifier offset that drives the wheel at a zero command.
+
+    Return (latch time after the left setpoint reached zero, after the healthy right wheel
+    reached rest on ground truth): a ramped stop (``guard`` False) or a guard stop (the
+    forward cap zero: both setpoints zero at once, the drive brakes from speed).
+    """
+    vb = VirtualBase(world={'seed': seed, 'robot': {'amp_offset_left_v': offset_v}})
+    try:
+        vb.run(max(abs(v) / 0.37, abs(w) / 1.85) + 0.5, v, w)
+        kw: dict[str, Any] = {'forward_cap': 0.0, 'guard_active': True} if guard else {}
+        t0 = t_rest = None
+        for _ in range(round(limit_s / 0.01)):
+            vb.cycle(0.0, 0.0, **kw)
+            if t0 is None and vb.ctl.left_setpoint == 0.0:
+                t0 = vb.t
+            if t_rest is None and vb.world.state().wheel_speed[1] == 0.0:
+                t_rest = vb.t
+            if vb.faulted():
+                return (None if t0 is None else vb.t - t0,
+                        None if t_rest is None else vb.t - t_rest)
+        return None, None
+    finally:
+        vb.close()
+
+
+def _worst(values: Sequence[float | None]) -> str:
+    if any(x is None for x in values):
+        return 'none'
+    return f'{max(x for x in values if x is not None):.2f}'
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the tables (markdown)."""
+    ap = argparse.ArgumentParser(prog='latch', description=__doc__.splitlines()[0])
+    ap.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3])
+    ap.add_argument('--imu-lag', type=float, default=0.0, metavar='S',
+                    help='the gyro reaches the controller S seconds after the encoders')
+    args = ap.parse_args(argv)
+    seeds = args.seeds
+    print(f'seeds {seeds}; gyro {args.imu_lag * 1e3:g} ms behind the encoders; worst latch '
+          'time [s] after the first command, left / right wheel; peak ground-truth speed '
+          '[m/s]\n')
+    heads = ' | '.join(f'{v} m/s {w} rad/s' for v, w in CREEPS)
+    print(f'| fault from the start | base | {heads} |')
+    print('|---|---|' + '---|' * len(CREEPS))
+    for kind in ('encoder_frozen', 'wheel_stall', 'encoder_sign_flip'):
+        for name, robot in BASES.items():
+            cells = []
+            for v, w in CREEPS:
+                lr = []
+                peak = 0.0
+                for wheel in ('left', 'right'):
+                    runs = [from_the_start(kind, wheel, v, w, s, robot, imu_lag_s=args.imu_lag)
+                            for s in seeds]
+                    lr.append(_worst([r[0] for r in runs]))
+                    peak = max([peak] + [r[1] for r in runs])
+                cells.append(f'{lr[0]} / {lr[1]} ({peak:.2f})')
+            print(f'| {kind} | {name} | ' + ' | '.join(cells) + ' |', flush=True)
+    print('\nA wheel driven at a zero command (left amplifier offset): worst latch time [s] after '
+          'its setpoint reached zero / after the healthy right wheel came to rest\n')
+    print('| stop | offset 1.0 V | offset -1.0 V | offset 0.6 V |')
+    print('|---|---|---|---|')
+    for v, w, guard in ((0.02, 0.0, False), (0.25, 0.0, False), (1.0, 0.0, False),
+                        (0.0, 0.8, False), (1.0, 0.0, True), (0.25, 0.4, True)):
+        cells = []
+        for off in (1.0, -1.0, 0.6):
+            stops = [still_after_stop(v, w, guard, s, off) for s in seeds]
+            cells.append(f'{_worst([r[0] for r in stops])} / {_worst([r[1] for r in stops])}')
+        what = 'guard stop' if guard else 'ramped stop'
+        print(f'| {what} from {v} m/s {w} rad/s | ' + ' | '.join(cells) + ' |', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
