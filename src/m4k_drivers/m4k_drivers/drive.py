@@ -372,12 +372,15 @@ def _sign(x: float) -> float:
 
 
 def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], enabled: bool,
-               dt: float, mu: tuple[float, float, float, float] | None = None) -> None:
+               dt: float, mu: tuple[float, float, float, float] | None = None,
+               grade_n: float = 0.0) -> None:
     """Advance the drive by ``dt`` seconds (in place).
 
     ``volts``: each amplifier's input in armature volts; ``enabled``: the amplifier enable;
     ``mu``: (static left, static right, kinetic left, kinetic right) under each tyre now
-    (a wet patch under one wheel); None: ``rob.mu`` / ``rob.mu_kinetic`` under both.
+    (a wet patch under one wheel); None: ``rob.mu`` / ``rob.mu_kinetic`` under both;
+    ``grade_n``: gravity's pull on the body along its heading on a slope (N, + forward;
+    m4k_drivers.floor.grade_force), which the tyres' forces solve against like any other.
     """
     mu_s = (rob.mu, rob.mu) if mu is None else (mu[0], mu[1])
     mu_k = (rob.mu_kinetic, rob.mu_kinetic) if mu is None else (mu[2], mu[3])
@@ -437,13 +440,14 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
             st.wheel[i] = 0.0
             a_free[i] = p[i] = 0.0
     alpha, beta = dt / m, dt * s * s / iz
-    slip0 = [r * st.wheel[i] - st.contact_speed(i, s) for i in (LEFT, RIGHT)]
+    pull = grade_n * dt / m        # the slope's change of the body's speed over this step
+    slip0 = [r * st.wheel[i] - st.contact_speed(i, s) - pull for i in (LEFT, RIGHT)]
     kin = [_sign(slip0[i]) for i in (LEFT, RIGHT)]     # direction of a sliding tyre's force
     stuck = [not st.slipping[i] for i in (LEFT, RIGHT)]
     x = alpha - beta
     f = [0.0, 0.0]
     for _ in range(5):
-        e = [r * st.wheel[i] + r * p[i] * a_free[i] - st.contact_speed(i, s)
+        e = [r * st.wheel[i] + r * p[i] * a_free[i] - st.contact_speed(i, s) - pull
              for i in (LEFT, RIGHT)]
         d = [r * r * p[i] + alpha + beta for i in (LEFT, RIGHT)]
         for i in (LEFT, RIGHT):
@@ -474,7 +478,7 @@ def step_drive(rob: RobotParams, st: DriveState, volts: tuple[float, float], ena
     old = list(st.wheel)
     for i in (LEFT, RIGHT):
         st.wheel[i] = old[i] + p[i] * (a_free[i] - f[i] * r)
-    st.v += alpha * (f[0] + f[1])
+    st.v += alpha * (f[0] + f[1]) + pull
     st.w += dt * s * (f[1] - f[0]) / iz
     for i in (LEFT, RIGHT):
         # A sliding tyre grips again when its slip has run out (reached or crossed zero).

@@ -7,8 +7,13 @@ last patch listed wins where patches overlap::
 
     floor:
       - {rectangle: [1.0, -0.5, 2.0, 0.0], mu: 0.15, mu_kinetic: 0.1}   # water on tiles
+      - {rectangle: [0.0, -2.0, 6.0, 2.0], mu: 0.6, grade_deg: 4.8, downhill_deg: 0.0}  # a ramp
 
-Wet smooth tiles: mu 0.1-0.3; polished concrete: 0.4-0.5 (docs/sim-physics.md). Each key is
+Wet smooth tiles: mu 0.1-0.3; polished concrete: 0.4-0.5 (docs/sim-physics.md). A patch may
+slope: ``grade_deg`` (a wheelchair ramp is at most 4.8 deg, 1:12) falling toward the world
+direction ``downhill_deg``. Where base_link is on it, gravity pulls the body along its heading
+with ``m g sin(grade) cos(yaw - downhill)`` (:func:`grade_force`); the pull across the heading
+(the tyres hold it), the load's cos(grade) and the IMU's tilt are not modelled. Each key is
 declared once, in :data:`PATCH`.
 """
 
@@ -20,7 +25,7 @@ from typing import Any
 
 from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
 
-__all__ = ['FloorError', 'PATCH', 'Patch', 'parse_floor', 'wheel_mu']
+__all__ = ['FloorError', 'grade_force', 'PATCH', 'Patch', 'parse_floor', 'wheel_mu']
 
 
 class FloorError(ConfigError):
@@ -34,6 +39,10 @@ PATCH: dict[str, Field] = {
                 hi=1.5),
     'mu_kinetic': Field('float', None, 'Sliding friction on the patch (<= mu); null: mu.',
                         lo=0, lo_open=True, hi=1.5, nullable=True),
+    'grade_deg': Field('float', 0.0, 'The patch slopes this steeply (0: level).', unit='deg',
+                       lo=0, hi=15.0),
+    'downhill_deg': Field('float', 0.0, 'The world-frame direction the slope falls toward '
+                          '(0: +x).', unit='deg', lo=-360.0, hi=360.0),
 }
 
 
@@ -47,6 +56,8 @@ class Patch:
     ymax: float
     mu: float
     mu_kinetic: float
+    grade: float = 0.0           # rad
+    downhill: float = 0.0        # rad, world frame
 
     def contains(self, x: float, y: float) -> bool:
         """Return True when (x, y) is on the patch."""
@@ -71,7 +82,8 @@ def parse_floor(data: Any, where: str = 'world.floor') -> tuple[Patch, ...]:
         mk = mu if v['mu_kinetic'] is None else float(v['mu_kinetic'])
         if mk > mu:
             raise FloorError(f'{at}.mu_kinetic', f'must be <= mu ({mu!r}), got {mk!r}')
-        out.append(Patch(x0, y0, x1, y1, mu, mk))
+        out.append(Patch(x0, y0, x1, y1, mu, mk, math.radians(float(v['grade_deg'])),
+                         math.radians(float(v['downhill_deg']))))
     return tuple(out)
 
 
@@ -90,3 +102,15 @@ def wheel_mu(patches: tuple[Patch, ...], x: float, y: float, yaw: float, half_tr
             if patch.contains(wx, wy):
                 out[side], out[2 + side] = patch.mu, patch.mu_kinetic
     return out[0], out[1], out[2], out[3]
+
+
+def grade_force(patches: tuple[Patch, ...], x: float, y: float, yaw: float,
+                weight_n: float) -> float:
+    """Return gravity's pull along the heading (N, + forward) where base_link is at (x, y).
+
+    The last sloping patch listed that holds the point wins; off every slope: 0.
+    """
+    for patch in reversed(patches):
+        if patch.grade and patch.contains(x, y):
+            return weight_n * math.sin(patch.grade) * math.cos(yaw - patch.downhill)
+    return 0.0

@@ -47,6 +47,7 @@ import numpy as np
 
 from m4k_drivers.drive import (
     DriveState,
+    G,
     LEFT,
     parse_robot,
     RIGHT,
@@ -55,7 +56,7 @@ from m4k_drivers.drive import (
     WorldConfigError,
 )
 from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
-from m4k_drivers.floor import FloorError, parse_floor, Patch, wheel_mu
+from m4k_drivers.floor import FloorError, grade_force, parse_floor, Patch, wheel_mu
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
 from m4k_rt.control.footprint import outline
 from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
@@ -515,7 +516,10 @@ class World:
         enabled = self.drive_enabled()
         idle = not enabled or (rob.effective_volts(LEFT, self._volts[0]) == 0.0
                                and rob.effective_volts(RIGHT, self._volts[1]) == 0.0)
-        if (idle and drv.v == 0.0 and drv.w == 0.0 and drv.wheel[0] == 0.0
+        pose = self._pose
+        grade = (grade_force(self.config.floor, pose.x, pose.y, pose.yaw, rob.mass_kg * G)
+                 if self.config.floor else 0.0)
+        if (idle and grade == 0.0 and drv.v == 0.0 and drv.w == 0.0 and drv.wheel[0] == 0.0
                 and drv.wheel[1] == 0.0):
             self._accel = 0.0
             if self.rest_since_ns is None:
@@ -534,10 +538,9 @@ class World:
         v_old, w_old = drv.v, drv.w
         mu = None
         if self.config.floor:
-            pose = self._pose
             mu = wheel_mu(self.config.floor, pose.x, pose.y, pose.yaw, rob.track_width_m / 2.0,
                           rob.mu, rob.mu_kinetic)
-        step_drive(rob, drv, (self._volts[0], self._volts[1]), enabled, dt, mu)
+        step_drive(rob, drv, (self._volts[0], self._volts[1]), enabled, dt, mu, grade)
         v = 0.5 * (v_old + drv.v)
         w = 0.5 * (w_old + drv.w)
         x, y, th = self._pose

@@ -254,3 +254,57 @@ def test_a_drive_between_running_and_break_away_friction_keeps_a_wheel_turning_n
         w2.set_motor_voltage(side, volts)                # ...then the same volts
     _run(w2, clock2, 2.0)
     assert w2.state().v > 0.0                            # rolls on: above running friction
+
+
+def _ramp_world(grade_deg, robot=COAST):
+    cfg = WorldConfig.from_dict({'walls': {'rectangle': [-50, -50, 50, 50]}, 'obstacles': [],
+                                 'floor': [{'rectangle': [-40.0, -40.0, 40.0, 40.0], 'mu': 0.8,
+                                            'grade_deg': grade_deg, 'downhill_deg': 0.0}]},
+                                robot=robot)
+    clock = FakeClock()
+    return World(cfg, clock=clock, t0_ns=0), clock
+
+
+def test_parked_on_a_ramp_the_robot_rolls_only_where_gravity_beats_its_friction():
+    # enable off, no brake wired: gravity's pull m g sin(grade) against the drive train's
+    # dry friction (break-away at rest, running once it rolls)
+    rob = COAST
+    hold = 2.0 * rob.breakaway_torque_nm / rob.wheel_radius_m + 2.0 * rob.rolling_force_n \
+        + rob.caster_force_n
+    held = math.degrees(math.asin(0.5 * hold / (rob.mass_kg * G)))
+    rolls = math.degrees(math.asin(min(1.0, 2.0 * hold / (rob.mass_kg * G))))
+    for grade, moves in ((held, False), (rolls, True)):
+        w, clock = _ramp_world(grade)
+        w.set_enable_until(0)
+        _run(w, clock, 1.0)
+        s = w.state()
+        assert (s.pose.x > 0.01) == moves, (grade, s.pose.x)
+        if moves:                      # downhill (+x), never faster than free fall along it
+            assert 0.0 < s.v < G * math.sin(math.radians(grade)) * 1.0
+
+
+def test_a_zero_word_brakes_less_downhill_by_the_slope_s_pull():
+    # the drive brakes on its back-EMF at the amplifier's current limit; on a ramp down, the
+    # ground truth's deceleration is less by g sin(grade) (4.8 deg: 0.82 m/s^2)
+    peaks = []
+    volts = None
+    for grade in (0.0, 4.8):
+        w, clock = _ramp_world(grade, RobotParams())
+        if volts is None:
+            volts = _drive_to(w, clock, 1.0)
+        else:                          # the same volts: downhill it runs a little faster
+            for side in (LEFT, RIGHT):
+                w.set_motor_voltage(side, volts)
+            _run(w, clock, 4.0)
+        for side in (LEFT, RIGHT):
+            w.set_motor_voltage(side, 0.0)
+        v0 = w.state().v
+        _run(w, clock, 0.1)
+        peaks.append((v0 - w.state().v) / 0.1)
+    assert peaks[0] - peaks[1] == pytest.approx(G * math.sin(math.radians(4.8)), rel=0.1)
+
+
+def test_a_bad_grade_is_refused_naming_the_field():
+    with pytest.raises(WorldConfigError, match=r'world\.floor\[0\]\.grade_deg'):
+        WorldConfig.from_dict({'floor': [{'rectangle': [0, 0, 1, 1], 'mu': 0.5,
+                                          'grade_deg': 30.0}]})
