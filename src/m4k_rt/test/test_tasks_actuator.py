@@ -319,3 +319,32 @@ def test_the_guards_corridor_takes_in_the_wheels_outside_the_body(rig, m4k_runti
     ranges[i] = round(math.hypot(3.0, 0.21) * 1000)
     assert corridor.minimum(-math.radians(120.0), inc, 0.02, 5.6, ranges) == pytest.approx(
         3.0 - 0.225, abs=0.01)
+
+
+def test_a_cycle_that_raises_brakes_then_cuts_the_enable_and_stays_failed(rig):
+    # a defect inside the body (here: the guard's memory raising) must not leave the last
+    # WHEEL_CMD driving until the heartbeat times out, nor resume on a suspect state
+    body, motor, state = build(rig)
+    t = run(rig, body, motor, 0, 1)
+    t = run(rig, body, motor, t, 150, cmd=(0.5, 0.0))
+    assert motor.commands[-1].enable == 1 and motor.commands[-1].left_code > 512
+    class Broken:
+        def __getattr__(self, name):
+            raise ZeroDivisionError(name)
+
+    real, body.feed = body.feed, Broken()
+    with pytest.raises(ZeroDivisionError):
+        body(ctx(t + PERIOD))
+    t += PERIOD
+    motor.serve(t + 2 * MS)
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)   # category 1: the zero word brakes
+    assert state.mode == MODE_FAULT
+    body.feed = real                                        # the defect is gone: still failed
+    bound = body.ctl.fault_brake_ns // PERIOD
+    t = run(rig, body, motor, t, bound - 2, cmd=(0.5, 0.0))
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 1)
+    t = run(rig, body, motor, t, 3, cmd=(0.5, 0.0))
+    assert motor.commands[-1] == p.WheelCmd(512, 512, 0)   # then the enable drops
+    run(rig, body, motor, t, 50, cmd=(0.5, 0.0))
+    assert all(c == p.WheelCmd(512, 512, 0) for c in motor.commands[-50:])
+    assert state.mode == MODE_FAULT and body.counters['failed_cycles'] == 1 + (bound - 2) + 3 + 50

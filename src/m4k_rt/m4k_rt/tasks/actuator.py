@@ -39,7 +39,8 @@ import time
 from typing import Any, Callable, Mapping
 
 from m4k_rt.config import shipped_period_s, TaskConfig
-from m4k_rt.control.base import BaseController
+from m4k_rt.control.base import BaseController, MODE_FAULT
+from m4k_rt.control.dac import DAC_ZERO
 from m4k_rt.control.footprint import half_width_of
 from m4k_rt.control.guard import (
     body_front,
@@ -298,6 +299,8 @@ class ActuatorBody:
         self._odom_flags = 0
         self.cycles = 0
         self.unexpected = 0          # valid datagrams of a kind this port does not carry
+        self.failed_ns = 0           # when a cycle first raised (0: never); latched
+        self.failed_cycles = 0       # cycles run in that failed state
 
     @property
     def counters(self) -> Mapping[str, int]:
@@ -316,10 +319,42 @@ class ActuatorBody:
                 'near_points': self.feed.near.used, 'turn_stops': self.turn.stops,
                 'e_stop_engagements': c.estop.engagements, 'e_stop_releases': c.estop.releases,
                 'commands_blocked': c.commands_blocked, 'pose_resets': c.pose_resets,
-                'motor_faults': c.supervisor.faults, 'fault_resets': c.fault_resets}
+                'motor_faults': c.supervisor.faults, 'fault_resets': c.fault_resets,
+                'failed_cycles': self.failed_cycles}
 
     def __call__(self, ctx: CycleContext | None = None) -> None:
-        """Run one actuator cycle (``ctx.t_start`` is the cycle's start time when given)."""
+        """Run one actuator cycle (``ctx.t_start`` is the cycle's start time when given).
+
+        A cycle that raises latches the body failed: the outputs computed so far cannot be
+        trusted, nor the state the next cycle would start from. From that cycle on, without
+        touching the controller, it sends the zero word with the enable on (the amplifier
+        brakes on the back-EMF) for the braking time bound, then with the enable off -- the
+        category-1 stop of a fault (docs/safety.md) -- reports mode ``fault``, and drains its
+        ports. Only a restart of rt_core ends it. The exception is raised on to the task, which
+        counts it and names it in TASK_HEALTH (``body_errors``, ``last_error``).
+        """
+        if self.failed_ns:
+            self._failed_cycle(ctx)
+            return
+        try:
+            self._cycle(ctx)
+        except Exception:
+            now = ctx.t_start if ctx is not None else self._clock()
+            self.failed_ns = now or 1
+            self._failed_cycle(ctx)
+            raise
+
+    def _failed_cycle(self, ctx: CycleContext | None) -> None:
+        """Brake, then cut the enable; never the controller (its state is suspect)."""
+        now = ctx.t_start if ctx is not None else self._clock()
+        enable = 1 if now - self.failed_ns < self.ctl.fault_brake_ns else 0
+        self._motor_out.send(_WHEEL_CMD, now, DAC_ZERO, DAC_ZERO, enable)
+        self._motor_in.discard()
+        self._cmd_in.discard()
+        self.state.mode = MODE_FAULT
+        self.failed_cycles += 1
+
+    def _cycle(self, ctx: CycleContext | None) -> None:
         now = ctx.t_start if ctx is not None else self._clock()
         ctl = self.ctl
         state = self.state
