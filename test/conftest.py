@@ -4,11 +4,11 @@ The workspace tests are the end-to-end tier: every module here is marked ``e2e``
 stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODULES`, which
 ``make check`` runs with the packages' unit tests. A new module is end to end unless listed.
 
-``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams side by side: the
+``make test`` (tools/run-tests.sh) runs the end-to-end tier in four streams side by side: the
 modules in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's
-priority and rights, and the rest in two streams confined to nice 19 without the right to
+priority and rights, and the rest in three streams confined to SCHED_IDLE without the right to
 SCHED_FIFO or locked memory -- the modules in :data:`AFTER_PACKAGES` after the package tier,
-every other one (a new module too) from the start.
+those in :data:`SECOND_E2E`, and every other one (a new module too).
 """
 
 import pytest
@@ -33,17 +33,20 @@ SERIAL_MODULES = frozenset({
     'test_fleet', 'test_fuzz_xddp',
 })
 
-# The second low-priority stream's modules, run after the package tier (balanced on the
-# measured times of a fresh clone's run: docs/testing.md).
-AFTER_PACKAGES = frozenset({
-    'test_bench_smoke', 'test_doctor_fleet', 'test_launch_ros_args', 'test_record_e2e',
-    'test_faults_e2e', 'test_two_machines',
+# The confined streams beside the serial one, balanced on the measured times of a fresh
+# clone's run (docs/testing.md): the package tier then AFTER_PACKAGES; SECOND_E2E; every other
+# module (a new one too).
+AFTER_PACKAGES = frozenset({'test_bench_smoke'})
+SECOND_E2E = frozenset({
+    'test_doctor', 'test_doctor_fleet', 'test_faults_e2e', 'test_foxglove_e2e',
+    'test_host_drops_e2e', 'test_launch_ros_args', 'test_record_e2e', 'test_two_machines',
 })
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test of a module outside :data:`UNIT_MODULES` ``e2e``, and those of
-    :data:`SERIAL_MODULES` ``serial`` and of :data:`AFTER_PACKAGES` ``after_packages``."""
+    :data:`SERIAL_MODULES` ``serial``, of :data:`AFTER_PACKAGES` ``after_packages`` and of
+    :data:`SECOND_E2E` ``second_e2e``."""
     for item in items:
         if item.path.stem not in UNIT_MODULES:
             item.add_marker(pytest.mark.e2e)
@@ -51,3 +54,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.serial)
         if item.path.stem in AFTER_PACKAGES:
             item.add_marker(pytest.mark.after_packages)
+        if item.path.stem in SECOND_E2E:
+            item.add_marker(pytest.mark.second_e2e)
