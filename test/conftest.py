@@ -6,7 +6,7 @@ stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODUL
 
 ``make test`` (tools/run-tests.sh) runs the end-to-end tier in four streams side by side: the
 modules in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's
-priority and rights, and the rest in three streams confined to SCHED_IDLE without the right to
+priority and rights, and the rest in three streams confined to nice 19 without the right to
 SCHED_FIFO or locked memory -- the modules in :data:`AFTER_PACKAGES` after the package tier,
 those in :data:`SECOND_E2E`, and every other one (a new module too).
 """

@@ -12,12 +12,13 @@
 #            workspace modules in test/conftest.py AFTER_PACKAGES;
 #   second_e2e  the workspace modules in test/conftest.py SECOND_E2E;
 #   e2e      every other workspace module.
-# The last three are confined (`confined` below): SCHED_IDLE at nice 19, without the right to
-# SCHED_FIFO or locked memory (RLIMIT_RTPRIO 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped),
-# so the RT threads of their stacks run as ordinary threads and the serial stream's stack
-# preempts any of them at once; rt_core reports the refusal (hardening DEGRADED) and runs on.
-# With the other streams only niced (their stacks' SCHED_FIFO threads above everything) two
-# physics-judged tests failed on the load (docs/testing.md).
+# The last three are confined (`confined` below): nice 19, without the right to SCHED_FIFO or
+# locked memory (RLIMIT_RTPRIO 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT
+# threads of their stacks run as ordinary threads, below the serial stream's stack; rt_core
+# reports the refusal (hardening DEGRADED) and runs on. With the other streams only niced
+# (their stacks' SCHED_FIFO threads above everything) two physics-judged tests failed on the
+# load; SCHED_IDLE instead of nice 19 starved them into failures of their own
+# (docs/testing.md).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 markers='not hardware'
@@ -77,17 +78,15 @@ else
     python -m pytest -q -p no:cacheprovider --basetemp="$tmp/$name" \
       --junitxml="build/workspace_test/test_results/$name/pytest.xml" "$@"
   }
-  # confined <command...>: run it under SCHED_IDLE at nice 19, without the right to real-time
-  # scheduling or locked memory, for it and every process it starts (a lowered hard limit and a
-  # dropped bounding-set capability are inherited and cannot be taken back). SCHED_IDLE, not
-  # only nice: a waking thread of the serial stream preempts an idle-policy one at once. (A
-  # thread under it cannot go back to SCHED_OTHER either: RLIMIT_NICE is 0.)
+  # confined <command...>: run it at nice 19 without the right to real-time scheduling or
+  # locked memory, for it and every process it starts (a lowered hard limit and a dropped
+  # bounding-set capability are inherited and cannot be taken back).
   confined() {
     local drop=()
     if (( EUID == 0 )); then
       drop=(setpriv --inh-caps=-sys_nice,-ipc_lock --bounding-set=-sys_nice,-ipc_lock --)
     fi
-    nice -n 19 prlimit --rtprio=0:0 chrt --idle 0 "${drop[@]}" "$@"
+    nice -n 19 prlimit --rtprio=0:0 "${drop[@]}" "$@"
   }
   serial_stream() {
     export ROS_DOMAIN_ID=$base

@@ -37,8 +37,8 @@ def test_timerfd_rejects_bad_times_and_closed_use():
 
 def test_set_thread_fifo_applies_to_calling_thread_only():
     seen = {}
-    # The caller's own policy, whatever it is (make test runs the package tier under
-    # SCHED_IDLE, without the right to SCHED_FIFO: tools/run-tests.sh).
+    # The caller's own policy, whatever it is (SCHED_IDLE, say, where a thread without
+    # CAP_SYS_NICE cannot go back to SCHED_OTHER).
     before = sched.thread_policy()
 
     def worker():
