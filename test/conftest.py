@@ -4,11 +4,11 @@ The workspace tests are the end-to-end tier: every module here is marked ``e2e``
 stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODULES`, which
 ``make check`` runs with the packages' unit tests. A new module is end to end unless listed.
 
-``make test`` (tools/run-tests.sh) runs the end-to-end tier in four streams side by side: the
+``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams side by side: the
 modules in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's
-priority and rights, and the rest in three streams confined to nice 19 without the right to
+priority and rights, and the rest in two streams confined to nice 19 without the right to
 SCHED_FIFO or locked memory -- the modules in :data:`AFTER_PACKAGES` after the package tier,
-those in :data:`SECOND_E2E`, and every other one (a new module too).
+every other one (a new module too) from the start.
 """
 
 import pytest
@@ -22,31 +22,28 @@ UNIT_MODULES = frozenset({
 })
 
 # A stop judged against its line or a drive against its limits, on the simulator's ground
-# truth: a stack starved of CPU stops later, so these never share the machine with each other
-# (the confined streams beside them use its idle time, and their stacks' RT threads run
-# without SCHED_FIFO). test_fuzz_xddp is here for its rights: it asserts that rt_core got
-# SCHED_FIFO and locked memory, which the confined streams do not grant. The kill, e-stop and
-# cut-link tests judge states (at rest, stays there, nothing moves it), not times, and run in
-# the other streams.
+# truth, or a stack that must first run calm (no host drop in the window, a kill while at
+# speed): a stack starved of CPU stops later or drops commands, so these never share the
+# machine with each other (the confined streams beside them use its idle time, and their
+# stacks' RT threads run without SCHED_FIFO). test_fuzz_xddp is here for its rights: it asserts
+# that rt_core got SCHED_FIFO and locked memory, which the confined streams do not grant. A
+# test elsewhere can be marked ``serial`` on its own (test_faults_devices' watchdog).
 SERIAL_MODULES = frozenset({
     'test_scenarios', 'test_demo', 'test_stack_e2e', 'test_tasks_e2e', 'test_tf_e2e',
-    'test_fleet', 'test_fuzz_xddp',
+    'test_fleet', 'test_fuzz_xddp', 'test_host_drops_e2e', 'test_faults_e2e',
 })
 
-# The confined streams beside the serial one, balanced on the measured times of a fresh
-# clone's run (docs/testing.md): the package tier then AFTER_PACKAGES; SECOND_E2E; every other
-# module (a new one too).
-AFTER_PACKAGES = frozenset({'test_bench_smoke'})
-SECOND_E2E = frozenset({
-    'test_doctor', 'test_doctor_fleet', 'test_faults_e2e', 'test_foxglove_e2e',
-    'test_host_drops_e2e', 'test_launch_ros_args', 'test_record_e2e', 'test_two_machines',
+# The package tier's confined stream runs these after it; every other module (a new one too)
+# is the e2e stream's. Balanced on the measured per-file times (docs/testing.md).
+AFTER_PACKAGES = frozenset({
+    'test_bench_smoke', 'test_doctor_fleet', 'test_launch_ros_args', 'test_record_e2e',
+    'test_two_machines', 'test_foxglove_rights_e2e',
 })
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test of a module outside :data:`UNIT_MODULES` ``e2e``, and those of
-    :data:`SERIAL_MODULES` ``serial``, of :data:`AFTER_PACKAGES` ``after_packages`` and of
-    :data:`SECOND_E2E` ``second_e2e``."""
+    :data:`SERIAL_MODULES` ``serial`` and of :data:`AFTER_PACKAGES` ``after_packages``."""
     for item in items:
         if item.path.stem not in UNIT_MODULES:
             item.add_marker(pytest.mark.e2e)
@@ -54,5 +51,3 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.serial)
         if item.path.stem in AFTER_PACKAGES:
             item.add_marker(pytest.mark.after_packages)
-        if item.path.stem in SECOND_E2E:
-            item.add_marker(pytest.mark.second_e2e)

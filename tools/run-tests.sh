@@ -4,15 +4,14 @@
 # marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
 # static checks listed in test/conftest.py) -- the fast loop while editing; its three tiers run
 # side by side.
-# `make test` runs four streams side by side, each on its own ROS domain and temp directory:
+# `make test` runs three streams side by side, each on its own ROS domain and temp directory:
 #   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
 #            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
 #            at the caller's priority and with its rights (SCHED_FIFO, locked memory);
 #   packages lint beside colcon test of every package (less its serial tests), then the
 #            workspace modules in test/conftest.py AFTER_PACKAGES;
-#   second_e2e  the workspace modules in test/conftest.py SECOND_E2E;
 #   e2e      every other workspace module.
-# The last three are confined (`confined` below): nice 19, without the right to SCHED_FIFO or
+# The last two are confined (`confined` below): nice 19, without the right to SCHED_FIFO or
 # locked memory (RLIMIT_RTPRIO 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT
 # threads of their stacks run as ordinary threads, below the serial stream's stack; rt_core
 # reports the refusal (hardening DEGRADED) and runs on. With the other streams only niced
@@ -114,29 +113,20 @@ else
   }
   e2e_stream() {
     export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
-    local m="$markers and not serial and not after_packages and not second_e2e"
+    local m="$markers and not serial and not after_packages"
     echo "== workspace tests (-m '$m') =="
     run_pytest e2e test -m "$m"
   }
-  second_e2e_stream() {
-    export ROS_DOMAIN_ID=$(( (base + 2) % 100 + 1 ))
-    local m="$markers and not serial and second_e2e"
-    echo "== workspace tests, the second end-to-end stream (-m '$m') =="
-    run_pytest second_e2e test -m "$m"
-  }
-  export -f lint packages run_pytest packages_stream e2e_stream second_e2e_stream
+  export -f lint packages run_pytest packages_stream e2e_stream
   export tmp markers base
   confined bash -c packages_stream >"$tmp/packages.log" 2>&1 & packages_pid=$!
   confined bash -c e2e_stream >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
-  confined bash -c second_e2e_stream >"$tmp/second_e2e.log" 2>&1 & second_pid=$!
   serial_stream >"$tmp/serial.log" 2>&1 || rc=1
   wait $packages_pid || rc=1
   echo "== lint, colcon test, then the workspace modules after the packages =="
   cat "$tmp/packages.log"
   wait $e2e_pid || rc=1
   cat "$tmp/e2e.log"
-  wait $second_pid || rc=1
-  cat "$tmp/second_e2e.log"
   cat "$tmp/serial.log"
   rm -rf "$tmp"
 fi

@@ -176,9 +176,11 @@ def test_rt_status_guard_follows_an_obstacle_reading(procs, tmp_path, peers):
 
 def test_monitor_forwards_each_device_status_and_marks_a_silent_one_stale(procs, tmp_path,
                                                                          peers):
+    # Before rt_core starts: a cycle released before the first report was written may read it
+    # late on a loaded machine, and stamps it with its own time.
+    t0 = monotonic_ns()
     proc = _start_fast(procs, tmp_path, {}, {'device_stale_s': 1.0})
     link = peers('status', 'motor', 'imu')
-    t0 = monotonic_ns()
     link.write('imu', p.Kind.DEVICE_STATUS, 'imu', 3, p.LEVEL_OK, 0, 0)   # once, then silent
 
     def motor_reports():                     # every cycle of the test loop (20 ms)
