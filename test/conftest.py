@@ -22,22 +22,24 @@ UNIT_MODULES = frozenset({
 })
 
 # A stop judged against its line or a drive against its limits, on the simulator's ground
-# truth, or a stack that must first run calm (no host drop in the window, a kill while at
-# speed): a stack starved of CPU stops later or drops commands, so these never share the
-# machine with each other (the confined streams beside them use its idle time, and their
-# stacks' RT threads run without SCHED_FIFO). test_fuzz_xddp is here for its rights: it asserts
-# that rt_core got SCHED_FIFO and locked memory, which the confined streams do not grant. A
-# test elsewhere can be marked ``serial`` on its own (test_faults_devices' watchdog).
+# truth, or a stack that must first run calm (no host drop in the window): a stack starved of
+# CPU stops later or drops commands, so these never share the machine with each other (the
+# confined streams beside them use its idle time, and their stacks' RT threads run without
+# SCHED_FIFO). test_fuzz_xddp and test_bench_smoke are here for their rights: rt_core got
+# SCHED_FIFO and locked memory, cyclictest and the bench's RT loops ran, which the confined
+# streams do not grant. A test elsewhere can be marked ``serial`` on its own
+# (test_faults_devices' watchdog). The fleet and the odometry against ground truth assert
+# directions, states and identities at rest, which hold on a loaded machine: confined.
 SERIAL_MODULES = frozenset({
-    'test_scenarios', 'test_demo', 'test_stack_e2e', 'test_tasks_e2e', 'test_tf_e2e',
-    'test_fleet', 'test_fuzz_xddp', 'test_host_drops_e2e', 'test_faults_e2e',
+    'test_scenarios', 'test_demo', 'test_stack_e2e', 'test_tasks_e2e', 'test_fuzz_xddp',
+    'test_host_drops_e2e', 'test_bench_smoke',
 })
 
 # The package tier's confined stream runs these after it; every other module (a new one too)
 # is the e2e stream's. Balanced on the measured per-file times (docs/testing.md).
 AFTER_PACKAGES = frozenset({
-    'test_bench_smoke', 'test_doctor_fleet', 'test_launch_ros_args', 'test_record_e2e',
-    'test_two_machines', 'test_foxglove_rights_e2e',
+    'test_doctor_fleet', 'test_faults_e2e', 'test_fleet', 'test_foxglove_rights_e2e',
+    'test_launch_ros_args', 'test_record_e2e', 'test_tf_e2e', 'test_two_machines',
 })
 
 
