@@ -302,8 +302,10 @@ def test_bridge_kill_alone_the_rt_actuator_brakes_the_robot_on_its_own(
             probe.until(lambda: abs((ground_truth(m4k_runtime_dir) or {}).get('v', 0.0)) > 0.2,
                         60, 'simulated robot at speed (kill {})'.format(k), lin=lin)
             probe.pump(rng.uniform(0.0, 1.0), lin=lin)
-            moving = ground_truth(m4k_runtime_dir)
-            assert abs(moving['v']) > 0.2, moving
+            # The kill lands while it drives: a stack starved in that phase may have braked on
+            # late commands (its fail-safe), so it drives up to speed again first.
+            probe.until(lambda: abs((ground_truth(m4k_runtime_dir) or {}).get('v', 0.0)) > 0.2,
+                        60, 'simulated robot at speed before kill {}'.format(k), lin=lin)
             old = children(bu.pid)['bridge']
             t_kill = time.monotonic_ns()
             os.kill(old, signal.SIGKILL)

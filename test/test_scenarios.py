@@ -345,10 +345,12 @@ def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(name, tmp_pat
     env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
     res = run_scenario(sc, str(tmp_path), short=True, env=env)
     assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
-    # for the intended reason: it reached the obstacle and stopped late -- past the stop line
-    # at its speed of the moment (the creep of a slow-down approach: seen at 0.10-0.12 m/s on
-    # wall_0_5), or at rest inside the distance the guard promises -- not "its trigger never
-    # happened" (a robot that never got near it proves nothing)
+    # for the intended reason: it reached the obstacle and stopped late (not "its trigger
+    # never happened": a robot that never got near it proves nothing) -- past its stop line
+    # further than its reaction allows, or at rest inside the distance the guard promises.
+    # Which of the two obligations catches it depends on the speed it came in at, which the
+    # slow-down zone and the CPU the stack gets decide (a fresh clone's make test at 1b559d6:
+    # in at 0.10 m/s, 0.067 m past the line, at rest outside stop_distance).
     assert not any('never' in f for f in res.failures), res.failures
     assert any("inside the guard's stop_distance" in f or 'past the stop line' in f
                for f in res.failures), res.failures

@@ -37,6 +37,9 @@ def _wait(robot, pred, what, timeout_s=20.0):
         time.sleep(0.01)
 
 
+# A jog under way, then the host frozen within the heartbeat's hold, in wall-clock time: run
+# alone, with the rights (make test's serial stream); starved, the jog never got under way.
+@pytest.mark.serial
 def test_sigstop_of_the_driver_host_drops_the_enable_within_the_hold(sim_robot, procs):
     hold_s = sim_robot.cfg.devices['motor']['heartbeat_hold_s']
     host = procs.start(['python', '-m', 'm4k_drivers.host', '--device', 'motor', '--jog',

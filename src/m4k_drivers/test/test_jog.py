@@ -134,6 +134,9 @@ def test_cli_refuses_over_cap_and_wrong_device(capsys):
     assert '--device motor alone' in capsys.readouterr().err
 
 
+# The simulator's wheel in wall-clock time: run alone, with the rights (make test's serial
+# stream, tools/run-tests.sh); starved beside three streams it did not turn in the jog's time.
+@pytest.mark.serial
 def test_cli_jog_on_the_sim_backend(capsys, sim_robot):
     # 1 s of real time: ~1.5 rad at 0.1 of full scale, far beyond the verdict's 0.05 rad
     # threshold however late a loaded machine runs the first commands (0.3 s was not).

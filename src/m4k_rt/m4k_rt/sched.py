@@ -157,14 +157,19 @@ def set_thread_fifo(priority: int) -> None:
 
 
 def set_thread_other() -> None:
-    """Put the calling thread back under SCHED_OTHER (always allowed)."""
+    """Put the calling thread back under SCHED_OTHER.
+
+    Always allowed from SCHED_FIFO; from SCHED_IDLE only with CAP_SYS_NICE or an RLIMIT_NICE
+    that allows the thread's nice value.
+    """
     os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 def thread_policy() -> tuple[str, int]:
     """Return the calling thread's (policy name, priority)."""
     pol = os.sched_getscheduler(0)
-    names = {os.SCHED_FIFO: 'SCHED_FIFO', os.SCHED_RR: 'SCHED_RR', os.SCHED_OTHER: 'SCHED_OTHER'}
+    names = {os.SCHED_FIFO: 'SCHED_FIFO', os.SCHED_RR: 'SCHED_RR', os.SCHED_OTHER: 'SCHED_OTHER',
+             os.SCHED_BATCH: 'SCHED_BATCH', os.SCHED_IDLE: 'SCHED_IDLE'}
     return names.get(pol, str(pol)), os.sched_getparam(0).sched_priority
 
 

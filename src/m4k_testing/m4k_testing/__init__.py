@@ -114,7 +114,7 @@ def pytest_configure(config: pytest.Config) -> None:
         'these one at a time at normal priority, the rest beside them at a lower one')
     config.addinivalue_line(
         'markers', 'after_packages: a workspace module make test runs after the package tier, '
-        'in the second lower-priority stream (test/conftest.py)')
+        'in its confined stream (test/conftest.py)')
     config.addinivalue_line(
         'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
         'install or the ros-verify environment); skipped with the reason elsewhere')

@@ -115,15 +115,24 @@ def scaling(rows: Sequence[Mapping[str, object]], path: str) -> str:
             ax.errorbar(hz, y, yerr=err, fmt=style, color=colour, alpha=alpha, capsize=3,
                         label=text.format(label))
     n = max((int(r.get('runs') or 0) for r in summary), default=0)
+    rates = [r['rate_hz'] for r in summary if r.get('rate_hz')] or [100, 1000]
     for ax in (ax1, ax2):
+        # The x range from the rates, not the data: a panel of degraded runs has none.
+        ax.set_xlim(min(rates) / 1.25, max(rates) * 1.25)
         ax.set_xscale('log')
         ax.set_xticks([100, 250, 500, 1000])
         ax.set_xticklabels(['100', '250', '500', '1000'])
         ax.set_xlabel('actuator rate (Hz)')
         ax.grid(True, which='both', alpha=0.3)
         ax.legend(fontsize=8)
-    ax1.set_yscale('log')      # one round's host stall would flatten every other point
-    ax1.set_ylabel('µs (log)')
+    if any(r.get(k) for r in summary for k in ('release_p99_us', 'cyclictest_p99_us')):
+        ax1.set_yscale('log')  # one round's host stall would flatten every other point
+        ax1.set_ylabel('µs (log)')
+    else:
+        # Every run degraded (no SCHED_FIFO or locked memory: left out of the spreads), so
+        # there is nothing to plot, and a log axis over no data cannot be drawn.
+        ax1.text(0.5, 0.5, 'no hardened run: nothing to plot', transform=ax1.transAxes,
+                 ha='center', va='center')
     ax1.set_title('(a) release latency p99 vs cyclictest at the same rate\n'
                   '(median, bars min–max over {} rounds)'.format(n), fontsize=10)
     ax2.set_ylabel('µs of CPU per task cycle')
