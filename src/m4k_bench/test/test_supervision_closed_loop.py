@@ -212,3 +212,20 @@ def test_a_fault_from_the_start_latches_within_0_3_s_with_the_gyro_30_ms_late(ki
         latched, _ = from_the_start(kind, wheel, v, w, 2, BASES['uncalibrated'], limit_s=1.0,
                                     imu_lag_s=0.03)
         assert latched is not None and latched <= LATCH_S, (wheel, latched)
+
+
+@pytest.mark.parametrize('base', list(BASES))
+@pytest.mark.parametrize('v, w', [(2.0, 0.5), (1.0, 0.5), (2.0, -0.5)])
+def test_a_guard_stop_released_mid_brake_with_a_turn_held_latches_nothing(base, v, w):
+    # the guard stops an arc (v cut to 0 at once, w held) and releases to a creep while the
+    # robot still rolls at speed: the inner wheel's setpoint reverses while it rolls forward
+    # and the PI brakes it at full effort. Seen on the stack in arc_leg_inside_top: a wrong-way
+    # latch 0.1 s after the release; with that fixed, a stall latch on the braking effort
+    vb = VirtualBase(world={'seed': 2, 'robot': BASES[base]}, imu_lag_s=0.02)
+    try:
+        assert vb.run(max(v / 0.37, 0.5) + 1.0, v, w, until=vb.faulted) is None
+        assert vb.run(0.25, v, w, until=vb.faulted, forward_cap=0.0, guard_active=True) is None
+        assert vb.run(2.0, v, w, until=vb.faulted, forward_cap=0.022) is None, \
+            cause_text(vb.ctl.supervisor.cause)
+    finally:
+        vb.close()

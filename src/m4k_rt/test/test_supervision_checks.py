@@ -181,3 +181,21 @@ def test_gyro_bias_over_a_slow_start_is_not_unseen_motion():
 def test_supervision_off_latches_nothing():
     w = Wheels(sup(enabled=False))
     assert w.run(1.0, (0.0, 0.0), (3.0, -3.0), yaw=0.0) is None
+
+
+def test_a_reversal_braking_the_wheel_is_not_wrong_way_but_one_that_does_not_slow_is():
+    # forward at 9 rad/s, then the setpoint -1 (a guard released mid-brake with a turn held):
+    # braked at 28 rad/s^2 the wheel is no fault, nor is the full backward effort a stall
+    w = Wheels(sup())
+    assert w.run(1.0, (9.0, 9.0), (9.0, 9.0)) is None
+    speed = 9.0
+    for _ in range(60):
+        speed = max(speed - 28.0 * DT, -1.0)
+        braking = speed > -1.0                   # full effort back until it gets there
+        assert not w.step((-1.0, 1.0), (speed, 1.0), u=(-1.0 if braking else -FF, FF),
+                          sat=(braking, False))
+    # the same reversal with a wheel that keeps rolling forward (its encoder or drive lies)
+    w = Wheels(sup())
+    assert w.run(1.0, (9.0, 9.0), (9.0, 9.0)) is None
+    dt = w.run(2.0, (-1.0, 1.0), (9.0, 1.0), u=(-1.0, FF), sat=(True, False))
+    assert dt is not None and dt <= 0.3 + 9.0 / P.supervision.still_deceleration

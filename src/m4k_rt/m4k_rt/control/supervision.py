@@ -9,7 +9,12 @@ IMU's gyro. Every actuator cycle, per wheel, the supervisor accumulates the time
 has held without a break:
 
 * **wrong way** (``|setpoint| > speed_threshold``): the measured speed is beyond
-  ``min_speed`` and of the other sign (``wrong_way_time``);
+  ``min_speed`` and of the other sign (``wrong_way_time``), and, when the setpoint has just
+  left zero or changed sign against the last nonzero setpoint while the wheel still rolled
+  that old way (a reversal: a guard released mid-brake with a turn held hands the inner wheel
+  a backward setpoint while it still rolls forward), beyond a
+  bound that starts at the wheel's speed then and falls at ``still_deceleration`` -- the wheel
+  braking toward the new direction is no fault, one that does not slow is;
 * **frozen**: the encoder angle has not moved ``FROZEN_COUNTS`` counts (3: the simulated
   AS5045's +/-0.5 LSB noise never does) while the wheel is told to turn fast enough to move
   4 counts in ``frozen_time`` (0.04 rad/s at 0.15 s) and it should be turning: it was seen
@@ -28,6 +33,7 @@ has held without a break:
   than ``stall_ratio`` of its setpoint, or the effort's free-running speed ``|u| / kff``
   exceeds the measured speed in the effort's direction by ``effort_margin``: the amplifier
   is driving the wheel at its current limit and the encoder sees no result (``stall_time``);
+  not while the wheel rolls beyond ``min_speed`` against the effort (it is being braked);
 * **swapped** (both wheels, while their setpoints differ by more than the threshold): each
   wheel's speed is closer to the other wheel's setpoint than to its own (``swap_time``);
 * **still** (setpoint zero: outputs at the zero word, the drive brakes): the wheel turns
@@ -121,7 +127,7 @@ class WheelSupervisor:
     """
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
-                 '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_following', '_sp',
+                 '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_rev', '_dir', '_following', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age')
 
@@ -143,6 +149,8 @@ class WheelSupervisor:
         self._ref = [math.nan, math.nan]   # frozen: the angle the wheel last moved away from
         self._fresh = False        # a sample arrived since the last step
         self._bound = [-1.0, -1.0]     # still: the falling speed bound; < 0: not commanded still
+        self._rev = [0.0, 0.0]         # wrong way: a reversal's falling speed bound (0: none)
+        self._dir = [0.0, 0.0]         # the sign of the last nonzero setpoint (0: none yet)
         self._following = [False, False]   # the wheel was seen following its setpoint
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
@@ -263,6 +271,8 @@ class WheelSupervisor:
         for k in (0, 1):
             self._ref[k] = math.nan
             self._bound[k] = -1.0
+            self._rev[k] = 0.0
+            self._dir[k] = 0.0
             self._following[k] = False
             self._sp[k] = 0.0
             self.unseen[k] = False
@@ -311,7 +321,20 @@ class WheelSupervisor:
                 self._s_age[k] += dt
             if at is not None and sref[0] != epoch:
                 sref[0], sref[1], sref[2], sref[3] = epoch, at[k], at[1 - k], at[2]
-            if asp > th and ((m > ms and sp < 0.0) or (m < -ms and sp > 0.0)):
+            # a reversal: the wheel still rolls the old way as the setpoint leaves zero or
+            # changes sign; its speed then, falling at still_deceleration, bounds "wrong way"
+            rev = self._rev[k]
+            if sp * self._sp[k] <= 0.0:
+                # the wheel still rolls the way its last setpoint asked, against this one
+                d = self._dir[k]
+                rev = abs(m) if d * sp < 0.0 and m * d > ms else 0.0
+            elif rev > 0.0:
+                rev = max(rev - p.still_deceleration * dt, 0.0)
+            self._rev[k] = rev
+            if sp != 0.0:
+                self._dir[k] = 1.0 if sp > 0.0 else -1.0
+            against = m > ms if sp < 0.0 else m < -ms
+            if asp > th and against and abs(m) > rev:
                 t[_WRONG + k] += dt
             elif self._counts_against(k, sp):
                 t[_WRONG + k] += 3.0 * dt            # integrated evidence, as unseen below
@@ -353,9 +376,14 @@ class WheelSupervisor:
                     t[_FROZEN + k] = 0.0
             # the speed the effort would drive a free wheel at, against the speed measured in
             # the effort's direction
+            # (an effort against the motion brakes the wheel: no stall, whatever it costs --
+            # a reversal, or a guard release mid-brake with a turn held, saturates the PI
+            # backwards while the wheel still rolls forward; a wheel reading against its
+            # effort for another reason is the wrong-way test's)
             excess = abs(u) / kff - (m if u >= 0.0 else -m)
-            if ((sat and asp > th and abs(m) < p.stall_ratio * asp)
-                    or (u != 0.0 and excess > p.effort_margin)):
+            braking = m < -ms if u > 0.0 else m > ms if u < 0.0 else False
+            if not braking and ((sat and asp > th and abs(m) < p.stall_ratio * asp)
+                                or (u != 0.0 and excess > p.effort_margin)):
                 t[_STALL + k] += dt
             else:
                 t[_STALL + k] = 0.0
