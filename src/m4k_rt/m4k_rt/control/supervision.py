@@ -127,7 +127,8 @@ class WheelSupervisor:
     """
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
-                 '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_rev', '_dir', '_following', '_sp',
+                 '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_rev', '_dir',
+                 '_following', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age')
 
