@@ -18,7 +18,8 @@ from typing import Any, Sequence
 
 from m4k_bench.virtualbase import VirtualBase
 
-__all__ = ['BASES', 'CREEPS', 'from_the_start', 'main', 'still_after_stop']
+__all__ = ['BASES', 'CREEPS', 'from_the_start', 'main', 'still_after_stop',
+           'turn_after_guard_stops']
 
 TRIM_V = 2 * 24.0 / 511          # two DAC codes of the 24 V full scale
 BASES: dict[str, dict[str, float]] = {
@@ -77,6 +78,28 @@ def still_after_stop(v: float, w: float, guard: bool, seed: int, offset_v: float
         vb.close()
 
 
+def turn_after_guard_stops(w: float, seed: int, robot: dict[str, Any],
+                           imu_lag_s: float = 0.0) -> float | None:
+    """Return when a healthy base latched (s into the last phase) or None: a known false latch.
+
+    An arc at 0.25 m/s with ``w``, then the guard stopping and releasing to a creep three times
+    (0.1 s stopped, 0.15 s at a 0.05 m/s cap), then stopped with the turn still asked: a slow
+    turn in place, as in front of a wall (the wall.*.turning cells of the envelope).
+    """
+    vb = VirtualBase(world={'seed': seed, 'robot': robot}, imu_lag_s=imu_lag_s)
+    try:
+        if vb.run(2.0, 0.25, w, until=vb.faulted) is not None:
+            return 0.0
+        for _ in range(3):
+            if (vb.run(0.1, 0.25, w, until=vb.faulted, forward_cap=0.0, guard_active=True)
+                    is not None or vb.run(0.15, 0.25, w, until=vb.faulted, forward_cap=0.05)
+                    is not None):
+                return 0.0
+        return vb.run(3.0, 0.25, w, until=vb.faulted, forward_cap=0.0, guard_active=True)
+    finally:
+        vb.close()
+
+
 def _worst(values: Sequence[float | None]) -> str:
     if any(x is None for x in values):
         return 'none'
@@ -122,6 +145,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             cells.append(f'{_worst([r[0] for r in stops])} / {_worst([r[1] for r in stops])}')
         what = 'guard stop' if guard else 'ramped stop'
         print(f'| {what} from {v} m/s {w} rad/s | ' + ' | '.join(cells) + ' |', flush=True)
+    print('\nA KNOWN FALSE LATCH: healthy bases, guard stops then a slow turn in place '
+          '(turn_after_guard_stops): runs that latched a fault, of all\n')
+    print('| base | gyro in step | gyro 30 ms late |')
+    print('|---|---|---|')
+    for name, robot in BASES.items():
+        cells = []
+        for lag in (0.0, 0.03):
+            runs = [turn_after_guard_stops(w, s, robot, lag) for s in seeds
+                    for w in (0.02, 0.057, 0.1, -0.057)]
+            cells.append(f'{sum(r is not None for r in runs)} of {len(runs)}')
+        print(f'| {name} | ' + ' | '.join(cells) + ' |', flush=True)
     return 0
 
 
