@@ -205,7 +205,9 @@ def test_driver_host_restart_keeps_the_world(stack, procs):
     before = _drive(s)
     os.kill(s['host'].pid, signal.SIGKILL)
     stopped = _wait_truth(s['rd'], lambda t: abs(t['v']) < STOPPED, 10.0, 'robot stopped')
-    assert stopped['x'] >= before['x'] > 0.05                   # the pose was not reset
+    # the pose was not reset (how far it had got when it reached its speed is the machine's
+    # load: 3.4 cm in a confined make-test stream, where a speed spike met the wait early)
+    assert stopped['x'] >= before['x'] > 0.0
     procs.start(s['host_argv'], env=s['env'])
     again = _wait_truth(s['rd'], lambda t: t['v'] > 0.95 * SPEED, 30.0, 'driving again')
     assert again['x'] > stopped['x'], (stopped, again)          # continues from there

@@ -152,9 +152,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name, robot in BASES.items():
         cells = []
         for lag in (0.0, 0.03):
-            runs = [turn_after_guard_stops(w, s, robot, lag) for s in seeds
-                    for w in (0.02, 0.057, 0.1, -0.057)]
-            cells.append(f'{sum(r is not None for r in runs)} of {len(runs)}')
+            latched = [turn_after_guard_stops(w, s, robot, lag) for s in seeds
+                       for w in (0.02, 0.057, 0.1, -0.057)]
+            cells.append(f'{sum(r is not None for r in latched)} of {len(latched)}')
         print(f'| {name} | ' + ' | '.join(cells) + ' |', flush=True)
     return 0
 
