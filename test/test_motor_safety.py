@@ -209,7 +209,11 @@ def test_driver_host_restart_keeps_the_world(stack, procs):
     # load: 3.4 cm in a confined make-test stream, where a speed spike met the wait early)
     assert stopped['x'] >= before['x'] > 0.0
     procs.start(s['host_argv'], env=s['env'])
-    again = _wait_truth(s['rd'], lambda t: t['v'] > 0.95 * SPEED, 30.0, 'driving again')
+    # driving again, on from where it stopped: 2 cm further on ground truth (not back at its
+    # speed: how far it had got by then is the load's, and near the end of its room the
+    # guard's slow-down zone holds it below that -- a confined make-test stream at 0.84 m)
+    again = _wait_truth(s['rd'], lambda t: t['x'] > stopped['x'] + 0.02 and t['v'] > STOPPED,
+                        30.0, 'driving again')
     assert again['x'] > stopped['x'], (stopped, again)          # continues from there
     assert again['heartbeat_edges'] > stopped['heartbeat_edges']
 
