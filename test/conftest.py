@@ -32,13 +32,13 @@ UNIT_MODULES = frozenset({
 # directions, states and identities at rest, which hold on a loaded machine: confined.
 SERIAL_MODULES = frozenset({
     'test_scenarios', 'test_demo', 'test_stack_e2e', 'test_tasks_e2e', 'test_fuzz_xddp',
-    'test_host_drops_e2e', 'test_bench_smoke',
+    'test_host_drops_e2e', 'test_bench_smoke', 'test_fleet',
 })
 
 # The package tier's confined stream runs these after it; every other module (a new one too)
 # is the e2e stream's. Balanced on the measured per-file times (docs/testing.md).
 AFTER_PACKAGES = frozenset({
-    'test_doctor_fleet', 'test_faults_e2e', 'test_fleet', 'test_foxglove_rights_e2e',
+    'test_doctor_fleet', 'test_faults_e2e', 'test_foxglove_rights_e2e',
     'test_launch_ros_args', 'test_record_e2e', 'test_tf_e2e', 'test_two_machines',
 })
 

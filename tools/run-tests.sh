@@ -4,7 +4,8 @@
 # marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
 # static checks listed in test/conftest.py) -- the fast loop while editing; its three tiers run
 # side by side.
-# `make test` runs three streams side by side, each on its own ROS domain and temp directory:
+# `make test` runs two confined streams side by side, then the serial one alone, each on its
+# own ROS domain and temp directory:
 #   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
 #            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
 #            at the caller's priority and with its rights (SCHED_FIFO, locked memory);
@@ -121,13 +122,15 @@ else
   export tmp markers base
   confined bash -c packages_stream >"$tmp/packages.log" 2>&1 & packages_pid=$!
   confined bash -c e2e_stream >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
-  serial_stream >"$tmp/serial.log" 2>&1 || rc=1
   wait $packages_pid || rc=1
   echo "== lint, colcon test, then the workspace modules after the packages =="
   cat "$tmp/packages.log"
   wait $e2e_pid || rc=1
   cat "$tmp/e2e.log"
-  cat "$tmp/serial.log"
+  # The serial stream alone, after the other two: beside them (confined or not) four fresh
+  # clones of this layout took 11 min 45 s - 14 min 59 s, and three of them failed a test on
+  # the load -- calibrate's fits, a fleet that did not drive in 180 s (docs/testing.md).
+  serial_stream || rc=1
   rm -rf "$tmp"
 fi
 
