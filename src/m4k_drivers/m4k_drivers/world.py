@@ -338,6 +338,8 @@ class World:
         self._t_ns = clock() if t0_ns is None else t0_ns
         self.rest_since_ns: int | None = self._t_ns   # since when |v| < REST_V (None: moving)
         self._pose = self.config.start
+        # the sloping floor patches, once: the 1 ms step asks for the grade only on these
+        self._slopes = tuple(p for p in self.config.floor if p.grade)
         self._drive = DriveState()
         self._wheel_speed = self._drive.wheel          # the same list: rad/s per wheel
         self._wheel_angle = [0.0, 0.0]
@@ -517,8 +519,8 @@ class World:
         idle = not enabled or (rob.effective_volts(LEFT, self._volts[0]) == 0.0
                                and rob.effective_volts(RIGHT, self._volts[1]) == 0.0)
         pose = self._pose
-        grade = (grade_force(self.config.floor, pose.x, pose.y, pose.yaw, rob.mass_kg * G)
-                 if self.config.floor else 0.0)
+        grade = (grade_force(self._slopes, pose.x, pose.y, pose.yaw, rob.mass_kg * G)
+                 if self._slopes else 0.0)
         if (idle and grade == 0.0 and drv.v == 0.0 and drv.w == 0.0 and drv.wheel[0] == 0.0
                 and drv.wheel[1] == 0.0):
             self._accel = 0.0

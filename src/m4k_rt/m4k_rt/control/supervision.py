@@ -233,35 +233,40 @@ class WheelSupervisor:
         en, gn = self._en, self._gn
         if not en or not gn:
             return None
-        et, gt = self._et, self._gt
-        t_e, t_g = et[(en - 1) % RING], gt[(gn - 1) % RING]
+        t_e, t_g = self._et[(en - 1) % RING], self._gt[(gn - 1) % RING]
         if t_g <= t_e:
-            k = self._find(et, en, t_g)
-            if k < 0:
+            w = self._weights(self._et, en, t_g)
+            if w is None:
                 return None
-            i, j = k % RING, (k + 1) % RING
-            f = (t_g - et[i]) / (et[j] - et[i]) if k < en - 1 else 0.0
+            i, j, f = w
             el, er = self._el, self._er
             return [el[i] + f * (el[j] - el[i]), er[i] + f * (er[j] - er[i]),
                     self._gp[(gn - 1) % RING]]
-        k = self._find(gt, gn, t_e)
-        if k < 0:
+        w = self._weights(self._gt, gn, t_e)
+        if w is None:
             return None
-        i, j = k % RING, (k + 1) % RING
-        f = (t_e - gt[i]) / (gt[j] - gt[i]) if k < gn - 1 else 0.0
+        i, j, f = w
         e = (en - 1) % RING
         return [self._el[e], self._er[e], self._gp[i] + f * (self._gp[j] - self._gp[i])]
 
     @staticmethod
-    def _find(ts: list[int], n: int, t: int) -> int:
-        """Return the newest sample count k with ts[k % RING] <= t, or -1 (older than the ring)."""
+    def _weights(ts: list[int], n: int, t: int) -> tuple[int, int, float] | None:
+        """Return ring slots i, j and the fraction f with t = ts[i] + f (ts[j] - ts[i]).
+
+        i holds the newest sample at or before ``t`` (t at the newest itself: f 0); None when
+        ``t`` is older than the ring.
+        """
         k = n - 1
         oldest = max(0, n - RING)
-        while k >= oldest:
-            if ts[k % RING] <= t:
-                return k
+        while k >= oldest and ts[k % RING] > t:
             k -= 1
-        return -1
+        if k < oldest:
+            return None
+        i = k % RING
+        if k == n - 1:
+            return i, i, 0.0
+        j = (k + 1) % RING
+        return i, j, (t - ts[i]) / (ts[j] - ts[i])
 
     def idle(self) -> None:
         """Restart every symptom time (a cycle in which the wheels are not expected to follow)."""
