@@ -151,6 +151,10 @@ class BaseController:
         self._angles = [0.0, 0.0]
         self._start_ref = [math.nan, math.nan]
         self._start_sp = [0.0, 0.0]
+        # in a guard stop (forward cap zero), and still braking the robot forward in it
+        # (cleared once it has stopped; set again only by the next guard stop)
+        self._guard_stop = False
+        self._guard_brake = False
         self._fb_window = params.speed_feedback_window
         self._fb_min_ns = max(1, int(0.5 * self._fb_window * self.period * 1e9))
         self.odom = Odometry(params.wheel_radius, params.track_width,
@@ -457,12 +461,24 @@ class BaseController:
         # 4. kinematics and wheel control
         wl, wr = self.kin.inverse(v, w)
         wl, wr, sat = self.kin.saturate(wl, wr, self.wheel_limit)
-        if forward_cap <= 0.0 and self.left_speed + self.right_speed > _GUARD_BRAKING:
-            # A guard stop still braking the robot forward: both wheels brake (zero setpoints,
-            # below), the rotation waits until the robot has stopped. The PI would otherwise
-            # integrate the braking transient toward the rotation's setpoints and then drive
-            # the wheels past them -- backwards (0.24 m/s in reverse on the stack).
-            wl = wr = 0.0
+        if forward_cap > 0.0:
+            self._guard_stop = self._guard_brake = False
+        elif not self._guard_stop:
+            self._guard_stop = self._guard_brake = True      # a guard stop begins
+        if self._guard_brake:
+            if self.left_speed + self.right_speed > _GUARD_BRAKING:
+                # A guard stop still braking the robot forward: both wheels brake (zero
+                # setpoints, below), the rotation waits until the robot has stopped. The PI
+                # would otherwise integrate the braking transient toward the rotation's
+                # setpoints and then drive the wheels past them -- backwards (0.24 m/s in
+                # reverse on the stack).
+                wl = wr = 0.0
+            else:
+                # Stopped: the rotation goes on, and this stop does not brake again. A wheel
+                # sticking in the slow turn in place that follows (stick-slip at a creep)
+                # makes the other wheel's speed alone read as forward motion: re-braking on
+                # it reset both PIs every few cycles, so the wheels stuck again and again.
+                self._guard_brake = False
         self.left_setpoint = wl
         self.right_setpoint = wr
         if wl == 0.0 and wr == 0.0:

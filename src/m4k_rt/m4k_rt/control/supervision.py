@@ -19,11 +19,13 @@ has held without a break:
   AS5045's +/-0.5 LSB noise never does) while the wheel is told to turn fast enough to move
   4 counts in ``frozen_time`` (0.04 rad/s at 0.15 s) and it should be turning: it was seen
   following this setpoint (a wheel that turned does not stop by itself: a magnet slipping
-  mid-drive, a wheel blocked), or its effort ``|u| >= moving_effort`` (enough to break any
-  plausible wheel away from rest: the PI's break-away boost gets a wheel that has not moved
-  there within ~0.1 s) (``frozen_time``); or it turns *unseen*: since it last moved (or its
-  setpoint left zero), the other wheel's counts less the gyro's integrated turn put its own
-  motion ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
+  mid-drive, a wheel blocked; motion within what a wheel already rolling that way when the
+  setpoint took its direction rolls by itself, ``ROLL_PER_SPEED2``, is not following: it
+  then stops where its effort is below the friction), or its effort ``|u| >= moving_effort``
+  (enough to break any plausible wheel away from rest: the PI's break-away boost gets a
+  wheel that has not moved there within ~0.1 s) (``frozen_time``); or it turns *unseen*:
+  since it last moved (or its setpoint left zero), the other wheel's counts less the gyro's
+  integrated turn, less its own counts over the same aligned window, put its own motion ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
   does not make the pivot the encoders describe; integrated, so quantization cannot reset
   it, and only over a start, so the gyro's bias cannot build up: a third of ``frozen_time``
   confirms it, and the controller then gives that wheel no more effort than the other's).
@@ -94,6 +96,9 @@ UNSEEN_COUNTS = 6
 START_WINDOW = 0.3               # s after a setpoint leaves zero: the counts-against test
 RING = 32                        # encoder and gyro samples kept to align the two (0.32 s)
 GYRO_GAP_NS = 100_000_000        # a longer gap between gyro samples restarts the integration
+# A wheel rolling at m rad/s with no drive stops within m^2 / (2 a) rad, a the deceleration of
+# friction alone (3.6 rad/s^2 on the simulated base; 3.0 leaves margin)
+ROLL_PER_SPEED2 = 1.0 / (2.0 * 3.0)
 
 _LEFT_WRONG = int(FaultCause.LEFT_WRONG_WAY)
 _RIGHT_WRONG = int(FaultCause.RIGHT_WRONG_WAY)
@@ -128,7 +133,7 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_rev', '_dir',
-                 '_following', '_sp',
+                 '_following', 'roll', '_roll_a', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age')
 
@@ -153,6 +158,12 @@ class WheelSupervisor:
         self._rev = [0.0, 0.0]         # wrong way: a reversal's falling speed bound (0: none)
         self._dir = [0.0, 0.0]         # the sign of the last nonzero setpoint (0: none yet)
         self._following = [False, False]   # the wheel was seen following its setpoint
+        # what is left of an earlier motion: when a setpoint takes its direction with the
+        # wheel already rolling that way, the angle then and how far the wheel may still roll
+        # by itself (rad; braked by friction alone): motion within it is no evidence that the
+        # wheel follows the drive
+        self.roll = [0.0, 0.0]
+        self._roll_a = [0.0, 0.0]
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
         self.frozen_min = 4.0 * COUNT / params.frozen_time
@@ -171,9 +182,10 @@ class WheelSupervisor:
         self._g_rate = 0.0
         self._epoch = 0
         self._at: list[float] | None = None   # [left, right, heading] at the aligned instant
-        # per wheel, the unseen window's start [epoch, other wheel's angle, heading] and the
-        # start window's [epoch, this angle, other angle, heading] (epoch -1: not taken yet)
-        self._u_ref = [[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]
+        # per wheel, the unseen window's start [epoch, other wheel's angle, heading, this
+        # wheel's angle] and the start window's [epoch, this angle, other angle, heading]
+        # (epoch -1: not taken yet)
+        self._u_ref = [[-1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]]
         self._s_ref = [[-1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]]
         self._s_age = [0.0, 0.0]
 
@@ -280,6 +292,7 @@ class WheelSupervisor:
             self._rev[k] = 0.0
             self._dir[k] = 0.0
             self._following[k] = False
+            self.roll[k] = 0.0
             self._sp[k] = 0.0
             self.unseen[k] = False
             self._u_ref[k][0] = -1.0
@@ -351,11 +364,19 @@ class WheelSupervisor:
                 self._following[k] = False      # a new setpoint direction (or zero)
                 self._u_ref[k][0] = -1.0        # and a new unseen-motion window
                 self.unseen[k] = False
+                # a wheel still rolling this way (a guard released to a creep mid-brake)
+                # may roll this far by itself, then stop where its effort is below the
+                # break-away
+                along = m if sp > 0.0 else -m
+                self.roll[k] = along * along * ROLL_PER_SPEED2 if along > 0.0 else 0.0
+                self._roll_a[k] = a
             self._sp[k] = sp
             ref = self._ref[k]
             if not abs(a - ref) < FROZEN_COUNTS * COUNT:     # moved (or no reference yet)
-                if (a - ref) * sp > 0.0:
-                    self._following[k] = True   # seen turning the way it is told
+                if (a - ref) * sp > 0.0 and (a - self._roll_a[k]) * sp >= asp * (
+                        self.roll[k] + FROZEN_COUNTS * COUNT):
+                    # seen turning the way it is told, beyond what it rolls by itself
+                    self._following[k] = True
                 self._ref[k] = a
                 self._u_ref[k][0] = -1.0
                 self.unseen[k] = False
@@ -364,11 +385,15 @@ class WheelSupervisor:
                 uref = self._u_ref[k]
                 if at is not None:
                     if uref[0] != epoch:
-                        uref[0], uref[1], uref[2] = epoch, at[1 - k], at[2]
-                    # this wheel's motion as the other wheel's encoder and the gyro tell it
+                        uref[0], uref[1], uref[2], uref[3] = epoch, at[1 - k], at[2], at[k]
+                    # this wheel's motion as the other wheel's encoder and the gyro tell it,
+                    # less what its own encoder showed over the same (aligned) window: the
+                    # window starts at the aligned instant, older than the newest sample
+                    # that found the wheel still, and a wheel stopping then still moved
                     turn = (at[2] - uref[2]) / self._r_over_track
-                    own = (at[1] - uref[1] - turn) if k == 0 else (at[0] - uref[1] + turn)
-                    if own * sp >= UNSEEN_COUNTS * COUNT * asp:
+                    own = ((at[1] - uref[1] - turn) if k == 0 else (at[0] - uref[1] + turn)) \
+                        - (at[k] - uref[3])
+                    if sp != 0.0 and own * sp >= UNSEEN_COUNTS * COUNT * asp:
                         self.unseen[k] = True
                 if asp >= self.frozen_min and self.unseen[k]:
                     # integrated evidence (6 counts beyond the gyro's drift), no per-cycle
