@@ -25,7 +25,8 @@ has held without a break:
   (enough to break any plausible wheel away from rest: the PI's break-away boost gets a
   wheel that has not moved there within ~0.1 s) (``frozen_time``); or it turns *unseen*:
   since it last moved (or its setpoint left zero), the other wheel's counts less the gyro's
-  integrated turn, less its own counts over the same aligned window, put its own motion ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
+  integrated turn, less its own counts over the same aligned window, put its own motion
+  ``UNSEEN_COUNTS`` (6) counts its setpoint's way (frozen from the start: the body
   does not make the pivot the encoders describe; integrated, so quantization cannot reset
   it, and only over a start, so the gyro's bias cannot build up: a third of ``frozen_time``
   confirms it, and the controller then gives that wheel no more effort than the other's).
