@@ -234,6 +234,31 @@ def test_a_guard_stop_short_of_the_line_passes_only_inside_the_release_band(gap,
         assert any('short of its line' in f for f in stop_failures), res.failures
 
 
+def test_a_guard_stop_that_turns_away_after_reaching_the_release_band_is_not_short():
+    """A turning command goes on in place after the guard's stop: the face swings away and
+    the robot rests further from what stopped it than the band it had reached
+    (wall.cruise.turning); judged on its nearest approach, not its last pose. The same turn
+    from a stop far before the band still fails."""
+    for gap, accepted in ((0.42, True), (0.8, False)):
+        raw = _raw({'walls': HALL, 'obstacles': [_leg(0.225 + gap + 0.02, 0.0, 0.04)]})
+        sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.25, 'w': 0.1, 't': 2.0}],
+                         'expect': {'stop': 'sonar'}}, 'early-turn.yaml')
+        b = bounds.bounds(raw, 0.25, 'sonar')
+        samples = _truth_run(0.0, 1.0, lambda t, x, vv: 0.0)
+        last = samples[-1]
+        for k in range(1, 41):        # 0.8 rad in place over 0.8 s, then at rest
+            samples.append(dict(last, t_ns=last['t_ns'] + k * int(0.02e9), theta=0.02 * k,
+                                w=1.0 if k < 40 else 0.0, rest_since_ns=None))
+        end = samples[-1]
+        samples += [dict(end, t_ns=end['t_ns'] + k * int(0.02e9), rest_since_ns=end['t_ns'])
+                    for k in range(1, 61)]
+        res = Result('early-turn', '', 0.0, samples=samples)
+        judge(sc, res, b, raw)
+        stop_failures = [f for f in res.failures if f.startswith('stop')]
+        assert samples[-1]['front_clearance'] > samples[0]['front_clearance'] + 0.05
+        assert (stop_failures == []) == accepted, (gap, res.failures)
+
+
 def test_the_judge_fails_a_robot_that_backs_up_after_its_stop():
     """Nobody commands reverse: 5 cm backwards after the guard's stop (the PI windup seen on
     chair_leg_right_edge) fails; 5 mm of settling does not."""

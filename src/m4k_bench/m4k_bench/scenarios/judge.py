@@ -307,22 +307,25 @@ def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
     The guard sizes its line from its own readings, which the obstacle memory keeps at the
     nearest a sensor reported (noise, the sonar's arc, a pose from the reading's acquisition),
     so at the slow floor it may stop a few cm before the judge's exact line: safe, and the
-    promise at rest holds. Accepted when the robot came to rest (and stayed) with its front
-    clearance inside the guard's own release band -- between ``stop_distance`` and
-    d(``slow_floor``) + ``release_margin`` + the judge's margin; None when it never came to
+    promise at rest holds. Accepted when the robot came to rest (and stayed) outside
+    ``stop_distance`` and had come up to the guard's own release band -- d(``slow_floor``) +
+    ``release_margin`` + the judge's margin -- at its nearest; None when it never came to
     rest in front of anything (the plain "never happened"), else what is wrong, e.g. a stop
-    for nothing far before the line. '' when accepted.
+    for nothing far before the line. '' when accepted. The nearest, not the last: a command
+    that turns goes on in place after the stop and may swing the face away from the obstacle
+    (wall.cruise.turning rested 0.49 m from the wall after reaching 0.45 m).
     """
     if sc.stop not in ('sonar', 'laser') or not s or s[-1].get('rest_since_ns') is None:
         return None
     g = guard_params(raw)
     gap = float(s[-1]['front_clearance'])
+    nearest = min(float(x['front_clearance']) for x in s)
     band = stop_line(raw, g.slow_floor) + g.release_margin + STOP_MARGIN_M
     if gap < g.stop_distance:
         return f'rest {gap:.3f} m from the obstacle, inside stop_distance {g.stop_distance:.3f} m'
-    if gap > band:
-        return (f"rest {gap:.3f} m from the obstacle, before the guard's release band "
-                f'(<= {band:.3f} m): a stop short of its line')
+    if nearest > band:
+        return (f'nearest {nearest:.3f} m from the obstacle (at rest {gap:.3f} m), before the '
+                f"guard's release band (<= {band:.3f} m): a stop short of its line")
     return ''
 
 
