@@ -123,8 +123,9 @@ class VirtualBase:
             while q and q[0][0] <= now:
                 _, stamp, rate = q.popleft()
                 self._imu_last = (stamp, rate, now)
-                ctl.imu(rate, now, stamp)
-            if self._imu_last is not None:          # the actuator gives the newest each cycle
+            if self._imu_last is not None:
+                # as the actuator: the newest sample arrived by now, once per cycle (an older
+                # one delivered in the same cycle is overwritten, as in the IMU task's state)
                 stamp, rate, rx = self._imu_last
                 ctl.imu(rate, rx, stamp)
         if v is not None:
