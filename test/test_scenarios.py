@@ -221,11 +221,12 @@ def test_a_guard_stop_short_of_the_line_passes_only_inside_the_release_band(gap,
     """A robot at rest in front of a wall that never crossed the judge's line: inside the
     guard's own release band it stopped (a few cm early: safe); far before it, it stopped for
     nothing and fails."""
-    raw = _raw({'walls': {'rectangle': [-1.0, -2.0, 0.225 + gap, 2.0]}, 'obstacles': []})
+    raw = _raw({'walls': {'rectangle': [-1.0, -2.0, 0.5 + 0.225 + gap, 2.0]}, 'obstacles': []})
     sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.25, 't': 2.0}],
                      'expect': {'stop': 'sonar'}}, 'early.yaml')
     b = bounds.bounds(raw, 0.25, 'sonar')
-    res = Result('early', '', 0.0, samples=_truth_run(0.0, 3.0, lambda t, x, vv: 0.0))
+    res = Result('early', '', 0.0, samples=_truth_run(
+        0.25, 5.0, lambda t, x, vv: 0.0 if x >= 0.5 - 0.25 * 0.02 else vv))
     judge(sc, res, b, raw)
     stop_failures = [f for f in res.failures if f.startswith('stop')]
     if accepted:
@@ -240,22 +241,24 @@ def test_a_guard_stop_that_turns_away_after_reaching_the_release_band_is_not_sho
     (wall.cruise.turning); judged on its nearest approach, not its last pose. The same turn
     from a stop far before the band still fails."""
     for gap, accepted in ((0.42, True), (0.8, False)):
-        raw = _raw({'walls': HALL, 'obstacles': [_leg(0.225 + gap + 0.02, 0.0, 0.04)]})
+        raw = _raw({'walls': HALL, 'obstacles': [_leg(0.5 + 0.225 + gap + 0.02, 0.0, 0.04)]})
         sc = spec.parse({'world': raw['world'], 'commands': [{'v': 0.25, 'w': 0.1, 't': 2.0}],
                          'expect': {'stop': 'sonar'}}, 'early-turn.yaml')
         b = bounds.bounds(raw, 0.25, 'sonar')
-        samples = _truth_run(0.0, 1.0, lambda t, x, vv: 0.0)
+        samples = _truth_run(0.25, 3.0, lambda t, x, vv: 0.0 if x >= 0.5 - 0.25 * 0.02 else vv)
         last = samples[-1]
-        for k in range(1, 41):        # 0.8 rad in place over 0.8 s, then at rest
+        for k in range(1, 41):        # 0.8 rad in place over 0.8 s, then a creep along the arc
             samples.append(dict(last, t_ns=last['t_ns'] + k * int(0.02e9), theta=0.02 * k,
-                                w=1.0 if k < 40 else 0.0, rest_since_ns=None))
+                                w=1.0, rest_since_ns=None))
         end = samples[-1]
-        samples += [dict(end, t_ns=end['t_ns'] + k * int(0.02e9), rest_since_ns=end['t_ns'])
-                    for k in range(1, 61)]
+        samples += [dict(end, t_ns=end['t_ns'] + k * int(0.02e9), v=0.05, w=0.1,
+                         x=end['x'] + 0.001 * k, travelled=end['travelled'] + 0.001 * k,
+                         rest_since_ns=None) for k in range(1, 11)]
         res = Result('early-turn', '', 0.0, samples=samples)
         judge(sc, res, b, raw)
         stop_failures = [f for f in res.failures if f.startswith('stop')]
-        assert samples[-1]['front_clearance'] > samples[0]['front_clearance'] + 0.05
+        assert samples[-1]['front_clearance'] > 1.0      # the face swung off the leg
+        assert samples[-1]['rest_since_ns'] is None      # and the run ended on the move
         assert (stop_failures == []) == accepted, (gap, res.failures)
 
 

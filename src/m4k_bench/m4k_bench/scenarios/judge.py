@@ -302,31 +302,46 @@ def _judge_stop(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any],
 
 def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
                              raw: dict[str, Any]) -> str | None:
-    """Judge a guard stop that never crossed its line: the robot rested short of it.
+    """Judge a guard stop that never crossed its line: the robot stood still short of it.
 
     The guard sizes its line from its own readings, which the obstacle memory keeps at the
     nearest a sensor reported (noise, the sonar's arc, a pose from the reading's acquisition),
     so at the slow floor it may stop a few cm before the judge's exact line: safe, and the
-    promise at rest holds. Accepted when the robot came to rest (and stayed) outside
-    ``stop_distance`` and had come up to the guard's own release band -- d(``slow_floor``) +
-    ``release_margin`` + the judge's margin -- at its nearest; None when it never came to
-    rest in front of anything (the plain "never happened"), else what is wrong, e.g. a stop
-    for nothing far before the line. '' when accepted. The nearest, not the last: a command
-    that turns goes on in place after the stop and may swing the face away from the obstacle
-    (wall.cruise.turning rested 0.49 m from the wall after reaching 0.45 m).
+    promise at rest holds. Accepted when the robot stood still (forward speed below
+    ``REST_V``) inside the guard's own release band -- d(``slow_floor``) + ``release_margin``
+    + the judge's margin + ``MEMORY_BIAS_M`` -- and never stood inside ``stop_distance``;
+    None when it never stood still after the start (the plain "never happened"), else what is
+    wrong, e.g. a stop for nothing far before the line. '' when accepted.
+
+    Standing still, not the last pose: a command that turns goes on in place after the stop,
+    the face swings away, and the guard may release a creep along the arc
+    (wall.cruise.turning stood at 0.452 m and ended 0.489 m from the wall; wall.slow.turning
+    stood at 0.43 m, turned, and was creeping on when the run ended).
     """
-    if sc.stop not in ('sonar', 'laser') or not s or s[-1].get('rest_since_ns') is None:
+    if sc.stop not in ('sonar', 'laser') or not s:
+        return None
+    first = next((i for i, x in enumerate(s) if float(x['travelled']) > STAY_M), None)
+    if first is None:
+        return None
+    still = [float(x['front_clearance']) for x in s[first:] if abs(float(x['v'])) < REST_V]
+    if not still:
         return None
     g = guard_params(raw)
-    gap = float(s[-1]['front_clearance'])
-    nearest = min(float(x['front_clearance']) for x in s)
-    band = stop_line(raw, g.slow_floor) + g.release_margin + STOP_MARGIN_M
-    if gap < g.stop_distance:
-        return f'rest {gap:.3f} m from the obstacle, inside stop_distance {g.stop_distance:.3f} m'
+    band = stop_line(raw, g.slow_floor) + g.release_margin + STOP_MARGIN_M + MEMORY_BIAS_M
+    nearest = min(still)
+    if nearest < g.stop_distance:
+        return (f'stood {nearest:.3f} m from the obstacle, inside stop_distance '
+                f'{g.stop_distance:.3f} m')
     if nearest > band:
-        return (f'nearest {nearest:.3f} m from the obstacle (at rest {gap:.3f} m), before the '
+        return (f'stood still {nearest:.3f} m from the obstacle at its nearest, before the '
                 f"guard's release band (<= {band:.3f} m): a stop short of its line")
     return ''
+
+
+# The obstacle memory keeps the nearest reading of a noisy sensor, so the guard's release band
+# on ground truth sits lower by about three of its noise sd (the simulated US-100: 3 mm): a
+# stop this much beyond the band is the guard's own line (person_0_5 stood 5 mm beyond it).
+MEMORY_BIAS_M = 0.01
 
 
 INTRUSION_M = 0.01   # m the gap may close beyond the robot's travel in one sample (noise)
