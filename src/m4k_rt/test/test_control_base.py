@@ -174,6 +174,28 @@ def test_a_guard_stop_while_steering_never_backs_the_robot_up(w):
     assert ctl.odom.w == pytest.approx(w, abs=0.05)
 
 
+def test_a_guard_stop_brakes_forward_once_then_a_stuck_wheel_does_not_restart_the_brake():
+    """A guard stop from 0.5 m/s with a clockwise turn asked: the wheels brake, then the turn
+    goes on in place. When the right wheel then sticks (stick-slip at a creep), the left one's
+    speed alone reads as "still rolling forward"; braking again on that zeroed both setpoints
+    and reset both PIs every few cycles (the false "encoder frozen" of wall.*.turning)."""
+    ctl, p = make()
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, 300, t, cmd=(0.5, -0.3))
+    t = drive(ctl, plant, 150, t, cmd=(0.5, -0.3), cap=0.0, guard_active=True)
+    assert ctl.v == 0.0 and ctl.left_setpoint > 0.0 > ctl.right_setpoint   # turning in place
+    held = plant.angle[1]
+    sums, setpoints = [], []
+    for _ in range(12):     # within frozen_time: a wheel stuck for good is the supervision's
+        t = drive(ctl, plant, 1, t, cmd=(0.5, -0.3), cap=0.0, guard_active=True)
+        plant.speed[1], plant.angle[1] = 0.0, held          # the right wheel sticks
+        sums.append(ctl.left_speed + ctl.right_speed)
+        setpoints.append(ctl.left_setpoint)
+    assert max(sums) > 0.2                   # it reads as forward motion ...
+    assert min(setpoints) > 0.0, setpoints   # ... and the turn is not braked for it
+
+
 @pytest.mark.parametrize('band, backs_up', [(None, False), (1e9, True)])
 def test_a_guard_release_mid_brake_never_backs_the_robot_up(band, backs_up):
     """The guard trips at 1 m/s and releases 50 ms later (the obstacle left its corridor):
