@@ -273,10 +273,14 @@ def test_monitor_ships_rt_side_port_counters_with_a_malformed_datagram(procs, tm
         return {m.port: m for h, m in got if h.kind == p.Kind.PORT_STATS}
 
     def cmd_malformed(got):
+        # and the actuator has tried the motor port at least once: under load (a confined
+        # stream) the first PORT_STATS may come before its first WHEEL_CMD
         s = stats(got)
-        return 1 in s and s[1].malformed == 1 and s[1].received >= 1
+        return (1 in s and s[1].malformed == 1 and s[1].received >= 1
+                and 2 in s and s[2].dropped_no_peer > 0)
 
-    got = _status_until(link, cmd_malformed, 10, 'PORT_STATS of cmd with malformed 1')
+    got = _status_until(link, cmd_malformed, 10, 'PORT_STATS of cmd with malformed 1 and of '
+                        'motor with a WHEEL_CMD dropped')
     procs.stop(proc)
     ports = stats(got)
     # every port of the RT process, with its label, as the RT side sees it
