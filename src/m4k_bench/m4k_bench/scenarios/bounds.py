@@ -66,8 +66,8 @@ from typing import Any, Mapping
 from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
 from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
-__all__ = ['Bounds', 'G', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds', 'guard_params',
-           'judge_reaction', 'sched', 'stop_line', 'traction_limit']
+__all__ = ['Bounds', 'G', 'MEMORY_BIAS_M', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds',
+           'guard_params', 'judge_reaction', 'sched', 'stop_line', 'traction_limit']
 
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
 G = 9.80665          # m/s^2, standard gravity
@@ -75,6 +75,10 @@ G = 9.80665          # m/s^2, standard gravity
 # crossing (linear in travelled) and the 1 ms simulation step. Far below the 0.1 m a weakened
 # guard loses (the negative control), so a guard acting 10 cm late fails.
 STOP_MARGIN_M = 0.02
+# The obstacle memory keeps the nearest reading of a noisy sensor, so the guard's release band
+# on ground truth sits lower by about three of its noise sd (the simulated US-100: 3 mm): a
+# stop this much beyond the band is the guard's own line (person_0_5 stood 5 mm beyond it).
+MEMORY_BIAS_M = 0.01
 # Rubber tyres on a hard floor: mu about 0.5-0.7 (issue 28). Used only when the world's robot
 # states no friction coefficient of its own (then its traction limit is the upper end, 0.7 g).
 DEFAULT_MU = 0.7

@@ -16,6 +16,7 @@ from typing import Any
 from m4k_bench.scenarios.bounds import (
     Bounds,
     guard_params,
+    MEMORY_BIAS_M,
     REST_V,
     SAMPLE_S,
     STAY_M,
@@ -336,12 +337,6 @@ def _stopped_before_the_line(sc: Scenario, s: list[dict[str, Any]],
         return (f'stood still {nearest:.3f} m from the obstacle at its nearest, before the '
                 f"guard's release band (<= {band:.3f} m): a stop short of its line")
     return ''
-
-
-# The obstacle memory keeps the nearest reading of a noisy sensor, so the guard's release band
-# on ground truth sits lower by about three of its noise sd (the simulated US-100: 3 mm): a
-# stop this much beyond the band is the guard's own line (person_0_5 stood 5 mm beyond it).
-MEMORY_BIAS_M = 0.01
 
 
 INTRUSION_M = 0.01   # m the gap may close beyond the robot's travel in one sample (noise)
