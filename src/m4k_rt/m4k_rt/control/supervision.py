@@ -134,7 +134,7 @@ class WheelSupervisor:
 
     __slots__ = ('p', 'enabled', 'cause', 'faults', 'last_cause', '_r_over_track', '_kff',
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_rev', '_dir',
-                 '_following', 'roll', '_roll_a', '_sp',
+                 '_following', '_roll', '_roll_a', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age')
 
@@ -163,7 +163,7 @@ class WheelSupervisor:
         # wheel already rolling that way, the angle then and how far the wheel may still roll
         # by itself (rad; braked by friction alone): motion within it is no evidence that the
         # wheel follows the drive
-        self.roll = [0.0, 0.0]
+        self._roll = [0.0, 0.0]
         self._roll_a = [0.0, 0.0]
         self._sp = [0.0, 0.0]          # the last setpoints (a sign change restarts following)
         # the least setpoint that moves a healthy wheel 4 counts within frozen_time
@@ -293,7 +293,7 @@ class WheelSupervisor:
             self._rev[k] = 0.0
             self._dir[k] = 0.0
             self._following[k] = False
-            self.roll[k] = 0.0
+            self._roll[k] = 0.0
             self._sp[k] = 0.0
             self.unseen[k] = False
             self._u_ref[k][0] = -1.0
@@ -369,13 +369,13 @@ class WheelSupervisor:
                 # may roll this far by itself, then stop where its effort is below the
                 # break-away
                 along = m if sp > 0.0 else -m
-                self.roll[k] = along * along * ROLL_PER_SPEED2 if along > 0.0 else 0.0
+                self._roll[k] = along * along * ROLL_PER_SPEED2 if along > 0.0 else 0.0
                 self._roll_a[k] = a
             self._sp[k] = sp
             ref = self._ref[k]
             if not abs(a - ref) < FROZEN_COUNTS * COUNT:     # moved (or no reference yet)
                 if (a - ref) * sp > 0.0 and (a - self._roll_a[k]) * sp >= asp * (
-                        self.roll[k] + FROZEN_COUNTS * COUNT):
+                        self._roll[k] + FROZEN_COUNTS * COUNT):
                     # seen turning the way it is told, beyond what it rolls by itself
                     self._following[k] = True
                 self._ref[k] = a
