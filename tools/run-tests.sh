@@ -4,20 +4,21 @@
 # marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
 # static checks listed in test/conftest.py) -- the fast loop while editing; its three tiers run
 # side by side.
-# `make test` runs two confined streams side by side, then the serial one alone, each on its
-# own ROS domain and temp directory:
+# `make test` runs its streams side by side, each on its own ROS domain and temp directory:
 #   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
 #            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
 #            at the caller's priority and with its rights (SCHED_FIFO, locked memory);
-#   packages lint beside colcon test of every package (less its serial tests), then the
-#            workspace modules in test/conftest.py AFTER_PACKAGES;
+#   packages lint beside colcon test of every package (less its serial tests);
+#   after    the workspace modules in test/conftest.py AFTER_PACKAGES;
 #   e2e      every other workspace module.
-# The last two are confined (`confined` below): nice 19, without the right to SCHED_FIFO or
-# locked memory (RLIMIT_RTPRIO 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT
-# threads of their stacks run as ordinary threads, below the serial stream's stack; rt_core
-# reports the refusal (hardening DEGRADED) and runs on. With the other streams only niced
-# (their stacks' SCHED_FIFO threads above everything) two physics-judged tests failed on the
-# load; SCHED_IDLE instead of nice 19 starved them into failures of their own
+# The last three are confined (`confined` below): in a CPU cgroup of a sixteenth of the
+# default weight, at nice 19, without the right to SCHED_FIFO or locked memory (RLIMIT_RTPRIO
+# 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT threads of their stacks run
+# as ordinary threads and every thread of theirs gets only what the serial stream leaves;
+# rt_core reports the refusal (hardening DEGRADED) and runs on. Where no cgroup can be made,
+# the serial stream runs alone after the others (`after` then at the end of `packages`):
+# nice alone does not put a stack that starts its own session below another (autogroup).
+# SCHED_IDLE instead of nice 19 starved the confined streams into failures of their own
 # (docs/testing.md).
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -151,9 +152,15 @@ else
     markers="$markers and not serial" packages || r=1
     wait $lint_pid || r=1
     cat "$tmp/lint.log"
-    echo "== workspace tests after the packages (-m '$markers and not serial and after_packages') =="
-    run_pytest after_packages test -m "$markers and not serial and after_packages" || r=1
+    if [[ -z ${AFTER_OWN_STREAM:-} ]]; then
+      after_stream || r=1
+    fi
     return $r
+  }
+  after_stream() {
+    export ROS_DOMAIN_ID=$(( (base + 2) % 100 + 1 ))
+    echo "== workspace tests after the packages (-m '$markers and not serial and after_packages') =="
+    run_pytest after_packages test -m "$markers and not serial and after_packages"
   }
   e2e_stream() {
     export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
@@ -161,17 +168,22 @@ else
     echo "== workspace tests (-m '$m') =="
     run_pytest e2e test -m "$m"
   }
-  export -f lint packages run_pytest packages_stream e2e_stream
+  export -f lint packages run_pytest packages_stream e2e_stream after_stream
   export tmp markers base
   if make_cgroup; then
     # All three side by side: the serial stream at the caller's priority in the root group,
     # the confined two in the low-weight cgroup, where they get what the serial stack leaves.
-    echo "== three streams side by side; the confined two in $cg =="
+    # The modules after the packages get a stream of their own: they mostly wait on their
+    # stacks, and behind colcon test they were the last to finish (15 min 10 s, 8bd1a2e).
+    echo "== four streams side by side; the confined three in $cg =="
+    export AFTER_OWN_STREAM=1
     (confined bash -c packages_stream) >"$tmp/packages.log" 2>&1 & packages_pid=$!
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
+    (confined bash -c after_stream) >"$tmp/after.log" 2>&1 & after_pid=$!
     serial_stream >"$tmp/serial.log" 2>&1 || rc=1
   else
-    # No cgroup: the serial stream alone, after the other two. Beside them (niced, in
+    # No cgroup: the serial stream alone, after the other two (the modules after the
+    # packages at the end of the packages stream). Beside them (niced, in
     # sessions of their own) four fresh clones took 11 min 45 s - 14 min 59 s and three of
     # them failed a test on the load (docs/testing.md).
     echo "== no CPU cgroup to put the confined streams in: the serial stream runs after them =="
@@ -183,6 +195,10 @@ else
   cat "$tmp/packages.log"
   wait $e2e_pid || rc=1
   cat "$tmp/e2e.log"
+  if [[ -n ${after_pid:-} ]]; then
+    wait $after_pid || rc=1
+    cat "$tmp/after.log"
+  fi
   remove_cgroup
   if [[ -f $tmp/serial.log ]]; then
     cat "$tmp/serial.log"
