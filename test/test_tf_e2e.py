@@ -22,6 +22,7 @@ from tf2_msgs.msg import TFMessage
 from wsenv import ground_truth
 
 from m4k_rt import config, description
+from m4k_rt.control.supervision import COUNT
 
 JAZZY_TF_HASH = 'RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087'
 START = [0.0, 0.9, 0.0]
@@ -132,6 +133,15 @@ def test_wheel_joints_and_odom_tf_follow_the_ground_truth_of_a_drive(robot, m4k_
     user.spin_for(2.5, each=lambda: pub.publish(cmd), period=0.05)
     pub.publish(Twist())
     user.wait_still(20)
+
+    def joints_settled():
+        # the last ten joint_states agree within two encoder counts: the stack sees the wheels
+        # at rest now, not a message a starved bridge sent while they still turned
+        last = user.got['joint_states'][-10:]
+        return len(last) == 10 and all(
+            max(m.position[k] for m in last) - min(m.position[k] for m in last) <= 2 * COUNT
+            for k in (0, 1))
+    user.spin_until(joints_settled, 20, 'joint_states at rest')
     since = time.monotonic()
     user.spin_until(lambda: ground_truth(m4k_runtime_dir) is not None
                     and time.monotonic() - since > 0.6, 10, 'a fresh ground truth report')

@@ -109,6 +109,11 @@ _MOVING_EPS = 1e-3   # m/s or rad/s below which the commanded base counts as sto
 # rad/s, sum of the measured wheel speeds above which a guard stop is still braking the
 # robot forward (0.1 rad/s each: 1 cm/s on 0.1 m wheels)
 _GUARD_BRAKING = 0.2
+# rad x direction: a held wheel this far on from where it last read still (3 encoder counts,
+# as the PI's break-away) is rolling, not showing the encoder's noise
+_HOLD_ROLLED = 3.0 * COUNT
+# s: a hold this long holds the wheel's load, and the drive PI starts from its effort
+_HOLD_SETTLED_S = 0.2
 
 
 def _limiter(limits: AxisLimits) -> SpeedLimiter:
@@ -133,7 +138,8 @@ class BaseController:
         self.wheel_limit = params.wheel_limit
         pi = params.pi
         # one count of encoder noise over the feedback window reads as this speed
-        count_speed = 1.5 * COUNT / (params.speed_feedback_window * self.period)
+        count_speed = self._count_speed = 1.5 * COUNT / (params.speed_feedback_window
+                                                         * self.period)
         self.pi_left = WheelSpeedPI(pi.kp, pi.ki, params.feed_forward,
                                     anti_windup=pi.anti_windup, kt=pi.kt,
                                     band=pi.integral_band,
@@ -155,6 +161,18 @@ class BaseController:
         # (cleared once it has stopped; set again only by the next guard stop)
         self._guard_stop = False
         self._guard_brake = False
+        # Standstill hold (``control.hold``): with zero setpoints, once both wheels are slow
+        # (or one is pulled), a PI at zero speed per wheel (``_hold_step``); its integral is
+        # the effort that keeps the wheel where it came to rest.
+        self._hold = params.hold
+        self._boost = params.pi.breakaway_rate
+        self.holding = False
+        self.hold_effort = [0.0, 0.0]       # per wheel, the hold's integral (normalized)
+        self._hold_ref = [0.0, 0.0]         # per wheel, the angle it last read still at
+        self._hold_live = [False, False]    # per wheel, read still: its integral runs
+        self._hold_pulled = [False, False]  # per wheel, found pulled: braked
+        self._held_s = 0.0                  # how long the present hold has lasted
+        self._hold_bound = [-1.0, -1.0]     # per wheel, the pulled test's falling bound
         self._fb_window = params.speed_feedback_window
         self._fb_min_ns = max(1, int(0.5 * self._fb_window * self.period * 1e9))
         self.odom = Odometry(params.wheel_radius, params.track_width,
@@ -330,6 +348,10 @@ class BaseController:
         self.angular.reset(0.0)
         self.pi_left.reset()
         self.pi_right.reset()
+        self.holding = False
+        self._hold_bound[0] = self._hold_bound[1] = -1.0
+        self._hold_live[0] = self._hold_live[1] = False
+        self._hold_pulled[0] = self._hold_pulled[1] = False
         self._start_sp[0] = self._start_sp[1] = 0.0
         self.v = self.w = 0.0
         self.left_setpoint = self.right_setpoint = 0.0
@@ -479,15 +501,49 @@ class BaseController:
                 # makes the other wheel's speed alone read as forward motion: re-braking on
                 # it reset both PIs every few cycles, so the wheels stuck again and again.
                 self._guard_brake = False
+        cs = self._count_speed
+        if -cs < wl < cs and -cs < wr < cs and self._hold.enabled:
+            # Both below what the encoders resolve over the feedback window (1.2 cm/s at the
+            # rim): no speed the loop can follow -- the wheels stand, held. A heading hold's
+            # correction while a guard stop holds the robot otherwise left both PIs at setpoints
+            # their wheels read as still, where the never-against-the-setpoint rule dropped the
+            # effort that held them, and the robot crept down a ramp at 5 mm/s.
+            wl = wr = 0.0
         self.left_setpoint = wl
         self.right_setpoint = wr
         if wl == 0.0 and wr == 0.0:
             self.pi_left.reset()
             self.pi_right.reset()
             self._start_sp[0] = self._start_sp[1] = 0.0
-            self.left_u = self.right_u = 0.0
-            self.left_code = self.right_code = DAC_ZERO
+            ls, rs = self.left_speed, self.right_speed
+            if not self.holding and self._hold.enabled and self._hold_begins(ls, rs, dt):
+                self.holding = True
+                self.hold_effort[0] = self.hold_effort[1] = 0.0
+                self._hold_ref[0], self._hold_ref[1] = self._angles
+                self._held_s = 0.0
+            if self.holding:
+                self._held_s += dt
+                ul = self.left_u = self._hold_step(0, ls, dt)
+                ur = self.right_u = self._hold_step(1, rs, dt)
+                self.left_code = command_to_code(ul)
+                self.right_code = command_to_code(ur)
+            else:
+                self.left_u = self.right_u = 0.0
+                self.left_code = self.right_code = DAC_ZERO
         else:
+            if self.holding:
+                self.holding = False
+                if self._held_s >= _HOLD_SETTLED_S:
+                    # bumpless: the drive PI starts from the effort that has held the wheel
+                    # (a start uphill does not roll back while the PI winds up). A shorter
+                    # hold -- a guard stop's last creep before the turn it releases to --
+                    # holds no load yet, only the last of the braking, which would drive
+                    # the wheel back.
+                    self.pi_left.integral = self.hold_effort[0]
+                    self.pi_right.integral = self.hold_effort[1]
+            self._hold_bound[0] = self._hold_bound[1] = -1.0
+            self._hold_live[0] = self._hold_live[1] = False
+            self._hold_pulled[0] = self._hold_pulled[1] = False
             ul = self.left_u = self.pi_left.update(wl, self.left_speed, dt,
                                                    self._starting(0, wl))
             ur = self.right_u = self.pi_right.update(wr, self.right_speed, dt,
@@ -522,6 +578,76 @@ class BaseController:
             self.mode = MODE_DRIVING
         else:
             self.mode = MODE_IDLE
+
+    def _hold_begins(self, ls: float, rs: float, dt: float) -> bool:
+        """Return True when the standstill hold begins this cycle (zero setpoints, no hold).
+
+        Both wheels slower than ``hold.speed`` (stopped, or never started), or a wheel pulled:
+        faster than a bound that starts at its speed (+ ``hold.speed``) as the setpoints went
+        to zero and falls at ``hold.pull_deceleration`` -- the zero word brakes a wheel on the
+        level far faster (~28 rad/s^2); one it does not slow so is driven by something (a
+        ramp). Never while a wheel is braked from speed: the hold would only brake harder.
+        A wheel found pulled is braked by the hold's proportional part (``_hold_step``).
+        """
+        h = self._hold
+        hb = self._hold_bound
+        pulled = False
+        for k, m in ((0, abs(ls)), (1, abs(rs))):
+            b = m + h.speed if hb[k] < 0.0 else max(
+                min(hb[k], m + h.speed) - h.pull_deceleration * dt, 0.0)
+            hb[k] = b
+            if m > b:
+                pulled = self._hold_pulled[k] = True
+        return pulled or (abs(ls) < h.speed and abs(rs) < h.speed)
+
+    def _hold_step(self, k: int, m: float, dt: float) -> float:
+        """Return the hold's command for wheel ``k`` at measured speed ``m`` (rad/s).
+
+        * Integral: ``-ki`` x the angle turned once the wheel has read still -- not over the
+          last of a stop's braking, which a wheel on the level would then be driven back
+          over -- and below ``hold.speed`` only, within +-``limit``.
+        * Proportional, on a pulled wheel only (``_hold_begins``): ``-kp`` x the speed beyond
+          a count of encoder noise, to bring it to where it reads still. Otherwise none: the
+          motor's back-EMF damps, and a gain on the noise only makes the wheel hunt the
+          count.
+        A wheel that has turned 3 counts on from where it last read still (or from where the
+        hold began) and turns on is rolling, not showing the encoder's noise (which only
+        ever makes a held wheel read 1-2 counts):
+
+        * against the integral, or with none: the integral is too small to stop it -- it
+          grows at least at ``pi.breakaway_rate`` against the motion (static friction and an
+          amplifier's dead band hold back a slow integral while the robot rolls);
+        * the way the integral pushes: the hold is more than the load needs (the integral of
+          a wheel that came to rest on the level) -- it unwinds ten times as fast as it was
+          built. The hold resists motion and never makes any.
+        """
+        h = self._hold
+        i = self.hold_effort[k]
+        a = self._angles[k]
+        if -self._count_speed <= m <= self._count_speed:
+            self._hold_ref[k] = a                   # reads still: rolled from here
+            self._hold_live[k] = True
+        if self._hold_live[k] and -h.speed <= m <= h.speed:
+            i -= h.ki * m * dt
+        # a pulled wheel is braked beyond the encoder's noise, down to where it reads still
+        # and its integral starts; otherwise the motor's back-EMF damps, and a gain on the
+        # noise only makes the wheel hunt the count
+        cs = self._count_speed
+        p = 0.0 if not self._hold_pulled[k] else -h.kp * (m - cs) if m > cs else \
+            -h.kp * (m + cs) if m < -cs else 0.0
+        rolled = a - self._hold_ref[k]
+        if rolled * m >= _HOLD_ROLLED:
+            # rolling on (not the encoder's noise): with the hold's push, or against it
+            if i * m > 0.0:
+                step = 9.0 * h.ki * abs(m) * dt
+                i = 0.0 if abs(i) <= step else i - math.copysign(step, i)
+            else:
+                i -= math.copysign(self._boost * dt, m)
+        lim = h.limit
+        i = lim if i > lim else -lim if i < -lim else i
+        self.hold_effort[k] = i
+        u = i + p
+        return lim if u > lim else -lim if u < -lim else u
 
     def _starting(self, k: int, sp: float) -> bool:
         """Return True while wheel ``k`` has not turned FROZEN_COUNTS its setpoint's way.

@@ -136,6 +136,43 @@ class PiGains:
 
 
 @dataclass(frozen=True)
+class HoldParams:
+    """Standstill hold (``control.hold``): the wheels held where they stopped, on a ramp too."""
+
+    enabled: bool = setting(Field(
+        'bool', False, 'Hold the wheels at zero speed once they have stopped with zero '
+        'setpoints (a stop, a guard stop, the e-stop ramp, no command yet), and stand both '
+        'wheels whose setpoints are below what the encoders resolve. false (the default until '
+        'the whole scenario suite has run with it, docs/safety.md): the zero word only (the '
+        'back-EMF brakes, nothing holds): on a ramp steeper than ~2.7 deg the robot rolls '
+        'away and the still test latches a motor fault (hazard C19).'))
+    kp: float = setting(_nonneg(
+        '1/(rad/s)', 0.2, 'Hold: normalized command per rad/s of wheel speed beyond a count '
+        'of encoder noise, on a pulled wheel only (brakes it to where it reads still and the '
+        'integral starts). 0: the zero word alone brakes a pulled wheel, which on a steep '
+        'ramp may never bring it to rest.'))
+    ki: float = setting(_pos(
+        '1/rad', 1.0, 'Hold: normalized command per rad the wheel has turned since the hold '
+        'began (stiffness; 4.8 deg needs ~0.03, a few mm at the rim). Too low: the robot '
+        'creeps downhill before it holds; too high: overshoot.'))
+    limit: float = setting(_pos(
+        '', 0.25, 'Hold: the largest |command| (normalized) it applies: what a 15 deg ramp '
+        '(~0.08), an amplifier dead band and an uncalibrated zero (up to ~2.4 V, 0.1; '
+        'supervision.moving_effort) need. A wheel driven harder at a zero command (an '
+        'amplifier offset, a stuck DAC) or a steeper slope rolls it, and the still test '
+        'latches the fault; too high hides such a fault behind stall current.', hi=1.0))
+    speed: float = setting(_pos(
+        'rad/s', 0.3, 'Hold: begins once both wheels turn slower than this, and integrates '
+        'only below it (a faster wheel is braked, never driven back toward where it '
+        'was).'))
+    pull_deceleration: float = setting(_pos(
+        'rad/s^2', 10.0, 'Hold: also begins when a wheel slows less than this from its speed '
+        'when the setpoints went to zero (+ speed): pulled (a ramp), not braked by the zero '
+        'word (~28 rad/s^2 on the level). Keep it above supervision.still_deceleration, so '
+        'the hold acts before the still test judges the wheel.'))
+
+
+@dataclass(frozen=True)
 class GuardParams:
     """Collision guard settings (see ``control.guard``)."""
 
@@ -353,6 +390,7 @@ class ControlParams:
     angular: AxisLimits = section(AxisLimits, _axis('angular', 'rad/s', 1.5, 1.85, None))
     e_stop: EStopParams = section(EStopParams)
     pi: PiGains = section(PiGains)
+    hold: HoldParams = section(HoldParams)
     guard: GuardParams = section(GuardParams)
     supervision: SupervisionParams = section(SupervisionParams)
     @property
@@ -414,4 +452,11 @@ def control_params(mapping: Mapping[str, Any] | None, path: str = 'control') -> 
             f'must be > supervision.moving_effort ({sup.moving_effort!r}: a wheel that has '
             f'not moved must reach the effort it is judged by), got '
             f'{params.pi.breakaway_effort!r}')
+    if params.hold.enabled and sup.enabled \
+            and params.hold.pull_deceleration <= sup.still_deceleration:
+        raise ControlConfigError(
+            f'{path}.hold.pull_deceleration',
+            f'must be > supervision.still_deceleration ({sup.still_deceleration!r}: the hold '
+            f'must take a pulled wheel before the still test judges it), got '
+            f'{params.hold.pull_deceleration!r}')
     return params

@@ -305,7 +305,9 @@ class WheelSupervisor:
         """Advance one cycle; return True when a fault latched in this cycle.
 
         ``sp_*`` are the wheel setpoints the outputs were computed for (rad/s), ``meas_*`` the
-        measured wheel speeds, ``u_*`` the PI outputs (normalized -1..1, 0 at a zero setpoint),
+        measured wheel speeds, ``u_*`` the outputs (normalized -1..1: the PI's, or at a zero
+        setpoint the standstill hold's, which the effort tests leave alone: a held wheel
+        standing against its load is what the hold is for),
         ``saturated_*`` whether that output was at its limit, ``yaw_rate`` the body's yaw rate
         from a fresh gyro sample (rad/s, about base_link z), NaN when there is none.
         """
@@ -415,7 +417,7 @@ class WheelSupervisor:
             excess = abs(u) / kff - (m if u >= 0.0 else -m)
             braking = m < -ms if u > 0.0 else m > ms if u < 0.0 else False
             if not braking and ((sat and asp > th and abs(m) < p.stall_ratio * asp)
-                                or (u != 0.0 and excess > p.effort_margin)):
+                                or (u != 0.0 and sp != 0.0 and excess > p.effort_margin)):
                 t[_STALL + k] += dt
             else:
                 t[_STALL + k] = 0.0
