@@ -7,11 +7,11 @@
 # `make test` runs its streams side by side, each on its own ROS domain and temp directory:
 #   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
 #            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
-#            at the caller's priority and with its rights (SCHED_FIFO, locked memory);
+#            at the caller's priority and with its rights (SCHED_FIFO, locked memory); then
+#            `after`: the workspace modules in test/conftest.py AFTER_PACKAGES;
 #   packages lint beside colcon test of every package (less its serial tests);
-#   after    the workspace modules in test/conftest.py AFTER_PACKAGES;
 #   e2e      every other workspace module.
-# The last three are confined (`confined` below): in a CPU cgroup of a sixteenth of the
+# All but serial are confined (`confined` below): in a CPU cgroup of a sixteenth of the
 # default weight, at nice 19, without the right to SCHED_FIFO or locked memory (RLIMIT_RTPRIO
 # 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT threads of their stacks run
 # as ordinary threads and every thread of theirs gets only what the serial stream leaves;
@@ -173,14 +173,17 @@ else
   if make_cgroup; then
     # All three side by side: the serial stream at the caller's priority in the root group,
     # the confined two in the low-weight cgroup, where they get what the serial stack leaves.
-    # The modules after the packages get a stream of their own: they mostly wait on their
-    # stacks, and behind colcon test they were the last to finish (15 min 10 s, 8bd1a2e).
-    echo "== four streams side by side; the confined three in $cg =="
+    # Three at a time: the serial stream, then (confined) the modules after the packages,
+    # beside the packages and e2e streams. Behind colcon test those modules finished last
+    # (15 min 10 s, bf408d1); as a fourth stream from the start they starved the confined
+    # streams on 2 cores into timeouts (a stack that did not reach speed in 60 s, a pty scan
+    # late by 0.5 s: 48b7bb3, 821a8c7).
+    echo "== three streams side by side; the confined ones in $cg =="
     export AFTER_OWN_STREAM=1
     (confined bash -c packages_stream) >"$tmp/packages.log" 2>&1 & packages_pid=$!
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
-    (confined bash -c after_stream) >"$tmp/after.log" 2>&1 & after_pid=$!
     serial_stream >"$tmp/serial.log" 2>&1 || rc=1
+    (confined bash -c after_stream) >"$tmp/after.log" 2>&1 || rc=1
   else
     # No cgroup: the serial stream alone, after the other two (the modules after the
     # packages at the end of the packages stream). Beside them (niced, in
@@ -191,14 +194,11 @@ else
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
   fi
   wait $packages_pid || rc=1
-  echo "== lint, colcon test, then the workspace modules after the packages =="
+  echo "== lint and colcon test (without a cgroup, then the modules after the packages) =="
   cat "$tmp/packages.log"
   wait $e2e_pid || rc=1
   cat "$tmp/e2e.log"
-  if [[ -n ${after_pid:-} ]]; then
-    wait $after_pid || rc=1
-    cat "$tmp/after.log"
-  fi
+  [[ -f $tmp/after.log ]] && cat "$tmp/after.log"
   remove_cgroup
   if [[ -f $tmp/serial.log ]]; then
     cat "$tmp/serial.log"
