@@ -6,9 +6,10 @@ stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODUL
 
 ``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams side by side: the
 modules in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's
-priority and rights, and the rest in two streams confined to nice 19 without the right to
-SCHED_FIFO or locked memory -- the modules in :data:`AFTER_PACKAGES` after the package tier,
-every other one (a new module too) from the start.
+priority and rights, then those in :data:`AFTER_SERIAL`; and the rest in two streams confined
+(a low-weight CPU cgroup, nice 19, no right to SCHED_FIFO or locked memory) -- the modules in
+:data:`AFTER_PACKAGES` after the package tier, every other one (a new module too) from the
+start.
 """
 
 import pytest
@@ -35,17 +36,22 @@ SERIAL_MODULES = frozenset({
     'test_host_drops_e2e', 'test_bench_smoke', 'test_fleet',
 })
 
-# The package tier's confined stream runs these after it; every other module (a new one too)
-# is the e2e stream's. Balanced on the measured per-file times (docs/testing.md).
+# Run, confined, after the package tier (AFTER_PACKAGES) or after the serial stream
+# (AFTER_SERIAL); every other module (a new one too) is the e2e stream's. Both tiers end at
+# ~10 min on this machine; these ~4 min of mostly-waiting modules are split between their
+# tails by the measured per-file times (docs/testing.md).
 AFTER_PACKAGES = frozenset({
-    'test_doctor_fleet', 'test_faults_e2e', 'test_foxglove_rights_e2e',
-    'test_launch_ros_args', 'test_record_e2e', 'test_tf_e2e', 'test_two_machines',
+    'test_faults_e2e', 'test_tf_e2e', 'test_two_machines',
+})
+AFTER_SERIAL = frozenset({
+    'test_doctor_fleet', 'test_foxglove_rights_e2e', 'test_launch_ros_args', 'test_record_e2e',
 })
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test of a module outside :data:`UNIT_MODULES` ``e2e``, and those of
-    :data:`SERIAL_MODULES` ``serial`` and of :data:`AFTER_PACKAGES` ``after_packages``."""
+    :data:`SERIAL_MODULES` ``serial``, of :data:`AFTER_PACKAGES` ``after_packages`` and of
+    :data:`AFTER_SERIAL` ``after_serial``."""
     for item in items:
         if item.path.stem not in UNIT_MODULES:
             item.add_marker(pytest.mark.e2e)
@@ -53,3 +59,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.serial)
         if item.path.stem in AFTER_PACKAGES:
             item.add_marker(pytest.mark.after_packages)
+        if item.path.stem in AFTER_SERIAL:
+            item.add_marker(pytest.mark.after_serial)

@@ -7,16 +7,17 @@
 # `make test` runs its streams side by side, each on its own ROS domain and temp directory:
 #   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
 #            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
-#            at the caller's priority and with its rights (SCHED_FIFO, locked memory); then
-#            `after`: the workspace modules in test/conftest.py AFTER_PACKAGES;
-#   packages lint beside colcon test of every package (less its serial tests);
+#            at the caller's priority and with its rights (SCHED_FIFO, locked memory); then,
+#            confined, the workspace modules in test/conftest.py AFTER_SERIAL;
+#   packages lint beside colcon test of every package (less its serial tests), then the
+#            workspace modules in AFTER_PACKAGES;
 #   e2e      every other workspace module.
 # All but serial are confined (`confined` below): in a CPU cgroup of a sixteenth of the
 # default weight, at nice 19, without the right to SCHED_FIFO or locked memory (RLIMIT_RTPRIO
 # 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT threads of their stacks run
 # as ordinary threads and every thread of theirs gets only what the serial stream leaves;
 # rt_core reports the refusal (hardening DEGRADED) and runs on. Where no cgroup can be made,
-# the serial stream runs alone after the others (`after` then at the end of `packages`):
+# the serial stream runs alone after the others (AFTER_SERIAL then at the end of packages):
 # nice alone does not put a stack that starts its own session below another (autogroup).
 # SCHED_IDLE instead of nice 19 starved the confined streams into failures of their own
 # (docs/testing.md).
@@ -152,15 +153,21 @@ else
     markers="$markers and not serial" packages || r=1
     wait $lint_pid || r=1
     cat "$tmp/lint.log"
-    if [[ -z ${AFTER_OWN_STREAM:-} ]]; then
-      after_stream || r=1
+    after_stream || r=1
+    if [[ -z ${AFTER_SERIAL_LATER:-} ]]; then
+      after_serial_stream || r=1
     fi
     return $r
   }
   after_stream() {
-    export ROS_DOMAIN_ID=$(( (base + 2) % 100 + 1 ))
+    export ROS_DOMAIN_ID=$(( (base % 100) + 1 ))
     echo "== workspace tests after the packages (-m '$markers and not serial and after_packages') =="
     run_pytest after_packages test -m "$markers and not serial and after_packages"
+  }
+  after_serial_stream() {
+    export ROS_DOMAIN_ID=$(( (base + 2) % 100 + 1 ))
+    echo "== workspace tests after the serial ones (-m '$markers and not serial and after_serial') =="
+    run_pytest after_serial test -m "$markers and not serial and after_serial"
   }
   e2e_stream() {
     export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
@@ -168,22 +175,22 @@ else
     echo "== workspace tests (-m '$m') =="
     run_pytest e2e test -m "$m"
   }
-  export -f lint packages run_pytest packages_stream e2e_stream after_stream
+  export -f lint packages run_pytest packages_stream e2e_stream after_stream after_serial_stream
   export tmp markers base
   if make_cgroup; then
     # All three side by side: the serial stream at the caller's priority in the root group,
     # the confined two in the low-weight cgroup, where they get what the serial stack leaves.
-    # Three at a time: the serial stream, then (confined) the modules after the packages,
-    # beside the packages and e2e streams. Behind colcon test those modules finished last
-    # (15 min 10 s, bf408d1); as a fourth stream from the start they starved the confined
-    # streams on 2 cores into timeouts (a stack that did not reach speed in 60 s, a pty scan
-    # late by 0.5 s: 48b7bb3, 821a8c7).
+    # Three at a time: the serial stream, then (confined) the AFTER_SERIAL modules, beside
+    # the packages stream (then the AFTER_PACKAGES modules) and the e2e stream. As a fourth
+    # stream from the start those modules starved the confined streams on 2 cores into
+    # timeouts (a stack that did not reach speed in 60 s, a pty scan late by 0.5 s: 821a8c7);
+    # all of them behind the serial stream took 15 min 3 s (4d6c3f4).
     echo "== three streams side by side; the confined ones in $cg =="
-    export AFTER_OWN_STREAM=1
+    export AFTER_SERIAL_LATER=1
     (confined bash -c packages_stream) >"$tmp/packages.log" 2>&1 & packages_pid=$!
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
     serial_stream >"$tmp/serial.log" 2>&1 || rc=1
-    (confined bash -c after_stream) >"$tmp/after.log" 2>&1 || rc=1
+    (confined bash -c after_serial_stream) >"$tmp/after.log" 2>&1 || rc=1
   else
     # No cgroup: the serial stream alone, after the other two (the modules after the
     # packages at the end of the packages stream). Beside them (niced, in
@@ -194,7 +201,7 @@ else
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
   fi
   wait $packages_pid || rc=1
-  echo "== lint and colcon test (without a cgroup, then the modules after the packages) =="
+  echo "== lint and colcon test, then the modules after the packages =="
   cat "$tmp/packages.log"
   wait $e2e_pid || rc=1
   cat "$tmp/e2e.log"

@@ -116,6 +116,9 @@ def pytest_configure(config: pytest.Config) -> None:
         'markers', 'after_packages: a workspace module make test runs after the package tier, '
         'in its confined stream (test/conftest.py)')
     config.addinivalue_line(
+        'markers', 'after_serial: a workspace module make test runs, confined, after the '
+        'serial stream (test/conftest.py)')
+    config.addinivalue_line(
         'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
         'install or the ros-verify environment); skipped with the reason elsewhere')
     config.addinivalue_line(
