@@ -171,7 +171,7 @@ else
   }
   e2e_stream() {
     export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
-    local m="$markers and not serial and not after_packages"
+    local m="$markers and not serial and not after_packages and not after_serial"
     echo "== workspace tests (-m '$m') =="
     run_pytest e2e test -m "$m"
   }
