@@ -65,13 +65,26 @@ def bridge_environments(proc: str = '/proc') -> dict[int, dict[str, str]]:
     return out
 
 
+def _domain(env: Mapping[str, str]) -> str:
+    return env.get('ROS_DOMAIN_ID', '').strip() or '0'
+
+
 def graph_problems(env: Mapping[str, str] | None = None, proc: str = '/proc') -> list[str]:
-    """Return the open-graph problems of this process's environment and of local bridges."""
+    """Return the open-graph problems of this process's environment and of local bridges.
+
+    Only the bridges on this environment's ``ROS_DOMAIN_ID`` are in the graph the doctor
+    checks; one on another domain is another graph (two stacks side by side on one host --
+    ``make test``'s streams -- each on a domain of its own).
+    """
+    here = os.environ if env is None else env
     out = []
-    own = range_problem(os.environ if env is None else env, 'this shell')
+    own = range_problem(here, 'this shell')
     if own is not None:
         out.append(own)
+    domain = _domain(here)
     for pid, benv in sorted(bridge_environments(proc).items()):
+        if _domain(benv) != domain:
+            continue
         line = range_problem(benv, 'the bridge (pid {})'.format(pid))
         if line is not None:
             out.append(line)

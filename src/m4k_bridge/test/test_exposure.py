@@ -39,9 +39,15 @@ def test_a_running_bridge_with_an_open_range_is_named_by_pid():
                               'm4k_bridge.node'], env=env, stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == 'up'
-        lines = graph_problems({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'})
+        here = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                'ROS_DOMAIN_ID': env.get('ROS_DOMAIN_ID', '0')}
+        lines = graph_problems(here)
         assert any('the bridge (pid {})'.format(child.pid) in ln for ln in lines), lines
         assert not any('this shell' in ln for ln in lines)
+        # a bridge on another domain is another graph: not this doctor's
+        other = str((int(here['ROS_DOMAIN_ID'] or '0') + 1) % 100 + 1)
+        lines = graph_problems(dict(here, ROS_DOMAIN_ID=other))
+        assert not any('the bridge (pid {})'.format(child.pid) in ln for ln in lines), lines
     finally:
         child.kill()
         child.wait()
