@@ -191,9 +191,12 @@ def test_encoder_frame_errors_and_jumps_are_flagged_never_fresh_angles(rig):
     jumped = []
     end = time.monotonic() + 5.0       # a busy machine may answer nothing within one window
     while not jumped and time.monotonic() < end:
-        jumped = _of(K.ENCODERS, r.run(0.05, K.WHEEL_CMD, (512, 512, 1)))
+        # a bad frame read before the frame came good may still be on its way (a starved
+        # host): it says what it was, and is no answer to the jump
+        jumped = [m for m in _of(K.ENCODERS, r.run(0.05, K.WHEEL_CMD, (512, 512, 1)))
+                  if not m.status & EncoderStatus.LEFT_FRAME]
     enc.raw = real_raw
-    assert jumped and jumped[0].status & EncoderStatus.LEFT_JUMP
+    assert jumped and jumped[0].status & EncoderStatus.LEFT_JUMP, jumped
     assert jumped[0].left_angle == bad[-1].left_angle
     assert r.handler.faults - faults0 >= len(bad) + 1
     after = r.run(1.2, K.WHEEL_CMD, (512, 512, 1))
