@@ -179,7 +179,10 @@ else
   }
   export -f lint packages run_pytest packages_stream e2e_stream after_stream after_serial_stream
   export tmp markers base
-  if make_cgroup; then
+  # The side-by-side layout is opt-in (M4K_TEST_SIDE_BY_SIDE=1): 14 min 27 s - 15 min 37 s in
+  # fresh clones, but in four of seven a confined test failed on its own clock -- each time
+  # another one, each fixed (docs/testing.md). The default stays the order CI has passed in.
+  if [[ ${M4K_TEST_SIDE_BY_SIDE:-} == 1 ]] && make_cgroup; then
     # All three side by side: the serial stream at the caller's priority in the root group,
     # the confined two in the low-weight cgroup, where they get what the serial stack leaves.
     # Three at a time: the serial stream, then (confined) the AFTER_SERIAL modules, beside
@@ -198,7 +201,7 @@ else
     # packages at the end of the packages stream). Beside them (niced, in
     # sessions of their own) four fresh clones took 11 min 45 s - 14 min 59 s and three of
     # them failed a test on the load (docs/testing.md).
-    echo "== no CPU cgroup to put the confined streams in: the serial stream runs after them =="
+    echo "== the serial stream runs after the confined ones (M4K_TEST_SIDE_BY_SIDE=1: side by side, docs/testing.md) =="
     (confined bash -c packages_stream) >"$tmp/packages.log" 2>&1 & packages_pid=$!
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
   fi
