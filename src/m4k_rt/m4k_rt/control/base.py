@@ -348,10 +348,7 @@ class BaseController:
         self.angular.reset(0.0)
         self.pi_left.reset()
         self.pi_right.reset()
-        self.holding = False
-        self._hold_bound[0] = self._hold_bound[1] = -1.0
-        self._hold_live[0] = self._hold_live[1] = False
-        self._hold_pulled[0] = self._hold_pulled[1] = False
+        self._hold_disarm()
         self._start_sp[0] = self._start_sp[1] = 0.0
         self.v = self.w = 0.0
         self.left_setpoint = self.right_setpoint = 0.0
@@ -502,7 +499,7 @@ class BaseController:
                 # it reset both PIs every few cycles, so the wheels stuck again and again.
                 self._guard_brake = False
         cs = self._count_speed
-        if -cs < wl < cs and -cs < wr < cs and self._hold.enabled:
+        if self._hold.enabled and -cs < wl < cs and -cs < wr < cs:
             # Both below what the encoders resolve over the feedback window (1.2 cm/s at the
             # rim): no speed the loop can follow -- the wheels stand, held. A heading hold's
             # correction while a guard stop holds the robot otherwise left both PIs at setpoints
@@ -531,19 +528,16 @@ class BaseController:
                 self.left_u = self.right_u = 0.0
                 self.left_code = self.right_code = DAC_ZERO
         else:
-            if self.holding:
-                self.holding = False
-                if self._held_s >= _HOLD_SETTLED_S:
-                    # bumpless: the drive PI starts from the effort that has held the wheel
-                    # (a start uphill does not roll back while the PI winds up). A shorter
-                    # hold -- a guard stop's last creep before the turn it releases to --
-                    # holds no load yet, only the last of the braking, which would drive
-                    # the wheel back.
-                    self.pi_left.integral = self.hold_effort[0]
-                    self.pi_right.integral = self.hold_effort[1]
-            self._hold_bound[0] = self._hold_bound[1] = -1.0
-            self._hold_live[0] = self._hold_live[1] = False
-            self._hold_pulled[0] = self._hold_pulled[1] = False
+            if self.holding and self._held_s >= _HOLD_SETTLED_S:
+                # bumpless: the drive PI starts from the effort that has held the wheel (a
+                # start uphill does not roll back while the PI winds up). A shorter hold -- a
+                # guard stop's last creep before the turn it releases to -- holds no load
+                # yet, only the last of the braking, which would drive the wheel back.
+                self.pi_left.integral = self.hold_effort[0]
+                self.pi_right.integral = self.hold_effort[1]
+            if self._hold_bound[0] >= 0.0:
+                # armed by the zero-setpoint cycles before this one (never with the hold off)
+                self._hold_disarm()
             ul = self.left_u = self.pi_left.update(wl, self.left_speed, dt,
                                                    self._starting(0, wl))
             ur = self.right_u = self.pi_right.update(wr, self.right_speed, dt,
@@ -578,6 +572,13 @@ class BaseController:
             self.mode = MODE_DRIVING
         else:
             self.mode = MODE_IDLE
+
+    def _hold_disarm(self) -> None:
+        """End the hold and forget its per-wheel state (the pulled test starts afresh)."""
+        self.holding = False
+        self._hold_bound[0] = self._hold_bound[1] = -1.0
+        self._hold_live[0] = self._hold_live[1] = False
+        self._hold_pulled[0] = self._hold_pulled[1] = False
 
     def _hold_begins(self, ls: float, rs: float, dt: float) -> bool:
         """Return True when the standstill hold begins this cycle (zero setpoints, no hold).
