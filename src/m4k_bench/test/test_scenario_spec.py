@@ -159,3 +159,20 @@ def test_a_clearance_expectation_is_parsed_and_stated():
     assert sc.min_clearance == 0.25 and 'clearance >= 0.25 m' in sc.expected()
     with pytest.raises(spec.ScenarioError, match='min_clearance'):
         spec.parse(dict(doc, expect={'min_clearance': -1}), 'x.yaml')
+
+
+def test_a_creep_fault_is_held_below_the_break_away_cap_from_config():
+    doc = {'description': 'd', 'world': {}, 'commands': [{'v': 0.05, 't': 1.0}],
+           'expect': {'max_speed': 'breakaway', 'motor_fault': True}}
+    sc = spec.parse(doc, 'x.yaml')
+    assert sc.max_speed == spec.BREAKAWAY
+    assert sc.expected() == 'peak speed < the break-away cap, motor fault latched; no contact'
+    with pytest.raises(spec.ScenarioError, match=r'expect\.max_speed'):
+        spec.parse(dict(doc, expect={'max_speed': 'fast'}), 'x.yaml')
+    raw = config.load_layered(None, os.path.join(ROOT, 'config'))
+    c = raw['control']
+    cap = c['pi']['breakaway_effort'] * c['full_scale_wheel_speed'] * c['wheel_radius']
+    assert bounds.bounds(raw, 0.05, None).breakaway_speed == pytest.approx(cap)
+    # the cap follows the configuration it is judged in
+    low = dict(raw, control=dict(c, pi=dict(c['pi'], breakaway_effort=0.135)))
+    assert bounds.bounds(low, 0.05, None).breakaway_speed == pytest.approx(cap * 0.9)

@@ -65,8 +65,9 @@ os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
 # What the stack keeps between runs (the flight recorder's dumps, the persisted e-stop request
 # when no runtime directory is given) goes under XDG_STATE_HOME: a private one per test
 # session, removed at its end, so no test writes into the user's ~/.local/state.
-_STATE_HOME = tempfile.mkdtemp(prefix='m4k-test-state-')
-os.environ['XDG_STATE_HOME'] = _STATE_HOME
+# Made in pytest_configure (importing this module makes nothing: a helper that imports it
+# outside pytest left a directory behind).
+_STATE_HOME: str | None = None
 
 _LEAK_GRACE_S = 3.0
 
@@ -104,7 +105,11 @@ def examples(n: int) -> int:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Register the m4k markers."""
+    """Register the m4k markers; give the session its private state directory."""
+    global _STATE_HOME
+    if _STATE_HOME is None:
+        _STATE_HOME = tempfile.mkdtemp(prefix='m4k-test-state-')
+        os.environ['XDG_STATE_HOME'] = _STATE_HOME
     config.addinivalue_line('markers', 'hardware: needs the real M4K hardware; CI skips it')
     config.addinivalue_line(
         'markers', 'e2e: the end-to-end tier (starts the stack, its processes or ROS nodes); '
@@ -205,7 +210,10 @@ def forbidden_skips(skips: list[tuple[str, str]], euid: int) -> list[tuple[str, 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
     """Remove the session's private state directory."""
-    shutil.rmtree(_STATE_HOME, ignore_errors=True)
+    global _STATE_HOME
+    if _STATE_HOME is not None:
+        shutil.rmtree(_STATE_HOME, ignore_errors=True)
+        _STATE_HOME = None
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:

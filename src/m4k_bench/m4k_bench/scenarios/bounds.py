@@ -67,7 +67,8 @@ from m4k_drivers.sonar.protocol import ECHO_TIMEOUT_S
 from m4k_drivers.world import REST_V  # m/s: at rest on ground truth
 
 __all__ = ['Bounds', 'G', 'MEMORY_BIAS_M', 'REST_V', 'SAMPLE_S', 'STOP_MARGIN_M', 'bounds',
-           'guard_params', 'judge_reaction', 'sched', 'stop_line', 'traction_limit']
+           'breakaway_speed', 'guard_params', 'judge_reaction', 'sched', 'stop_line',
+           'traction_limit']
 
 SAMPLE_S = 0.02      # the runner samples the simulator's truth every 20 ms
 G = 9.80665          # m/s^2, standard gravity
@@ -97,6 +98,7 @@ class Bounds:
     a_brake: float                # m/s^2 the stop may assume
     max_decel: float              # m/s^2: mu * g of the world's robot
     stays_stopped: bool = False   # the unplug causes: at rest until the end of the run
+    breakaway_speed: float = math.inf   # m/s at the rim: the break-away cap's (below)
 
     def stop_distance(self, v: float) -> float | None:
         """Return the stopping distance from the stop line at ``v`` on a straight approach.
@@ -252,4 +254,19 @@ def bounds(raw: Mapping[str, Any], v: float, cause: str | None,
         stop = hold + v / coast
     if stop is not None:
         stop += sched(raw)
-    return Bounds(tol, stop, t_react, a_brake, mu_g, cause in UNPLUG_CAUSES)
+    return Bounds(tol, stop, t_react, a_brake, mu_g, cause in UNPLUG_CAUSES,
+                  breakaway_speed(p))
+
+
+def breakaway_speed(p: Any) -> float:
+    """Return the rim speed (m/s) the wheel PI's break-away cap drives a wheel to.
+
+    A wheel that reads still while its setpoint is not zero -- a frozen encoder, a blocked
+    wheel -- gets the break-away boost up to ``pi.breakaway_effort`` (normalized); on a free
+    wheel that effort settles at ``breakaway_effort x full_scale_wheel_speed`` (the DAC's
+    full-scale speed: the feed-forward's own scale) times the wheel radius. The supervision
+    judges such a wheel by that effort and must latch before the wheel gets there, so a creep
+    scenario's faulty wheel stays below it: 0.30 m/s with the shipped settings, where the
+    fault used to run the wheel to full scale (2.0 m/s).
+    """
+    return p.pi.breakaway_effort * p.full_scale_wheel_speed * p.wheel_radius

@@ -24,7 +24,7 @@ from m4k_bench.scenarios.bounds import (
     STOP_MARGIN_M,
 )
 from m4k_bench.scenarios.geometry import Scene
-from m4k_bench.scenarios.spec import Scenario
+from m4k_bench.scenarios.spec import BREAKAWAY, Scenario
 
 __all__ = ['judge', 'Result', 'trigger']
 
@@ -100,7 +100,12 @@ def judge(sc: Scenario, res: Result, b: Bounds, raw: dict[str, Any]) -> None:
     if sc.min_clearance is not None and not res.min_clearance >= sc.min_clearance:
         res.failures.append(f'minimum clearance {res.min_clearance:.3f} m on ground truth < '
                             f'{sc.min_clearance:g} m expected')
-    if sc.max_speed is not None and not res.peak_speed < sc.max_speed:
+    if sc.max_speed == BREAKAWAY:
+        if not res.peak_speed < b.breakaway_speed:
+            res.failures.append(f'peak speed {res.peak_speed:.3f} m/s on ground truth (body or '
+                                f'wheel rim) >= {b.breakaway_speed:.3f} m/s, the break-away '
+                                f'cap (pi.breakaway_effort at the full-scale rim speed)')
+    elif isinstance(sc.max_speed, float) and not res.peak_speed < sc.max_speed:
         res.failures.append(f'peak speed {res.peak_speed:.3f} m/s on ground truth (body or wheel '
                             f'rim) >= {sc.max_speed:g} m/s')
     if not (sc.motor_fault or sc.faults or sc.e_stop or sc.world.get('faults')

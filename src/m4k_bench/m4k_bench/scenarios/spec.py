@@ -18,6 +18,8 @@ A scenario is one YAML file (``config/scenarios/*.yaml`` ships the suite; write 
                                         # a number of metres, e.g. 0: must not move)
       stop: sonar                       # the robot stops, within the bound of this cause
       max_speed: 0.5                    # m/s: peak true body and wheel-rim speed below this
+                                        # (or breakaway: the rim speed the PI's break-away
+                                        # cap drives a wheel to, from config/control.yaml)
       motor_fault: true                 # a latched motor fault: zero outputs, at rest while
                                         # still commanded, to the end of the commands
       still_after_estop: true           # after the e-stop contact (world.faults) closes again
@@ -51,12 +53,13 @@ import yaml
 from m4k_rt import yamlload
 from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
 
-__all__ = ['COMMAND', 'Command', 'EXPECT', 'Fault', 'KILL', 'SCENARIO', 'Scenario',
-           'ScenarioError', 'STOP_CAUSES', 'load', 'load_dir']
+__all__ = ['BREAKAWAY', 'COMMAND', 'Command', 'EXPECT', 'Fault', 'KILL', 'SCENARIO',
+           'Scenario', 'ScenarioError', 'STOP_CAUSES', 'load', 'load_dir']
 
 STOP_CAUSES = ('sonar', 'laser', 'sonar_unplugged', 'laser_unplugged', 'bridge_killed',
                'driver_host_killed')
 KILLABLE = ('driver_host', 'bridge', 'rt_core')
+BREAKAWAY = 'breakaway'   # expect.max_speed: the break-away cap's rim speed (bounds.py)
 
 
 class ScenarioError(ConfigError):
@@ -95,7 +98,8 @@ class Scenario:
     distance_m: float | None = None  # or expect this distance (m), e.g. 0: must not move
     stop: str | None = None         # expect a stop, for this cause
     short: float = 1.0
-    max_speed: float | None = None  # m/s: peak true speed (body, wheel rims) below this
+    max_speed: float | str | None = None  # m/s: peak true speed (body, wheel rims) below
+                                    # this, or BREAKAWAY (m4k_bench.scenarios.bounds)
     motor_fault: bool = False       # expect a latched motor fault
     still_after_estop: bool = False  # no motion after the e-stop contact closes again
     max_w_after_kill: float | None = None   # rad/s: |w| from the kill on
@@ -119,7 +123,9 @@ class Scenario:
                  f'{self.distance_m:g} m' if self.distance_m is not None else '']
         if self.stop:
             parts.append(f'stop ({self.stop.replace("_", " ")})')
-        if self.max_speed is not None:
+        if self.max_speed == BREAKAWAY:
+            parts.append('peak speed < the break-away cap')
+        elif self.max_speed is not None:
             parts.append(f'peak speed < {self.max_speed:g} m/s')
         if self.motor_fault:
             parts.append('motor fault latched')
@@ -141,6 +147,12 @@ def _nonempty(what: str) -> Callable[[Any], str | None]:
 def _no_world(v: Any) -> str | None:
     if v and 'world' in v:
         return "expected a mapping without world: (use the scenario's world:), got {!r}".format(v)
+    return None
+
+
+def _max_speed(v: Any) -> str | None:
+    if isinstance(v, str) and v != BREAKAWAY:
+        return f'expected m/s >= 0 or "{BREAKAWAY}", got {v!r}'
     return None
 
 
@@ -197,8 +209,13 @@ EXPECT: dict[str, Field] = {
                       check=_distance),
     'stop': Field('str', None, 'The robot comes to rest, within the bound of this cause '
                   '(m4k_bench.scenarios.bounds).', choices=STOP_CAUSES, nullable=True),
-    'max_speed': Field('float', None, 'Peak true body and wheel-rim speed below this.',
-                       unit='m/s', lo=0, nullable=True),
+    'max_speed': Field('float|str', None, 'Peak true body and wheel-rim speed below this. '
+                       f'"{BREAKAWAY}": below the rim speed the wheel PI\'s break-away cap '
+                       'drives a wheel to (pi.breakaway_effort x the full-scale rim speed, '
+                       'from the configuration): what a frozen or blocked wheel at a creep may '
+                       'reach before the supervision latches.',
+                       unit='m/s', lo=0, nullable=True,
+                       expect=f'm/s >= 0 or "{BREAKAWAY}"', check=_max_speed),
     'motor_fault': Field('bool', False, 'A latched motor fault: zero outputs, at rest while '
                          'still commanded, to the end of the commands.'),
     'still_after_estop': Field('bool', False, 'After the e-stop contact (world.faults) closes '
@@ -238,11 +255,12 @@ def parse(doc: Any, where: str) -> Scenario:
                                 f'of them), got {f["at"]!r}')
         faults.append(Fault(v['kill'], travelled or 0.0, after))
     exp = validate_tree(EXPECT, top['expect'], f'{where}.expect', ScenarioError)
-    dist = exp['distance']
+    dist, ms = exp['distance'], exp['max_speed']
     name = top['name'] or os.path.splitext(os.path.basename(where))[0]
     return Scenario(name, top['description'], top['world'] or {}, tuple(cmds), tuple(faults),
                     dist == 'commanded', None if dist in (None, 'commanded') else float(dist),
-                    exp['stop'], top['short'], max_speed=exp['max_speed'],
+                    exp['stop'], top['short'],
+                    max_speed=ms if ms is None or ms == BREAKAWAY else float(ms),
                     motor_fault=exp['motor_fault'],
                     still_after_estop=exp['still_after_estop'],
                     max_w_after_kill=exp['max_w_after_kill'],
