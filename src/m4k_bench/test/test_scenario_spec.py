@@ -176,3 +176,17 @@ def test_a_creep_fault_is_held_below_the_break_away_cap_from_config():
     # the cap follows the configuration it is judged in
     low = dict(raw, control=dict(c, pi=dict(c['pi'], breakaway_effort=0.135)))
     assert bounds.bounds(low, 0.05, None).breakaway_speed == pytest.approx(cap * 0.9)
+
+
+def test_a_failed_runs_report_quotes_the_logs_warnings_before_its_tail():
+    from m4k_bench.scenarios.run import log_digest
+    log = (['[rt_core] rt_core: task actuator: started'] * 40
+           + ['[rt_core] rt_core WARNING: motor fault latched: left wheel frozen']
+           + ['[bridge] odom'] * 40 + [f'bringup: stop {i}' for i in range(6)])
+    out = log_digest(log).splitlines()
+    assert out[0].endswith('motor fault latched: left wheel frozen')
+    assert out[1] == '...' and out[2:] == [f'bringup: stop {i}' for i in range(6)]
+    many = [f'x ERROR {i}' for i in range(30)] + ['end']
+    out = log_digest(many, notable=3, tail=1).splitlines()
+    assert out == ['x ERROR 0', 'x ERROR 1', 'x ERROR 2', '... (27 more such lines)', 'end']
+    assert log_digest(['a', 'b']) == 'a\nb'

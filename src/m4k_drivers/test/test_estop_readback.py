@@ -122,3 +122,33 @@ def test_either_read_back_polarity_gives_the_same_estop_state_over_the_sim_bus(r
     assert all(s & OPEN for s in _cycle(h, clock, 3))
     robot.world.set_estop_open(False)
     assert all(not s & OPEN for s in _cycle(h, clock, 3))
+
+
+@pytest.mark.parametrize('stall_periods', [3, 4, 5, 8, 12])
+@pytest.mark.parametrize('phase', [0, 1])           # the stall after a rising or a falling edge
+@pytest.mark.parametrize('served', ['in_time', 'in_a_burst'])
+def test_a_host_stall_reads_no_open_contact_and_the_first_command_after_it_drives(
+        rig, stall_periods, phase, served):
+    # The handler times its heartbeat from the last rising edge, as the monostable does: timed
+    # from the last toggle (a falling edge every other command), a 40 ms stall whose queued
+    # readings were served in a burst read an open contact four times in a row.
+    h, robot, clock = rig()
+    assert not any(s & OPEN for s in _cycle(h, clock, 20 + phase))
+    statuses = []
+    if served == 'in_time':          # the RT side's requests answered, its commands lost
+        for _ in range(stall_periods):
+            clock.t += 10 * MS
+            statuses.append(h.read().value.status)
+    else:                            # the host stalled whole; its queue served at once
+        clock.t += stall_periods * 10 * MS
+        statuses += [h.read().value.status for _ in range(stall_periods)]
+    # the last rising edge was the last command (phase 1) or the one before it (phase 0)
+    since_rise_ms = stall_periods * 10 + 10 * (1 - phase)
+    assert robot.truth()['motor_enabled'] == (since_rise_ms < 50)     # the 50 ms hold
+    clock.t += 10 * MS
+    h.write(WheelCommand(600, 600, 1))
+    # the first command after a lapse re-arms the monostable, whatever the line's level was
+    assert robot.truth()['motor_enabled']
+    statuses.append(h.read().value.status)
+    statuses += _cycle(h, clock, 10)
+    assert not any(s & OPEN for s in statuses)

@@ -31,7 +31,7 @@ from m4k_bringup.bringup import bringup_argv
 from m4k_bringup.child import Child, Output, Stopping
 from m4k_rt import config
 
-__all__ = ['Result', 'run_scenario']
+__all__ = ['Result', 'log_digest', 'run_scenario']
 
 STARTUP_TIMEOUT_S = 60.0
 SETTLE_S = 1.0            # after the last command: zero commands, then sampled until at rest
@@ -178,10 +178,30 @@ def run_scenario(sc: Scenario, work_dir: str, *, short: bool = False,
         ros.close()
         proc.stop()
         with open(log_path, 'rb') as f:
-            res.log_tail = b'\n'.join(f.read().splitlines()[-15:]).decode(errors='replace')
+            res.log_tail = log_digest(f.read().decode(errors='replace').splitlines())
         shutil.rmtree(runtime_dir, ignore_errors=True)
     judge(sc, res, b, raw)
     return res
+
+
+# What a failed run's report quotes from the stack's log: its warnings and errors (a latched
+# fault, an e-stop, a stale link, a host's drops by reason) say why it failed; the last lines,
+# the shutdown, rarely do.
+_NOTABLE = (' WARNING', ' ERROR', ' CRITICAL', 'fault', 'latch', 'e-stop', 'stale', 'stall')
+
+
+def log_digest(lines: list[str], notable: int = 25, tail: int = 6) -> str:
+    """Return the stack log lines a failure report quotes: the first ``notable`` warnings,
+    errors and fault lines before the last ``tail`` lines, in log order, each once."""
+    last = len(lines) - tail
+    picked = [i for i, ln in enumerate(lines[:max(last, 0)])
+              if any(k in ln for k in _NOTABLE)]
+    out = [lines[i] for i in picked[:notable]]
+    if len(picked) > notable:
+        out.append(f'... ({len(picked) - notable} more such lines)')
+    if picked and last > picked[-1] + 1:
+        out.append('...')
+    return '\n'.join(out + lines[max(last, 0):])
 
 
 HOLD_GAIN = 1.0           # rad/s per rad of heading error (heading: hold)

@@ -137,9 +137,11 @@ class MotorHandler(DeviceHandler):
         self.codes = (p.DAC_ZERO, p.DAC_ZERO)
         self.safe = True
         self.last_cmd_ns: int | None = None
-        # the last command with the enable bit set (the last heartbeat edge): while the
-        # enable is off on purpose, a low read-back is no open e-stop contact
-        self.last_enable_ns: int | None = None
+        # the heartbeat's last rising edge (when this handler's clock read it, before the
+        # write): the monostable's hold runs from it -- not from the last toggle, which is a
+        # falling edge every other command. While the enable is off on purpose (no rising
+        # edge for a hold), a low read-back is no open e-stop contact.
+        self.last_rise_ns: int | None = None
         self.watchdog_trips = 0
         self.write_error = False
         self.last_raw = [0, 0]
@@ -197,13 +199,20 @@ class MotorHandler(DeviceHandler):
         self.last_cmd_ns = self.clock()
         self._write_codes(left, right)
         self.safe = not enable
-        if enable:
-            self.last_enable_ns = self.last_cmd_ns
         if enable and self.bus is not None and self.bus.enable is not None:
             # After the DACs: the enable never outlives a write. A command with the enable
             # off does not feed the heartbeat, so the monostable drops the amplifier enable
             # within its hold: the end of a category-1 stop (the RT side braked first).
-            self.bus.enable.toggle()
+            line = self.bus.enable
+            if line.level and not self.driving_enable(self.last_cmd_ns):
+                # The hold ran out with the line high (a stall, the enable off on purpose):
+                # the next toggle would be a falling edge, which retriggers nothing -- pull
+                # it low first, so this command's edge rises and the drive is back now, not
+                # one command later.
+                line.toggle()
+            line.toggle()
+            if line.level:
+                self.last_rise_ns = self.last_cmd_ns
 
     def on_read(self) -> EncoderReading:
         """Read both encoders (a bad frame sets its status bit, keeps the last angle)."""
@@ -311,13 +320,20 @@ class MotorHandler(DeviceHandler):
         self.written = out
 
     def driving_enable(self, now_ns: int | None = None) -> bool:
-        """Return True while this handler drives the amplifier enable (heartbeat live)."""
+        """Return True while this handler drives the amplifier enable (heartbeat live).
+
+        Live: the heartbeat's last rising edge is younger than the monostable's hold -- the
+        monostable's own rule. Timed from the last toggle instead (a falling edge every other
+        command), a 40 ms host stall left a 10 ms window in which the handler drove an enable
+        the monostable had dropped, and the queued readings served in it all read an open
+        e-stop contact (four in a row in a burst: one short of the RT side's latch).
+        """
         if self.bus is None or self.bus.enable is None:
             return self.bus is not None      # strapped on: always driven
-        if self.last_enable_ns is None or self.enable_hold_ns is None:
-            return self.last_enable_ns is not None
+        if self.last_rise_ns is None or self.enable_hold_ns is None:
+            return self.last_rise_ns is not None
         now = self.clock() if now_ns is None else now_ns
-        return now - self.last_enable_ns < self.enable_hold_ns
+        return now - self.last_rise_ns < self.enable_hold_ns
 
     def _estop_read(self) -> bool:
         """Read the e-stop read-back; True (stop) when driven and not asserted, or latched."""
