@@ -191,8 +191,11 @@ _NOTABLE = (' WARNING', ' ERROR', ' CRITICAL', 'fault', 'latch', 'e-stop', 'stal
 
 
 def log_digest(lines: list[str], notable: int = 25, tail: int = 6) -> str:
-    """Return the stack log lines a failure report quotes: the first ``notable`` warnings,
-    errors and fault lines before the last ``tail`` lines, in log order, each once."""
+    """Return the stack log lines a failure report quotes.
+
+    The first ``notable`` warnings, errors and fault lines before the last ``tail`` lines, in
+    log order, each once.
+    """
     last = len(lines) - tail
     picked = [i for i, ln in enumerate(lines[:max(last, 0)])
               if any(k in ln for k in _NOTABLE)]
