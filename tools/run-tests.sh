@@ -4,7 +4,8 @@
 # marked `e2e` (they start the stack, its processes or ROS nodes; every workspace module but the
 # static checks listed in test/conftest.py) -- the fast loop while editing; its three tiers run
 # side by side.
-# `make test` runs its streams side by side, each on its own ROS domain and temp directory:
+# `make test` runs three streams, each on its own ROS domain and temp directory (in which order:
+# at the end of this file; by default the serial one alone, after the other two):
 #   serial   the tests marked `serial` (judged on the simulator's physics in wall-clock time:
 #            test/conftest.py SERIAL_MODULES, and the package tests marked so), one at a time,
 #            at the caller's priority and with its rights (SCHED_FIFO, locked memory); then,
@@ -184,7 +185,8 @@ else
   # another one, each fixed (docs/testing.md). The default stays the order CI has passed in.
   if [[ ${M4K_TEST_SIDE_BY_SIDE:-} == 1 ]] && make_cgroup; then
     # All three side by side: the serial stream at the caller's priority in the root group,
-    # the confined two in the low-weight cgroup, where they get what the serial stack leaves.
+    # the packages and e2e streams in the low-weight cgroup, where they get what the serial
+    # stack leaves.
     # Three at a time: the serial stream, then (confined) the AFTER_SERIAL modules, beside
     # the packages stream (then the AFTER_PACKAGES modules) and the e2e stream. As a fourth
     # stream from the start those modules starved the confined streams on 2 cores into
@@ -197,8 +199,9 @@ else
     serial_stream >"$tmp/serial.log" 2>&1 || rc=1
     (confined bash -c after_serial_stream) >"$tmp/after.log" 2>&1 || rc=1
   else
-    # No cgroup: the serial stream alone, after the other two (the modules after the
-    # packages at the end of the packages stream). Beside them (niced, in
+    # The default, and where no cgroup can be made: the serial stream alone, after the other
+    # two (the modules after the packages at the end of the packages stream). Beside them
+    # (niced, in
     # sessions of their own) four fresh clones took 11 min 45 s - 14 min 59 s and three of
     # them failed a test on the load (docs/testing.md).
     echo "== the serial stream runs after the confined ones (M4K_TEST_SIDE_BY_SIDE=1: side by side, docs/testing.md) =="
