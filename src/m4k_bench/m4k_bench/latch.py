@@ -14,12 +14,14 @@ a caster-loaded base), ``uncalibrated`` (0.9 V dead band, offsets +0.3 / -1.2 V)
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any, Sequence
 
 from m4k_bench.virtualbase import VirtualBase
+from m4k_drivers.motors.protocol import ENC_COUNTS
 
-__all__ = ['BASES', 'CREEPS', 'from_the_start', 'main', 'still_after_stop',
-           'turn_after_guard_stops']
+__all__ = ['BASES', 'CREEPS', 'HOLD_ON', 'from_the_start', 'hold_offset', 'hold_ramp', 'main',
+           'still_after_stop', 'turn_after_guard_stops']
 
 TRIM_V = 2 * 24.0 / 511          # two DAC codes of the 24 V full scale
 BASES: dict[str, dict[str, float]] = {
@@ -100,6 +102,89 @@ def turn_after_guard_stops(w: float, seed: int, robot: dict[str, Any],
         vb.close()
 
 
+HOLD_ON: dict[str, Any] = {'hold': {'enabled': True}}   # control overlay: the hold switched on
+
+
+def _held_counts(vb: VirtualBase, seconds: float, v: float | None, **kw: Any
+                 ) -> tuple[float, float | None]:
+    """Run ``seconds``; return (most counts a wheel turned from where a hold began, latch s)."""
+    count = 2.0 * math.pi / ENC_COUNTS
+    worst, start, latched = 0.0, None, None
+    for i in range(round(seconds / 0.01)):
+        vb.cycle(v, 0.0, **kw)
+        c = vb.ctl
+        if c.holding:
+            start = start or list(c._angles)
+            worst = max(worst, *(abs(a - b) / count for a, b in zip(c._angles, start,
+                                                                       strict=True)))
+        else:
+            start = None
+        if latched is None and c.supervisor.latched:
+            latched = (i + 1) * 0.01
+    return worst, latched
+
+
+def hold_offset(offset_v: float, seed: int, seconds: float = 2.0) -> tuple[float, float | None]:
+    """With the hold on, a left amplifier offset from rest on the level, never commanded.
+
+    Return (most counts a wheel turned from where the hold began, the latch time or None).
+    """
+    vb = VirtualBase(world={'seed': seed, 'robot': {'amp_offset_left_v': offset_v}},
+                     control=HOLD_ON)
+    try:
+        return _held_counts(vb, seconds, 0.0)
+    finally:
+        vb.close()
+
+
+def hold_ramp(robot: dict[str, Any], grade_deg: float, downhill_deg: float, how: str,
+              seed: int, seconds: float = 3.0) -> tuple[float, float | None]:
+    """With the hold on, on a ramp: placed, a stop from 0.5 m/s, or a guard stop from 1 m/s.
+
+    The ramp falls toward ``downhill_deg`` (0: ahead, 180: behind). Return as
+    :func:`hold_offset`.
+    """
+    floor = [{'rectangle': [-30.0, -30.0, 30.0, 30.0], 'mu': 0.6, 'grade_deg': grade_deg,
+              'downhill_deg': downhill_deg}]
+    vb = VirtualBase(world={'seed': seed, 'floor': floor, 'robot': robot}, control=HOLD_ON)
+    try:
+        if how == 'stop':
+            vb.run(2.5, 0.5)
+            return _held_counts(vb, seconds, 0.0)
+        if how == 'guard stop':
+            vb.run(3.5, 1.0)
+            return _held_counts(vb, seconds, 1.0, forward_cap=0.0, guard_active=True)
+        return _held_counts(vb, seconds, None)
+    finally:
+        vb.close()
+
+
+def _hold_tables(seeds: Sequence[int]) -> None:
+    print('The standstill hold switched on (control.hold.enabled; shipped off): how far a held '
+          'wheel turns from where the hold began [encoder counts, the most over the seeds]; '
+          'against an offset the worst latch time [s] ("none": a seed that never latched); on '
+          'a ramp, where nothing should latch, every latch time\n')
+    offsets = (0.5, 1.0, 2.0, 3.0, 4.0, 6.0)
+    print('| left amplifier offset, from rest on the level | '
+          + ' | '.join(f'{o:g} V' for o in offsets) + ' |')
+    print('|---|' + '---|' * len(offsets))
+    runs = [[hold_offset(o, sd) for sd in seeds] for o in offsets]
+    print('| counts; latch | ' + ' | '.join(
+        f'{max(r[0] for r in rs):.0f}; {_worst([r[1] for r in rs])}' for rs in runs) + ' |')
+    hows = ('placed', 'stop', 'guard stop')
+    print('\n| 4.8 deg ramp | base | ' + ' | '.join(hows) + ' |')
+    print('|---|---|' + '---|' * len(hows))
+    for dh, what in ((0.0, 'downhill ahead'), (180.0, 'uphill ahead')):
+        for name, robot in BASES.items():
+            cells = []
+            for how in hows:
+                rs = [hold_ramp(robot, 4.8, dh, how, sd) for sd in seeds]
+                falsely = [f'{r[1]:.2f}' for r in rs if r[1] is not None]
+                cells.append(f'{max(r[0] for r in rs):.0f}; '
+                             + (f'latched ({", ".join(falsely)})' if falsely else 'none'))
+            print(f'| {what} | {name} | ' + ' | '.join(cells) + ' |', flush=True)
+
+
 def _worst(values: Sequence[float | None]) -> str:
     if any(x is None for x in values):
         return 'none'
@@ -112,8 +197,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3])
     ap.add_argument('--imu-lag', type=float, default=0.0, metavar='S',
                     help='the gyro reaches the controller S seconds after the encoders')
+    ap.add_argument('--hold', action='store_true',
+                    help='only the standstill hold switched on: how far held wheels turn, on '
+                    'ramps and against an amplifier offset, and what latches')
     args = ap.parse_args(argv)
     seeds = args.seeds
+    if args.hold:
+        _hold_tables(seeds)
+        return 0
     print(f'seeds {seeds}; gyro {args.imu_lag * 1e3:g} ms behind the encoders; worst latch '
           'time [s] after the first command, left / right wheel; peak ground-truth speed '
           '[m/s]\n')
