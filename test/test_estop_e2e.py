@@ -16,6 +16,7 @@ import time
 
 from geometry_msgs.msg import Twist, TwistStamped
 import pytest
+from rclpy.time import Time
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from test_bringup import cmdline
@@ -193,6 +194,22 @@ def test_e_stop_stops_the_robot_ignores_commands_and_needs_a_fresh_one(
     assert proc.poll() is None
 
 
+def _odom_after_reply(user, odom, what):
+    """Return the first odometry sampled after a service's reply reached us.
+
+    Not the next few messages: a starved subscriber is still handed messages from before the
+    reply (a fresh clone's confined stream got three, all at the old pose).
+    """
+    done_ns = user.node.get_clock().now().nanoseconds
+    n = len(odom)
+
+    def after():
+        return next((m for m in odom[n:] if Time.from_msg(m.header.stamp).nanoseconds > done_ns),
+                    None)
+    user.spin_until(lambda: after() is not None, 15, f'odom stamped after the {what} reply')
+    return after()
+
+
 def test_reset_odometry_zeroes_the_pose_after_the_rt_side_confirms(stack):  # noqa: F811
     user, proc, _ = stack
     cmd = user.publisher(Twist, 'cmd_vel')
@@ -205,11 +222,10 @@ def test_reset_odometry_zeroes_the_pose_after_the_rt_side_confirms(stack):  # no
     user.spin_until(client.service_is_ready, 20, 'the reset_odometry service')
     reply = call(client, Trigger.Request(), _spin(user), 20, 'the reset_odometry service')
     assert reply.success, reply.message
-    n = len(odom)
-    user.spin_until(lambda: len(odom) > n + 2, 15, 'odom after the reset')
+    first = _odom_after_reply(user, odom, 'reset_odometry').pose.pose
     # stopped or not, the pose restarted from zero: at most a few odom periods of travel
-    assert abs(odom[-1].pose.pose.position.x) < 0.1
-    assert abs(odom[-1].pose.pose.position.y) < 0.01
+    assert abs(first.position.x) < 0.1
+    assert abs(first.position.y) < 0.01
     assert proc.poll() is None
 
 
@@ -266,9 +282,7 @@ def test_set_pose_moves_the_odometry_after_the_rt_side_confirms(stack):  # noqa:
     reply = call(client, SetPose.Request(x=1.0, y=2.0, yaw=0.5), _spin(user), 20,
                  'the set_pose service')
     assert reply.success, reply.message
-    n = len(odom)
-    user.spin_until(lambda: len(odom) > n + 2, 15, 'odom after set_pose')
-    p = odom[-1].pose.pose
+    p = _odom_after_reply(user, odom, 'set_pose').pose.pose
     assert (p.position.x, p.position.y) == pytest.approx((1.0, 2.0), abs=0.01)
     assert 2 * math.atan2(p.orientation.z, p.orientation.w) == pytest.approx(0.5, abs=0.01)
     assert proc.poll() is None

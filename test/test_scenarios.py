@@ -359,20 +359,30 @@ def test_the_judge_sees_a_contact_when_the_guard_is_off(tmp_path, m4k_runtime_di
 
 
 @pytest.mark.parametrize('name', ['wall_0_5', 'person_1_0'])
-def test_negative_control_a_guard_weakened_by_10cm_fails_the_judge(name, tmp_path,
-                                                                    m4k_runtime_dir):
-    """The guard weakened by 0.1 m through rt_core's test-only hook: the judge must fail it.
+def test_negative_control_a_guard_weakened_beyond_the_judges_allowance_fails_the_judge(
+        name, tmp_path, m4k_runtime_dir):
+    """The guard weakened through rt_core's test-only hook: the judge must fail it.
 
     The hook (M4K_TEST_HOOKS=1, M4K_TEST_GUARD_WEAKEN_M) reaches rt_core through the stack's
     environment only; the judge reads the configuration and the ground truth, never the hook,
-    so it holds the weakened guard to the real stop line -- and it stops 10 cm too late. On a
-    static wall at 0.5 m/s, and on a moving obstacle at 1 m/s (a person steps into the path
-    and stands: the promise at rest holds for moving obstacles too).
+    so it holds the weakened guard to the real stop line. On a static wall at 0.5 m/s, and on
+    a moving obstacle at 1 m/s (a person steps into the path and stands: the promise at rest
+    holds for moving obstacles too).
+
+    By how much: 1 cm more than the judge's reach allowance at the world's speed, ``v t_react
+    + 0.02 m`` (0.115 m at 0.5 m/s, 0.2 m at 1 m/s). A guard late by less can keep every
+    promise the judge holds it to -- it may react faster than its t_react, and it brakes
+    harder than the brake_deceleration its stop zone assumes: at 1 m/s a guard 0.1 m late was
+    judged a pass, rightly (a fresh clone of 6448d3f).
     """
     sc = BY_NAME[name]
-    env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1', M4K_TEST_GUARD_WEAKEN_M='0.1')
+    raw = config.load_layered(None, os.path.join(ROOT, 'config'))
+    v = max(abs(c.v) for c in sc.scaled(True))
+    weaken = round(bounds.bounds(raw, v, sc.stop).reach(v) + 0.01, 3)
+    env = dict(stack_env(m4k_runtime_dir), M4K_TEST_HOOKS='1',
+               M4K_TEST_GUARD_WEAKEN_M=str(weaken))
     res = run_scenario(sc, str(tmp_path), short=True, env=env)
-    assert not res.passed, 'the judge passed a guard weakened by 0.1 m'
+    assert not res.passed, f'the judge passed a guard weakened by {weaken} m'
     # for the intended reason: it reached the obstacle and stopped late (not "its trigger
     # never happened": a robot that never got near it proves nothing) -- past its stop line
     # further than its reaction allows, or at rest inside the distance the guard promises.
