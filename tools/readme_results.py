@@ -88,10 +88,16 @@ def bench_facts() -> dict[str, Any]:
     if not rows:
         raise ArtifactError('docs/results/bench-combined.md: no target table')
     verdicts = [r[-1] for r in rows]
-    runs = len(set(re.findall(r'(?m)^\* run (\d+): \[', _read('bench-combined.md'))))
+    text = _read('bench-combined.md')
+    runs = len(set(re.findall(r'(?m)^\* run (\d+): \[', text)))
+    rounds = set(re.findall(r'(?m)^\* run \d+: .*? — (\d+) rounds?,', text))
+    # the command that reproduces it: a run of other than the default rounds says so
+    command = 'make bench RUNS={}'.format(runs) + (
+        ' ROUNDS={}'.format(rounds.pop()) if len(rounds) == 1 and rounds != {'5'} else '')
     return {'targets': sum(v != 'reported' for v in verdicts),
             'met': sum(v == 'met' for v in verdicts),
-            'reported': sum(v == 'reported' for v in verdicts), 'runs': runs}
+            'reported': sum(v == 'reported' for v in verdicts), 'runs': runs,
+            'command': command}
 
 
 def demo_facts() -> dict[str, Any]:
@@ -148,7 +154,7 @@ def results_summary() -> str:
     b, d, s, f, k = bench_facts(), demo_facts(), scenario_facts(), fuzz_facts(), soak_facts()
     missed = b['targets'] - b['met']
     rows = [
-        ('Timing (`make bench RUNS=2`)',
+        (f"Timing (`{b['command']}`)",
          f"{b['met']} of {b['targets']} targets met in all {b['runs']} runs, {missed} missed "
          f"(each analysed); {b['reported']} ratios against plain ROS reported",
          '[bench](docs/results/README.md#timing-make-bench)'),
