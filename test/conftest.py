@@ -4,12 +4,13 @@ The workspace tests are the end-to-end tier: every module here is marked ``e2e``
 stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODULES`, which
 ``make check`` runs with the packages' unit tests. A new module is end to end unless listed.
 
-``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams side by side: the
-modules in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's
-priority and rights, then those in :data:`AFTER_SERIAL`; and the rest in two streams confined
-(a low-weight CPU cgroup, nice 19, no right to SCHED_FIFO or locked memory) -- the modules in
-:data:`AFTER_PACKAGES` after the package tier, every other one (a new module too) from the
-start.
+``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams (by default the
+serial one alone, after the other two; ``M4K_TEST_SIDE_BY_SIDE=1``: side by side): the modules
+in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's priority and
+rights; the rest in two confined streams (nice 19, no right to SCHED_FIFO or locked memory;
+side by side also a low-weight CPU cgroup) -- the modules in :data:`AFTER_PACKAGES` and
+:data:`AFTER_SERIAL` after the package tier, every other one (a new module too) from the start.
+Side by side, the :data:`AFTER_SERIAL` modules run confined after the serial stream instead.
 """
 
 import pytest

@@ -14,11 +14,10 @@ a caster-loaded base), ``uncalibrated`` (0.9 V dead band, offsets +0.3 / -1.2 V)
 from __future__ import annotations
 
 import argparse
-import math
 from typing import Any, Sequence
 
 from m4k_bench.virtualbase import VirtualBase
-from m4k_drivers.motors.protocol import ENC_COUNTS
+from m4k_rt.control.supervision import COUNT
 
 __all__ = ['BASES', 'CREEPS', 'HOLD_ON', 'from_the_start', 'hold_offset', 'hold_ramp', 'main',
            'still_after_stop', 'turn_after_guard_stops']
@@ -108,14 +107,13 @@ HOLD_ON: dict[str, Any] = {'hold': {'enabled': True}}   # control overlay: the h
 def _held_counts(vb: VirtualBase, seconds: float, v: float | None, **kw: Any
                  ) -> tuple[float, float | None]:
     """Run ``seconds``; return (most counts a wheel turned from where a hold began, latch s)."""
-    count = 2.0 * math.pi / ENC_COUNTS
     worst, start, latched = 0.0, None, None
     for i in range(round(seconds / 0.01)):
         vb.cycle(v, 0.0, **kw)
         c = vb.ctl
         if c.holding:
             start = start or list(c._angles)
-            worst = max(worst, *(abs(a - b) / count for a, b in zip(c._angles, start,
+            worst = max(worst, *(abs(a - b) / COUNT for a, b in zip(c._angles, start,
                                                                        strict=True)))
         else:
             start = None

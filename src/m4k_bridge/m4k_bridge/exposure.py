@@ -26,6 +26,10 @@ __all__ = ['OPEN_RANGES', 'bridge_environments', 'graph_problems', 'range_proble
 OPEN_RANGES = ('', 'SUBNET', 'SYSTEM_DEFAULT')
 
 
+def _domain(env: Mapping[str, str]) -> str:
+    return env.get('ROS_DOMAIN_ID', '').strip() or '0'
+
+
 def range_problem(env: Mapping[str, str], who: str) -> str | None:
     """Return a problem line when ``env`` puts its process in a graph open to the subnet."""
     rng = env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip()
@@ -38,7 +42,7 @@ def range_problem(env: Mapping[str, str], who: str) -> str | None:
             'installed Fast DDS has no DDS Security; set ROS_AUTOMATIC_DISCOVERY_RANGE='
             'LOCALHOST with ROS_STATIC_PEERS=<laptop address> and firewall the RTPS ports '
             '(docs/live-view.md, "The DDS graph")'.format(
-                who, rng or 'unset, i.e. SUBNET', env.get('ROS_DOMAIN_ID', '0') or '0'))
+                who, rng or 'unset, i.e. SUBNET', _domain(env)))
 
 
 def bridge_environments(proc: str = '/proc') -> dict[int, dict[str, str]]:
@@ -63,10 +67,6 @@ def bridge_environments(proc: str = '/proc') -> dict[int, dict[str, str]]:
                 env[key] = value
         out[int(name)] = env
     return out
-
-
-def _domain(env: Mapping[str, str]) -> str:
-    return env.get('ROS_DOMAIN_ID', '').strip() or '0'
 
 
 def graph_problems(env: Mapping[str, str] | None = None, proc: str = '/proc') -> list[str]:
