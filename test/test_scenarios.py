@@ -285,11 +285,11 @@ def test_the_judge_fails_a_robot_that_backs_up_after_its_stop():
 # One world per hazard family: collision at top speed, a dark leg at the face's edge after a
 # stop (the guard's memory), a person walking at the robot, a surface only the sonar sees, a
 # frozen encoder at a creep, the e-stop released, a process death, a restart with the e-stop
-# engaged, calibrate's overlay at top speed. The rest of config/scenarios runs in
-# ``make scenarios``.
+# engaged, calibrate's overlay at top speed, a guard stop held on a 4.8 deg ramp (the
+# standstill hold). The rest of config/scenarios runs in ``make scenarios``.
 SAMPLE = ('wall_top', 'black_leg_left_edge', 'person_towards', 'sonar_only_glass',
           'encoder_frozen_creep_0_05', 'estop_release', 'driver_host_killed',
-          'rt_core_restart_estop', 'calibrated_top')
+          'rt_core_restart_estop', 'calibrated_top', 'ramp_down_wall_4_8deg')
 BY_NAME = {s.name: s for s in SCENARIOS}
 
 

@@ -19,8 +19,8 @@ from typing import Any, Sequence
 from m4k_bench.virtualbase import VirtualBase
 from m4k_rt.control.supervision import COUNT
 
-__all__ = ['BASES', 'CREEPS', 'HOLD_ON', 'from_the_start', 'hold_offset', 'hold_ramp', 'main',
-           'still_after_stop', 'turn_after_guard_stops']
+__all__ = ['BASES', 'CREEPS', 'driven_at_zero', 'from_the_start', 'HOLD_OFF', 'HOLD_ON',
+           'hold_offset', 'hold_ramp', 'main', 'still_after_stop', 'turn_after_guard_stops']
 
 TRIM_V = 2 * 24.0 / 511          # two DAC codes of the 24 V full scale
 BASES: dict[str, dict[str, float]] = {
@@ -53,14 +53,17 @@ def from_the_start(kind: str, wheel: str | None, v: float, w: float, seed: int,
 
 
 def still_after_stop(v: float, w: float, guard: bool, seed: int, offset_v: float = 1.0,
-                     limit_s: float = 3.0) -> tuple[float | None, float | None]:
+                     limit_s: float = 3.0, control: dict[str, Any] | None = None
+                     ) -> tuple[float | None, float | None]:
     """Stop from (v, w) with a left amplifier offset that drives the wheel at a zero command.
 
     Return (latch time after the left setpoint reached zero, after the healthy right wheel
     reached rest on ground truth): a ramped stop (``guard`` False) or a guard stop (the
-    forward cap zero: both setpoints zero at once, the drive brakes from speed).
+    forward cap zero: both setpoints zero at once, the drive brakes from speed). ``control``:
+    an overlay on the shipped control configuration (:data:`HOLD_OFF`).
     """
-    vb = VirtualBase(world={'seed': seed, 'robot': {'amp_offset_left_v': offset_v}})
+    vb = VirtualBase(world={'seed': seed, 'robot': {'amp_offset_left_v': offset_v}},
+                     control=control)
     try:
         vb.run(max(abs(v) / 0.37, abs(w) / 1.85) + 0.5, v, w)
         kw: dict[str, Any] = {'forward_cap': 0.0, 'guard_active': True} if guard else {}
@@ -101,24 +104,33 @@ def turn_after_guard_stops(w: float, seed: int, robot: dict[str, Any],
         vb.close()
 
 
-HOLD_ON: dict[str, Any] = {'hold': {'enabled': True}}   # control overlay: the hold switched on
+# control overlays: the standstill hold switched on (as shipped) / off (the speed still test
+# judges every wheel at a zero setpoint)
+HOLD_ON: dict[str, Any] = {'hold': {'enabled': True}}
+HOLD_OFF: dict[str, Any] = {'hold': {'enabled': False}}
 
 
 def _held_counts(vb: VirtualBase, seconds: float, v: float | None, **kw: Any
                  ) -> tuple[float, float | None]:
-    """Run ``seconds``; return (most counts a wheel turned from where a hold began, latch s)."""
+    """Run ``seconds``; return (counts held unlatched, the latch time in s or None).
+
+    The counts: the most a wheel turned from where a hold began while no fault was latched.
+    The first figure is what the standstill window bounds: a held wheel never turns more than
+    ``supervision.standstill_window`` counts unlatched.
+    """
     worst, start, latched = 0.0, None, None
     for i in range(round(seconds / 0.01)):
         vb.cycle(v, 0.0, **kw)
         c = vb.ctl
+        if c.supervisor.latched:
+            latched = (i + 1) * 0.01
+            break
         if c.holding:
-            start = start or list(c._angles)
-            worst = max(worst, *(abs(a - b) / COUNT for a, b in zip(c._angles, start,
+            start = start or c.wheel_angles
+            worst = max(worst, *(abs(a - b) / COUNT for a, b in zip(c.wheel_angles, start,
                                                                        strict=True)))
         else:
             start = None
-        if latched is None and c.supervisor.latched:
-            latched = (i + 1) * 0.01
     return worst, latched
 
 
@@ -131,6 +143,29 @@ def hold_offset(offset_v: float, seed: int, seconds: float = 2.0) -> tuple[float
                      control=HOLD_ON)
     try:
         return _held_counts(vb, seconds, 0.0)
+    finally:
+        vb.close()
+
+
+def driven_at_zero(offset_v: float, seed: int, control: dict[str, Any] | None = None,
+                   seconds: float = 2.0) -> tuple[float | None, float]:
+    """Drive the left wheel by an amplifier offset from rest on the level, never commanded.
+
+    The still fault latches, then the fault stop acts. Return (the latch time in s or None,
+    the most counts a wheel turned from its angle at the start over ``seconds``, the fault
+    stop included). ``control``: an overlay (:data:`HOLD_OFF`); None: as shipped.
+    """
+    vb = VirtualBase(world={'seed': seed, 'robot': {'amp_offset_left_v': offset_v}},
+                     control=control)
+    try:
+        vb.cycle(0.0, 0.0)
+        start = vb.ctl.wheel_angles
+        latched = vb.run(seconds, 0.0, 0.0, until=vb.faulted)
+        if latched is not None:
+            vb.run(seconds - latched, 0.0, 0.0)
+        turned = max(abs(a - b) / COUNT for a, b in zip(vb.ctl.wheel_angles, start,
+                                                         strict=True))
+        return latched, turned
     finally:
         vb.close()
 
@@ -158,17 +193,18 @@ def hold_ramp(robot: dict[str, Any], grade_deg: float, downhill_deg: float, how:
 
 
 def _hold_tables(seeds: Sequence[int]) -> None:
-    print('The standstill hold switched on (control.hold.enabled; shipped off): how far a held '
-          'wheel turns from where the hold began [encoder counts, the most over the seeds]; '
-          'against an offset the worst latch time [s] ("none": a seed that never latched); on '
-          'a ramp, where nothing should latch, every latch time\n')
+    print('The standstill hold as shipped (control.hold): how far a held wheel turns from where '
+          'the hold began while no fault is latched [encoder counts, the most over the seeds; '
+          'supervision.standstill_window bounds it]; against an offset, in how many seeds the '
+          'fault latched and the worst latch time [s]; on a ramp, where nothing should latch, '
+          'every latch time\n')
     offsets = (0.5, 1.0, 2.0, 3.0, 4.0, 6.0)
     print('| left amplifier offset, from rest on the level | '
           + ' | '.join(f'{o:g} V' for o in offsets) + ' |')
     print('|---|' + '---|' * len(offsets))
     runs = [[hold_offset(o, sd) for sd in seeds] for o in offsets]
-    print('| counts; latch | ' + ' | '.join(
-        f'{max(r[0] for r in rs):.0f}; {_worst([r[1] for r in rs])}' for rs in runs) + ' |')
+    print('| counts; latched | ' + ' | '.join(
+        f'{max(r[0] for r in rs):.0f}; {_latched([r[1] for r in rs])}' for rs in runs) + ' |')
     hows = ('placed', 'stop', 'guard stop')
     print('\n| 4.8 deg ramp | base | ' + ' | '.join(hows) + ' |')
     print('|---|---|' + '---|' * len(hows))
@@ -181,12 +217,31 @@ def _hold_tables(seeds: Sequence[int]) -> None:
                 cells.append(f'{max(r[0] for r in rs):.0f}; '
                              + (f'latched ({", ".join(falsely)})' if falsely else 'none'))
             print(f'| {what} | {name} | ' + ' | '.join(cells) + ' |', flush=True)
+    print('\nA wheel driven at the zero word, then its fault stop: the counts it turned in the '
+          '2 s from rest (the most over the seeds; the stop cuts the power once the zero word '
+          'does not slow it) and the worst latch time\n')
+    print('| left amplifier offset, from rest on the level | '
+          + ' | '.join(f'{o:g} V' for o in offsets) + ' |')
+    print('|---|' + '---|' * len(offsets))
+    for label, control in (('hold as shipped', None), ('hold off', HOLD_OFF)):
+        driven = [[driven_at_zero(o, sd, control) for sd in seeds] for o in offsets]
+        print(f'| {label}: counts in 2 s; latch | ' + ' | '.join(
+            f'{max(d[1] for d in ds):.0f}; {_worst([d[0] for d in ds])}' for ds in driven)
+            + ' |', flush=True)
 
 
 def _worst(values: Sequence[float | None]) -> str:
     if any(x is None for x in values):
         return 'none'
     return f'{max(x for x in values if x is not None):.2f}'
+
+
+def _latched(values: Sequence[float | None]) -> str:
+    """Return 'none', or 'k of n seeds, worst t s'."""
+    times = [x for x in values if x is not None]
+    if not times:
+        return 'none'
+    return f'{len(times)} of {len(values)} seeds, worst {max(times):.2f} s'
 
 
 def main(argv: Sequence[str] | None = None) -> int:

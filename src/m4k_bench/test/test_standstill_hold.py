@@ -1,7 +1,7 @@
 """The standstill hold (``control.hold``) in the closed loop, judged on ground truth (hazard C19).
 
 The RT controller drives the simulated base in virtual time (m4k_bench.virtualbase), with the
-hold switched on (``hold.enabled``; the shipped configuration leaves it off), on a floor
+hold switched on (``hold.enabled``, as shipped), on a floor
 that slopes (``world.floor`` ``grade_deg``: gravity pulls the body along its heading). With
 zero setpoints and the wheels stopped, or pulled faster than the zero word would let them
 roll, a PI at zero speed holds each wheel where it came to rest. Judged: on a 4.8 deg ramp
@@ -23,7 +23,7 @@ UP_X = 180.0          # the ramp rises toward +x: forward is uphill
 HELD_M = 0.005        # how far a held robot may still move on ground truth in 5 s
 
 
-HOLD = {'hold': {'enabled': True}}     # off in the shipped configuration (docs/safety.md)
+HOLD = {'hold': {'enabled': True}}     # as shipped; stated so the ramp tests keep their subject
 
 
 def _ramp(grade=RAMP_DEG, downhill=DOWN_X, robot=None, control=HOLD, seed=3):

@@ -5,20 +5,32 @@ handler over the simulated SPI DACs and AS5045s, the IMU handler over the myAHRS
 with the simulator's noise and bias, the heartbeat monostable, the drive physics). A fault is
 injected once the robot runs at its speed (the simulator's own fault kinds: the encoders keep
 sending valid frames); the supervision must latch within 0.3 s of the onset, and the robot
-must come to rest on ground truth. Faults there from the very start at a creep latch within
-0.3 s of the first command, on a calibrated base, one whose zero trims calibrate left 2 codes
-low, and an uncalibrated one (dead band, offsets). Healthy drives on the same bases, at a
+must come to rest on ground truth. A wheel driven at a zero command is judged by the speed
+still test with the standstill hold off, and by the standstill window with it on (as
+shipped): held inside it, or latched as it leaves; its fault stop cuts the power once the
+zero word does not slow it. Faults there from the very start at a creep latch within 0.3 s of
+the first command, on a calibrated base, one whose zero trims calibrate left 2 codes low, and
+an uncalibrated one (dead band, offsets). Healthy drives on the same bases, at a
 creep, with starts, stops, turns and reversals, and at top speed with turns, must latch
 nothing. Deterministic: fixed seeds, no wall clock.
 """
 
 import pytest
 
-from m4k_bench.latch import BASES, from_the_start, still_after_stop, turn_after_guard_stops
+from m4k_bench.latch import (
+    BASES,
+    from_the_start,
+    HOLD_OFF,
+    hold_offset,
+    still_after_stop,
+    turn_after_guard_stops,
+)
 from m4k_bench.virtualbase import VirtualBase
+from m4k_rt.control.params import SupervisionParams
 from m4k_rt.control.supervision import cause_text
 
 LATCH_S = 0.3
+WINDOW = SupervisionParams().standstill_window     # counts (the shipped default)
 
 
 def _at_speed(v, w, faults=(), robot=None, seed=3):
@@ -58,9 +70,10 @@ def test_swapped_encoder_channels_latch_within_0_3_s_when_the_wheels_differ(v, w
         vb.close()
 
 
-def test_a_wheel_driven_at_a_zero_command_latches():
-    # an amplifier input offset of 1 V: the left wheel turns with the DAC at zero volts
-    vb = VirtualBase(world={'seed': 1, 'robot': {'amp_offset_left_v': 1.0}})
+def test_with_the_hold_off_a_wheel_driven_at_a_zero_command_latches():
+    # an amplifier input offset of 1 V: the left wheel turns with the DAC at zero volts; the
+    # speed still test judges it (with the hold on, the hold holds it: the next tests)
+    vb = VirtualBase(world={'seed': 1, 'robot': {'amp_offset_left_v': 1.0}}, control=HOLD_OFF)
     try:
         dt = vb.run(1.0, 0.0, 0.0, until=vb.faulted)
         assert dt is not None and dt <= LATCH_S
@@ -115,15 +128,45 @@ def test_channels_crossed_from_the_start_at_a_creep_latch_within_0_3_s(base, v, 
                                          (1.0, 0.0, True), (0.25, 0.4, True)],
                          ids=['ramped-stop', 'ramped-stop-in-place', 'guard-stop-1mps',
                               'guard-stop-turning'])
-def test_a_wheel_driven_after_a_stop_latches_within_0_3_s_of_when_it_should_rest(v, w, guard):
+def test_with_the_hold_off_a_wheel_driven_after_a_stop_latches_within_0_3_s_of_when_it_should_rest(
+        v, w, guard):
     # a 1 V amplifier offset on the left: the PI holds it while driving, the zero word does
     # not. It should rest once its setpoint is zero, and not before the drive has braked it
     # from speed: judged against the healthy right wheel reaching rest on ground truth.
-    after_zero, after_rest = still_after_stop(v, w, guard, seed=2)
+    after_zero, after_rest = still_after_stop(v, w, guard, seed=2, control=HOLD_OFF)
     assert after_zero is not None
     assert after_rest is not None and after_rest <= LATCH_S, (after_zero, after_rest)
     if not guard:
         assert after_zero <= LATCH_S
+
+
+@pytest.mark.parametrize('v, w, guard', [(0.25, 0.0, False), (0.0, 0.8, False),
+                                         (1.0, 0.0, True), (0.25, 0.4, True)],
+                         ids=['ramped-stop', 'ramped-stop-in-place', 'guard-stop-1mps',
+                              'guard-stop-turning'])
+@pytest.mark.parametrize('seed', [1, 2])
+def test_a_wheel_driven_beyond_the_hold_after_a_stop_latches_within_0_3_s_of_when_it_should_rest(
+        v, w, guard, seed):
+    # the hold as shipped, a 4 V offset on the left (0.17 of full scale): the hold brakes the
+    # wheel, which leaves the standstill window anyway; latched before the healthy right
+    # wheel reaches rest (None) or within 0.3 s after
+    after_zero, after_rest = still_after_stop(v, w, guard, seed=seed, offset_v=4.0)
+    assert after_zero is not None
+    assert after_rest is None or after_rest <= LATCH_S, (after_zero, after_rest)
+    if not guard:
+        assert after_zero <= LATCH_S
+
+
+@pytest.mark.parametrize('offset_v', [1.0, 2.0, 3.0, 4.0, 6.0])
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_a_held_wheel_never_turns_beyond_the_standstill_window_unlatched(offset_v, seed):
+    # from rest on the level, never commanded, the hold as shipped: whatever drives the wheel,
+    # it is held inside the window or the fault latches as it leaves (a safe operating stop);
+    # an offset the hold cannot hold still (4 V and more) latches within 0.3 s
+    turned, latched = hold_offset(offset_v, seed)
+    assert turned <= WINDOW, (turned, latched)
+    if offset_v >= 4.0:
+        assert latched is not None and latched <= LATCH_S, (turned, latched)
 
 
 def test_a_fault_stop_brakes_with_the_drive_then_drops_the_enable():
@@ -139,6 +182,41 @@ def test_a_fault_stop_brakes_with_the_drive_then_drops_the_enable():
         bound = vb.params.linear.max_velocity / vb.params.guard.brake_deceleration
         vb.run(bound, 1.0)
         assert ctl.enable == 0 and not vb.world.drive_enabled()   # then power is cut
+    finally:
+        vb.close()
+
+
+@pytest.mark.parametrize('kind, v, w', [('encoder_frozen', 1.0, 0.0), ('encoder_frozen', 2.0, 0.0),
+                                     ('encoder_sign_flip', 1.0, 0.0),
+                                     ('encoder_sign_flip', 2.0, 0.0),
+                                     ('encoder_sign_flip', 0.5, 0.8)])
+def test_a_fault_stop_at_speed_keeps_braking_with_the_drive_until_the_robot_rests(kind, v, w):
+    # the zero word slows a braked wheel however its encoder reads it: the enable stays on
+    # until the robot is at rest on ground truth (not cut early as a wheel driven at zero)
+    vb = _at_speed(v, w, [(kind, 'left')])
+    try:
+        assert vb.run(1.0, v, w, until=vb.faulted) is not None
+        while not vb.at_rest():
+            assert vb.ctl.enable == 1 and vb.world.drive_enabled(), f'cut at {vb.t:.2f} s'
+            vb.cycle(v, w)
+    finally:
+        vb.close()
+
+
+@pytest.mark.parametrize('hold, offset_v', [(HOLD_OFF, 1.0), (HOLD_OFF, 4.0), (HOLD_OFF, 6.0),
+                                            (None, 4.0), (None, 6.0)],
+                         ids=['hold-off-1V', 'hold-off-4V', 'hold-off-6V', 'hold-4V', 'hold-6V'])
+def test_a_fault_stop_cuts_the_power_to_a_wheel_the_zero_word_drives(hold, offset_v):
+    # (with the hold as shipped a 1 V offset is held inside the standstill window: no fault)
+    # an amplifier offset drives the left wheel at the zero word: once the still fault has
+    # latched, the zero word is no brake -- the enable drops within 0.15 s, not after the
+    # braking time bound (1.33 s) with the wheel driven all along
+    vb = VirtualBase(world={'seed': 2, 'robot': {'amp_offset_left_v': offset_v}}, control=hold)
+    try:
+        assert vb.run(2.0, 0.0, 0.0, until=vb.faulted) is not None
+        assert 'commanded still' in cause_text(vb.ctl.supervisor.cause)
+        cut = vb.run(0.15, 0.0, 0.0, until=lambda: not vb.world.drive_enabled())
+        assert cut is not None, 'the drive still powered 0.15 s after the latch'
     finally:
         vb.close()
 

@@ -213,7 +213,10 @@ def test_a_guard_release_mid_brake_never_backs_the_robot_up(band, backs_up):
     for _ in range(200):
         t = drive(ctl, plant, 1, t, cmd=(1.0, 0.0), cap=0.05)
         forward.append((plant.speed[0] + plant.speed[1]) / 2.0 * R_WHEEL)
-    assert (min(forward) < -0.01) == backs_up, min(forward)
+    # backwards faster than 5 mm/s (the band's own run never turns back: its slowest is
+    # forward; without the band it backs up at 9 mm/s with the standstill hold's zeroing of
+    # the ramp's first unresolvable setpoints, 24 mm/s without the hold)
+    assert (min(forward) < -0.005) == backs_up, min(forward)
     assert forward[-1] == pytest.approx(0.05, abs=0.01)
 
 

@@ -31,7 +31,7 @@ class Wheels:
         self.angle = [0.0, 0.0]
         self.t = 0.0
 
-    def step(self, sp, meas, u=None, yaw=math.nan, read=None, sat=(False, False)):
+    def step(self, sp, meas, u=None, yaw=math.nan, read=None, sat=(False, False), held=False):
         """One cycle: the wheels turn at ``meas`` (``read``: what the encoders say instead)."""
         for k in (0, 1):
             self.angle[k] += meas[k] * DT
@@ -43,7 +43,8 @@ class Wheels:
             self.s.gyro(yaw, stamp)
         if u is None:
             u = (FF * sp[0], FF * sp[1])
-        return self.s.step(DT, sp[0], sp[1], meas[0], meas[1], u[0], u[1], sat[0], sat[1], yaw)
+        return self.s.step(DT, sp[0], sp[1], meas[0], meas[1], u[0], u[1], sat[0], sat[1], yaw,
+                           held)
 
     def run(self, seconds, *args, **kw):
         """Run; return the time into the run at which the fault latched (None: never)."""
@@ -199,3 +200,46 @@ def test_a_reversal_braking_the_wheel_is_not_wrong_way_but_one_that_does_not_slo
     assert w.run(1.0, (9.0, 9.0), (9.0, 9.0)) is None
     dt = w.run(2.0, (-1.0, 1.0), (9.0, 1.0), u=(-1.0, FF), sat=(True, False))
     assert dt is not None and dt <= 0.3 + 9.0 / P.supervision.still_deceleration
+
+
+def test_a_held_wheel_is_judged_by_its_standstill_window_not_its_speed():
+    # zero setpoints, the hold holding: a wheel still taking a ramp's load rolls slowly for
+    # longer than still_time (0.2 rad/s for 0.4 s: 52 counts) -- no fault; the same roll
+    # with no hold is the speed still test's symptom
+    window = SupervisionParams().standstill_window
+    roll = (0.2, 0.0)
+    assert 0.2 * 0.4 / COUNT < window
+    assert Wheels(sup()).run(0.4, (0.0, 0.0), roll, u=(0.05, 0.0), held=True) is None
+    assert Wheels(sup()).run(0.4, (0.0, 0.0), roll, u=(0.0, 0.0)) is not None
+
+
+@pytest.mark.parametrize('k', [0, 1])
+@pytest.mark.parametrize('direction', [1.0, -1.0])
+def test_a_held_wheel_leaving_its_standstill_window_latches_at_once(k, direction):
+    window = SupervisionParams().standstill_window
+    s = sup()
+    w = Wheels(s)
+    meas = [0.0, 0.0]
+    meas[k] = direction * 0.05      # slow: 0.33 counts a cycle, never the still test's speed
+    assert not w.step((0.0, 0.0), meas, u=(0.0, 0.0), held=True)
+    origin = w.angle[k]             # where the hold began: the first held sample
+    while not w.step((0.0, 0.0), meas, u=(0.0, 0.0), held=True):
+        assert abs(w.angle[k] - origin) / COUNT <= window + 1e-9, 'outside the window, unlatched'
+    assert abs(w.angle[k] - origin) / COUNT > window
+    cause = FaultCause.LEFT_STILL if k == 0 else FaultCause.RIGHT_STILL
+    assert s.cause == int(cause)
+
+
+def test_the_window_restarts_with_each_hold():
+    # held, 40 counts away; the hold ends (a command) and a new one begins: measured afresh
+    window = SupervisionParams().standstill_window
+    s = sup()
+    w = Wheels(s)
+    creep = 0.05
+    n = round(0.7 * window * COUNT / (creep * DT))
+    for _ in range(n):
+        assert not w.step((0.0, 0.0), (creep, 0.0), u=(0.0, 0.0), held=True)
+    for _ in range(5):
+        assert not w.step((1.0, 1.0), (1.0, 1.0))
+    for _ in range(n):
+        assert not w.step((0.0, 0.0), (creep, 0.0), u=(0.0, 0.0), held=True)

@@ -112,6 +112,9 @@ _GUARD_BRAKING = 0.2
 # rad x direction: a held wheel this far on from where it last read still (3 encoder counts,
 # as the PI's break-away) is rolling, not showing the encoder's noise
 _HOLD_ROLLED = 3.0 * COUNT
+# ns: a category-1 stop judges whether the zero word slows the wheels only after this (the
+# 20 ms speed window and a cycle's latency behind the wheel)
+_DRIVEN_GRACE_NS = 50_000_000
 # s: a hold this long holds the wheel's load, and the drive PI starts from its effort
 _HOLD_SETTLED_S = 0.2
 
@@ -192,6 +195,12 @@ class BaseController:
                                   / params.guard.brake_deceleration * 1e9)
         self._fault_since_ns = 0    # when the present category-1 stop began; 0: none
         self._rest_ns = 0           # encoder time both wheels have read at rest in that stop
+        # per wheel, a bound on |speed| in that stop that falls at still_deceleration (far
+        # below what the zero word brakes); a wheel this much above it is driven, not braked,
+        # by the zero word (4 counts over the feedback window: not noise)
+        self._stop_floor = [0.0, 0.0]
+        self._driven_margin = 2.0 * params.supervision.still_speed
+        self._driven_fall = params.supervision.still_deceleration * self.period
         self._imu_timeout_ns = int(params.supervision.imu_timeout * 1e9)
         self.yaw_rate = math.nan    # the gyro's yaw rate about base_link z, rad/s
         self.imu_rx_ns = 0
@@ -326,13 +335,36 @@ class BaseController:
 
         The zero word brakes with the enable on (back-EMF braking through the amplifier, no
         encoder needed) until the braking time bound has passed, or, when ``trust_rest``, both
-        encoders have read the wheels at rest for 0.1 s; then the enable drops.
+        encoders have read the wheels at rest for 0.1 s; then the enable drops. And at once
+        when a wheel does not slow under the zero word (above a bound falling at
+        ``supervision.still_deceleration`` from its speed then): the amplifier drives it (an
+        input offset, a stuck DAC), so the zero word is no brake -- measured, a 4-6 V offset
+        that latched the still fault turned its wheel on 3,100-4,900 counts (0.5-0.75 m at the
+        rim) before the time bound cut the power. Frozen, flipped or swapped encoders read a
+        braked wheel slowing (or still); a robot rolling on a slope beyond the hold loses the
+        zero word's back-EMF up to the time bound early -- it rolls once the bound has passed
+        anyway.
         """
+        ls, rs = abs(self.left_speed), abs(self.right_speed)
+        floor = self._stop_floor
         if self._fault_since_ns == 0:
             self._fault_since_ns = now_ns
             self._rest_ns = 0
-        if now_ns - self._fault_since_ns >= self.fault_brake_ns:
+            floor[0], floor[1] = ls, rs
+        elapsed = now_ns - self._fault_since_ns
+        if elapsed >= self.fault_brake_ns:
             return 0
+        if elapsed < _DRIVEN_GRACE_NS:
+            # the speed estimate lags the wheel (a wheel the PI was accelerating reads faster
+            # for a window after the zero word took over): the bound starts at its peak
+            floor[0], floor[1] = max(floor[0], ls), max(floor[1], rs)
+        else:
+            fall = self._driven_fall
+            floor[0] = max(min(floor[0], ls) - fall, 0.0)
+            floor[1] = max(min(floor[1], rs) - fall, 0.0)
+            if ls > floor[0] + self._driven_margin or rs > floor[1] + self._driven_margin:
+                self._fault_since_ns = now_ns - self.fault_brake_ns   # the bound: stays off
+                return 0
         if trust_rest:
             ms = self.params.supervision.min_speed
             if abs(self.left_speed) < ms and abs(self.right_speed) < ms:
@@ -551,7 +583,7 @@ class BaseController:
         if self.driver_safe:
             sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
         elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.left_u, self.right_u,
-                      self.pi_left.saturated, self.pi_right.saturated, yaw):
+                      self.pi_left.saturated, self.pi_right.saturated, yaw, self.holding):
             self.braking = False
             self._fault_since_ns = 0
             self._stop_outputs(self._brake_enable(now_ns, False))
@@ -572,6 +604,11 @@ class BaseController:
             self.mode = MODE_DRIVING
         else:
             self.mode = MODE_IDLE
+
+    @property
+    def wheel_angles(self) -> tuple[float, float]:
+        """Return the newest valid encoder angles (left, right) in rad (benches, tests)."""
+        return self._angles[0], self._angles[1]
 
     def _hold_disarm(self) -> None:
         """End the hold and forget its per-wheel state (the pulled test starts afresh)."""

@@ -140,12 +140,12 @@ class HoldParams:
     """Standstill hold (``control.hold``): the wheels held where they stopped, on a ramp too."""
 
     enabled: bool = setting(Field(
-        'bool', False, 'Hold the wheels at zero speed once they have stopped with zero '
+        'bool', True, 'Hold the wheels at zero speed once they have stopped with zero '
         'setpoints (a stop, a guard stop, the e-stop ramp, no command yet), and stand both '
-        'wheels whose setpoints are below what the encoders resolve. false (the default until '
-        'the whole scenario suite has run with it, docs/safety.md): the zero word only (the '
-        'back-EMF brakes, nothing holds): on a ramp steeper than ~2.7 deg the robot rolls '
-        'away and the still test latches a motor fault (hazard C19).'))
+        'wheels whose setpoints are below what the encoders resolve; the supervision judges a '
+        'held wheel by supervision.standstill_window. false: the zero word only (the back-EMF '
+        'brakes, nothing holds): on a ramp steeper than ~2.7 deg the robot rolls away and the '
+        'still test latches a motor fault (hazard C19).'))
     kp: float = setting(_nonneg(
         '1/(rad/s)', 0.2, 'Hold: normalized command per rad/s of wheel speed beyond a count '
         'of encoder noise, on a pulled wheel only (brakes it to where it reads still and the '
@@ -323,6 +323,15 @@ class SupervisionParams:
     still_time: float = setting(_pos(
         's', 0.15, 'A wheel above the still bound (+ still_speed) this long latches the fault.',
         hi=0.3))
+    standstill_window: float = setting(_pos(
+        'counts', 60.0, 'Standstill window of a held wheel (control.hold): a wheel the hold '
+        'holds is judged by where it is, not by its speed (IEC 61800-5-2 safe operating '
+        'stop): turned more than this many encoder counts from where its hold began (60: '
+        '9 mm at the rim) latches the fault at once. Above what a held wheel turns while '
+        'the hold takes the load of a 4.8 deg ramp (15-40 counts, python -m m4k_bench.latch '
+        '--hold); a wheel driven beyond the hold (an amplifier offset over ~2 V, a slope past '
+        'hold.limit) leaves it. The speed still test does not judge a held wheel: a hold '
+        'still taking its load rolls it slowly for longer than still_time.'))
     swap_time: float = setting(_pos(
         's', 0.1, "Wheels answering each other's setpoints this "
         'long (swapped channels) latch the fault.', hi=0.3))

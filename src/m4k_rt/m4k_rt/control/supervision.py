@@ -43,7 +43,9 @@ has held without a break:
   faster than ``still_speed`` above a bound that starts at its speed when the setpoint went to
   zero and falls at ``still_deceleration`` (far below what back-EMF braking and friction
   give): a wheel driven while commanded still, or an encoder that reports motion the braking
-  does not end (``still_time``);
+  does not end (``still_time``); a wheel the standstill hold holds (``control.hold``) is
+  judged by where it is instead: turned more than ``standstill_window`` counts from where its
+  hold began latches at once (a safe operating stop's position window);
 * **yaw** (both wheels, whenever a fresh IMU sample is given): the wheels' yaw rate
   ``r (w_r - w_l) / track`` differs from the gyro's by more than ``yaw_tolerance`` plus
   ``yaw_ratio`` of the larger of the two (``yaw_time``). This one needs no setpoint at all:
@@ -136,7 +138,8 @@ class WheelSupervisor:
                  '_times', '_t', '_angle', '_ref', '_fresh', '_bound', '_rev', '_dir',
                  '_following', '_roll', '_roll_a', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
-                 '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age')
+                 '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age', '_origin',
+                 '_window')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -156,6 +159,10 @@ class WheelSupervisor:
         self._ref = [math.nan, math.nan]   # frozen: the angle the wheel last moved away from
         self._fresh = False        # a sample arrived since the last step
         self._bound = [-1.0, -1.0]     # still: the falling speed bound; < 0: not commanded still
+        # held (the standstill hold): the angle where the hold began (NaN: not held), and how
+        # far from it the wheel may turn (rad)
+        self._origin = [math.nan, math.nan]
+        self._window = params.standstill_window * COUNT
         self._rev = [0.0, 0.0]         # wrong way: a reversal's falling speed bound (0: none)
         self._dir = [0.0, 0.0]         # the sign of the last nonzero setpoint (0: none yet)
         self._following = [False, False]   # the wheel was seen following its setpoint
@@ -290,6 +297,7 @@ class WheelSupervisor:
         for k in (0, 1):
             self._ref[k] = math.nan
             self._bound[k] = -1.0
+            self._origin[k] = math.nan
             self._rev[k] = 0.0
             self._dir[k] = 0.0
             self._following[k] = False
@@ -301,7 +309,7 @@ class WheelSupervisor:
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
-             saturated_right: bool, yaw_rate: float = math.nan) -> bool:
+             saturated_right: bool, yaw_rate: float = math.nan, held: bool = False) -> bool:
         """Advance one cycle; return True when a fault latched in this cycle.
 
         ``sp_*`` are the wheel setpoints the outputs were computed for (rad/s), ``meas_*`` the
@@ -310,6 +318,8 @@ class WheelSupervisor:
         standing against its load is what the hold is for),
         ``saturated_*`` whether that output was at its limit, ``yaw_rate`` the body's yaw rate
         from a fresh gyro sample (rad/s, about base_link z), NaN when there is none.
+        ``held``: the standstill hold holds both wheels (zero setpoints): each is judged by
+        the standstill window from where the hold began, not by the still test's speed.
         """
         if not self.enabled or self.cause:
             self._fresh = False
@@ -421,7 +431,18 @@ class WheelSupervisor:
                 t[_STALL + k] += dt
             else:
                 t[_STALL + k] = 0.0
-            if sp == 0.0:
+            if sp == 0.0 and held:
+                # A safe operating stop: where the wheel is, not how fast it turns. A hold
+                # still taking a ramp's load lets the wheel roll slowly for longer than
+                # still_time (a false still fault on a 4.8 deg ramp at 0.51 s); a wheel
+                # driven beyond what the hold can hold leaves the window, and that latches.
+                o = self._origin[k]
+                if o != o:
+                    o = self._origin[k] = a
+                t[_STILL + k] = self._times[_STILL + k] if abs(a - o) > self._window else 0.0
+                self._bound[k] = 0.0
+            elif sp == 0.0:
+                self._origin[k] = math.nan
                 # The bound follows the wheel down (a wheel that has been slow cannot be
                 # braking from a higher speed any more) and falls at still_deceleration: a
                 # wheel braked from speed that settles on a driven creep trips it as soon as
@@ -436,6 +457,7 @@ class WheelSupervisor:
                     t[_STILL + k] = 0.0
             else:
                 self._bound[k] = -1.0
+                self._origin[k] = math.nan
                 t[_STILL + k] = 0.0
         self._fresh = False
         diff = sp_left - sp_right
