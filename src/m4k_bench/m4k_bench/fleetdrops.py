@@ -24,6 +24,8 @@ bench``. ``make bench`` runs it once per round as the ``fleet_idle`` condition.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import os
 import random
 import shutil
@@ -44,6 +46,7 @@ START_TIMEOUT_S = 300.0     # three stacks starting on two shared cores
 STOP_TIMEOUT_S = 60.0       # bringup's own ordered stop gives each child 8 s
 CMD_PERIOD_S = 0.05         # 20 Hz, as the bench's commander
 PUBLISH_DIR = os.path.join('docs', 'results', 'fleet-drops')
+PLAIN_EVERY_S = 10.0        # progress lines when stderr is no terminal
 
 
 def _busy_ticks() -> tuple[int, int]:
@@ -138,14 +141,19 @@ def _start_robot(robot: str, work: str, log_dir: str, env: dict[str, str], tag: 
     """Write the robot's recipes and start its bringup as docs/nav2.md says."""
     from m4k_bringup import bringup, recipes
     rdir = os.path.join(work, 'recipes-' + robot)
-    if recipes.main(['--robot', robot, '--out', rdir]) != 0:
+    with contextlib.redirect_stdout(io.StringIO()):     # it lists the files it wrote
+        code = recipes.main(['--robot', robot, '--out', rdir])
+    if code != 0:
         raise RuntimeError('recipes --robot {} failed'.format(robot))
     rt = os.path.join(work, 'rt-' + robot)
     os.makedirs(rt, mode=0o700)
     argv = bringup.bringup_argv() + ['--no-status', '--robot', robot, '--bridge-params',
                                      os.path.join(rdir, 'nav2', 'nav2_params.yaml')]
     return Child('{}.{}'.format(tag, robot), argv,
-                 dict(env, M4K_RUNTIME_DIR=rt, PYTHONUNBUFFERED='1'),
+                 # XDG_STATE_HOME: the flight recorder's dumps (a guard stop) go to the run's
+                 # directory, never rotating the user's own out of ~/.local/state/m4k
+                 dict(env, M4K_RUNTIME_DIR=rt, PYTHONUNBUFFERED='1',
+                      XDG_STATE_HOME=os.path.join(work, 'state-' + robot)),
                  output=Output(log_path=os.path.join(log_dir, '{}.{}.log'.format(tag, robot))),
                  stopping=Stopping(sig=signal.SIGTERM, timeout=STOP_TIMEOUT_S,
                                    must_end=True)).start()
@@ -165,7 +173,8 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
                        if k in env})
     os.makedirs(log_dir, exist_ok=True)
     work = tempfile.mkdtemp(prefix='m4k-fleet-')    # short: Unix sockets live there
-    out: dict[str, Any] = {'robots': list(robots), 'duration_s': duration_s, 'errors': []}
+    out: dict[str, Any] = {'robots': list(robots), 'duration_s': duration_s, 'errors': [],
+                           'work_dir': work}
     kids: dict[str, Child] = {}
     ros: _Ros | None = None
     rt_ports: dict[str, Any] = {}
@@ -191,6 +200,7 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
         cpu0 = {r: _tree_cpu(k.pid) for r, k in kids.items()}
         busy0, all0 = _busy_ticks()
         t0 = time.monotonic()
+        out['drive_utc'] = [time.time()]       # to place a drop line of the logs in or out
         nxt = t0
         note = t0
         while (now := time.monotonic()) - t0 < duration_s:
@@ -213,6 +223,7 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
                  for r in robots}
         load1, load5, _ = _loadavg()
         out['drive_s'] = wall
+        out['drive_utc'].append(time.time())
         out['load'] = {'load_1min': load1, 'load_5min': load5, 'cpus': os.cpu_count(),
                        'busy_percent': 100.0 * (busy1 - busy0) / max(1, all1 - all0),
                        'stack_cores': cores, 'stacks_cores': sum(cores.values())}
@@ -276,7 +287,8 @@ METHOD = [
     'M4K_RUNTIME_DIR (own simulated world, RT core, driver host, bridge); no Nav2 nodes. '
     'All three on this machine, one ROS domain, localhost discovery.',
     'Driving starts once every robot reports its motor port linked on /rN/rt_status: r1 '
-    '±0.25 m/s (4 s each way), r2 0.6 rad/s on the spot, r3 ±0.05 m/s, at 20 Hz.',
+    '±0.25 m/s (2 s each way: 0.5 m, short of the guard before the obstacle 1.5 m ahead), r2 '
+    '0.6 rad/s on the spot, r3 ±0.05 m/s, at 20 Hz.',
     "Drops: each robot's driver host log (`motor: drops served=N <reason>=k ...`, the last "
     'line of every host process); the counters cover the whole life of the stack, start-up '
     "and stop included. `stale_device` is the simulation's share (sim_robot answering late "
@@ -302,9 +314,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     for i in range(args.runs):
         head = 'fleetdrops run {}/{}: '.format(i + 1, args.runs)
 
-        def show(note: str, head: str = head) -> None:
-            sys.stderr.write('\r\x1b[K' + head + note if sys.stderr.isatty()
-                             else head + note + '\n')
+        shown = [0.0]
+
+        def show(note: str, head: str = head, shown: list[float] = shown) -> None:
+            # one redrawn line on a terminal; in a log, a line every PLAIN_EVERY_S
+            if sys.stderr.isatty():
+                sys.stderr.write('\r\x1b[K' + head + note)
+            elif time.monotonic() - shown[0] >= PLAIN_EVERY_S:
+                shown[0] = time.monotonic()
+                sys.stderr.write(head + note + '\n')
             sys.stderr.flush()
         res = run_fleet(args.duration, logs, env=env, tag='run{}'.format(i + 1),
                         progress=show)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from m4k_bench import recorder
-from m4k_bench.benchlib import analysis, execreport
+from m4k_bench.benchlib import analysis, execreport, fleetagg
 from m4k_bench.benchlib.analysis import RATIOS
 from m4k_bench.benchlib.results import md_table
 
@@ -412,6 +412,7 @@ def render(summ: Mapping[str, Any]) -> str:
         lines.append('* ' + note)
     lines += [''] + _targets(summ)
     lines += [''] + execreport.section(summ)
+    lines += [''] + fleetagg.bench_rows(summ.get('rounds') or [])
     lines += [''] + _ratios(summ)
     lines += [''] + _per_round(summ)
     lines += [''] + _stalls(summ)
