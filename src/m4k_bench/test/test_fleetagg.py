@@ -118,3 +118,14 @@ def test_bench_combine_carries_each_runs_fleet_rounds():
     text = combine.render(comb)
     assert "* run 1: host's own 3.00 (2.00–4.00, n=2)" in text
     assert '* run 2: not measured' in text
+
+
+def test_the_bench_report_and_readme_snippet_carry_the_fleet():
+    from m4k_bench.benchlib import report
+    summ = {'rounds': [{'round': 0, 'fleet_idle': _run(2, 1, 7.0)}]}
+    text = report.render(summ)
+    assert '## Wheel-command drops in the three-robot fleet' in text
+    assert "\n\n* this run: host's own 2.00 (2.00–2.00, n=1)" in text
+    snippet = report.readme_snippet(summ)
+    assert "* this run: host's own 2.00 (2.00–2.00, n=1), the simulation's 1.00" in snippet
+    assert 'three-robot fleet' not in report.readme_snippet({'rounds': [{'round': 0}]})

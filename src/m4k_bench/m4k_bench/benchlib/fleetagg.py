@@ -187,7 +187,8 @@ def bench_rows(rounds: Sequence[Mapping[str, Any]], key: str = 'fleet_idle') -> 
             "simulation's (`stale_device`), by reason; the RT side's motor port; the CPU "
             "each stack's processes used (cores) and the 1-min load average at the end.", ''] \
         + md_table(HEADER, rows) + combined_lines(
-            [summarize([r[key] for r in rounds if isinstance(r.get(key), Mapping)])])[1:]
+            [summarize([r[key] for r in rounds if isinstance(r.get(key), Mapping)])],
+            ['this run'])
 
 
 def render(doc: Mapping[str, Any]) -> str:
@@ -226,20 +227,25 @@ def verdict(s: Mapping[str, Any]) -> str:
     return {True: 'met', False: 'NOT met', None: 'not measured'}[s.get('met')]
 
 
-def combined_lines(per_run: Sequence[Mapping[str, Any] | None]) -> list[str]:
-    """Return the combined table's fleet lines: each bench run's :func:`summarize` of rounds."""
+def combined_lines(per_run: Sequence[Mapping[str, Any] | None],
+                   names: Sequence[str] | None = None) -> list[str]:
+    """Return the fleet lines: each bench run's :func:`summarize` of its rounds.
+
+    ``names``: how each run is called (default 'run 1', 'run 2', ...).
+    """
     if not any(per_run):
         return []
+    names = names or ['run {}'.format(i) for i in range(1, len(per_run) + 1)]
     lines = ['', "Wheel-command drops in the three-robot fleet (`fleet_idle`: three robots on "
              'this machine, all driven; pooled over the robots), per 10 000, median (min–max, '
              "rounds); target: the host's own ≤ {:g} in every round:".format(
                  TARGET_HOST_PER_10K), '']
-    for i, s in enumerate(per_run, 1):
+    for name, s in zip(names, per_run, strict=True):
         if not s:
-            lines.append('* run {}: not measured'.format(i))
+            lines.append('* {}: not measured'.format(name))
             continue
-        lines.append("* run {}: host's own {}, the simulation's {}; 1-min load {} -- {}".format(
-            i, _spread(s.get('host_per_10k')), _spread(s.get('sim_per_10k')),
+        lines.append("* {}: host's own {}, the simulation's {}; 1-min load {} -- {}".format(
+            name, _spread(s.get('host_per_10k')), _spread(s.get('sim_per_10k')),
             _spread(s.get('load_1min')), verdict(s)))
     return lines
 

@@ -472,6 +472,10 @@ def readme_snippet(summ: Mapping[str, Any], where: str = 'docs/results/bench') -
                   fmt_spread(lc.get('paired_m4k_cpu_per_cycle_us'), 1),
                   fmt_spread(lc.get('paired_floor_cpu_per_cycle_us'), 1),
                   fmt_spread(lc.get('floor_cpu_per_cycle_us'), 1))]
+    fleet = [r['fleet_idle'] for r in summ.get('rounds') or []
+             if isinstance(r, Mapping) and isinstance(r.get('fleet_idle'), Mapping)]
+    lines += fleetagg.combined_lines([fleetagg.summarize(fleet) if fleet else None],
+                                     ['this run'])
     lines += _table1_compact(summ)
     if summ.get('scaling'):
         lines += ['', '![scaling]({}/scaling.png)'.format(where)]
