@@ -51,5 +51,8 @@ def test_three_robots_driven_and_every_robots_motor_counters_read(tmp_path):
         assert d['rt'] is not None and d['rt']['sent'] > 0, r
     assert drops['pooled']['commands'] == sum(d['host']['commands']
                                               for d in drops['robots'].values())
+    # the drops before the stop signal are counted over the same commands, and no more
+    assert drops['pooled_running']['commands'] == drops['pooled']['commands']
+    assert drops['pooled_running']['dropped'] <= drops['pooled']['dropped']
     load = res['load']
     assert set(load['stack_cores']) == set(fleetagg.ROBOTS) and load['cpus'] >= 1

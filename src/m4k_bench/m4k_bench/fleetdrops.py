@@ -47,6 +47,7 @@ STOP_TIMEOUT_S = 60.0       # bringup's own ordered stop gives each child 8 s
 CMD_PERIOD_S = 0.05         # 20 Hz, as the bench's commander
 PUBLISH_DIR = os.path.join('docs', 'results', 'fleet-drops')
 PLAIN_EVERY_S = 10.0        # progress lines when stderr is no terminal
+SETTLE_S = 3.0              # standing still before the stop (> the host's 1 s drop-line period)
 
 
 def _busy_ticks() -> tuple[int, int]:
@@ -227,24 +228,33 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
         out['load'] = {'load_1min': load1, 'load_5min': load5, 'cpus': os.cpu_count(),
                        'busy_percent': 100.0 * (busy1 - busy0) / max(1, all1 - all0),
                        'stack_cores': cores, 'stacks_cores': sum(cores.values())}
-        for r in robots:
-            ros.send(r, 0.0, 0.0)
+        # Still, then a pause longer than the host's drop-line period (1 s) before the stop:
+        # every drop while driving is logged before the stop signal, the stop's own after it.
+        settle = time.monotonic() + SETTLE_S
+        while time.monotonic() < settle:
+            for r in robots:
+                ros.send(r, 0.0, 0.0)
+            time.sleep(CMD_PERIOD_S)
         rt_ports = dict(ros.motor)
+        out['stop_utc'] = time.time()
     finally:
         _stop_all(kids, out)
         if ros is not None:
             ros.close()
         shutil.rmtree(work, ignore_errors=True)
-    host = {}
+    host, running = {}, {}
+    stop_utc = out.get('stop_utc', time.time())
     for r in robots:
         try:
             with open(os.path.join(log_dir, '{}.{}.log'.format(tag, r)), encoding='utf-8',
                       errors='replace') as f:
-                host[r] = fleetagg.device_totals(f.read())
+                text = f.read()
         except OSError:
-            host[r] = None
+            text = ''
+        host[r] = fleetagg.device_totals(text)
+        running[r] = fleetagg.device_totals(fleetagg.before(text, stop_utc))
     out['drops'] = fleetagg.run_summary(host, {r: hostdrops.rt_side(rt_ports.get(r))
-                                               for r in robots})
+                                               for r in robots}, running)
     return out
 
 
@@ -293,7 +303,9 @@ METHOD = [
     'line of every host process); the counters cover the whole life of the stack, start-up '
     "and stop included. `stale_device` is the simulation's share (sim_robot answering late "
     "over the sim bus); the other reasons are the host's own. Pooled = the three robots' "
-    'counters summed.',
+    'counters summed. After the drive the robots stand still for {:g} s, then every bringup '
+    'gets SIGTERM; drops logged after that are the stop\'s ("at the stop"), and "before the '
+    'stop signal" is the rate without them, over the same commands.'.format(SETTLE_S),
     "RT side: the motor port's counters in each robot's last rt_status before the stop "
     '(queue full, no host linked).',
     "CPU: /proc/stat busy share of all CPUs over the drive; each stack's cores = CPU seconds "

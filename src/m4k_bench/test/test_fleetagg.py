@@ -129,3 +129,35 @@ def test_the_bench_report_and_readme_snippet_carry_the_fleet():
     snippet = report.readme_snippet(summ)
     assert "* this run: host's own 2.00 (2.00–2.00, n=1), the simulation's 1.00" in snippet
     assert 'three-robot fleet' not in report.readme_snippet({'rounds': [{'round': 0}]})
+
+
+def _stamped(hms, text):
+    return text.replace('05:08:28,343', hms)
+
+
+def test_drops_after_the_stop_signal_are_the_stops_and_left_out_of_the_running_rate():
+    import time
+    stop = time.mktime(time.strptime('2026-11-29 05:10:00', '%Y-%m-%d %H:%M:%S')) + 0.5
+    log = (_stamped('05:09:00,000', _line(5_000, host=1))
+           + '[bridge] a line without a stamp\n'
+           + _stamped('05:10:00,499', _line(9_000, host=3, sim=1))
+           + _stamped('05:10:00,500', _line(9_990, host=6, sim=2, lost=2, tail=' at exit')))
+    assert fleetagg.before(log, stop).count('drops served=') == 2
+    assert 'without a stamp' in fleetagg.before(log, stop)
+    assert fleetagg.before(log, stop - 120) == ''
+    whole = fleetagg.device_totals(log)
+    running = fleetagg.device_totals(fleetagg.before(log, stop))
+    assert fleetagg.at_stop(whole, running) == {
+        'stale_host': 3, 'stale_device': 1, 'malformed': 0, 'unexpected': 0, 'inactive': 0,
+        'encode': 0, 'reply_lost': 2}
+    assert fleetagg.at_stop(whole, None)['stale_host'] == 6   # no line before the stop
+    s = fleetagg.run_summary({'r1': whole, 'r2': None}, {}, {'r1': running, 'r2': None})
+    assert s['pooled']['commands'] == 9_998 and s['pooled']['dropped'] == 8
+    run = s['pooled_running']
+    # the same commands, only the 4 drops before the stop (3 host's own, 1 simulation's)
+    assert (run['commands'], run['dropped'], run['by_reason']['stale_host']) == (9_998, 4, 3)
+    assert s['pooled_at_stop']['stale_host'] == 3 and s['robots']['r2']['at_stop'] is None
+    row = fleetagg.run_rows({'drops': s}, '1')[0]
+    assert row[2].endswith('; at the stop: stale_device 1, stale_host 3')
+    assert fleetagg.summarize([{'drops': s}])['running_host_per_10k']['median'] == \
+        1e4 * 3 / 9_998

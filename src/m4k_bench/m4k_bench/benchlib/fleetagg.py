@@ -9,13 +9,16 @@ tables of ``docs/results/fleet-drops`` and of the bench report.
 
 from __future__ import annotations
 
+import re
+import time
 from typing import Any, Mapping, Sequence
 
 from m4k_bench.benchlib import hostdrops
 from m4k_bench.benchlib.results import md_table
 from m4k_bench.benchlib.rounds import spread
 
-__all__ = ['ROBOTS', 'TARGET_HOST_PER_10K', 'bench_rows', 'combined_lines', 'command',
+__all__ = ['ROBOTS', 'TARGET_HOST_PER_10K', 'at_stop', 'before', 'bench_rows',
+           'combined_lines', 'command',
            'device_totals', 'drop_cell', 'pool', 'pool_rt', 'render', 'run_rows', 'run_summary',
            'summarize', 'verdict']
 
@@ -38,6 +41,26 @@ def command(robot: str, t_s: float) -> tuple[float, float]:
     v, w = DRIVE[robot]
     sign = 1.0 if v == 0.0 or (t_s % (2 * HALF_S)) < HALF_S else -1.0
     return sign * v, w
+
+
+# The time stamp of a log line (logging's asctime: local time, milliseconds after a comma).
+_STAMP = re.compile(r'(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(\d{3})')
+
+
+def before(text: str, t_epoch: float) -> str:
+    """Return the lines of ``text`` logged before ``t_epoch`` (cut at the first stamped later).
+
+    A line without a time stamp stays with the lines around it.
+    """
+    out = []
+    for line in text.splitlines(keepends=True):
+        m = _STAMP.search(line)
+        if m is not None:
+            t = time.mktime(time.strptime(m.group(1), '%Y-%m-%d %H:%M:%S'))
+            if t + int(m.group(2)) / 1e3 >= t_epoch:
+                break
+        out.append(line)
+    return ''.join(out)
 
 
 def device_totals(text: str, device: str = 'motor') -> dict[str, int] | None:
@@ -98,13 +121,65 @@ def pool_rt(per_robot: Mapping[str, Mapping[str, Any] | None]) -> dict[str, Any]
             'link_per_10k': 1e4 * link / total if total else None}
 
 
+def at_stop(whole: Mapping[str, int] | None,
+            running: Mapping[str, int] | None) -> dict[str, int] | None:
+    """Return the counters that moved after the stop signal: ``whole`` minus ``running``.
+
+    ``running``: the totals of the lines logged before the stop (None: no line yet, all zero).
+    ``served`` is left out: the host logs it only with a drop, so its value at the stop is not
+    known.
+    """
+    if not whole:
+        return None
+    run = running or {}
+    return {k: v - run.get(k, 0) for k, v in _raw(whole).items() if k != 'served'}
+
+
+def _running_rate(whole: Mapping[str, int],
+                  stop: Mapping[str, int] | None) -> dict[str, Any]:
+    """Return :func:`hostdrops.per_10k` of the drops before the stop, of every command.
+
+    Same denominator as the whole run (every command that reached the host): the drops at
+    the stop are moved to ``served`` so the total stays.
+    """
+    counts = dict(_raw(whole))
+    moved = 0
+    for k, v in (stop or {}).items():
+        counts[k] = counts.get(k, 0) - v
+        moved += 0 if k in hostdrops.REPLY_REASONS else v
+    counts['served'] = counts.get('served', 0) + moved
+    return hostdrops.per_10k(counts)
+
+
 def run_summary(host: Mapping[str, Mapping[str, int] | None],
-                rt: Mapping[str, Mapping[str, Any] | None]) -> dict[str, Any]:
-    """Return one fleet run's drops: per robot (host and RT side) and pooled."""
-    return {'robots': {r: {'host': hostdrops.per_10k(_raw(c)) if c else None,
-                           'segments': (c or {}).get('segments'), 'rt': rt.get(r)}
-                       for r, c in host.items()},
-            'pooled': pool(host), 'pooled_rt': pool_rt(rt)}
+                rt: Mapping[str, Mapping[str, Any] | None],
+                running: Mapping[str, Mapping[str, int] | None] | None = None
+                ) -> dict[str, Any]:
+    """Return one fleet run's drops: per robot (host and RT side) and pooled.
+
+    ``running``: each robot's counters logged before the stop signal (:func:`before`); the
+    drops after it (the stacks stopping) are then reported apart, and ``pooled_running`` is the
+    rate without them.
+    """
+    robots = {r: {'host': hostdrops.per_10k(_raw(c)) if c else None,
+                  'segments': (c or {}).get('segments'), 'rt': rt.get(r)}
+              for r, c in host.items()}
+    out: dict[str, Any] = {'robots': robots, 'pooled': pool(host), 'pooled_rt': pool_rt(rt)}
+    if running is not None:
+        stops = {r: at_stop(c, running.get(r)) for r, c in host.items()}
+        for r, st in stops.items():
+            robots[r]['at_stop'] = st
+        total: dict[str, int] = {}
+        for st in stops.values():
+            for k, v in (st or {}).items():
+                total[k] = total.get(k, 0) + v
+        out['pooled_at_stop'] = total
+        whole: dict[str, int] = {}
+        for c in host.values():
+            for k, v in _raw(c or {}).items():
+                whole[k] = whole.get(k, 0) + v
+        out['pooled_running'] = _running_rate(whole, total) if whole else None
+    return out
 
 
 def summarize(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -117,7 +192,10 @@ def summarize(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                       or {}).items():
             reasons[k] = reasons.get(k, 0) + int(v)
     host = over('host_per_10k')
+    running = spread([((r.get('drops') or {}).get('pooled_running') or {}).get('host_per_10k')
+                      for r in runs])
     return {'runs': len(runs), 'per_10k': over('per_10k'), 'host_per_10k': host,
+            'running_host_per_10k': running,
             # met only when every run is within the target (a median could hide one that is not)
             'met': None if host is None or host['n'] < len(runs)
             else host['max'] <= TARGET_HOST_PER_10K,
@@ -141,6 +219,13 @@ def drop_cell(d: Mapping[str, Any] | None) -> str:
         d.get('commands'), ': ' + reasons if reasons else '')
 
 
+def _stop_note(stop: Mapping[str, int] | None) -> str:
+    moved = {k: v for k, v in (stop or {}).items() if v and k not in hostdrops.REPLY_REASONS}
+    if not moved:
+        return ''
+    return '; at the stop: ' + ', '.join('{} {}'.format(k, v) for k, v in sorted(moved.items()))
+
+
 def _rt_cell(rt: Mapping[str, Any] | None) -> str:
     if not rt:
         return '-'
@@ -158,11 +243,12 @@ def _load_cell(load: Mapping[str, Any] | None) -> str:
 def run_rows(run: Mapping[str, Any], label: str) -> list[list[Any]]:
     """Return a run's table rows: one per robot and one pooled."""
     d = run.get('drops') or {}
-    rows = [[label, r, drop_cell((v or {}).get('host')), _rt_cell((v or {}).get('rt')),
+    rows = [[label, r, drop_cell((v or {}).get('host')) + _stop_note((v or {}).get('at_stop')),
+             _rt_cell((v or {}).get('rt')),
              _f(((run.get('load') or {}).get('stack_cores') or {}).get(r))]
             for r, v in sorted((d.get('robots') or {}).items())]
-    rows.append([label, '**fleet**', drop_cell(d.get('pooled')), _rt_cell(d.get('pooled_rt')),
-                 _load_cell(run.get('load'))])
+    rows.append([label, '**fleet**', drop_cell(d.get('pooled')) + _stop_note(
+        d.get('pooled_at_stop')), _rt_cell(d.get('pooled_rt')), _load_cell(run.get('load'))])
     return rows
 
 
@@ -204,6 +290,8 @@ def render(doc: Mapping[str, Any]) -> str:
     lines += ['Pooled over the three robots, per run, median (min–max, n runs):', '',
               "* host's own: **{}** per 10 000 (target ≤ {:g} in every run: {})".format(
                   _spread(s.get('host_per_10k')), TARGET_HOST_PER_10K, verdict(s)),
+              "* host's own before the stop signal (the stacks running, start-up and drive): "
+              '{} per 10 000'.format(_spread(s.get('running_host_per_10k'))),
               "* the simulation's (`stale_device`): {} per 10 000".format(
                   _spread(s.get('sim_per_10k'))),
               '* all reasons: {} per 10 000'.format(_spread(s.get('per_10k'))),
