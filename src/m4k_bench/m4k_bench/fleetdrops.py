@@ -285,9 +285,17 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument('--publish', default='', metavar='DIR',
                     help='also copy report.md and summary.json to DIR (e.g. {})'.format(
                         PUBLISH_DIR))
+    ap.add_argument('--robots', default=','.join(fleetagg.ROBOTS), metavar='R,R',
+                    help='the robots to run (default %(default)s; one robot alone: the CPU '
+                    'one stack takes when it has the machine)')
     args = rosargs.parse_args(ap, argv)
     if args.runs < 1 or not args.duration > 0:
         ap.error('--runs must be >= 1 and --duration > 0')
+    args.robots = tuple(r for r in args.robots.split(',') if r)
+    unknown = set(args.robots) - set(fleetagg.ROBOTS)
+    if unknown or not args.robots:
+        ap.error('--robots: a comma list of {}, got {!r}'.format(
+            ', '.join(fleetagg.ROBOTS), ','.join(sorted(unknown)) or args.robots))
     return args
 
 
@@ -337,7 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 sys.stderr.write(head + note + '\n')
             sys.stderr.flush()
         res = run_fleet(args.duration, logs, env=env, tag='run{}'.format(i + 1),
-                        progress=show)
+                        robots=args.robots, progress=show)
         pooled = (res.get('drops') or {}).get('pooled') or {}
         sys.stderr.write('\n{}{} host + {} sim per 10 000 ({} of {}), load {}{}\n'.format(
             head, fleetagg._f(pooled.get('host_per_10k')),
@@ -345,8 +353,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             pooled.get('commands'), (res.get('load') or {}).get('load_1min'),
             ''.join('; ' + e for e in res['errors'])))
         runs.append(res)
-    doc = {'command': 'python -m m4k_bench.fleetdrops --runs {} --duration {:g}'.format(
-        args.runs, args.duration), 'started_utc': started, 'duration_s': args.duration,
+    doc = {'command': 'python -m m4k_bench.fleetdrops --runs {} --duration {:g}{}'.format(
+        args.runs, args.duration, '' if args.robots == fleetagg.ROBOTS
+        else ' --robots ' + ','.join(args.robots)), 'started_utc': started, 'duration_s': args.duration,
         'ros_domain_id': env['ROS_DOMAIN_ID'], 'runs': runs,
         'summary': fleetagg.summarize(runs), 'method': METHOD,
         'notes': [e for r in runs for e in r['errors']]}
