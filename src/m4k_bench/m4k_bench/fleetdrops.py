@@ -355,7 +355,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         runs.append(res)
     doc = {'command': 'python -m m4k_bench.fleetdrops --runs {} --duration {:g}{}'.format(
         args.runs, args.duration, '' if args.robots == fleetagg.ROBOTS
-        else ' --robots ' + ','.join(args.robots)), 'started_utc': started, 'duration_s': args.duration,
+        else ' --robots ' + ','.join(args.robots)), 'started_utc': started,
+        'duration_s': args.duration,
         'ros_domain_id': env['ROS_DOMAIN_ID'], 'runs': runs,
         'summary': fleetagg.summarize(runs), 'method': METHOD,
         'notes': [e for r in runs for e in r['errors']]}
