@@ -54,5 +54,8 @@ def test_three_robots_driven_and_every_robots_motor_counters_read(tmp_path):
     # the drops before the stop signal are counted over the same commands, and no more
     assert drops['pooled_running']['commands'] == drops['pooled']['commands']
     assert drops['pooled_running']['dropped'] <= drops['pooled']['dropped']
+    # every robot was sent cmd_vel while driving; its bridge's late drops are at most those
+    assert all(0 <= b['cmd_vel_late'] <= b['cmd_vel_sent'] and b['cmd_vel_sent'] > 0
+               for b in res['bridge'].values()), res['bridge']
     load = res['load']
     assert set(load['stack_cores']) == set(fleetagg.ROBOTS) and load['cpus'] >= 1

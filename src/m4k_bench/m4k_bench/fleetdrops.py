@@ -200,6 +200,8 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
         out['start_s'] = time.monotonic() - t_begin
         cpu0 = {r: _tree_cpu(k.pid) for r, k in kids.items()}
         busy0, all0 = _busy_ticks()
+        sent = dict.fromkeys(robots, 0)
+        out['cmd_vel_sent'] = sent
         t0 = time.monotonic()
         out['drive_utc'] = [time.time()]       # to place a drop line of the logs in or out
         nxt = t0
@@ -207,6 +209,7 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
         while (now := time.monotonic()) - t0 < duration_s:
             for r in robots:
                 ros.send(r, *fleetagg.command(r, now - t0))
+                sent[r] += 1
             if progress is not None and now >= note:
                 note = now + 1.0
                 progress('driving {:.0f}/{:.0f} s, load {}'.format(
@@ -234,6 +237,7 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
         while time.monotonic() < settle:
             for r in robots:
                 ros.send(r, 0.0, 0.0)
+                sent[r] += 1
             time.sleep(CMD_PERIOD_S)
         rt_ports = dict(ros.motor)
         out['stop_utc'] = time.time()
@@ -242,7 +246,7 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
         if ros is not None:
             ros.close()
         shutil.rmtree(work, ignore_errors=True)
-    host, running = {}, {}
+    host, running, bridge = {}, {}, {}
     stop_utc = out.get('stop_utc', time.time())
     for r in robots:
         try:
@@ -253,6 +257,9 @@ def run_fleet(duration_s: float, log_dir: str, *, env: dict[str, str] | None = N
             text = ''
         host[r] = fleetagg.device_totals(text)
         running[r] = fleetagg.device_totals(fleetagg.before(text, stop_utc))
+        bridge[r] = dict(fleetagg.bridge_counts(text),
+                         cmd_vel_sent=out.get('cmd_vel_sent', {}).get(r, 0))
+    out['bridge'] = bridge
     out['drops'] = fleetagg.run_summary(host, {r: hostdrops.rt_side(rt_ports.get(r))
                                                for r in robots}, running)
     return out
@@ -316,6 +323,10 @@ METHOD = [
     'stop signal" is the rate without them, over the same commands.'.format(SETTLE_S),
     "RT side: the motor port's counters in each robot's last rt_status before the stop "
     '(queue full, no host linked).',
+    'Bridge: the cmd_vel messages this tool sent each robot (drive and standstill), those its '
+    'bridge dropped as processed more than cmd_vel_timeout after they arrived (cmd_vel_late, '
+    "a starved bridge), and the collision guard's stops (the flight recorder's guard_stop "
+    'dumps): upstream of the wheel commands, not in the drop rates above.',
     "CPU: /proc/stat busy share of all CPUs over the drive; each stack's cores = CPU seconds "
     'of its bringup and every descendant over the drive ÷ its wall time.',
 ]

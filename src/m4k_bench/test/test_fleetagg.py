@@ -68,7 +68,7 @@ def test_the_tables_show_each_robot_and_the_fleet():
     rows = fleetagg.run_rows(run, '1')
     assert [r[1] for r in rows] == ['r1', '**fleet**']
     assert rows[0][2].startswith('2.00 host + 1.00 sim / 10k (3 of 10000: ')
-    assert '7.00 (99 % of 2 CPUs busy; stacks 1.80 cores)' == rows[1][4]
+    assert rows[1][4] == '-' and rows[1][5] == '7.00 (99 % of 2 CPUs busy; stacks 1.80 cores)'
     lines = fleetagg.bench_rows([{'round': 0, 'fleet_idle': run}, {'round': 1}])
     assert lines[0] == '## Wheel-command drops in the three-robot fleet'
     assert sum(1 for ln in lines if ln.startswith('| round 0 |')) == 2
@@ -161,3 +161,19 @@ def test_drops_after_the_stop_signal_are_the_stops_and_left_out_of_the_running_r
     assert row[2].endswith('; at the stop: stale_device 1, stale_host 3')
     assert fleetagg.summarize([{'drops': s}])['running_host_per_10k']['median'] == \
         1e4 * 3 / 9_998
+
+
+def test_the_bridges_late_cmd_vel_and_guard_stops_are_read_from_its_log():
+    log = ('[bridge] [WARN] [1.2] [r1.m4k_bridge]: cmd_vel processed 0.51 s after it arrived '
+           '(> cmd_vel_timeout 0.5 s: a stall?): dropped (3 so far)\n'
+           '[bridge] [WARN] [1.3] [r1.m4k_bridge]: flight recorder: guard_stop (collision guard '
+           'stopped forward motion (flags 0xa)): 551 messages -> /tmp/x\n'
+           '[bridge] [WARN] [1.4] [r1.m4k_bridge]: cmd_vel processed 0.70 s after it arrived '
+           '(> cmd_vel_timeout 0.5 s: a stall?): dropped (8 so far)\n')
+    assert fleetagg.bridge_counts(log) == {'cmd_vel_late': 8, 'guard_stops': 1}
+    assert fleetagg.bridge_counts('') == {'cmd_vel_late': 0, 'guard_stops': 0}
+    run = dict(_run(0, 0, 6.0), bridge={'r1': {'cmd_vel_late': 8, 'guard_stops': 1,
+                                                'cmd_vel_sent': 1200}})
+    rows = fleetagg.run_rows(run, '1')
+    assert rows[0][4] == '8 of 1200 late; 1 guard stops' == rows[1][4]
+    assert fleetagg.run_rows(_run(0, 0, 6.0), '1')[0][4] == '-'

@@ -17,7 +17,7 @@ from m4k_bench.benchlib import hostdrops
 from m4k_bench.benchlib.results import md_table
 from m4k_bench.benchlib.rounds import spread
 
-__all__ = ['ROBOTS', 'TARGET_HOST_PER_10K', 'at_stop', 'before', 'bench_rows',
+__all__ = ['ROBOTS', 'TARGET_HOST_PER_10K', 'at_stop', 'before', 'bench_rows', 'bridge_counts',
            'combined_lines', 'command',
            'device_totals', 'drop_cell', 'pool', 'pool_rt', 'render', 'run_rows', 'run_summary',
            'summarize', 'verdict']
@@ -61,6 +61,23 @@ def before(text: str, t_epoch: float) -> str:
                 break
         out.append(line)
     return ''.join(out)
+
+
+# The bridge's own drop of a cmd_vel it got to too late (m4k_bridge.node: cmd_vel_late), and
+# the flight recorder's dump on a collision-guard stop: each line carries the count so far.
+_LATE = re.compile(r'cmd_vel processed [\d.]+ s after it arrived .*?dropped \((\d+) so far\)')
+_GUARD = re.compile(r'flight recorder: guard_stop ')
+
+
+def bridge_counts(text: str) -> dict[str, int]:
+    """Return a bringup log's cmd_vel dropped late by the bridge and its guard stops.
+
+    ``cmd_vel_late``: the highest count logged (the bridge may not log every one);
+    ``guard_stops``: the flight recorder's guard_stop dumps (the collision guard stopped
+    forward motion: the robot then stands on zero wheel commands until it may go on).
+    """
+    late = [int(m.group(1)) for m in _LATE.finditer(text)]
+    return {'cmd_vel_late': max(late, default=0), 'guard_stops': len(_GUARD.findall(text))}
 
 
 def device_totals(text: str, device: str = 'motor') -> dict[str, int] | None:
@@ -226,6 +243,14 @@ def _stop_note(stop: Mapping[str, int] | None) -> str:
     return '; at the stop: ' + ', '.join('{} {}'.format(k, v) for k, v in sorted(moved.items()))
 
 
+def _bridge_cell(b: Mapping[str, int] | None) -> str:
+    if not b:
+        return '-'
+    return '{} of {} late; {} guard stops'.format(b.get('cmd_vel_late', '-'),
+                                                   b.get('cmd_vel_sent', '-'),
+                                                   b.get('guard_stops', '-'))
+
+
 def _rt_cell(rt: Mapping[str, Any] | None) -> str:
     if not rt:
         return '-'
@@ -243,17 +268,25 @@ def _load_cell(load: Mapping[str, Any] | None) -> str:
 def run_rows(run: Mapping[str, Any], label: str) -> list[list[Any]]:
     """Return a run's table rows: one per robot and one pooled."""
     d = run.get('drops') or {}
+    bridge = run.get('bridge') or {}
     rows = [[label, r, drop_cell((v or {}).get('host')) + _stop_note((v or {}).get('at_stop')),
-             _rt_cell((v or {}).get('rt')),
+             _rt_cell((v or {}).get('rt')), _bridge_cell(bridge.get(r)),
              _f(((run.get('load') or {}).get('stack_cores') or {}).get(r))]
             for r, v in sorted((d.get('robots') or {}).items())]
+    pooled: dict[str, int] = {}
+    for b in bridge.values():
+        for k, v in (b or {}).items():
+            pooled[k] = pooled.get(k, 0) + int(v)
     rows.append([label, '**fleet**', drop_cell(d.get('pooled')) + _stop_note(
-        d.get('pooled_at_stop')), _rt_cell(d.get('pooled_rt')), _load_cell(run.get('load'))])
+        d.get('pooled_at_stop')), _rt_cell(d.get('pooled_rt')),
+        _bridge_cell(pooled or None), _load_cell(run.get('load'))])
     return rows
 
 
 HEADER = ['Run', 'Robot', "wheel-command drops at the host (host's own + simulation's)",
-          "RT side's motor port (lost before the host)", 'CPU (cores) / load']
+          "RT side's motor port (lost before the host)",
+          'bridge: cmd_vel dropped late (> cmd_vel_timeout) of sent; guard stops',
+          'CPU (cores) / load']
 
 
 def bench_rows(rounds: Sequence[Mapping[str, Any]], key: str = 'fleet_idle') -> list[str]:
