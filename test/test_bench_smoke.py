@@ -85,9 +85,9 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
             proc.communicate()
         raise
     assert proc.returncode == 0, stderr[-3000:]
-    # plain progress (not a TTY); 26 with the reaction, the two channel floors, the two
-    # frame-structure floors and the four executive conditions
-    assert '[1/26] set-up' in stderr
+    # plain progress (not a TTY); 27 with the reaction, the two channel floors, the two
+    # frame-structure floors, the four executive conditions and the three-robot fleet
+    assert '[1/27] set-up' in stderr
     latest = results / 'latest'
     assert latest.is_symlink() and latest.is_dir()
     out = latest
@@ -146,6 +146,13 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
         drops = c['host_drops']
         assert drops['commands'] > 0 and set(drops['by_reason']) >= {'stale_host',
                                                                     'stale_device'}, cond
+    # the three-robot fleet: every robot's motor counters, pooled, and its table in the report
+    fleet = rnd['fleet_idle']
+    assert fleet['errors'] == [], fleet['errors']
+    assert all(d['host']['commands'] > 0 for d in fleet['drops']['robots'].values())
+    assert fleet['drops']['pooled']['commands'] == sum(
+        d['host']['commands'] for d in fleet['drops']['robots'].values())
+    assert '## Wheel-command drops in the three-robot fleet' in (out / 'report.md').read_text()
     assert rnd['floor_frame']['frame'] and rnd['floor_frame']['cpu_per_cycle_us'] > 0
     assert rnd['floor_frame_socket']['channel'] == 'socket'
     _value_or_reason(summ, 'cpu_per_cycle_frame_over_threads')

@@ -81,7 +81,10 @@ QUICK = {'rounds': 3, 'condition_s': 6.0, 'floor_s': 4.0, 'scaling_s': 4.0, 'rtt
 # One round, in this order (reversed every other round).
 CONDITIONS = ('ct_idle', 'm4k_idle', 'm4k_frame_idle', 'm4k_live', 'm4k_alone', 'baseline_idle',
               'm4k_slow_threads', 'm4k_slow_frame',
-              'ct_stress', 'm4k_stress', 'm4k_frame_stress', 'baseline_stress')
+              'fleet_idle', 'ct_stress', 'm4k_stress', 'm4k_frame_stress', 'baseline_stress')
+# The three-robot fleet (m4k_bench.fleetdrops) beyond the condition's seconds: three stacks
+# starting (7-8 s measured on two shared cores), the 3 s standstill, the stop.
+FLEET_START_S = 15.0
 # The executives side by side (m4k_rt.frame): the frame conditions run the same stack with
 # runtime.executive: frame. The slow conditions inject a body overrun (m4k_bench.slowbody).
 FRAME_OVERLAY = {'runtime': {'executive': 'frame'}}
@@ -111,6 +114,7 @@ def estimate_s(plan: dict[str, Any], skip: AbstractSet[str] = frozenset()) -> fl
     """Return a rough wall-time estimate of the plan (start-up of each run included)."""
     per_cond = plan['condition_s'] + WARMUP_S + 5.0
     per_round = sum(per_cond for c in CONDITIONS if c not in skip)
+    per_round += 0 if 'fleet_idle' in skip else FLEET_START_S
     # the bare floor and the channel floors
     per_round += 0 if 'floor' in skip else \
         (3 + len(analysis.CHANNEL_FLOORS)) * (plan['floor_s'] + 2.0)
@@ -485,6 +489,18 @@ class Bench:
         self.periods.setdefault(key, []).append(_periods(series))
         return c
 
+    def _fleet(self, tag: str, seconds: float) -> dict[str, Any] | None:
+        """Run the three-robot fleet (:mod:`m4k_bench.fleetdrops`): its drops and load."""
+        if not self.has_host:
+            self.summ['skipped'][tag] = 'm4k_drivers.host is not installed'
+            return None
+        from m4k_bench import fleetdrops
+        res = fleetdrops.run_fleet(seconds, self.logs, env=self.env, tag=tag,
+                                   progress=self.progress.update)
+        for e in res['errors']:
+            self._note('{}: {}'.format(tag, e))
+        return res
+
     def _cyclictest_alone(self, seconds: float,
                           period_us: int = PERIOD_NS // 1000) -> dict[str, Any] | None:
         ct = _Concurrent(seconds, period_us, self.has_ct)
@@ -612,12 +628,14 @@ class Bench:
                 rt_config=self._executive_overlay('frame'))),
             'baseline_stress': ('plain-ROS baseline, stress-ng', lambda: self._baseline(
                 'baseline_stress', 'r{}_baseline_stress'.format(k), cond_s)),
+            'fleet_idle': ('three-robot fleet, all driven: wheel-command drops',
+                           lambda: self._fleet('r{}_fleet'.format(k), cond_s)),
         }
         for cond in order:
             if cond in self.skip:
                 continue
             label, fn = runs[cond]
-            p.phase(pre + label, run_s)
+            p.phase(pre + label, run_s + (FLEET_START_S if cond == 'fleet_idle' else 0.0))
             if cond.endswith('_stress'):
                 if not self.stress_bin:
                     self.summ['skipped'][cond] = 'stress-ng missing'

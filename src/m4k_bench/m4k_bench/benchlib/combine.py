@@ -18,6 +18,7 @@ import os
 import sys
 from typing import Any, Mapping, Sequence
 
+from m4k_bench.benchlib import fleetagg
 from m4k_bench.benchlib.report import fmt_spread, md_table
 from m4k_bench.benchlib.rounds import spread
 from m4k_rt import rosargs
@@ -79,7 +80,12 @@ def combine(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         loop.append({k: spread(list((lc.get(k) or {}).get('values') or []))
                      for k in ('paired_m4k_cpu_per_cycle_us', 'paired_floor_cpu_per_cycle_us',
                                'floor_cpu_per_cycle_us')})
-    return {'rows': rows, 'loop_cost': loop,
+    fleet = []
+    for r in runs:     # the three-robot fleet's drops, per round (bench's fleet_idle)
+        got = [rd['fleet_idle'] for rd in r.get('rounds') or []
+               if isinstance(rd, Mapping) and isinstance(rd.get('fleet_idle'), Mapping)]
+        fleet.append(fleetagg.summarize(got) if got else None)
+    return {'rows': rows, 'loop_cost': loop, 'fleet': fleet,
             'runs': [{'dir': r.get('_dir'), 'started_utc': (r.get('run') or {}).get(
                 'started_utc'), 'rounds': ((r.get('run') or {}).get('plan') or {}).get(
                     'rounds'), 'machine': r.get('machine') or {}} for r in runs]}
@@ -121,6 +127,7 @@ def render(comb: Mapping[str, Any]) -> str:
             i, fmt_spread(lc['paired_m4k_cpu_per_cycle_us'], 1),
             fmt_spread(lc['paired_floor_cpu_per_cycle_us'], 1),
             fmt_spread(lc['floor_cpu_per_cycle_us'], 1)))
+    lines += fleetagg.combined_lines(comb.get('fleet') or [])
     return '\n'.join(lines) + '\n'
 
 

@@ -12,25 +12,28 @@ from __future__ import annotations
 import re
 from typing import Any
 
-__all__ = ['REPLY_REASONS', 'SIM_REASONS', 'parse', 'per_10k', 'read', 'rt_side']
+__all__ = ['LINE', 'REPLY_REASONS', 'SIM_REASONS', 'counts_of', 'parse', 'per_10k', 'read',
+           'rt_side']
 
 SIM_REASONS = ('stale_device',)
 # Reasons that lose a command on its way in; ``encode`` and ``reply_lost`` lose a reply (e.g.
 # the ENCODERS after the RT side stopped, at every shutdown) and are reported, not counted.
 REPLY_REASONS = ('encode', 'reply_lost')
-_LINE = re.compile(r'(?P<dev>[\w-]+): drops served=(?P<served>\d+)(?P<rest>(?: \w+=\d+)*)')
+LINE = re.compile(r'(?P<dev>[\w-]+): drops served=(?P<served>\d+)(?P<rest>(?: \w+=\d+)*)')
 
 
 def parse(text: str) -> dict[str, dict[str, int]]:
     """Return device -> {'served': n, reason: count, ...} from the last drops line of each."""
-    out: dict[str, dict[str, int]] = {}
-    for m in _LINE.finditer(text):
-        counts = {'served': int(m.group('served'))}
-        for kv in m.group('rest').split():
-            k, v = kv.split('=')
-            counts[k] = int(v)
-        out[m.group('dev')] = counts
-    return out
+    return {m.group('dev'): counts_of(m) for m in LINE.finditer(text)}
+
+
+def counts_of(m: re.Match[str]) -> dict[str, int]:
+    """Return {'served': n, reason: count, ...} of one :data:`LINE` match."""
+    counts = {'served': int(m.group('served'))}
+    for kv in m.group('rest').split():
+        k, v = kv.split('=')
+        counts[k] = int(v)
+    return counts
 
 
 def per_10k(counts: dict[str, int]) -> dict[str, Any]:

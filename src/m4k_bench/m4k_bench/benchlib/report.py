@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from m4k_bench import recorder
-from m4k_bench.benchlib import analysis, execreport
+from m4k_bench.benchlib import analysis, execreport, fleetagg
 from m4k_bench.benchlib.analysis import RATIOS
 from m4k_bench.benchlib.results import md_table
 
@@ -412,6 +412,7 @@ def render(summ: Mapping[str, Any]) -> str:
         lines.append('* ' + note)
     lines += [''] + _targets(summ)
     lines += [''] + execreport.section(summ)
+    lines += [''] + fleetagg.bench_rows(summ.get('rounds') or [])
     lines += [''] + _ratios(summ)
     lines += [''] + _per_round(summ)
     lines += [''] + _stalls(summ)
@@ -471,6 +472,10 @@ def readme_snippet(summ: Mapping[str, Any], where: str = 'docs/results/bench') -
                   fmt_spread(lc.get('paired_m4k_cpu_per_cycle_us'), 1),
                   fmt_spread(lc.get('paired_floor_cpu_per_cycle_us'), 1),
                   fmt_spread(lc.get('floor_cpu_per_cycle_us'), 1))]
+    fleet = [r['fleet_idle'] for r in summ.get('rounds') or []
+             if isinstance(r, Mapping) and isinstance(r.get('fleet_idle'), Mapping)]
+    lines += fleetagg.combined_lines([fleetagg.summarize(fleet) if fleet else None],
+                                     ['this run'])
     lines += _table1_compact(summ)
     if summ.get('scaling'):
         lines += ['', '![scaling]({}/scaling.png)'.format(where)]
