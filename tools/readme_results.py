@@ -100,6 +100,15 @@ def bench_facts() -> dict[str, Any]:
             'command': command}
 
 
+def fleet_facts() -> dict[str, Any]:
+    """Return the three-robot fleet's wheel-command drops from ``fleet-drops/summary.json``."""
+    d = _json('fleet-drops/summary.json')
+    s = d['summary']
+    return {'command': d['command'], 'runs': s['runs'], 'met': bool(s['met']),
+            'host': s['host_per_10k'], 'load': s['load_1min'],
+            'commit': d['provenance']['commit'][:7]}
+
+
 def demo_facts() -> dict[str, Any]:
     """Return Fig. 9's verdict from ``demo/summary.json`` (the simulator's ground truth)."""
     d = _json('demo/summary.json')
@@ -152,12 +161,19 @@ def _yes(ok: bool, good: str, bad: str) -> str:
 def results_summary() -> str:
     """Return README.md's results table (one row per kind of evidence, with its link)."""
     b, d, s, f, k = bench_facts(), demo_facts(), scenario_facts(), fuzz_facts(), soak_facts()
+    fl = fleet_facts()
     missed = b['targets'] - b['met']
     rows = [
         (f"Timing (`{b['command']}`)",
          f"{b['met']} of {b['targets']} targets met in all {b['runs']} runs, {missed} missed "
          f"(each analysed); {b['reported']} ratios against plain ROS reported",
          '[bench](docs/results/README.md#timing-make-bench)'),
+        (f"Wheel commands the driver host drops, three-robot fleet (`{fl['command']}`)",
+         f"{fl['host']['median']:.2f} per 10 000 of its own, median over {fl['runs']} runs "
+         f"({fl['host']['min']:.2f}-{fl['host']['max']:.2f}), with 3 stacks on 2 CPUs at load "
+         f"{fl['load']['min']:.0f}-{fl['load']['max']:.0f}: target <= 10 "
+         + _yes(fl['met'], 'met', 'NOT met') + f" (at {fl['commit']})",
+         '[fleet-drops](docs/results/fleet-drops/report.md)'),
         ('Fig. 9 (`make demo`)',
          _yes(d['passed'], 'goal reached', 'FAILED') + f" {_cm(d['final_error_m'])} from the "
          f"target (tolerance {_cm(d['goal_tolerance_m'])}), minimum clearance "

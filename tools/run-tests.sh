@@ -156,21 +156,18 @@ else
     markers="$markers and not serial" packages || r=1
     wait $lint_pid || r=1
     cat "$tmp/lint.log"
-    after_stream || r=1
+    after_stream after_packages 0 'the packages' || r=1
     if [[ -z ${AFTER_SERIAL_LATER:-} ]]; then
-      after_serial_stream || r=1
+      after_stream after_serial 2 'the serial ones' || r=1
     fi
     return $r
   }
+  # The workspace modules that wait for a stream: after_stream MARKER DOMAIN_OFFSET WHAT
+  # (after_packages 0 'the packages' | after_serial 2 'the serial ones').
   after_stream() {
-    export ROS_DOMAIN_ID=$(( (base % 100) + 1 ))
-    echo "== workspace tests after the packages (-m '$markers and not serial and after_packages') =="
-    run_pytest after_packages test -m "$markers and not serial and after_packages"
-  }
-  after_serial_stream() {
-    export ROS_DOMAIN_ID=$(( (base + 2) % 100 + 1 ))
-    echo "== workspace tests after the serial ones (-m '$markers and not serial and after_serial') =="
-    run_pytest after_serial test -m "$markers and not serial and after_serial"
+    export ROS_DOMAIN_ID=$(( (base + $2) % 100 + 1 ))
+    echo "== workspace tests after $3 (-m '$markers and not serial and $1') =="
+    run_pytest "$1" test -m "$markers and not serial and $1"
   }
   e2e_stream() {
     export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
@@ -178,7 +175,7 @@ else
     echo "== workspace tests (-m '$m') =="
     run_pytest e2e test -m "$m"
   }
-  export -f lint packages run_pytest packages_stream e2e_stream after_stream after_serial_stream
+  export -f lint packages run_pytest packages_stream e2e_stream after_stream
   export tmp markers base
   # The side-by-side layout is opt-in (M4K_TEST_SIDE_BY_SIDE=1): 14 min 27 s - 15 min 37 s in
   # fresh clones, but in four of seven a confined test failed on its own clock -- each time
@@ -197,7 +194,8 @@ else
     (confined bash -c packages_stream) >"$tmp/packages.log" 2>&1 & packages_pid=$!
     (confined bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
     serial_stream >"$tmp/serial.log" 2>&1 || rc=1
-    (confined bash -c after_serial_stream) >"$tmp/after.log" 2>&1 || rc=1
+    (confined bash -c "after_stream after_serial 2 'the serial ones'") >"$tmp/after.log" 2>&1 \
+      || rc=1
   else
     # The default, and where no cgroup can be made: the serial stream alone, after the other
     # two (the modules after the packages at the end of the packages stream). Beside them
