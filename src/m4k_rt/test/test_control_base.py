@@ -12,6 +12,7 @@ from m4k_rt.control.base import (
 )
 from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
+from m4k_rt.control.supervision import cause_text
 from m4k_rt.protocol import (
     ODOM_BRAKING,
     ODOM_CLAMPED,
@@ -381,3 +382,26 @@ def test_back_to_back_replies_after_a_stall_do_not_kick_the_integrators():
     assert ctl.left_speed == pytest.approx(plant.speed[0], abs=0.2)
     assert abs(ctl.pi_left.integral - before[0]) < 0.002
     assert abs(ctl.pi_right.integral - before[1]) < 0.002
+
+
+@pytest.mark.parametrize('v', [1.0, 2.0])
+def test_a_guard_stop_read_as_pulled_at_speed_latches_no_standstill_window(v):
+    """On the stack a guard stop at 2 m/s latched "both wheels turn while commanded still": a
+    late encoder sample made a braking cycle read faster than the pulled test's bound, the
+    hold began at speed, and the window measured from there was left in one cycle.
+    A wheel is judged by the window only once it has read still in its hold; until then the
+    speed still test, whose bound falls from its braking speed."""
+    ctl, p = make(hold={'enabled': True})
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, round(100 * (v / 0.37 + 1.0)), t, cmd=(v, 0.0))
+    pulled = False
+    for k in range(300):
+        if k == 5:                  # a late sample: the wheels read 2.5 rad/s faster
+            plant.angle[0] += 0.05
+            plant.angle[1] += 0.05
+        t = drive(ctl, plant, 1, t, cmd=(v, 0.0), cap=0.0, guard_active=True)
+        pulled = pulled or (ctl.holding and ctl.left_speed > 1.0)
+        assert not ctl.supervisor.latched, cause_text(ctl.supervisor.cause)
+    assert pulled, 'the hold did not begin at speed: the test lost its subject'
+    assert ctl.holding and abs(plant.speed[0]) < 0.1 and abs(plant.speed[1]) < 0.1

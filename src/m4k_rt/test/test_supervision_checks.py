@@ -44,7 +44,7 @@ class Wheels:
         if u is None:
             u = (FF * sp[0], FF * sp[1])
         return self.s.step(DT, sp[0], sp[1], meas[0], meas[1], u[0], u[1], sat[0], sat[1], yaw,
-                           held)
+                           (held, held))
 
     def run(self, seconds, *args, **kw):
         """Run; return the time into the run at which the fault latched (None: never)."""

@@ -112,6 +112,10 @@ _GUARD_BRAKING = 0.2
 # rad x direction: a held wheel this far on from where it last read still (3 encoder counts,
 # as the PI's break-away) is rolling, not showing the encoder's noise
 _HOLD_ROLLED = 3.0 * COUNT
+# cycles after the setpoints reach zero in which the pulled test only follows the speed up
+_PULL_GRACE_CYCLES = 3
+# per wheel: held by the standstill hold, judged by its standstill window (none held)
+_NOT_HELD = (False, False)
 # ns: a category-1 stop judges whether the zero word slows the wheels only after this (the
 # 20 ms speed window and a cycle's latency behind the wheel)
 _DRIVEN_GRACE_NS = 50_000_000
@@ -176,6 +180,7 @@ class BaseController:
         self._hold_pulled = [False, False]  # per wheel, found pulled: braked
         self._held_s = 0.0                  # how long the present hold has lasted
         self._hold_bound = [-1.0, -1.0]     # per wheel, the pulled test's falling bound
+        self._hold_zero_cycles = 0          # cycles with zero setpoints (the pulled test's grace)
         self._fb_window = params.speed_feedback_window
         self._fb_min_ns = max(1, int(0.5 * self._fb_window * self.period * 1e9))
         self.odom = Odometry(params.wheel_radius, params.track_width,
@@ -562,11 +567,17 @@ class BaseController:
         else:
             if self.holding and self._held_s >= _HOLD_SETTLED_S:
                 # bumpless: the drive PI starts from the effort that has held the wheel (a
-                # start uphill does not roll back while the PI winds up). A shorter hold -- a
-                # guard stop's last creep before the turn it releases to -- holds no load
-                # yet, only the last of the braking, which would drive the wheel back.
-                self.pi_left.integral = self.hold_effort[0]
-                self.pi_right.integral = self.hold_effort[1]
+                # start uphill does not roll back while the PI winds up) -- when it pushes
+                # the way the new setpoint asks: the load a start would roll back under. An
+                # effort against it is what braked the wheel's last motion that way (a guard
+                # chattering at its release line on the level: the creep it released to,
+                # braked by the hold, handed over as load, backed the robot up at 4 cm/s).
+                # A shorter hold -- a guard stop's last creep before the turn it releases
+                # to -- holds no load yet, only the last of the braking.
+                if self.hold_effort[0] * wl > 0.0:
+                    self.pi_left.integral = self.hold_effort[0]
+                if self.hold_effort[1] * wr > 0.0:
+                    self.pi_right.integral = self.hold_effort[1]
             if self._hold_bound[0] >= 0.0:
                 # armed by the zero-setpoint cycles before this one (never with the hold off)
                 self._hold_disarm()
@@ -583,7 +594,8 @@ class BaseController:
         if self.driver_safe:
             sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
         elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.left_u, self.right_u,
-                      self.pi_left.saturated, self.pi_right.saturated, yaw, self.holding):
+                      self.pi_left.saturated, self.pi_right.saturated, yaw,
+                      self._hold_live if self.holding else _NOT_HELD):
             self.braking = False
             self._fault_since_ns = 0
             self._stop_outputs(self._brake_enable(now_ns, False))
@@ -614,6 +626,7 @@ class BaseController:
         """End the hold and forget its per-wheel state (the pulled test starts afresh)."""
         self.holding = False
         self._hold_bound[0] = self._hold_bound[1] = -1.0
+        self._hold_zero_cycles = 0
         self._hold_live[0] = self._hold_live[1] = False
         self._hold_pulled[0] = self._hold_pulled[1] = False
 
@@ -629,14 +642,27 @@ class BaseController:
         """
         h = self._hold
         hb = self._hold_bound
+        self._hold_zero_cycles += 1
+        grace = self._hold_zero_cycles <= _PULL_GRACE_CYCLES
         pulled = False
         for k, m in ((0, abs(ls)), (1, abs(rs))):
-            b = m + h.speed if hb[k] < 0.0 else max(
-                min(hb[k], m + h.speed) - h.pull_deceleration * dt, 0.0)
-            hb[k] = b
-            if m > b:
-                pulled = self._hold_pulled[k] = True
+            if hb[k] < 0.0 or grace:
+                # the speed estimate lags the zero word (a wheel the PI was still speeding up
+                # reads faster for a window): the bound follows it up, nothing is pulled yet
+                hb[k] = max(hb[k], m + h.speed)
+            elif self._pulled(k, m, dt):
+                pulled = True
         return pulled or (abs(ls) < h.speed and abs(rs) < h.speed)
+
+    def _pulled(self, k: int, m: float, dt: float) -> bool:
+        """Return True (and mark wheel ``k`` pulled) when ``|m|`` is above its falling bound."""
+        h = self._hold
+        hb = self._hold_bound
+        b = hb[k] = max(min(hb[k], m + h.speed) - h.pull_deceleration * dt, 0.0)
+        if m > b:
+            self._hold_pulled[k] = True
+            return True
+        return False
 
     def _hold_step(self, k: int, m: float, dt: float) -> float:
         """Return the hold's command for wheel ``k`` at measured speed ``m`` (rad/s).
@@ -648,9 +674,10 @@ class BaseController:
           a count of encoder noise, to bring it to where it reads still. Otherwise none: the
           motor's back-EMF damps, and a gain on the noise only makes the wheel hunt the
           count.
-        A wheel that has turned 3 counts on from where it last read still (or from where the
-        hold began) and turns on is rolling, not showing the encoder's noise (which only
-        ever makes a held wheel read 1-2 counts):
+        A wheel that has turned 3 counts on from where it last read still (or, found pulled,
+        from where the hold began) and turns on is rolling, not showing the encoder's noise
+        (which only ever makes a held wheel read 1-2 counts); one still braking from the
+        motion before the hold is not (its pulled test goes on until it reads still):
 
         * against the integral, or with none: the integral is too small to stop it -- it
           grows at least at ``pi.breakaway_rate`` against the motion (static friction and an
@@ -673,8 +700,15 @@ class BaseController:
         cs = self._count_speed
         p = 0.0 if not self._hold_pulled[k] else -h.kp * (m - cs) if m > cs else \
             -h.kp * (m + cs) if m < -cs else 0.0
+        if not (self._hold_live[k] or self._hold_pulled[k]):
+            # neither read still nor found pulled since the hold began: still braking from
+            # the motion before it (the pulled test goes on: a ramp may take it over)
+            self._pulled(k, abs(m), dt)
         rolled = a - self._hold_ref[k]
-        if rolled * m >= _HOLD_ROLLED:
+        if (self._hold_live[k] or self._hold_pulled[k]) and rolled * m >= _HOLD_ROLLED:
+            # a wheel still braking from its last motion is no load: its roll would build an
+            # integral that drives it back once it stops (a guard chattering at its release
+            # line backed the robot up at 4 cm/s)
             # rolling on (not the encoder's noise): with the hold's push, or against it
             if i * m > 0.0:
                 step = 9.0 * h.ki * abs(m) * dt

@@ -326,7 +326,8 @@ class SupervisionParams:
     standstill_window: float = setting(_pos(
         'counts', 60.0, 'Standstill window of a held wheel (control.hold): a wheel the hold '
         'holds is judged by where it is, not by its speed (IEC 61800-5-2 safe operating '
-        'stop): turned more than this many encoder counts from where its hold began (60: '
+        'stop): turned more than this many encoder counts from where it first read still in '
+        'its hold (60: '
         '9 mm at the rim) latches the fault at once. Above what a held wheel turns while '
         'the hold takes the load of a 4.8 deg ramp (15-40 counts, python -m m4k_bench.latch '
         '--hold); a wheel driven beyond the hold (an amplifier offset over ~2 V, a slope past '

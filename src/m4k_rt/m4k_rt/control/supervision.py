@@ -44,8 +44,8 @@ has held without a break:
   zero and falls at ``still_deceleration`` (far below what back-EMF braking and friction
   give): a wheel driven while commanded still, or an encoder that reports motion the braking
   does not end (``still_time``); a wheel the standstill hold holds (``control.hold``) is
-  judged by where it is instead: turned more than ``standstill_window`` counts from where its
-  hold began latches at once (a safe operating stop's position window);
+  judged by where it is instead: turned more than ``standstill_window`` counts from where it
+  first read still in its hold latches at once (a safe operating stop's position window);
 * **yaw** (both wheels, whenever a fresh IMU sample is given): the wheels' yaw rate
   ``r (w_r - w_l) / track`` differs from the gyro's by more than ``yaw_tolerance`` plus
   ``yaw_ratio`` of the larger of the two (``yaw_time``). This one needs no setpoint at all:
@@ -84,6 +84,7 @@ times restart.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 import math
 
 from m4k_rt.control.params import SupervisionParams
@@ -309,7 +310,8 @@ class WheelSupervisor:
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
-             saturated_right: bool, yaw_rate: float = math.nan, held: bool = False) -> bool:
+             saturated_right: bool, yaw_rate: float = math.nan,
+             held: Sequence[bool] = (False, False)) -> bool:
         """Advance one cycle; return True when a fault latched in this cycle.
 
         ``sp_*`` are the wheel setpoints the outputs were computed for (rad/s), ``meas_*`` the
@@ -318,8 +320,11 @@ class WheelSupervisor:
         standing against its load is what the hold is for),
         ``saturated_*`` whether that output was at its limit, ``yaw_rate`` the body's yaw rate
         from a fresh gyro sample (rad/s, about base_link z), NaN when there is none.
-        ``held``: the standstill hold holds both wheels (zero setpoints): each is judged by
-        the standstill window from where the hold began, not by the still test's speed.
+        ``held``: per wheel, the standstill hold holds it (zero setpoints) and it has read
+        still since the hold began: judged by the standstill window from where it first read
+        still, not by the still test's speed. A wheel the hold found pulled and brakes from
+        speed is not held yet: a guard stop's first cycles (the speed estimate lagging the
+        zero word) read as pulled, and a window from there latched a false fault at 2 m/s.
         """
         if not self.enabled or self.cause:
             self._fresh = False
@@ -431,7 +436,7 @@ class WheelSupervisor:
                 t[_STALL + k] += dt
             else:
                 t[_STALL + k] = 0.0
-            if sp == 0.0 and held:
+            if sp == 0.0 and held[k]:
                 # A safe operating stop: where the wheel is, not how fast it turns. A hold
                 # still taking a ramp's load lets the wheel roll slowly for longer than
                 # still_time (a false still fault on a 4.8 deg ramp at 0.51 s); a wheel
