@@ -388,7 +388,9 @@ def test_back_to_back_replies_after_a_stall_do_not_kick_the_integrators():
 def test_a_guard_stop_read_as_pulled_at_speed_latches_no_standstill_window(v):
     """On the stack a guard stop at 2 m/s latched "both wheels turn while commanded still": a
     late encoder sample made a braking cycle read faster than the pulled test's bound, the
-    hold began at speed, and the window measured from there was left in one cycle.
+    hold began at speed, and the window measured from there was left in one cycle. (A late
+    sample no longer makes a wheel pulled: here the wheels read 5 rad/s faster for 40 ms,
+    as if something drove them on.)
     A wheel is judged by the window only once it has read still in its hold; until then the
     speed still test, whose bound falls from its braking speed."""
     ctl, p = make(hold={'enabled': True})
@@ -397,11 +399,30 @@ def test_a_guard_stop_read_as_pulled_at_speed_latches_no_standstill_window(v):
     t = drive(ctl, plant, round(100 * (v / 0.37 + 1.0)), t, cmd=(v, 0.0))
     pulled = False
     for k in range(300):
-        if k == 5:                  # a late sample: the wheels read 2.5 rad/s faster
-            plant.angle[0] += 0.05
-            plant.angle[1] += 0.05
+        if 5 <= k < 9:              # four samples in a row read 5 rad/s faster: pulled
+            plant.angle[0] += 0.1
+            plant.angle[1] += 0.1
         t = drive(ctl, plant, 1, t, cmd=(v, 0.0), cap=0.0, guard_active=True)
         pulled = pulled or (ctl.holding and ctl.left_speed > 1.0)
         assert not ctl.supervisor.latched, cause_text(ctl.supervisor.cause)
     assert pulled, 'the hold did not begin at speed: the test lost its subject'
     assert ctl.holding and abs(plant.speed[0]) < 0.1 and abs(plant.speed[1]) < 0.1
+
+
+@pytest.mark.parametrize('v', [1.0, 2.0])
+def test_one_late_encoder_sample_in_a_guard_stop_does_not_begin_the_hold_at_speed(v):
+    """A late sample moves the 20 ms speed estimate for two cycles by a share of the speed: at
+    top speed beyond the pulled test's margin. A guard stop in a 2 m/s arc read as pulled on
+    the stack, and the hold's braking effort started the inner wheel's PI against its roll
+    (a false wrong-way fault). The zero word brakes on; the hold begins once both are slow."""
+    ctl, p = make(hold={'enabled': True})
+    plant = Plant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, round(100 * (v / 0.37 + 1.0)), t, cmd=(v, 0.0))
+    for k in range(300):
+        if k == 5:                  # a sample 4 ms late: 4 ms more of the wheel's turn
+            plant.angle[0] += plant.speed[0] * 0.004
+            plant.angle[1] += plant.speed[1] * 0.004
+        t = drive(ctl, plant, 1, t, cmd=(v, 0.0), cap=0.0, guard_active=True)
+        assert not (ctl.holding and abs(ctl.left_speed) > p.hold.speed), (k, ctl.left_speed)
+    assert ctl.holding and not ctl.supervisor.latched

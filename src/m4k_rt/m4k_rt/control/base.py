@@ -114,6 +114,9 @@ _GUARD_BRAKING = 0.2
 _HOLD_ROLLED = 3.0 * COUNT
 # cycles after the setpoints reach zero in which the pulled test only follows the speed up
 _PULL_GRACE_CYCLES = 3
+# the pulled test's margin grows by this share of the speed: a sample 4 ms late or early
+# (a loaded host) moves the 20 ms speed estimate by a fifth of it
+_PULL_JITTER = 0.2
 # per wheel: held by the standstill hold, judged by its standstill window (none held)
 _NOT_HELD = (False, False)
 # ns: a category-1 stop judges whether the zero word slows the wheels only after this (the
@@ -655,10 +658,17 @@ class BaseController:
         return pulled or (abs(ls) < h.speed and abs(rs) < h.speed)
 
     def _pulled(self, k: int, m: float, dt: float) -> bool:
-        """Return True (and mark wheel ``k`` pulled) when ``|m|`` is above its falling bound."""
+        """Return True (and mark wheel ``k`` pulled) when ``|m|`` is above its falling bound.
+
+        The bound's margin grows with the speed: one late or early encoder sample moves the
+        20 ms speed estimate by a share of it, at top speed beyond ``hold.speed`` (a guard
+        stop in a 2 m/s arc read as pulled; the hold's braking effort then started the inner
+        wheel's PI against its roll, a false wrong-way fault).
+        """
         h = self._hold
         hb = self._hold_bound
-        b = hb[k] = max(min(hb[k], m + h.speed) - h.pull_deceleration * dt, 0.0)
+        b = hb[k] = max(min(hb[k], m * (1.0 + _PULL_JITTER) + h.speed)
+                        - h.pull_deceleration * dt, 0.0)
         if m > b:
             self._hold_pulled[k] = True
             return True
