@@ -160,8 +160,8 @@ class WheelSupervisor:
         self._ref = [math.nan, math.nan]   # frozen: the angle the wheel last moved away from
         self._fresh = False        # a sample arrived since the last step
         self._bound = [-1.0, -1.0]     # still: the falling speed bound; < 0: not commanded still
-        # held (the standstill hold): the angle where the hold began (NaN: not held), and how
-        # far from it the wheel may turn (rad)
+        # held (the standstill hold): the angle where the wheel first read still in its hold
+        # (NaN: not held), and how far from it the wheel may turn (rad)
         self._origin = [math.nan, math.nan]
         self._window = params.standstill_window * COUNT
         self._rev = [0.0, 0.0]         # wrong way: a reversal's falling speed bound (0: none)
