@@ -11,10 +11,9 @@ def test_every_body_runs_its_cycles_and_counts_are_reproducible():
         assert r['body_cycles'] == 30, name            # warm-up + counted cycles all ran
         assert r['opcodes'] > 0 and r['calls'] > 0, name
         assert r['functions'], name
-        # the same code on the same inputs: the same count, up to the few branches that read
-        # the clock (the step's dt clamp, the blink phase)
-        assert abs(again[name]['opcodes'] - r['opcodes']) <= 0.02 * r['opcodes'], name
-        assert abs(again[name]['calls'] - r['calls']) <= 0.02 * r['calls'] + 0.5, name
+        # the same code on the same inputs and the same virtual clock: the same count, exactly
+        assert again[name]['opcodes'] == r['opcodes'], name
+        assert again[name]['calls'] == r['calls'], name
     # the actuator decoded its encoder replies and ran the controller
     assert any(k.endswith(':step') and k.startswith('base.py')
                for k in first['actuator']['functions'])

@@ -7,9 +7,10 @@ NRT peers, fed what its device sends every cycle (ENCODERS, and a VELOCITY_CMD e
 cycle; an IMU sample; a SONAR reading; nothing for the LED), and called under ``sys.settrace``
 with opcode events on. The result per body: Python opcodes and Python function calls per body
 call, in total and per function (``file:function``). C calls (system calls, ``struct``) are not
-opcodes and are not counted. Deterministic up to the few branches that read the clock (the
-controller's dt clamp, the LED's blink phase): the same code gives the same counts within a
-fraction of a per cent on any machine, however loaded.
+opcodes and are not counted. Each body runs on a virtual clock that advances one period per
+cycle (the bodies' own ``clock`` argument; its peers stamp with the same clock), so the branches
+that read the time (the controller's dt clamp, the freshness checks, the LED's blink phase) take
+the same way every run: the same code gives the same counts on any machine, however loaded.
 
 Run ``python -m m4k_bench.benchlib.bodyops [--cycles N] [--functions]``; to compare two
 versions, put one first on ``PYTHONPATH`` (as ``loop_ab`` does).
@@ -35,7 +36,6 @@ from m4k_rt.tasks.imu import ImuBody
 from m4k_rt.tasks.led import LedBody
 from m4k_rt.tasks.sonar import SonarBody
 from m4k_rt.tasks.state import RobotState
-from m4k_rt.timerfd import monotonic_ns
 
 __all__ = ['BODIES', 'count_ops', 'main']
 
@@ -68,15 +68,26 @@ def _drain(ep: channel.NrtXddpEndpoint) -> None:
         pass
 
 
+class _Clock:
+    """A virtual monotonic clock: one period further each cycle, whatever the machine does."""
+
+    def __init__(self) -> None:
+        self.t = 1_000 * 1_000_000_000     # a fixed start: the blink phase is the same each run
+
+    def __call__(self) -> int:
+        return self.t
+
+
 def _rig(name: str, a: channel.RtXddpSocket, ea: channel.NrtXddpEndpoint, b: channel.RtXddpSocket,
-         eb: channel.NrtXddpEndpoint,
-         state: RobotState) -> tuple[Callable[..., object], Callable[[int], None]]:
+         eb: channel.NrtXddpEndpoint, state: RobotState,
+         clock: _Clock) -> tuple[Callable[..., object], Callable[[int], None]]:
     """Return the body and its per-cycle feed (what its peers send before cycle ``k``)."""
     if name == 'actuator':
-        body: Callable[..., object] = ActuatorBody(a, b, state, control_params(None), 0.01)
+        body: Callable[..., object] = ActuatorBody(a, b, state, control_params(None), 0.01,
+                                                   clock=clock)
 
         def feed(k: int) -> None:
-            now = monotonic_ns()
+            now = clock()
             state.sonar_range, state.sonar_rx_ns = 2.0, now   # a wall 2 m ahead, fresh
             state.laser_front_min, state.laser_rx_ns = 3.0, now
             angle = 0.02 * k
@@ -86,20 +97,20 @@ def _rig(name: str, a: channel.RtXddpSocket, ea: channel.NrtXddpEndpoint, b: cha
                 ea.write(protocol.encode(Kind.VELOCITY_CMD, k, now, 0.25, 0.1))
         return body, feed
     if name == 'imu':
-        body = ImuBody(a, b, state)
+        body = ImuBody(a, b, state, clock=clock)
 
         def feed(k: int) -> None:
-            ea.write(protocol.encode(Kind.IMU, k, monotonic_ns(), 1.0, 0.0, 0.0, 0.0, 0.0,
+            ea.write(protocol.encode(Kind.IMU, k, clock(), 1.0, 0.0, 0.0, 0.0, 0.0,
                                      0.0, 0.0, 0.0, 0.0, 9.8, 0))
         return body, feed
     if name == 'sonar':
-        body = SonarBody(a, b, state)
+        body = SonarBody(a, b, state, clock=clock)
 
         def feed(k: int) -> None:
-            ea.write(protocol.encode(Kind.SONAR, k, monotonic_ns(), 1.5, 0))
+            ea.write(protocol.encode(Kind.SONAR, k, clock(), 1.5, 0))
         return body, feed
     if name == 'led':
-        return LedBody(a, b, state), lambda k: None
+        return LedBody(a, b, state, clock=clock), lambda k: None
     raise ValueError('unknown body {!r} (one of {})'.format(name, ', '.join(BODIES)))
 
 
@@ -136,8 +147,10 @@ def count_ops(names: Sequence[str] = BODIES, cycles: int = 200,
             socks += [a, b]
             peers += [ea, eb]
             state = RobotState()
-            body, feed = _rig(name, a, ea, b, eb, state)
+            clock = _Clock()
+            body, feed = _rig(name, a, ea, b, eb, state, clock)
             for k in range(1, warmup + 1):        # links, first calls, the odometry baseline
+                clock.t += _PERIOD_NS
                 feed(k)
                 body(None)
                 _drain(ea)
@@ -146,6 +159,7 @@ def count_ops(names: Sequence[str] = BODIES, cycles: int = 200,
             per: dict[str, int] = {}
             tracer = _tracer(ops, per)
             for k in range(warmup + 1, warmup + cycles + 1):
+                clock.t += _PERIOD_NS
                 feed(k)
                 sys.settrace(tracer)
                 try:
