@@ -19,8 +19,9 @@ from typing import Any, Sequence
 from m4k_bench.virtualbase import VirtualBase
 from m4k_rt.control.supervision import COUNT
 
-__all__ = ['BASES', 'CREEPS', 'driven_at_zero', 'from_the_start', 'HOLD_OFF', 'HOLD_ON',
-           'hold_offset', 'hold_ramp', 'main', 'still_after_stop', 'turn_after_guard_stops']
+__all__ = ['BASES', 'CREEPS', 'driven_at_zero', 'from_the_start', 'HOLD_MOTIONS', 'HOLD_OFF',
+           'HOLD_ON', 'hold_load', 'hold_offset', 'hold_ramp', 'main', 'still_after_stop',
+           'turn_after_guard_stops']
 
 TRIM_V = 2 * 24.0 / 511          # two DAC codes of the 24 V full scale
 BASES: dict[str, dict[str, float]] = {
@@ -134,15 +135,55 @@ def _held_counts(vb: VirtualBase, seconds: float, v: float | None, **kw: Any
     return worst, latched
 
 
-def hold_offset(offset_v: float, seed: int, seconds: float = 2.0) -> tuple[float, float | None]:
+def hold_offset(offset_v: float, seed: int, seconds: float = 2.0,
+                imu: bool = True) -> tuple[float, float | None]:
     """With the hold on, a left amplifier offset from rest on the level, never commanded.
 
     Return (most counts a wheel turned from where the hold began, the latch time or None).
+    ``imu`` False: as with the IMU unplugged (no orientation: the level test is skipped).
     """
     vb = VirtualBase(world={'seed': seed, 'robot': {'amp_offset_left_v': offset_v}},
-                     control=HOLD_ON)
+                     control=HOLD_ON, imu=imu)
     try:
         return _held_counts(vb, seconds, 0.0)
+    finally:
+        vb.close()
+
+
+# healthy motions on the level, then a hold (v, w, seconds, forward cap; inf: no guard stop)
+_INF = float('inf')
+HOLD_MOTIONS: dict[str, list[tuple[float, float, float, float]]] = {
+    'placed': [(0.0, 0.0, 3.0, _INF)],
+    'stop from a creep': [(0.02, 0.0, 2.0, _INF), (0.0, 0.0, 3.0, _INF)],
+    'stop from 0.25 m/s': [(0.25, 0.0, 2.0, _INF), (0.0, 0.0, 3.0, _INF)],
+    'stop from 2 m/s': [(2.0, 0.0, 4.0, _INF), (0.0, 0.0, 3.0, _INF)],
+    'stop reversing': [(-0.1, 0.0, 2.0, _INF), (0.0, 0.0, 3.0, _INF)],
+    'stop turning in place': [(0.0, 0.8, 2.0, _INF), (0.0, 0.0, 3.0, _INF)],
+    'guard stop from 1 m/s': [(1.0, 0.0, 3.0, _INF), (1.0, 0.0, 3.0, 0.0)],
+    'guard stop in a 2 m/s arc': [(2.0, 0.8, 4.0, _INF), (2.0, 0.8, 3.0, 0.0)],
+    'guard chattering at 0.3 m/s': ([(0.3, 0.0, 2.0, _INF)]
+                                    + [(0.3, 0.0, 0.3, 0.0), (0.3, 0.0, 0.3, 0.05)] * 8),
+}
+
+
+def hold_load(robot: dict[str, Any], motion: str, seed: int) -> tuple[float, float | None]:
+    """Run a healthy base on the level through a motion of :data:`HOLD_MOTIONS`, then hold.
+
+    Return (the most the hold's integral held on a wheel, normalized command -- what
+    ``supervision.level_hold_effort`` bounds on the level; the latch time or None).
+    """
+    vb = VirtualBase(world={'seed': seed, 'robot': robot}, control=HOLD_ON)
+    try:
+        most, k = 0.0, 0
+        for v, w, seconds, cap in HOLD_MOTIONS[motion]:
+            for _ in range(round(seconds / 0.01)):
+                vb.cycle(v, w, forward_cap=cap, guard_active=cap == 0.0)
+                k += 1
+                if vb.ctl.holding:
+                    most = max(most, abs(vb.ctl.hold_effort[0]), abs(vb.ctl.hold_effort[1]))
+                if vb.ctl.supervisor.latched:
+                    return most, k * 0.01
+        return most, None
     finally:
         vb.close()
 
@@ -205,6 +246,16 @@ def _hold_tables(seeds: Sequence[int]) -> None:
     runs = [[hold_offset(o, sd) for sd in seeds] for o in offsets]
     print('| counts; latched | ' + ' | '.join(
         f'{max(r[0] for r in rs):.0f}; {_latched([r[1] for r in rs])}' for rs in runs) + ' |')
+    print('\nHealthy bases on the level: the most the hold held on a wheel [normalized command; '
+          'supervision.level_hold_effort bounds it where the IMU reads level] and what latched\n')
+    print('| motion, then the hold | ' + ' | '.join(BASES) + ' |')
+    print('|---|' + '---|' * len(BASES))
+    for motion in HOLD_MOTIONS:
+        cells = []
+        for robot in BASES.values():
+            rs = [hold_load(robot, motion, sd) for sd in seeds]
+            cells.append(f'{max(r[0] for r in rs):.3f}; {_latched([r[1] for r in rs])}')
+        print(f'| {motion} | ' + ' | '.join(cells) + ' |', flush=True)
     hows = ('placed', 'stop', 'guard stop')
     print('\n| 4.8 deg ramp | base | ' + ' | '.join(hows) + ' |')
     print('|---|---|' + '---|' * len(hows))

@@ -93,8 +93,8 @@ class VirtualBase:
         self._imu_lag_ns = round(imu_lag_s * 1e9)
         self._imu_jitter_ns = round(imu_jitter_s * 1e9)
         self._rng = random.Random(int((world or {}).get('seed', 0)))
-        self._imu_queue: collections.deque[tuple[int, int, float]] = collections.deque()
-        self._imu_last: tuple[int, float, int] | None = None   # (stamp, rate, rx) newest
+        self._imu_queue: collections.deque[tuple[int, int, float, float]] = collections.deque()
+        self._imu_last: tuple[int, float, int, float] | None = None   # (stamp, rate, rx, slope)
         self.ctl = BaseController(self.params, PERIOD_NS * 1e-9)
 
     @property
@@ -118,16 +118,18 @@ class VirtualBase:
                     self._rng.randrange(self._imu_jitter_ns + 1) if self._imu_jitter_ns else 0)
                 if self._imu_queue:
                     due = max(due, self._imu_queue[-1][0])
-                self._imu_queue.append((due, stamp, s.value.angular_velocity[2]))
+                qx, qy, qz, qw = s.value.orientation   # the simulated IMU sits in base_link
+                self._imu_queue.append((due, stamp, s.value.angular_velocity[2],
+                                        2.0 * (qx * qz - qw * qy)))
             q = self._imu_queue
             while q and q[0][0] <= now:
-                _, stamp, rate = q.popleft()
-                self._imu_last = (stamp, rate, now)
+                _, stamp, rate, slope = q.popleft()
+                self._imu_last = (stamp, rate, now, slope)
             if self._imu_last is not None:
                 # as the actuator: the newest sample arrived by now, once per cycle (an older
                 # one delivered in the same cycle is overwritten, as in the IMU task's state)
-                stamp, rate, rx = self._imu_last
-                ctl.imu(rate, rx, stamp)
+                stamp, rate, rx, slope = self._imu_last
+                ctl.imu(rate, rx, stamp, slope)
         if v is not None:
             ctl.command(v, w, now)
         ctl.step(now, forward_cap, guard_active)

@@ -12,9 +12,10 @@ last patch listed wins where patches overlap::
 Wet smooth tiles: mu 0.1-0.3; polished concrete: 0.4-0.5 (docs/sim-physics.md). A patch may
 slope: ``grade_deg`` (a wheelchair ramp is at most 4.8 deg, 1:12) falling toward the world
 direction ``downhill_deg``. Where base_link is on it, gravity pulls the body along its heading
-with ``m g sin(grade) cos(yaw - downhill)`` (:func:`grade_force`); the pull across the heading
-(the tyres hold it), the load's cos(grade) and the IMU's tilt are not modelled. Each key is
-declared once, in :data:`PATCH`.
+with ``m g sin(grade) cos(yaw - downhill)`` (:func:`grade_force`), and the body stands tilted
+on it (:func:`tilt`: what the simulated IMU reports); the pull across the heading (the tyres
+hold it) and the load's cos(grade) are not modelled. Each key is declared once, in
+:data:`PATCH`.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Any
 
 from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
 
-__all__ = ['FloorError', 'grade_force', 'PATCH', 'Patch', 'parse_floor', 'wheel_mu']
+__all__ = ['FloorError', 'grade_force', 'PATCH', 'Patch', 'parse_floor', 'tilt', 'wheel_mu']
 
 
 class FloorError(ConfigError):
@@ -114,3 +115,21 @@ def grade_force(patches: tuple[Patch, ...], x: float, y: float, yaw: float,
         if patch.grade and patch.contains(x, y):
             return weight_n * math.sin(patch.grade) * math.cos(yaw - patch.downhill)
     return 0.0
+
+
+def tilt(patches: tuple[Patch, ...], x: float, y: float, yaw: float) -> tuple[float, float]:
+    """Return base_link's (roll, pitch) in rad where it stands at (x, y) heading ``yaw``.
+
+    REP-103 angles (fixed axes x, y, z; roll positive with the left side up, pitch positive
+    with the nose down), of a body whose z axis is the slope's normal and whose heading is
+    ``yaw``: with ``a = yaw - downhill``, ``roll = asin(sin(grade) sin(a))`` and ``pitch =
+    atan2(sin(grade) cos(a), cos(grade))`` -- facing downhill the nose is down by the grade,
+    across the slope the uphill side is up by it. The same patch as :func:`grade_force`;
+    off every slope: level.
+    """
+    for patch in reversed(patches):
+        if patch.grade and patch.contains(x, y):
+            a = yaw - patch.downhill
+            sg = math.sin(patch.grade)
+            return math.asin(sg * math.sin(a)), math.atan2(sg * math.cos(a), math.cos(patch.grade))
+    return 0.0, 0.0

@@ -57,6 +57,7 @@ from m4k_drivers.drive import (
 )
 from m4k_drivers.faults import Fault, FaultError, KINDS, parse_faults
 from m4k_drivers.floor import FloorError, grade_force, parse_floor, Patch, wheel_mu
+from m4k_drivers.floor import tilt as slope_tilt
 from m4k_drivers.scene import Event, parse_events, parse_obstacle, Path, SceneError, Surface
 from m4k_rt.control.footprint import outline
 from m4k_rt.schema import check_keys, derived, Field, REQUIRED, section, setting, table
@@ -722,6 +723,10 @@ class World:
         self.now()
         with self._lock:
             return self._pose
+
+    def tilt(self, pose: Pose) -> tuple[float, float]:
+        """Return base_link's (roll, pitch) in rad at ``pose``: the floor's slope under it."""
+        return slope_tilt(self._slopes, pose.x, pose.y, pose.yaw) if self._slopes else (0.0, 0.0)
 
     def sensor_pose(self, mount: Sequence[float]) -> Pose:
         """Return the world pose of a sensor mounted at (x, y, yaw) in base_link."""

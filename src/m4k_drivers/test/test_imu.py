@@ -303,3 +303,69 @@ def test_sim_sample_is_read_in_one_i2c_transaction():
     assert h.read().status == Status.OK
     assert bus.transactions == 1
     h.shutdown()
+
+
+def _rotate(q, v):
+    """Rotate v by the unit quaternion q = (x, y, z, w)."""
+    x, y, z, w = q
+    # v' = v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z)
+    cx, cy, cz = y * v[2] - z * v[1], z * v[0] - x * v[2], x * v[1] - y * v[0]
+    dx, dy, dz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
+    return (v[0] + 2 * (w * cx + dx), v[1] + 2 * (w * cy + dy), v[2] + 2 * (w * cz + dz))
+
+
+@pytest.mark.parametrize('heading_deg, roll_deg, pitch_deg', [
+    (0.0, 0.0, 2.0),       # facing downhill: nose down (REP-103 pitch +)
+    (180.0, 0.0, -2.0),    # facing uphill: nose up
+    (90.0, 2.0, 0.0),      # downhill on the right: the left side up (roll +)
+    (-90.0, -2.0, 0.0),
+    (45.0, 1.414, 1.414),
+])
+def test_sim_on_a_ramp_reports_the_tilt_gravity_and_field_of_a_tilted_body(
+        heading_deg, roll_deg, pitch_deg):
+    # A 2 deg ramp falling toward world +x under a robot at rest (the drive train's friction
+    # holds it there up to ~2.7 deg; steeper, it rolls and the accelerometer reads that
+    # too): the myAHRS+ reads the slope -- its Euler angles, a quaternion that turns
+    # base_link's z onto the slope's normal, the floor's push along the same axis, |g| kept.
+    t = [0]
+    cfg = WorldConfig.from_dict({
+        'start': [0.0, 0.0, math.radians(heading_deg)], 'obstacles': [],
+        'floor': [{'rectangle': [-5.0, -5.0, 5.0, 5.0], 'mu': 0.6, 'grade_deg': 2.0,
+                   'downhill_deg': 0.0}]})
+    world = World(cfg, clock=lambda: t[0], t0_ns=0)
+    bus = FakeMyAhrsBus(world, accel_sd=0.0, gyro_sd=0.0, orientation_sd=0.0)
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'sim'))
+    h.configure()
+    h.activate()
+    t[0] += 10_000_000
+    s = h.read().value
+    h.shutdown()
+    g = math.radians(2.0)
+    assert s.rpy[0] == pytest.approx(math.radians(roll_deg), abs=2e-3)
+    assert s.rpy[1] == pytest.approx(math.radians(pitch_deg), abs=2e-3)
+    assert s.rpy[2] == pytest.approx(math.radians(heading_deg), abs=2e-3)
+    normal = (math.sin(g), 0.0, math.cos(g))          # the slope's normal leans downhill
+    assert _rotate(s.orientation, (0.0, 0.0, 1.0)) == pytest.approx(normal, abs=2e-3)
+    # at rest the accelerometer reads the floor's push: world up, in the body frame
+    up_in_body = _rotate((-s.orientation[0], -s.orientation[1], -s.orientation[2],
+                          s.orientation[3]), (0.0, 0.0, p.GRAVITY))
+    assert s.linear_acceleration == pytest.approx(up_in_body, abs=0.01)
+    assert math.hypot(*s.linear_acceleration) == pytest.approx(p.GRAVITY, abs=0.01)
+
+
+def test_sim_off_the_ramp_is_level():
+    t = [0]
+    cfg = WorldConfig.from_dict({
+        'start': [0.0, 0.0, 0.0], 'obstacles': [],
+        'floor': [{'rectangle': [1.0, -5.0, 5.0, 5.0], 'mu': 0.6, 'grade_deg': 4.8}]})
+    world = World(cfg, clock=lambda: t[0], t0_ns=0)
+    bus = FakeMyAhrsBus(world, accel_sd=0.0, gyro_sd=0.0, orientation_sd=0.0)
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'sim'))
+    h.configure()
+    h.activate()
+    t[0] += 10_000_000
+    s = h.read().value
+    h.shutdown()
+    assert s.rpy[0] == pytest.approx(0.0, abs=1e-3) and s.rpy[1] == pytest.approx(0.0, abs=1e-3)
+    assert s.linear_acceleration[0] == pytest.approx(0.0, abs=0.01)
+    assert s.linear_acceleration[2] == pytest.approx(p.GRAVITY, abs=0.01)

@@ -31,7 +31,8 @@ class Wheels:
         self.angle = [0.0, 0.0]
         self.t = 0.0
 
-    def step(self, sp, meas, u=None, yaw=math.nan, read=None, sat=(False, False), held=False):
+    def step(self, sp, meas, u=None, yaw=math.nan, read=None, sat=(False, False), held=False,
+             level_hold=None):
         """One cycle: the wheels turn at ``meas`` (``read``: what the encoders say instead)."""
         for k in (0, 1):
             self.angle[k] += meas[k] * DT
@@ -44,7 +45,7 @@ class Wheels:
         if u is None:
             u = (FF * sp[0], FF * sp[1])
         return self.s.step(DT, sp[0], sp[1], meas[0], meas[1], u[0], u[1], sat[0], sat[1], yaw,
-                           (held, held))
+                           (held, held), level_hold)
 
     def run(self, seconds, *args, **kw):
         """Run; return the time into the run at which the fault latched (None: never)."""
@@ -228,6 +229,34 @@ def test_a_held_wheel_leaving_its_standstill_window_latches_at_once(k, direction
     assert abs(w.angle[k] - origin) / COUNT > window
     cause = FaultCause.LEFT_STILL if k == 0 else FaultCause.RIGHT_STILL
     assert s.cause == int(cause)
+
+
+@pytest.mark.parametrize('k', [0, 1])
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_a_hold_holding_a_load_on_the_level_latches_at_once(k, sign):
+    # the IMU says level: a hold integral beyond level_hold_effort is holding an amplifier
+    # that drives the wheel -- latched in the cycle it passes, wherever the wheel is
+    limit = SupervisionParams().level_hold_effort
+    s = sup()
+    w = Wheels(s)
+    load = [0.0, 0.0]
+    load[k] = sign * 0.9 * limit
+    for _ in range(20):
+        assert not w.step((0.0, 0.0), (0.0, 0.0), u=tuple(load), held=True, level_hold=load)
+    load[k] = sign * 1.01 * limit
+    assert w.step((0.0, 0.0), (0.0, 0.0), u=tuple(load), held=True, level_hold=load)
+    cause = FaultCause.LEFT_STILL if k == 0 else FaultCause.RIGHT_STILL
+    assert s.cause == int(cause)
+
+
+def test_a_hold_load_off_the_level_or_while_driving_is_no_symptom():
+    # the same load with the IMU saying "a slope" (None) is a ramp the hold is for; a load
+    # at a nonzero setpoint is not the hold's
+    limit = SupervisionParams().level_hold_effort
+    load = [2.0 * limit, 0.0]
+    assert Wheels(sup()).run(1.0, (0.0, 0.0), (0.0, 0.0), u=tuple(load), held=True,
+                             level_hold=None) is None
+    assert Wheels(sup()).run(1.0, (1.0, 1.0), (1.0, 1.0), level_hold=load) is None
 
 
 def test_the_window_restarts_with_each_hold():

@@ -7,7 +7,7 @@ import pytest
 from m4k_rt import protocol as p
 from m4k_rt.control.base import MODE_DRIVING, MODE_FAULT, MODE_OBSTACLE
 from m4k_rt.control.params import control_params
-from m4k_rt.tasks.actuator import ActuatorBody, make_actuator
+from m4k_rt.tasks.actuator import ActuatorBody, imu_x_axis, make_actuator, track_slope
 from m4k_rt.tasks.state import RobotState
 
 PERIOD = 10 * MS
@@ -348,3 +348,36 @@ def test_a_cycle_that_raises_brakes_then_cuts_the_enable_and_stays_failed(rig):
     run(rig, body, motor, t, 50, cmd=(0.5, 0.0))
     assert all(c == p.WheelCmd(512, 512, 0) for c in motor.commands[-50:])
     assert state.mode == MODE_FAULT and body.counters['failed_cycles'] == 1 + (bound - 2) + 3 + 50
+
+
+def _q_rpy(roll, pitch, yaw):
+    """(x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+
+
+def _q_mul(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
+@pytest.mark.parametrize('mount', [(0.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2), (math.pi, 0.0, 0.0),
+                                   (0.1, -0.2, 2.5)],
+                         ids=['upright', 'turned-90', 'upside-down', 'skewed'])
+@pytest.mark.parametrize('pitch_deg, heading', [(0.0, 0.3), (4.8, 1.0), (-3.0, -2.0)])
+def test_track_slope_is_the_bases_pitch_whatever_the_imus_mount(mount, pitch_deg, heading):
+    # the base pitched on a ramp at some heading; the IMU mounted at ``mount`` reports
+    # imu_link's orientation (the base's times the mount): the slope along base_link x is
+    # -sin(pitch) of the base, not of the IMU
+    robot = {'sensors': {'imu': {'pose': [0.1, 0.0, 0.2, *mount]}}}
+    base = _q_rpy(0.05, math.radians(pitch_deg), heading)
+    imu = _q_mul(base, _q_rpy(*mount))
+    slope = track_slope(*imu, imu_x_axis(robot))
+    assert slope == pytest.approx(-math.sin(math.radians(pitch_deg)), abs=1e-9)
+    assert math.isnan(track_slope(math.nan, math.nan, math.nan, math.nan, imu_x_axis(robot)))
+    assert imu_x_axis({}) == (1.0, 0.0, 0.0)

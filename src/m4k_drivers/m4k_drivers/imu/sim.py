@@ -7,8 +7,10 @@ rate (100 Hz): reads in between return the same sample, as on the real part.  No
 the standard deviations the ``robotpilot/myahrs_driver`` authors measured on a myAHRS+
 (accel 0.0268 m/s^2, gyro 0.00243 rad/s, orientation 0.00214 rad); the calibrated gyro keeps
 a constant per-axis bias (``gyro_bias``, ROS frame) drawn once from the world seed (sd 0.002
-rad/s).  The robot drives on
-a flat floor: roll = pitch = 0; the heading reference is the world x axis.
+rad/s).  On a sloping floor patch the body stands tilted (``World.tilt``: roll and pitch from
+the slope and the heading): orientation, gravity in the accelerometer and the magnetic field
+follow the tilt; on the level roll = pitch = 0 (plus the orientation noise). The heading
+reference is the world x axis.
 
 Fault injection (tests): ``garble`` set to one of :data:`GARBLES` makes every sample burst
 read as what a real part on a noisy bus or in a reset returns -- ``zeros`` (data registers
@@ -39,6 +41,27 @@ _EARTH_DOWN_UT = 40.0
 GARBLES = ('zeros', 'ones', 'quaternion', 'gyro_rail')
 
 
+def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Return (x, y, z, w) of fixed-axis roll, pitch, yaw (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+    cr, sr = math.cos(roll / 2.0), math.sin(roll / 2.0)
+    cp, sp = math.cos(pitch / 2.0), math.sin(pitch / 2.0)
+    cy, sy = math.cos(yaw / 2.0), math.sin(yaw / 2.0)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+
+
+def _body_field(yaw: float, pitch: float, roll: float) -> tuple[float, float, float]:
+    """Return the earth's field (uT) in base_link: R^T of (H, 0, -down), R = Rz Ry Rx."""
+    mx, mz = _EARTH_H_UT, -_EARTH_DOWN_UT
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    # undo the yaw (world -> heading frame), then the pitch, then the roll
+    hx, hy = cy * mx, -sy * mx
+    px, pz = cp * hx - sp * mz, sp * hx + cp * mz
+    return px, cr * hy + sr * pz, -sr * hy + cr * pz
+
+
 class FakeMyAhrsBus:
     """A fake SMBus with one myAHRS+ at ``address`` whose registers follow the world."""
 
@@ -50,6 +73,9 @@ class FakeMyAhrsBus:
         self.period_ns = int(1e9 / rate_hz)
         self.accel_sd, self.gyro_sd, self.orientation_sd = accel_sd, gyro_sd, orientation_sd
         self.rng = world.rng('imu')
+        # the tilt's noise from a stream of its own: the gyro, accel and heading noise of a
+        # seed stay the draws they were before the tilt was modelled
+        self._tilt_rng = world.rng('imu.tilt')
         self.gyro_bias = tuple(float(b) for b in self.rng.normal(0.0, gyro_bias_sd, 3))
         self.regs = bytearray(p.REG_LAST + 1)
         self.regs[p.REG_WHO_AM_I] = p.WHO_AM_I_VALUE
@@ -70,20 +96,27 @@ class FakeMyAhrsBus:
         self._tick = tick
         st = self.world.state()
         n = self.rng.normal
+        roll, pitch = self.world.tilt(st.pose)
+        roll += float(self._tilt_rng.normal(0.0, self.orientation_sd))
+        pitch += float(self._tilt_rng.normal(0.0, self.orientation_sd))
         yaw = st.pose.yaw + float(n(0.0, self.orientation_sd))
+        cr, sr = math.cos(roll), math.sin(roll)
+        cp, sp = math.cos(pitch), math.sin(pitch)
         # ROS frame (x fwd, y left, z up) first, then to the board frame (y, z flipped).
         g = (float(n(0.0, self.gyro_sd)) + self.gyro_bias[0],
              float(n(0.0, self.gyro_sd)) + self.gyro_bias[1],
              st.w + float(n(0.0, self.gyro_sd)) + self.gyro_bias[2])
-        a = (st.accel + float(n(0.0, self.accel_sd)),
-             st.v * st.w + float(n(0.0, self.accel_sd)),
-             p.GRAVITY + float(n(0.0, self.accel_sd)))
-        mag = (_EARTH_H_UT * math.cos(-st.pose.yaw), _EARTH_H_UT * math.sin(-st.pose.yaw),
-               -_EARTH_DOWN_UT)
-        q = (0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
+        # specific force: the motion along the floor, plus the floor's push against gravity
+        # (world up) seen in the tilted body: (-g sin(pitch), g cos(pitch) sin(roll),
+        # g cos(pitch) cos(roll))
+        a = (st.accel - p.GRAVITY * sp + float(n(0.0, self.accel_sd)),
+             st.v * st.w + p.GRAVITY * cp * sr + float(n(0.0, self.accel_sd)),
+             p.GRAVITY * cp * cr + float(n(0.0, self.accel_sd)))
+        mag = _body_field(st.pose.yaw, pitch, roll)
+        q = _quaternion(roll, pitch, yaw)
         dev = p.DeviceSample((a[0], -a[1], -a[2]), (g[0], -g[1], -g[2]),
                              (round(mag[0] / 0.3), round(-mag[1] / 0.3), round(-mag[2] / 0.3)),
-                             25.0 + float(n(0.0, 0.05)), (0.0, 0.0, -yaw),
+                             25.0 + float(n(0.0, 0.05)), (roll, -pitch, -yaw),
                              (q[0], -q[1], -q[2], q[3]))
         b1, b2 = p.encode_blocks(dev)
         self.regs[p.BLOCK1:p.BLOCK1 + p.BLOCK1_LEN] = b1

@@ -212,6 +212,10 @@ class BaseController:
         self._imu_timeout_ns = int(params.supervision.imu_timeout * 1e9)
         self.yaw_rate = math.nan    # the gyro's yaw rate about base_link z, rad/s
         self.imu_rx_ns = 0
+        self.imu_slope = math.nan   # -sin(pitch) of base_link x (the IMU's orientation)
+        # |slope| within this: level (-1: never -- the supervision does not use the IMU)
+        self._level_sin = (math.sin(math.radians(params.supervision.level_grade))
+                           if params.supervision.use_imu else -1.0)
         self.left_u = self.right_u = 0.0   # PI outputs of the last cycle (0: zero word)
         self.estop_open = False     # the contact reads open (contact_samples in a row)
         self._open_samples = 0
@@ -327,14 +331,19 @@ class BaseController:
                 self.left_speed += a * (hist.left_rate - self.left_speed)
                 self.right_speed += a * (hist.right_rate - self.right_speed)
 
-    def imu(self, yaw_rate: float, rx_ns: int, stamp_ns: int | None = None) -> None:
+    def imu(self, yaw_rate: float, rx_ns: int, stamp_ns: int | None = None,
+            slope: float = math.nan) -> None:
         """Take the gyro's yaw rate about base_link z (rad/s) received at ``rx_ns``.
 
         ``stamp_ns``: when the sample was taken (the datagram's stamp; None: ``rx_ns``). The
         newest sample is given every cycle; the supervision takes each stamp once.
+        ``slope``: the z of base_link's x axis in the world, from the IMU's orientation
+        (``-sin(pitch)``; NaN: none): the share of gravity a slope puts on the wheels along
+        the track. Within ``supervision.level_grade`` of level, a held wheel holds no load.
         """
         self.yaw_rate = yaw_rate
         self.imu_rx_ns = rx_ns
+        self.imu_slope = slope
         if rx_ns:
             self.supervisor.gyro(yaw_rate, rx_ns if stamp_ns is None else stamp_ns)
 
@@ -592,13 +601,17 @@ class BaseController:
             self.left_code = command_to_code(ul)
             self.right_code = command_to_code(ur)
         self.enable = 1
-        yaw = (self.yaw_rate if self.imu_rx_ns and now_ns - self.imu_rx_ns
-               <= self._imu_timeout_ns else math.nan)
+        fresh = self.imu_rx_ns and now_ns - self.imu_rx_ns <= self._imu_timeout_ns
+        yaw = self.yaw_rate if fresh else math.nan
+        # not NaN, within level_grade: the floor is level along the track, and the hold's
+        # integral is held against nothing but a fault
+        level_hold = (self.hold_effort if self.holding and fresh
+                      and abs(self.imu_slope) <= self._level_sin else None)
         if self.driver_safe:
             sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
         elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.left_u, self.right_u,
                       self.pi_left.saturated, self.pi_right.saturated, yaw,
-                      self._hold_live if self.holding else _NOT_HELD):
+                      self._hold_live if self.holding else _NOT_HELD, level_hold):
             self.braking = False
             self._fault_since_ns = 0
             self._stop_outputs(self._brake_enable(now_ns, False))

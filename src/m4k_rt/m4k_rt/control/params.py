@@ -333,6 +333,23 @@ class SupervisionParams:
         '--hold); a wheel driven beyond the hold (an amplifier offset over ~2 V, a slope past '
         'hold.limit) leaves it. The speed still test does not judge a held wheel: a hold '
         'still taking its load rolls it slowly for longer than still_time.'))
+    level_hold_effort: float = setting(Field(
+        'float', 0.1, 'On the level, the most load the standstill hold may hold on a wheel '
+        '(its integral, normalized command; 1: no such test): with a fresh IMU sample saying '
+        'the floor is level along the track (level_grade), a hold holding more latches the '
+        'still fault at once -- nothing on a level floor leans on a wheel standing still that '
+        'hard, so the amplifier drives it (an input offset, a stuck DAC). Measured in virtual '
+        'time (python -m m4k_bench.latch --hold): healthy holds on the level hold at most '
+        '0.008 (three bases; stops and guard stops from a creep to 2 m/s, straight, arcs, '
+        'reversing, turning in place, a guard chattering at its release line); a 2-6 V offset '
+        'passes 0.1 within 0.10 s (the window alone latched 2-3 V in 0.29-0.86 s).',
+        lo=0, lo_open=True, hi=1.0))
+    level_grade: float = setting(_pos(
+        'deg', 1.0, "The floor counts as level for level_hold_effort while the IMU's "
+        "orientation (its AHRS fusion, not the accelerometer alone, which reads the wheels' "
+        'motion too) puts base_link x within this angle of the horizontal (robot.sensors.imu.'
+        'pose turns imu_link into base_link). On a steeper slope, or without a fresh IMU '
+        'sample, the test is skipped; the standstill window still applies.', hi=10.0))
     swap_time: float = setting(_pos(
         's', 0.1, "Wheels answering each other's setpoints this "
         'long (swapped channels) latch the fault.', hi=0.3))

@@ -45,7 +45,10 @@ has held without a break:
   give): a wheel driven while commanded still, or an encoder that reports motion the braking
   does not end (``still_time``); a wheel the standstill hold holds (``control.hold``) is
   judged by where it is instead: turned more than ``standstill_window`` counts from where it
-  first read still in its hold latches at once (a safe operating stop's position window);
+  first read still in its hold latches at once (a safe operating stop's position window),
+  and so does, on a floor the IMU's accelerometer reads level along the track, a hold whose
+  integral passes ``level_hold_effort`` (nothing on the level leans on a wheel standing
+  still: the amplifier drives it);
 * **yaw** (both wheels, whenever a fresh IMU sample is given): the wheels' yaw rate
   ``r (w_r - w_l) / track`` differs from the gyro's by more than ``yaw_tolerance`` plus
   ``yaw_ratio`` of the larger of the two (``yaw_time``). This one needs no setpoint at all:
@@ -311,7 +314,8 @@ class WheelSupervisor:
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
              saturated_right: bool, yaw_rate: float = math.nan,
-             held: Sequence[bool] = (False, False)) -> bool:
+             held: Sequence[bool] = (False, False),
+             level_hold: Sequence[float] | None = None) -> bool:
         """Advance one cycle; return True when a fault latched in this cycle.
 
         ``sp_*`` are the wheel setpoints the outputs were computed for (rad/s), ``meas_*`` the
@@ -325,6 +329,12 @@ class WheelSupervisor:
         still, not by the still test's speed. A wheel the hold found pulled and brakes from
         speed is not held yet: a guard stop's first cycles (the speed estimate lagging the
         zero word) read as pulled, and a window from there latched a false fault at 2 m/s.
+        ``level_hold``: per wheel, the standstill hold's integral (the load it holds), given
+        while the hold holds and a fresh IMU sample says the floor is level along the track
+        (``level_grade``), else None: a wheel at a zero setpoint whose hold holds more than
+        ``level_hold_effort`` latches the still fault at once. Not the hold's output: its
+        proportional part brakes a wheel found pulled, which a guard stop on the level may
+        be for a few cycles (up to 0.1 of full scale in a 2 m/s arc).
         """
         if not self.enabled or self.cause:
             self._fresh = False
@@ -464,6 +474,13 @@ class WheelSupervisor:
                 self._bound[k] = -1.0
                 self._origin[k] = math.nan
                 t[_STILL + k] = 0.0
+            if sp == 0.0 and level_hold is not None and (
+                    abs(level_hold[k]) > p.level_hold_effort):
+                # On the level nothing leans on a wheel standing still: a hold holding more
+                # than a dead band and an uncalibrated zero take is holding the amplifier
+                # driving it (the hold's integral grows at the break-away rate while the wheel
+                # rolls: a 2 V offset passes 0.1 of full scale 0.10 s from rest).
+                t[_STILL + k] = self._times[_STILL + k]
         self._fresh = False
         diff = sp_left - sp_right
         if saturated_left or saturated_right:

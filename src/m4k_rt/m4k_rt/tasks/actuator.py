@@ -60,8 +60,9 @@ from m4k_rt.tasks.interfaces import CycleContext, RtPort
 from m4k_rt.tasks.portio import PortReader, PortWriter
 from m4k_rt.tasks.state import robot_state, RobotState
 
-__all__ = ['ActuatorBody', 'control_section', 'GuardPlan', 'guard_plan', 'make_actuator',
-           'make_guard', 'TEST_HOOKS_ENV', 'WEAKEN_ENV']
+__all__ = ['ActuatorBody', 'control_section', 'GuardPlan', 'guard_plan', 'imu_x_axis',
+           'imu_z_axis', 'make_actuator', 'make_guard', 'TEST_HOOKS_ENV', 'track_slope',
+           'WEAKEN_ENV']
 
 # Test-only: weaken the guard by this many metres (the scenario suite's negative control).
 # Read once when the actuator is built; refused unless TEST_HOOKS_ENV is '1'.
@@ -270,7 +271,8 @@ class ActuatorBody:
                  params: ControlParams, period_s: float,
                  clock: Callable[[], int] = time.monotonic_ns,
                  plan: GuardPlan | None = None, imu_z: float = 1.0,
-                 robot: Any = None) -> None:
+                 robot: Any = None,
+                 imu_x: tuple[float, float, float] = (1.0, 0.0, 0.0)) -> None:
         self.params = params
         self.state = state
         self.ctl = BaseController(params, period_s)
@@ -293,6 +295,7 @@ class ActuatorBody:
         self._motor_out = PortWriter(motor_sock)
         self._clock = clock
         self._imu_z = imu_z        # base_link z seen in imu_link (mount): gyro z -> yaw rate
+        self._imu_x = imu_x        # base_link x in imu_link: orientation -> the track's slope
         self._odom_every = params.odom_every_n
         self._vmax = params.linear.max_velocity
         self._odom_countdown = params.odom_every_n
@@ -417,7 +420,9 @@ class ActuatorBody:
         # 3. the gyro's yaw rate for the wheel supervision's cross-check; the guard (memory
         # fed first) + control
         imu_rx = state.imu_rx_ns
-        ctl.imu(state.imu_gz * self._imu_z, imu_rx, state.imu_stamp_ns)
+        ctl.imu(state.imu_gz * self._imu_z, imu_rx, state.imu_stamp_ns,
+                track_slope(state.imu_qx, state.imu_qy, state.imu_qz, state.imu_qw,
+                            self._imu_x))
         guard = self.guard
         unknown = False
         if self._use_sonar:
@@ -512,6 +517,35 @@ def imu_z_axis(robot: Any) -> float:
         return 1.0
 
 
+def imu_x_axis(robot: Any) -> tuple[float, float, float]:
+    """Return base_link's x axis in imu_link coordinates (the mount's first row).
+
+    From ``robot.sensors.imu.pose`` (roll, pitch, yaw; R = Rz Ry Rx): turned by the IMU's
+    orientation, it is base_link's x in the world. Without a mount: (1, 0, 0).
+    """
+    try:
+        pose = robot['sensors']['imu']['pose']
+        r, p, y = float(pose[3]), float(pose[4]), float(pose[5])
+    except (KeyError, IndexError, TypeError, ValueError):
+        return 1.0, 0.0, 0.0
+    cr, sr, cp, sp, cy, sy = (math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y),
+                              math.sin(y))
+    return cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+
+
+def track_slope(qx: float, qy: float, qz: float, qw: float,
+                x_axis: tuple[float, float, float]) -> float:
+    """Return the z of base_link's x axis in the world: ``-sin(pitch)`` of the track.
+
+    ``q``: the IMU's orientation (imu_link in the world, REP-103); ``x_axis``: base_link x in
+    imu_link (:func:`imu_x_axis`). The third row of the quaternion's rotation matrix times
+    it. NaN in, NaN out (no sample: no slope known).
+    """
+    xx, xy, xz = x_axis
+    return (2.0 * (qx * qz - qw * qy) * xx + 2.0 * (qy * qz + qw * qx) * xy
+            + (1.0 - 2.0 * (qx * qx + qy * qy)) * xz)
+
+
 def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) -> ActuatorBody:
     """Build the actuator body from its task config, its ``cmd``/``motor`` ports and state."""
     params = control_params(control_section(task, shared))
@@ -519,7 +553,8 @@ def make_actuator(task: TaskConfig, ports: Mapping[str, RtPort], shared: Any) ->
     plan = guard_plan(params, period, shared, raw_section(task, shared, 'robot'), test_weaken())
     body = ActuatorBody(ports['cmd'], ports['motor'], robot_state(shared), params, period,
                         plan=plan, imu_z=imu_z_axis(raw_section(task, shared, 'robot')),
-                        robot=raw_section(task, shared, 'robot'))
+                        robot=raw_section(task, shared, 'robot'),
+                        imu_x=imu_x_axis(raw_section(task, shared, 'robot')))
     # Start-up, before any loop runs: the one place the RT process may read the e-stop
     # request the bridge persisted, and write to stderr.
     lines = [plan.line()]

@@ -53,7 +53,7 @@ class ImuBody(DeviceTaskBody):
         reader = self._dev_in
         reader.start_cycle()
         n = 0
-        gz = math.nan
+        gz = qx = qy = qz = qw = math.nan
         stamp = 0
         while (got := reader.next()) is not None:
             kind = got[0].kind
@@ -66,9 +66,10 @@ class ImuBody(DeviceTaskBody):
                 msg = got[1]
                 stamp = got[0].stamp_ns
                 if msg.status == _IMU_OK:
-                    gz = msg.gz
+                    gz, qx, qy, qz, qw = msg.gz, msg.qx, msg.qy, msg.qz, msg.qw
                 else:
-                    gz = math.nan     # a sample the driver flags: no yaw rate for supervision
+                    # a sample the driver flags: no yaw rate or tilt for the supervision
+                    gz = qx = qy = qz = qw = math.nan
             elif kind == _DEVICE_STATUS:
                 self.state.record_device_status('imu', got[1], now)
             elif kind == _HOST_DROPS:
@@ -77,9 +78,11 @@ class ImuBody(DeviceTaskBody):
                 self.unexpected += 1
         if n:
             self._out.forward(self._latest_view[:n])
-            self.state.imu_gz = gz    # the wheel supervision's yaw cross-check (actuator)
-            self.state.imu_rx_ns = now
-            self.state.imu_stamp_ns = stamp   # when the driver took it (the supervision aligns)
+            st = self.state
+            st.imu_gz = gz    # the wheel supervision's yaw cross-check (actuator)
+            st.imu_qx, st.imu_qy, st.imu_qz, st.imu_qw = qx, qy, qz, qw   # its level test
+            st.imu_rx_ns = now
+            st.imu_stamp_ns = stamp   # when the driver took it (the supervision aligns)
         self.unexpected += self._out_in.discard()   # the bridge only reads this port
         self._dev_out.send(_REQUEST, now, self.cycles & 0xFFFFFFFF, 0)
         self.cycles += 1

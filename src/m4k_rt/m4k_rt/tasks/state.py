@@ -18,8 +18,8 @@ Ownership (writer -> fields):
   ``sonar_level``, ``sonar_device``, ``sonar_device_rx_ns``
 * lrf:      ``laser_front_min``, ``laser_rx_ns``, ``laser_sighting``, ``lrf_level``,
   ``lrf_status``, ``lrf_status_rx_ns``
-* imu:      ``imu_gz``, ``imu_rx_ns``, ``imu_stamp_ns`` (the driver's stamp), ``imu_level``,
-  ``imu_status``, ``imu_status_rx_ns``
+* imu:      ``imu_gz``, ``imu_qx``/``qy``/``qz``/``qw``, ``imu_rx_ns``, ``imu_stamp_ns`` (the
+  driver's stamp), ``imu_level``, ``imu_status``, ``imu_status_rx_ns``
 * led:      ``led_override``, ``led_level``, ``led_status``, ``led_status_rx_ns``
 
 Times are CLOCK_MONOTONIC ns of the *receiving* task's cycle start (0 = never), so freshness
@@ -65,7 +65,7 @@ class RobotState:
         'motor_faults', 'guard_slowing', 'estop_open', 'e_stop_engaged',
         'sonar_range', 'sonar_status', 'sonar_rx_ns', 'sonar_level', 'sonar_sighting',
         'laser_front_min', 'laser_rx_ns', 'lrf_level', 'laser_sighting',
-        'imu_gz', 'imu_rx_ns', 'imu_stamp_ns', 'imu_level',
+        'imu_gz', 'imu_qx', 'imu_qy', 'imu_qz', 'imu_qw', 'imu_rx_ns', 'imu_stamp_ns', 'imu_level',
         'led_override', 'led_level',
         'motor_status', 'motor_status_rx_ns', 'imu_status', 'imu_status_rx_ns',
         'led_status', 'led_status_rx_ns', 'sonar_device', 'sonar_device_rx_ns',
@@ -104,6 +104,10 @@ class RobotState:
         self.laser_sighting: Any = None  # control.sightings.LaserSighting
         # imu
         self.imu_gz = math.nan           # rad/s, gyro z of the newest valid sample (imu_link)
+        self.imu_qx = math.nan           # its orientation (imu_link in the world; the AHRS's
+        self.imu_qy = math.nan           # fusion: which way is up, whatever the wheels do)
+        self.imu_qz = math.nan
+        self.imu_qw = math.nan
         self.imu_rx_ns = 0
         self.imu_stamp_ns = 0            # its driver stamp (data-ready edge or arrival)
         self.imu_level = LEVEL_OK
