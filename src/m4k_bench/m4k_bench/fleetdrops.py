@@ -58,10 +58,10 @@ def _busy_ticks() -> tuple[int, int]:
     return sum(vals) - idle, sum(vals)
 
 
-def _tree_cpu(root: int) -> dict[int, float]:
-    """Return pid -> CPU seconds of ``root`` and every descendant (one /proc scan)."""
+def _tree(root: int) -> dict[int, tuple[float, str]]:
+    """Return pid -> (CPU seconds, state letter) of ``root`` and every descendant (one scan)."""
     parent: dict[int, int] = {}
-    cpu: dict[int, float] = {}
+    seen: dict[int, tuple[float, str]] = {}
     tck = os.sysconf('SC_CLK_TCK')
     for name in os.listdir('/proc'):
         if not name.isdigit():
@@ -73,14 +73,38 @@ def _tree_cpu(root: int) -> dict[int, float]:
             continue
         fields = stat[stat.rfind(b')') + 2:].split()
         parent[int(name)] = int(fields[1])
-        cpu[int(name)] = (int(fields[11]) + int(fields[12])) / tck
+        seen[int(name)] = ((int(fields[11]) + int(fields[12])) / tck, fields[0].decode())
     out, todo = {}, [root]
     while todo:
         pid = todo.pop()
-        if pid in cpu:
-            out[pid] = cpu[pid]
+        if pid in seen:
+            out[pid] = seen[pid]
         todo += [p for p, pp in parent.items() if pp == pid]
     return out
+
+
+def _tree_cpu(root: int) -> dict[int, float]:
+    """Return pid -> CPU seconds of ``root`` and every descendant."""
+    return {pid: cpu for pid, (cpu, _) in _tree(root).items()}
+
+
+def _tree_states(root: int) -> str:
+    """Return what ``root`` and its descendants are doing: 'pid state wchan command' each.
+
+    Taken when a bringup has not stopped in time, before the SIGKILL: which of its children
+    it still waits for, and where each sleeps.
+    """
+    rows = []
+    for pid, (_, state) in sorted(_tree(root).items()):
+        try:
+            with open('/proc/{}/wchan'.format(pid), encoding='ascii', errors='replace') as f:
+                wchan = f.read().strip() or '-'
+            with open('/proc/{}/cmdline'.format(pid), 'rb') as f:
+                cmd = f.read().replace(b'\0', b' ').decode(errors='replace').strip()
+        except OSError:
+            continue
+        rows.append('{} {} {} {}'.format(pid, state, wchan, cmd[:100]))
+    return '; '.join(rows)
 
 
 class _Ros:
@@ -271,10 +295,15 @@ def _stop_all(kids: dict[str, Child], out: dict[str, Any]) -> None:
         if k.alive():
             k.send_signal(signal.SIGTERM)
     for r, k in kids.items():
-        code = k.stop()
+        stuck: list[str] = []
+
+        def snapshot(_timeout: float, pid: int = k.pid, stuck: list[str] = stuck) -> None:
+            stuck.append(_tree_states(pid))
+        code = k.stop(on_escalate=snapshot)
         if code not in (0, -signal.SIGTERM, None):
-            out['errors'].append('bringup {} exited {}: {}'.format(r, code, ' | '.join(
-                k.tail())))
+            out['errors'].append('bringup {} exited {}{}: {}'.format(
+                r, code, ' (still running at the kill: {})'.format(stuck[0]) if stuck else '',
+                ' | '.join(k.tail(12))))
 
 
 def _loadavg() -> tuple[float, float, float]:

@@ -1,6 +1,12 @@
 """The fleet's drops: a host log's counters across restarts, pooled robots, runs, the tables."""
 
+import signal
+import sys
+import time
+
+from m4k_bench import fleetdrops
 from m4k_bench.benchlib import fleetagg
+from m4k_bringup.child import Child, Output, Stopping
 
 
 def _line(served, host=0, sim=0, lost=0, dev='motor', tail=''):
@@ -177,3 +183,24 @@ def test_the_bridges_late_cmd_vel_and_guard_stops_are_read_from_its_log():
     rows = fleetagg.run_rows(run, '1')
     assert rows[0][4] == '8 of 1200 late; 1 guard stops' == rows[1][4]
     assert fleetagg.run_rows(_run(0, 0, 6.0), '1')[0][4] == '-'
+
+
+def test_a_bringup_that_does_not_stop_is_named_with_what_it_still_runs(tmp_path):
+    # a stack that ignores its stop signal is killed, and the error says what its process
+    # tree was doing at the kill (the fleet's stop once took over 60 s, with no trace)
+    argv = [sys.executable, '-c', 'import signal, time; '
+            'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("handler " + "set", flush=True); '
+            'time.sleep(60)']
+    k = Child('r9', argv, output=Output(log_path=str(tmp_path / 'r9.log')),
+              stopping=Stopping(sig=signal.SIGTERM, timeout=0.5, must_end=True)).start()
+    end = time.monotonic() + 10
+    while 'handler set' not in (tmp_path / 'r9.log').read_text() and time.monotonic() < end:
+        time.sleep(0.02)
+    pid = k.pid
+    out = {'errors': []}
+    fleetdrops._stop_all({'r9': k}, out)
+    assert len(out['errors']) == 1, out
+    err = out['errors'][0]
+    assert err.startswith('bringup r9 exited -9 (still running at the kill: {} S '.format(
+        pid)), err                                  # the pid, sleeping, and its command line
+    assert 'time.sleep' in err and err.rstrip().endswith('handler set'), err
