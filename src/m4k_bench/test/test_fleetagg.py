@@ -189,8 +189,8 @@ def test_a_bringup_that_does_not_stop_is_named_with_what_it_still_runs(tmp_path)
     # a stack that ignores its stop signal is killed, and the error says what its process
     # tree was doing at the kill (the fleet's stop once took over 60 s, with no trace)
     argv = [sys.executable, '-c', 'import signal, time; '
-            'signal.signal(signal.SIGTERM, signal.SIG_IGN); print("handler " + "set", flush=True); '
-            'time.sleep(60)']
+            'signal.signal(signal.SIGTERM, signal.SIG_IGN); '
+            'print("handler " + "set", flush=True); time.sleep(60)']
     k = Child('r9', argv, output=Output(log_path=str(tmp_path / 'r9.log')),
               stopping=Stopping(sig=signal.SIGTERM, timeout=0.5, must_end=True)).start()
     end = time.monotonic() + 10
