@@ -24,6 +24,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan, Range
 
 from m4k_rt import protocol
+from m4k_rt.rotation import quaternion_rpy
 
 __all__ = [
     'NonFiniteCommand', 'covariance3',
@@ -56,15 +57,6 @@ def ros_stamp_ns(stamp_mono_ns: int, now_mono_ns: int, now_ros_ns: int) -> int:
     """
     age = now_mono_ns - stamp_mono_ns
     return now_ros_ns - age if age > 0 else now_ros_ns
-
-
-def quaternion_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Return the quaternion (x, y, z, w) of fixed-axis roll, pitch, yaw (REP-103)."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
 def _diagonal_covariance(diagonal: Sequence[float], n: int) -> list[float]:

@@ -314,6 +314,22 @@ def _rotate(q, v):
     return (v[0] + 2 * (w * cx + dx), v[1] + 2 * (w * cy + dy), v[2] + 2 * (w * cz + dz))
 
 
+def _sample_at_rest(heading_deg, patch):
+    """One noise-free sample of the simulated myAHRS+ on a robot at rest at the origin."""
+    t = [0]
+    cfg = WorldConfig.from_dict({'start': [0.0, 0.0, math.radians(heading_deg)],
+                                 'obstacles': [], 'floor': [patch]})
+    world = World(cfg, clock=lambda: t[0], t0_ns=0)
+    bus = FakeMyAhrsBus(world, accel_sd=0.0, gyro_sd=0.0, orientation_sd=0.0)
+    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'sim'))
+    h.configure()
+    h.activate()
+    t[0] += 10_000_000
+    s = h.read().value
+    h.shutdown()
+    return s
+
+
 @pytest.mark.parametrize('heading_deg, roll_deg, pitch_deg', [
     (0.0, 0.0, 2.0),       # facing downhill: nose down (REP-103 pitch +)
     (180.0, 0.0, -2.0),    # facing uphill: nose up
@@ -327,19 +343,8 @@ def test_sim_on_a_ramp_reports_the_tilt_gravity_and_field_of_a_tilted_body(
     # holds it there up to ~2.7 deg; steeper, it rolls and the accelerometer reads that
     # too): the myAHRS+ reads the slope -- its Euler angles, a quaternion that turns
     # base_link's z onto the slope's normal, the floor's push along the same axis, |g| kept.
-    t = [0]
-    cfg = WorldConfig.from_dict({
-        'start': [0.0, 0.0, math.radians(heading_deg)], 'obstacles': [],
-        'floor': [{'rectangle': [-5.0, -5.0, 5.0, 5.0], 'mu': 0.6, 'grade_deg': 2.0,
-                   'downhill_deg': 0.0}]})
-    world = World(cfg, clock=lambda: t[0], t0_ns=0)
-    bus = FakeMyAhrsBus(world, accel_sd=0.0, gyro_sd=0.0, orientation_sd=0.0)
-    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'sim'))
-    h.configure()
-    h.activate()
-    t[0] += 10_000_000
-    s = h.read().value
-    h.shutdown()
+    s = _sample_at_rest(heading_deg, {'rectangle': [-5.0, -5.0, 5.0, 5.0], 'mu': 0.6,
+                                      'grade_deg': 2.0, 'downhill_deg': 0.0})
     g = math.radians(2.0)
     assert s.rpy[0] == pytest.approx(math.radians(roll_deg), abs=2e-3)
     assert s.rpy[1] == pytest.approx(math.radians(pitch_deg), abs=2e-3)
@@ -354,18 +359,7 @@ def test_sim_on_a_ramp_reports_the_tilt_gravity_and_field_of_a_tilted_body(
 
 
 def test_sim_off_the_ramp_is_level():
-    t = [0]
-    cfg = WorldConfig.from_dict({
-        'start': [0.0, 0.0, 0.0], 'obstacles': [],
-        'floor': [{'rectangle': [1.0, -5.0, 5.0, 5.0], 'mu': 0.6, 'grade_deg': 4.8}]})
-    world = World(cfg, clock=lambda: t[0], t0_ns=0)
-    bus = FakeMyAhrsBus(world, accel_sd=0.0, gyro_sd=0.0, orientation_sd=0.0)
-    h = ImuHandler(lambda: I2cDevice(bus, 0x20, 'sim'))
-    h.configure()
-    h.activate()
-    t[0] += 10_000_000
-    s = h.read().value
-    h.shutdown()
+    s = _sample_at_rest(0.0, {'rectangle': [1.0, -5.0, 5.0, 5.0], 'mu': 0.6, 'grade_deg': 4.8})
     assert s.rpy[0] == pytest.approx(0.0, abs=1e-3) and s.rpy[1] == pytest.approx(0.0, abs=1e-3)
     assert s.linear_acceleration[0] == pytest.approx(0.0, abs=0.01)
     assert s.linear_acceleration[2] == pytest.approx(p.GRAVITY, abs=0.01)

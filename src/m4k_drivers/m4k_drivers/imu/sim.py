@@ -30,6 +30,7 @@ from typing import Any
 
 from m4k_drivers.imu import protocol as p
 from m4k_drivers.world import World
+from m4k_rt.rotation import quaternion_rpy
 
 __all__ = ['FakeMyAhrsBus', 'GARBLES']
 
@@ -39,15 +40,6 @@ I2C_M_RD = 0x0001          # linux/i2c.h: read message
 _EARTH_H_UT = 25.0
 _EARTH_DOWN_UT = 40.0
 GARBLES = ('zeros', 'ones', 'quaternion', 'gyro_rail')
-
-
-def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Return (x, y, z, w) of fixed-axis roll, pitch, yaw (R = Rz(yaw) Ry(pitch) Rx(roll))."""
-    cr, sr = math.cos(roll / 2.0), math.sin(roll / 2.0)
-    cp, sp = math.cos(pitch / 2.0), math.sin(pitch / 2.0)
-    cy, sy = math.cos(yaw / 2.0), math.sin(yaw / 2.0)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
 def _body_field(yaw: float, pitch: float, roll: float) -> tuple[float, float, float]:
@@ -113,7 +105,7 @@ class FakeMyAhrsBus:
              st.v * st.w + p.GRAVITY * cp * sr + float(n(0.0, self.accel_sd)),
              p.GRAVITY * cp * cr + float(n(0.0, self.accel_sd)))
         mag = _body_field(st.pose.yaw, pitch, roll)
-        q = _quaternion(roll, pitch, yaw)
+        q = quaternion_rpy(roll, pitch, yaw)
         dev = p.DeviceSample((a[0], -a[1], -a[2]), (g[0], -g[1], -g[2]),
                              (round(mag[0] / 0.3), round(-mag[1] / 0.3), round(-mag[2] / 0.3)),
                              25.0 + float(n(0.0, 0.05)), (roll, -pitch, -yaw),
