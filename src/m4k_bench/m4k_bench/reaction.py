@@ -154,22 +154,34 @@ class _Sim:
 
 
 class _Commander:
-    """VELOCITY_CMD at 20 Hz on the ``cmd`` port (the bridge's role), ODOMETRY drained."""
+    """VELOCITY_CMD at 20 Hz on the ``cmd`` port (the bridge's role), ODOMETRY drained.
+
+    The ``status`` port too (the bridge's other role): the monitor's SAFETY_STATUS (1 Hz)
+    names the cause of a latched motor fault, so a latch is reset only once its cause has
+    been read (or after ``CAUSE_WAIT_S``).
+    """
+
+    CAUSE_WAIT_S = 2.5
 
     def __init__(self, runtime_dir: str) -> None:
         from m4k_rt import channel
         self.link = channel.NrtLink('cmd', runtime_dir, retry_interval=0.05)
+        self.status = channel.NrtLink('status', runtime_dir, retry_interval=0.05)
         self.v = 0.0
         self.flags = 0            # the last ODOMETRY flags (m4k_rt.protocol.OdomFlag)
         self.fault_resets = 0     # MOTOR_FAULT latches seen (and reset) on healthy wheels
+        self.causes: list[str] = []   # the supervision's cause of each, as words
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True, name='reaction-cmd')
         self.thread.start()
 
     def _run(self) -> None:
         from m4k_rt import protocol as p
+        from m4k_rt.control.supervision import cause_text
         seq = 0
         last_reset = 0.0
+        cause = 0                 # the latched fault's cause, from SAFETY_STATUS
+        seen_at = 0.0             # when the latch was first seen (0: none pending)
         while not self.stop.wait(0.05):
             seq = (seq + 1) & 0xFFFF
             self.link.write(p.encode(p.Kind.VELOCITY_CMD, seq, 0, self.v, 0.0))
@@ -180,12 +192,25 @@ class _Commander:
                     continue
                 if hdr.kind == p.Kind.ODOMETRY:
                     self.flags = int(body.flags)
-            if self.flags & p.OdomFlag.MOTOR_FAULT and time.monotonic() - last_reset > 0.5:
-                last_reset = time.monotonic()
+            while (data := self.status.read(0.0)) is not None:
+                try:
+                    hdr, body = p.decode(data)
+                except ValueError:
+                    continue
+                if hdr.kind == p.Kind.SAFETY_STATUS and body.fault_cause:
+                    cause = int(body.fault_cause)
+            now = time.monotonic()
+            if self.flags & p.OdomFlag.MOTOR_FAULT and now - last_reset > 0.5:
+                seen_at = seen_at or now
+                if not cause and now - seen_at < self.CAUSE_WAIT_S:
+                    continue
+                last_reset = now
                 # No fault is injected here: a latch is the supervision tripping on healthy
-                # wheels. Count it (the report says how many) and reset it, as an operator
-                # would, so the measurement goes on.
+                # wheels. Count it and its cause (the report says them) and reset it, as an
+                # operator would, so the measurement goes on.
                 self.fault_resets += 1
+                self.causes.append(cause_text(cause) if cause else 'cause not reported')
+                cause, seen_at = 0, 0.0
                 self.flags &= ~int(p.OdomFlag.MOTOR_FAULT)
                 self.link.write(p.encode(p.Kind.FAULT_RESET, seq, 0, self.fault_resets, 0))
 
@@ -193,6 +218,7 @@ class _Commander:
         self.stop.set()
         self.thread.join(5.0)
         self.link.close()
+        self.status.close()
 
 
 def _wait(pred: Callable[[], bool], timeout_s: float) -> bool:
@@ -313,6 +339,7 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         cmd.v = 0.0
         summary = _summarise(rows, raw, trials, bounds, traction_limit)
         summary['false_motor_faults'] = cmd.fault_resets
+        summary['false_motor_fault_causes'] = list(cmd.causes)
     finally:
         if cmd is not None:
             cmd.close()
@@ -395,9 +422,10 @@ def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
                      f'{r["physical_min_m"]:.3f} | {_m(r["judge_allowed_m"])} | '
                      f'{r["contacts"]} | {r["min_clearance_m"]:.3f} |')
     if s.get('false_motor_faults'):
+        causes = ', '.join(s.get('false_motor_fault_causes') or []) or 'not recorded'
         lines += ['', f'The wheel supervision latched MOTOR_FAULT {s["false_motor_faults"]} '
-                  f'time(s) on healthy wheels (no fault injected); the bench reset it '
-                  f'(FAULT_RESET) each time to go on.']
+                  f'time(s) on healthy wheels (no fault injected; cause: {causes}); the bench '
+                  f'reset it (FAULT_RESET) each time to go on.']
     if s['failed']:
         lines += ['', f'{len(s["failed"])} trial(s) without a braking word: '
                   + '; '.join(str(r.get('error', 'none within 5 s')) for r in s['failed'])]
