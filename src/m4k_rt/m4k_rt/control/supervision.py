@@ -331,7 +331,7 @@ class WheelSupervisor:
         zero word) read as pulled, and a window from there latched a false fault at 2 m/s.
         ``level_hold``: per wheel, the standstill hold's integral (the load it holds), given
         while the hold holds and a fresh IMU sample says the floor is level along the track
-        (``level_grade``), else None: a wheel at a zero setpoint whose hold holds more than
+        (``level_grade``), else None: a held wheel whose hold holds more than
         ``level_hold_effort`` latches the still fault at once. Not the hold's output: its
         proportional part brakes a wheel found pulled, which a guard stop on the level may
         be for a few cycles (up to 0.1 of full scale in a 2 m/s arc).
@@ -474,12 +474,14 @@ class WheelSupervisor:
                 self._bound[k] = -1.0
                 self._origin[k] = math.nan
                 t[_STILL + k] = 0.0
-            if sp == 0.0 and level_hold is not None and (
+            if sp == 0.0 and held[k] and level_hold is not None and (
                     abs(level_hold[k]) > p.level_hold_effort):
                 # On the level nothing leans on a wheel standing still: a hold holding more
                 # than a dead band and an uncalibrated zero take is holding the amplifier
                 # driving it (the hold's integral grows at the break-away rate while the wheel
-                # rolls: a 2 V offset passes 0.1 of full scale 0.10 s from rest).
+                # rolls: a 2 V offset passes 0.1 of full scale 0.10 s from rest). Held wheels
+                # only (read still in this hold): one the hold found pulled still brakes from
+                # speed, and a late encoder sample can make a braking wheel read pulled.
                 t[_STILL + k] = self._times[_STILL + k]
         self._fresh = False
         diff = sp_left - sp_right
