@@ -31,11 +31,13 @@ from m4k_drivers.world import World, WorldConfig
 from m4k_rt.config import deep_merge, load_layered, shipped_period_s
 from m4k_rt.control.base import BaseController
 from m4k_rt.control.params import control_params
+from m4k_rt.tasks.actuator import track_slope
 
 __all__ = ['PERIOD_NS', 'VirtualBase']
 
 # the actuator period, as the shipped configuration declares it (tasks.actuator.period_ms)
 PERIOD_NS = round(shipped_period_s('actuator') * 1e9)
+_NO_MOUNT = (1.0, 0.0, 0.0)      # base_link x in imu_link for an IMU mounted square in base_link
 
 
 class _Clock:
@@ -118,9 +120,10 @@ class VirtualBase:
                     self._rng.randrange(self._imu_jitter_ns + 1) if self._imu_jitter_ns else 0)
                 if self._imu_queue:
                     due = max(due, self._imu_queue[-1][0])
-                qx, qy, qz, qw = s.value.orientation   # the simulated IMU sits in base_link
+                # the simulated IMU sits in base_link: no mount to turn it by
+                qx, qy, qz, qw = s.value.orientation
                 self._imu_queue.append((due, stamp, s.value.angular_velocity[2],
-                                        2.0 * (qx * qz - qw * qy)))
+                                        track_slope(qx, qy, qz, qw, _NO_MOUNT)))
             q = self._imu_queue
             while q and q[0][0] <= now:
                 _, stamp, rate, slope = q.popleft()

@@ -109,12 +109,20 @@ def grade_force(patches: tuple[Patch, ...], x: float, y: float, yaw: float,
                 weight_n: float) -> float:
     """Return gravity's pull along the heading (N, + forward) where base_link is at (x, y).
 
-    The last sloping patch listed that holds the point wins; off every slope: 0.
+    Off every slope: 0.
     """
+    patch = _slope_at(patches, x, y)
+    if patch is None:
+        return 0.0
+    return weight_n * math.sin(patch.grade) * math.cos(yaw - patch.downhill)
+
+
+def _slope_at(patches: tuple[Patch, ...], x: float, y: float) -> Patch | None:
+    """Return the sloping patch under (x, y): the last one listed that holds it (None: level)."""
     for patch in reversed(patches):
         if patch.grade and patch.contains(x, y):
-            return weight_n * math.sin(patch.grade) * math.cos(yaw - patch.downhill)
-    return 0.0
+            return patch
+    return None
 
 
 def tilt(patches: tuple[Patch, ...], x: float, y: float, yaw: float) -> tuple[float, float]:
@@ -127,9 +135,9 @@ def tilt(patches: tuple[Patch, ...], x: float, y: float, yaw: float) -> tuple[fl
     across the slope the uphill side is up by it. The same patch as :func:`grade_force`;
     off every slope: level.
     """
-    for patch in reversed(patches):
-        if patch.grade and patch.contains(x, y):
-            a = yaw - patch.downhill
-            sg = math.sin(patch.grade)
-            return math.asin(sg * math.sin(a)), math.atan2(sg * math.cos(a), math.cos(patch.grade))
-    return 0.0, 0.0
+    patch = _slope_at(patches, x, y)
+    if patch is None:
+        return 0.0, 0.0
+    a = yaw - patch.downhill
+    sg = math.sin(patch.grade)
+    return math.asin(sg * math.sin(a)), math.atan2(sg * math.cos(a), math.cos(patch.grade))

@@ -46,7 +46,7 @@ has held without a break:
   does not end (``still_time``); a wheel the standstill hold holds (``control.hold``) is
   judged by where it is instead: turned more than ``standstill_window`` counts from where it
   first read still in its hold latches at once (a safe operating stop's position window),
-  and so does, on a floor the IMU's accelerometer reads level along the track, a hold whose
+  and so does, on a floor the IMU's orientation reads level along the track, a hold whose
   integral passes ``level_hold_effort`` (nothing on the level leans on a wheel standing
   still: the amplifier drives it);
 * **yaw** (both wheels, whenever a fresh IMU sample is given): the wheels' yaw rate

@@ -510,11 +510,17 @@ def imu_z_axis(robot: Any) -> float:
     From ``robot.sensors.imu.pose`` (roll, pitch): the gyro's z reading times this is the
     body's yaw rate. Without a mount the IMU is taken as upright.
     """
+    mount = _imu_mount(robot)
+    return 1.0 if mount is None else math.cos(mount[0]) * math.cos(mount[1])
+
+
+def _imu_mount(robot: Any) -> tuple[float, float, float] | None:
+    """Return the IMU's mount (roll, pitch, yaw) in base_link, rad (None: none configured)."""
     try:
         pose = robot['sensors']['imu']['pose']
-        return math.cos(float(pose[3])) * math.cos(float(pose[4]))
+        return float(pose[3]), float(pose[4]), float(pose[5])
     except (KeyError, IndexError, TypeError, ValueError):
-        return 1.0
+        return None
 
 
 def imu_x_axis(robot: Any) -> tuple[float, float, float]:
@@ -523,11 +529,10 @@ def imu_x_axis(robot: Any) -> tuple[float, float, float]:
     From ``robot.sensors.imu.pose`` (roll, pitch, yaw; R = Rz Ry Rx): turned by the IMU's
     orientation, it is base_link's x in the world. Without a mount: (1, 0, 0).
     """
-    try:
-        pose = robot['sensors']['imu']['pose']
-        r, p, y = float(pose[3]), float(pose[4]), float(pose[5])
-    except (KeyError, IndexError, TypeError, ValueError):
+    mount = _imu_mount(robot)
+    if mount is None:
         return 1.0, 0.0, 0.0
+    r, p, y = mount
     cr, sr, cp, sp, cy, sy = (math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y),
                               math.sin(y))
     return cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
