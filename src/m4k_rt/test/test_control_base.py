@@ -45,6 +45,21 @@ class Plant:
                 self.angle[i] += self.speed[i] * h
 
 
+class BrakingPlant(Plant):
+    """The Plant, but the zero word brakes at a constant 28 rad/s^2 to rest, as the stack's
+    simulated drive does (back-EMF braking through the amplifier's current limit)."""
+
+    def run(self, codes, dt: float, substeps: int = 10) -> None:
+        if codes[0] != codes[1] or code_to_command(codes[0]) != 0.0:
+            super().run(codes, dt, substeps)
+            return
+        for i in (0, 1):
+            s = self.speed[i]
+            t = min(abs(s) / 28.0, dt)
+            self.angle[i] += s * t - math.copysign(14.0 * t * t, s)
+            self.speed[i] = s - math.copysign(28.0 * t, s)
+
+
 def make(**section):
     # The Plant has no dry friction and no dead band: the PI's break-away boost (pi.
     # breakaway_rate, for exactly those) is off unless a test sets it; the closed loop with
@@ -54,12 +69,18 @@ def make(**section):
     return BaseController(p, 0.01), p
 
 
-def drive(ctl, plant, cycles, t0, cmd=None, cmd_every=5, cap=math.inf, guard_active=False):
-    """Run the one-cycle pipeline: encoders of the previous command, command, step, plant."""
+def drive(ctl, plant, cycles, t0, cmd=None, cmd_every=5, cap=math.inf, guard_active=False,
+          slope=None):
+    """Run the one-cycle pipeline: encoders of the previous command, command, step, plant.
+
+    ``slope``: also an IMU sample each cycle, no turn, base_link x at this slope (the
+    ``imu`` argument; 0.0: level)."""
     t = t0
     for k in range(cycles):
         t += PERIOD_NS
         ctl.encoders(plant.angle[0], plant.angle[1], t, t)
+        if slope is not None:
+            ctl.imu(0.0, t, slope=slope)
         if cmd is not None and k % cmd_every == 0:
             ctl.command(cmd[0], cmd[1], t)
         ctl.step(t, cap, guard_active)
@@ -407,6 +428,64 @@ def test_a_guard_stop_read_as_pulled_at_speed_latches_no_standstill_window(v):
         assert not ctl.supervisor.latched, cause_text(ctl.supervisor.cause)
     assert pulled, 'the hold did not begin at speed: the test lost its subject'
     assert ctl.holding and abs(plant.speed[0]) < 0.1 and abs(plant.speed[1]) < 0.1
+
+
+@pytest.mark.parametrize('v', [0.5, 1.0, 2.0])
+def test_on_the_level_a_wheel_read_faster_in_a_guard_stop_is_not_pulled(v):
+    """Nothing on a level floor pulls a wheel the zero word brakes: with the IMU saying the
+    floor is level, the hold begins once both wheels are slow, never at speed -- whatever the
+    encoders read (here 5 rad/s faster for 40 ms, the test above's subject). Found pulled at
+    speed, the hold braked at its limit while its lagging speed estimate still read motion,
+    and with the configured break-away boost its integral wound against the roll: the
+    wheels swung back through zero (the still test) or, at rest, the level test read the
+    integral as a load held against an amplifier (the reaction bench's false latch, seed
+    28). An amplifier driving a wheel from speed on the level is the still test's (its bound
+    falls while the wheel does not) and, once it rests, the level test's."""
+    ctl, p = make(hold={'enabled': True},
+                  pi={'breakaway_rate': control_params({}).pi.breakaway_rate})
+    plant = BrakingPlant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0, slope=0.0)
+    t = drive(ctl, plant, round(100 * (v / 0.37 + 1.0)), t, cmd=(v, 0.0), slope=0.0)
+    for k in range(300):
+        if 5 <= k < 9:
+            plant.angle[0] += 0.1
+            plant.angle[1] += 0.1
+        t = drive(ctl, plant, 1, t, cmd=(v, 0.0), cap=0.0, guard_active=True, slope=0.0)
+        assert not (ctl.holding and abs(ctl.left_speed) > p.hold.speed), (k, ctl.left_speed)
+        assert min(plant.speed) > -0.05, (k, plant.speed)          # never driven back
+        assert not ctl.supervisor.latched, (k, cause_text(ctl.supervisor.cause))
+    assert ctl.holding and abs(plant.speed[0]) < 0.1 and abs(plant.speed[1]) < 0.1
+    assert max(abs(e) for e in ctl.hold_effort) < p.supervision.level_hold_effort, \
+        ctl.hold_effort
+
+
+@pytest.mark.parametrize('v', [1.0, 2.0])
+@pytest.mark.parametrize('late', range(8))
+def test_a_late_sample_just_after_the_pulled_tests_grace_does_not_begin_the_hold(v, late):
+    """The reaction bench latched "left wheel turns while commanded still" in a guard stop at
+    2 m/s (seed 28): the 4th zero cycle's sample read 20.13 rad/s after 19.70, 19.47 and 19.60
+    (a sample ~1 ms late), above the bound the grace cycles had left at the speed + hold.speed
+    -- without the margin a late sample gets at speed. The hold found the wheel pulled, braked
+    it at its limit for the whole stop, and the roll built its integral to the limit: at rest,
+    the level test read a load no level floor puts on a wheel. Here the zero word brakes at
+    the stack's simulator's ~28 rad/s^2 (``BrakingPlant``), and one sample is
+    0.1 of the wheel's 20 ms turn late in each of the first cycles in turn."""
+    ctl, p = make(hold={'enabled': True})
+    plant = BrakingPlant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0)
+    t = drive(ctl, plant, round(100 * (v / 0.37 + 1.0)), t, cmd=(v, 0.0))
+    assert plant.speed[0] > 0.9 * v / R_WHEEL
+    for k in range(300):
+        late_by = [s * 0.002 for s in plant.speed] if k == late else [0.0, 0.0]
+        plant.angle[0] += late_by[0]
+        plant.angle[1] += late_by[1]
+        t = drive(ctl, plant, 1, t, cmd=(v, 0.0), cap=0.0, guard_active=True)
+        plant.angle[0] -= late_by[0]
+        plant.angle[1] -= late_by[1]
+        assert not (ctl.holding and abs(ctl.left_speed) > p.hold.speed), (k, ctl.left_speed)
+        assert not ctl.supervisor.latched, cause_text(ctl.supervisor.cause)
+    assert ctl.holding
+    assert max(abs(e) for e in ctl.hold_effort) < 0.01, ctl.hold_effort
 
 
 @pytest.mark.parametrize('v', [1.0, 2.0])

@@ -216,6 +216,7 @@ class BaseController:
         # |slope| within this: level (-1: never -- the supervision does not use the IMU)
         self._level_sin = (math.sin(math.radians(params.supervision.level_grade))
                            if params.supervision.use_imu else -1.0)
+        self._level = False         # this cycle: a fresh IMU sample says the floor is level
         self.left_u = self.right_u = 0.0   # PI outputs of the last cycle (0: zero word)
         self.estop_open = False     # the contact reads open (contact_samples in a row)
         self._open_samples = 0
@@ -557,6 +558,11 @@ class BaseController:
             wl = wr = 0.0
         self.left_setpoint = wl
         self.right_setpoint = wr
+        fresh = self.imu_rx_ns and now_ns - self.imu_rx_ns <= self._imu_timeout_ns
+        # not NaN, within level_grade: the floor is level along the track -- nothing pulls a
+        # wheel, and the hold's integral is held against nothing but a fault
+        level = bool(fresh and abs(self.imu_slope) <= self._level_sin)
+        self._level = level
         if wl == 0.0 and wr == 0.0:
             self.pi_left.reset()
             self.pi_right.reset()
@@ -601,12 +607,8 @@ class BaseController:
             self.left_code = command_to_code(ul)
             self.right_code = command_to_code(ur)
         self.enable = 1
-        fresh = self.imu_rx_ns and now_ns - self.imu_rx_ns <= self._imu_timeout_ns
         yaw = self.yaw_rate if fresh else math.nan
-        # not NaN, within level_grade: the floor is level along the track, and the hold's
-        # integral is held against nothing but a fault
-        level_hold = (self.hold_effort if self.holding and fresh
-                      and abs(self.imu_slope) <= self._level_sin else None)
+        level_hold = self.hold_effort if self.holding and level else None
         if self.driver_safe:
             sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
         elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.left_u, self.right_u,
@@ -655,6 +657,12 @@ class BaseController:
         level far faster (~28 rad/s^2); one it does not slow so is driven by something (a
         ramp). Never while a wheel is braked from speed: the hold would only brake harder.
         A wheel found pulled is braked by the hold's proportional part (``_hold_step``).
+        Never on the level either (the IMU's orientation, ``supervision.level_grade``):
+        nothing there pulls a wheel the zero word brakes, so a wheel that reads faster than
+        its bound is a late encoder sample -- the hold, braking at its limit on a speed
+        estimate that lags, drove the wheels back through zero and wound its integral into
+        a false level fault -- or an amplifier driving it, which the still test's bound
+        takes (and, once the wheel rests, the level test).
         """
         h = self._hold
         hb = self._hold_bound
@@ -664,8 +672,11 @@ class BaseController:
         for k, m in ((0, abs(ls)), (1, abs(rs))):
             if hb[k] < 0.0 or grace:
                 # the speed estimate lags the zero word (a wheel the PI was still speeding up
-                # reads faster for a window): the bound follows it up, nothing is pulled yet
-                hb[k] = max(hb[k], m + h.speed)
+                # reads faster for a window): the bound follows it up, nothing is pulled yet --
+                # with the margin a late sample gets at speed (``_pulled``): from the speed
+                # alone, one sample 1 ms late in the first cycle after the grace read a 2 m/s
+                # guard stop as pulled, and the hold braked and wound up through the whole stop
+                hb[k] = max(hb[k], m * (1.0 + _PULL_JITTER) + h.speed)
             elif self._pulled(k, m, dt):
                 pulled = True
         return pulled or (abs(ls) < h.speed and abs(rs) < h.speed)
@@ -676,13 +687,14 @@ class BaseController:
         The bound's margin grows with the speed: one late or early encoder sample moves the
         20 ms speed estimate by a share of it, at top speed beyond ``hold.speed`` (a guard
         stop in a 2 m/s arc read as pulled; the hold's braking effort then started the inner
-        wheel's PI against its roll, a false wrong-way fault).
+        wheel's PI against its roll, a false wrong-way fault). On the level (``_level``) the
+        bound goes on falling, but nothing is pulled (``_hold_begins``).
         """
         h = self._hold
         hb = self._hold_bound
         b = hb[k] = max(min(hb[k], m * (1.0 + _PULL_JITTER) + h.speed)
                         - h.pull_deceleration * dt, 0.0)
-        if m > b:
+        if m > b and not self._level:
             self._hold_pulled[k] = True
             return True
         return False
