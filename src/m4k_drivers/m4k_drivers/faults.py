@@ -1,7 +1,9 @@
 """Faults the simulator injects into the base: encoders lying, a wheel blocked, the e-stop.
 
 ``world.faults`` (a scenario's world too) is a list of entries, each active from ``at_s`` seconds
-of world time after the simulator started until ``until_s`` (absent: to the end)::
+of world time after the simulator started until ``until_s`` (absent: to the end), or from a
+moment of the drive -- ``start``: once the robot has truly covered ``travelled`` m and moved
+for ``after`` s, as a moving obstacle's path starts -- for ``for_s`` s (absent: to the end)::
 
     faults:
       - {at_s: 2.0, kind: encoder_sign_flip, wheel: left}
@@ -9,6 +11,11 @@ of world time after the simulator started until ``until_s`` (absent: to the end)
       - {at_s: 2.0, kind: encoder_frozen, wheel: right}
       - {at_s: 2.0, kind: wheel_stall, wheel: both}
       - {at_s: 1.0, until_s: 3.0, kind: estop}
+      - {start: {after: 3.0}, for_s: 2.0, kind: estop}   # 3 s into the drive, for 2 s
+
+World time alone cannot put a fault at a moment of the drive: the stack comes up in 5 s on a
+quiet machine and in 20 s on a loaded one, so an e-stop at 30 s needed 40 s of commands to
+be sure to fall inside them (and a straight drive that long left any world at speed).
 
 The encoder faults change what the AS5045s *mean*, never their framing: every frame stays valid
 (parity, OCF, no COF/LIN), as with a motor wired the other way round, crossed encoder cables or
@@ -20,8 +27,8 @@ pushed), and its encoder honestly reads no motion. ``estop`` opens the e-stop co
 series with the amplifier enable: the motors coast.
 
 An entry's keys are declared once, in :data:`FAULT` (schema Fields: validation and docs); the
-parser checks by hand only what involves several keys (``until_s`` after ``at_s``, ``wheel``
-given exactly for the per-wheel kinds).
+parser checks by hand only what involves several keys (``at_s`` or ``start``, ``until_s``
+after ``at_s``, ``for_s`` or ``until_s``, ``wheel`` given exactly for the per-wheel kinds).
 """
 
 from __future__ import annotations
@@ -29,7 +36,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
+from m4k_drivers.scene import START, Start
+from m4k_rt.schema import build, ConfigError, Field, REQUIRED, validate_tree
 
 __all__ = ['ENCODER_KINDS', 'FAULT', 'Fault', 'FaultError', 'KINDS', 'parse_faults']
 
@@ -45,10 +53,16 @@ class FaultError(ConfigError):
 
 # One entry of world.faults.
 FAULT: dict[str, Field] = {
-    'at_s': Field('float', REQUIRED, 'World time after the simulator started at which the '
-                  'fault begins.', unit='s', lo=0, expect='seconds >= 0'),
-    'until_s': Field('float', None, 'World time it ends (after at_s); null: to the end.',
-                     unit='s', lo=0, nullable=True, expect='seconds >= 0 or null'),
+    'at_s': Field('float', None, 'World time after the simulator started at which the '
+                  'fault begins; null: at ``start`` (one of the two).', unit='s', lo=0,
+                  nullable=True, expect='seconds >= 0 or null'),
+    **{'start.' + k: f for k, f in START.items()},
+    'until_s': Field('float', None, 'World time it ends (after at_s; with at_s only); null: '
+                     'for_s, or to the end.', unit='s', lo=0, nullable=True,
+                     expect='seconds >= 0 or null'),
+    'for_s': Field('float', None, 'How long it lasts from its onset (not with until_s); '
+                   'null: until_s, or to the end.', unit='s', lo=0, lo_open=True,
+                   nullable=True, expect='seconds > 0 or null'),
     'kind': Field('str', REQUIRED, 'encoder_sign_flip: the encoder counts backwards; '
                   'encoder_swap: the two encoder channels crossed; encoder_frozen: the magnet '
                   'slips (the reading stops); wheel_stall: the wheel blocked; estop: the e-stop '
@@ -61,16 +75,30 @@ FAULT: dict[str, Field] = {
 
 @dataclass(frozen=True)
 class Fault:
-    """One scheduled fault: what, on which wheels, from when until when (world seconds)."""
+    """One scheduled fault: what, on which wheels, from when until when (world seconds).
+
+    It begins at ``at_s``, or (``at_s`` None) at the world time its ``start`` is reached,
+    which the simulator notes (``onset``); it ends at ``until_s``, or ``for_s`` after it
+    began, or never.
+    """
 
     kind: str
     sides: tuple[int, ...] = ()
-    at_s: float = 0.0
+    at_s: float | None = 0.0
     until_s: float | None = None
+    start: Start | None = None
+    for_s: float | None = None
 
-    def active(self, t_s: float) -> bool:
-        """Return True when the fault is on at ``t_s`` seconds after the start."""
-        return t_s >= self.at_s and (self.until_s is None or t_s < self.until_s)
+    def active(self, t_s: float, onset: float | None = None) -> bool:
+        """Return True when the fault is on at ``t_s`` seconds after the start.
+
+        ``onset``: when a ``start`` fault began (world seconds; None: not yet).
+        """
+        begin = self.at_s if self.start is None else onset
+        if begin is None or t_s < begin:
+            return False
+        end = self.until_s if self.for_s is None else begin + self.for_s
+        return end is None or t_s < end
 
 
 def parse_faults(data: Any, where: str = 'world.faults') -> tuple[Fault, ...]:
@@ -83,8 +111,22 @@ def parse_faults(data: Any, where: str = 'world.faults') -> tuple[Fault, ...]:
     for i, entry in enumerate(data):
         at = f'{where}[{i}]'
         v = validate_tree(FAULT, entry, at, FaultError)
-        start, until, kind = v['at_s'], v['until_s'], v['kind']
-        if until is not None and until <= start:
+        start, until, kind, for_s = v['at_s'], v['until_s'], v['kind'], v['for_s']
+        moment = None
+        if 'start' in entry:
+            if start is not None:
+                raise FaultError(f'{at}.start', 'give at_s (world time) or start (a moment of '
+                                 'the drive), not both')
+            if until is not None:
+                raise FaultError(f'{at}.until_s', 'world time ends an at_s fault only; a '
+                                 'start fault lasts for_s')
+            moment = build(Start, {k.split('.', 1)[1]: x for k, x in v.items() if '.' in k})
+        elif start is None:
+            raise FaultError(f'{at}.at_s', 'missing: give at_s (world time) or start (a moment '
+                             'of the drive)')
+        if until is not None and for_s is not None:
+            raise FaultError(f'{at}.for_s', 'give until_s or for_s, not both')
+        if until is not None and start is not None and until <= start:
             raise FaultError(f'{at}.until_s', f'must be after at_s ({start!r}), got {until!r}')
         if kind in _NO_WHEEL:
             if 'wheel' in entry:
@@ -94,5 +136,5 @@ def parse_faults(data: Any, where: str = 'world.faults') -> tuple[Fault, ...]:
             raise FaultError(f'{at}.wheel', f'missing: {kind} needs left, right or both')
         else:
             sides = WHEELS[v['wheel']]
-        out.append(Fault(kind, sides, start, until))
+        out.append(Fault(kind, sides, start, until, moment, for_s))
     return tuple(out)

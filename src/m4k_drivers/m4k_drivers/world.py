@@ -352,6 +352,8 @@ class World:
         # config, forced ones from set_fault (tests).
         self._faults: dict[tuple[str, int], tuple[float, float]] = {}
         self._forced: set[tuple[str, int]] = set()
+        # per config.faults entry, the world time a ``start`` fault began (None: not yet)
+        self._fault_onsets: list[float | None] = [None] * len(self.config.faults)
         self._estop_scheduled = False
         self._v = 0.0
         self._w = 0.0
@@ -448,8 +450,12 @@ class World:
     def _update_faults(self) -> None:
         t_s = (self._t_ns - self._start_ns) * 1e-9
         want = set(self._forced)
-        for f in self.config.faults:
-            if f.active(t_s):
+        onsets = self._fault_onsets
+        for i, f in enumerate(self.config.faults):
+            if f.start is not None and onsets[i] is None and \
+                    f.start.reached(self.travelled, self._moving_s()):
+                onsets[i] = t_s               # a moment of the drive: noted once
+            if f.active(t_s, onsets[i]):
                 want.update((f.kind, side) for side in f.sides)
         if want == set(self._faults):
             return

@@ -120,6 +120,38 @@ def test_estop_contact_pressed_and_released_on_schedule_cuts_the_enable():
     assert not world.estop_open and world.drive_enabled()
 
 
+def test_an_estop_at_a_moment_of_the_drive_opens_then_and_lasts_for_s():
+    """``start`` (a moment of the drive, as a moving obstacle's path starts) and ``for_s``: the
+    contact opens 0.5 s after the robot first moved, however long the world stood before
+    (a stack coming up late), and closes 1 s later; one entry, noted once."""
+    h, world, clock = _rig([{'start': {'after': 0.5}, 'for_s': 1.0, 'kind': 'estop'}],
+                           robot={'dynamic_brake_ohm': None})
+    _drive(h, clock, mp.DAC_ZERO, mp.DAC_ZERO, 3.0)           # 3 s standing: nothing
+    assert world.drive_enabled() and not world.estop_open
+    opened = closed = None
+    for k in range(300):
+        _drive(h, clock, FWD, FWD, 0.01)
+        t = (k + 1) * 0.01
+        if opened is None and world.estop_open:
+            opened = t
+        if opened is not None and closed is None and not world.estop_open:
+            closed = t
+    moved_at = world._moving_since * 1e-9 - 3.0                # s into the drive
+    assert opened == pytest.approx(moved_at + 0.5, abs=0.015), (opened, moved_at)
+    assert closed == pytest.approx(opened + 1.0, abs=0.015), (opened, closed)
+    assert world.drive_enabled()
+
+
+def test_a_fault_after_a_distance_begins_where_the_robot_truly_got():
+    h, world, clock = _rig([{'start': {'travelled': 0.2}, 'kind': 'encoder_frozen',
+                             'wheel': 'left'}])
+    while world.travelled < 0.19:
+        _drive(h, clock, FWD, FWD, 0.01)
+        assert world.active_faults() == []
+    _drive(h, clock, FWD, FWD, 0.1)
+    assert world.active_faults() == [{'kind': 'encoder_frozen', 'wheel': 'left'}]
+
+
 def test_forced_fault_from_a_test_and_its_release():
     h, world, clock = _rig()
     _drive(h, clock, FWD, FWD, 0.5)
@@ -144,7 +176,16 @@ def test_forced_fault_from_a_test_and_its_release():
     ([{'at_s': 2, 'until_s': 1, 'kind': 'estop'}], r'world\.faults\[0\]\.until_s: must be after'),
     ([{'at_s': -1, 'kind': 'estop'}], r'world\.faults\[0\]\.at_s: expected seconds >= 0'),
     ([{'at_s': 1, 'kind': 'estop', 'when': 3}],
-     r'world\.faults\[0\]\.when: unknown key \(allowed: at_s, kind, until_s, wheel\)'),
+     r'world\.faults\[0\]\.when: unknown key \(allowed: at_s, for_s, kind, start, until_s, '
+     r'wheel\)'),
+    ([{'at_s': 1, 'start': {'after': 1}, 'kind': 'estop'}],
+     r'world\.faults\[0\]\.start: give at_s \(world time\) or start'),
+    ([{'start': {'after': 1}, 'until_s': 5, 'kind': 'estop'}],
+     r'world\.faults\[0\]\.until_s: world time ends an at_s fault only'),
+    ([{'at_s': 1, 'until_s': 5, 'for_s': 1, 'kind': 'estop'}],
+     r'world\.faults\[0\]\.for_s: give until_s or for_s'),
+    ([{'start': {'after': 1}, 'for_s': 0, 'kind': 'estop'}], r'world\.faults\[0\]\.for_s'),
+    ([{'start': {'soon': 1}, 'kind': 'estop'}], r'world\.faults\[0\]\.start\.soon'),
 ])
 def test_bad_fault_entries_are_refused_naming_the_field(faults, match):
     with pytest.raises(WorldConfigError, match=match):

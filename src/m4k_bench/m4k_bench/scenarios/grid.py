@@ -15,8 +15,11 @@ the ramp's deceleration) and half a metre more -- the robot meets it at full spe
   left as the robot sets off and stands there.
 * ``fault``: the fault from the start, commanded for 5 s; expect a latched motor fault and a
   peak true speed below ``max(0.5, v + 0.2)`` m/s.
-* ``estop``: the contact opens at 30 s (world time) and closes at 32 s under a live 40 s
-  command; expect no motion after the release.
+* ``estop``: the contact opens once the robot has moved long enough to be at the cell's speed
+  (the ramp's ``v / a`` + 1 s, a moment of the drive: ``world.faults[].start``) and closes 2 s
+  later under a live command; expect no motion after the release. Straight, the world is long
+  enough for the ramp, a second at speed, a coast from it and 6 m more (no wall in the guard's
+  slow-down zone when the contact opens).
 
 Turning in place uses the rim speed ``v``: ``w = v / (track / 2)``, capped at
 ``angular.max_velocity`` (the cell's description says when the cap binds).
@@ -35,7 +38,9 @@ __all__ = ['Cell', 'cells', 'is_grid', 'load', 'not_promised', 'sample', 'scenar
 
 CLASSES = ('obstacle', 'moving', 'fault', 'estop')
 FAULT_S = 5.0            # s commanded with a fault from the start
-ESTOP_AT_S, ESTOP_UNTIL_S, ESTOP_CMD_S = 30.0, 32.0, 40.0
+COAST_DECEL = 0.3        # m/s^2: less than the simulated base's rolling resistance (0.37)
+ESTOP_OPEN_S = 2.0       # s the e-stop contact stays open
+ESTOP_AFTER_S = 5.0      # s of commands after it closes: a stop from speed, then >= 1 s held
 EXTRA_M = 0.5            # m beyond the slow-down zone: the robot meets the line at full speed
 SETTLE_S = 5.0           # s of commands beyond reaching the obstacle
 
@@ -153,9 +158,19 @@ def _doc(raw: Mapping[str, Any], env: Mapping[str, Any], kind: str, speed: str,
                     'commands': [dict(cmd, t=FAULT_S)],
                     'expect': {'motor_fault': True, 'max_speed': round(max(0.5, v + 0.2), 2)},
                     'short': 0.8}
-        world['faults'] = [{'at_s': ESTOP_AT_S, 'until_s': ESTOP_UNTIL_S, 'kind': 'estop'}]
+        # at the cell's speed (or turn rate) by then, moving for a second
+        at = round(max(abs(cmd['v']) / p.linear.max_acceleration,
+                       abs(cmd['w']) / p.angular.max_acceleration) + 1.0, 1)
+        if motion == 'straight':
+            # the ramp and a second at speed, a coast from it (no brake), and beyond the
+            # laser's reach (5.6 m) to spare: no wall in the slow-down zone at the contact
+            far = (v * v / (2.0 * p.linear.max_acceleration) + v
+                   + v * v / (2.0 * COAST_DECEL) + 6.0)
+            world['walls'] = {'rectangle': [-2.0, -4.0, round(far, 1), 4.0]}
+        world['faults'] = [{'start': {'after': at}, 'for_s': ESTOP_OPEN_S, 'kind': 'estop'}]
         return {'description': desc, 'world': world,
-                'commands': [dict(cmd, t=ESTOP_CMD_S)], 'expect': {'still_after_estop': True}}
+                'commands': [dict(cmd, t=round(at + ESTOP_OPEN_S + ESTOP_AFTER_S, 1))],
+                'expect': {'still_after_estop': True}}
     if motion == 'in_place':
         return _in_place_doc(raw, p, kind, min(v / half_track, w_max), desc)
     x = _obstacle_x(raw, v)
