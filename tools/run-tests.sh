@@ -18,7 +18,7 @@
 # 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the RT threads of their stacks run
 # as ordinary threads and every thread of theirs gets only what the serial stream leaves;
 # rt_core reports the refusal (hardening DEGRADED) and runs on. Where no cgroup can be made,
-# the serial stream runs alone after the others (AFTER_SERIAL then at the end of e2e):
+# the serial stream runs alone after the others (AFTER_SERIAL then at the end of packages):
 # nice alone does not put a stack that starts its own session below another (autogroup).
 # SCHED_IDLE instead of nice 19 starved the confined streams into failures of their own
 # (docs/testing.md).
@@ -157,6 +157,9 @@ else
     wait $lint_pid || r=1
     cat "$tmp/lint.log"
     after_stream after_packages 0 'the packages' || r=1
+    if [[ -z ${AFTER_SERIAL_LATER:-} ]]; then
+      after_stream after_serial 2 'the serial ones' || r=1
+    fi
     return $r
   }
   # The workspace modules that wait for a stream: after_stream MARKER DOMAIN_OFFSET WHAT
@@ -168,17 +171,9 @@ else
   }
   e2e_stream() {
     export ROS_DOMAIN_ID=$(( (base + 1) % 100 + 1 ))
-    local m="$markers and not serial and not after_packages and not after_serial" r=0
+    local m="$markers and not serial and not after_packages and not after_serial"
     echo "== workspace tests (-m '$m') =="
-    run_pytest e2e test -m "$m" || r=1
-    # Before the serial stream, the AFTER_SERIAL modules end this stream, not the packages
-    # one: lint and colcon test (7 min 48 s) then the AFTER_PACKAGES modules (108 s) are
-    # already the longer of the two (e2e 464 s; 2fbed43), so those 123 s behind them held
-    # the serial stream back by 2 min.
-    if [[ -z ${AFTER_SERIAL_LATER:-} ]]; then
-      after_stream after_serial 2 'the serial ones' || r=1
-    fi
-    return $r
+    run_pytest e2e test -m "$m"
   }
   export -f lint packages run_pytest packages_stream e2e_stream after_stream
   export tmp markers base
@@ -203,8 +198,7 @@ else
       || rc=1
   else
     # The default, and where no cgroup can be made: the serial stream alone, after the other
-    # two (the modules after the packages at the end of the packages stream, those after the
-    # serial one at the end of the e2e stream). Beside them
+    # two (the modules after the packages at the end of the packages stream). Beside them
     # (niced, in
     # sessions of their own) four fresh clones took 11 min 45 s - 14 min 59 s and three of
     # them failed a test on the load (docs/testing.md).
