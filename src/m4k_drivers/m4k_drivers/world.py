@@ -784,13 +784,64 @@ class World:
                    max_range: float, z: float, rays: int = 9) -> float:
         """Return the nearest echo in a sonar cone at height ``z`` (inf: no echo).
 
-        A soft surface is hit but sends nothing back: the ray ends there without an echo.
+        A sonar's beam is a cone, not rays: the first echo is the nearest point of any surface
+        inside the cone (``_cone_nearest``), a 3 cm leg wherever it stands in it (a fan of
+        nine rays missed one between two of them). A soft surface is hit but sends nothing
+        back, and hides what is behind it: where it is nearer along the bearing of that
+        point, the fan of ``rays`` rays tells what the beam hears past it.
         """
-        fan = np.linspace(angle - half_angle, angle + half_angle, max(rays, 1))
         with self._lock:
-            dist, idx = self._cast(origin, fan, max_range, self._seg_height > z)
-            soft = (idx >= 0) & (self._seg_kind[np.maximum(idx, 0)] == SURFACE_CODES['soft'])
-        return float(np.where(soft, np.inf, dist).min())
+            seen = self._seg_height > z
+            soft = self._seg_kind == SURFACE_CODES['soft']
+            dist, bearing = self._cone_nearest(origin, angle, half_angle, seen & ~soft)
+            if not dist <= max_range:
+                return math.inf
+            if not (seen & soft).any():
+                return dist
+            d, idx = self._cast(origin, [bearing], max_range, seen)
+            if not (idx[0] >= 0 and soft[idx[0]] and d[0] < dist - 1e-9):
+                return dist
+            fan = np.linspace(angle - half_angle, angle + half_angle, max(rays, 1))
+            d, idx = self._cast(origin, fan, max_range, seen)
+            muted = (idx >= 0) & soft[np.maximum(idx, 0)]
+        return float(np.where(muted, np.inf, d).min())
+
+    def _cone_nearest(self, origin: Sequence[float], angle: float, half_angle: float,
+                      mask: np.ndarray) -> tuple[float, float]:
+        """Return (distance, world bearing) of the nearest ``mask`` point inside a cone.
+
+        The cone: half-angle ``half_angle`` (< 90 deg) about ``angle``; (inf, angle) when no
+        segment reaches into it. Per segment p0 + t d, t in [0, 1]: the cone is the two half-planes cross(u_right, p)
+        >= 0 and cross(p, u_left) >= 0, each linear in t, so the segment's part inside is one
+        t interval; the distance is convex in t, so its least value there is the closest
+        point to the origin clamped to that interval.
+        """
+        seg = self._seg[mask]
+        if not len(seg):
+            return math.inf, angle
+        px, py = seg[:, 0] - origin[0], seg[:, 1] - origin[1]
+        dx, dy = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
+        lo = np.zeros(len(seg))
+        hi = np.ones(len(seg))
+        for ux, uy, sign in ((math.cos(angle - half_angle), math.sin(angle - half_angle), 1.0),
+                             (math.cos(angle + half_angle), math.sin(angle + half_angle), -1.0)):
+            a0 = sign * _cross(ux, uy, px, py)          # a0 + t a1 >= 0 inside this half-plane
+            a1 = sign * _cross(ux, uy, dx, dy)
+            with np.errstate(divide='ignore', invalid='ignore'):
+                tt = -a0 / a1
+            lo = np.where(a1 > 0.0, np.maximum(lo, tt), lo)
+            hi = np.where(a1 < 0.0, np.minimum(hi, tt), hi)
+            hi = np.where((a1 == 0.0) & (a0 < 0.0), -1.0, hi)   # parallel, outside
+        dd = dx * dx + dy * dy
+        with np.errstate(divide='ignore', invalid='ignore'):
+            t = np.where(dd > 0.0, -(px * dx + py * dy) / dd, 0.0)
+        t = np.clip(t, lo, np.maximum(lo, hi))
+        qx, qy = px + t * dx, py + t * dy
+        dist = np.where(lo <= hi, np.hypot(qx, qy), np.inf)
+        k = int(dist.argmin())
+        if not math.isfinite(dist[k]):
+            return math.inf, angle
+        return float(dist[k]), math.atan2(float(qy[k]), float(qx[k]))
 
     def raycast(self, origin: Sequence[float], angle: float, max_range: float) -> float:
         """Return the distance from ``origin`` along world ``angle`` to a surface (inf: none)."""
