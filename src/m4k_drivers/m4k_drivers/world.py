@@ -811,10 +811,10 @@ class World:
         """Return (distance, world bearing) of the nearest ``mask`` point inside a cone.
 
         The cone: half-angle ``half_angle`` (< 90 deg) about ``angle``; (inf, angle) when no
-        segment reaches into it. Per segment p0 + t d, t in [0, 1]: the cone is the two half-planes cross(u_right, p)
-        >= 0 and cross(p, u_left) >= 0, each linear in t, so the segment's part inside is one
-        t interval; the distance is convex in t, so its least value there is the closest
-        point to the origin clamped to that interval.
+        segment reaches into it. Per segment p0 + t d, t in [0, 1]: the cone is the two
+        half-planes cross(u_right, p) >= 0 and cross(p, u_left) >= 0, each linear in t, so
+        the segment's part inside is one t interval; the distance is convex in t, so its
+        least value there is the closest point to the origin clamped to that interval.
         """
         seg = self._seg[mask]
         if not len(seg):
