@@ -82,8 +82,9 @@ class Start:
         'float', 0.0, 'Begins once the robot has truly covered this path length (ground '
         'truth, not odometry).', unit='m', lo=0))
     after: float = setting(Field(
-        'float', 0.0, 'Begins this long after the robot first moved (both conditions must '
-        'hold; {} = at the first motion).', unit='s', lo=0))
+        'float', 0.0, 'Begins this long after the robot first moved -- 5 mm along its path, '
+        "or at its wheels' rim turning in place (both conditions must hold; {} = at the first "
+        'motion).', unit='s', lo=0))
 
     def reached(self, travelled: float, moving_s: float | None) -> bool:
         """Return True once the robot has moved and both conditions hold."""

@@ -329,7 +329,10 @@ class World:
         self._offsets = [(0.0, 0.0)] * len(self.config.obstacles)
         self._path_t0: dict[int, int] = {}     # obstacle index -> world ns its path started
         self.travelled = 0.0                   # m the robot truly covered (path length)
-        self._moving_since: int | None = None  # world ns the robot first moved
+        # world ns the robot first moved: 5 mm of its path, or as much at its wheels' rim
+        # turning in place (a turn travels nowhere)
+        self._moving_since: int | None = None
+        self._turned = 0.0                     # rad the body truly turned (either way)
         self.events_due: list[Event] = []      # events whose moment came (sim_robot takes them)
         self._events = list(self.config.events)
         self.min_clearance = math.inf          # smallest footprint clearance seen (checked 5 ms)
@@ -579,8 +582,11 @@ class World:
             if not self.in_contact:
                 self._contact_pose = None
             self.travelled += math.hypot(cand.x - self._pose.x, cand.y - self._pose.y)
-            if self._moving_since is None and self.travelled > 0.005:
-                self._moving_since = self._t_ns
+            if self._moving_since is None:
+                self._turned += abs(math.remainder(cand.yaw - self._pose.yaw, 2.0 * math.pi))
+                if self.travelled > 0.005 or \
+                        self._turned * self.robot.track_width_m / 2.0 > 0.005:
+                    self._moving_since = self._t_ns
             self._pose = cand
             self._wheel_angle[0] += 0.5 * (old_wheel[0] + drv.wheel[0]) * dt
             self._wheel_angle[1] += 0.5 * (old_wheel[1] + drv.wheel[1]) * dt

@@ -142,6 +142,17 @@ def test_an_estop_at_a_moment_of_the_drive_opens_then_and_lasts_for_s():
     assert world.drive_enabled()
 
 
+def test_a_turn_in_place_is_a_first_motion_too():
+    """A turn in place travels nowhere: the drive's first motion is 5 mm at the wheels' rim
+    (an e-stop cell turning in place never opened its contact when only the path counted)."""
+    h, world, clock = _rig([{'start': {'after': 0.3}, 'for_s': 0.5, 'kind': 'estop'}])
+    opened = False
+    for _ in range(200):
+        _drive(h, clock, FWD, mp.command_to_code(-0.125), 0.01)
+        opened = opened or world.estop_open
+    assert world.travelled < 0.005 and opened
+
+
 def test_a_fault_after_a_distance_begins_where_the_robot_truly_got():
     h, world, clock = _rig([{'start': {'travelled': 0.2}, 'kind': 'encoder_frozen',
                              'wheel': 'left'}])
