@@ -10,7 +10,10 @@ module is the plumbing around those specs and names no device.  It sends DEVICE_
 state change and every second, each followed by HOST_DROPS (its drop counters, which the RT
 monitor forwards to the bridge's /diagnostics).  When the RT side goes away the host keeps
 running, relinks, and runs the device's link-loss hook (the motors go safe at once).
-SIGINT/SIGTERM deactivate every device (motors at zero), clean up and exit 0.
+SIGINT/SIGTERM deactivate every device (motors at zero), clean up and exit 0.  A device
+process (:mod:`m4k_drivers.hostproc`) or a service thread that ends on its own -- a crash, a
+kill, a stop signal to it alone -- ends the whole host with exit 1, outputs safe, so that its
+supervisor restarts all of it.
 
 Bring-up without an RT process: ``driver_host --device imu --print`` prints decoded readings;
 ``--port``/``--bus`` select a real device path (and the ``real`` backend), e.g.
@@ -228,14 +231,18 @@ class DeviceService:
         except (SchedError, ValueError) as exc:
             LOG.warning('%s: stays SCHED_OTHER: %s', self.kind, exc)
 
-    def run(self) -> None:
-        """Serve until the stop event is set, then deactivate and clean up."""
+    def run(self) -> bool:
+        """Serve until the stop event is set, then deactivate and clean up.
+
+        Return True when it ended on the stop event, False when the service crashed.
+        """
         spec, h = self.spec, self.handler
         timeout = spec.read_timeout(self.section)
         stream = spec.stream_period(self.section)
         self._set_priority()
         self.link = NrtLink(self.port, self.runtime_dir, group=self.group)
         next_stream = time.monotonic()
+        crashed = False
         try:
             while not self.stop.is_set():
                 self._bring_up()
@@ -260,12 +267,14 @@ class DeviceService:
                 self._send_status()
         except Exception:  # noqa: BLE001 - a bug must not leave the motors running
             LOG.exception('%s: service crashed; making outputs safe', h.name)
+            crashed = True
         finally:
             h.shutdown()
             self.link.close()
             if self._no_peer_since is not None:
                 self._end_no_peer('still absent at exit')
             LOG.info('%s at exit', self.drop_line())
+        return not crashed
 
     def _on_link_lost(self) -> None:
         h = self.handler
@@ -542,6 +551,9 @@ def _main(args: argparse.Namespace, signals: StopSignals) -> int:
                   children)
 
 
+GROUP_STOP_GRACE_S = 2.0      # how long a device process's clean exit waits for our own stop
+
+
 def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
            devices: dict[str, Any], ports: dict[str, Any], runtime_dir: str | None,
            stop: threading.Event, group: str | None = None,
@@ -558,19 +570,28 @@ def _serve(handlers: dict[str, DeviceHandler], cfg: dconfig.DriverConfig,
     LOG.info('serving %s (pid %d)', ', '.join(f'{s.kind}@{s.port}' for s in services),
              os.getpid())
     if len(services) == 1 and not children and hostproc.own_process(services[0].section):
-        # An RT-facing device's own process: served from the main thread, the only one.
-        services[0].run()
-        return 0
+        # An RT-facing device's own process: served from the main thread, the only one.  A
+        # crash is not a stop: the parent must see a non-zero exit and end the host.
+        return 0 if services[0].run() else 1
     for s in services:
         s.start()
     failed = False
     while not stop.wait(0.5):
         gone = children.poll()
-        if gone and not stop.is_set():      # (a group-wide stop signal reaches both at once)
-            # A device process died on its own: end the host so its supervisor restarts all.
-            LOG.error('device process %s: stopping the driver host', gone)
-            failed = True
-            stop.set()
+        crashed = [s.kind for s in services if not s.thread.is_alive()]
+        if not (gone or crashed) or stop.is_set():
+            continue
+        # A stop signal to the whole group reaches the device processes too, and one may act
+        # on it first (it runs at SCHED_FIFO, this thread does not): a device process that
+        # exited 0 (only a stop signal ends one so) waits a moment for this process's own.
+        if gone and not crashed and children.exited_clean() and stop.wait(GROUP_STOP_GRACE_S):
+            break
+        # A device process or a service died on its own: end the host so its supervisor
+        # restarts all of it (a host serving the sensors but never the wheels is worse).
+        LOG.error('%s: stopping the driver host',
+                  f'device process {gone}' if gone else f'service {", ".join(crashed)} crashed')
+        failed = True
+        stop.set()
     clean = children.stop()
     for s in services:
         s.thread.join(timeout=5.0)

@@ -92,6 +92,10 @@ class Children:
                 gone = gone or '{} (pid {}) exited {}'.format(name, pid, self.codes[name])
         return gone
 
+    def exited_clean(self) -> bool:
+        """Tell whether every child reaped so far exited 0 (stopped as asked)."""
+        return all(code == 0 for code in self.codes.values())
+
     def stop(self, timeout_s: float = STOP_WAIT_S) -> bool:
         """SIGTERM every child, wait for them (SIGKILL after ``timeout_s``); True when clean.
 

@@ -71,9 +71,43 @@ def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
     assert motor and led, seen
     assert int(led.group(1)) == proc.pid and int(motor.group(1)) != proc.pid
     child = int(motor.group(1))
-    assert procs.stop(proc) == 0
+    assert procs.stop(proc) == 0, proc.stderr.read()
     with pytest.raises(ProcessLookupError):      # the parent reaped its device process
         os.kill(child, 0)
+
+
+def _serving_host(procs):
+    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
+                        '--device', 'motor', '--device', 'led'])
+    deadline = time.monotonic() + 30
+    seen = ''
+    while time.monotonic() < deadline and seen.count('serving') < 2:
+        seen += proc.stderr.readline()
+    motor = re.search(r'serving motor@motor \(pid (\d+)\)', seen)
+    assert motor, seen
+    return proc, int(motor.group(1))
+
+
+def test_a_group_stop_the_device_process_acts_on_first_still_exits_0(procs, sim_robot,
+                                                                     m4k_runtime_dir):
+    # The worst order of a stop signal to the whole group (the CI saw it under load): the
+    # motor process (SCHED_FIFO) has stopped and been reaped before the host's own handler ran.
+    proc, child = _serving_host(procs)
+    os.kill(child, signal.SIGTERM)
+    time.sleep(0.6)                              # the host's supervision poll has reaped it
+    os.kill(proc.pid, signal.SIGTERM)
+    assert proc.wait(timeout=30) == 0, proc.stderr.read()
+
+
+def test_a_device_process_stopped_alone_ends_the_host_with_exit_1(procs, sim_robot,
+                                                                  m4k_runtime_dir):
+    # Exit 0 without a stop of the host: the wheels are no longer served, so the host ends
+    # and its supervisor restarts all of it.
+    proc, child = _serving_host(procs)
+    os.kill(child, signal.SIGTERM)
+    assert proc.wait(timeout=30) == 1
+    assert f'device process motor (pid {child}) exited 0: stopping the driver host' in \
+        proc.stderr.read()
 
 
 def test_a_device_process_that_dies_ends_the_host_with_exit_1(procs, sim_robot,
@@ -206,6 +240,29 @@ def test_sensor_and_led_services_answer(m4k_runtime_dir, sim_robot):
         for rt in rts.values():
             rt.close()
     assert strip.poll() == (0.0, 0.0, 0.0) and strip.errors == 0    # deactivate: off
+
+
+def test_a_crashed_service_ends_the_host_with_exit_1_outputs_safe(m4k_runtime_dir, sim_robot,
+                                                                   monkeypatch, caplog):
+    # A bug in a service thread is not a stop: the host does not go on serving the rest.
+    from m4k_drivers import host
+
+    def boom(self, force=False):
+        raise RuntimeError('a bug')
+
+    monkeypatch.setattr(DeviceService, '_send_status', boom)
+    cfg = dconfig.validate({'devices': {'led': {'backend': 'sim'}}})
+    handler = registry.create('led', cfg.devices['led'], registry.BuildContext())
+    stop = threading.Event()
+    rc = []
+    serve = threading.Thread(target=lambda: rc.append(
+        host._serve({'led': handler}, cfg, {}, {}, m4k_runtime_dir, stop)))
+    serve.start()
+    serve.join(10)
+    stop.set()                                   # (bounds the test if the host went on)
+    serve.join(10)
+    assert rc == [1] and handler.state == State.FINALIZED
+    assert 'service led crashed: stopping the driver host' in caplog.text
 
 
 def test_main_rejects_print_without_single_device(capsys):
