@@ -110,6 +110,11 @@ def _fields(rng: random.Random, kind: int) -> tuple[Any, ...]:
     if kind == K.TASK_HEALTH:
         return ('fuzz', u(rng, 8)) + tuple(u(rng, 32) for _ in range(6)) + (
             rng.randint(0, 1), u(rng, 8), u(rng, 32))
+    if kind == K.FAULT_TRACE:
+        count = rng.randint(1, 0xFFFF)
+        return (u(rng, 32), u(rng, 32), rng.randint(0, count - 1), count, u(rng, 63)) + tuple(
+            f(rng) for _ in protocol.TRACE_FLOAT_FIELDS) + (
+            rng.randint(0, protocol.TRACE_FLAGS_MAX),)
     raise ValueError('no field generator for kind {!r}'.format(kind))
 
 

@@ -163,8 +163,11 @@ class _Commander:
 
     CAUSE_WAIT_S = 2.5
 
-    def __init__(self, runtime_dir: str) -> None:
+    def __init__(self, runtime_dir: str, out_dir: str, log: Callable[[str], None]) -> None:
+        from m4k_bridge.faulttrace import TraceWriter
         from m4k_rt import channel
+        # each latch's supervision trace (FAULT_TRACE), as the bridge writes it
+        self.traces = TraceWriter(os.path.join(out_dir, 'fault_traces'), log)
         self.link = channel.NrtLink('cmd', runtime_dir, retry_interval=0.05)
         self.status = channel.NrtLink('status', runtime_dir, retry_interval=0.05)
         self.v = 0.0
@@ -199,6 +202,8 @@ class _Commander:
                     continue
                 if hdr.kind == p.Kind.SAFETY_STATUS and body.fault_cause:
                     cause = int(body.fault_cause)
+                elif hdr.kind == p.Kind.FAULT_TRACE:
+                    self.traces.on_row(body)
             now = time.monotonic()
             if self.flags & p.OdomFlag.MOTOR_FAULT and now - last_reset > 0.5:
                 seen_at = seen_at or now
@@ -217,6 +222,7 @@ class _Commander:
     def close(self) -> None:
         self.stop.set()
         self.thread.join(5.0)
+        self.traces.join()
         self.link.close()
         self.status.close()
 
@@ -321,7 +327,7 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
                                                                    name + '.log'),
                                              log_append=False, log_header=False),
                                stopping=Stopping(timeout=10.0, must_end=True)).start())
-        cmd = _Commander(runtime_dir)
+        cmd = _Commander(runtime_dir, out_dir, progress)
         plan = [(speeds[0], trials)] + [(v, speed_trials) for v in speeds[1:]]
         for v_cmd, n in plan:
             cmd.v = v_cmd
@@ -340,6 +346,9 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         summary = _summarise(rows, raw, trials, bounds, traction_limit)
         summary['false_motor_faults'] = cmd.fault_resets
         summary['false_motor_fault_causes'] = list(cmd.causes)
+        cmd.traces.join()
+        summary['false_motor_fault_traces'] = [os.path.relpath(t, out_dir)
+                                               for t in cmd.traces.written]
     finally:
         if cmd is not None:
             cmd.close()
@@ -425,7 +434,8 @@ def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
         causes = ', '.join(s.get('false_motor_fault_causes') or []) or 'not recorded'
         lines += ['', f'The wheel supervision latched MOTOR_FAULT {s["false_motor_faults"]} '
                   f'time(s) on healthy wheels (no fault injected; cause: {causes}); the bench '
-                  f'reset it (FAULT_RESET) each time to go on.']
+                  f"reset it (FAULT_RESET) each time to go on. The supervision's trace of "
+                  f'each: {", ".join(s.get("false_motor_fault_traces") or []) or "none"}.']
     if s['failed']:
         lines += ['', f'{len(s["failed"])} trial(s) without a braking word: '
                   + '; '.join(str(r.get('error', 'none within 5 s')) for r in s['failed'])]

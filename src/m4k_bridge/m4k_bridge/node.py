@@ -54,6 +54,7 @@ from m4k_bridge import convert, params
 from m4k_bridge.descriptors import descriptor
 from m4k_bridge.diagnostics import make_status, RtMonitor
 from m4k_bridge.faults import MotorFaultInterface, SafetyReport
+from m4k_bridge.faulttrace import TraceWriter
 from m4k_bridge.flightrec_ros import FlightRecorder
 from m4k_bridge.health import BridgeHealth, Status
 from m4k_bridge.ports import PortPump
@@ -151,6 +152,8 @@ class BridgeNode(Node):
         # as a bag by a thread of its own on an e-stop, guard stop, fault or deadline miss.
         # It has no subscription to the bridge's inputs: their callbacks hand it what arrives.
         self._flight = FlightRecorder(self, p, self._cmd_vel_type)
+        # a latched fault's supervision trace, written beside the flight recorder's dumps
+        self._fault_trace = TraceWriter(self._flight.directory, self.get_logger().warning)
         self._safety.record = self._flight.keep_e_stop
         self._handlers = self._datagram_handlers()
         self._wake = self.create_guard_condition(self._unless_shut_down(self._drain_inbox))
@@ -408,7 +411,8 @@ class BridgeNode(Node):
                 K.FAULT_RESET: self._on_fault_reset, K.APPLIED_VELOCITY: self._on_applied,
                 K.SET_POSE: self._on_set_pose_ack, K.IMU: self._on_imu,
                 K.LASER_SCAN: self._on_scan, K.SONAR: self._on_sonar,
-                K.LED: self._on_led_shown, K.ODOM_RESET: self._on_odom_reset_ack}
+                K.LED: self._on_led_shown, K.ODOM_RESET: self._on_odom_reset_ack,
+                K.FAULT_TRACE: self._fault_trace.on_row}
 
     def _on_odometry(self, payload: Any, stamp: int, rx_ns: int) -> bool:
         p = self.p

@@ -700,3 +700,43 @@ def test_applied_velocity_becomes_cmd_vel_out(harness):
         'cmd', protocol.Kind.APPLIED_VELOCITY, 0.125, -0.25))
     assert (out[-1].twist.linear.x, out[-1].twist.angular.z) == (0.125, -0.25)
     assert out[-1].header.frame_id == 'base_footprint'
+
+
+def test_a_latched_faults_supervision_trace_goes_from_the_monitor_to_a_file(m4k_runtime_dir,
+                                                                            tmp_path):
+    # The whole path: the supervision's ring frozen at a latch, the RT monitor's FAULT_TRACE
+    # rows on `status`, the bridge's file beside the flight recorder's dumps -- once a fault.
+    from m4k_rt import config, sched
+    from m4k_rt.control.trace import SupervisionTrace
+    from m4k_rt.rt_core import SharedState, StatsShipper
+    from m4k_rt.tasks.state import RobotState
+    h = Harness(m4k_runtime_dir, [Parameter('flight_recorder.directory', value=str(tmp_path))])
+    try:
+        assert h.spin_until(h.rt.linked)
+        robot = RobotState()
+        robot.fault_trace = trace = SupervisionTrace()
+        for n in range(100):
+            trace.record(1_000_000_000 + n * 10_000_000, int(protocol.TraceFlag.ENCODERS),
+                         4.9, 4.9, 4.9 - 0.1 * n, 4.9, 0.3, 0.3, 0.01 * n, 0.05 * n,
+                         0.0, 0.0, 0.0, -1.0, -1.0, [0.0] * 10)
+        trace.freeze(1, int(protocol.FaultCause.LEFT_WRONG_WAY))
+        shared = SharedState(config.load(), sched.Hardening(), tasks=[])
+        shared.robot = robot
+        ship = StatsShipper(shared, [(h.rt.socks['status'], False)])
+
+        def files():
+            return sorted(tmp_path.glob('fault_trace_*.csv'))
+        ship.ship()
+        assert h.spin_until(lambda: files(), timeout=10.0)
+        ship.ship()                                       # shipped once per fault
+        h.spin_until(lambda: len(files()) > 1, timeout=1.0)
+        (path,) = files()
+        lines = path.read_text().splitlines()
+        assert lines[0].split(',')[:3] == ['t_ms', 'sp_left', 'sp_right']
+        assert len(lines) == 1 + 64                        # the ring's newest 64 cycles
+        first, last = lines[1].split(','), lines[-1].split(',')
+        assert first[0] == '-630.0' and last[0] == '0.0' and last[-1] == 'encoders'
+        assert float(last[3]) == pytest.approx(4.9 - 9.9)  # meas_left of the latching cycle
+        assert path.name.endswith('_1.csv')
+    finally:
+        h.close()

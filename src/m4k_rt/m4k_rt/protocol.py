@@ -277,6 +277,7 @@ class Kind(IntEnum):
     FORBIDDEN_SITE = 64
     TASK_HEALTH = 65
     SAFETY_STATUS = 66
+    FAULT_TRACE = 67
 
 
 class ProtocolError(ValueError):
@@ -585,6 +586,71 @@ class TaskHealth(NamedTuple):
     unexpected: int  # the body's valid datagrams of a kind its ports do not carry
 
 
+class TraceFlag(IntFlag):
+    """FAULT_TRACE.flags bits: what the supervision had in that cycle."""
+
+    SATURATED_LEFT = 0x01      # the left output at its limit
+    SATURATED_RIGHT = 0x02
+    HELD_LEFT = 0x04           # the standstill hold holds the left wheel (read still in it)
+    HELD_RIGHT = 0x08
+    GYRO = 0x10                # a fresh gyro sample (yaw_rate valid; else 0)
+    LEVEL = 0x20               # the level test's hold integrals given (hold_*; else 0)
+    ENCODERS = 0x40            # a new encoder sample this cycle (else nothing was measured)
+
+
+TRACE_FLAGS_MAX = 0x7F
+
+
+class FaultTrace(NamedTuple):
+    """One actuator cycle of the wheel supervision's inputs, from the ring frozen at a latch.
+
+    Sent by the monitor (``status`` port), ``rows`` datagrams per latched fault, oldest
+    first (``row`` 0 .. rows-1; the last row is the cycle that latched). ``fault`` is the
+    supervisor's fault count (which latch), ``cause`` its FaultCause bits; ``t_ns`` the cycle's
+    CLOCK_MONOTONIC time; ``sp_*`` the wheel setpoints and ``meas_*`` the measured wheel
+    speeds (rad/s), ``u_*`` the outputs (-1..1), ``angle_*`` the newest encoder angles (rad),
+    ``yaw_rate`` the gyro's (rad/s), ``hold_*`` the standstill hold's integrals the level test
+    reads, ``bound_*`` the still test's falling speed bound (rad/s; < 0: not commanded still),
+    ``t_*`` the symptom times after the cycle (s; the test latches at its configured time);
+    ``flags`` TraceFlag bits.
+    """
+
+    fault: int
+    cause: int
+    row: int
+    rows: int
+    t_ns: int
+    sp_left: float
+    sp_right: float
+    meas_left: float
+    meas_right: float
+    u_left: float
+    u_right: float
+    angle_left: float
+    angle_right: float
+    yaw_rate: float
+    hold_left: float
+    hold_right: float
+    bound_left: float
+    bound_right: float
+    t_wrong_left: float
+    t_wrong_right: float
+    t_frozen_left: float
+    t_frozen_right: float
+    t_stall_left: float
+    t_stall_right: float
+    t_still_left: float
+    t_still_right: float
+    t_swap: float
+    t_yaw: float
+    flags: int
+
+
+# FAULT_TRACE's float fields in wire order, after t_ns (control.supervision writes its ring
+# rows in this order).
+TRACE_FLOAT_FIELDS = FaultTrace._fields[5:-1]
+
+
 class _Spec(NamedTuple):
     kind: Kind
     payload: struct.Struct  # fixed part of the payload (with the count for variable kinds)
@@ -641,6 +707,9 @@ _SPECS: dict[int, _Spec] = {s.kind: s for s in (
     _spec(Kind.FAULT_RESET, 'IB', FaultReset, ranges=((1, 0, 1),)),
     _spec(Kind.HOST_DROPS, '16s8Q', HostDrops, string=NAME_SIZE),
     _spec(Kind.SAFETY_STATUS, 'ddddddddIII', SafetyStatus, (0, 8)),
+    _spec(Kind.FAULT_TRACE, 'IIHHq%ddB' % len(TRACE_FLOAT_FIELDS), FaultTrace,
+          (5, 5 + len(TRACE_FLOAT_FIELDS)),
+          ranges=((len(FaultTrace._fields) - 1, 0, TRACE_FLAGS_MAX),)),
     _spec(Kind.FORBIDDEN_SITE, '16sBBIII%ds%ds' % (SITE_FILE_SIZE, SITE_FUNC_SIZE),
           ForbiddenSite, ranges=((2, min(EVENT_NAMES), max(EVENT_NAMES)),), string=NAME_SIZE,
           texts=(6, 7)),

@@ -17,6 +17,7 @@ from m4k_rt.control.base import BaseController, MODE_FAULT
 from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
 from m4k_rt.control.supervision import cause_text
+from m4k_rt.control.trace import SupervisionTrace, TRACE_ROWS
 from m4k_rt.protocol import (
     ENC_ESTOP_OPEN,
     FaultCause,
@@ -24,6 +25,8 @@ from m4k_rt.protocol import (
     ODOM_ESTOP_OPEN,
     ODOM_HOLD,
     ODOM_MOTOR_FAULT,
+    TRACE_FLOAT_FIELDS,
+    TraceFlag,
 )
 
 MS = 1_000_000
@@ -365,3 +368,51 @@ def test_the_supervisor_takes_its_settings_from_supervision_params():
     assert sup.p is own and not sup.enabled
     assert WheelSupervisor(SupervisionParams(), R_WHEEL, 0.40, FF).enabled == \
         SupervisionParams().enabled
+
+
+def test_a_latch_freezes_the_supervisions_last_cycles_oldest_first():
+    # What the supervision saw before a latch, for whoever has to explain it: the frozen
+    # table ends with the latching cycle, its rows are the controller's own values.
+    sim = Sim()
+    sim.run(2.0, (0.5, 0.0))
+    trace = sim.ctl.supervisor.trace
+    assert trace.fault == 0 and trace.rows == 0          # nothing frozen before a fault
+    sim.plant.flip[0] = True
+    assert _latch_time(sim, (0.5, 0.0)) is not None
+    ctl = sim.ctl
+    assert (trace.fault, trace.cause) == (1, ctl.supervisor.cause)
+    assert trace.rows == TRACE_ROWS                       # the ring was full: all of it
+    rows = [trace.row(i) for i in range(trace.rows)]
+    stamps = [t for t, _, _ in rows]
+    assert stamps == sorted(stamps) and stamps[-1] == sim.t       # oldest first, ends at latch
+    assert all(b - a == PERIOD_NS for a, b in zip(stamps, stamps[1:], strict=False))
+    names = TRACE_FLOAT_FIELDS
+    _, flags, last = rows[-1]
+    value = dict(zip(names, last, strict=True))
+    assert value['sp_left'] == pytest.approx(0.5 / R_WHEEL)       # the cruise's setpoint
+    assert value['meas_left'] == ctl.left_speed
+    assert value['angle_left'] == ctl.wheel_angles[0]
+    assert value['t_wrong_left'] >= sim.p.supervision.wrong_way_time - 1e-9
+    assert flags & TraceFlag.ENCODERS
+    # the flipped wheel read against its setpoint in the cycles before
+    assert sum(1 for _, _, v in rows if v[names.index('meas_left')] < 0) >= 3
+    sim.run(0.5, (0.5, 0.0))                              # latched: no more rows, same table
+    assert trace.row(trace.rows - 1)[0] == stamps[-1]
+
+
+def test_the_trace_ring_keeps_its_newest_rows_across_the_wrap():
+    trace = SupervisionTrace(capacity=5)
+    times = [0.0] * 10
+    for n in range(13):
+        trace.record(n, n & 0x7F, float(n), *([0.0] * 12), times)
+    trace.freeze(7, 0x1)
+    assert trace.rows == 5 and (trace.fault, trace.cause) == (7, 0x1)
+    assert [trace.row(i)[0] for i in range(5)] == [8, 9, 10, 11, 12]
+    assert [trace.row(i)[2][0] for i in range(5)] == [8.0, 9.0, 10.0, 11.0, 12.0]
+    short = SupervisionTrace(capacity=5)
+    for n in range(3):
+        short.record(n, 0, float(n), *([0.0] * 12), times)
+    short.freeze(1, 0x2)
+    assert short.rows == 3 and [short.row(i)[0] for i in range(3)] == [0, 1, 2]
+    with pytest.raises(IndexError):
+        short.row(3)

@@ -57,6 +57,8 @@ FIELDS = {
     Kind.FORBIDDEN_SITE: st.tuples(NAME, U8, st.sampled_from(sorted(p.EVENT_CODES)), U32, U32,
                                    U32, FILE, FUNC),
     Kind.TASK_HEALTH: st.tuples(NAME, U8, *[U32] * 6, BIT, U8, U32),
+    Kind.FAULT_TRACE: st.tuples(U32, U32, U16, U16, I64, *[F64] * len(p.TRACE_FLOAT_FIELDS),
+                                st.integers(0, p.TRACE_FLAGS_MAX)),
 }
 
 PAYLOAD_TYPES = {
@@ -69,6 +71,7 @@ PAYLOAD_TYPES = {
     Kind.FAULT_RESET: p.FaultReset, Kind.HOST_DROPS: p.HostDrops,
     Kind.SAFETY_STATUS: p.SafetyStatus,
     Kind.FORBIDDEN_SITE: p.ForbiddenSite, Kind.TASK_HEALTH: p.TaskHealth,
+    Kind.FAULT_TRACE: p.FaultTrace,
 }
 
 # One hand-picked valid payload per kind (used by example tests and mutation fuzzing).
@@ -98,6 +101,11 @@ EXAMPLES = {
     Kind.SAFETY_STATUS: (2.0, 3.2, 0.48, 1.5, 0.35, 0.49, 0.0, 0.1, 0x7, 0, 0),
     Kind.FORBIDDEN_SITE: ('led', 2, 'open', 311, 42, 400, '/x/led_body.py', 'cycle'),
     Kind.TASK_HEALTH: ('imu', 1, 3, 2, 1, 0, 4, 0, 1, 85, 17),
+    Kind.FAULT_TRACE: (3, 0x200, 63, 64, 1_234_567_890,
+                       0.0, 0.0, 0.2, 1.4, -0.05, 0.0,            # setpoints, speeds, outputs
+                       12.5, -3.25, 0.01, 0.02, 0.0, 0.0, 0.3,    # angles, yaw, holds, bounds
+                       0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0,   # symptom times
+                       0x7C),
 }
 
 
@@ -368,7 +376,7 @@ def test_nonfinite_float_is_rejected_per_field(kind, index, bad):
 
 
 def test_float_fields_cover_every_float_in_the_layouts():
-    assert len(FLOAT_FIELDS) == 2 + 9 + 2 + 10 + 1 + 6 + 2 + 3 + 8
+    assert len(FLOAT_FIELDS) == 2 + 9 + 2 + 10 + 1 + 6 + 2 + 3 + 8 + 23
 
 
 @pytest.mark.parametrize(('kind', 'index', 'value'), [

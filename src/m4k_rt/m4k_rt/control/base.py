@@ -613,7 +613,7 @@ class BaseController:
             sup.idle()       # the driver holds the DACs at zero: the wheels cannot follow
         elif sup.step(dt, wl, wr, self.left_speed, self.right_speed, self.left_u, self.right_u,
                       self.pi_left.saturated, self.pi_right.saturated, yaw,
-                      self._hold_live if self.holding else _NOT_HELD, level_hold):
+                      self._hold_live if self.holding else _NOT_HELD, level_hold, now_ns):
             self.braking = False
             self._fault_since_ns = 0
             self._stop_outputs(self._brake_enable(now_ns, False))

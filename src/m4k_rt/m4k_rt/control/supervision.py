@@ -91,7 +91,8 @@ from collections.abc import Sequence
 import math
 
 from m4k_rt.control.params import SupervisionParams
-from m4k_rt.protocol import FaultCause
+from m4k_rt.control.trace import SupervisionTrace
+from m4k_rt.protocol import FaultCause, TraceFlag
 
 __all__ = ['cause_text', 'COUNT', 'ENCODER_TRUST', 'FROZEN_COUNTS', 'RING', 'WheelSupervisor']
 
@@ -117,6 +118,9 @@ _SWAPPED = int(FaultCause.SWAPPED)
 _LEFT_STILL = int(FaultCause.LEFT_STILL)
 _RIGHT_STILL = int(FaultCause.RIGHT_STILL)
 _YAW = int(FaultCause.YAW)
+_SAT_L, _SAT_R = int(TraceFlag.SATURATED_LEFT), int(TraceFlag.SATURATED_RIGHT)
+_HELD_L, _HELD_R = int(TraceFlag.HELD_LEFT), int(TraceFlag.HELD_RIGHT)
+_T_GYRO, _T_LEVEL, _T_ENC = int(TraceFlag.GYRO), int(TraceFlag.LEVEL), int(TraceFlag.ENCODERS)
 # Causes after which the encoders' "at rest" cannot be believed (control.base then brakes for
 # the whole time bound before it drops the enable).
 ENCODER_TRUST = (_LEFT_WRONG | _RIGHT_WRONG | _LEFT_FROZEN | _RIGHT_FROZEN | _SWAPPED
@@ -143,7 +147,7 @@ class WheelSupervisor:
                  '_following', '_roll', '_roll_a', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age', '_origin',
-                 '_window')
+                 '_window', 'trace')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -200,6 +204,8 @@ class WheelSupervisor:
         self._u_ref = [[-1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]]
         self._s_ref = [[-1.0, 0.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0]]
         self._s_age = [0.0, 0.0]
+        # every supervised cycle's inputs, frozen at a latch (m4k_rt.control.trace)
+        self.trace = SupervisionTrace()
 
     @property
     def latched(self) -> bool:
@@ -315,7 +321,7 @@ class WheelSupervisor:
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
              saturated_right: bool, yaw_rate: float = math.nan,
              held: Sequence[bool] = (False, False),
-             level_hold: Sequence[float] | None = None) -> bool:
+             level_hold: Sequence[float] | None = None, now_ns: int = 0) -> bool:
         """Advance one cycle; return True when a fault latched in this cycle.
 
         ``sp_*`` are the wheel setpoints the outputs were computed for (rad/s), ``meas_*`` the
@@ -335,12 +341,15 @@ class WheelSupervisor:
         ``level_hold_effort`` latches the still fault at once. Not the hold's output: its
         proportional part brakes a wheel found pulled, which a guard stop on the level may
         be for a few cycles (up to 0.1 of full scale in a 2 m/s arc).
+        ``now_ns``: the cycle's time, for the fault trace (:attr:`trace`) only.
         """
         if not self.enabled or self.cause:
             self._fresh = False
             return False
         if not self._fresh:
             # no new sample: nothing measured this cycle; every symptom time stands still
+            self._record(now_ns, 0, sp_left, sp_right, meas_left, meas_right, u_left, u_right,
+                         saturated_left, saturated_right, yaw_rate, held, level_hold)
             return False
         p = self.p
         t = self._t
@@ -500,6 +509,8 @@ class WheelSupervisor:
             w_wheels = self._r_over_track * (meas_right - meas_left)
             bound = p.yaw_tolerance + p.yaw_ratio * max(abs(w_wheels), abs(yaw_rate))
             t[_YAWS] = t[_YAWS] + dt if abs(w_wheels - yaw_rate) > bound else 0.0
+        self._record(now_ns, _T_ENC, sp_left, sp_right, meas_left, meas_right, u_left, u_right,
+                     saturated_left, saturated_right, yaw_rate, held, level_hold)
         cause = 0
         times = self._times
         for i in range(8):
@@ -513,8 +524,31 @@ class WheelSupervisor:
             self.cause = cause
             self.last_cause = cause
             self.faults += 1
+            self.trace.freeze(self.faults, cause)
             return True
         return False
+
+    def _record(self, now_ns: int, flags: int, sp_l: float, sp_r: float, m_l: float,
+                m_r: float, u_l: float, u_r: float, sat_l: bool, sat_r: bool, yaw: float,
+                held: Sequence[bool], level_hold: Sequence[float] | None) -> None:
+        if sat_l:
+            flags |= _SAT_L
+        if sat_r:
+            flags |= _SAT_R
+        if held[0]:
+            flags |= _HELD_L
+        if held[1]:
+            flags |= _HELD_R
+        if yaw == yaw:
+            flags |= _T_GYRO
+        else:
+            yaw = 0.0
+        h_l = h_r = 0.0
+        if level_hold is not None:
+            flags |= _T_LEVEL
+            h_l, h_r = level_hold[0], level_hold[1]
+        self.trace.record(now_ns, flags, sp_l, sp_r, m_l, m_r, u_l, u_r, self._angle[0],
+                          self._angle[1], yaw, h_l, h_r, self._bound[0], self._bound[1], self._t)
 
     def _counts_against(self, k: int, sp: float) -> bool:
         """Return True if wheel ``k``'s encoder counts against its setpoint over a start.

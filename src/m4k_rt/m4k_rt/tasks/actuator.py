@@ -289,6 +289,7 @@ class ActuatorBody:
             self.ctl.forward_limit = self.plan.top_speed
             self.ctl.reverse_limit = self.plan.reverse_creep
         state.set_guard_plan(self.plan)
+        state.fault_trace = self.ctl.supervisor.trace
         self._cmd_in = PortReader(cmd_sock)
         self._motor_in = PortReader(motor_sock)
         self._cmd_out = PortWriter(cmd_sock)

@@ -50,7 +50,8 @@ class StatsShipper:
     STALE when older than ``device_stale_ns``, stamped with its arrival time) and one
     PORT_STATS per XDDP port of the process (``shared.ports``: its RT-side counters), then --
     on every port -- one HOST_DROPS per device whose driver host ever sent one (its last
-    counters, stamped with their arrival), then RT_STATUS, which closes a batch. Nothing is
+    counters, stamped with their arrival), then (``status``) SAFETY_STATUS and, once per
+    latched motor fault, its FAULT_TRACE rows, then RT_STATUS, which closes a batch. Nothing is
     encoded when no port has a peer; cursors move on regardless.
     """
 
@@ -83,6 +84,7 @@ class StatsShipper:
         self.unexpected = 0
         self._robot: Any = None
         self._port_rows: list[tuple[bytes, int, Any]] = []   # (label, port, socket)
+        self.trace_sent = 0         # the number of the last motor fault whose trace went out
 
     def _prepare(self) -> None:
         n = len(self.shared.tasks)
@@ -177,6 +179,19 @@ class StatsShipper:
             robot.motor_faults & 0xFFFFFFFF)
         self._send(size, _TO_STATUS)
 
+    def _ship_trace(self, trace: Any, now: int) -> None:
+        """Send the fault trace frozen at the last latch, one FAULT_TRACE per row, once."""
+        fault = trace.fault
+        rows = trace.rows
+        for i in range(rows):
+            t_ns, flags, values = trace.row(i)
+            size = protocol.encode_into(self._buf, 0, protocol.Kind.FAULT_TRACE, self.seq, now,
+                                        fault & 0xFFFFFFFF, trace.cause, i, rows, t_ns,
+                                        *values, flags)
+            self._send(size, _TO_STATUS)
+        if trace.fault == fault:    # (else a newer latch froze meanwhile: sent next cycle)
+            self.trace_sent = fault
+
     def ship(self) -> None:
         """Send one batch: samples since the last batch, counters, call sites, status."""
         self._prepare()
@@ -256,6 +271,9 @@ class StatsShipper:
                 guard = 1 if robot.guard_active else 0
             if status_linked and robot is not None and robot.guard_plan is not None:
                 self._ship_safety(robot, now)
+            trace = robot.fault_trace if robot is not None else None
+            if status_linked and trace is not None and trace.fault != self.trace_sent:
+                self._ship_trace(trace, now)
             size = protocol.encode_into(
                 buf, 0, protocol.Kind.RT_STATUS, self.seq, now, 1 if fifo_all else 0,
                 int(h.mem_locked), int(h.degraded or not fifo_all), guard, flags,

@@ -62,7 +62,7 @@ class RobotState:
     __slots__ = (
         'mode', 'odom_flags', 'v', 'w', 'x', 'y', 'yaw', 'guard_active', 'motor_level',
         'actuator_cycles', 'guard_trip_distance', 'guard_plan', 'motor_fault_cause',
-        'motor_faults', 'guard_slowing', 'estop_open', 'e_stop_engaged',
+        'motor_faults', 'fault_trace', 'guard_slowing', 'estop_open', 'e_stop_engaged',
         'sonar_range', 'sonar_status', 'sonar_rx_ns', 'sonar_level', 'sonar_sighting',
         'laser_front_min', 'laser_rx_ns', 'lrf_level', 'laser_sighting',
         'imu_gz', 'imu_qx', 'imu_qy', 'imu_qz', 'imu_qw', 'imu_rx_ns', 'imu_stamp_ns', 'imu_level',
@@ -86,6 +86,9 @@ class RobotState:
         self.guard_plan: Any = None      # tasks.actuator.GuardPlan, set at build time
         self.motor_fault_cause = 0       # control.supervision FAULT_* bits of the latched fault
         self.motor_faults = 0            # motor faults latched since start
+        # control.trace.SupervisionTrace, set at build time: the supervision's inputs frozen
+        # at the last latch (the monitor ships them once per fault)
+        self.fault_trace: Any = None
         self.guard_slowing = False       # the slow-down zone caps forward speed now
         self.estop_open = False          # the e-stop contact reads open (ENCODERS status)
         self.e_stop_engaged = False      # the e-stop latch is engaged
