@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from m4k_drivers.scene import START, Start
-from m4k_rt.schema import build, ConfigError, Field, REQUIRED, validate_tree
+from m4k_rt.schema import ConfigError, Field, REQUIRED, validate_tree
 
 __all__ = ['ENCODER_KINDS', 'FAULT', 'Fault', 'FaultError', 'KINDS', 'parse_faults']
 
@@ -120,7 +120,7 @@ def parse_faults(data: Any, where: str = 'world.faults') -> tuple[Fault, ...]:
             if until is not None:
                 raise FaultError(f'{at}.until_s', 'world time ends an at_s fault only; a '
                                  'start fault lasts for_s')
-            moment = build(Start, {k.split('.', 1)[1]: x for k, x in v.items() if '.' in k})
+            moment = Start.from_flat(v)
         elif start is None:
             raise FaultError(f'{at}.at_s', 'missing: give at_s (world time) or start (a moment '
                              'of the drive)')

@@ -90,6 +90,12 @@ class Start:
         """Return True once the robot has moved and both conditions hold."""
         return moving_s is not None and travelled >= self.travelled and moving_s >= self.after
 
+    @classmethod
+    def from_flat(cls, flat: dict[str, Any]) -> 'Start':
+        """Return the Start of a validated tree's ``start.*`` keys (a path's, a fault's)."""
+        return build(cls, {k.split('.', 1)[1]: x for k, x in flat.items()
+                           if k.startswith('start.')})
+
 
 @dataclass(frozen=True)
 class Path:
@@ -165,7 +171,7 @@ def _path(v: Any, where: str) -> Path:
     ts = [r[0] for r in rows]
     if ts[0] < 0 or any(b <= a for a, b in zip(ts, ts[1:], strict=False)):
         raise SceneError(f'{where}.waypoints', f'times must start >= 0 and increase, got {ts!r}')
-    start = build(Start, {k.split('.', 1)[1]: x for k, x in flat.items() if '.' in k})
+    start = Start.from_flat(flat)
     return Path(start, tuple(ts), tuple(r[1] for r in rows), tuple(r[2] for r in rows))
 
 

@@ -676,10 +676,14 @@ class BaseController:
                 # with the margin a late sample gets at speed (``_pulled``): from the speed
                 # alone, one sample 1 ms late in the first cycle after the grace read a 2 m/s
                 # guard stop as pulled, and the hold braked and wound up through the whole stop
-                hb[k] = max(hb[k], m * (1.0 + _PULL_JITTER) + h.speed)
+                hb[k] = max(hb[k], self._pull_limit(m))
             elif self._pulled(k, m, dt):
                 pulled = True
         return pulled or (abs(ls) < h.speed and abs(rs) < h.speed)
+
+    def _pull_limit(self, m: float) -> float:
+        """Return the speed above which a wheel now at ``m`` would read pulled (its margin)."""
+        return m * (1.0 + _PULL_JITTER) + self._hold.speed
 
     def _pulled(self, k: int, m: float, dt: float) -> bool:
         """Return True (and mark wheel ``k`` pulled) when ``|m|`` is above its falling bound.
@@ -690,10 +694,9 @@ class BaseController:
         wheel's PI against its roll, a false wrong-way fault). On the level (``_level``) the
         bound goes on falling, but nothing is pulled (``_hold_begins``).
         """
-        h = self._hold
         hb = self._hold_bound
-        b = hb[k] = max(min(hb[k], m * (1.0 + _PULL_JITTER) + h.speed)
-                        - h.pull_deceleration * dt, 0.0)
+        b = hb[k] = max(min(hb[k], self._pull_limit(m)) - self._hold.pull_deceleration * dt,
+                        0.0)
         if m > b and not self._level:
             self._hold_pulled[k] = True
             return True
