@@ -106,6 +106,35 @@ def test_the_gyro_agreeing_within_slip_does_not_latch(slip):
     assert w.run(2.0, (wl, wr), (wl, wr), yaw=yaw) is None
 
 
+def test_a_creep_turn_the_gyro_sees_the_other_way_latches_on_the_integrated_heading():
+    # crossed channels in a creep turn: the wheels describe +0.04 rad/s, the body turns
+    # -0.04 -- a per-cycle difference (0.08) inside that test's tolerance (0.08 + a quarter
+    # of the rate), 0.012 rad of heading over the window, beyond its 8 counts
+    w = Wheels(sup())
+    dr = 0.04 / R_OVER_T
+    sp = (0.2, 0.2 + dr)
+    dt = w.run(1.0, sp, sp, yaw=-0.04)
+    assert dt is not None and dt <= 0.3 and w.s.cause == FaultCause.YAW
+
+
+def test_a_reversal_in_place_the_gyro_follows_within_slip_does_not_latch():
+    # 1.5 rad/s one way, then the other, the wheels' rate ramping through zero at 12 rad/s^2
+    # of body yaw; the body turns a fifth less (slip) and the gyro says so
+    # (the angles integrated as the gyro's heading is, sample to sample: a wheel's angle is
+    # the true integral of its speed, not the last speed times the period)
+    w = Wheels(sup())
+    rate = 0.0
+    angle = [0.0, 0.0]
+    for k in range(300):
+        target = 1.5 if (k // 100) % 2 == 0 else -1.5
+        last = rate
+        rate += max(-0.12, min(0.12, target - rate))
+        dw = rate / R_OVER_T / 2.0
+        half = 0.5 * (rate + last) / R_OVER_T / 2.0 * DT
+        angle = [angle[0] - half, angle[1] + half]
+        assert not w.step((-dw, dw), (-dw, dw), yaw=0.8 * rate, read=angle), (k, w.s.cause)
+
+
 def test_no_gyro_sample_means_no_yaw_test():
     w = Wheels(sup())
     assert w.run(1.0, (0.2, 0.2), (-0.2, 0.2), yaw=math.nan) is None

@@ -208,6 +208,7 @@ class BaseController:
         # by the zero word (4 counts over the feedback window: not noise)
         self._stop_floor = [0.0, 0.0]
         self._driven_margin = 2.0 * params.supervision.still_speed
+        self._driven_slack = 0.5 * params.supervision.still_speed
         self._driven_fall = params.supervision.still_deceleration * self.period
         self._imu_timeout_ns = int(params.supervision.imu_timeout * 1e9)
         self.yaw_rate = math.nan    # the gyro's yaw rate about base_link z, rad/s
@@ -377,9 +378,14 @@ class BaseController:
             # for a window after the zero word took over): the bound starts at its peak
             floor[0], floor[1] = max(floor[0], ls), max(floor[1], rs)
         else:
+            # the bound follows a slowing wheel down with a half margin's slack, as the
+            # still test's does: following one low reading to the count, the next reading
+            # a few counts up near rest (0.15 then 0.31 rad/s at 1.5 cm/s) cut the enable
+            # of a frozen-encoder stop at 1 m/s before the robot rested
             fall = self._driven_fall
-            floor[0] = max(min(floor[0], ls) - fall, 0.0)
-            floor[1] = max(min(floor[1], rs) - fall, 0.0)
+            slack = self._driven_slack
+            floor[0] = max(min(floor[0], ls + slack) - fall, 0.0)
+            floor[1] = max(min(floor[1], rs + slack) - fall, 0.0)
             if ls > floor[0] + self._driven_margin or rs > floor[1] + self._driven_margin:
                 self._fault_since_ns = now_ns - self.fault_brake_ns   # the bound: stays off
                 return 0

@@ -58,6 +58,13 @@ has held without a break:
   IMU and encoder samples (up to 20 ms at the 1.85 rad/s^2 angular limit: 0.04 rad/s); the
   ratio covers tyre slip and track-width error (a slipping wheel under a 25 % difference
   does not trip it).
+  The same comparison integrated (``_yaw_window``): the heading the wheels describe over the
+  last YAW_WINDOW (0.15 s) against the gyro's heading over the same span, both read at
+  aligned instants (no skew), beyond YAW_COUNTS (8) counts of wheel angle as heading plus
+  ``yaw_ratio`` of the turn, counts three times as fast (integrated evidence). Crossed
+  channels in a creep turn differ from the gyro by twice the turn rate, about the per-cycle
+  tolerance: that test alone took up to 0.37 s forward and 0.92 s backward on an
+  uncalibrated base; the window takes 0.20-0.25 s.
 
 **Aligned in time.** The unseen and counts-against tests compare the other wheel's counts with
 the gyro's integrated turn, so both must be taken at one instant: the gyro reaches the RT side
@@ -103,6 +110,12 @@ FROZEN_COUNTS = 3                # less motion than this is "not moving" (noise:
 UNSEEN_COUNTS = 6
 START_WINDOW = 0.3               # s after a setpoint leaves zero: the counts-against test
 RING = 32                        # encoder and gyro samples kept to align the two (0.32 s)
+# The integrated yaw test: the heading the wheels describe against the gyro's over this window,
+# at aligned instants; tolerance YAW_COUNTS counts of wheel angle as heading (quantization at
+# both ends, the gyro's bias over the window) plus yaw_ratio of the turn
+YAW_WINDOW = 0.15
+YAW_COUNTS = 8
+_YAW_WINDOW_NS = int(YAW_WINDOW * 1e9)
 GYRO_GAP_NS = 100_000_000        # a longer gap between gyro samples restarts the integration
 # A wheel rolling at m rad/s with no drive stops within m^2 / (2 a) rad, a the deceleration of
 # friction alone (3.6 rad/s^2 on the simulated base; 3.0 leaves margin)
@@ -147,7 +160,7 @@ class WheelSupervisor:
                  '_following', '_roll', '_roll_a', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age', '_origin',
-                 '_window', 'trace')
+                 '_window', 'trace', '_yt', '_yl', '_yr', '_yh', '_ye', '_yn', '_yaw_hit')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -206,6 +219,15 @@ class WheelSupervisor:
         self._s_age = [0.0, 0.0]
         # every supervised cycle's inputs, frozen at a latch (m4k_rt.control.trace)
         self.trace = SupervisionTrace()
+        # the aligned instants of the last RING cycles for the integrated yaw test: time (ns),
+        # left and right angle, heading, epoch; ``_yn`` entries taken since a restart
+        self._yt = [0.0] * RING
+        self._yl = [0.0] * RING
+        self._yr = [0.0] * RING
+        self._yh = [0.0] * RING
+        self._ye = [0.0] * RING
+        self._yn = 0
+        self._yaw_hit = False
 
     @property
     def latched(self) -> bool:
@@ -255,7 +277,7 @@ class WheelSupervisor:
         self._gn = n + 1
 
     def _aligned(self) -> list[float] | None:
-        """Return [left angle, right angle, heading] at the newest instant both rings cover.
+        """Return [left angle, right angle, heading, t_ns] at the newest instant both rings cover.
 
         That instant is the older of the newest encoder and gyro stamps; the other ring is
         interpolated there. None when the rings do not overlap (no gyro, or one too old).
@@ -271,13 +293,14 @@ class WheelSupervisor:
             i, j, f = w
             el, er = self._el, self._er
             return [el[i] + f * (el[j] - el[i]), er[i] + f * (er[j] - er[i]),
-                    self._gp[(gn - 1) % RING]]
+                    self._gp[(gn - 1) % RING], float(t_g)]
         w = self._weights(self._gt, gn, t_e)
         if w is None:
             return None
         i, j, f = w
         e = (en - 1) % RING
-        return [self._el[e], self._er[e], self._gp[i] + f * (self._gp[j] - self._gp[i])]
+        return [self._el[e], self._er[e], self._gp[i] + f * (self._gp[j] - self._gp[i]),
+                float(t_e)]
 
     @staticmethod
     def _weights(ts: list[int], n: int, t: int) -> tuple[int, int, float] | None:
@@ -316,6 +339,8 @@ class WheelSupervisor:
             self.unseen[k] = False
             self._u_ref[k][0] = -1.0
             self._s_ref[k][0] = -1.0
+        self._yn = 0
+        self._yaw_hit = False
 
     def step(self, dt: float, sp_left: float, sp_right: float, meas_left: float,
              meas_right: float, u_left: float, u_right: float, saturated_left: bool,
@@ -505,10 +530,19 @@ class WheelSupervisor:
             t[_SWAP] = t[_SWAP] + dt if own - other > th else 0.0
         else:
             t[_SWAP] = 0.0
+        # The integrated yaw test (integrated evidence, as unseen motion: a third of yaw_time
+        # confirms it): crossed channels in a creep turn differ from the gyro by twice the turn
+        # rate, about the per-cycle test's tolerance, and latched in up to 0.40 s.
+        hit = self._yaw_window(at, epoch) if at is not None else False
         if p.use_imu and yaw_rate == yaw_rate:          # not NaN: a fresh gyro sample
             w_wheels = self._r_over_track * (meas_right - meas_left)
             bound = p.yaw_tolerance + p.yaw_ratio * max(abs(w_wheels), abs(yaw_rate))
-            t[_YAWS] = t[_YAWS] + dt if abs(w_wheels - yaw_rate) > bound else 0.0
+            if hit:
+                t[_YAWS] += 3.0 * dt
+            else:
+                t[_YAWS] = t[_YAWS] + dt if abs(w_wheels - yaw_rate) > bound else 0.0
+        elif hit:
+            t[_YAWS] += 3.0 * dt
         self._record(now_ns, _T_ENC, sp_left, sp_right, meas_left, meas_right, u_left, u_right,
                      saturated_left, saturated_right, yaw_rate, held, level_hold)
         cause = 0
@@ -527,6 +561,44 @@ class WheelSupervisor:
             self.trace.freeze(self.faults, cause)
             return True
         return False
+
+    def _yaw_window(self, at: list[float], epoch: float) -> bool:
+        """Return True when the wheels' heading over YAW_WINDOW disagrees with the gyro's.
+
+        ``at`` is this cycle's aligned instant; one entry per new instant is kept. Windows
+        never span a restart of the gyro's heading (``epoch``); before a whole window has been
+        seen there is no evidence either way.
+        """
+        n = self._yn
+        t_now = at[3]
+        if n:
+            last = (n - 1) % RING
+            if self._ye[last] != epoch or t_now < self._yt[last]:
+                n = 0
+            elif t_now == self._yt[last]:
+                return self._yaw_hit              # no newer instant: the same verdict
+        i = n % RING
+        self._yt[i] = t_now
+        self._yl[i] = at[0]
+        self._yr[i] = at[1]
+        self._yh[i] = at[2]
+        self._ye[i] = epoch
+        self._yn = n = n + 1
+        start = t_now - _YAW_WINDOW_NS
+        k = n - 2
+        oldest = max(0, n - RING)
+        while k >= oldest and self._yt[k % RING] > start:
+            k -= 1
+        if k < oldest:
+            self._yaw_hit = False
+            return False
+        j = k % RING
+        rt = self._r_over_track
+        wheels = rt * ((at[1] - self._yr[j]) - (at[0] - self._yl[j]))
+        gyro = at[2] - self._yh[j]
+        bound = YAW_COUNTS * COUNT * rt + self.p.yaw_ratio * max(abs(wheels), abs(gyro))
+        self._yaw_hit = abs(wheels - gyro) > bound
+        return self._yaw_hit
 
     def _record(self, now_ns: int, flags: int, sp_l: float, sp_r: float, m_l: float,
                 m_r: float, u_l: float, u_r: float, sat_l: bool, sat_r: bool, yaw: float,
