@@ -304,6 +304,9 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
                  env: dict[str, str] | None = None) -> dict[str, Any]:
     """Run the trials; write the evidence into ``out_dir``; return the summary."""
     from m4k_bench.scenarios.bounds import bounds, traction_limit
+    # the checkout as the run starts: the evidence written into an out_dir inside it (the
+    # committed figure, docs/results/reaction) must not read as local changes
+    prov = provenance.provenance()
     rng = random.Random(seed)
     os.makedirs(out_dir, exist_ok=True)
     work = tempfile.mkdtemp(prefix='m4k-reaction-')
@@ -357,7 +360,7 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         if sim is not None:
             sim.close()
         shutil.rmtree(work, ignore_errors=True)
-    _write(out_dir, rows, summary)
+    _write(out_dir, rows, summary, prov)
     return summary
 
 
@@ -402,9 +405,10 @@ def _pct(xs: list[float], q: float) -> float | None:
     return float(np.percentile(xs, q)) if xs else None
 
 
-def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any]) -> None:
+def _write(out_dir: str, rows: list[dict[str, Any]], s: dict[str, Any],
+           prov: dict[str, Any]) -> None:
     doc = results.write_json(os.path.join(out_dir, 'reaction.json'),
-                             {'summary': s, 'trials': rows}, indent=1)
+                             {'summary': s, 'trials': rows, 'provenance': prov}, indent=1)
     keys = ('v_cmd', 'v', 'stop_line_m', 'reaction_s', 'stop_m', 'contacts', 'clearance_m')
     with open(os.path.join(out_dir, 'reaction.csv'), 'w', encoding='utf-8') as f:
         f.write(','.join(keys) + '\n')
