@@ -57,3 +57,11 @@ def test_a_trace_that_cannot_be_written_is_said_not_raised(tmp_path):
     assert len(w.written) == 1 and w.written[0] in said[-1]
     assert "motor fault 5 (right wheel turns while commanded still): the wheel supervision's " \
            'last 2 cycles (10 ms) are in ' in said[-1]
+
+
+def test_a_second_trace_of_the_same_second_and_number_does_not_overwrite_the_first(tmp_path):
+    rows = [_row(1, i, 2) for i in range(2)]
+    first = write_csv(rows, str(tmp_path), wall_ns=1_800_000_000 * 10 ** 9)
+    second = write_csv(rows, str(tmp_path), wall_ns=1_800_000_000 * 10 ** 9)
+    assert first != second and second.endswith('_1-2.csv')
+    assert len(list(tmp_path.iterdir())) == 2
