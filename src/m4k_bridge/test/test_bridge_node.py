@@ -717,8 +717,8 @@ def test_a_latched_faults_supervision_trace_goes_from_the_monitor_to_a_file(m4k_
         robot.fault_trace = trace = SupervisionTrace()
         for n in range(100):
             trace.record(1_000_000_000 + n * 10_000_000, int(protocol.TraceFlag.ENCODERS),
-                         4.9, 4.9, 4.9 - 0.1 * n, 4.9, 0.3, 0.3, 0.01 * n, 0.05 * n,
-                         0.0, 0.0, 0.0, -1.0, -1.0, [0.0] * 10)
+                         (4.9, 4.9, 4.9 - 0.1 * n, 4.9, 0.3, 0.3, 0.01 * n, 0.05 * n,
+                          0.0, 0.0, 0.0, -1.0, -1.0), [0.0] * 10)
         trace.freeze(1, int(protocol.FaultCause.LEFT_WRONG_WAY))
         shared = SharedState(config.load(), sched.Hardening(), tasks=[])
         shared.robot = robot

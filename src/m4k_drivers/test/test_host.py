@@ -57,75 +57,53 @@ def test_print_missing_bus_exits_1_naming_path(procs):
     assert '/dev/i2c-97: No such file or directory (errno 2)' in err
 
 
-def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
+def _serving_host(procs):
+    """Start a host serving the motors and the LED; return (proc, motor pid, LED pid)."""
     proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
                         '--device', 'motor', '--device', 'led'])
     deadline = time.monotonic() + 30
     seen = ''
     while time.monotonic() < deadline and seen.count('serving') < 2:
         seen += proc.stderr.readline()
-    # The motors (sched_priority > 0) in a process of their own, the LED in the host's;
-    # devices.yaml alone: each found by its label.
     motor = re.search(r'serving motor@motor \(pid (\d+)\)', seen)
     led = re.search(r'serving led@led \(pid (\d+)\)', seen)
     assert motor and led, seen
-    assert int(led.group(1)) == proc.pid and int(motor.group(1)) != proc.pid
-    child = int(motor.group(1))
+    return proc, int(motor.group(1)), int(led.group(1))
+
+
+def test_host_sigterm_exits_0(procs, sim_robot, m4k_runtime_dir):
+    # The motors (sched_priority > 0) in a process of their own, the LED in the host's;
+    # devices.yaml alone: each found by its label.
+    proc, child, led = _serving_host(procs)
+    assert led == proc.pid and child != proc.pid
     assert procs.stop(proc) == 0, proc.stderr.read()
     with pytest.raises(ProcessLookupError):      # the parent reaped its device process
         os.kill(child, 0)
-
-
-def _serving_host(procs):
-    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
-                        '--device', 'motor', '--device', 'led'])
-    deadline = time.monotonic() + 30
-    seen = ''
-    while time.monotonic() < deadline and seen.count('serving') < 2:
-        seen += proc.stderr.readline()
-    motor = re.search(r'serving motor@motor \(pid (\d+)\)', seen)
-    assert motor, seen
-    return proc, int(motor.group(1))
 
 
 def test_a_group_stop_the_device_process_acts_on_first_still_exits_0(procs, sim_robot,
                                                                      m4k_runtime_dir):
     # The worst order of a stop signal to the whole group (the CI saw it under load): the
     # motor process (SCHED_FIFO) has stopped and been reaped before the host's own handler ran.
-    proc, child = _serving_host(procs)
+    proc, child, _ = _serving_host(procs)
     os.kill(child, signal.SIGTERM)
     time.sleep(0.6)                              # the host's supervision poll has reaped it
     os.kill(proc.pid, signal.SIGTERM)
     assert proc.wait(timeout=30) == 0, proc.stderr.read()
 
 
-def test_a_device_process_stopped_alone_ends_the_host_with_exit_1(procs, sim_robot,
-                                                                  m4k_runtime_dir):
-    # Exit 0 without a stop of the host: the wheels are no longer served, so the host ends
-    # and its supervisor restarts all of it.
-    proc, child = _serving_host(procs)
-    os.kill(child, signal.SIGTERM)
-    assert proc.wait(timeout=30) == 1
-    assert f'device process motor (pid {child}) exited 0: stopping the driver host' in \
-        proc.stderr.read()
-
-
-def test_a_device_process_that_dies_ends_the_host_with_exit_1(procs, sim_robot,
-                                                              m4k_runtime_dir):
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGKILL], ids=['stopped', 'killed'])
+def test_a_device_process_gone_alone_ends_the_host_with_exit_1(procs, sim_robot,
+                                                               m4k_runtime_dir, sig):
     # The supervisor (bringup) watches the host's pid only: a motor process gone on its own
-    # must not leave a host that serves the sensors but never the wheels.
-    proc = procs.start(['python', '-m', 'm4k_drivers.host', '--config', CONFIG,
-                        '--device', 'motor', '--device', 'led'])
-    deadline = time.monotonic() + 30
-    seen = ''
-    while time.monotonic() < deadline and 'serving motor@motor' not in seen:
-        seen += proc.stderr.readline()
-    motor = re.search(r'serving motor@motor \(pid (\d+)\)', seen)
-    assert motor, seen
-    os.kill(int(motor.group(1)), signal.SIGKILL)
+    # (killed, or stopped alone: exit 0 without a stop of the host) must not leave a host that
+    # serves the sensors but never the wheels; it ends, and its supervisor restarts all of it.
+    proc, child, _ = _serving_host(procs)
+    os.kill(child, sig)
     assert proc.wait(timeout=30) == 1
-    assert 'device process motor (pid {}) exited -9: stopping the driver host'.format(
-        motor.group(1)) in proc.stderr.read()
+    code = 0 if sig == signal.SIGTERM else -sig
+    assert f'device process motor (pid {child}) exited {code}: stopping the driver host' in \
+        proc.stderr.read()
 
 
 def test_motor_service_serves_wheel_cmd_relinks_and_stops_safe(m4k_runtime_dir, sim_robot):

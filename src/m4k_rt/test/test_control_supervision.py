@@ -404,14 +404,14 @@ def test_the_trace_ring_keeps_its_newest_rows_across_the_wrap():
     trace = SupervisionTrace(capacity=5)
     times = [0.0] * 10
     for n in range(13):
-        trace.record(n, n & 0x7F, float(n), *([0.0] * 12), times)
+        trace.record(n, n & 0x7F, (float(n),) + (0.0,) * 12, times)
     trace.freeze(7, 0x1)
     assert trace.rows == 5 and (trace.fault, trace.cause) == (7, 0x1)
     assert [trace.row(i)[0] for i in range(5)] == [8, 9, 10, 11, 12]
     assert [trace.row(i)[2][0] for i in range(5)] == [8.0, 9.0, 10.0, 11.0, 12.0]
     short = SupervisionTrace(capacity=5)
     for n in range(3):
-        short.record(n, 0, float(n), *([0.0] * 12), times)
+        short.record(n, 0, (float(n),) + (0.0,) * 12, times)
     short.freeze(1, 0x2)
     assert short.rows == 3 and [short.row(i)[0] for i in range(3)] == [0, 1, 2]
     with pytest.raises(IndexError):

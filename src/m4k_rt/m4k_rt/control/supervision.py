@@ -619,8 +619,9 @@ class WheelSupervisor:
         if level_hold is not None:
             flags |= _T_LEVEL
             h_l, h_r = level_hold[0], level_hold[1]
-        self.trace.record(now_ns, flags, sp_l, sp_r, m_l, m_r, u_l, u_r, self._angle[0],
-                          self._angle[1], yaw, h_l, h_r, self._bound[0], self._bound[1], self._t)
+        self.trace.record(now_ns, flags, (sp_l, sp_r, m_l, m_r, u_l, u_r, self._angle[0],
+                                           self._angle[1], yaw, h_l, h_r, self._bound[0],
+                                           self._bound[1]), self._t)
 
     def _counts_against(self, k: int, sp: float) -> bool:
         """Return True if wheel ``k``'s encoder counts against its setpoint over a start.

@@ -24,6 +24,7 @@ __all__ = ['SupervisionTrace', 'TRACE_ROWS', 'WIDTH']
 # cycles before its symptom began.
 TRACE_ROWS = 64
 WIDTH = len(TRACE_FLOAT_FIELDS)
+_VALUES = WIDTH - 10                 # the floats before the ten symptom times
 
 
 class SupervisionTrace:
@@ -52,12 +53,12 @@ class SupervisionTrace:
         self.cause = 0
         self.fault = 0
 
-    def record(self, now_ns: int, flags: int, sp_l: float, sp_r: float, m_l: float, m_r: float,
-               u_l: float, u_r: float, a_l: float, a_r: float, yaw: float, h_l: float,
-               h_r: float, b_l: float, b_r: float, times: Sequence[float]) -> None:
+    def record(self, now_ns: int, flags: int, values: Sequence[float],
+               times: Sequence[float]) -> None:
         """Append one cycle's row; the oldest row is overwritten once the ring is full.
 
-        The values come in TRACE_FLOAT_FIELDS order, ``times`` being the 10 symptom times.
+        ``values``: the row's first 13 floats in TRACE_FLOAT_FIELDS order (setpoints to still
+        bounds), ``times`` the 10 symptom times that follow them.
         """
         cap = self.capacity
         i = self.n % cap
@@ -65,21 +66,10 @@ class SupervisionTrace:
         self._f[i] = flags
         v = self._v
         o = i * WIDTH
-        v[o] = sp_l
-        v[o + 1] = sp_r
-        v[o + 2] = m_l
-        v[o + 3] = m_r
-        v[o + 4] = u_l
-        v[o + 5] = u_r
-        v[o + 6] = a_l
-        v[o + 7] = a_r
-        v[o + 8] = yaw
-        v[o + 9] = h_l
-        v[o + 10] = h_r
-        v[o + 11] = b_l
-        v[o + 12] = b_r
-        o += 13
-        for k in range(10):
+        for k in range(_VALUES):
+            v[o + k] = values[k]
+        o += _VALUES
+        for k in range(WIDTH - _VALUES):
             v[o + k] = times[k]
         self.n += 1
 
