@@ -160,7 +160,7 @@ class WheelSupervisor:
                  '_following', '_roll', '_roll_a', '_sp',
                  'frozen_min', 'unseen', '_et', '_el', '_er', '_en', '_gt', '_gp', '_gn',
                  '_g_rate', '_epoch', '_at', '_u_ref', '_s_ref', '_s_age', '_origin',
-                 '_window', 'trace', '_yt', '_yl', '_yr', '_yh', '_ye', '_yn', '_yaw_hit')
+                 '_window', 'trace', '_yt', '_yl', '_yr', '_yh', '_y_epoch', '_yn', '_yaw_hit')
 
     def __init__(self, params: SupervisionParams, wheel_radius: float, track_width: float,
                  feed_forward: float) -> None:
@@ -220,12 +220,13 @@ class WheelSupervisor:
         # every supervised cycle's inputs, frozen at a latch (m4k_rt.control.trace)
         self.trace = SupervisionTrace()
         # the aligned instants of the last RING cycles for the integrated yaw test: time (ns),
-        # left and right angle, heading, epoch; ``_yn`` entries taken since a restart
+        # left and right angle, heading; ``_yn`` entries taken since a restart, all of them on
+        # the gyro's heading epoch ``_y_epoch``
         self._yt = [0.0] * RING
         self._yl = [0.0] * RING
         self._yr = [0.0] * RING
         self._yh = [0.0] * RING
-        self._ye = [0.0] * RING
+        self._y_epoch = -1.0
         self._yn = 0
         self._yaw_hit = False
 
@@ -303,7 +304,7 @@ class WheelSupervisor:
                 float(t_e)]
 
     @staticmethod
-    def _weights(ts: list[int], n: int, t: int) -> tuple[int, int, float] | None:
+    def _weights(ts: Sequence[float], n: int, t: float) -> tuple[int, int, float] | None:
         """Return ring slots i, j and the fraction f with t = ts[i] + f (ts[j] - ts[i]).
 
         i holds the newest sample at or before ``t`` (t at the newest itself: f 0); None when
@@ -532,17 +533,13 @@ class WheelSupervisor:
             t[_SWAP] = 0.0
         # The integrated yaw test (integrated evidence, as unseen motion: a third of yaw_time
         # confirms it): crossed channels in a creep turn differ from the gyro by twice the turn
-        # rate, about the per-cycle test's tolerance, and latched in up to 0.40 s.
-        hit = self._yaw_window(at, epoch) if at is not None else False
-        if p.use_imu and yaw_rate == yaw_rate:          # not NaN: a fresh gyro sample
+        # rate, about the per-cycle test's tolerance, which alone took up to 0.92 s.
+        if at is not None and self._yaw_window(at, epoch):
+            t[_YAWS] += 3.0 * dt
+        elif p.use_imu and yaw_rate == yaw_rate:        # not NaN: a fresh gyro sample
             w_wheels = self._r_over_track * (meas_right - meas_left)
             bound = p.yaw_tolerance + p.yaw_ratio * max(abs(w_wheels), abs(yaw_rate))
-            if hit:
-                t[_YAWS] += 3.0 * dt
-            else:
-                t[_YAWS] = t[_YAWS] + dt if abs(w_wheels - yaw_rate) > bound else 0.0
-        elif hit:
-            t[_YAWS] += 3.0 * dt
+            t[_YAWS] = t[_YAWS] + dt if abs(w_wheels - yaw_rate) > bound else 0.0
         self._record(now_ns, _T_ENC, sp_left, sp_right, meas_left, meas_right, u_left, u_right,
                      saturated_left, saturated_right, yaw_rate, held, level_hold)
         cause = 0
@@ -572,27 +569,24 @@ class WheelSupervisor:
         n = self._yn
         t_now = at[3]
         if n:
-            last = (n - 1) % RING
-            if self._ye[last] != epoch or t_now < self._yt[last]:
+            last = self._yt[(n - 1) % RING]
+            if self._y_epoch != epoch or t_now < last:
                 n = 0
-            elif t_now == self._yt[last]:
+            elif t_now == last:
                 return self._yaw_hit              # no newer instant: the same verdict
+        self._y_epoch = epoch
         i = n % RING
         self._yt[i] = t_now
         self._yl[i] = at[0]
         self._yr[i] = at[1]
         self._yh[i] = at[2]
-        self._ye[i] = epoch
         self._yn = n = n + 1
-        start = t_now - _YAW_WINDOW_NS
-        k = n - 2
-        oldest = max(0, n - RING)
-        while k >= oldest and self._yt[k % RING] > start:
-            k -= 1
-        if k < oldest:
+        # the newest instant a whole window back (this one is newer than that, so never it)
+        w = self._weights(self._yt, n, t_now - _YAW_WINDOW_NS)
+        if w is None:
             self._yaw_hit = False
             return False
-        j = k % RING
+        j = w[0]
         rt = self._r_over_track
         wheels = rt * ((at[1] - self._yr[j]) - (at[0] - self._yl[j]))
         gyro = at[2] - self._yh[j]
