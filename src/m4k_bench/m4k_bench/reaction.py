@@ -349,17 +349,16 @@ def run_reaction(out_dir: str, *, trials: int = 50, speeds: Sequence[float] = (0
         summary = _summarise(rows, raw, trials, bounds, traction_limit)
         summary['false_motor_faults'] = cmd.fault_resets
         summary['false_motor_fault_causes'] = list(cmd.causes)
-        cmd.traces.join()
-        summary['false_motor_fault_traces'] = [os.path.relpath(t, out_dir)
-                                               for t in cmd.traces.written]
     finally:
         if cmd is not None:
-            cmd.close()
+            cmd.close()         # (waits for the fault traces being written)
         for pr in procs:
             pr.stop()             # SIGTERM, 10 s, SIGKILL
         if sim is not None:
             sim.close()
         shutil.rmtree(work, ignore_errors=True)
+    summary['false_motor_fault_traces'] = [os.path.relpath(t, out_dir)
+                                           for t in cmd.traces.written]
     _write(out_dir, rows, summary, prov)
     return summary
 

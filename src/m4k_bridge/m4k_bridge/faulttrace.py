@@ -17,6 +17,7 @@ import threading
 import time
 from typing import Callable, Sequence
 
+from m4k_bridge.flightrec_store import stamp, unused_path
 from m4k_rt import protocol
 from m4k_rt.control.supervision import cause_text
 
@@ -66,12 +67,9 @@ def write_csv(rows: Sequence[protocol.FaultTrace], directory: str,
     """
     wall_ns = time.time_ns() if wall_ns is None else wall_ns
     os.makedirs(directory, exist_ok=True)
-    stamp = time.strftime('%Y_%m_%d-%H_%M_%S', time.gmtime(wall_ns // 1_000_000_000))
-    base = os.path.join(directory, f'{_PREFIX}{stamp}_{rows[-1].fault}')
-    path, n = base + '.csv', 1
-    while os.path.lexists(path):            # the same second and number (another rt_core run)
-        n += 1
-        path = f'{base}-{n}.csv'
+    # (the same second and number twice: another rt_core run)
+    path = unused_path(os.path.join(directory, f'{_PREFIX}{stamp(wall_ns)}_{rows[-1].fault}'),
+                       '.csv')
     t_end = rows[-1].t_ns
     fields = protocol.TRACE_FLOAT_FIELDS
     tmp = path + '.partial'

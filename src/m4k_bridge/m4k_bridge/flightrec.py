@@ -40,7 +40,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from m4k_bridge.bag.msgdef import message_definition, MsgDefError, type_hash
 from m4k_bridge.bag.writer import BagError, BagWriter, partial_directory
-from m4k_bridge.flightrec_store import prune
+from m4k_bridge.flightrec_store import prune, stamp, unused_path
 from m4k_rt import protocol, timing
 
 __all__ = ['ENTRY_OVERHEAD', 'KINDS', 'Dumper', 'RateLimit', 'Ring', 'TopicSpec', 'Trigger',
@@ -207,11 +207,6 @@ class TopicSpec:
     qos_text: str
 
 
-def _stamp(wall_ns: int) -> str:
-    return datetime.datetime.fromtimestamp(wall_ns / _NS, datetime.timezone.utc).strftime(
-        '%Y_%m_%d-%H_%M_%S')
-
-
 class Dumper:
     """Write trigger windows of a :class:`Ring` as bags, in a thread of its own."""
 
@@ -322,12 +317,10 @@ class Dumper:
         """Write the ring's window around ``trigger`` now; return the bag directory."""
         entries = self.ring.snapshot(trigger.wall_ns - self.pre_ns)
         topics = self.topics         # once: set_topics may replace it meanwhile
-        base = os.path.join(self.directory, 'flight_{}_{}'.format(_stamp(trigger.wall_ns),
+        base = os.path.join(self.directory, 'flight_{}_{}'.format(stamp(trigger.wall_ns),
                                                                   trigger.kind))
-        path, n = base, 1
-        while os.path.lexists(path) or os.path.lexists(partial_directory(path)):
-            n += 1
-            path = '{}-{}'.format(base, n)
+        path = unused_path(base, taken=lambda p: os.path.lexists(p)
+                           or os.path.lexists(partial_directory(p)))
         custom = {
             'm4k.flight_recorder.trigger': trigger.kind,
             'm4k.flight_recorder.detail': trigger.detail,

@@ -18,12 +18,30 @@ import os
 import re
 import shutil
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
-__all__ = ['DumpDir', 'dumps', 'prune']
+__all__ = ['DumpDir', 'dumps', 'prune', 'stamp', 'unused_path']
 
 _NAME = re.compile(r'flight_(\d{4})_(\d\d)_(\d\d)-(\d\d)_(\d\d)_(\d\d)_[a-z_]+(-\d+)?'
                    r'(?:\.partial)?')
+
+
+def stamp(wall_ns: int) -> str:
+    """Return ``wall_ns`` (since the epoch) as the UTC time in names here: 2026_11_29-15_42_28."""
+    return time.strftime('%Y_%m_%d-%H_%M_%S', time.gmtime(wall_ns // 1_000_000_000))
+
+
+def unused_path(base: str, ext: str = '', taken: Callable[[str], bool] = os.path.lexists
+                ) -> str:
+    """Return ``base + ext``, else the first of ``base-2 + ext``, ``base-3 + ext``... not taken.
+
+    Two dumps (or traces) of the same second and kind keep both.
+    """
+    path, n = base + ext, 1
+    while taken(path):
+        n += 1
+        path = f'{base}-{n}{ext}'
+    return path
 
 
 class DumpDir(NamedTuple):
