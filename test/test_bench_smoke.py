@@ -163,6 +163,10 @@ def test_bench_quick_smoke_writes_report_plots_rounds_and_summary(tmp_path):
     assert [r['rate_hz'] for r in summ['scaling']] == [500, 500]
     assert summ['cmd_latency']['trials'] + summ['cmd_latency']['lost'] == 3, \
         summ['cmd_latency']
+    # a command reached the motor in at least one trial: all three lost is the set-up holding
+    # every command (the turn guard with no laser did, unseen, from 4640a1e to this check)
+    assert summ['cmd_latency']['trials'] >= 1 and 'error' not in summ['cmd_latency'], \
+        summ['cmd_latency']
     # the guard's reaction ran its trials (2 at the first speed, 1 at each other) and wrote
     # its evidence; a phase that raised would be a summary with an 'error' and no trials
     reaction = summ['reaction']

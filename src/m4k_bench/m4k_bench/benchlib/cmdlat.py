@@ -8,8 +8,10 @@ stamps each WHEEL_CMD on arrival with CLOCK_MONOTONIC.
 
 One trial: publish zero commands until the probe has seen the DAC codes at 512 (zero) for a
 few cycles, then, at ``t0`` (monotonic, taken just before ``publish``), publish a rotation
-command (angular only: with no sonar or laser running the collision guard rightly blocks
-forward motion) and find the first WHEEL_CMD whose codes left 512. Two intervals, both on
+command and find the first WHEEL_CMD whose codes left 512. rt_core runs with the collision
+guard off (:data:`GUARD_OFF`): with no sonar or laser task the guard rightly holds every
+command -- forward, and since the turn guard (hazard C14) turns too -- and the path measured
+does not go through it. Two intervals, both on
 this machine's monotonic clock:
 
 * ``to_cycle``: t0 -> the WHEEL_CMD's header stamp, which the actuator sets to its cycle's
@@ -31,6 +33,8 @@ import threading
 import time
 from typing import Any, Callable
 
+import yaml
+
 from m4k_bench.benchlib.analysis import stats_dict
 from m4k_rt import channel, protocol
 from m4k_rt.timing import describe
@@ -40,6 +44,10 @@ __all__ = ['MotorProbe', 'run_cmd_latency']
 _ZERO = 512
 WARMUP = 2
 _PERIOD_S = 0.01
+# rt_core's overlay here: no sensor task runs, so the guard would rightly hold every command
+# (forward: no sonar or laser; turns: a stale laser stops them both ways, hazard C14). The
+# path measured -- DDS, the bridge, XDDP, the actuator's release -- is the same with it off.
+GUARD_OFF = {'control': {'guard': {'enabled': False}}}
 
 
 class MotorProbe:
@@ -96,7 +104,8 @@ class MotorProbe:
 
 
 METHOD = (
-    'rt_core (actuator) + bridge + a probe motor peer in the bench answering each WHEEL_CMD '
+    'rt_core (actuator; the collision guard off: no sensor task runs, and it would hold every '
+    'command) + bridge + a probe motor peer in the bench answering each WHEEL_CMD '
     'with ENCODERS. Per trial: zero commands until the DAC codes sit at 512, then a cmd_vel '
     'rotation (angular.z = 1 rad/s) is published at t0; the first WHEEL_CMD with codes off 512 '
     'ends the trial; t0 is at a random phase of the 10 ms cycle, the first {} trials are '
@@ -130,8 +139,11 @@ def run_cmd_latency(trials: int, runtime_dir: str, log_dir: str, *,
 
     env = dict(env or os.environ, M4K_RUNTIME_DIR=runtime_dir)
     channel.ensure_runtime_dir(runtime_dir)
-    rt = start_child('cmdlat.rt_core', entry_argv('m4k_rt.rt_core', '--tasks', 'actuator'),
-                     log_dir, env)
+    overlay = os.path.join(runtime_dir, 'cmdlat.overlay.yaml')
+    with open(overlay, 'w', encoding='utf-8') as f:
+        yaml.safe_dump(GUARD_OFF, f)
+    rt = start_child('cmdlat.rt_core', entry_argv('m4k_rt.rt_core', '--tasks', 'actuator',
+                                                  '--config', overlay), log_dir, env)
     bridge = start_child('cmdlat.bridge', entry_argv('m4k_bridge.node'), log_dir, env)
     probe = MotorProbe(runtime_dir).start()
     ctx = Context()
@@ -200,6 +212,11 @@ def run_cmd_latency(trials: int, runtime_dir: str, log_dir: str, *,
         'to_probe_us': stats_dict(describe(to_probe), 1e-3) if to_probe else None,
         'samples_ns': {'to_cycle': to_cycle, 'to_probe': to_probe},
     }
+    if error is None and lost and not to_probe:
+        # Never "skipped": a phase that ran and saw nothing says so (a guard or an e-stop
+        # holding every command looks exactly like this).
+        error = ('every trial lost: no WHEEL_CMD left zero within 0.5 s of a command '
+                 '(rt_core: {})'.format(' | '.join(rt.tail(2))))
     if error:
         out['error'] = error
     return out
