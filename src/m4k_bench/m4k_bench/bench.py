@@ -164,12 +164,23 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                     '{}; "" to skip)'.format(PUBLISH_DIR))
     ap.add_argument('--skip', default='', help='comma list of phases to skip: ' +
                     ', '.join(PHASES))
+    ap.add_argument('--only', default='', help='comma list of the phases to run (every other '
+                    'one skipped; not published unless --publish says where), e.g. cmdlat')
     ap.add_argument('--no-install', action='store_true',
                     help='do not apt-get install missing rt-tests / stress-ng')
     args = rosargs.parse_args(ap, argv)
-    unknown = sorted(set(filter(None, args.skip.split(','))) - set(PHASES))
-    if unknown:
-        ap.error('--skip: unknown phase(s) {!r}; valid: {}'.format(unknown, ', '.join(PHASES)))
+    for opt in ('skip', 'only'):
+        unknown = sorted(set(filter(None, getattr(args, opt).split(','))) - set(PHASES))
+        if unknown:
+            ap.error('--{}: unknown phase(s) {!r}; valid: {}'.format(opt, unknown,
+                                                                    ', '.join(PHASES)))
+    if args.only:
+        if args.skip:
+            ap.error('--only and --skip: give one of them')
+        only = set(filter(None, args.only.split(',')))
+        args.skip = ','.join(ph for ph in PHASES if ph not in only)
+        if args.publish is None:        # a part of the bench is not the bench's results
+            args.publish = ''
     try:
         args.plan = plan_durations(args.quick, args.duration, args.condition_duration,
                                    args.rounds)

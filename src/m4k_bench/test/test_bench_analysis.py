@@ -198,6 +198,19 @@ def test_bench_rejects_unknown_skip_phase(capsys):
     assert "unknown phase(s) ['nope']" in capsys.readouterr().err
 
 
+def test_bench_only_runs_the_named_phases_and_does_not_publish(capsys):
+    args = bench._parse_args(['--only', 'cmdlat'])
+    assert set(args.skip.split(',')) == set(bench.PHASES) - {'cmdlat'}
+    assert args.publish == ''
+    assert bench._parse_args(['--only', 'cmdlat', '--publish', 'x']).publish == 'x'
+    for argv, msg in ((['--only', 'nope'], "--only: unknown phase(s) ['nope']"),
+                      (['--only', 'cmdlat', '--skip', 'floor'], 'give one of them')):
+        with pytest.raises(SystemExit) as exc:
+            bench.main(argv)
+        assert exc.value.code == 2
+        assert msg in capsys.readouterr().err
+
+
 def test_actuator_periods_skip_non_consecutive_cycles():
     rel = [0, 10 * MS, 30 * MS, 40 * MS]       # a batch lost between cycles 1 and 2
     start = [1, 10 * MS + 1, 30 * MS + 5, 40 * MS + 2]
