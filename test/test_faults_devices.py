@@ -187,7 +187,7 @@ def test_encoder_frame_errors_and_jumps_are_flagged_never_fresh_angles(rig):
     assert bad and all(m.status & EncoderStatus.LEFT_FRAME for m in bad)
     assert len({m.left_angle for m in bad}) == 1, 'a bad frame must not move the angle'
     real_raw = enc.raw
-    enc.raw = lambda: (real_raw() + 2048) % mp.ENC_COUNTS   # half a turn: a jump
+    enc.raw = lambda t_ns=None: (real_raw(t_ns) + 2048) % mp.ENC_COUNTS   # half a turn: a jump
     jumped = []
     end = time.monotonic() + 5.0       # a busy machine may answer nothing within one window
     while not jumped and time.monotonic() < end:

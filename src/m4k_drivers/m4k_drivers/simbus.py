@@ -48,6 +48,7 @@ _I2C_WRITE = struct.Struct('>BB')      # address, register (+ data)
 _EVENT_WAIT = struct.Struct('>q')      # timeout ns (0 = just look)
 _EVENT = struct.Struct('>BQ')          # edge (1 rising, 2 falling), timestamp ns
 _LEVEL = struct.Struct('>BQ')          # level, time of the write (CLOCK_MONOTONIC ns)
+_STAMP = struct.Struct('>Q')           # CLOCK_MONOTONIC ns (SPI_TRANSFER_AT: CS asserts)
 
 
 class Op:
@@ -62,6 +63,7 @@ class Op:
     GPIO_EVENT = 0x07    # i64 timeout ns -> '' (none) or u8 edge + u64 timestamp ns
     TRUTH = 0x08         # '' -> JSON ground truth (no OPEN needed)
     SYSFS_WRITE = 0x09   # UTF-8 path + NUL + text -> '' (errno as the kernel's store())
+    SPI_TRANSFER_AT = 0x0A  # u64 CLOCK_MONOTONIC ns of CS asserting + bytes out -> bytes in
 
 
 EDGES = {1: 'rising', 2: 'falling'}
@@ -142,9 +144,23 @@ class SpiClient:
 
     def __init__(self, runtime_dir: str, name: str) -> None:
         self._conn = _Connection(runtime_dir, {'bus': 'spi', 'name': name})
+        self._timed = True
 
     def transfer(self, data: bytes) -> bytes:
-        """Clock ``data`` out and return the bytes clocked in."""
+        """Clock ``data`` out and return the bytes clocked in.
+
+        Sent with the instant chip select asserts (SPI_TRANSFER_AT): a device that latches on
+        it (an AS5045's angle) answers as of then, however late the simulator handles it. A
+        simulator without that op (EOPNOTSUPP) gets plain SPI_TRANSFERs from then on.
+        """
+        if self._timed:
+            try:
+                return self._conn.call(Op.SPI_TRANSFER_AT,
+                                       _STAMP.pack(time.monotonic_ns()) + bytes(data))
+            except OSError as exc:
+                if exc.errno != errno.EOPNOTSUPP:
+                    raise
+                self._timed = False
         return self._conn.call(Op.SPI_TRANSFER, bytes(data))
 
     def close(self) -> None:
@@ -425,6 +441,13 @@ class SimBusServer:
     def _device_op(device: Any, op: int, payload: bytes, realtime: bool = False) -> bytes:
         if op == Op.SPI_TRANSFER:
             return bytes(device.transfer(payload))
+        if op == Op.SPI_TRANSFER_AT:
+            if len(payload) < _STAMP.size:
+                raise OSError(errno.EINVAL, 'SPI_TRANSFER_AT: no timestamp')
+            (t_ns,) = _STAMP.unpack(payload[:_STAMP.size])
+            at = getattr(device, 'transfer_at', None)
+            data = payload[_STAMP.size:]
+            return bytes(device.transfer(data) if at is None else at(data, t_ns))
         if op == Op.I2C_READ:
             addr, reg, n = _I2C_READ.unpack(payload)
             return bytes(device.read_burst(addr, reg, n))

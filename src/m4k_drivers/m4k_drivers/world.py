@@ -36,6 +36,7 @@ seed and the stream name, so a run is reproducible.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, replace
 import math
 import threading
@@ -66,6 +67,7 @@ __all__ = ['inside', 'LEFT', 'RIGHT', 'point_seg', 'Pose', 'RobotParams', 'Robot
            'segments_touch', 'WORLD', 'World', 'WorldConfig', 'WorldConfigError']
 
 REST_V = 0.01        # m/s: below this the robot is at rest (truth's rest_since_ns)
+WHEEL_HISTORY_S = 0.5   # s of wheel angles kept for reads the simulator handles late
 
 
 class Pose(NamedTuple):
@@ -347,6 +349,11 @@ class World:
         self._drive = DriveState()
         self._wheel_speed = self._drive.wheel          # the same list: rad/s per wheel
         self._wheel_angle = [0.0, 0.0]
+        # The wheels' recent past, one entry per step (t_ns, angle and speed of each wheel),
+        # newest last: an encoder latches its angle when its read starts (an AS5045 at CSn's
+        # falling edge), which a simulator short of CPU handles later, after the world moved on.
+        self._past: deque[tuple[int, float, float, float, float]] = deque(
+            maxlen=max(2, round(WHEEL_HISTORY_S / self.config.step_s)))
         self._volts = [0.0, 0.0]
         self._enable_until_ns: int | None = None
         self._estop_open = False          # set by tests or a tool (set_estop_open)
@@ -397,6 +404,8 @@ class World:
         """Integrate the dynamics in fixed steps up to ``t_ns`` (earlier times are a no-op)."""
         with self._lock:
             while self._t_ns + self._step_ns <= t_ns:
+                self._past.append((self._t_ns, self._wheel_angle[0], self._wheel_angle[1],
+                                   self._wheel_speed[0], self._wheel_speed[1]))
                 self._step(self._step_ns * 1e-9)
                 self._t_ns += self._step_ns
 
@@ -720,13 +729,25 @@ class World:
         The dynamics move in whole steps, so the stepped state can be up to one step older
         than ``t_ns``; the angle is carried forward over that remainder at the wheel's present
         speed. An encoder read at ``t_ns`` and stamped ``t_ns`` must see the angle *of*
-        ``t_ns``: a 1 ms stamp/angle mismatch is 10 % of a 10 ms speed difference.
+        ``t_ns``: a 1 ms stamp/angle mismatch is 10 % of a 10 ms speed difference. A ``t_ns``
+        the world has already stepped past (up to WHEEL_HISTORY_S) is answered from the step
+        it fell in.
         """
         if side not in (LEFT, RIGHT):
             raise ValueError(f'side must be LEFT (0) or RIGHT (1), got {side!r}')
         t = self.clock() if t_ns is None else t_ns
         with self._lock:
             self.advance_to(t)
+            if t < self._t_ns and self._past:
+                # Asked for a moment the world has already stepped past (a read handled
+                # late): the angle of that moment, from the step it fell in (the oldest kept,
+                # WHEEL_HISTORY_S back, for anything older).
+                past = self._past
+                i = len(past) - 1
+                while i > 0 and past[i][0] > t:
+                    i -= 1
+                t0, a0, a1, w0, w1 = past[i]
+                return (a0, a1)[side] + (w0, w1)[side] * max(t - t0, 0) * 1e-9
             ahead = max(t - self._t_ns, 0) * 1e-9
             return self._wheel_angle[side] + self._wheel_speed[side] * ahead
 

@@ -74,7 +74,7 @@ def test_a_stuck_encoder_ends_the_straight_run_within_its_window_not_at_the_time
         rig.run_for(512, 512, 0.2)
         for port in bus['bus'].encoders:                 # magnet fell off: a valid, fixed angle
             frozen = port.dev.raw()
-            port.dev.raw = lambda frozen=frozen: frozen
+            port.dev.raw = lambda t_ns=None, frozen=frozen: frozen
         with pytest.raises(runs.Aborted, match='encoder or drive fault'):
             runs.straight(rig, 1.0, 0.1016, 0.15, limit_s=60.0)
     # Ground truth: it drove a little over one second at 0.3 m/s, not for a minute.

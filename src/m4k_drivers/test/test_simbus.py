@@ -1,6 +1,7 @@
 """sim-bus: framing, the three transports, errors as errno, against the in-process SimRobot."""
 
 import errno
+import math
 import socket
 import struct
 import time
@@ -81,3 +82,54 @@ def test_truth_and_a_garbage_frame_length(sim_robot, m4k_runtime_dir):
     assert s.recv(16) == b''
     s.close()
     assert read_truth(m4k_runtime_dir)['t_ns'] >= doc['t_ns']     # the simulator lives on
+
+
+def test_an_encoder_read_answers_with_the_angle_latched_when_chip_select_fell(
+        sim_robot, m4k_runtime_dir):
+    # An AS5045 latches at CSn's falling edge: a read the simulator handles 60 ms late (here:
+    # the world moved on in between) still reads the angle of the moment it started.
+    from m4k_drivers import simbus
+    world = sim_robot.world
+    world.set_enable_until(None)                      # no heartbeat needed: always enabled
+    world.set_motor_voltage(0, 12.0)
+    time.sleep(0.3)                                   # the wheel turns at a few rad/s
+    enc = SpiClient(m4k_runtime_dir, 'left_enc')
+    stamp = time.monotonic_ns() - 60_000_000          # CS fell 60 ms ago
+    try:
+        raw = mp.decode_encoder(enc._conn.call(simbus.Op.SPI_TRANSFER_AT,
+                                               struct.pack('>Q', stamp) + bytes(3))).raw
+        plain = mp.decode_encoder(enc.transfer(bytes(3))).raw     # stamped now
+    finally:
+        enc.close()
+    counts = mp.ENC_COUNTS / (2 * math.pi)
+    then = world.encoder_angle(0, stamp)[0] * counts
+    now = world.encoder_angle(0)[0] * counts
+    assert now - then > 20                            # 60 ms is many counts at this speed
+
+    def off(a, b):
+        return abs((a - b + 2048) % 4096 - 2048)
+    assert off(raw, then) <= 3                        # noise 0.5 LSB sd
+    assert off(plain, then) > 15                      # the client's own read: of its moment
+
+
+def test_a_simulator_without_the_timed_transfer_gets_plain_ones(sim_robot, m4k_runtime_dir,
+                                                                monkeypatch):
+    # An older or independent simulator answers SPI_TRANSFER_AT with EOPNOTSUPP: the client
+    # falls back to SPI_TRANSFER for good on that connection, and the read still works.
+    from m4k_drivers import simbus
+    real = simbus.SimBusServer._device_op
+    seen = []
+
+    def older(device, op, payload, realtime=False):
+        seen.append(op)
+        if op == simbus.Op.SPI_TRANSFER_AT:
+            raise OSError(errno.EOPNOTSUPP, 'unknown sim-bus op 0x0a')
+        return real(device, op, payload, realtime)
+    monkeypatch.setattr(simbus.SimBusServer, '_device_op', staticmethod(older))
+    enc = SpiClient(m4k_runtime_dir, 'left_enc')
+    try:
+        for _ in range(3):
+            assert 0 <= mp.decode_encoder(enc.transfer(bytes(3))).raw < 4096
+    finally:
+        enc.close()
+    assert seen == [simbus.Op.SPI_TRANSFER_AT] + [simbus.Op.SPI_TRANSFER] * 3

@@ -236,3 +236,26 @@ def test_world_scene_and_fault_errors_are_config_errors():
     with pytest.raises(ConfigError) as info:
         WorldConfig.from_dict({'faults': [{'at_s': 1, 'kind': 'estop', 'until_s': 0.5}]})
     assert info.value.path == 'world.faults[0].until_s'
+
+
+def test_a_moment_the_world_has_stepped_past_is_answered_with_the_angle_of_then(fake_clock):
+    # A read handled late (a simulator short of CPU) asks for the moment it started: the
+    # world has moved on, and answers from its kept past, as a world that stopped there would.
+    t = fake_clock
+    w = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
+    still = World(WorldConfig(obstacles=()), clock=t, t0_ns=0)
+    for world in (w, still):
+        world.set_motor_voltage(LEFT, 12.0)
+        world.set_motor_voltage(RIGHT, -6.0)
+    t.t = 300_250_000
+    then = [still.wheel_angle_at(side) for side in (LEFT, RIGHT)]
+    t.t = 380_000_000          # 80 ms later the world has stepped on ...
+    assert w.wheel_angle_at(LEFT) - then[LEFT] > 0.1
+    for side in (LEFT, RIGHT):  # ... and still says where each wheel was at 300.25 ms
+        assert w.wheel_angle_at(side, 300_250_000) == pytest.approx(then[side], abs=1e-9)
+    # older than the kept past (WHEEL_HISTORY_S): the oldest kept step, never a later one
+    t.t = 2_000_000_000
+    w.now()
+    oldest = w.wheel_angle_at(LEFT, 0)
+    assert oldest == pytest.approx(w.wheel_angle_at(LEFT, 1_500_000_000), abs=1e-9)
+    assert oldest < w.wheel_angle_at(LEFT, 1_700_000_000)

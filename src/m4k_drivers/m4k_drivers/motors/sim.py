@@ -74,10 +74,10 @@ class SimEncoder:
         self.closed = False
         self.fault: dict[str, bool] | None = None    # status-bit override for fault injection
 
-    def raw(self) -> int:
-        """Return the current 12-bit reading with noise (what a faulty encoder says, too)."""
+    def raw(self, t_ns: int | None = None) -> int:
+        """Return the 12-bit reading of ``t_ns`` (default now) with noise (a faulty one's too)."""
         # The angle at the read time, as the world's encoder faults have it (m4k_drivers.faults)
-        angle, frozen = self.world.encoder_angle(self.side)
+        angle, frozen = self.world.encoder_angle(self.side, t_ns)
         counts = angle / (2.0 * math.pi) * p.ENC_COUNTS
         if self.noise_lsb and not frozen:
             counts += float(self.rng.normal(0.0, self.noise_lsb))
@@ -85,12 +85,23 @@ class SimEncoder:
 
     def transfer(self, data: bytes) -> bytes:
         """Answer a 3-byte read with the current frame."""
+        return self.transfer_at(data, None)
+
+    def transfer_at(self, data: bytes, t_ns: int | None) -> bytes:
+        """Answer a 3-byte read with the frame latched at ``t_ns`` (CSn's falling edge).
+
+        The AS5045 latches its angle when CSn falls, the instant the read starts (datasheet:
+        SSI, "the data is latched at the falling edge of CSn"), not when a simulator short of
+        CPU gets round to the request; ``None``: now.
+        """
         if self.closed:
             raise OSError(9, 'Bad file descriptor')
         if len(data) != p.ENC_READ_LEN:
             raise DeviceProtocolError(f'AS5045 sim: expected a {p.ENC_READ_LEN}-byte read, '
                                       f'got {bytes(data)!r}')
-        return p.encode_encoder(self.raw(), lead_bits=self.lead_bits, **(self.fault or {}))
+        if t_ns is not None and t_ns > self.world.clock():
+            t_ns = None         # a stamp from the future is another clock (a test's): now
+        return p.encode_encoder(self.raw(t_ns), lead_bits=self.lead_bits, **(self.fault or {}))
 
     def close(self) -> None:
         """Mark closed."""
