@@ -4,12 +4,14 @@ The workspace tests are the end-to-end tier: every module here is marked ``e2e``
 stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODULES`, which
 ``make check`` runs with the packages' unit tests. A new module is end to end unless listed.
 
-``make test`` (tools/run-tests.sh) runs the end-to-end tier in streams side by side: the modules
-in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's priority and
-rights, those of them in :data:`WHOLE_MACHINE` (marked ``whole_machine``) first; the rest,
+``make test`` (tools/run-tests.sh) runs the end-to-end tier in streams: the modules in
+:data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's priority and
+rights, those of them in :data:`WHOLE_MACHINE` (marked ``whole_machine``) first; the rest
 confined (nice 19, no right to SCHED_FIFO or locked memory, a CPU cgroup below the default
-weight), once those are done: the modules in :data:`AFTER_PACKAGES` after the packages'
-end-to-end tests, every other one (a new module too) in the e2e stream.
+weight): the modules in :data:`AFTER_PACKAGES` after the packages' end-to-end tests, every
+other one (a new module too) in the e2e stream. By default the serial stream runs after the
+confined ones; side by side (``M4K_TEST_SIDE_BY_SIDE=1``) the confined stacks start once the
+whole-machine tests are done.
 """
 
 import pytest
