@@ -4,7 +4,7 @@
 #                                     stops it); FOXGLOVE=1 adds the live view on localhost:8765
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests, in
-#                                     three streams; the serial one alone, after the others
+#                                     four streams; the serial one alone, after the others
 #                                     (M4K_TEST_SIDE_BY_SIDE=1: side by side; docs/testing.md)
 #   make check                        lint + the unit tiers: make test without the tests marked
 #                                     e2e (they start the stack, processes or ROS nodes); lint,

@@ -4,13 +4,14 @@ The workspace tests are the end-to-end tier: every module here is marked ``e2e``
 stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODULES`, which
 ``make check`` runs with the packages' unit tests. A new module is end to end unless listed.
 
-``make test`` (tools/run-tests.sh) runs the end-to-end tier in three streams (by default the
-serial one alone, after the other two; ``M4K_TEST_SIDE_BY_SIDE=1``: side by side): the modules
-in :data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's priority and
-rights; the rest in two confined streams (nice 19, no right to SCHED_FIFO or locked memory;
-side by side also a low-weight CPU cgroup) -- the modules in :data:`AFTER_PACKAGES` and
-:data:`AFTER_SERIAL` after the package tier, every other one (a new module too) from the start.
-Side by side, the :data:`AFTER_SERIAL` modules run confined after the serial stream instead.
+``make test`` (tools/run-tests.sh) runs the end-to-end tier in streams: the modules in
+:data:`SERIAL_MODULES` (marked ``serial``) one after the other at the caller's priority and
+rights, those of them in :data:`WHOLE_MACHINE` (marked ``whole_machine``) first; the rest
+confined (nice 19, no right to SCHED_FIFO or locked memory, a CPU cgroup below the default
+weight): the modules in :data:`AFTER_PACKAGES` after the packages' end-to-end tests, every
+other one (a new module too) in the e2e stream. By default the serial stream runs after the
+confined ones; side by side (``M4K_TEST_SIDE_BY_SIDE=1``) the confined stacks start once the
+whole-machine tests are done.
 """
 
 import pytest
@@ -37,22 +38,26 @@ SERIAL_MODULES = frozenset({
     'test_host_drops_e2e', 'test_bench_smoke', 'test_fleet',
 })
 
-# Run, confined, after the package tier (AFTER_PACKAGES) or after the serial stream
-# (AFTER_SERIAL); every other module (a new one too) is the e2e stream's. Both tiers end at
-# ~10 min on this machine; these ~4 min of mostly-waiting modules are split between their
-# tails by the measured per-file times (docs/testing.md).
+# The serial modules that load every core on purpose (the bench's stress-ng and cyclictest,
+# three robots at once): the serial stream runs them before any confined stack starts, so that
+# no end-to-end test of another stream has to drive beside them.
+WHOLE_MACHINE = frozenset({'test_bench_smoke', 'test_fleet'})
+assert WHOLE_MACHINE <= SERIAL_MODULES
+
+# Run, confined, after the packages' end-to-end tests, in their stream; every other module (a
+# new one too) is the e2e stream's. The split balances the two streams by the measured
+# per-file times (docs/testing.md).
 AFTER_PACKAGES = frozenset({
-    'test_faults_e2e', 'test_tf_e2e', 'test_two_machines',
-})
-AFTER_SERIAL = frozenset({
-    'test_doctor_fleet', 'test_foxglove_rights_e2e', 'test_launch_ros_args', 'test_record_e2e',
+    'test_faults_e2e', 'test_tf_e2e', 'test_two_machines', 'test_doctor_fleet',
+    'test_foxglove_rights_e2e', 'test_launch_ros_args', 'test_record_e2e', 'test_doctor',
+    'test_dds_discovery_range',
 })
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test of a module outside :data:`UNIT_MODULES` ``e2e``, and those of
-    :data:`SERIAL_MODULES` ``serial``, of :data:`AFTER_PACKAGES` ``after_packages`` and of
-    :data:`AFTER_SERIAL` ``after_serial``."""
+    :data:`SERIAL_MODULES` ``serial``, of :data:`WHOLE_MACHINE` ``whole_machine`` and of
+    :data:`AFTER_PACKAGES` ``after_packages``."""
     for item in items:
         if item.path.stem not in UNIT_MODULES:
             item.add_marker(pytest.mark.e2e)
@@ -60,5 +65,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.serial)
         if item.path.stem in AFTER_PACKAGES:
             item.add_marker(pytest.mark.after_packages)
-        if item.path.stem in AFTER_SERIAL:
-            item.add_marker(pytest.mark.after_serial)
+        if item.path.stem in WHOLE_MACHINE:
+            item.add_marker(pytest.mark.whole_machine)

@@ -189,7 +189,7 @@ def test_e_stop_stops_the_robot_ignores_commands_and_needs_a_fresh_one(
     assert _dist(truth.latest(), rest) < STILL_M
     assert all(abs(r['v']) < AT_REST for r in truth.reports if r['t_ns'] > rest['t_ns'])
     # a fresh command drives again
-    user.spin_until(lambda: (truth.poll() or {}).get('v', 0.0) > 0.1, 10,
+    user.spin_until(lambda: (truth.poll() or {}).get('v', 0.0) > 0.1, 30,
                     'a fresh command to move the robot', each=send)
     assert proc.poll() is None
 

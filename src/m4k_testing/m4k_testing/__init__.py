@@ -118,11 +118,11 @@ def pytest_configure(config: pytest.Config) -> None:
         'markers', "serial: judged on the simulator's physics in wall-clock time; make test runs "
         'these one at a time at normal priority, the rest beside them at a lower one')
     config.addinivalue_line(
-        'markers', 'after_packages: a workspace module make test runs after the package tier, '
-        'in its confined stream (test/conftest.py)')
+        'markers', "after_packages: a workspace module make test runs after the packages' "
+        'end-to-end tests, in their confined stream (test/conftest.py)')
     config.addinivalue_line(
-        'markers', 'after_serial: a workspace module make test runs, confined, after the '
-        'serial stream (test/conftest.py)')
+        'markers', 'whole_machine: a serial test that loads every core on purpose; make test '
+        'runs these first, before any confined stack starts (test/conftest.py)')
     config.addinivalue_line(
         'markers', 'ros2cli: needs launch/launch_ros or ros2cli (not on PyPI: a full ROS '
         'install or the ros-verify environment); skipped with the reason elsewhere')
