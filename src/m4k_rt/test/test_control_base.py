@@ -505,3 +505,37 @@ def test_one_late_encoder_sample_in_a_guard_stop_does_not_begin_the_hold_at_spee
         t = drive(ctl, plant, 1, t, cmd=(v, 0.0), cap=0.0, guard_active=True)
         assert not (ctl.holding and abs(ctl.left_speed) > p.hold.speed), (k, ctl.left_speed)
     assert ctl.holding and not ctl.supervisor.latched
+
+
+@pytest.mark.parametrize('every', [1, 3, 6])
+def test_the_hold_integrates_per_encoder_sample_not_per_cycle(every):
+    """A stack short of CPU (a confined test stream) got encoder samples every 3-10 cycles.
+    The hold integrated the last speed read in every cycle -- its integral, and the
+    break-away boost against a roll, wound several times as fast as the wheel moved; the held
+    wheel hunted, and the level test latched "left wheel turns while commanded still" on a
+    robot at rest (the fault trace of a starved stack). Here a held wheel on the level is
+    nudged once (a 10-count roll), then samples come every ``every`` cycles: the integral
+    moves only on a cycle with a new sample, and the level test does not latch."""
+    ctl, p = make(hold={'enabled': True})
+    plant = BrakingPlant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0, slope=0.0)
+    t = drive(ctl, plant, 100, t, cmd=(0.0, 0.0), slope=0.0)
+    assert ctl.holding
+    nudge = 10 * 2 * math.pi / 4096
+    efforts = []
+    for k in range(60):
+        t += PERIOD_NS
+        if k % every == 0:
+            if k == 0:
+                plant.angle[0] += nudge
+            ctl.encoders(plant.angle[0], plant.angle[1], t, t)
+        ctl.imu(0.0, t, slope=0.0)
+        ctl.command(0.0, 0.0, t)
+        before = ctl.hold_effort[0]
+        ctl.step(t, math.inf, False)
+        if k % every:
+            assert ctl.hold_effort[0] == before, (k, before, ctl.hold_effort[0])
+        efforts.append(ctl.hold_effort[0])
+        assert not ctl.supervisor.latched, (k, cause_text(ctl.supervisor.cause))
+    assert ctl.holding
+    assert abs(efforts[-1]) < p.supervision.level_hold_effort, efforts[-1]

@@ -179,6 +179,8 @@ class BaseController:
         self.holding = False
         self.hold_effort = [0.0, 0.0]       # per wheel, the hold's integral (normalized)
         self._hold_ref = [0.0, 0.0]         # per wheel, the angle it last read still at
+        self._hold_seen = -1                # encoder_samples when the hold's integral last ran
+        self._hold_span = 0.0               # s since then
         self._hold_live = [False, False]    # per wheel, read still: its integral runs
         self._hold_pulled = [False, False]  # per wheel, found pulled: braked
         self._held_s = 0.0                  # how long the present hold has lasted
@@ -578,11 +580,24 @@ class BaseController:
                 self.holding = True
                 self.hold_effort[0] = self.hold_effort[1] = 0.0
                 self._hold_ref[0], self._hold_ref[1] = self._angles
+                self._hold_seen = -1
+                self._hold_span = 0.0
                 self._held_s = 0.0
             if self.holding:
+                # The integral runs on each new encoder sample, over the time since the last
+                # one: a cycle without a fresh sample adds nothing, where the last speed read
+                # would be counted again (a stack short of CPU, samples every 3-10 cycles: the
+                # integral wound at several times its rate, the wheel hunted, and the level
+                # test latched a robot at rest). With a sample every cycle, span == dt.
+                self._hold_span += dt
+                if self.encoder_samples != self._hold_seen:
+                    self._hold_seen = self.encoder_samples
+                    span, self._hold_span = self._hold_span, 0.0
+                else:
+                    span = 0.0
                 self._held_s += dt
-                ul = self.left_u = self._hold_step(0, ls, dt)
-                ur = self.right_u = self._hold_step(1, rs, dt)
+                ul = self.left_u = self._hold_step(0, ls, dt, span)
+                ur = self.right_u = self._hold_step(1, rs, dt, span)
                 self.left_code = command_to_code(ul)
                 self.right_code = command_to_code(ur)
             else:
@@ -708,8 +723,11 @@ class BaseController:
             return True
         return False
 
-    def _hold_step(self, k: int, m: float, dt: float) -> float:
+    def _hold_step(self, k: int, m: float, dt: float, span: float) -> float:
         """Return the hold's command for wheel ``k`` at measured speed ``m`` (rad/s).
+
+        ``span``: the time the newest encoder sample's speed stands for (0 in a cycle
+        without a new sample).
 
         * Integral: ``-ki`` x the angle turned once the wheel has read still -- not over the
           last of a stop's braking, which a wheel on the level would then be driven back
@@ -737,7 +755,7 @@ class BaseController:
             self._hold_ref[k] = a                   # reads still: rolled from here
             self._hold_live[k] = True
         if self._hold_live[k] and -h.speed <= m <= h.speed:
-            i -= h.ki * m * dt
+            i -= h.ki * m * span
         # a pulled wheel is braked beyond the encoder's noise, down to where it reads still
         # and its integral starts; otherwise the motor's back-EMF damps, and a gain on the
         # noise only makes the wheel hunt the count
@@ -755,10 +773,10 @@ class BaseController:
             # line backed the robot up at 4 cm/s)
             # rolling on (not the encoder's noise): with the hold's push, or against it
             if i * m > 0.0:
-                step = 9.0 * h.ki * abs(m) * dt
+                step = 9.0 * h.ki * abs(m) * span
                 i = 0.0 if abs(i) <= step else i - math.copysign(step, i)
             else:
-                i -= math.copysign(self._boost * dt, m)
+                i -= math.copysign(self._boost * span, m)
         lim = h.limit
         i = lim if i > lim else -lim if i < -lim else i
         self.hold_effort[k] = i
