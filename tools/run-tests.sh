@@ -214,9 +214,10 @@ else
   export tmp markers base
   make_cgroups || echo "== no CPU cgroup could be made: the confined streams at nice 19 only =="
   # The side-by-side layout is opt-in (M4K_TEST_SIDE_BY_SIDE=1, and only with the cgroups):
-  # 11 min 15 s in a fresh clone, but two confined stacks starved beside the serial one
-  # latched a false motor fault (docs/testing.md). The default stays the order CI has passed
-  # in: the confined streams side by side, then the serial stream alone.
+  # 10 min 29 s - 10 min 44 s in three fresh clones in a row, after the two false motor faults
+  # it exposed in starved confined stacks were fixed (docs/testing.md). The default stays the
+  # order CI has passed in -- the confined streams side by side, then the serial stream
+  # alone -- until the switch is made with a fresh clone of its own.
   if [[ ${M4K_TEST_SIDE_BY_SIDE:-} == 1 && -n ${cg[batch]:-} ]]; then
     # Four streams side by side: the serial one at the caller's priority and rights in the
     # root group; the stacks streams (e2e; the packages' end-to-end tests, then
