@@ -4,8 +4,8 @@
 #                                     stops it); FOXGLOVE=1 adds the live view on localhost:8765
 #   make lint                         tools/lint.sh: ruff, then mypy (mypy.ini)
 #   make test                         lint + colcon test of every package + workspace tests, in
-#                                     four streams; the serial one alone, after the others
-#                                     (M4K_TEST_SIDE_BY_SIDE=1: side by side; docs/testing.md)
+#                                     four streams side by side (M4K_TEST_SERIAL_ALONE=1: the
+#                                     serial one alone, after the others; docs/testing.md)
 #   make check                        lint + the unit tiers: make test without the tests marked
 #                                     e2e (they start the stack, processes or ROS nodes); lint,
 #                                     colcon test and the workspace tier side by side

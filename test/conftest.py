@@ -9,9 +9,9 @@ stack, its processes or ROS nodes) except the static checks in :data:`UNIT_MODUL
 rights, those of them in :data:`WHOLE_MACHINE` (marked ``whole_machine``) first; the rest
 confined (nice 19, no right to SCHED_FIFO or locked memory, a CPU cgroup below the default
 weight): the modules in :data:`AFTER_PACKAGES` after the packages' end-to-end tests, every
-other one (a new module too) in the e2e stream. By default the serial stream runs after the
-confined ones; side by side (``M4K_TEST_SIDE_BY_SIDE=1``) the confined stacks start once the
-whole-machine tests are done.
+other one (a new module too) in the e2e stream. The four streams run side by side, the confined
+stacks starting once the whole-machine tests are done; without CPU cgroups, or with
+``M4K_TEST_SERIAL_ALONE=1``, the serial stream runs after the confined ones.
 """
 
 import pytest

@@ -19,9 +19,10 @@
 # or locked memory (RLIMIT_RTPRIO 0; as root, CAP_SYS_NICE and CAP_IPC_LOCK dropped), so the
 # RT threads of their stacks run as ordinary threads (rt_core reports the refusal: hardening
 # DEGRADED, and runs on), and in a CPU cgroup below the default weight where one can be
-# made: batch at an eighth, the two stacks streams at a half. By default the serial stream
-# runs alone after the others; with M4K_TEST_SIDE_BY_SIDE=1 (and the cgroups) beside them,
-# the stacks streams starting once its whole-machine tests are done. Nice alone does not put
+# made: batch at an eighth, the two stacks streams at a half. With the cgroups (the default)
+# all four run side by side, the stacks streams starting once the serial stream's
+# whole-machine tests are done; without them, or with M4K_TEST_SERIAL_ALONE=1, the serial
+# stream runs alone after the confined ones. Nice alone does not put
 # a stack that starts its own session below another (autogroup). SCHED_IDLE instead of nice
 # 19 starved the confined streams into failures of their own (docs/testing.md).
 set -uo pipefail
@@ -213,12 +214,13 @@ else
   export -f lint packages run_pytest batch_stream package_e2e_stream e2e_stream wait_go
   export tmp markers base
   make_cgroups || echo "== no CPU cgroup could be made: the confined streams at nice 19 only =="
-  # The side-by-side layout is opt-in (M4K_TEST_SIDE_BY_SIDE=1, and only with the cgroups):
-  # 10 min 29 s - 10 min 44 s in three fresh clones in a row, after the two false motor faults
-  # it exposed in starved confined stacks were fixed (docs/testing.md). The default stays the
-  # order CI has passed in -- the confined streams side by side, then the serial stream
-  # alone -- until the switch is made with a fresh clone of its own.
-  if [[ ${M4K_TEST_SIDE_BY_SIDE:-} == 1 && -n ${cg[batch]:-} ]]; then
+  # Side by side is the default where the cgroups could be made: 10 min 29 s - 10 min 44 s in
+  # fresh clones, against 16-17 min with the serial stream after the others, once the two
+  # false motor faults it exposed in starved confined stacks were fixed (docs/testing.md).
+  # Without the cgroups the confined streams are at nice 19 only, which does not hold a stack
+  # that starts its own session below the serial stream's (autogroup): then, or with
+  # M4K_TEST_SERIAL_ALONE=1, the serial stream runs alone after the others.
+  if [[ ${M4K_TEST_SERIAL_ALONE:-} != 1 && -n ${cg[batch]:-} ]]; then
     # Four streams side by side: the serial one at the caller's priority and rights in the
     # root group; the stacks streams (e2e; the packages' end-to-end tests, then
     # AFTER_PACKAGES) in the stacks cgroup once its whole-machine tests are done; lint and the
@@ -230,8 +232,9 @@ else
     (confined stacks bash -c package_e2e_stream) >"$tmp/package_e2e.log" 2>&1 & pe2e_pid=$!
     ( trap 'touch "$tmp/go"' EXIT; serial_stream ) >"$tmp/serial.log" 2>&1 || rc=1
   else
-    # The default: the three confined streams side by side, then the serial stream alone.
-    echo "== the serial stream runs after the confined ones (M4K_TEST_SIDE_BY_SIDE=1: side by side, docs/testing.md) =="
+    # No cgroups, or M4K_TEST_SERIAL_ALONE=1: the three confined streams side by side, then
+    # the serial stream alone.
+    echo "== the serial stream runs after the confined ones (no CPU cgroup, or M4K_TEST_SERIAL_ALONE=1; docs/testing.md) =="
     (confined batch bash -c batch_stream) >"$tmp/batch.log" 2>&1 & batch_pid=$!
     (confined stacks bash -c e2e_stream) >"$tmp/e2e.log" 2>&1 & e2e_pid=$!
     (confined stacks bash -c package_e2e_stream) >"$tmp/package_e2e.log" 2>&1 & pe2e_pid=$!
