@@ -14,6 +14,7 @@ from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
 from m4k_rt.control.supervision import cause_text
 from m4k_rt.protocol import (
+    DAC_ZERO,
     ODOM_BRAKING,
     ODOM_CLAMPED,
     ODOM_GUARD,
@@ -539,3 +540,78 @@ def test_the_hold_integrates_per_encoder_sample_not_per_cycle(every):
         assert not ctl.supervisor.latched, (k, cause_text(ctl.supervisor.cause))
     assert ctl.holding
     assert abs(efforts[-1]) < p.supervision.level_hold_effort, efforts[-1]
+
+
+@pytest.mark.parametrize('cmd', [(0.0, 1.0), (0.0, -1.0), (0.25, 0.0), (-0.25, 0.0), (0.2, 0.5)])
+def test_a_command_from_a_hold_gets_its_first_effort_in_its_first_cycle(cmd):
+    """The hold zeroes wheel setpoints below what the encoders resolve (``_count_speed``),
+    so that a heading correction does not leave both PIs at speeds their wheels read as
+    still. It zeroed the first cycles of every ramp from rest too -- three at 1 rad/s: a
+    30 ms dead time between a command and the first effort (the bench's cmd_vel -> motor
+    latency). A ramp toward a target the encoders resolve now passes at once; a target they
+    do not resolve (a heading hold's 4 mrad/s) still stands held."""
+    ctl, p = make(hold={'enabled': True})
+    plant = BrakingPlant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0, slope=0.0)
+    t = drive(ctl, plant, 100, t, cmd=(0.0, 0.0), slope=0.0)
+    assert ctl.holding
+    t = drive(ctl, plant, 1, t, cmd=cmd, slope=0.0)
+    assert (ctl.left_setpoint, ctl.right_setpoint) != (0.0, 0.0)
+    wl, wr = ctl.kin.inverse(*cmd)
+    # never against the target (an arc's two axes ramp on their own limits: a wheel's first
+    # setpoint may be ~0)
+    assert ctl.left_setpoint * wl > -1e-12 and ctl.right_setpoint * wr > -1e-12
+    assert (ctl.left_code, ctl.right_code) != (DAC_ZERO, DAC_ZERO)
+    assert not ctl.holding
+
+
+def test_a_target_the_encoders_do_not_resolve_stays_held():
+    ctl, p = make(hold={'enabled': True})
+    plant = BrakingPlant(p.full_scale_wheel_speed)
+    t = drive(ctl, plant, 1, 0, slope=0.0)
+    t = drive(ctl, plant, 100, t, cmd=(0.0, 0.0), slope=0.0)
+    t = drive(ctl, plant, 50, t, cmd=(0.0, 0.004), cmd_every=1, slope=0.0)
+    assert (ctl.left_setpoint, ctl.right_setpoint) == (0.0, 0.0)
+    assert ctl.holding
+
+
+@pytest.mark.parametrize('roll', [0.13, 0.15])
+def test_a_pulled_wheel_rolling_on_gets_the_boost_whatever_its_speed(roll):
+    """A wheel the hold found pulled (faster than the zero word lets it roll) and never read
+    still has no integral but the break-away boost: once 3 counts on from where the hold
+    began and turning on, it grows at pi.breakaway_rate against the roll, per sample. The
+    test was ``rolled * speed >= 3 counts`` (rad x rad/s against rad): a wheel pulled at
+    0.15 rad/s (1 count a cycle; 1.5 cm/s at the rim) needed 20 counts, and one pulled down
+    a 4.8 deg ramp rolled on into the still test (a category-1 stop, on a ramp:
+    test_standstill_hold, downhill with a DAC trimmed -2 codes, after a start that began a
+    cycle sooner)."""
+    rate = 2.0
+    ctl, p = make(hold={'enabled': True}, pi={'breakaway_rate': rate})
+    slope = math.sin(math.radians(4.8))
+    t = 0
+    angles = [0.0, 0.0]
+    speeds = [0.0, 0.0]
+    seen = []
+    for k in range(160):
+        t += PERIOD_NS
+        for i in (0, 1):
+            angles[i] += speeds[i] * 0.01
+        ctl.encoders(angles[0], angles[1], t, t)
+        ctl.imu(0.0, t, slope=slope)
+        ctl.command(0.05 if k < 60 else 0.0, 0.0, t)
+        ctl.step(t, math.inf, False)
+        if k < 60:                                  # downhill at 5 cm/s, tracking
+            speeds = [ctl.left_setpoint, ctl.right_setpoint]
+        else:                                       # stopped: the right wheel rests, the
+            speeds = [max(speeds[0] - 0.1, roll),   # left one is pulled on at `roll` rad/s
+                      max(speeds[1] - 0.1, 0.0)]
+            if ctl.supervisor.latched:
+                break
+            if ctl.holding:
+                seen.append((ctl._hold_pulled[0], angles[0] - ctl._hold_ref[0],
+                             ctl.hold_effort[0]))
+    assert not ctl._hold_live[0] and seen         # never read still
+    steps = [b[2] - a[2] for a, b in zip(seen, seen[1:], strict=False)
+             if a[0] and a[1] >= 3 * COUNT and b[2] > -p.hold.limit]
+    assert len(steps) >= 3, seen
+    assert all(d <= -rate * 0.01 * 0.999 for d in steps), (steps, seen)

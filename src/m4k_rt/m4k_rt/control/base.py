@@ -112,6 +112,8 @@ _GUARD_BRAKING = 0.2
 # rad x direction: a held wheel this far on from where it last read still (3 encoder counts,
 # as the PI's break-away) is rolling, not showing the encoder's noise
 _HOLD_ROLLED = 3.0 * COUNT
+# rad/s: a wheel the hold has seen still rolls at _HOLD_ROLLED on at this speed, further at less
+_ROLL_SPEED = 1.0
 # cycles after the setpoints reach zero in which the pulled test only follows the speed up
 _PULL_GRACE_CYCLES = 3
 # the pulled test's margin grows by this share of the speed: a sample 4 ms late or early
@@ -559,11 +561,16 @@ class BaseController:
         cs = self._count_speed
         if self._hold.enabled and -cs < wl < cs and -cs < wr < cs:
             # Both below what the encoders resolve over the feedback window (1.2 cm/s at the
-            # rim): no speed the loop can follow -- the wheels stand, held. A heading hold's
-            # correction while a guard stop holds the robot otherwise left both PIs at setpoints
-            # their wheels read as still, where the never-against-the-setpoint rule dropped the
-            # effort that held them, and the robot crept down a ramp at 5 mm/s.
-            wl = wr = 0.0
+            # rim), and so is where the command leads: no speed the loop can follow -- the
+            # wheels stand, held. A heading hold's correction while a guard stop holds the
+            # robot otherwise left both PIs at setpoints their wheels read as still, where the
+            # never-against-the-setpoint rule dropped the effort that held them, and the robot
+            # crept down a ramp at 5 mm/s. A ramp from rest toward a resolvable target passes:
+            # zeroed too, its first cycles (three at 1 rad/s) were a dead time between a
+            # command and the first effort (the bench's cmd_vel -> motor latency, ~30 ms).
+            tl, tr = (0.0, 0.0) if estop.blocking else self.kin.inverse(tv, tw)
+            if -cs < tl < cs and -cs < tr < cs:
+                wl = wr = 0.0
         self.left_setpoint = wl
         self.right_setpoint = wr
         fresh = self.imu_rx_ns and now_ns - self.imu_rx_ns <= self._imu_timeout_ns
@@ -736,10 +743,12 @@ class BaseController:
           a count of encoder noise, to bring it to where it reads still. Otherwise none: the
           motor's back-EMF damps, and a gain on the noise only makes the wheel hunt the
           count.
-        A wheel that has turned 3 counts on from where it last read still (or, found pulled,
-        from where the hold began) and turns on is rolling, not showing the encoder's noise
-        (which only ever makes a held wheel read 1-2 counts); one still braking from the
-        motion before the hold is not (its pulled test goes on until it reads still):
+        A wheel that has turned 3 counts on from where it last read still and turns on at
+        1 rad/s (further at less: its integral already follows the angle), or one found pulled
+        that has turned 3 counts on from where the hold began at any speed, is rolling, not
+        showing the encoder's noise (which only ever makes a held wheel read 1-2 counts); one
+        still braking from the motion before the hold is not (its pulled test goes on until
+        it reads still):
 
         * against the integral, or with none: the integral is too small to stop it -- it
           grows at least at ``pi.breakaway_rate`` against the motion (static friction and an
@@ -767,7 +776,20 @@ class BaseController:
             # the motion before it (the pulled test goes on: a ramp may take it over)
             self._pulled(k, abs(m), dt)
         rolled = a - self._hold_ref[k]
-        if (self._hold_live[k] or self._hold_pulled[k]) and rolled * m >= _HOLD_ROLLED:
+        live = self._hold_live[k]
+        if live:
+            # Read still in this hold: its integral already grows with the angle (-ki x the
+            # roll); the boost is for a roll that outruns it -- 3 counts at 1 rad/s, further
+            # the slower it rolls (a slow roll boosted at once overshoots the load: the wheel
+            # then stands on an integral that pushes it, with nothing to unwind it but motion)
+            rolling = rolled * m >= _HOLD_ROLLED * _ROLL_SPEED
+        else:
+            # Found pulled and never read still: nothing but the boost builds the effort that
+            # will hold it, so 3 counts on at any speed (with ``rolled x m`` a wheel pulled
+            # down a 4.8 deg ramp at 0.15 rad/s needed 30 counts, and rolled on into the still
+            # test -- a category-1 stop, on a ramp)
+            rolling = self._hold_pulled[k] and rolled * m > 0.0 and abs(rolled) >= _HOLD_ROLLED
+        if rolling:
             # a wheel still braking from its last motion is no load: its roll would build an
             # integral that drives it back once it stops (a guard chattering at its release
             # line backed the robot up at 4 cm/s)
