@@ -59,13 +59,19 @@ class VirtualBase:
     reaches the controller this long after it was taken, plus up to ``imu_jitter_s`` more
     (uniform, from the world's seed; in order): on the robot the gyro arrives one hop after
     the encoders (the IMU task's period, the driver host's I2C read), and under load tens
-    of ms later.
+    of ms later. ``encoder_every``: the controller gets an encoder sample only every this many
+    cycles (a driver host or RT process short of CPU, a stalled bus: samples every 3-10 cycles
+    in starved test stacks); the DACs are written every cycle.
     """
 
     def __init__(self, world: Mapping[str, Any] | None = None,
                  control: Mapping[str, Any] | None = None, imu: bool = True,
                  heartbeat_hold_s: float = 0.05, imu_lag_s: float = 0.0,
-                 imu_jitter_s: float = 0.0) -> None:
+                 imu_jitter_s: float = 0.0, encoder_every: int = 1) -> None:
+        if encoder_every < 1:
+            raise ValueError(f'encoder_every must be >= 1, got {encoder_every!r}')
+        self._encoder_every = encoder_every
+        self._cycles = 0
         cfg = load_layered()
         self.control = deep_merge(cfg.get('control') or {}, dict(control or {}))
         body = (cfg.get('robot') or {}).get('body')
@@ -109,7 +115,8 @@ class VirtualBase:
         """Run one actuator cycle; ``v``/``w`` a fresh command (None: none this cycle)."""
         ctl, now = self.ctl, self.clock.t
         r = self.motor.read()
-        if r.value is not None:
+        self._cycles += 1
+        if r.value is not None and self._cycles % self._encoder_every == 0:
             e = r.value
             ctl.encoders(e.left_angle, e.right_angle, e.t_ns, now, e.status)
         if self.imu is not None:

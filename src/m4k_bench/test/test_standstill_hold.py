@@ -26,11 +26,11 @@ HELD_M = 0.005        # how far a held robot may still move on ground truth in 5
 HOLD = {'hold': {'enabled': True}}     # as shipped; stated so the ramp tests keep their subject
 
 
-def _ramp(grade=RAMP_DEG, downhill=DOWN_X, robot=None, control=HOLD, seed=3):
+def _ramp(grade=RAMP_DEG, downhill=DOWN_X, robot=None, control=HOLD, seed=3, **kw):
     floor = [{'rectangle': [-30.0, -30.0, 30.0, 30.0], 'mu': 0.6, 'grade_deg': grade,
               'downhill_deg': downhill}]
     return VirtualBase(world={'seed': seed, 'floor': floor, 'robot': robot or {}},
-                       control=control)
+                       control=control, **kw)
 
 
 def _x(vb):
@@ -186,5 +186,27 @@ def test_a_heading_correction_while_the_guard_holds_the_robot_on_the_ramp_moves_
         vb.run(10.0, 0.5, w, forward_cap=0.0, guard_active=True)
         assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
         assert abs(_x(vb) - x0) < HELD_M, _x(vb) - x0
+    finally:
+        vb.close()
+
+
+@pytest.mark.parametrize('every', [2, 3, 4])
+@pytest.mark.parametrize('how', STOPS)
+def test_with_encoder_samples_every_few_cycles_the_ramp_hold_keeps_the_robot(how, every):
+    # Hazard C22 on the ramp: a starved driver host or RT process delivers an encoder sample
+    # every few cycles (3-10 in the fault traces of starved test stacks). The hold integrates
+    # once per sample over the time since the last one: held on 4.8 deg after every kind of
+    # stop, the robot stays put and nothing latches. Not yet at 5 and 6 (50-60 ms, within
+    # motor_timeout): the guard stop downhill from 1 m/s (5, 6) and the turning stop (6)
+    # latch "turns while commanded still" during the stop -- C22's residual, untraced.
+    vb = _ramp(encoder_every=every)
+    try:
+        _stop(vb, how)
+        assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
+        assert vb.ctl.holding
+        x0 = _x(vb)
+        vb.run(5.0, 0.0)
+        assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
+        assert abs(_x(vb) - x0) < HELD_M, (how, _x(vb) - x0)
     finally:
         vb.close()

@@ -14,7 +14,6 @@ from m4k_rt.control.dac import code_to_command
 from m4k_rt.control.params import control_params
 from m4k_rt.control.supervision import cause_text
 from m4k_rt.protocol import (
-    DAC_ZERO,
     ODOM_BRAKING,
     ODOM_CLAMPED,
     ODOM_GUARD,
@@ -542,30 +541,9 @@ def test_the_hold_integrates_per_encoder_sample_not_per_cycle(every):
     assert abs(efforts[-1]) < p.supervision.level_hold_effort, efforts[-1]
 
 
-@pytest.mark.parametrize('cmd', [(0.0, 1.0), (0.0, -1.0), (0.25, 0.0), (-0.25, 0.0), (0.2, 0.5)])
-def test_a_command_from_a_hold_gets_its_first_effort_in_its_first_cycle(cmd):
-    """The hold zeroes wheel setpoints below what the encoders resolve (``_count_speed``),
-    so that a heading correction does not leave both PIs at speeds their wheels read as
-    still. It zeroed the first cycles of every ramp from rest too -- three at 1 rad/s: a
-    30 ms dead time between a command and the first effort (the bench's cmd_vel -> motor
-    latency). A ramp toward a target the encoders resolve now passes at once; a target they
-    do not resolve (a heading hold's 4 mrad/s) still stands held."""
-    ctl, p = make(hold={'enabled': True})
-    plant = BrakingPlant(p.full_scale_wheel_speed)
-    t = drive(ctl, plant, 1, 0, slope=0.0)
-    t = drive(ctl, plant, 100, t, cmd=(0.0, 0.0), slope=0.0)
-    assert ctl.holding
-    t = drive(ctl, plant, 1, t, cmd=cmd, slope=0.0)
-    assert (ctl.left_setpoint, ctl.right_setpoint) != (0.0, 0.0)
-    wl, wr = ctl.kin.inverse(*cmd)
-    # never against the target (an arc's two axes ramp on their own limits: a wheel's first
-    # setpoint may be ~0)
-    assert ctl.left_setpoint * wl > -1e-12 and ctl.right_setpoint * wr > -1e-12
-    assert (ctl.left_code, ctl.right_code) != (DAC_ZERO, DAC_ZERO)
-    assert not ctl.holding
-
-
 def test_a_target_the_encoders_do_not_resolve_stays_held():
+    # a heading hold's 4 mrad/s while the robot stands: both wheel setpoints below what the
+    # encoders resolve stand held (zero setpoints), not at speeds their wheels read as still
     ctl, p = make(hold={'enabled': True})
     plant = BrakingPlant(p.full_scale_wheel_speed)
     t = drive(ctl, plant, 1, 0, slope=0.0)
@@ -583,8 +561,8 @@ def test_a_pulled_wheel_rolling_on_gets_the_boost_whatever_its_speed(roll):
     test was ``rolled * speed >= 3 counts`` (rad x rad/s against rad): a wheel pulled at
     0.15 rad/s (1 count a cycle; 1.5 cm/s at the rim) needed 20 counts, and one pulled down
     a 4.8 deg ramp rolled on into the still test (a category-1 stop, on a ramp:
-    test_standstill_hold, downhill with a DAC trimmed -2 codes, after a start that began a
-    cycle sooner)."""
+    test_standstill_hold, downhill with a DAC trimmed -2 codes, after a start from rest three
+    cycles sooner)."""
     rate = 2.0
     ctl, p = make(hold={'enabled': True}, pi={'breakaway_rate': rate})
     slope = math.sin(math.radians(4.8))

@@ -561,16 +561,16 @@ class BaseController:
         cs = self._count_speed
         if self._hold.enabled and -cs < wl < cs and -cs < wr < cs:
             # Both below what the encoders resolve over the feedback window (1.2 cm/s at the
-            # rim), and so is where the command leads: no speed the loop can follow -- the
-            # wheels stand, held. A heading hold's correction while a guard stop holds the
-            # robot otherwise left both PIs at setpoints their wheels read as still, where the
-            # never-against-the-setpoint rule dropped the effort that held them, and the robot
-            # crept down a ramp at 5 mm/s. A ramp from rest toward a resolvable target passes:
-            # zeroed too, its first cycles (three at 1 rad/s) were a dead time between a
-            # command and the first effort (the bench's cmd_vel -> motor latency, ~30 ms).
-            tl, tr = (0.0, 0.0) if estop.blocking else self.kin.inverse(tv, tw)
-            if -cs < tl < cs and -cs < tr < cs:
-                wl = wr = 0.0
+            # rim): no speed the loop can follow -- the wheels stand, held. A heading hold's
+            # correction while a guard stop holds the robot otherwise left both PIs at setpoints
+            # their wheels read as still, where the never-against-the-setpoint rule dropped the
+            # effort that held them, and the robot crept down a ramp at 5 mm/s. (The first
+            # cycles of a ramp from rest are zeroed too: ~30 ms from a 1 rad/s command to the
+            # first effort. Letting a ramp toward a resolvable target pass cut the bench's
+            # cmd_vel -> motor p50 from 35 to 4-5 ms, but the restarts of a guard chattering
+            # at its release line on an arc then turned the robot off its arc, and one
+            # envelope run passed a leg at 8 cm: backed out, docs/results/README.md.)
+            wl = wr = 0.0
         self.left_setpoint = wl
         self.right_setpoint = wr
         fresh = self.imu_rx_ns and now_ns - self.imu_rx_ns <= self._imu_timeout_ns
@@ -786,7 +786,7 @@ class BaseController:
         else:
             # Found pulled and never read still: nothing but the boost builds the effort that
             # will hold it, so 3 counts on at any speed (with ``rolled x m`` a wheel pulled
-            # down a 4.8 deg ramp at 0.15 rad/s needed 30 counts, and rolled on into the still
+            # down a 4.8 deg ramp at 0.15 rad/s needed 20 counts, and rolled on into the still
             # test -- a category-1 stop, on a ramp)
             rolling = self._hold_pulled[k] and rolled * m > 0.0 and abs(rolled) >= _HOLD_ROLLED
         if rolling:

@@ -142,8 +142,7 @@ class HoldParams:
     enabled: bool = setting(Field(
         'bool', True, 'Hold the wheels at zero speed once they have stopped with zero '
         'setpoints (a stop, a guard stop, the e-stop ramp, no command yet), and stand both '
-        'wheels whose setpoints, and those the command leads to, are below what the encoders '
-        'resolve; the supervision judges a '
+        'wheels whose setpoints are below what the encoders resolve; the supervision judges a '
         'held wheel by supervision.standstill_window. false: the zero word only (the back-EMF '
         'brakes, nothing holds): on a ramp steeper than ~2.7 deg the robot rolls away and the '
         'still test latches a motor fault (hazard C19).'))
