@@ -61,18 +61,23 @@ STOPS = ['placed', 'zero command, downhill', 'guard stop, downhill',
          'zero command, reversing uphill', 'zero command, turning']
 
 
+def _held_after(vb, how):
+    """Stop one way, then 5 s of zero commands: held, nothing latched, still on ground truth."""
+    _stop(vb, how)
+    assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
+    assert vb.ctl.holding
+    x0 = _x(vb)
+    vb.run(5.0, 0.0)
+    assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
+    assert abs(_x(vb) - x0) < HELD_M, (how, _x(vb) - x0)
+
+
 @pytest.mark.parametrize('base', list(BASES))
 @pytest.mark.parametrize('how', STOPS)
 def test_stopped_on_a_4_8_deg_ramp_the_robot_stays_put_and_latches_nothing(how, base):
     vb = _ramp(robot=BASES[base])
     try:
-        _stop(vb, how)
-        assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
-        assert vb.ctl.holding
-        x0 = _x(vb)
-        vb.run(5.0, 0.0)
-        assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
-        assert abs(_x(vb) - x0) < HELD_M, (how, _x(vb) - x0)
+        _held_after(vb, how)
         assert abs(vb.world.state().v) < 0.01
     finally:
         vb.close()
@@ -201,12 +206,6 @@ def test_with_encoder_samples_every_few_cycles_the_ramp_hold_keeps_the_robot(how
     # latch "turns while commanded still" during the stop -- C22's residual, untraced.
     vb = _ramp(encoder_every=every)
     try:
-        _stop(vb, how)
-        assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
-        assert vb.ctl.holding
-        x0 = _x(vb)
-        vb.run(5.0, 0.0)
-        assert not vb.faulted(), cause_text(vb.ctl.supervisor.cause)
-        assert abs(_x(vb) - x0) < HELD_M, (how, _x(vb) - x0)
+        _held_after(vb, how)
     finally:
         vb.close()
