@@ -274,13 +274,15 @@ def test_monitor_ships_rt_side_port_counters_with_a_malformed_datagram(procs, tm
 
     def cmd_malformed(got):
         # and the actuator has tried the motor port at least once: under load (a confined
-        # stream) the first PORT_STATS may come before its first WHEEL_CMD
+        # stream) the first PORT_STATS may come before its first WHEEL_CMD. The monitor sends
+        # one PORT_STATS per port back to back, so a read can end mid-round: wait for port 11
+        # (the last of the round) too, or the set below sees half a round.
         s = stats(got)
         return (1 in s and s[1].malformed == 1 and s[1].received >= 1
-                and 2 in s and s[2].dropped_no_peer > 0)
+                and 2 in s and s[2].dropped_no_peer > 0 and 11 in s)
 
-    got = _status_until(link, cmd_malformed, 10, 'PORT_STATS of cmd with malformed 1 and of '
-                        'motor with a WHEEL_CMD dropped')
+    got = _status_until(link, cmd_malformed, 10, 'PORT_STATS of cmd with malformed 1, of '
+                        'motor with a WHEEL_CMD dropped, and of the last port')
     procs.stop(proc)
     ports = stats(got)
     # every port of the RT process, with its label, as the RT side sees it
