@@ -71,13 +71,16 @@ def test_localhost_with_static_peers(unicast_link, procs, tmp_path, m4k_runtime_
         start = truth.latest()
         say(control, '0.2')
         end = time.monotonic() + (60 if drives else QUIET_S)
-        while time.monotonic() < end:
+
+        def moved():
+            # any report since the start: the newest alone may be a dip under load (the loop
+            # once broke on v > 0.1 and a fresh read a moment later said 0.09)
+            return next((r for r in truth.reports if r['t_ns'] > start['t_ns']
+                         and r['v'] > 0.1), None)
+        while time.monotonic() < end and moved() is None:
             truth.poll()
-            if truth.latest()['v'] > 0.1:
-                break
             time.sleep(0.1)
-        moved = truth.latest()['v'] > 0.1
-        assert moved == drives, (laptop_status(status), truth.latest(), start)
+        assert (moved() is not None) == drives, (laptop_status(status), moved(), start)
         assert (laptop_status(status)[0] > 0) == drives, laptop_status(status)
         assert laptop.poll() is None and robot.poll() is None
     finally:
