@@ -428,11 +428,19 @@ def test_e_stop_latch_survives_kill_9_of_rt_core_and_then_the_bridge(
     assert turned < 0.02, turned
     assert proc.poll() is None
     # the new RT session stated its guard again: the diagnostic and rt_status carry the cap
-    user.spin_until(lambda: _safety_diag(user) is not None, 10, 'the m4k_rt: safety diagnostic',
-                    each=each, period=0.05)
-    level, _, values = _safety_diag(user)
+    # (a STALE safety status carries no values: a bridge just up, a SAFETY_STATUS not yet in)
+    def stated():
+        d = _safety_diag(user)
+        return d is not None and 'top_forward_speed_mps' in d[2] and d
+    user.spin_until(stated, 10, 'the m4k_rt: safety diagnostic with its values', each=each,
+                    period=0.05)
+    level, _, values = stated()
     assert float(values['top_forward_speed_mps']) == pytest.approx(2.0)
     assert values['e_stop_latched'] == 'True' and values['wheel_supervision'] == 'on'
+    # and rt_status, once one is built after the SAFETY_STATUS (the wait above) came in
+    n = len(user.got['rt_status'])
+    user.spin_until(lambda: len(user.got['rt_status']) > n, 10, 'an rt_status', each=each,
+                    period=0.05)
     assert user.got['rt_status'][-1].guard_top_speed == pytest.approx(2.0)
     # the release still works (the service: it answers once the new bridge is up and the RT
     # latch reports released), and a fresh command turns the robot again

@@ -200,8 +200,9 @@ def test_monitor_forwards_each_device_status_and_marks_a_silent_one_stale(procs,
                          motor_reports)
     got += _status_until(link, seen('motor', p.LEVEL_WARN), 5, 'motor WARN', motor_reports)
     procs.stop(proc)
-    motor = [(h, m) for h, m in devices(got) if m.device == 'motor']
-    assert motor[-1][1] == p.DeviceStatus('motor', 3, p.LEVEL_WARN, 2, 4)
+    motor = [m for _, m in devices(got) if m.device == 'motor']
+    # forwarded as reported (the newest may be STALE: a motor path starved for 1 s)
+    assert p.DeviceStatus('motor', 3, p.LEVEL_WARN, 2, 4) in motor
     # stamped with when the RT task received the report, on the same monotonic clock
     assert all(t0 <= h.stamp_ns <= monotonic_ns() for h, _ in devices(got))
     imu = [(h, m) for h, m in devices(got) if m.device == 'imu']
@@ -241,8 +242,12 @@ def test_monitor_forwards_each_hosts_drop_counters_on_status_and_stat(procs, tmp
         stat += link.read_all('stat')
         time.sleep(0.02)
     health = []
-    while not any(h.kind == p.Kind.TASK_HEALTH and m.name == 'actuator' for h, m in health):
-        assert time.monotonic() < deadline + 10, 'no actuator TASK_HEALTH'
+
+    def healths():
+        return {m.name for h, m in health if h.kind == p.Kind.TASK_HEALTH}
+    # one TASK_HEALTH per task, back to back in the task order: a read can end mid-batch
+    while not {'actuator', 'led'} <= healths():
+        assert time.monotonic() < deadline + 10, 'no actuator and led TASK_HEALTH'
         host_reports()
         health += link.read_all('stat')
         time.sleep(0.02)
