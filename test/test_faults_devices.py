@@ -286,8 +286,6 @@ def test_imu_garbage_registers_are_counted_faults_never_an_imu_datagram(rig, gar
     model.garble = None
     assert not [m for m in _of(K.IMU, got) if not _sound_at_rest(m)]
     reason = 'gyro_full_scale' if garble == 'gyro_rail' else 'quaternion_norm'
-    assert set(r.handler.rejected) == {reason}
-    assert sum(r.handler.rejected.values()) == r.handler.faults - faults0
     st = _of(K.DEVICE_STATUS, got)
     assert st and st[-1].level == protocol.LEVEL_WARN
     assert st[-1].last_error == protocol.DeviceError.PROTOCOL
@@ -296,3 +294,8 @@ def test_imu_garbage_registers_are_counted_faults_never_an_imu_datagram(rig, gar
         assert time.monotonic() < end, 'no IMU sample after the bus recovered'
         back += r.run(0.05, K.REQUEST, (0, 0))
     assert _sound_at_rest(_of(K.IMU, back)[-1]), 'recovered without a restart'
+    # every rejected read a fault, each once -- compared once a sound sample is out: the
+    # handler counts a read's rejection and then its fault, and a request still in flight
+    # when the bus recovered could fall between two reads of the counters
+    assert set(r.handler.rejected) == {reason}
+    assert sum(r.handler.rejected.values()) == r.handler.faults - faults0
