@@ -195,15 +195,17 @@ def test_a_heading_correction_while_the_guard_holds_the_robot_on_the_ramp_moves_
         vb.close()
 
 
-@pytest.mark.parametrize('every', [2, 3, 4])
+@pytest.mark.parametrize('every', [2, 3, 4, 5, 6, 8])
 @pytest.mark.parametrize('how', STOPS)
 def test_with_encoder_samples_every_few_cycles_the_ramp_hold_keeps_the_robot(how, every):
     # Hazard C22 on the ramp: a starved driver host or RT process delivers an encoder sample
     # every few cycles (3-10 in the fault traces of starved test stacks). The hold integrates
-    # once per sample over the time since the last one: held on 4.8 deg after every kind of
-    # stop, the robot stays put and nothing latches. Not yet at 5 and 6 (50-60 ms, within
-    # motor_timeout): the guard stop downhill from 1 m/s (5, 6) and the turning stop (6)
-    # latch "turns while commanded still" during the stop -- C22's residual, untraced.
+    # once per sample over the time since the last one, judges a wheel pulled and brakes it
+    # on a new sample only, and steps its boost at most a cycle's worth per sample: held on
+    # 4.8 deg after every kind of stop, the robot stays put and nothing latches. (Before, at
+    # 5-8 cycles the guard stop downhill and the turning stop rocked the robot into "turns
+    # while commanded still", and it rolled 1.2-1.7 m.) At 10 (100 ms, motor_timeout itself)
+    # the reversing stop still latches: C22's residual.
     vb = _ramp(encoder_every=every)
     try:
         _held_after(vb, how)

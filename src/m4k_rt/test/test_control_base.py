@@ -507,6 +507,51 @@ def test_one_late_encoder_sample_in_a_guard_stop_does_not_begin_the_hold_at_spee
     assert ctl.holding and not ctl.supervisor.latched
 
 
+
+@pytest.mark.parametrize('every', [5, 8])
+def test_with_sparse_samples_a_pulled_wheel_is_braked_and_boosted_once_per_sample(every):
+    """Hazard C22 on a ramp: with an encoder sample every 5-8 cycles the hold braked a pulled
+    wheel on its last speed in every cycle (a 50 ms pulse on a 50 ms old speed) and stepped
+    its boost by the whole gap at once (0.1 of full scale a sample): the wheel swung past the
+    load and back, wider each time, and a guard stop downhill latched "turns while commanded
+    still" -- then rolled 1.2 m with the power cut (test_standstill_hold). Here a wheel
+    pulled down 4.8 deg at 0.15 rad/s, sampled every ``every`` cycles: the hold's command
+    carries a proportional part only in a cycle with a new sample, and its integral moves
+    on a new sample only, by at most a cycle's boost."""
+    rate = 2.0
+    ctl, p = make(hold={'enabled': True}, pi={'breakaway_rate': rate})
+    slope = math.sin(math.radians(4.8))
+    t = 0
+    angles = [0.0, 0.0]
+    speeds = [0.0, 0.0]
+    seen = []
+    for k in range(300):
+        t += PERIOD_NS
+        for i in (0, 1):
+            angles[i] += speeds[i] * 0.01
+        fresh = k % every == 0
+        if fresh:
+            ctl.encoders(angles[0], angles[1], t, t)
+        ctl.imu(0.0, t, slope=slope)
+        ctl.command(0.05 if k < 60 else 0.0, 0.0, t)
+        before = ctl.hold_effort[0]
+        ctl.step(t, math.inf, False)
+        if k < 60:                                  # downhill at 5 cm/s, tracking
+            speeds = [ctl.left_setpoint, ctl.right_setpoint]
+            continue
+        speeds = [max(speeds[0] - 0.1, 0.15), max(speeds[1] - 0.1, 0.0)]
+        if ctl.supervisor.latched:       # a wheel driven on: the still test's, in the end
+            break
+        if ctl.holding and ctl._hold_pulled[0]:
+            seen.append((fresh, ctl.left_u, ctl.hold_effort[0], ctl.hold_effort[0] - before))
+    assert not ctl._hold_live[0] and seen          # pulled on, never read still
+    stale = [s for s in seen if not s[0]]
+    assert stale and all(u == i for _, u, i, _ in stale), stale[:5]   # no braking on them
+    assert all(d == 0.0 for _, _, _, d in stale), stale[:5]
+    steps = [d for f, _, _, d in seen if f and d != 0.0]
+    assert steps and all(abs(d) <= rate * 0.01 * 1.001 for d in steps), steps
+    assert any(f and u != i for f, u, i, _ in seen)   # braked on a new sample
+
 @pytest.mark.parametrize('every', [1, 3, 6])
 def test_the_hold_integrates_per_encoder_sample_not_per_cycle(every):
     """A stack short of CPU (a confined test stream) got encoder samples every 3-10 cycles.

@@ -188,6 +188,8 @@ class BaseController:
         self._held_s = 0.0                  # how long the present hold has lasted
         self._hold_bound = [-1.0, -1.0]     # per wheel, the pulled test's falling bound
         self._hold_zero_cycles = 0          # cycles with zero setpoints (the pulled test's grace)
+        self._pull_seen = -1                # encoder_samples when the pulled test last judged
+        self._pull_span = 0.0               # s since then
         self._fb_window = params.speed_feedback_window
         self._fb_min_ns = max(1, int(0.5 * self._fb_window * self.period * 1e9))
         self.odom = Odometry(params.wheel_radius, params.track_width,
@@ -673,6 +675,8 @@ class BaseController:
         self.holding = False
         self._hold_bound[0] = self._hold_bound[1] = -1.0
         self._hold_zero_cycles = 0
+        self._pull_seen = -1
+        self._pull_span = 0.0
         self._hold_live[0] = self._hold_live[1] = False
         self._hold_pulled[0] = self._hold_pulled[1] = False
 
@@ -696,6 +700,17 @@ class BaseController:
         hb = self._hold_bound
         self._hold_zero_cycles += 1
         grace = self._hold_zero_cycles <= _PULL_GRACE_CYCLES
+        # judged on a new encoder sample only, its bound fallen over the time since the last:
+        # a speed read again in a cycle without one is as old as its sample, and the wheel
+        # has slowed since -- against a bound that fell every cycle, the last speed of a
+        # wheel braking down a ramp read pulled with samples every 5 cycles, and the hold's
+        # braking on that stale speed drove it back (C22)
+        self._pull_span += dt
+        fresh = self.encoder_samples != self._pull_seen
+        span = 0.0
+        if fresh:
+            self._pull_seen = self.encoder_samples
+            span, self._pull_span = self._pull_span, 0.0
         pulled = False
         for k, m in ((0, abs(ls)), (1, abs(rs))):
             if hb[k] < 0.0 or grace:
@@ -705,7 +720,7 @@ class BaseController:
                 # alone, one sample 1 ms late in the first cycle after the grace read a 2 m/s
                 # guard stop as pulled, and the hold braked and wound up through the whole stop
                 hb[k] = max(hb[k], self._pull_limit(m))
-            elif self._pulled(k, m, dt):
+            elif fresh and self._pulled(k, m, span):
                 pulled = True
         return pulled or (abs(ls) < h.speed and abs(rs) < h.speed)
 
@@ -752,7 +767,8 @@ class BaseController:
 
         * against the integral, or with none: the integral is too small to stop it -- it
           grows at least at ``pi.breakaway_rate`` against the motion (static friction and an
-          amplifier's dead band hold back a slow integral while the robot rolls);
+          amplifier's dead band hold back a slow integral while the robot rolls), by at most
+          a cycle's worth per encoder sample (samples far apart: the rate falls with them);
         * the way the integral pushes: the hold is more than the load needs (the integral of
           a wheel that came to rest on the level) -- it unwinds ten times as fast as it was
           built. The hold resists motion and never makes any.
@@ -768,13 +784,18 @@ class BaseController:
         # a pulled wheel is braked beyond the encoder's noise, down to where it reads still
         # and its integral starts; otherwise the motor's back-EMF damps, and a gain on the
         # noise only makes the wheel hunt the count
+        # -- in the cycle of a new encoder sample only: a speed read again in the cycles
+        # without one is as old as its sample, and braking on it for all of them (samples
+        # every 5 cycles: a 50 ms pulse on a 50 ms old speed) reversed the wheel, the next
+        # sample braked it back harder, and the hold rocked the robot into a still fault (C22)
         cs = self._count_speed
-        p = 0.0 if not self._hold_pulled[k] else -h.kp * (m - cs) if m > cs else \
-            -h.kp * (m + cs) if m < -cs else 0.0
-        if not (self._hold_live[k] or self._hold_pulled[k]):
+        p = 0.0 if not self._hold_pulled[k] or span == 0.0 else \
+            -h.kp * (m - cs) if m > cs else -h.kp * (m + cs) if m < -cs else 0.0
+        if not (self._hold_live[k] or self._hold_pulled[k]) and span > 0.0:
             # neither read still nor found pulled since the hold began: still braking from
-            # the motion before it (the pulled test goes on: a ramp may take it over)
-            self._pulled(k, abs(m), dt)
+            # the motion before it (the pulled test goes on, on new samples: a ramp may take
+            # it over)
+            self._pulled(k, abs(m), span)
         rolled = a - self._hold_ref[k]
         live = self._hold_live[k]
         if live:
@@ -794,11 +815,16 @@ class BaseController:
             # integral that drives it back once it stops (a guard chattering at its release
             # line backed the robot up at 4 cm/s)
             # rolling on (not the encoder's noise): with the hold's push, or against it
+            # At most a cycle's step per sample: the speed it acts on is as old as the gap
+            # since the last, and a step that grew with the gap (samples every 5 cycles: 0.1
+            # of full scale at a time) swung the wheel past the load and back, wider each
+            # time, into a still fault (C22).
+            reach = span if span < self.period else self.period
             if i * m > 0.0:
-                step = 9.0 * h.ki * abs(m) * span
+                step = 9.0 * h.ki * abs(m) * reach
                 i = 0.0 if abs(i) <= step else i - math.copysign(step, i)
             else:
-                i -= math.copysign(self._boost * span, m)
+                i -= math.copysign(self._boost * reach, m)
         lim = h.limit
         i = lim if i > lim else -lim if i < -lim else i
         self.hold_effort[k] = i
