@@ -16,7 +16,8 @@
 #   make demo                         the 3 m drive past the obstacle (Fig. 9)
 #   make scenarios [ONLY='a b'] [SHORT=1]  config/scenarios/*.yaml, then the envelope grid
 #                                     (config/envelope.yaml), on the whole stack, judged on
-#                                     ground truth -> docs/results/scenarios/
+#                                     ground truth -> docs/results/scenarios/ (with ONLY or
+#                                     SHORT: log/scenarios/, the published table kept)
 #   make soak [DURATION=600]          the stack driving in a loop under stress-ng: crashes, leaks
 #   make fuzz [COUNT=100000] [SEED=n] [SECONDS_PER_PORT=18]  random and mutated datagrams at every
 #                                     XDDP port of a real rt_core, then every

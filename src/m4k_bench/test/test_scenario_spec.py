@@ -152,6 +152,19 @@ def test_the_cli_expands_the_envelope_grid_and_states_what_is_not_promised(tmp_p
     assert 'envelope.speeds.creep' in capsys.readouterr().err
 
 
+
+def test_a_partial_run_keeps_the_published_results(tmp_path, monkeypatch):
+    """``--only`` (or ``--short``) without ``--results`` writes to log/scenarios: one scenario
+    run alone had rewritten docs/results/scenarios/README.md, and with it docs/safety.md's
+    hazard table, with only itself."""
+    from m4k_bench import scenarios
+    envelope = os.path.join(ROOT, 'config', 'envelope.yaml')
+    monkeypatch.chdir(tmp_path)
+    for extra in (['--only', 'no.such.cell'], ['--short', '--only', 'no.such.cell']):
+        assert scenarios.main([envelope, *extra]) == 0
+        assert (tmp_path / 'log' / 'scenarios' / 'README.md').is_file()
+        assert not (tmp_path / 'docs').exists()
+
 def test_a_clearance_expectation_is_parsed_and_stated():
     doc = {'description': 'd', 'world': {}, 'commands': [{'v': 0.5, 'w': 0.5, 't': 1.0}],
            'expect': {'min_clearance': 0.25}}

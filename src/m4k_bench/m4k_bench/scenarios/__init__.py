@@ -6,7 +6,9 @@ on a fresh stack (:mod:`.run`), prints a progress line per scenario, and writes
 ``<results>/README.md`` (the table), ``<results>/<name>.png`` (world, obstacles' paths, the
 robot's true path) and ``<results>/<name>.csv`` (the ground-truth samples, every 20 ms);
 written to the default ``docs/results/scenarios``, they also regenerate docs/safety.md's
-hazard table.
+hazard table. A partial run (``--only``) or a short one (``--short``) writes to
+``log/scenarios`` unless ``--results`` says otherwise: the published table and the hazard
+table quote the full run, and one scenario run alone had rewritten both with only itself.
 Default: every ``*.yaml`` of ``<config dir>/scenarios``; a path to an envelope declaration
 (``config/envelope.yaml``, :mod:`.grid`) adds every promised cell of the grid. The progress
 line states the elapsed time and an estimate of the time left (the mean so far x the scenarios
@@ -29,6 +31,7 @@ from m4k_bench.benchlib.results import write_text
 __all__ = ['main']
 
 RESULTS = os.path.join('docs', 'results', 'scenarios')
+SCRATCH = os.path.join('log', 'scenarios')      # a partial or short run's default
 
 
 def _default_dir() -> str:
@@ -43,9 +46,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     '<config dir>/scenarios)')
     ap.add_argument('--only', nargs='+', metavar='NAME', help='run only these scenarios')
     ap.add_argument('--short', action='store_true', help='the short versions (as the tests)')
-    ap.add_argument('--results', default=RESULTS,
+    ap.add_argument('--results', default=None,
                     metavar='DIR', help='where the table and plots go (default: '
-                    'docs/results/scenarios)')
+                    'docs/results/scenarios; log/scenarios with --only or --short)')
     from m4k_rt import rosargs
     args = rosargs.parse_args(ap, argv)       # launch_ros's --ros-args are taken, not refused
     from m4k_bench.scenarios import grid, report, spec
@@ -65,6 +68,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     if args.only:
         scs = [s for s in scs if s.name in args.only]
+    if args.results is None:
+        args.results = SCRATCH if args.only or args.short else RESULTS
     os.makedirs(args.results, exist_ok=True)
     results = []
     prov = provenance.provenance()    # before the run writes its own results into the tree
