@@ -508,24 +508,16 @@ def test_one_late_encoder_sample_in_a_guard_stop_does_not_begin_the_hold_at_spee
 
 
 
-@pytest.mark.parametrize('every', [5, 8])
-def test_with_sparse_samples_a_pulled_wheel_is_braked_and_boosted_once_per_sample(every):
-    """Hazard C22 on a ramp: with an encoder sample every 5-8 cycles the hold braked a pulled
-    wheel on its last speed in every cycle (a 50 ms pulse on a 50 ms old speed) and stepped
-    its boost by the whole gap at once (0.1 of full scale a sample): the wheel swung past the
-    load and back, wider each time, and a guard stop downhill latched "turns while commanded
-    still" -- then rolled 1.2 m with the power cut (test_standstill_hold). Here a wheel
-    pulled down 4.8 deg at 0.15 rad/s, sampled every ``every`` cycles: the hold's command
-    carries a proportional part only in a cycle with a new sample, and its integral moves
-    on a new sample only, by at most a cycle's boost."""
-    rate = 2.0
-    ctl, p = make(hold={'enabled': True}, pi={'breakaway_rate': rate})
+def _pulled_down_the_ramp(ctl, cycles, roll, every=1):
+    """Drive 5 cm/s down 4.8 deg for 60 cycles, then stop: the right wheel comes to rest, the
+    left one is pulled on at ``roll`` rad/s; an encoder sample every ``every`` cycles. Yield
+    per cycle after the stop (fresh sample?, the left hold effort before the step, the left
+    angle); end at a latch."""
     slope = math.sin(math.radians(4.8))
     t = 0
     angles = [0.0, 0.0]
     speeds = [0.0, 0.0]
-    seen = []
-    for k in range(300):
+    for k in range(cycles):
         t += PERIOD_NS
         for i in (0, 1):
             angles[i] += speeds[i] * 0.01
@@ -539,11 +531,27 @@ def test_with_sparse_samples_a_pulled_wheel_is_braked_and_boosted_once_per_sampl
         if k < 60:                                  # downhill at 5 cm/s, tracking
             speeds = [ctl.left_setpoint, ctl.right_setpoint]
             continue
-        speeds = [max(speeds[0] - 0.1, 0.15), max(speeds[1] - 0.1, 0.0)]
-        if ctl.supervisor.latched:       # a wheel driven on: the still test's, in the end
-            break
-        if ctl.holding and ctl._hold_pulled[0]:
-            seen.append((fresh, ctl.left_u, ctl.hold_effort[0], ctl.hold_effort[0] - before))
+        speeds = [max(speeds[0] - 0.1, roll), max(speeds[1] - 0.1, 0.0)]
+        if ctl.supervisor.latched:        # a wheel driven on: the still test's, in the end
+            return
+        yield fresh, before, angles[0]
+
+
+@pytest.mark.parametrize('every', [5, 8])
+def test_with_sparse_samples_a_pulled_wheel_is_braked_and_boosted_once_per_sample(every):
+    """Hazard C22 on a ramp: with an encoder sample every 5-8 cycles the hold braked a pulled
+    wheel on its last speed in every cycle (a 50 ms pulse on a 50 ms old speed) and stepped
+    its boost by the whole gap at once (0.1 of full scale a sample): the wheel swung past the
+    load and back, wider each time, and a guard stop downhill latched "turns while commanded
+    still" -- then rolled 1.2 m with the power cut (test_standstill_hold). Here a wheel
+    pulled down 4.8 deg at 0.15 rad/s, sampled every ``every`` cycles: the hold's command
+    carries a proportional part only in a cycle with a new sample, and its integral moves
+    on a new sample only, by at most a cycle's boost."""
+    rate = 2.0
+    ctl, p = make(hold={'enabled': True}, pi={'breakaway_rate': rate})
+    seen = [(fresh, ctl.left_u, ctl.hold_effort[0], ctl.hold_effort[0] - before)
+            for fresh, before, _ in _pulled_down_the_ramp(ctl, 300, 0.15, every)
+            if ctl.holding and ctl._hold_pulled[0]]
     assert not ctl._hold_live[0] and seen          # pulled on, never read still
     stale = [s for s in seen if not s[0]]
     assert stale and all(u == i for _, u, i, _ in stale), stale[:5]   # no braking on them
@@ -551,6 +559,7 @@ def test_with_sparse_samples_a_pulled_wheel_is_braked_and_boosted_once_per_sampl
     steps = [d for f, _, _, d in seen if f and d != 0.0]
     assert steps and all(abs(d) <= rate * 0.01 * 1.001 for d in steps), steps
     assert any(f and u != i for f, u, i, _ in seen)   # braked on a new sample
+
 
 @pytest.mark.parametrize('every', [1, 3, 6])
 def test_the_hold_integrates_per_encoder_sample_not_per_cycle(every):
@@ -610,29 +619,8 @@ def test_a_pulled_wheel_rolling_on_gets_the_boost_whatever_its_speed(roll):
     cycles sooner)."""
     rate = 2.0
     ctl, p = make(hold={'enabled': True}, pi={'breakaway_rate': rate})
-    slope = math.sin(math.radians(4.8))
-    t = 0
-    angles = [0.0, 0.0]
-    speeds = [0.0, 0.0]
-    seen = []
-    for k in range(160):
-        t += PERIOD_NS
-        for i in (0, 1):
-            angles[i] += speeds[i] * 0.01
-        ctl.encoders(angles[0], angles[1], t, t)
-        ctl.imu(0.0, t, slope=slope)
-        ctl.command(0.05 if k < 60 else 0.0, 0.0, t)
-        ctl.step(t, math.inf, False)
-        if k < 60:                                  # downhill at 5 cm/s, tracking
-            speeds = [ctl.left_setpoint, ctl.right_setpoint]
-        else:                                       # stopped: the right wheel rests, the
-            speeds = [max(speeds[0] - 0.1, roll),   # left one is pulled on at `roll` rad/s
-                      max(speeds[1] - 0.1, 0.0)]
-            if ctl.supervisor.latched:
-                break
-            if ctl.holding:
-                seen.append((ctl._hold_pulled[0], angles[0] - ctl._hold_ref[0],
-                             ctl.hold_effort[0]))
+    seen = [(ctl._hold_pulled[0], angle - ctl._hold_ref[0], ctl.hold_effort[0])
+            for _, _, angle in _pulled_down_the_ramp(ctl, 160, roll) if ctl.holding]
     assert not ctl._hold_live[0] and seen         # never read still
     steps = [b[2] - a[2] for a, b in zip(seen, seen[1:], strict=False)
              if a[0] and a[1] >= 3 * COUNT and b[2] > -p.hold.limit]
