@@ -507,7 +507,6 @@ def test_one_late_encoder_sample_in_a_guard_stop_does_not_begin_the_hold_at_spee
     assert ctl.holding and not ctl.supervisor.latched
 
 
-
 def _pulled_down_the_ramp(ctl, cycles, roll, every=1):
     """Drive 5 cm/s down 4.8 deg for 60 cycles, then stop: the right wheel comes to rest, the
     left one is pulled on at ``roll`` rad/s; an encoder sample every ``every`` cycles. Yield
